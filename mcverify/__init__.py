@@ -1,0 +1,36 @@
+"""mcverify: statistical verification of Monte Carlo rendering code.
+
+Public API
+==========
+
+==============================  ======================================================
+``check_sampler``               χ² (+ marginals / KS) of a sampler against its pdf
+``check_inverse``               CDF-inversion round trip ``inverse(sample(u)) ≈ u``
+``check_same_distribution``     two-sample test of two samplers (regression checks)
+``check_unbiased``              t-test of per-sample estimates, heavy-tail aware
+``check_variance``              zero variance when p ∝ f, or a known variance
+``check_convergence``           log-log slope of RMSE against N over seeds
+``CheckResult``, ``SuiteResult``  results as frozen data; ``to_dict()``
+``write_json``, ``write_junit``   sinks (atomic writes)
+``Interval``, ``Square``, ``Disk``, ``Sphere``, ``Hemisphere``  domains
+``InvalidArgument``             the one exception for bad input (a ValueError)
+==============================  ======================================================
+
+Every randomised function takes ``seed``; the same seed gives the same result.
+"""
+
+__version__ = "0.1.0"
+
+from .checks import (check_convergence, check_inverse, check_same_distribution,
+                     check_sampler, check_unbiased, check_variance)
+from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
+from .errors import EnvironmentProblem, InvalidArgument
+from .result import CheckResult, SuiteResult, write_json, write_junit
+
+__all__ = [
+    "check_sampler", "check_inverse", "check_same_distribution",
+    "check_unbiased", "check_variance", "check_convergence",
+    "CheckResult", "SuiteResult", "write_json", "write_junit",
+    "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",
+    "InvalidArgument", "EnvironmentProblem", "__version__",
+]

@@ -1,0 +1,8 @@
+"""Checks: draw seeded samples from a subject, reduce them with ``stats``, return a
+``CheckResult``. Nothing prints; results are data."""
+
+from .estimator import check_convergence, check_unbiased, check_variance
+from .sampler import check_inverse, check_same_distribution, check_sampler
+
+__all__ = ["check_sampler", "check_inverse", "check_same_distribution",
+           "check_unbiased", "check_variance", "check_convergence"]

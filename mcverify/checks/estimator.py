@@ -1,0 +1,195 @@
+"""Checks of Monte Carlo estimators: unbiasedness, variance, convergence rate."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .. import _validate as v
+from .. import stats
+from ..result import CheckResult
+
+__all__ = ["check_unbiased", "check_variance", "check_convergence"]
+
+#: Tail index below which the variance is taken as infinite: the one-sided 99.9 % upper
+#: confidence bound of the Hill estimate must stay above 2 for the CLT to be trusted.
+_FINITE_VARIANCE_INDEX = 2.0
+
+
+def check_unbiased(samples, expected, *, alpha: float = 0.01,
+                   name: str = "unbiased") -> CheckResult:
+    """One-sample t-test that per-sample estimates ``f(X)/p(X)`` have mean ``expected``.
+
+    The t-test leans on the central limit theorem, which needs finite variance. An
+    importance sampler whose pdf falls to zero faster than the integrand has infinite
+    variance: its mean still converges, but the t-test's p-values are meaningless. So the
+    tail is measured first (Hill's estimator on the largest deviations); if even the
+    upper 99.9 % bound of the tail index is below 2, the check fails with
+    "infinite variance" instead of trusting the CLT.
+
+    Parameters
+    ----------
+    samples : 1-D array
+        i.i.d. per-sample estimates (at least 2).
+    expected : float
+        The true value of the integral.
+    alpha : float
+        Significance level (a suite corrects it for multiplicity).
+
+    Examples
+    --------
+    >>> import numpy as np, mcverify as mv
+    >>> x = np.random.default_rng(0).random(100_000) * np.pi
+    >>> mv.check_unbiased(np.pi * np.sin(x), 2.0).passed   # ∫₀^π sin = 2
+    True
+    """
+    t0 = time.perf_counter()
+    x = v.samples_1d("samples", samples)
+    expected = v.real("expected", expected)
+    alpha = v.probability("alpha", alpha)
+    failures, messages = [], []
+    finite = np.isfinite(x)
+    if not finite.all():
+        failures.append(f"{np.count_nonzero(~finite)} of {x.size} samples are NaN/Inf "
+                        f"(first at index {int(np.flatnonzero(~finite)[0])})")
+        x = x[finite]
+    tt = stats.ttest_mean(x, expected) if x.size > 1 else None
+    tail = stats.hill_tail_index(x) if x.size > 10 else None
+    heavy = tail is not None and tail.upper < _FINITE_VARIANCE_INDEX
+    if heavy:
+        failures.append(f"variance appears infinite (Hill tail index {tail.index:.2f}, "
+                        f"99.9 % upper bound {tail.upper:.2f} < 2): the t-test would be "
+                        "invalid; check that the pdf does not vanish where f does not")
+    elif tail is not None and tail.index < 4:
+        messages.append(f"heavy tail (index {tail.index:.2f}): the mean converges slowly")
+    p = tt.p_value if tt is not None else 1.0
+    if tt is not None and p <= alpha:
+        messages.append(f"mean {tt.mean:.6g} ± {tt.std_error:.2g} differs from {expected:.6g} "
+                        f"by {abs(tt.statistic):.1f} standard errors")
+    details = {"mean": tt.mean if tt else None, "std_error": tt.std_error if tt else None,
+               "expected": expected, "bias": (tt.mean - expected) if tt else None,
+               "tail_index": tail.index if tail else None,
+               "tail_index_upper": tail.upper if tail else None,
+               "max_sample_share": tail.max_share if tail else None}
+    return CheckResult(name=name, passed=CheckResult.decide(p, alpha, failures), p_value=p,
+                       statistic=tt.statistic if tt else None, alpha=alpha,
+                       n_samples=int(x.size), seconds=time.perf_counter() - t0,
+                       details=details, messages=tuple(messages), failures=tuple(failures))
+
+
+def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.01,
+                   name: str = "variance") -> CheckResult:
+    """Test the variance of per-sample estimates.
+
+    ``expected_variance=0`` is the seed's "perfect estimate": with ``p ∝ f`` every
+    sample ``f(X)/p(X)`` equals the integral, so the check passes iff the samples agree
+    to rounding. Otherwise a large-sample z-test of ``Var = expected_variance`` that
+    uses the fourth moment (no normality assumed).
+
+    Examples
+    --------
+    >>> import numpy as np, mcverify as mv
+    >>> u = np.random.default_rng(0).random(10_000)
+    >>> x = np.sqrt(u)                        # p(x) = 2x, f(x) = x: f/p = 1/2
+    >>> mv.check_variance(x / (2 * x)).passed
+    True
+    """
+    t0 = time.perf_counter()
+    x = v.samples_1d("samples", samples)
+    ev = v.real("expected_variance", expected_variance)
+    if ev < 0:
+        from ..errors import InvalidArgument
+        raise InvalidArgument(f"expected_variance={ev}: must be >= 0")
+    alpha = v.probability("alpha", alpha)
+    failures = []
+    if not np.all(np.isfinite(x)):
+        failures.append(f"{np.count_nonzero(~np.isfinite(x))} samples are NaN/Inf")
+        x = x[np.isfinite(x)]
+    r = stats.variance_test(x, ev)
+    if ev == 0.0 and r.p_value == 0.0:
+        failures.append(f"expected zero variance (p ∝ f), measured {r.variance:.3g}")
+    p = None if ev == 0.0 else r.p_value
+    return CheckResult(name=name, passed=CheckResult.decide(p, alpha, failures), p_value=p,
+                       statistic=r.statistic, alpha=alpha, n_samples=int(x.size),
+                       seconds=time.perf_counter() - t0,
+                       details={"variance": r.variance, "expected_variance": ev},
+                       failures=tuple(failures))
+
+
+def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
+                      n_seeds: int = 64, expected_slope: float = -0.5,
+                      alternative: str = "two-sided", alpha: float = 0.01, seed: int = 0,
+                      name: str = "convergence") -> CheckResult:
+    """RMSE against N over independent seeds; tests the log-log slope.
+
+    Parameters
+    ----------
+    estimate : callable
+        ``estimate(n, seed) -> float``: one estimate from ``n`` samples.
+    expected : float
+        The true value.
+    ns : sequence of int
+        Sample counts (powers of two suit Sobol sequences).
+    n_seeds : int
+        Independent estimates per N (64: the log RMSE then has a standard error of
+        about 0.09 for Gaussian errors).
+    expected_slope : float
+        −0.5 for i.i.d. Monte Carlo.
+    alternative : {"two-sided", "less"}
+        ``"two-sided"``: pass iff the slope is consistent with ``expected_slope``.
+        ``"less"``: pass iff the slope is significantly steeper (RQMC).
+
+    Notes
+    -----
+    Weighted least squares of :math:`\\log \\mathrm{RMSE}` on :math:`\\log N` with
+    delta-method weights; the confidence interval is at ``1 - alpha``.
+
+    Examples
+    --------
+    >>> import numpy as np, mcverify as mv
+    >>> est = lambda n, s: np.mean(np.random.default_rng(s).random(n))
+    >>> mv.check_convergence(est, 0.5, n_seeds=32).passed    # RMSE ∝ N^-1/2
+    True
+    """
+    t0 = time.perf_counter()
+    v.callable_("estimate", estimate)
+    expected = v.real("expected", expected)
+    ns = [v.integer("ns[i]", n, minimum=1) for n in ns]
+    if len(ns) < 3 or len(set(ns)) != len(ns):
+        from ..errors import InvalidArgument
+        raise InvalidArgument(f"ns={ns}: need at least 3 distinct sample counts")
+    r = v.integer("n_seeds", n_seeds, minimum=4)
+    alpha = v.probability("alpha", alpha)
+    if alternative not in ("two-sided", "less"):
+        from ..errors import InvalidArgument
+        raise InvalidArgument(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
+    seeds = np.random.SeedSequence(v.seed("seed", seed)).generate_state(r * len(ns))
+    e2 = np.empty((len(ns), r))
+    for i, n in enumerate(ns):
+        for j in range(r):
+            e2[i, j] = (float(estimate(n, int(seeds[i * r + j]))) - expected) ** 2
+    failures = []
+    if not np.all(np.isfinite(e2)):
+        failures.append("some estimates are NaN/Inf")
+        e2 = np.where(np.isfinite(e2), e2, 0.0)
+    fit = stats.loglog_slope(ns, e2, expected=expected_slope, alternative=alternative,
+                             confidence=1.0 - alpha)
+    rmse = np.sqrt(e2.mean(axis=1))
+    if alternative == "two-sided":
+        p = fit.p_value
+    else:
+        # Passing means rejecting "slope >= expected": report 1 - p as the check's
+        # p-value so that, as everywhere, small p means failure.
+        p = 1.0 - fit.p_value
+    msg = (f"slope {fit.slope:.3f} (99% CI [{fit.ci_low:.3f}, {fit.ci_high:.3f}]), "
+           f"expected {'<' if alternative == 'less' else ''}{expected_slope}")
+    return CheckResult(name=name, passed=CheckResult.decide(p, alpha, failures), p_value=p,
+                       statistic=fit.slope, alpha=alpha, n_samples=int(sum(ns) * r),
+                       seconds=time.perf_counter() - t0,
+                       details={"ns": ns, "rmse": rmse.tolist(), "slope": fit.slope,
+                                "slope_std_error": fit.std_error,
+                                "ci": [fit.ci_low, fit.ci_high],
+                                "expected_slope": expected_slope, "alternative": alternative,
+                                "n_seeds": r},
+                       messages=(msg,), failures=tuple(failures))

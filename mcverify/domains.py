@@ -1,0 +1,203 @@
+"""Integration domains behind one small interface (as Mitsuba's ``ChiSquareTest`` domains).
+
+A domain maps its points to a parameter cube ``[0, 1]^m`` (m = 1 or 2) by a bijection
+with *constant* Jacobian, so a histogram cell in parameter space has measure
+``jacobian × cell volume`` and a pdf w.r.t. the domain's measure (length, area, solid
+angle) becomes the parameter-space density ``pdf(to_point(s)) × jacobian``. New geometry
+never touches the statistics: it only says how to map, what is inside, and how many
+random numbers its samplers usually consume.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InvalidArgument
+
+__all__ = ["Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere", "as_domain"]
+
+_TWO_PI = 2.0 * np.pi
+
+
+class Domain:
+    """Base class. Subclasses set ``name``, ``dim`` (coordinates of a point),
+    ``param_dim`` (m), ``sample_dim`` (uniform numbers a typical sampler takes),
+    ``jacobian`` (measure per unit parameter volume), and implement ``to_param``,
+    ``to_point`` and ``inside``."""
+
+    name = "domain"
+    dim = 1
+    param_dim = 1
+    sample_dim = 1
+    jacobian = 1.0
+    #: Tolerance of ``inside`` for points produced in float32 (norms off by ~1e-7).
+    tolerance = 1e-5
+
+    @property
+    def measure(self) -> float:
+        """Total measure of the domain (length, area or solid angle)."""
+        return self.jacobian
+
+    def to_param(self, x: np.ndarray) -> np.ndarray:  # (n, dim) -> (n, m) in [0, 1]
+        raise NotImplementedError
+
+    def to_point(self, s: np.ndarray) -> np.ndarray:  # (n, m) -> (n, dim)
+        raise NotImplementedError
+
+    def inside(self, x: np.ndarray) -> np.ndarray:  # (n, dim) -> (n,) bool
+        raise NotImplementedError
+
+    def default_resolution(self, n_samples: int) -> tuple[int, ...]:
+        """Histogram resolution: about 100 expected samples per cell on average (enough
+        for the χ² approximation after pooling, fine enough to localise a bug), capped
+        at 512 cells per axis in 1-D and 64 × 128 in 2-D."""
+        cells = max(n_samples // 100, 8)
+        if self.param_dim == 1:
+            return (int(min(max(cells, 8), 512)),)
+        rows = int(np.clip(np.sqrt(cells / 2.0), 4, 64))
+        return (rows, 2 * rows)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+    def __eq__(self, other) -> bool:
+        return type(self) is type(other) and repr(self) == repr(other)
+
+    def __hash__(self) -> int:
+        return hash(repr(self))
+
+
+class Interval(Domain):
+    """The interval ``[a, b]``; points are shaped (n, 1) (or (n,))."""
+
+    name = "interval"
+
+    def __init__(self, a: float = 0.0, b: float = 1.0):
+        a, b = float(a), float(b)
+        if not (np.isfinite(a) and np.isfinite(b) and b > a):
+            raise InvalidArgument(f"Interval(a={a}, b={b}): need finite a < b")
+        self.a, self.b = a, b
+        self.jacobian = b - a
+
+    def to_param(self, x):
+        return (np.asarray(x, dtype=np.float64).reshape(-1, 1) - self.a) / self.jacobian
+
+    def to_point(self, s):
+        return self.a + self.jacobian * np.asarray(s).reshape(-1, 1)
+
+    def inside(self, x):
+        x = np.asarray(x).reshape(-1)
+        tol = self.tolerance * self.jacobian
+        return (x >= self.a - tol) & (x <= self.b + tol)
+
+    def __repr__(self):
+        return f"Interval({self.a!r}, {self.b!r})"
+
+
+class Square(Domain):
+    """The unit square ``[0, 1]²``; points (n, 2)."""
+
+    name = "square"
+    dim = 2
+    param_dim = 2
+    sample_dim = 2
+
+    def to_param(self, x):
+        return np.asarray(x, dtype=np.float64)
+
+    def to_point(self, s):
+        return np.asarray(s)
+
+    def inside(self, x):
+        x = np.asarray(x)
+        t = self.tolerance
+        return np.all((x >= -t) & (x <= 1.0 + t), axis=1)
+
+    def default_resolution(self, n_samples):
+        rows = int(np.clip(np.sqrt(max(n_samples // 100, 16)), 4, 90))
+        return (rows, rows)
+
+
+def _azimuth_param(x, y):
+    phi = np.arctan2(y, x)
+    return np.where(phi < 0.0, phi + _TWO_PI, phi) / _TWO_PI
+
+
+class Disk(Domain):
+    """The unit disk; points (x, y). Parameters: ``s0 = r²`` (equal-area rings),
+    ``s1 = φ / 2π``; Jacobian π."""
+
+    name = "disk"
+    dim = 2
+    param_dim = 2
+    sample_dim = 2
+    jacobian = np.pi
+
+    def to_param(self, x):
+        x = np.asarray(x, dtype=np.float64)
+        return np.stack([x[:, 0] ** 2 + x[:, 1] ** 2, _azimuth_param(x[:, 0], x[:, 1])], -1)
+
+    def to_point(self, s):
+        r = np.sqrt(s[:, 0])
+        phi = _TWO_PI * s[:, 1]
+        return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+
+    def inside(self, x):
+        x = np.asarray(x)
+        return x[:, 0] ** 2 + x[:, 1] ** 2 <= 1.0 + self.tolerance
+
+    def default_resolution(self, n_samples):
+        rows = int(np.clip(np.sqrt(max(n_samples // 100, 16) / 2.0), 4, 64))
+        return (rows, 2 * rows)
+
+
+class Sphere(Domain):
+    """Unit vectors; solid-angle measure. Parameters: ``s0 = (1 - z) / 2`` (equal-area
+    bands, Archimedes), ``s1 = φ / 2π``; Jacobian 4π."""
+
+    name = "sphere"
+    dim = 3
+    param_dim = 2
+    sample_dim = 2
+    jacobian = 4.0 * np.pi
+    _z_span = 2.0
+
+    def to_param(self, x):
+        x = np.asarray(x, dtype=np.float64)
+        return np.stack([(1.0 - x[:, 2]) / self._z_span, _azimuth_param(x[:, 0], x[:, 1])], -1)
+
+    def to_point(self, s):
+        z = 1.0 - self._z_span * s[:, 0]
+        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        phi = _TWO_PI * s[:, 1]
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+
+    def inside(self, x):
+        x = np.asarray(x)
+        return np.abs(np.sqrt(np.sum(x * x, axis=1)) - 1.0) <= self.tolerance
+
+
+class Hemisphere(Sphere):
+    """Unit vectors with z ≥ 0. Parameters ``s0 = 1 - z``, ``s1 = φ / 2π``; Jacobian 2π."""
+
+    name = "hemisphere"
+    jacobian = 2.0 * np.pi
+    _z_span = 1.0
+
+    def inside(self, x):
+        return super().inside(x) & (np.asarray(x)[:, 2] >= -self.tolerance)
+
+
+_BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}
+
+
+def as_domain(domain) -> Domain:
+    """A ``Domain`` from a name (``"interval"``, ``"square"``, ``"disk"``, ``"sphere"``,
+    ``"hemisphere"``) or a ``Domain`` instance."""
+    if isinstance(domain, Domain):
+        return domain
+    if isinstance(domain, str) and domain in _BY_NAME:
+        return _BY_NAME[domain]()
+    raise InvalidArgument(
+        f"domain={domain!r}: expected one of {sorted(_BY_NAME)} or a Domain object "
+        "such as mcverify.Interval(a, b)")

@@ -1,0 +1,190 @@
+"""Results are data: frozen dataclasses, JSON and JUnit XML writers.
+
+A statistical rejection is a result (``passed=False`` with readable ``messages``), never
+an exception. Writers go through a temporary file and a rename, so a crash never leaves a
+half-written report behind.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from . import stats
+
+__all__ = ["CheckResult", "SuiteResult", "write_json", "write_junit", "atomic_write"]
+
+
+def _jsonable(v):
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        f = float(v)
+        return f if math.isfinite(f) else str(f)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+#: ``details`` keys that hold arrays for plots, not for JSON summaries.
+_BULKY = ("histogram", "p_map", "maps")
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """One check's verdict.
+
+    ``passed`` is true iff no deterministic failure was found (``failures`` empty: NaN
+    samples, points outside the domain, a pdf that does not integrate to 1, ...) and the
+    p-value, if the check has one, exceeds ``alpha``. ``p_value`` is None for checks
+    that are deterministic (e.g. an inverse round trip).
+    """
+
+    name: str
+    passed: bool
+    p_value: float | None
+    statistic: float | None
+    alpha: float
+    n_samples: int
+    seconds: float
+    details: dict = field(default_factory=dict)
+    messages: tuple[str, ...] = ()
+    failures: tuple[str, ...] = ()
+
+    @staticmethod
+    def decide(p_value, alpha, failures) -> bool:
+        return not failures and (p_value is None or p_value > alpha)
+
+    def with_alpha(self, alpha: float, p_adjusted: float | None) -> "CheckResult":
+        """The same result judged at a family-wise level: ``p_adjusted`` (Holm/Šidák)
+        compared with ``alpha``."""
+        details = dict(self.details, p_adjusted=p_adjusted, alpha_check=self.alpha)
+        return replace(self, alpha=alpha, details=details,
+                       passed=self.decide(p_adjusted, alpha, self.failures))
+
+    def summary(self) -> str:
+        verdict = "PASS" if self.passed else "FAIL"
+        p = "" if self.p_value is None else f" p={self.p_value:.3g}"
+        padj = self.details.get("p_adjusted")
+        if padj is not None:
+            p += f" p_adj={padj:.3g}"
+        why = ("  " + "; ".join(self.failures)) if self.failures else ""
+        return f"{verdict} {self.name}{p} ({self.seconds:.2f}s){why}"
+
+    def to_dict(self, *, arrays: bool = False) -> dict:
+        """JSON-able dict. Bulky arrays (``details["histogram"]``, maps) are left out
+        unless ``arrays=True`` (reports ask for them on failed checks)."""
+        d = asdict(self)
+        if not arrays:
+            d["details"] = {k: x for k, x in d["details"].items() if k not in _BULKY}
+        return _jsonable(d)
+
+
+@dataclass(frozen=True)
+class SuiteResult:
+    """Results of a suite judged with one family-wise ``alpha``."""
+
+    name: str
+    results: tuple[CheckResult, ...]
+    alpha: float
+    correction: str
+    seconds: float
+    provenance: dict = field(default_factory=dict)
+    skipped: tuple[tuple[str, str], ...] = ()
+    canary: tuple[CheckResult, ...] = ()
+
+    @property
+    def canary_bitten(self) -> bool:
+        """True iff every planted bug was rejected (the judge has teeth)."""
+        return all(not c.passed for c in self.canary)
+
+    @property
+    def passed(self) -> bool:
+        return all(r.passed for r in self.results) and self.canary_bitten
+
+    @classmethod
+    def judge(cls, name, results, *, alpha, correction="holm", **kw) -> "SuiteResult":
+        """Re-judge ``results`` at family-wise level ``alpha``: adjusted p-values by
+        Holm (default) or Šidák across the checks that have a p-value."""
+        results = list(results)
+        idx = [i for i, r in enumerate(results) if r.p_value is not None]
+        raw = [results[i].p_value for i in idx]
+        if correction == "holm":
+            adj = stats.holm(raw)
+        elif correction == "sidak":
+            adj = stats.sidak(raw)
+        elif correction == "none":
+            adj = np.asarray(raw, dtype=float)
+        else:
+            raise ValueError(f"correction={correction!r}: expected 'holm', 'sidak' or 'none'")
+        padj = dict(zip(idx, adj))
+        judged = tuple(r.with_alpha(alpha, None if i not in padj else float(padj[i]))
+                       for i, r in enumerate(results))
+        return cls(name, judged, alpha, correction, **kw)
+
+    def to_dict(self) -> dict:
+        return _jsonable({
+            "suite": self.name, "passed": self.passed, "alpha": self.alpha,
+            "correction": self.correction, "seconds": self.seconds,
+            "n_checks": len(self.results),
+            "n_failed": sum(not r.passed for r in self.results),
+            "canary_bitten": self.canary_bitten,
+            "provenance": self.provenance,
+            "results": [r.to_dict() for r in self.results],
+            "canary": [c.to_dict() for c in self.canary],
+            "skipped": [{"check": c, "reason": why} for c, why in self.skipped],
+        })
+
+
+def atomic_write(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder + rename."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_json(result, path: str) -> None:
+    """Write a ``CheckResult`` or ``SuiteResult`` as indented JSON, atomically."""
+    atomic_write(path, json.dumps(result.to_dict(), indent=2, sort_keys=False) + "\n")
+
+
+def write_junit(suite: SuiteResult, path: str) -> None:
+    """Write a suite as JUnit XML (one testcase per check, canaries as their own class)."""
+    cases = list(suite.results) + [replace(c, name="canary." + c.name, passed=not c.passed)
+                                   for c in suite.canary]
+    root = ET.Element("testsuite", name=f"mcverify.{suite.name}", tests=str(len(cases)),
+                      failures=str(sum(not c.passed for c in cases)),
+                      time=f"{suite.seconds:.3f}")
+    props = ET.SubElement(root, "properties")
+    for k, v in suite.provenance.items():
+        ET.SubElement(props, "property", name=str(k), value=json.dumps(_jsonable(v)))
+    for c in cases:
+        tc = ET.SubElement(root, "testcase", classname=f"mcverify.{suite.name}",
+                           name=c.name, time=f"{c.seconds:.3f}")
+        if not c.passed:
+            f = ET.SubElement(tc, "failure", message=c.summary())
+            f.text = "\n".join(c.failures + c.messages)
+        elif c.messages:
+            ET.SubElement(tc, "system-out").text = "\n".join(c.messages)
+    ET.indent(root)
+    atomic_write(path, ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n")

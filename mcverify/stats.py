@@ -1,0 +1,374 @@
+"""Pure statistics: the only place where test statistics and p-values are computed.
+
+Every function takes plain arrays and returns a frozen ``<Name>Result``; nothing here
+knows about samplers, domains or renders. Checks (``mcverify.checks``) compose these.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats as _sps
+
+__all__ = [
+    "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells",
+    "KSResult", "ks_uniform", "ks_2samp",
+    "TTestResult", "ttest_mean",
+    "TailResult", "hill_tail_index",
+    "VarianceTestResult", "variance_test",
+    "SlopeResult", "loglog_slope",
+    "holm", "sidak", "benjamini_hochberg", "bonferroni_min",
+    "binomial_upper_bound",
+]
+
+#: Smallest expected count of a χ² cell; smaller cells are pooled (Cochran's rule, as
+#: in Mitsuba 3's ``chi2`` module and pbrt's tests).
+MIN_EXPECTED = 5.0
+
+
+# --------------------------------------------------------------------------- pooling
+def pool_cells(expected: np.ndarray, min_expected: float = MIN_EXPECTED) -> np.ndarray:
+    """Group labels that pool low-expectation cells.
+
+    Cells are sorted by expected count; those below ``min_expected`` are merged, in that
+    order, into groups whose expected total reaches ``min_expected``. A left-over group
+    still below the threshold joins the smallest regular cell (or the last group).
+
+    Returns an int array ``label`` of the cells' shape: cells with the same label form
+    one χ² bin; labels are ``0 .. n_bins - 1``. Cells of zero expectation get their own
+    label ``-1`` (the caller decides what observed counts there mean).
+    """
+    e = np.asarray(expected, dtype=np.float64).ravel()
+    label = np.full(e.size, -1, dtype=np.int64)
+    pos = np.flatnonzero(e > 0)
+    order = pos[np.argsort(e[pos], kind="stable")]
+    small = order[e[order] < min_expected]
+    big = order[e[order] >= min_expected]
+    n_big = big.size
+    label[big] = np.arange(n_big)
+    if small.size:
+        # Cumulative sums of sorted small cells, cut every time the running group
+        # reaches min_expected.
+        groups = np.empty(small.size, dtype=np.int64)
+        g, acc = 0, 0.0
+        es = e[small]
+        for i in range(small.size):  # cheap: only the pooled cells are visited
+            groups[i] = g
+            acc += es[i]
+            if acc >= min_expected:
+                g, acc = g + 1, 0.0
+        n_groups = groups[-1] + 1
+        if acc > 0 and acc < min_expected:
+            # Last group is short: fold it into the previous group, or into the
+            # smallest regular cell when it is the only group.
+            last = groups == groups[-1]
+            if n_groups > 1:
+                groups[last] = groups[-1] - 1
+                n_groups -= 1
+            elif n_big:
+                label[small] = label[big[0]]
+                return label.reshape(np.shape(expected))
+        label[small] = n_big + groups
+    return label.reshape(np.shape(expected))
+
+
+@dataclass(frozen=True)
+class Chi2Result:
+    """χ² statistic, its degrees of freedom and p-value after pooling."""
+
+    statistic: float
+    dof: int
+    p_value: float
+    n_cells: int
+    n_bins: int
+    n_pooled: int
+    observed_in_empty: int
+
+
+def _pooled_sums(values: np.ndarray, label: np.ndarray, n_bins: int) -> np.ndarray:
+    ok = label >= 0
+    return np.bincount(label[ok], weights=values[ok], minlength=n_bins)
+
+
+def chi2_gof(observed, expected, *, min_expected: float = MIN_EXPECTED,
+             ddof: int = 0) -> Chi2Result:
+    """Pearson's χ² goodness of fit with pooling of low-expectation cells.
+
+    ``expected`` are expected counts (need not sum exactly to the observed total; they
+    are rescaled to it, the normalisation being tested separately by the caller).
+    Observations in cells of zero expectation are counted in ``observed_in_empty`` and
+    make the p-value 0.
+
+    .. math:: X^2 = \\sum_j (O_j - E_j)^2 / E_j, \\quad X^2 \\sim \\chi^2_{B - 1 - ddof}
+    """
+    o = np.asarray(observed, dtype=np.float64).ravel()
+    e = np.asarray(expected, dtype=np.float64).ravel()
+    total_o, total_e = o.sum(), e[e > 0].sum()
+    if total_e > 0:
+        e = e * (total_o / total_e)
+    label = pool_cells(e, min_expected).ravel()
+    in_empty = int(o[label < 0].sum())
+    n_bins = int(label.max()) + 1 if (label >= 0).any() else 0
+    ob = _pooled_sums(o, label, n_bins)
+    eb = _pooled_sums(e, label, n_bins)
+    dof = n_bins - 1 - ddof
+    if dof < 1:
+        stat, p = 0.0, 1.0
+    else:
+        stat = float(np.sum((ob - eb) ** 2 / eb))
+        p = float(_sps.chi2.sf(stat, dof))
+    if in_empty:
+        p = 0.0
+    return Chi2Result(stat, max(dof, 0), p, int(e.size), n_bins,
+                      int(np.count_nonzero((e > 0) & (e < min_expected))), in_empty)
+
+
+def chi2_homogeneity(counts_a, counts_b, *, min_expected: float = MIN_EXPECTED) -> Chi2Result:
+    """Two-sample χ² test that two histograms come from the same distribution.
+
+    Cells are pooled by the expected count of the smaller sample under the null
+    (combined counts times that sample's share). ``observed_in_empty`` is always 0.
+    """
+    a = np.asarray(counts_a, dtype=np.float64).ravel()
+    b = np.asarray(counts_b, dtype=np.float64).ravel()
+    na, nb = a.sum(), b.sum()
+    share = min(na, nb) / (na + nb)
+    label = pool_cells((a + b) * share, min_expected)
+    n_bins = int(label.max()) + 1 if (label >= 0).any() else 0
+    ab = _pooled_sums(a, label, n_bins)
+    bb = _pooled_sums(b, label, n_bins)
+    dof = n_bins - 1
+    if dof < 1:
+        return Chi2Result(0.0, 0, 1.0, a.size, n_bins, 0, 0)
+    tot = ab + bb
+    ea, eb = tot * na / (na + nb), tot * nb / (na + nb)
+    stat = float(np.sum((ab - ea) ** 2 / ea + (bb - eb) ** 2 / eb))
+    e_small = (a + b) * share
+    n_pooled = int(np.count_nonzero((e_small > 0) & (e_small < min_expected)))
+    return Chi2Result(stat, dof, float(_sps.chi2.sf(stat, dof)), a.size, n_bins, n_pooled, 0)
+
+
+# ------------------------------------------------------------------------------- KS
+@dataclass(frozen=True)
+class KSResult:
+    statistic: float
+    p_value: float
+    n: int
+
+
+def ks_uniform(cdf_values) -> KSResult:
+    """Kolmogorov–Smirnov test that ``cdf_values = F(X_i)`` are uniform on [0, 1]
+    (the probability integral transform of the samples under the claimed CDF)."""
+    v = np.asarray(cdf_values, dtype=np.float64).ravel()
+    r = _sps.kstest(v, "uniform")
+    return KSResult(float(r.statistic), float(r.pvalue), v.size)
+
+
+def ks_2samp(a, b) -> KSResult:
+    """Two-sample Kolmogorov–Smirnov test (asymptotic p-value for large samples)."""
+    a = np.asarray(a, dtype=np.float64).ravel()
+    b = np.asarray(b, dtype=np.float64).ravel()
+    method = "asymp" if a.size * b.size > 10_000 else "auto"
+    r = _sps.ks_2samp(a, b, method=method)
+    return KSResult(float(r.statistic), float(r.pvalue), a.size + b.size)
+
+
+# ----------------------------------------------------------------------- mean tests
+@dataclass(frozen=True)
+class TTestResult:
+    mean: float
+    std_error: float
+    statistic: float
+    p_value: float
+    n: int
+
+
+def ttest_mean(x, expected: float) -> TTestResult:
+    """Two-sided one-sample t-test of ``mean(x) == expected``.
+
+    A sample with zero spread gets p = 1 when its mean equals ``expected`` to within
+    a mixed tolerance of 1e-12 (absolute) and 1e-9 (relative), else p = 0.
+    """
+    x = np.asarray(x, dtype=np.float64).ravel()
+    n = x.size
+    mean = float(np.mean(x))
+    sd = float(np.std(x, ddof=1)) if n > 1 else 0.0
+    se = sd / np.sqrt(n) if n > 0 else np.inf
+    if se == 0.0:
+        close = abs(mean - expected) <= 1e-12 + 1e-9 * abs(expected)
+        return TTestResult(mean, 0.0, 0.0 if close else np.inf, 1.0 if close else 0.0, n)
+    t = (mean - expected) / se
+    p = float(2.0 * _sps.t.sf(abs(t), n - 1))
+    return TTestResult(mean, se, float(t), p, n)
+
+
+@dataclass(frozen=True)
+class TailResult:
+    """Hill estimate of the tail index ξ of |X - median| (P(|X| > x) ~ x^-ξ).
+
+    Variance is finite iff ξ > 2; ``upper`` is the one-sided upper confidence bound.
+    """
+
+    index: float
+    upper: float
+    k: int
+    max_share: float
+
+
+def hill_tail_index(x, *, k: int | None = None, confidence: float = 0.999) -> TailResult:
+    """Hill's estimator of the tail index from the ``k`` largest |x - median|.
+
+    ``k`` defaults to ``round(sqrt(n))``, a standard bias/variance compromise.
+    ``max_share`` is the largest single sample's share of the sum of squared
+    deviations: near 1 means one sample dominates the variance estimate.
+
+    References: B. M. Hill, "A simple general approach to inference about the tail of
+    a distribution", Ann. Statist. 3 (1975).
+    """
+    x = np.asarray(x, dtype=np.float64).ravel()
+    dev = np.abs(x - np.median(x))
+    ss = float(np.sum((x - x.mean()) ** 2))
+    max_share = float(np.max((x - x.mean()) ** 2) / ss) if ss > 0 else 0.0
+    n = dev.size
+    k = int(round(np.sqrt(n))) if k is None else int(k)
+    k = max(2, min(k, n - 1))
+    top = np.partition(dev, n - k - 1)[n - k - 1:]
+    threshold = top.min()
+    top = np.sort(top)[1:]
+    if threshold <= 0 or not np.all(np.isfinite(top)):
+        return TailResult(np.inf, np.inf, k, max_share)
+    logs = np.log(top / threshold)
+    gamma = float(np.mean(logs))  # = 1 / ξ
+    if gamma <= 0:
+        return TailResult(np.inf, np.inf, k, max_share)
+    xi = 1.0 / gamma
+    z = _sps.norm.ppf(confidence)
+    # Asymptotically ξ̂ ~ N(ξ, ξ²/k).
+    return TailResult(xi, xi * (1.0 + z / np.sqrt(k)), k, max_share)
+
+
+@dataclass(frozen=True)
+class VarianceTestResult:
+    variance: float
+    expected: float
+    statistic: float
+    p_value: float
+    n: int
+
+
+def variance_test(x, expected_variance: float) -> VarianceTestResult:
+    """Large-sample z-test of ``Var(X) == expected_variance`` that does not assume
+    normality: ``Var(s²) ≈ (μ₄ − σ⁴)/n`` with μ₄ the fourth central moment.
+
+    ``expected_variance == 0`` is the zero-variance ("perfect estimate") case: p = 1 iff
+    the sample variance is 0 to rounding (≤ (1e-12 · max|x|)²), else p = 0.
+    """
+    x = np.asarray(x, dtype=np.float64).ravel()
+    n = x.size
+    s2 = float(np.var(x, ddof=1)) if n > 1 else 0.0
+    if expected_variance == 0.0:
+        scale = float(np.max(np.abs(x))) if n else 0.0
+        ok = s2 <= (1e-12 * max(scale, 1e-300)) ** 2 * n
+        return VarianceTestResult(s2, 0.0, 0.0 if ok else np.inf, 1.0 if ok else 0.0, n)
+    d = x - x.mean()
+    m4 = float(np.mean(d ** 4))
+    se = np.sqrt(max(m4 - s2 ** 2, 0.0) / n)
+    if se == 0.0:
+        p = 1.0 if np.isclose(s2, expected_variance, rtol=1e-9) else 0.0
+        return VarianceTestResult(s2, expected_variance, 0.0, p, n)
+    z = (s2 - expected_variance) / se
+    return VarianceTestResult(s2, expected_variance, float(z),
+                              float(2.0 * _sps.norm.sf(abs(z))), n)
+
+
+# -------------------------------------------------------------------- convergence
+@dataclass(frozen=True)
+class SlopeResult:
+    """Weighted least-squares slope of log RMSE against log N."""
+
+    slope: float
+    std_error: float
+    ci_low: float
+    ci_high: float
+    expected: float
+    statistic: float
+    p_value: float
+    alternative: str
+
+
+def loglog_slope(ns, sq_errors, *, expected: float, alternative: str = "two-sided",
+                 confidence: float = 0.99) -> SlopeResult:
+    """Slope of log RMSE(N) against log N, from squared errors over independent seeds.
+
+    ``sq_errors`` has shape (len(ns), R): squared error of R independent estimates at
+    each N. The log of the mean squared error has delta-method variance
+    ``Var(e²) / (R · MSE²)``; the fit is weighted by its inverse, and the slope of log
+    RMSE is half the slope of log MSE.
+
+    ``alternative="two-sided"`` tests ``slope == expected``; ``"less"`` tests the null
+    ``slope >= expected`` (pass means significantly steeper, as for RQMC).
+    """
+    ns = np.asarray(ns, dtype=np.float64)
+    e2 = np.asarray(sq_errors, dtype=np.float64)
+    r = e2.shape[1]
+    mse = e2.mean(axis=1)
+    var_log = e2.var(axis=1, ddof=1) / (r * np.maximum(mse, 1e-300) ** 2)
+    var_log = np.maximum(var_log, 1e-12)
+    x = np.log(ns)
+    y = 0.5 * np.log(np.maximum(mse, 1e-300))
+    w = 1.0 / (0.25 * var_log)
+    xm = np.sum(w * x) / np.sum(w)
+    ym = np.sum(w * y) / np.sum(w)
+    sxx = np.sum(w * (x - xm) ** 2)
+    slope = float(np.sum(w * (x - xm) * (y - ym)) / sxx)
+    se = float(np.sqrt(1.0 / sxx))
+    z = (slope - expected) / se
+    if alternative == "two-sided":
+        p = float(2.0 * _sps.norm.sf(abs(z)))
+    elif alternative == "less":
+        p = float(_sps.norm.cdf(z))
+    else:
+        raise ValueError(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
+    h = _sps.norm.ppf(0.5 + confidence / 2.0) * se
+    return SlopeResult(slope, se, slope - h, slope + h, expected, float(z), p, alternative)
+
+
+# ------------------------------------------------------------ multiple testing
+def holm(p_values) -> np.ndarray:
+    """Holm–Bonferroni adjusted p-values (strong family-wise error control)."""
+    p = np.asarray(p_values, dtype=np.float64)
+    m = p.size
+    if m == 0:
+        return p.copy()
+    order = np.argsort(p, kind="stable")
+    adj = np.minimum(1.0, np.maximum.accumulate((m - np.arange(m)) * p[order]))
+    out = np.empty(m)
+    out[order] = adj
+    return out
+
+
+def sidak(p_values) -> np.ndarray:
+    """Šidák single-step adjusted p-values ``1 - (1 - p)^m`` (exact for independent tests)."""
+    p = np.asarray(p_values, dtype=np.float64)
+    return -np.expm1(p.size * np.log1p(-np.minimum(p, 1.0)))
+
+
+def benjamini_hochberg(p_values) -> np.ndarray:
+    """Benjamini–Hochberg adjusted p-values (false discovery rate control)."""
+    p = np.asarray(p_values, dtype=np.float64)
+    if p.size == 0:
+        return p.copy()
+    return _sps.false_discovery_control(p.ravel(), method="bh").reshape(p.shape)
+
+
+def bonferroni_min(p_values) -> float:
+    """One p-value for several sub-tests of one hypothesis: ``min(1, k · min p)``."""
+    p = np.asarray(p_values, dtype=np.float64)
+    return float(min(1.0, p.size * p.min())) if p.size else 1.0
+
+
+def binomial_upper_bound(n_trials: int, rate: float, confidence: float = 0.999) -> int:
+    """Largest count of rejections still consistent with a true ``rate`` at one-sided
+    ``confidence`` (used to judge false-alarm calibration over many seeded runs)."""
+    return int(_sps.binom.ppf(confidence, n_trials, rate))
