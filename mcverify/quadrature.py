@@ -9,7 +9,7 @@ fraction of the cell's Poisson noise, the children are refined, all cells of one
 in one vectorised batch.
 
 The tolerance is statistical, not absolute: a cell's quadrature error ``δ`` (in counts)
-must satisfy ``δ ≤ tau · sqrt(max(E, 1))`` with ``E`` its expected count, so the
+must satisfy ``δ ≤ tau · sqrt(max(E, 5))`` with ``E`` its expected count, so the
 quadrature moves the χ² statistic by at most ``tau²`` per cell. Across the leaves of a
 cell the budget is split as ``2^{-level (m-1)}``: a discontinuity *curve* in 2-D cuts
 about ``2^level`` leaves of a level, a discontinuity *point* in 1-D a bounded number.
@@ -77,8 +77,8 @@ def _children(lo, width):
     return c_lo.reshape(-1, m), np.ascontiguousarray(c_w).reshape(-1, m)
 
 
-def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.1,
-                    order: int = 5, max_level: int | None = None,
+def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.15,
+                    order: int | None = None, max_level: int | None = None,
                     start_level: int = 0, cells=None,
                     keep_leaves: bool = False, max_leaves: int = 4_000_000) -> CellIntegral:
     """Integrate ``density(s)`` over the cells of a tensor grid on the unit cube.
@@ -93,8 +93,10 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.1,
         Sample count the expected counts are for; sets the statistical tolerance.
     tau : float
         Allowed quadrature error as a fraction of a cell's Poisson standard deviation.
-    order : int
-        Gauss–Legendre points per axis (5: exact for polynomials of degree 9).
+    order : int, optional
+        Gauss–Legendre points per axis: 5 in 1-D (exact for degree 9), 3 in 2-D (exact
+        for degree 5 per axis; 9 points per leaf keep refinement along a discontinuity
+        curve cheap, and smooth cells still converge at the first level).
     max_level : int, optional
         Deepest refinement (default 40 in 1-D, 9 in 2-D).
     start_level : int
@@ -110,6 +112,8 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.1,
     shape = tuple(e.size - 1 for e in edges)
     if max_level is None:
         max_level = 40 if m == 1 else 9
+    if order is None:
+        order = 5 if m == 1 else 3
     nodes, weights = gauss_legendre_01(order)
     lo_axes = np.meshgrid(*[e[:-1] for e in edges], indexing="ij")
     w_axes = np.meshgrid(*[np.diff(e) for e in edges], indexing="ij")
@@ -133,7 +137,9 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.1,
     # Each cell's noise scale, from its own first estimate.
     cell_counts = np.zeros(n_cells)
     np.add.at(cell_counts, owner, coarse * n_samples)
-    noise = tau * np.sqrt(np.maximum(np.abs(cell_counts), 1.0)) / n_samples
+    # Cells below 5 expected counts are pooled into bins of >= 5 by the χ² test, so
+    # their noise scale is at least that of 5 counts.
+    noise = tau * np.sqrt(np.maximum(np.abs(cell_counts), 5.0)) / n_samples
 
     level = start_level
     while lo.shape[0]:

@@ -1,0 +1,619 @@
+"""Warps: maps from the unit square (or interval) to domains, with pdf and inverse.
+
+pbrt's triple for every warp: ``sample_X(u, *params)``, ``X_pdf(x, *params)``,
+``invert_X(x, *params)``, ``u`` first. Each is a numpy front end over one numba scalar
+kernel (``_sample_X_kernel`` etc.), which the path tracer calls directly on tuples.
+
+Numerical habits (pbrt-v4): ``u`` is clamped below ``1 - 2^-53``; square roots take
+``max(0, ·)``; densities are 0 outside the support; quantities that cancel near a pole
+(``1 - cos θ``) are computed from the tangential components instead.
+
+``WARPS`` lists every warp with its domain, parameter ranges and default parameters;
+tests and ``mcverify check`` iterate over it.
+
+References: M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed.,
+§A.5 (sampling functions); P. Shirley, K. Chiu, "A low distortion map between disk and
+square" (1997); E. Heitz, "Sampling the GGX distribution of visible normals", JCGT 7(4)
+(2018); E. Heitz, "A low-distortion map between triangle and square" (2019).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from ._vectorize import point_front_end, value_front_end
+
+ONE_MINUS_EPSILON = 1.0 - 2.0 ** -53
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+_INV_PI = 1.0 / math.pi
+_INV_TWO_PI = 1.0 / (2.0 * math.pi)
+_INV_FOUR_PI = 1.0 / (4.0 * math.pi)
+_PI_OVER_4 = math.pi / 4.0
+_PI_OVER_2 = math.pi / 2.0
+
+_jit = njit(cache=True)
+
+
+# ----------------------------------------------------------------------- helpers
+@_jit
+def _clamp_u(u):
+    return min(max(u, 0.0), ONE_MINUS_EPSILON)
+
+
+@_jit
+def _safe_sqrt(v):
+    return math.sqrt(max(0.0, v))
+
+
+@_jit
+def _azimuth_u(x, y):
+    """φ / 2π in [0, 1) of the direction (x, y)."""
+    phi = math.atan2(y, x)
+    if phi < 0.0:
+        phi += _TWO_PI
+    return min(phi * _INV_TWO_PI, ONE_MINUS_EPSILON)
+
+
+@_jit
+def _direction(sin_theta, cos_theta, phi):
+    return (sin_theta * math.cos(phi), sin_theta * math.sin(phi), cos_theta)
+
+
+# ----------------------------------------------------------------- interval & square
+@_jit
+def _sample_uniform_interval_kernel(u, p):
+    return (p[0] + (p[1] - p[0]) * u[0],)
+
+
+@_jit
+def _uniform_interval_pdf_kernel(x, p):
+    return 1.0 / (p[1] - p[0]) if p[0] <= x[0] <= p[1] else 0.0
+
+
+@_jit
+def _invert_uniform_interval_kernel(x, p):
+    return ((x[0] - p[0]) / (p[1] - p[0]),)
+
+
+@_jit
+def _sample_uniform_square_kernel(u, p):
+    return (u[0], u[1])
+
+
+@_jit
+def _uniform_square_pdf_kernel(x, p):
+    return 1.0 if (0.0 <= x[0] <= 1.0 and 0.0 <= x[1] <= 1.0) else 0.0
+
+
+# --------------------------------------------------------------------------- disk
+@_jit
+def _sample_uniform_disk_polar_kernel(u, p):
+    r = math.sqrt(u[0])
+    phi = _TWO_PI * u[1]
+    return (r * math.cos(phi), r * math.sin(phi))
+
+
+@_jit
+def _uniform_disk_pdf_kernel(x, p):
+    return _INV_PI if x[0] * x[0] + x[1] * x[1] <= 1.0 else 0.0
+
+
+@_jit
+def _invert_uniform_disk_polar_kernel(x, p):
+    return (min(x[0] * x[0] + x[1] * x[1], ONE_MINUS_EPSILON), _azimuth_u(x[0], x[1]))
+
+
+@_jit
+def _sample_uniform_disk_concentric_kernel(u, p):
+    a = 2.0 * u[0] - 1.0
+    b = 2.0 * u[1] - 1.0
+    if a == 0.0 and b == 0.0:
+        return (0.0, 0.0)
+    if abs(a) > abs(b):
+        r, theta = a, _PI_OVER_4 * (b / a)
+    else:
+        r, theta = b, _PI_OVER_2 - _PI_OVER_4 * (a / b)
+    return (r * math.cos(theta), r * math.sin(theta))
+
+
+@_jit
+def _invert_uniform_disk_concentric_kernel(x, p):
+    # Derived from the forward map: in the wedge |x| >= |y| the point is a·(cos θ, sin θ)
+    # with |θ| <= π/4, so a = sign(x)·ρ and θ = atan(y/x) = (π/4)(b/a); in the other
+    # wedge the point is b·(cos θ, sin θ) with π/2 - θ = atan(x/y) = (π/4)(a/b).
+    rho = math.sqrt(x[0] * x[0] + x[1] * x[1])
+    if rho == 0.0:
+        return (0.5, 0.5)
+    if abs(x[0]) >= abs(x[1]):
+        a = math.copysign(rho, x[0])
+        b = a * math.atan(x[1] / x[0]) / _PI_OVER_4
+    else:
+        b = math.copysign(rho, x[1])
+        a = b * math.atan(x[0] / x[1]) / _PI_OVER_4
+    return (_clamp_u(0.5 * (a + 1.0)), _clamp_u(0.5 * (b + 1.0)))
+
+
+# ----------------------------------------------------------------------- triangle
+@_jit
+def _sample_uniform_triangle_kernel(u, p):
+    """Barycentrics (b0, b1) of the triangle (0,0), (1,0), (0,1): Heitz's
+    low-distortion map, which keeps strata compact."""
+    if u[0] < u[1]:
+        b0 = 0.5 * u[0]
+        b1 = u[1] - b0
+    else:
+        b1 = 0.5 * u[1]
+        b0 = u[0] - b1
+    return (b0, b1)
+
+
+@_jit
+def _uniform_triangle_pdf_kernel(x, p):
+    return 2.0 if (x[0] >= 0.0 and x[1] >= 0.0 and x[0] + x[1] <= 1.0) else 0.0
+
+
+@_jit
+def _invert_uniform_triangle_kernel(x, p):
+    if x[0] > x[1]:
+        return (_clamp_u(x[0] + x[1]), _clamp_u(2.0 * x[1]))
+    return (_clamp_u(2.0 * x[0]), _clamp_u(x[1] + x[0]))
+
+
+# ------------------------------------------------------------ sphere & hemisphere
+@_jit
+def _sample_uniform_sphere_kernel(u, p):
+    z = 1.0 - 2.0 * u[0]
+    return _direction(_safe_sqrt(1.0 - z * z), z, _TWO_PI * u[1])
+
+
+@_jit
+def _uniform_sphere_pdf_kernel(x, p):
+    return _INV_FOUR_PI
+
+
+@_jit
+def _invert_uniform_sphere_kernel(x, p):
+    return (_clamp_u(0.5 * (1.0 - x[2])), _azimuth_u(x[0], x[1]))
+
+
+@_jit
+def _sample_uniform_hemisphere_kernel(u, p):
+    z = u[0]
+    return _direction(_safe_sqrt(1.0 - z * z), z, _TWO_PI * u[1])
+
+
+@_jit
+def _uniform_hemisphere_pdf_kernel(x, p):
+    return _INV_TWO_PI if x[2] >= 0.0 else 0.0
+
+
+@_jit
+def _invert_uniform_hemisphere_kernel(x, p):
+    return (_clamp_u(x[2]), _azimuth_u(x[0], x[1]))
+
+
+@_jit
+def _sample_cosine_hemisphere_kernel(u, p):
+    d = _sample_uniform_disk_concentric_kernel(u, p)
+    return (d[0], d[1], _safe_sqrt(1.0 - d[0] * d[0] - d[1] * d[1]))
+
+
+@_jit
+def _cosine_hemisphere_pdf_kernel(x, p):
+    return x[2] * _INV_PI if x[2] >= 0.0 else 0.0
+
+
+@_jit
+def _invert_cosine_hemisphere_kernel(x, p):
+    return _invert_uniform_disk_concentric_kernel(x, p)
+
+
+# ---------------------------------------------------------------------------- cone
+@_jit
+def _sample_uniform_cone_kernel(u, p):
+    """Uniform directions within θ_max of +z; ``p[0] = cos θ_max``."""
+    one_minus_cos = u[0] * (1.0 - p[0])
+    cos_t = 1.0 - one_minus_cos
+    sin_t = _safe_sqrt(one_minus_cos * (2.0 - one_minus_cos))
+    return _direction(sin_t, cos_t, _TWO_PI * u[1])
+
+
+@_jit
+def _uniform_cone_pdf_kernel(x, p):
+    return 1.0 / (_TWO_PI * (1.0 - p[0])) if x[2] >= p[0] else 0.0
+
+
+@_jit
+def _invert_uniform_cone_kernel(x, p):
+    # 1 - cos θ = sin²θ / (1 + cos θ): no cancellation near the pole.
+    one_minus_cos = (x[0] * x[0] + x[1] * x[1]) / (1.0 + x[2])
+    return (_clamp_u(one_minus_cos / (1.0 - p[0])), _azimuth_u(x[0], x[1]))
+
+
+# --------------------------------------------------------------- power-cosine lobe
+@_jit
+def _sample_power_cosine_kernel(u, p):
+    """Phong lobe around +z: pdf (n + 1)/(2π) cos^n θ; ``p[0] = n >= 0``."""
+    cos_t = (1.0 - u[0]) ** (1.0 / (p[0] + 1.0))
+    return _direction(_safe_sqrt(1.0 - cos_t * cos_t), cos_t, _TWO_PI * u[1])
+
+
+@_jit
+def _power_cosine_pdf_kernel(x, p):
+    if x[2] < 0.0:
+        return 0.0
+    return (p[0] + 1.0) * _INV_TWO_PI * x[2] ** p[0]
+
+
+@_jit
+def _invert_power_cosine_kernel(x, p):
+    return (_clamp_u(1.0 - max(x[2], 0.0) ** (p[0] + 1.0)), _azimuth_u(x[0], x[1]))
+
+
+# ------------------------------------------------------------- microfacet normals
+@_jit
+def _ggx_d(x, alpha):
+    """GGX / Trowbridge–Reitz D(h) for a unit h; the denominator uses x² + y² instead
+    of 1 - z² so that it keeps its precision for tiny α."""
+    if x[2] <= 0.0:
+        return 0.0
+    a2 = alpha * alpha
+    t = x[0] * x[0] + x[1] * x[1] + a2 * x[2] * x[2]
+    return a2 / (_PI * t * t)
+
+
+@_jit
+def _sample_ggx_kernel(u, p):
+    """Normals h distributed as D(h) cos θ_h for GGX of roughness ``p[0] = α``."""
+    a2 = p[0] * p[0]
+    den = 1.0 - u[0] + a2 * u[0]
+    cos2 = (1.0 - u[0]) / den
+    sin2 = a2 * u[0] / den
+    return _direction(_safe_sqrt(sin2), _safe_sqrt(cos2), _TWO_PI * u[1])
+
+
+@_jit
+def _ggx_pdf_kernel(x, p):
+    return _ggx_d(x, p[0]) * max(x[2], 0.0)
+
+
+@_jit
+def _invert_ggx_kernel(x, p):
+    s2 = x[0] * x[0] + x[1] * x[1]
+    return (_clamp_u(s2 / (s2 + p[0] * p[0] * x[2] * x[2])), _azimuth_u(x[0], x[1]))
+
+
+@_jit
+def _sample_beckmann_kernel(u, p):
+    """Normals h distributed as D(h) cos θ_h for Beckmann of roughness ``p[0] = α``."""
+    tan2 = -p[0] * p[0] * math.log1p(-u[0])
+    cos_t = 1.0 / math.sqrt(1.0 + tan2)
+    return _direction(_safe_sqrt(tan2) * cos_t, cos_t, _TWO_PI * u[1])
+
+
+@_jit
+def _beckmann_pdf_kernel(x, p):
+    if x[2] <= 0.0:
+        return 0.0
+    a2 = p[0] * p[0]
+    c2 = x[2] * x[2]
+    tan2 = (x[0] * x[0] + x[1] * x[1]) / c2
+    return math.exp(-tan2 / a2) / (_PI * a2 * c2 * x[2])
+
+
+@_jit
+def _invert_beckmann_kernel(x, p):
+    tan2 = (x[0] * x[0] + x[1] * x[1]) / (x[2] * x[2])
+    return (_clamp_u(-math.expm1(-tan2 / (p[0] * p[0]))), _azimuth_u(x[0], x[1]))
+
+
+@_jit
+def _ggx_lambda(w, alpha):
+    s2 = w[0] * w[0] + w[1] * w[1]
+    if s2 == 0.0:
+        return 0.0
+    tan2 = s2 / (w[2] * w[2])
+    return 0.5 * (math.sqrt(1.0 + alpha * alpha * tan2) - 1.0)
+
+
+@_jit
+def _sample_ggx_vndf_kernel(u, p):
+    """Visible normals of GGX (Heitz 2018) for the outgoing direction
+    ``w = (p[1], p[2], p[3])`` (unit, z > 0) and roughness ``p[0] = α``."""
+    alpha = p[0]
+    vx, vy, vz = alpha * p[1], alpha * p[2], p[3]
+    inv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx * inv, vy * inv, vz * inv
+    lensq = vx * vx + vy * vy
+    if lensq > 0.0:
+        il = 1.0 / math.sqrt(lensq)
+        t1x, t1y, t1z = -vy * il, vx * il, 0.0
+    else:
+        t1x, t1y, t1z = 1.0, 0.0, 0.0
+    t2x, t2y, t2z = vy * t1z - vz * t1y, vz * t1x - vx * t1z, vx * t1y - vy * t1x
+    r = math.sqrt(u[0])
+    phi = _TWO_PI * u[1]
+    a = r * math.cos(phi)
+    b = r * math.sin(phi)
+    s = 0.5 * (1.0 + vz)
+    b = (1.0 - s) * _safe_sqrt(1.0 - a * a) + s * b
+    c = _safe_sqrt(1.0 - a * a - b * b)
+    nx = a * t1x + b * t2x + c * vx
+    ny = a * t1y + b * t2y + c * vy
+    nz = a * t1z + b * t2z + c * vz
+    hx, hy, hz = alpha * nx, alpha * ny, max(0.0, nz)
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    return (hx * inv, hy * inv, hz * inv)
+
+
+@_jit
+def _ggx_vndf_pdf_kernel(x, p):
+    w = (p[1], p[2], p[3])
+    cos_wh = w[0] * x[0] + w[1] * x[1] + w[2] * x[2]
+    if cos_wh <= 0.0:
+        return 0.0
+    g1 = 1.0 / (1.0 + _ggx_lambda(w, p[0]))
+    return g1 * cos_wh * _ggx_d(x, p[0]) / w[2]
+
+
+# ------------------------------------------------------------------- 1-D densities
+@_jit
+def _sample_exponential_kernel(u, p):
+    """Distance sampling: pdf σ e^{-σx} / (1 - e^{-σ t}) on [0, t]; ``p = (σ, t)``,
+    t may be inf."""
+    c = -math.expm1(-p[0] * p[1])
+    return (min(-math.log1p(-u[0] * c) / p[0], p[1]),)
+
+
+@_jit
+def _exponential_pdf_kernel(x, p):
+    if x[0] < 0.0 or x[0] > p[1]:
+        return 0.0
+    return p[0] * math.exp(-p[0] * x[0]) / -math.expm1(-p[0] * p[1])
+
+
+@_jit
+def _invert_exponential_kernel(x, p):
+    return (_clamp_u(math.expm1(-p[0] * x[0]) / math.expm1(-p[0] * p[1])),)
+
+
+@_jit
+def _sample_tent_kernel(u, p):
+    """Tent of radius ``p[0] = r`` on [-r, r]: pdf (r - |x|) / r²."""
+    r = p[0]
+    if u[0] < 0.5:
+        return (-r + r * math.sqrt(2.0 * u[0]),)
+    return (r - r * math.sqrt(2.0 - 2.0 * u[0]),)
+
+
+@_jit
+def _tent_pdf_kernel(x, p):
+    r = p[0]
+    return max(0.0, r - abs(x[0])) / (r * r)
+
+
+@_jit
+def _invert_tent_kernel(x, p):
+    r = p[0]
+    if x[0] < 0.0:
+        t = (x[0] + r) / r
+        return (_clamp_u(0.5 * t * t),)
+    t = (r - x[0]) / r
+    return (_clamp_u(1.0 - 0.5 * t * t),)
+
+
+@_jit
+def _sample_linear_1d(u, a, b):
+    if u == 0.0 and a == 0.0:
+        return 0.0
+    x = u * (a + b) / (a + math.sqrt((1.0 - u) * a * a + u * b * b))
+    return min(x, ONE_MINUS_EPSILON)
+
+
+@_jit
+def _linear_pdf_1d(x, a, b):
+    if x < 0.0 or x > 1.0:
+        return 0.0
+    return 2.0 * ((1.0 - x) * a + x * b) / (a + b)
+
+
+@_jit
+def _invert_linear_1d(x, a, b):
+    return _clamp_u(x * (a * (2.0 - x) + b * x) / (a + b))
+
+
+@_jit
+def _sample_linear_kernel(u, p):
+    """Linear density on [0, 1] from ``p[0] = a`` at 0 to ``p[1] = b`` at 1 (a, b >= 0)."""
+    return (_sample_linear_1d(u[0], p[0], p[1]),)
+
+
+@_jit
+def _linear_pdf_kernel(x, p):
+    return _linear_pdf_1d(x[0], p[0], p[1])
+
+
+@_jit
+def _invert_linear_kernel(x, p):
+    return (_invert_linear_1d(x[0], p[0], p[1]),)
+
+
+@_jit
+def _sample_bilinear_kernel(u, p):
+    """Bilinear density on [0, 1]² with corner weights ``p = (w00, w10, w01, w11)``."""
+    y = _sample_linear_1d(u[1], p[0] + p[1], p[2] + p[3])
+    x = _sample_linear_1d(u[0], (1.0 - y) * p[0] + y * p[2], (1.0 - y) * p[1] + y * p[3])
+    return (x, y)
+
+
+@_jit
+def _bilinear_pdf_kernel(x, p):
+    if x[0] < 0.0 or x[0] > 1.0 or x[1] < 0.0 or x[1] > 1.0:
+        return 0.0
+    s, t = x[0], x[1]
+    v = ((1 - s) * (1 - t) * p[0] + s * (1 - t) * p[1] + (1 - s) * t * p[2] + s * t * p[3])
+    return 4.0 * v / (p[0] + p[1] + p[2] + p[3])
+
+
+@_jit
+def _invert_bilinear_kernel(x, p):
+    y = x[1]
+    return (_invert_linear_1d(x[0], (1.0 - y) * p[0] + y * p[2], (1.0 - y) * p[1] + y * p[3]),
+            _invert_linear_1d(y, p[0] + p[1], p[2] + p[3]))
+
+
+# ------------------------------------------------------------------ the registry
+@dataclass(frozen=True)
+class Warp:
+    """A warp's triple and what a test needs to know about it.
+
+    ``domain``: a domain name, or ``("interval", a, b)`` where a, b may name
+    parameters (e.g. ``("interval", "-radius", "radius")``). ``params``: parameter
+    names; ``defaults``: a typical value each; ``ranges``: (low, high) each, for
+    property-based tests; ``log_scale``: parameters to draw log-uniformly.
+    """
+
+    name: str
+    sample: object
+    pdf: object
+    invert: object | None
+    domain: object
+    sample_dim: int
+    dim: int
+    params: tuple[str, ...] = ()
+    defaults: tuple[float, ...] = ()
+    ranges: tuple[tuple[float, float], ...] = ()
+    log_scale: tuple[str, ...] = ()
+    notes: str = ""
+    same_pdf_as: str | None = field(default=None)
+
+    def domain_spec(self, *params):
+        """``(name, args)`` of the domain for these parameter values."""
+        if isinstance(self.domain, str):
+            return self.domain, ()
+        name, *bounds = self.domain
+        values = dict(zip(self.params, params))
+        args = []
+        for b in bounds:
+            if isinstance(b, str):
+                sign = -1.0 if b.startswith("-") else 1.0
+                args.append(sign * values[b.lstrip("-")])
+            else:
+                args.append(float(b))
+        return name, tuple(args)
+
+
+def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc):
+    s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc)
+    p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.")
+    i = None if invert_k is None else point_front_end(
+        invert_k, n_out, n_in, f"invert_{name}", f"Inverse of ``sample_{name}``: x -> u.")
+    return s, p, i
+
+
+sample_uniform_interval, uniform_interval_pdf, invert_uniform_interval = _triple(
+    "uniform_interval", 1, 1, _sample_uniform_interval_kernel, _uniform_interval_pdf_kernel,
+    _invert_uniform_interval_kernel, "Uniform on [a, b]: ``sample_uniform_interval(u, a, b)``.")
+sample_uniform_square, uniform_square_pdf, _ = _triple(
+    "uniform_square", 2, 2, _sample_uniform_square_kernel, _uniform_square_pdf_kernel, None,
+    "Identity map of the unit square.")
+sample_uniform_disk_polar, uniform_disk_pdf, invert_uniform_disk_polar = _triple(
+    "uniform_disk_polar", 2, 2, _sample_uniform_disk_polar_kernel, _uniform_disk_pdf_kernel,
+    _invert_uniform_disk_polar_kernel, "Uniform on the unit disk, polar map r = √u₀.")
+sample_uniform_disk_concentric, _, invert_uniform_disk_concentric = _triple(
+    "uniform_disk_concentric", 2, 2, _sample_uniform_disk_concentric_kernel,
+    _uniform_disk_pdf_kernel, _invert_uniform_disk_concentric_kernel,
+    "Uniform on the unit disk, Shirley–Chiu concentric map (low distortion).")
+sample_uniform_triangle, uniform_triangle_pdf, invert_uniform_triangle = _triple(
+    "uniform_triangle", 2, 2, _sample_uniform_triangle_kernel, _uniform_triangle_pdf_kernel,
+    _invert_uniform_triangle_kernel,
+    "Uniform barycentrics (b0, b1) on the triangle (0,0), (1,0), (0,1) (Heitz 2019).")
+sample_uniform_sphere, uniform_sphere_pdf, invert_uniform_sphere = _triple(
+    "uniform_sphere", 2, 3, _sample_uniform_sphere_kernel, _uniform_sphere_pdf_kernel,
+    _invert_uniform_sphere_kernel, "Uniform directions on the unit sphere.")
+sample_uniform_hemisphere, uniform_hemisphere_pdf, invert_uniform_hemisphere = _triple(
+    "uniform_hemisphere", 2, 3, _sample_uniform_hemisphere_kernel,
+    _uniform_hemisphere_pdf_kernel, _invert_uniform_hemisphere_kernel,
+    "Uniform directions on the hemisphere z >= 0.")
+sample_cosine_hemisphere, cosine_hemisphere_pdf, invert_cosine_hemisphere = _triple(
+    "cosine_hemisphere", 2, 3, _sample_cosine_hemisphere_kernel, _cosine_hemisphere_pdf_kernel,
+    _invert_cosine_hemisphere_kernel,
+    "Cosine-weighted hemisphere (Malley's method on the concentric disk): pdf cos θ / π.")
+sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone = _triple(
+    "uniform_cone", 2, 3, _sample_uniform_cone_kernel, _uniform_cone_pdf_kernel,
+    _invert_uniform_cone_kernel,
+    "Uniform on the spherical cap θ <= θ_max: ``sample_uniform_cone(u, cos_theta_max)``.")
+sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
+    "power_cosine", 2, 3, _sample_power_cosine_kernel, _power_cosine_pdf_kernel,
+    _invert_power_cosine_kernel,
+    "Phong / power-cosine lobe: pdf (n+1)/(2π) cos^n θ: ``sample_power_cosine(u, n)``.")
+sample_ggx, ggx_pdf, invert_ggx = _triple(
+    "ggx", 2, 3, _sample_ggx_kernel, _ggx_pdf_kernel, _invert_ggx_kernel,
+    "GGX (Trowbridge–Reitz) normals, pdf D(h) cos θ_h: ``sample_ggx(u, alpha)``.")
+sample_beckmann, beckmann_pdf, invert_beckmann = _triple(
+    "beckmann", 2, 3, _sample_beckmann_kernel, _beckmann_pdf_kernel, _invert_beckmann_kernel,
+    "Beckmann normals, pdf D(h) cos θ_h: ``sample_beckmann(u, alpha)``.")
+sample_ggx_vndf, ggx_vndf_pdf, _ = _triple(
+    "ggx_vndf", 2, 3, _sample_ggx_vndf_kernel, _ggx_vndf_pdf_kernel, None,
+    "GGX visible normals (Heitz 2018): ``sample_ggx_vndf(u, alpha, wx, wy, wz)``, "
+    "pdf G1(w) max(0, w·h) D(h) / w_z.")
+sample_exponential, exponential_pdf, invert_exponential = _triple(
+    "exponential", 1, 1, _sample_exponential_kernel, _exponential_pdf_kernel,
+    _invert_exponential_kernel,
+    "Truncated exponential (distance sampling): ``sample_exponential(u, sigma, t_max)``.")
+sample_tent, tent_pdf, invert_tent = _triple(
+    "tent", 1, 1, _sample_tent_kernel, _tent_pdf_kernel, _invert_tent_kernel,
+    "Tent on [-r, r]: ``sample_tent(u, r)``.")
+sample_linear, linear_pdf, invert_linear = _triple(
+    "linear", 1, 1, _sample_linear_kernel, _linear_pdf_kernel, _invert_linear_kernel,
+    "Linear density on [0, 1] from a to b: ``sample_linear(u, a, b)``.")
+sample_bilinear, bilinear_pdf, invert_bilinear = _triple(
+    "bilinear", 2, 2, _sample_bilinear_kernel, _bilinear_pdf_kernel, _invert_bilinear_kernel,
+    "Bilinear density on [0, 1]²: ``sample_bilinear(u, w00, w10, w01, w11)``.")
+
+
+WARPS: dict[str, Warp] = {w.name: w for w in [
+    Warp("uniform_interval", sample_uniform_interval, uniform_interval_pdf,
+         invert_uniform_interval, ("interval", "a", "b"), 1, 1, ("a", "b"), (-1.0, 3.0),
+         ((-10.0, -0.5), (0.5, 10.0))),
+    Warp("uniform_disk_polar", sample_uniform_disk_polar, uniform_disk_pdf,
+         invert_uniform_disk_polar, "disk", 2, 2),
+    Warp("uniform_disk_concentric", sample_uniform_disk_concentric, uniform_disk_pdf,
+         invert_uniform_disk_concentric, "disk", 2, 2),
+    Warp("uniform_triangle", sample_uniform_triangle, uniform_triangle_pdf,
+         invert_uniform_triangle, "square", 2, 2,
+         notes="pdf 2 on the lower-left triangle of the unit square: an edge inside cells"),
+    Warp("uniform_sphere", sample_uniform_sphere, uniform_sphere_pdf, invert_uniform_sphere,
+         "sphere", 2, 3),
+    Warp("uniform_hemisphere", sample_uniform_hemisphere, uniform_hemisphere_pdf,
+         invert_uniform_hemisphere, "hemisphere", 2, 3),
+    Warp("cosine_hemisphere", sample_cosine_hemisphere, cosine_hemisphere_pdf,
+         invert_cosine_hemisphere, "hemisphere", 2, 3),
+    Warp("uniform_cone", sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone,
+         "sphere", 2, 3, ("cos_theta_max",), (0.8,), ((-0.99, 0.999),)),
+    Warp("power_cosine", sample_power_cosine, power_cosine_pdf, invert_power_cosine,
+         "hemisphere", 2, 3, ("n",), (20.0,), ((0.0, 1000.0),)),
+    Warp("ggx", sample_ggx, ggx_pdf, invert_ggx, "hemisphere", 2, 3, ("alpha",), (0.3,),
+         ((1e-3, 1.0),), ("alpha",)),
+    Warp("beckmann", sample_beckmann, beckmann_pdf, invert_beckmann, "hemisphere", 2, 3,
+         ("alpha",), (0.3,), ((1e-3, 1.0),), ("alpha",)),
+    Warp("ggx_vndf", sample_ggx_vndf, ggx_vndf_pdf, None, "hemisphere", 2, 3,
+         ("alpha", "wx", "wy", "wz"), (0.3, 0.6, 0.0, 0.8),
+         ((1e-2, 1.0), (-1.0, 1.0), (-1.0, 1.0), (0.05, 1.0)), ("alpha",),
+         notes="(wx, wy, wz) is normalised by the property tests; no closed-form inverse"),
+    Warp("exponential", sample_exponential, exponential_pdf, invert_exponential,
+         ("interval", 0.0, "t_max"), 1, 1, ("sigma", "t_max"), (2.0, 3.0),
+         ((1e-2, 1e2), (1e-2, 1e2)), ("sigma", "t_max")),
+    Warp("tent", sample_tent, tent_pdf, invert_tent, ("interval", "-radius", "radius"), 1, 1,
+         ("radius",), (1.5,), ((1e-3, 1e3),), ("radius",)),
+    Warp("linear", sample_linear, linear_pdf, invert_linear, ("interval", 0.0, 1.0), 1, 1,
+         ("a", "b"), (0.5, 2.0), ((0.0, 10.0), (0.01, 10.0))),
+    Warp("bilinear", sample_bilinear, bilinear_pdf, invert_bilinear, "square", 2, 2,
+         ("w00", "w10", "w01", "w11"), (1.0, 3.0, 0.5, 2.0),
+         ((0.01, 10.0),) * 4),
+]}

@@ -1,0 +1,151 @@
+"""``mcverify`` command line: the CI gate.
+
+Exit codes: 0 all checks passed; 1 a check failed (or the judge has no teeth); 2 bad
+input or environment, with one line on stderr naming what and where.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from .errors import EnvironmentProblem, InvalidArgument
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2 (argparse's own convention too)
+        self.exit(EXIT_BAD_INPUT, f"mcverify: error: {message} (see `mcverify --help`)\n")
+
+
+def _writable(option: str, path: str | None) -> None:
+    """Fail before any work if an output path cannot be written."""
+    if path is None:
+        return
+    folder = os.path.dirname(os.path.abspath(path)) or "."
+    if os.path.isdir(path):
+        raise InvalidArgument(f"{option} {path}: is a directory; give a file path")
+    probe = folder
+    while not os.path.exists(probe):
+        probe = os.path.dirname(probe)
+    if not os.access(probe, os.W_OK):
+        raise InvalidArgument(f"{option} {path}: folder {probe} is not writable")
+
+
+def _progress(stream):
+    tty = stream.isatty()
+
+    def show(i, total, r):
+        verdict = "ok" if r.passed else ("bitten" if "canary" in str(r.name) else "FAIL")
+        line = f"[{i}/{total}] {r.name} {verdict} ({r.seconds:.1f}s)"
+        if tty:
+            stream.write("\r\033[K" + line + ("\n" if i == total else ""))
+        else:
+            stream.write(line + "\n")
+        stream.flush()
+
+    return show
+
+
+def _cmd_check(args) -> int:
+    from . import suites
+    from .result import write_json, write_junit
+
+    if args.scene:
+        raise InvalidArgument(f"--scene {args.scene}: scene planning is not available in "
+                              "this version; run the built-in suites without --scene")
+    _writable("--json", args.json)
+    _writable("--junit", args.junit)
+    extra = {}
+    selected = suites.select(suites.build_suite(args.suite), args.k)
+    if not selected:
+        raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
+                              "`mcverify list` shows the names")
+    if any("mitsuba" in c.tags for c in selected):
+        from . import mitsuba as mv_mitsuba
+
+        choice = mv_mitsuba.choose_variant()
+        if choice.notice:
+            print(f"notice: {choice.notice}", file=sys.stderr)
+        extra = {"mitsuba_version": mv_mitsuba.mitsuba_version(),
+                 "mitsuba_variant": choice.variant}
+    result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
+                              progress=None if args.quiet else _progress(sys.stderr),
+                              extra_provenance=extra)
+    if args.json:
+        write_json(result, args.json)
+    if args.junit:
+        write_junit(result, args.junit)
+    failed = [r for r in result.results if not r.passed]
+    for r in failed:
+        print(r.summary())
+        for m in r.messages:
+            print(f"    {m}")
+    if not result.canary_bitten:
+        for c in result.canary:
+            if c.passed:
+                print(f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected "
+                      f"(p={c.p_value:.3g})")
+    n = len(result.results)
+    print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
+          f" (family-wise alpha={args.alpha} by {result.correction}; canaries "
+          f"{'bitten' if result.canary_bitten else 'NOT bitten'}; {result.seconds:.1f}s)")
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _cmd_list(args) -> int:
+    from . import suites
+
+    for c in suites.select(suites.build_suite(args.suite), args.k):
+        print(c.name)
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
+    from . import __version__
+
+    p.add_argument("--version", action="version", version=f"mcverify {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    c = sub.add_parser("check", help="run a verification suite (the CI gate)")
+    c.add_argument("--suite", choices=("default", "full"), default="default")
+    c.add_argument("--scene", metavar="SCENE.xml", help="plan checks from a scene")
+    c.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
+                   "(or matches it as a glob)")
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--alpha", type=float, default=0.01,
+                   help="family-wise significance level (Holm across checks)")
+    c.add_argument("--json", metavar="PATH", help="write the results as JSON")
+    c.add_argument("--junit", metavar="PATH", help="write the results as JUnit XML")
+    c.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    c.set_defaults(func=_cmd_check)
+    ls = sub.add_parser("list", help="list the checks of a suite")
+    ls.add_argument("--suite", choices=("default", "full"), default="default")
+    ls.add_argument("-k", metavar="PATTERN")
+    ls.set_defaults(func=_cmd_list)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if getattr(args, "seed", 0) < 0:
+        print(f"mcverify: error: --seed {args.seed}: must be >= 0", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if hasattr(args, "alpha") and not 0.0 < args.alpha < 1.0:
+        print(f"mcverify: error: --alpha {args.alpha}: must be strictly between 0 and 1",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        return args.func(args)
+    except (InvalidArgument, EnvironmentProblem) as e:
+        print(f"mcverify: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("mcverify: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
