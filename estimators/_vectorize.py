@@ -1,6 +1,7 @@
 """numpy front ends for the numba scalar kernels: one generic loop serves them all.
 
-A kernel takes ``(x, p)``: ``x`` an indexable point (an array row or a tuple), ``p`` an
+float32 input gives float32 output, computed in float64 and rounded once (so the two
+paths agree to half a float32 ulp). A kernel takes ``(x, p)``: ``x`` an indexable point (an array row or a tuple), ``p`` an
 indexable of parameters, and returns a tuple (a point) or a float (a density). The
 path tracer calls the same kernels on tuples, so each warp has one implementation.
 """
@@ -32,10 +33,8 @@ def _apply_value_kernel(kernel, x, p):
 
 
 def as_rows(name: str, x, n_in: int) -> np.ndarray:
-    """``x`` as a C-contiguous (n, n_in) float32/float64 array (1-D accepted when n_in is 1)."""
-    a = np.asarray(x)
-    if a.dtype not in (np.float32, np.float64):
-        a = a.astype(np.float64)
+    """``x`` as a C-contiguous (n, n_in) float64 array (1-D accepted when n_in is 1)."""
+    a = np.asarray(x, dtype=np.float64)
     if a.ndim == 1 and n_in == 1:
         a = a.reshape(-1, 1)
     if a.ndim != 2 or a.shape[1] != n_in:
@@ -52,7 +51,8 @@ def point_front_end(kernel, n_in: int, n_out: int, name: str, doc: str = ""):
 
     def front(x, *params):
         rows = as_rows(name, x, n_in)
-        return _apply_point_kernel(kernel, rows, params_array(params), n_out)
+        out = _apply_point_kernel(kernel, rows, params_array(params), n_out)
+        return out.astype(np.float32) if np.asarray(x).dtype == np.float32 else out
 
     front.__name__ = front.__qualname__ = name
     front.__doc__ = doc
@@ -65,7 +65,8 @@ def value_front_end(kernel, n_in: int, name: str, doc: str = ""):
 
     def front(x, *params):
         rows = as_rows(name, x, n_in)
-        return _apply_value_kernel(kernel, rows, params_array(params))
+        out = _apply_value_kernel(kernel, rows, params_array(params))
+        return out.astype(np.float32) if np.asarray(x).dtype == np.float32 else out
 
     front.__name__ = front.__qualname__ = name
     front.__doc__ = doc

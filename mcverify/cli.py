@@ -27,11 +27,13 @@ def _writable(option: str, path: str | None) -> None:
     folder = os.path.dirname(os.path.abspath(path)) or "."
     if os.path.isdir(path):
         raise InvalidArgument(f"{option} {path}: is a directory; give a file path")
-    probe = folder
-    while not os.path.exists(probe):
-        probe = os.path.dirname(probe)
-    if not os.access(probe, os.W_OK):
-        raise InvalidArgument(f"{option} {path}: folder {probe} is not writable")
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        raise InvalidArgument(f"{option} {path}: cannot create folder {folder} "
+                              f"({e.strerror})") from None
+    if not os.access(folder, os.W_OK):
+        raise InvalidArgument(f"{option} {path}: folder {folder} is not writable")
 
 
 def _progress(stream):
@@ -141,6 +143,9 @@ def main(argv=None) -> int:
         return args.func(args)
     except (InvalidArgument, EnvironmentProblem) as e:
         print(f"mcverify: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as e:
+        print(f"mcverify: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("mcverify: interrupted", file=sys.stderr)

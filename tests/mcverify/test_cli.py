@@ -1,0 +1,47 @@
+"""The CLI runs as a real subprocess: output, exit codes, files."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+CMD = [sys.executable, "-m", "mcverify.cli"]
+
+
+def run(*args, timeout=600):
+    return subprocess.run(CMD + list(args), capture_output=True, text=True, timeout=timeout)
+
+
+def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    r = run("check", "-k", "uniform_disk_polar", "--json", str(a), "--junit",
+            str(tmp_path / "r.xml"), "-q")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "2 passed, 0 failed" in r.stdout and "canaries bitten" in r.stdout
+    run("check", "-k", "uniform_disk_polar", "--json", str(b), "-q")
+    ra, rb = (json.loads(p.read_text()) for p in (a, b))
+    assert [x["p_value"] for x in ra["results"]] == [x["p_value"] for x in rb["results"]]
+    assert ra["provenance"]["seed"] == 0 and "utc_time" in ra["provenance"]
+    assert (tmp_path / "r.xml").exists()
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["check", "--suite", "nightly"], "--suite"),
+    (["check", "-k", "no-such-check"], "-k 'no-such-check'"),
+    (["check", "--alpha", "2"], "--alpha 2.0"),
+    (["check", "--seed", "-3"], "--seed -3"),
+    (["check", "--json", "/proc/forbidden/x.json"], "--json /proc/forbidden/x.json"),
+    (["frobnicate"], "invalid choice"),
+], ids=["suite", "pattern", "alpha", "seed", "json-path", "command"])
+def test_bad_input_is_one_line_exit_2(args, needle):
+    r = run(*args)
+    assert r.returncode == 2
+    assert needle in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_list_names_checks():
+    r = run("list", "-k", "inverse:")
+    assert r.returncode == 0 and "inverse:cosine_hemisphere" in r.stdout

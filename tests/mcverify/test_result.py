@@ -1,0 +1,35 @@
+import json
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+import mcverify as mv
+from mcverify.result import CheckResult, SuiteResult
+
+
+def _r(name, p, failures=()):
+    return CheckResult(name, CheckResult.decide(p, 0.01, failures), p, 1.0, 0.01, 10, 0.1,
+                       {"histogram": {"observed": np.zeros(3)}}, (), tuple(failures))
+
+
+def test_holm_judging_across_checks():
+    # p = 0.004 fails alone at 0.01, but is no alarm after Holm over three checks (0.012).
+    assert not _r("a", 0.004).passed
+    suite = SuiteResult.judge("s", [_r("a", 0.004), _r("b", 0.5), _r("c", 0.9)], alpha=0.01,
+                              seconds=1.0)
+    assert suite.results[0].passed and suite.results[0].details["p_adjusted"] == 0.012
+    suite = SuiteResult.judge("s", [_r("a", 0.002), _r("b", 0.5)], alpha=0.01, seconds=1.0)
+    assert not suite.passed      # 0.004 after Holm: still an alarm
+    assert not SuiteResult.judge("s", [_r("a", 0.9, ["NaN"])], alpha=0.01, seconds=1).passed
+
+
+def test_json_and_junit_writers(tmp_path):
+    suite = SuiteResult.judge("s", [_r("a", 0.5), _r("b", 1e-9)], alpha=0.01, seconds=1.0,
+                              provenance={"seed": 0})
+    mv.write_json(suite, str(tmp_path / "r.json"))
+    d = json.loads((tmp_path / "r.json").read_text())
+    assert d["n_failed"] == 1 and "histogram" not in d["results"][0]["details"]
+    mv.write_junit(suite, str(tmp_path / "r.xml"))
+    root = ET.parse(tmp_path / "r.xml").getroot()
+    assert root.get("tests") == "2" and root.get("failures") == "1"
+    assert not list(tmp_path.glob(".tmp-*"))

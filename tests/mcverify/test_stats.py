@@ -1,0 +1,82 @@
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy import stats as sps
+
+from mcverify import stats
+
+expected_counts = st.lists(st.floats(0.0, 50.0), min_size=2, max_size=200)
+
+
+@given(expected_counts)
+def test_pooling_keeps_totals_and_thresholds(e):
+    e = np.array(e)
+    label = stats.pool_cells(e)
+    n_bins = label.max() + 1
+    assert np.all(label[e == 0] == -1)
+    assert np.all(label[e > 0] >= 0)
+    sums = np.bincount(label[label >= 0], weights=e[label >= 0], minlength=max(n_bins, 0))
+    assert np.isclose(sums.sum(), e[e > 0].sum())
+    if e.sum() >= stats.MIN_EXPECTED:
+        assert np.all(sums >= stats.MIN_EXPECTED - 1e-9)
+
+
+@given(st.lists(st.integers(0, 100), min_size=3, max_size=50), st.integers(0, 2**31))
+def test_chi2_p_value_in_unit_interval(obs, seed):
+    e = np.random.default_rng(seed).random(len(obs)) * 20 + 0.1
+    r = stats.chi2_gof(obs, e)
+    assert 0.0 <= r.p_value <= 1.0
+
+
+def test_chi2_matches_scipy_without_pooling():
+    rng = np.random.default_rng(0)
+    e = rng.random(30) * 100 + 10
+    o = rng.poisson(e).astype(float)
+    r = stats.chi2_gof(o, e)
+    ref = sps.chisquare(o, e * o.sum() / e.sum())
+    assert r.statistic == pytest.approx(ref.statistic)
+    assert r.p_value == pytest.approx(ref.pvalue)
+
+
+def test_chi2_flags_observations_in_empty_cells():
+    r = stats.chi2_gof([10, 10, 3], [10, 10, 0])
+    assert r.observed_in_empty == 3 and r.p_value == 0.0
+
+
+def test_holm_known_values():
+    p = [0.01, 0.04, 0.03, 0.005]
+    # sorted: .005*4=.02, .01*3=.03, .03*2=.06, .04*1=.04 -> monotone .06
+    assert np.allclose(stats.holm(p), [0.03, 0.06, 0.06, 0.02])
+
+
+@given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=30))
+def test_adjusted_p_values_dominate_raw(p):
+    p = np.array(p)
+    for adj in (stats.holm(p), stats.sidak(p), stats.benjamini_hochberg(p)):
+        assert np.all(adj >= p - 1e-12) and np.all(adj <= 1.0 + 1e-12)
+
+
+def test_hill_separates_finite_and_infinite_variance():
+    rng = np.random.default_rng(1)
+    pareto = rng.pareto(1.5, 200_000)   # tail index 1.5: infinite variance
+    normal = rng.normal(size=200_000)
+    assert stats.hill_tail_index(pareto).upper < 2.0
+    assert stats.hill_tail_index(normal).upper > 2.0
+
+
+def test_variance_test_and_zero_variance():
+    x = np.random.default_rng(2).random(100_000)
+    assert stats.variance_test(x, 1 / 12).p_value > 0.01
+    assert stats.variance_test(x, 1.05 / 12).p_value < 1e-6
+    assert stats.variance_test(np.full(10, 0.5), 0.0).p_value == 1.0
+    assert stats.variance_test(np.array([0.5, 0.5 + 1e-6]), 0.0).p_value == 0.0
+
+
+def test_loglog_slope_recovers_known_rate():
+    rng = np.random.default_rng(3)
+    ns = np.array([100, 400, 1600, 6400])
+    e2 = (rng.normal(size=(4, 200)) / np.sqrt(ns)[:, None]) ** 2
+    r = stats.loglog_slope(ns, e2, expected=-0.5)
+    assert r.ci_low < -0.5 < r.ci_high and r.p_value > 0.01
+    assert stats.loglog_slope(ns, e2, expected=-1.0).p_value < 1e-6

@@ -1,0 +1,47 @@
+"""Bad input fails early with mcverify.InvalidArgument naming the parameter."""
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+
+S = lambda u: u  # noqa: E731
+P = lambda x: np.ones(len(x))  # noqa: E731
+
+CASES = [
+    ("sample-not-callable", lambda: mv.check_sampler(3, P, "square"), "sample="),
+    ("pdf-not-callable", lambda: mv.check_sampler(S, "pdf", "square"), "pdf="),
+    ("unknown-domain", lambda: mv.check_sampler(S, P, "torus"), "domain="),
+    ("n-zero", lambda: mv.check_sampler(S, P, "square", n_samples=0), "n_samples=0"),
+    ("n-float", lambda: mv.check_sampler(S, P, "square", n_samples=1e6), "n_samples="),
+    ("alpha-one", lambda: mv.check_sampler(S, P, "square", alpha=1.0), "alpha="),
+    ("resolution-zero", lambda: mv.check_sampler(S, P, "square", resolution=(3, 0)),
+     "resolution="),
+    ("resolution-wrong-len", lambda: mv.check_sampler(S, P, "square", resolution=(3,)),
+     "resolution="),
+    ("negative-seed", lambda: mv.check_sampler(S, P, "square", seed=-1), "seed=-1"),
+    ("sample-wrong-shape", lambda: mv.check_sampler(lambda u: u[:, :1], P, "square",
+                                                    n_samples=10), "sample returned shape"),
+    ("pdf-wrong-shape", lambda: mv.check_sampler(S, lambda x: np.ones((len(x), 2)), "square",
+                                                 n_samples=100), "pdf returned shape"),
+    ("inverse-not-callable", lambda: mv.check_inverse(S, None, 2), "inverse="),
+    ("inverse-dim-zero", lambda: mv.check_inverse(S, S, 0), "sample_dim=0"),
+    ("unbiased-2d", lambda: mv.check_unbiased(np.ones((3, 3)), 1.0), "samples"),
+    ("unbiased-nan-expected", lambda: mv.check_unbiased(np.ones(3), float("nan")),
+     "expected=nan"),
+    ("variance-negative", lambda: mv.check_variance(np.ones(3), -1.0), "expected_variance"),
+    ("convergence-two-ns", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0, ns=(1, 2)),
+     "ns="),
+    ("same-dist-bad-array", lambda: mv.check_same_distribution("abc", S, "square"),
+     "sample_a"),
+]
+
+
+@pytest.mark.parametrize("call,match", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_invalid_calls_raise_invalid_argument(call, match):
+    with pytest.raises(mv.InvalidArgument, match=match.replace("(", r"\(")):
+        call()
+
+
+def test_invalid_argument_is_a_value_error():
+    assert issubclass(mv.InvalidArgument, ValueError)
