@@ -30,3 +30,7 @@ test-slow: setup
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis build *.egg-info
+
+bench: setup
+	$(BIN)/python -m pytest benchmarks -q -o python_files="bench_*.py" --benchmark-only \
+	  --benchmark-columns=min,median,rounds --benchmark-group-by=group $(BENCH_ARGS)

@@ -351,7 +351,8 @@ def holm(p_values) -> np.ndarray:
 def sidak(p_values) -> np.ndarray:
     """Šidák single-step adjusted p-values ``1 - (1 - p)^m`` (exact for independent tests)."""
     p = np.asarray(p_values, dtype=np.float64)
-    return -np.expm1(p.size * np.log1p(-np.minimum(p, 1.0)))
+    with np.errstate(divide="ignore"):  # p = 1: log1p(-1) = -inf, adjusted p = 1
+        return -np.expm1(p.size * np.log1p(-np.minimum(p, 1.0)))
 
 
 def benjamini_hochberg(p_values) -> np.ndarray:
