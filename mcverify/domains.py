@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _domain_kernels as K
 from .errors import InvalidArgument
 
 __all__ = ["Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere", "as_domain"]
@@ -32,19 +33,40 @@ class Domain:
     jacobian = 1.0
     #: Tolerance of ``inside`` for points produced in float32 (norms off by ~1e-7).
     tolerance = 1e-5
+    #: Kernel identity (``_domain_kernels``) and its float parameters.
+    kind = -1
+
+    @property
+    def args(self) -> np.ndarray:
+        return np.zeros(2)
 
     @property
     def measure(self) -> float:
         """Total measure of the domain (length, area or solid angle)."""
         return self.jacobian
 
-    def to_param(self, x: np.ndarray) -> np.ndarray:  # (n, dim) -> (n, m) in [0, 1]
-        raise NotImplementedError
+    def points(self, x) -> np.ndarray:
+        """``x`` as a C-contiguous (n, dim) float64 array."""
+        return np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, self.dim))
+
+    def classify(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Parameters (n, m), clamped to [0, 1), and a status per point
+        (``_domain_kernels.VALID`` / ``NONFINITE`` / ``OUTSIDE``), in one numba pass."""
+        x = self.points(x)
+        s = np.empty((x.shape[0], 2))
+        status = np.empty(x.shape[0], dtype=np.int8)
+        K.to_param_kernel(self.kind, self.args, self.tolerance, x, s, status)
+        return s[:, :self.param_dim], status
+
+    def to_param(self, x) -> np.ndarray:
+        """(n, dim) points -> (n, m) parameters in [0, 1)."""
+        return self.classify(x)[0]
+
+    def inside(self, x) -> np.ndarray:
+        """(n, dim) -> (n,) bool: finite and inside (within ``tolerance``)."""
+        return self.classify(x)[1] == K.VALID
 
     def to_point(self, s: np.ndarray) -> np.ndarray:  # (n, m) -> (n, dim)
-        raise NotImplementedError
-
-    def inside(self, x: np.ndarray) -> np.ndarray:  # (n, dim) -> (n,) bool
         raise NotImplementedError
 
     def default_resolution(self, n_samples: int) -> tuple[int, ...]:
@@ -71,6 +93,7 @@ class Interval(Domain):
     """The interval ``[a, b]``; points are shaped (n, 1) (or (n,))."""
 
     name = "interval"
+    kind = K.INTERVAL
 
     def __init__(self, a: float = 0.0, b: float = 1.0):
         a, b = float(a), float(b)
@@ -79,16 +102,12 @@ class Interval(Domain):
         self.a, self.b = a, b
         self.jacobian = b - a
 
-    def to_param(self, x):
-        return (np.asarray(x, dtype=np.float64).reshape(-1, 1) - self.a) / self.jacobian
+    @property
+    def args(self):
+        return np.array([self.a, self.b])
 
     def to_point(self, s):
         return self.a + self.jacobian * np.asarray(s).reshape(-1, 1)
-
-    def inside(self, x):
-        x = np.asarray(x).reshape(-1)
-        tol = self.tolerance * self.jacobian
-        return (x >= self.a - tol) & (x <= self.b + tol)
 
     def __repr__(self):
         return f"Interval({self.a!r}, {self.b!r})"
@@ -98,29 +117,17 @@ class Square(Domain):
     """The unit square ``[0, 1]²``; points (n, 2)."""
 
     name = "square"
+    kind = K.SQUARE
     dim = 2
     param_dim = 2
     sample_dim = 2
 
-    def to_param(self, x):
-        return np.asarray(x, dtype=np.float64)
-
     def to_point(self, s):
         return np.asarray(s)
-
-    def inside(self, x):
-        x = np.asarray(x)
-        t = self.tolerance
-        return np.all((x >= -t) & (x <= 1.0 + t), axis=1)
 
     def default_resolution(self, n_samples):
         rows = int(np.clip(np.sqrt(max(n_samples // 100, 16)), 4, 90))
         return (rows, rows)
-
-
-def _azimuth_param(x, y):
-    phi = np.arctan2(y, x)
-    return np.where(phi < 0.0, phi + _TWO_PI, phi) / _TWO_PI
 
 
 class Disk(Domain):
@@ -128,23 +135,16 @@ class Disk(Domain):
     ``s1 = φ / 2π``; Jacobian π."""
 
     name = "disk"
+    kind = K.DISK
     dim = 2
     param_dim = 2
     sample_dim = 2
     jacobian = np.pi
 
-    def to_param(self, x):
-        x = np.asarray(x, dtype=np.float64)
-        return np.stack([x[:, 0] ** 2 + x[:, 1] ** 2, _azimuth_param(x[:, 0], x[:, 1])], -1)
-
     def to_point(self, s):
         r = np.sqrt(s[:, 0])
         phi = _TWO_PI * s[:, 1]
         return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
-
-    def inside(self, x):
-        x = np.asarray(x)
-        return x[:, 0] ** 2 + x[:, 1] ** 2 <= 1.0 + self.tolerance
 
     def default_resolution(self, n_samples):
         rows = int(np.clip(np.sqrt(max(n_samples // 100, 16) / 2.0), 4, 64))
@@ -156,15 +156,12 @@ class Sphere(Domain):
     bands, Archimedes), ``s1 = φ / 2π``; Jacobian 4π."""
 
     name = "sphere"
+    kind = K.SPHERE
     dim = 3
     param_dim = 2
     sample_dim = 2
     jacobian = 4.0 * np.pi
     _z_span = 2.0
-
-    def to_param(self, x):
-        x = np.asarray(x, dtype=np.float64)
-        return np.stack([(1.0 - x[:, 2]) / self._z_span, _azimuth_param(x[:, 0], x[:, 1])], -1)
 
     def to_point(self, s):
         z = 1.0 - self._z_span * s[:, 0]
@@ -172,20 +169,15 @@ class Sphere(Domain):
         phi = _TWO_PI * s[:, 1]
         return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
 
-    def inside(self, x):
-        x = np.asarray(x)
-        return np.abs(np.sqrt(np.sum(x * x, axis=1)) - 1.0) <= self.tolerance
 
 
 class Hemisphere(Sphere):
     """Unit vectors with z ≥ 0. Parameters ``s0 = 1 - z``, ``s1 = φ / 2π``; Jacobian 2π."""
 
     name = "hemisphere"
+    kind = K.HEMISPHERE
     jacobian = 2.0 * np.pi
     _z_span = 1.0
-
-    def inside(self, x):
-        return super().inside(x) & (np.asarray(x)[:, 2] >= -self.tolerance)
 
 
 _BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}

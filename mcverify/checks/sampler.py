@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from .. import _domain_kernels as K
 from .. import _validate as v
 from .. import stats
 from ..domains import Domain, as_domain
@@ -19,8 +20,6 @@ from ..result import CheckResult
 
 __all__ = ["check_sampler", "check_inverse", "check_same_distribution"]
 
-#: Largest parameter value used for binning: keeps s = 1 (e.g. z = -1) in the last cell.
-_S_MAX = 1.0 - 2.0 ** -52
 #: Cells re-integrated more finely when their χ² contribution exceeds this (a 5σ cell):
 #: under a correct pdf this only happens where the quadrature missed a narrow feature.
 _SUSPICIOUS = 25.0
@@ -36,26 +35,36 @@ def _draw(sample, rng, n, k, dim, name="sample"):
     return u, v.points(name, sample(u), n, dim)
 
 
-def _screen(x, u, domain: Domain, what="sample"):
-    """Split points into valid ones and failure messages (NaN/Inf, outside domain)."""
+def _status_failures(n_status, first, x, u, domain: Domain, what="sample"):
+    """Failure messages for NaN/Inf points and points outside the domain."""
     failures = []
-    finite = np.all(np.isfinite(x), axis=1)
-    if not finite.all():
-        i = int(np.flatnonzero(~finite)[0])
-        failures.append(f"{np.count_nonzero(~finite)} {what}s are NaN/Inf "
-                        f"(first: u={u[i].tolist()} -> x={x[i].tolist()})")
-    inside = np.zeros(x.shape[0], bool)
-    inside[finite] = domain.inside(x[finite])
-    outside = finite & ~inside
-    if outside.any():
-        i = int(np.flatnonzero(outside)[0])
-        failures.append(f"{np.count_nonzero(outside)} {what}s lie outside the {domain.name} "
-                        f"domain (first: u={u[i].tolist()} -> x={x[i].tolist()})")
-    return inside, failures
+    for code, text in ((K.NONFINITE, "are NaN/Inf"),
+                       (K.OUTSIDE, f"lie outside the {domain.name} domain")):
+        if n_status[code]:
+            i = int(first[code])
+            origin = "" if np.isnan(u[i]).all() else f"u={u[i].tolist()} -> "
+            failures.append(f"{int(n_status[code])} {what}s {text} "
+                            f"(first: {origin}x={x[i].tolist()})")
+    return failures
 
 
-def _params(domain, x):
-    return np.clip(domain.to_param(x), 0.0, _S_MAX)
+def _screen(x, u, domain: Domain, what="sample"):
+    """Valid points' parameters, and failure messages (NaN/Inf, outside domain)."""
+    s, status = domain.classify(x)
+    codes = np.bincount(status, minlength=3)
+    first = np.array([np.argmax(status == c) if codes[c] else -1 for c in range(3)])
+    return s[status == K.VALID], _status_failures(codes, first, x, u, domain, what)
+
+
+def _histogram(x, u, domain: Domain, edges, what="sample"):
+    """Counts per cell of the points ``x`` (one numba pass), and failure messages."""
+    e1 = edges[1] if len(edges) == 2 else np.array([0.0, 1.0])
+    counts, codes, first = K.histogram_kernel(
+        domain.kind, domain.args, domain.tolerance, domain.points(x),
+        edges[0], K.cell_lookup(edges[0]), e1, K.cell_lookup(e1), len(edges))
+    shape = tuple(e.size - 1 for e in edges)
+    return (counts.reshape(shape).astype(np.float64), int(codes[K.VALID]),
+            _status_failures(codes, first, x, u, domain, what))
 
 
 def _edges(pilot_s, resolution):
@@ -80,31 +89,6 @@ def _edges(pilot_s, resolution):
         e = np.unique(e)
         edges.append(e)
     return edges
-
-
-def _bin_index(s, e):
-    """Index of the cell of ``e`` holding each ``s`` (like ``searchsorted``, about 5×
-    faster on 1e6 points): a uniform lookup table gives each point the cell of its
-    table slot's left end, then a few vectorised steps move it right past any edges
-    inside that slot."""
-    n_cells = e.size - 1
-    slots = 8 * n_cells
-    lut = np.searchsorted(e, np.arange(slots) / slots, side="right") - 1
-    idx = lut[np.minimum((s * slots).astype(np.int64), slots - 1)]
-    for _ in range(8):
-        step = (idx < n_cells - 1) & (s >= e[np.minimum(idx + 1, n_cells)])
-        if not step.any():
-            return idx
-        idx += step
-    return np.clip(np.searchsorted(e, s, side="right") - 1, 0, n_cells - 1)
-
-
-def _histogram(s, edges):
-    shape = tuple(e.size - 1 for e in edges)
-    flat = np.zeros(s.shape[0], dtype=np.int64)
-    for j, e in enumerate(edges):
-        flat = flat * shape[j] + _bin_index(s[:, j], e)
-    return np.bincount(flat, minlength=int(np.prod(shape))).reshape(shape).astype(np.float64)
 
 
 class _Density:
@@ -274,19 +258,14 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     res = res or dom.default_resolution(n)
 
     main_seq, pilot_seq = np.random.SeedSequence(seed).spawn(2)
-    u, x = _draw(sample, np.random.default_rng(main_seq), n, k, dom.dim)
-    valid, failures = _screen(x, u, dom)
-    s = _params(dom, x[valid])
-    n_valid = s.shape[0]
-
     pilot_s = None
     if pilot:
         n_pilot = int(min(max(n // 10, 1000), 100_000))
         pu, px = _draw(sample, np.random.default_rng(pilot_seq), n_pilot, k, dom.dim)
-        pilot_s = _params(dom, px[np.all(np.isfinite(px), axis=1) & dom.inside(
-            np.where(np.isfinite(px), px, 0.0))])
+        pilot_s, _ = _screen(px, pu, dom)
     edges = _edges(pilot_s, res)
-    counts = _histogram(s, edges)
+    u, x = _draw(sample, np.random.default_rng(main_seq), n, k, dom.dim)
+    counts, n_valid, failures = _histogram(x, u, dom, edges)
 
     density = _Density(pdf, dom)
     integral = integrate_cells(density, edges, n_samples=max(n_valid, 1), keep_leaves=(m == 1))
@@ -317,6 +296,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):
             sub[label] = stats.chi2_gof(counts.sum(axis=axis), expected.sum(axis=axis))
     elif n_valid > 0 and leaves is not None and total > 0:
+        s, _ = _screen(x, u, dom)
         sub["ks"] = stats.ks_uniform(_cdf_from_leaves(density, leaves, s[:, 0], total))
     p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
     if n_valid == 0:
@@ -429,7 +409,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
     name = name or "same_distribution"
     seqs = np.random.SeedSequence(seed).spawn(2)
-    pts, failures = [], []
+    draws, failures = [], []
     for label, smp, seq in (("sample_a", sample_a, seqs[0]), ("sample_b", sample_b, seqs[1])):
         if callable(smp):
             u, x = _draw(smp, np.random.default_rng(seq), n, k, dom.dim, name=label)
@@ -444,18 +424,22 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                                       f"of points (n, {dom.dim})")
             x = v.points(label, x, x.shape[0], dom.dim)
             u = np.full((x.shape[0], 1), np.nan)
-        valid, f = _screen(x, u, dom, what=label + " point")
-        failures += f
-        pts.append(_params(dom, x[valid]))
-    res = res or dom.default_resolution(min(p.shape[0] for p in pts))
+        draws.append((label, x, u))
+    res = res or dom.default_resolution(min(x.shape[0] for _, x, _ in draws))
     edges = _edges(None, res)
-    ha, hb = (_histogram(p, edges) for p in pts)
+    hists = []
+    for label, x, u in draws:
+        h, _, f = _histogram(x, u, dom, edges, what=label + " point")
+        hists.append(h)
+        failures += f
+    ha, hb = hists
     sub = {"chi2": stats.chi2_homogeneity(ha, hb)}
     if dom.param_dim == 2:
         sub["chi2_axis0"] = stats.chi2_homogeneity(ha.sum(axis=1), hb.sum(axis=1))
         sub["chi2_axis1"] = stats.chi2_homogeneity(ha.sum(axis=0), hb.sum(axis=0))
     else:
-        sub["ks"] = stats.ks_2samp(pts[0][:, 0], pts[1][:, 0])
+        sa, sb = (_screen(x, u, dom)[0][:, 0] for _, x, u in draws)
+        sub["ks"] = stats.ks_2samp(sa, sb)
     p_value = stats.bonferroni_min([r.p_value for r in sub.values()])
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
                "tests": {key: {"statistic": r.statistic, "p_value": r.p_value}
