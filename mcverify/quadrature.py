@@ -13,9 +13,10 @@ batch.
 The tolerance is statistical, not absolute: a cell's quadrature error ``δ`` (in counts)
 must satisfy ``δ ≤ tau · sqrt(max(E, 5))`` with ``E`` its expected count, so the
 quadrature moves the χ² statistic by about ``tau²`` per cell. Across the leaves of a
-cell the budget is split as ``2^{-level}``: a discontinuity *curve* in 2-D cuts about
-``2^level`` leaves of a level; in 1-D the halving makes the errors of the leaves at a
-jump a geometric series, and costs only a few evaluations per level.
+cell the budget is split as ``2^{-level}`` in 2-D (a discontinuity *curve* cuts about
+``2^level`` leaves of a level) and ``2^{-level/2}`` in 1-D (a jump's leaf error halves
+per level, so it converges after O(log) levels, and the errors of the successive leaves
+at a jump form a geometric series bounded by the cell's budget).
 """
 
 from __future__ import annotations
@@ -71,15 +72,21 @@ def _rule(density, lo, width, nodes, weights):
     return (f @ wts) * np.prod(width, axis=1), f.max(axis=1, initial=0.0), f.min(axis=1, initial=np.inf)
 
 
-def _corner_range(density, lo, width):
-    """Smallest and largest density at the 2^m corners of each box (Gauss nodes never
-    touch them)."""
+#: Corners are sampled this fraction of the leaf inside it: a step lying exactly on a
+#: cell edge (a grid-aligned piecewise-constant pdf) then reads this cell's value, not
+#: the neighbour's, while any sliver wider than this is still seen.
+_CORNER_INSET = 1e-7
+
+
+def _corner_values(density, lo, width):
+    """Density just inside the 2^m corners of each box (Gauss nodes never come near
+    them), (L, 2^m) with corner index ``sum(bit_axis << (m - 1 - axis))``."""
     n_leaves, m = lo.shape
-    corners = np.stack(np.meshgrid(*([[0.0, 1.0]] * m), indexing="ij"), -1).reshape(-1, m)
+    corners = np.stack(np.meshgrid(*([[_CORNER_INSET, 1.0 - _CORNER_INSET]] * m),
+                                   indexing="ij"), -1).reshape(-1, m)
     pts = lo[:, None, :] + width[:, None, :] * corners[None, :, :]
     f = np.asarray(density(np.clip(pts, 0.0, 1.0 - 2.0 ** -52).reshape(-1, m)), dtype=np.float64)
-    f = f.reshape(n_leaves, 2 ** m)
-    return f.min(axis=1), f.max(axis=1)
+    return f.reshape(n_leaves, 2 ** m)
 
 
 def _children(lo, width):
@@ -92,10 +99,55 @@ def _children(lo, width):
     return c_lo.reshape(-1, m), np.ascontiguousarray(c_w).reshape(-1, m)
 
 
+def _thin_leaves(density, lo, width, budget, n_samples, tau):
+    """Masses of 2-D leaves whose density varies across a feature thinner than the rule
+    sees: along the axis where the corner values differ most, a 1-D adaptive integral
+    (which resolves a step at any distance from the edge in ~log2(1/distance) cheap
+    levels); along the other axis, 3-point Gauss–Legendre (the feature runs across it,
+    and these leaves are the smallest of the refinement, so that rule's error is small).
+
+    All leaves' lines are integrated in one batch: line ``k`` is the segment
+    ``[k/K, (k+1)/K]`` of one concatenated 1-D axis."""
+    n_leaves = lo.shape[0]
+    corners = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]])
+    pts = np.clip(lo[:, None, :] + width[:, None, :] * corners[None], 0.0, 1.0 - 2.0 ** -52)
+    f = np.asarray(density(pts.reshape(-1, 2)), dtype=np.float64).reshape(n_leaves, 2, 2)
+    across0 = np.abs(f[:, 1, :] - f[:, 0, :]).max(axis=1)
+    across1 = np.abs(f[:, :, 1] - f[:, :, 0]).max(axis=1)
+    j = np.where(across0 >= across1, 0, 1)                # axis the feature varies along
+    o = 1 - j
+    rows = np.arange(n_leaves)
+    nodes, weights = gauss_legendre_01(3)
+    leaf = np.repeat(rows, 3)
+    n_lines = leaf.size
+    # Line k: base_k + t · step_k, t in [0, 1], along axis j of its leaf at node t_o.
+    base = lo[leaf].copy()
+    base[np.arange(n_lines), o[leaf]] += width[leaf, o[leaf]] * np.tile(nodes, n_leaves)
+    step = np.zeros((n_lines, 2))
+    step[np.arange(n_lines), j[leaf]] = width[leaf, j[leaf]]
+    scale = width[leaf, j[leaf]] * n_lines
+
+    def line_density(t):
+        k = np.minimum((t[:, 0] * n_lines).astype(np.int64), n_lines - 1)
+        return density(base[k] + (t[:, 0] * n_lines - k)[:, None] * step[k]) * scale[k]
+
+    # The leaf's mass is Σ_q w_q · width_o · line_q with Σ w_q = 1, so each line may
+    # carry an error up to the leaf's budget / width_o.
+    r = integrate_cells(line_density, [np.linspace(0.0, 1.0, n_lines + 1)],
+                        n_samples=n_samples, tau=tau, max_level=60,
+                        noise=budget[leaf] / width[leaf, o[leaf]])
+    w_o = width[rows, o]
+    line_w = np.tile(weights, n_leaves) * w_o[leaf]
+    masses = np.bincount(leaf, weights=r.mass.ravel() * line_w, minlength=n_leaves)
+    errors = np.bincount(leaf, weights=r.error.ravel() * line_w, minlength=n_leaves)
+    return masses, errors
+
+
 def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
                     order: int | None = None, max_level: int | None = None,
                     start_level: int = 0, cells=None,
-                    keep_leaves: bool = False, max_leaves: int = 4_000_000) -> CellIntegral:
+                    keep_leaves: bool = False, max_leaves: int = 4_000_000,
+                    noise=None) -> CellIntegral:
     """Integrate ``density(s)`` over the cells of a tensor grid on the unit cube.
 
     Parameters
@@ -124,6 +176,9 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         Integrate only these cells (others get mass 0).
     keep_leaves : bool
         1-D only: return the accepted leaves for CDF evaluation.
+    noise : array, optional
+        Error budget per cell in mass units, replacing ``tau × Poisson noise`` (used by
+        nested integrals, whose budget comes from the enclosing leaf).
     """
     edges = [np.asarray(e, dtype=np.float64) for e in edges]
     m = len(edges)
@@ -157,7 +212,10 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
     np.add.at(cell_counts, owner, coarse * n_samples)
     # Cells below 5 expected counts are pooled into bins of >= 5 by the χ² test, so
     # their noise scale is at least that of 5 counts.
-    noise = tau * np.sqrt(np.maximum(np.abs(cell_counts), 5.0)) / n_samples
+    if noise is None:
+        noise = tau * np.sqrt(np.maximum(np.abs(cell_counts), 5.0)) / n_samples
+    else:
+        noise = np.broadcast_to(np.asarray(noise, dtype=np.float64), (n_cells,))
 
     level = start_level
     while lo.shape[0]:
@@ -165,11 +223,12 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         fine_parts, node_max, node_min = _rule(density, c_lo, c_w, nodes, weights)
         node_max = node_max.reshape(-1, 2 ** m).max(axis=1)
         node_min = node_min.reshape(-1, 2 ** m).min(axis=1)
-        trough, peak = _corner_range(density, lo, width)
+        corner_f = _corner_values(density, lo, width)
+        trough, peak = corner_f.min(axis=1), corner_f.max(axis=1)
         n_evals += fine_parts.size * order ** m + peak.size * 2 ** m
         fine = fine_parts.reshape(-1, 2 ** m).sum(axis=1)
         err = np.abs(fine - coarse)
-        budget = noise[owner] * 2.0 ** (-level * max(m - 1, 1))
+        budget = noise[owner] * 2.0 ** (-level * max(m - 1, 0.5))
         # A boundary layer: the density at a corner far above (an exponential tail) or
         # far below (a step just before the edge) anything the nodes saw can hide mass
         # that both rules miss; refine while that mass could exceed the budget.
@@ -179,6 +238,22 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         done = (((err <= budget) & ~hidden) | (level >= max_level) | ~np.isfinite(err))
         if level >= max_level:
             unconverged += int(np.count_nonzero(err > budget))
+        if m == 2 and hidden.any():
+            # A feature thinner than the leaf's nodes can see (a rim a hair inside a cell
+            # edge): integrate such leaves as nested 1-D integrals, at once where the
+            # corners vary along one axis only (an axis-aligned feature), else when the
+            # isotropic refinement has reached its depth limit.
+            c = corner_f.reshape(-1, 2, 2)
+            along0 = np.abs(c[:, 1, :] - c[:, 0, :]).max(axis=1)
+            along1 = np.abs(c[:, :, 1] - c[:, :, 0]).max(axis=1)
+            aligned = np.minimum(along0, along1) <= 1e-9 * np.maximum(along0, along1)
+            thin = hidden & ((aligned & (level >= 2)) | (level >= max_level))
+            if thin.any():
+                fine = fine.copy()
+                fine[thin], err[thin] = _thin_leaves(density, lo[thin], width[thin],
+                                                     budget[thin], n_samples, tau)
+                done = done | thin
+                n_evals += int(np.count_nonzero(thin)) * 3 * 2
         np.add.at(mass, owner[done], fine[done])
         np.add.at(error, owner[done], err[done])
         if kept is not None and done.any():

@@ -15,6 +15,9 @@ __all__ = ["check_unbiased", "check_variance", "check_convergence"]
 #: Tail index below which the variance is taken as infinite: the one-sided 99.9 % upper
 #: confidence bound of the Hill estimate must stay above 2 for the CLT to be trusted.
 _FINITE_VARIANCE_INDEX = 2.0
+#: Fewest samples for the tail test: Hill's estimator uses the sqrt(n) largest values,
+#: and below ~30 of them its confidence bound is not worth a verdict.
+_MIN_TAIL_SAMPLES = 1000
 
 
 def check_unbiased(samples, expected, *, alpha: float = 0.01,
@@ -55,7 +58,10 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01,
                         f"(first at index {int(np.flatnonzero(~finite)[0])})")
         x = x[finite]
     tt = stats.ttest_mean(x, expected) if x.size > 1 else None
-    tail = stats.hill_tail_index(x) if x.size > 10 else None
+    tail = stats.hill_tail_index(x) if x.size >= _MIN_TAIL_SAMPLES else None
+    if tail is None:
+        messages.append(f"{x.size} samples: too few to test for a heavy tail; the t-test "
+                        "assumes finite variance")
     heavy = tail is not None and tail.upper < _FINITE_VARIANCE_INDEX
     if heavy:
         failures.append(f"variance appears infinite (Hill tail index {tail.index:.2f}, "

@@ -1,5 +1,5 @@
 import numpy as np
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from mcverify.quadrature import integrate_cells
@@ -13,6 +13,8 @@ def test_smooth_polynomial_is_exact():
 
 
 @given(st.floats(0.01, 0.99))
+@example(0.798828125)         # step beyond the last Gauss node of a cell and its child
+@example(0.5775485223999852)  # |fine - coarse| undershot the true error
 def test_step_inside_a_cell_is_resolved_in_1d(c):
     # Density 1/c on [0, c): the step falls inside a cell; mass per cell must be exact
     # to a small fraction of Poisson noise at 1e6 samples.
