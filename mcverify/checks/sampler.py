@@ -179,6 +179,16 @@ def _worst_cells(domain, edges, counts, expected, k=5):
     return out
 
 
+def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, *,
+                       min_samples):
+    """Validate the arguments shared by the histogram tests; returns them normalised."""
+    dom = as_domain(domain)
+    n = v.integer("n_samples", n_samples, minimum=min_samples)
+    res = v.resolution("resolution", resolution, dom.param_dim)
+    k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
+    return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k
+
+
 def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution=None,
                   alpha: float = 0.01, seed: int = 0, sample_dim: int | None = None,
                   pilot: bool = True, name: str | None = None) -> CheckResult:
@@ -247,12 +257,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     t0 = time.perf_counter()
     v.callable_("sample", sample)
     v.callable_("pdf", pdf)
-    dom = as_domain(domain)
-    n = v.integer("n_samples", n_samples, minimum=1)
-    res = v.resolution("resolution", resolution, dom.param_dim)
-    alpha = v.probability("alpha", alpha)
-    seed = v.seed("seed", seed)
-    k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
+    dom, n, res, alpha, seed, k = _histogram_test_iv(domain, n_samples, resolution, alpha,
+                                                     seed, sample_dim, min_samples=1)
     name = name or f"sampler:{_name_of(sample, 'sample')}"
     m = dom.param_dim
     res = res or dom.default_resolution(n)
@@ -401,12 +407,8 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     True
     """
     t0 = time.perf_counter()
-    dom = as_domain(domain)
-    n = v.integer("n_samples", n_samples, minimum=2)
-    res = v.resolution("resolution", resolution, dom.param_dim)
-    alpha = v.probability("alpha", alpha)
-    seed = v.seed("seed", seed)
-    k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
+    dom, n, res, alpha, seed, k = _histogram_test_iv(domain, n_samples, resolution, alpha,
+                                                     seed, sample_dim, min_samples=2)
     name = name or "same_distribution"
     seqs = np.random.SeedSequence(seed).spawn(2)
     draws, failures = [], []
