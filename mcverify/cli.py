@@ -36,11 +36,12 @@ def _writable(option: str, path: str | None) -> None:
         raise InvalidArgument(f"{option} {path}: folder {folder} is not writable")
 
 
-def _progress(stream):
+def _progress(stream, verdicts: bool = True):
     tty = stream.isatty()
 
     def show(i, total, r):
         verdict = "ok" if r.passed else ("bitten" if "canary" in str(r.name) else "FAIL")
+        verdict = verdict if verdicts else "done"
         line = f"[{i}/{total}] {r.name} {verdict} ({r.seconds:.1f}s)"
         if tty:
             stream.write("\r\033[K" + line + ("\n" if i == total else ""))
@@ -105,6 +106,72 @@ def _cmd_list(args) -> int:
     return EXIT_OK
 
 
+def _cmd_report(args) -> int:
+    from . import suites
+    from .report import build_report
+    from .report.study import run_study
+
+    out = args.out
+    _writable("--out", os.path.join(out, "report.json"))
+    show = None if args.quiet else _progress(sys.stderr)
+    suite = None
+    extra = {}
+    if not args.no_suite:
+        selected = suites.select(suites.build_suite(args.suite), args.k)
+        if not selected:
+            raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}")
+        if any("mitsuba" in c.tags for c in selected):
+            from . import mitsuba as mv_mitsuba
+
+            extra = {"mitsuba_version": mv_mitsuba.mitsuba_version(),
+                     "mitsuba_variant": mv_mitsuba.choose_variant().variant}
+        suite = suites.run_suite(selected, name=args.suite, seed=args.seed, progress=show,
+                                 extra_provenance=extra)
+    # Study rows are judged together (Holm) at the end: no per-row verdict while running.
+    study = run_study(seed=args.seed,
+                      progress=None if args.quiet else _progress(sys.stderr, verdicts=False))
+    build_report(out, suite=suite, study=study, extra_provenance=dict(extra, seed=args.seed))
+    print(f"mcverify report: wrote {os.path.join(out, 'report.html')} and report.json")
+    return EXIT_OK
+
+
+def _cmd_bench(args) -> int:
+    import json
+
+    from .bench import run_bench
+    from .provenance import provenance
+    from .result import atomic_write
+
+    _writable("--json", args.json)
+    if args.repeats < 1:
+        raise InvalidArgument(f"--repeats {args.repeats}: must be >= 1")
+    if args.n < 1000:
+        raise InvalidArgument(f"--n {args.n}: must be >= 1000 (timings of fewer points "
+                              "measure call overhead, not work)")
+    from . import mitsuba as mv_mitsuba
+
+    choice = mv_mitsuba.choose_variant()
+    if choice.notice:
+        print(f"notice: {choice.notice}", file=sys.stderr)
+
+    def show(i, total, row):
+        if not args.quiet:
+            print(f"[{i}/{total}] {row['group']} done", file=sys.stderr)
+
+    rows = run_bench(repeats=args.repeats, n=args.n, progress=show)
+    print(f"{'workload':28s} {'ours (s)':>10s} {'mitsuba (s)':>12s} {'ours/mitsuba':>13s}")
+    for r in rows:
+        m = "n/a" if r["mitsuba_s"] is None else f"{r['mitsuba_s']:.4f}"
+        ratio = "n/a" if r["ratio"] is None else f"{r['ratio']:.2f}"
+        print(f"{r['group']:28s} {r['ours_s']:10.4f} {m:>12s} {ratio:>13s}")
+    if args.json:
+        doc = {"provenance": provenance(mitsuba_version=mv_mitsuba.mitsuba_version(),
+                                        mitsuba_variant=choice.variant, repeats=args.repeats),
+               "results": rows}
+        atomic_write(args.json, json.dumps(doc, indent=2) + "\n")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
     from . import __version__
@@ -127,6 +194,20 @@ def build_parser() -> argparse.ArgumentParser:
     ls.add_argument("--suite", choices=("default", "full"), default="default")
     ls.add_argument("-k", metavar="PATTERN")
     ls.set_defaults(func=_cmd_list)
+    rp = sub.add_parser("report", help="convergence, efficiency and verification report")
+    rp.add_argument("--out", default=os.path.join("reports", "report"), metavar="DIR")
+    rp.add_argument("--suite", choices=("default", "full"), default="default")
+    rp.add_argument("-k", metavar="PATTERN", help="only these checks in the verification part")
+    rp.add_argument("--no-suite", action="store_true", help="convergence study only")
+    rp.add_argument("--seed", type=int, default=0)
+    rp.add_argument("-q", "--quiet", action="store_true")
+    rp.set_defaults(func=_cmd_report)
+    b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios")
+    b.add_argument("--json", metavar="PATH")
+    b.add_argument("--repeats", type=int, default=5)
+    b.add_argument("--n", type=int, default=1_000_000, help="points per workload")
+    b.add_argument("-q", "--quiet", action="store_true")
+    b.set_defaults(func=_cmd_bench)
     return p
 
 

@@ -34,7 +34,11 @@ def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
     (["check", "--seed", "-3"], "--seed -3"),
     (["check", "--json", "/proc/forbidden/x.json"], "--json /proc/forbidden/x.json"),
     (["frobnicate"], "invalid choice"),
-], ids=["suite", "pattern", "alpha", "seed", "json-path", "command"])
+    (["report", "--out", "/proc/forbidden/rep"], "--out /proc/forbidden/rep"),
+    (["bench", "--repeats", "0"], "--repeats 0"),
+    (["bench", "--n", "10"], "--n 10"),
+], ids=["suite", "pattern", "alpha", "seed", "json-path", "command", "report-out",
+        "bench-repeats", "bench-n"])
 def test_bad_input_is_one_line_exit_2(args, needle):
     r = run(*args)
     assert r.returncode == 2

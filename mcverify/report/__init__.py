@@ -1,0 +1,159 @@
+"""Convergence, efficiency and verification reports: JSON first, then PNGs and one
+self-contained HTML page rendered from the JSON.
+
+``build_report(out_dir, suite=..., study=...)`` writes ``report.json``, the PNGs and
+``report.html`` (plots embedded as data URIs, so the page is one portable file). Every
+file goes through a temporary name and a rename; nothing is half-written.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import os
+
+from ..provenance import provenance
+from ..result import SuiteResult, atomic_write
+from . import plots
+
+__all__ = ["build_report", "render_html"]
+
+
+def _atomic_bytes(path: str, data: bytes) -> None:
+    tmp = path + ".tmp"
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] | None,
+                 extra_provenance: dict | None = None) -> dict:
+    """Write the report into ``out_dir``; returns the JSON document."""
+    os.makedirs(out_dir, exist_ok=True)
+    doc = {
+        "provenance": provenance(**(extra_provenance or {})),
+        "verification": suite.to_dict() if suite is not None else None,
+        "convergence": study or [],
+        "renders": [],
+        "images": {},
+    }
+    images = {}
+    if study:
+        images["convergence.png"] = plots.convergence(study)
+        images["efficiency.png"] = plots.efficiency(study)
+    if suite is not None:
+        for r in suite.results:
+            if not r.passed and "histogram" in r.details:
+                png = plots.histogram(r.to_dict(arrays=True))
+                if png:
+                    safe = "".join(c if c.isalnum() else "_" for c in r.name)[:80]
+                    images[f"failed_{safe}.png"] = png
+    for name, data in images.items():
+        _atomic_bytes(os.path.join(out_dir, name), data)
+    doc["images"] = {name: name for name in images}
+    atomic_write(os.path.join(out_dir, "report.json"), json.dumps(doc, indent=2) + "\n")
+    atomic_write(os.path.join(out_dir, "report.html"), render_html(doc, images))
+    return doc
+
+
+def _e(v) -> str:
+    return html.escape(str(v))
+
+
+def _fmt(v, spec=".3g"):
+    return "" if v is None else (format(v, spec) if isinstance(v, (int, float)) else _e(v))
+
+
+def _img(images: dict, name: str, alt: str) -> str:
+    data = base64.b64encode(images[name]).decode("ascii")
+    return f'<img alt="{_e(alt)}" src="data:image/png;base64,{data}">'
+
+
+def render_html(doc: dict, images: dict[str, bytes]) -> str:
+    """The report page from its JSON document and PNG bytes (embedded)."""
+    parts = [_HEAD]
+    prov = doc["provenance"]
+    parts.append("<h1>mcverify report</h1>")
+    parts.append("<p class=meta>" + " · ".join(_e(f"{k}: {prov.get(k)}") for k in (
+        "mcverify_version", "git_commit", "utc_time", "mitsuba_variant")
+        if prov.get(k) is not None) + "</p>")
+
+    ver = doc.get("verification")
+    parts.append("<h2>Verification</h2>")
+    if ver is None:
+        parts.append("<p>No verification suite was run.</p>")
+    else:
+        parts.append(f"<p>Suite <b>{_e(ver['suite'])}</b>: {ver['n_checks'] - ver['n_failed']}"
+                     f" passed, {ver['n_failed']} failed, family-wise α = {ver['alpha']} "
+                     f"({_e(ver['correction'])}); canaries "
+                     f"{'bitten' if ver['canary_bitten'] else '<b>NOT bitten</b>'}; "
+                     f"{ver['seconds']:.1f} s.</p>")
+        rows = sorted(ver["results"], key=lambda r: (r["passed"], r["name"]))
+        parts.append("<table><tr><th>check</th><th>verdict</th><th>p</th><th>p adjusted</th>"
+                     "<th>α</th><th>n</th><th>seconds</th><th>why</th></tr>")
+        for r in rows:
+            why = "; ".join(r["failures"] + r["messages"])
+            parts.append(
+                f"<tr class={'pass' if r['passed'] else 'fail'}><td>{_e(r['name'])}</td>"
+                f"<td>{'pass' if r['passed'] else 'FAIL'}</td><td>{_fmt(r['p_value'])}</td>"
+                f"<td>{_fmt(r['details'].get('p_adjusted'))}</td><td>{_fmt(r['alpha'])}</td>"
+                f"<td>{r['n_samples']}</td><td>{r['seconds']:.2f}</td><td>{_e(why)}</td></tr>")
+        parts.append("</table>")
+        for name in (n for n in images if n.startswith("failed_")):
+            parts.append(f"<figure>{_img(images, name, name)}<figcaption>{_e(name)}: "
+                         "histogram against the integrated pdf</figcaption></figure>")
+
+    study = doc.get("convergence") or []
+    parts.append("<h2>Convergence</h2>")
+    if not study:
+        parts.append("<p>No convergence study was run.</p>")
+    else:
+        parts.append("<p>RMSE against N over independent seeds; fitted log-log slope with "
+                     "its confidence interval, beside the theory (−0.5 for Monte Carlo; "
+                     "steeper for stratified and randomised QMC on smooth integrands). "
+                     "Verdicts are Holm-corrected across the table.</p>")
+        parts.append(f"<figure>{_img(images, 'convergence.png', 'RMSE against N')}</figure>")
+        parts.append("<table><tr><th>integrand</th><th>estimator</th><th>slope</th>"
+                     "<th>CI</th><th>expected</th><th>p adjusted</th><th>verdict</th>"
+                     "<th>efficiency 1/(MSE·t)</th></tr>")
+        for r in study:
+            exp = ("< " if r["alternative"] == "less" else "") + str(r["expected_slope"])
+            parts.append(
+                f"<tr class={'pass' if r['passed'] else 'fail'}><td>{_e(r['integrand'])}</td>"
+                f"<td>{_e(r['estimator'])}</td><td>{r['slope']:.3f}</td>"
+                f"<td>[{r['ci'][0]:.3f}, {r['ci'][1]:.3f}]</td><td>{_e(exp)}</td>"
+                f"<td>{_fmt(r['p_adjusted'])}</td><td>{'as expected' if r['passed'] else 'NOT'}"
+                f"</td><td>{r['efficiency'][-1]:.3g}</td></tr>")
+        parts.append("</table>")
+        parts.append("<h2>Efficiency</h2><p>Error against wall time per estimate; "
+                     "efficiency = 1 / (MSE × time) (Veach), at the largest N.</p>")
+        parts.append(f"<figure>{_img(images, 'efficiency.png', 'RMSE against time')}</figure>")
+
+    parts.append("<h2>Renders</h2><p>No render comparisons yet: the path tracer and the "
+                 "Mitsuba reference renders are not part of this version.</p>")
+    parts.append(_TAIL)
+    return "\n".join(parts)
+
+
+_HEAD = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>mcverify report</title>
+<style>
+body { font: 14px/1.45 system-ui, sans-serif; margin: 2em auto; max-width: 1400px; color: #222; }
+h1 { margin-bottom: 0; } .meta { color: #666; font-size: 12px; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 12px; }
+th, td { border: 1px solid #ccc; padding: 3px 6px; text-align: left; vertical-align: top; }
+tr.fail td { background: #fde8e8; } tr.pass td:nth-child(2) { color: #17692b; }
+figure { margin: 1em 0; } img { max-width: 100%; }
+</style></head><body>"""
+
+# The page checks its own images once loaded: body[data-images] = "loaded/total", read by
+# the report test through headless Chromium's DOM dump.
+_TAIL = """<script>
+window.addEventListener("load", function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
+  document.body.setAttribute("data-images", ok + "/" + imgs.length);
+});
+</script></body></html>
+"""

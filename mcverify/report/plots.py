@@ -1,0 +1,91 @@
+"""PNG plots for the report (matplotlib, Agg backend: no display needed)."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    _plt().close(fig)
+    return buf.getvalue()
+
+
+def convergence(rows: list[dict]) -> bytes:
+    """RMSE against N, log-log, one panel per integrand, fitted slope in the legend."""
+    plt = _plt()
+    names = list(dict.fromkeys(r["integrand"] for r in rows))
+    fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        for r in (r for r in rows if r["integrand"] == name):
+            ax.loglog(r["ns"], r["rmse"], "o-", ms=3,
+                      label=f"{r['estimator']}: {r['slope']:.2f} "
+                            f"[{r['ci'][0]:.2f}, {r['ci'][1]:.2f}]")
+        ns = np.asarray(rows[0]["ns"], dtype=float)
+        first = next(r for r in rows if r["integrand"] == name and r["estimator"] == "uniform")
+        ax.loglog(ns, first["rmse"][0] * (ns / ns[0]) ** -0.5, "k:", lw=1, label="N^-1/2")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("N")
+        ax.set_ylabel("RMSE")
+        ax.legend(fontsize=6)
+    return _png(fig)
+
+
+def efficiency(rows: list[dict]) -> bytes:
+    """RMSE against wall time per estimate, log-log, one panel per integrand."""
+    plt = _plt()
+    names = list(dict.fromkeys(r["integrand"] for r in rows))
+    fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        for r in (r for r in rows if r["integrand"] == name):
+            ax.loglog(r["seconds"], r["rmse"], "o-", ms=3,
+                      label=f"{r['estimator']}: 1/(MSE·t) = {r['efficiency'][-1]:.2g}")
+        ax.xaxis.set_minor_formatter(plt.NullFormatter())
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("seconds per estimate (median)")
+        ax.set_ylabel("RMSE")
+        ax.legend(fontsize=6)
+    return _png(fig)
+
+
+def histogram(result: dict) -> bytes | None:
+    """Observed vs expected counts of a sampler check and their standardised difference
+    ((O − E)/√E), over the domain's parameter cells: where a sampler and its pdf
+    disagree."""
+    h = result.get("details", {}).get("histogram")
+    if not h or "expected" not in h:
+        return None
+    plt = _plt()
+    obs, exp = np.asarray(h["observed"], float), np.asarray(h["expected"], float)
+    z = np.where(exp > 0, (obs - exp) / np.sqrt(np.maximum(exp, 1e-300)),
+                 np.where(obs > 0, np.inf, 0.0))
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    if obs.ndim == 1:
+        centres = 0.5 * (np.asarray(h["edges"][0][1:]) + np.asarray(h["edges"][0][:-1]))
+        axes[0].step(centres, obs, where="mid")
+        axes[1].step(centres, exp, where="mid", color="C1")
+        axes[2].plot(centres, np.clip(z, -10, 10), ".", ms=2)
+    else:
+        for ax, img in zip(axes[:2], (obs, exp)):
+            im = ax.imshow(img, aspect="auto", origin="lower", cmap="viridis")
+            fig.colorbar(im, ax=ax)
+        im = axes[2].imshow(np.clip(z, -6, 6), aspect="auto", origin="lower", cmap="RdBu_r",
+                            vmin=-6, vmax=6)
+        fig.colorbar(im, ax=axes[2])
+    for ax, t in zip(axes, ("observed", "expected (pdf integrated per cell)",
+                            "(O - E) / sqrt(E), clipped")):
+        ax.set_title(t, fontsize=9)
+    fig.suptitle(result["name"], fontsize=10)
+    return _png(fig)

@@ -1,0 +1,79 @@
+"""Reports: JSON first, PNGs and one self-contained HTML page that a browser renders with
+every image loaded and no console error (headless Chromium)."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from mcverify import suites
+from mcverify.report import build_report
+from mcverify.report.study import run_study
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    checks = suites.select(suites.build_suite("default"), "sampler:uniform_disk")
+    planted = suites.canaries(200_000)[:1]   # a failing check, so its histogram is drawn
+    result = suites.run_suite(checks + planted, seed=0, canary=False)
+    study = run_study(ns=(64, 256, 1024), n_seeds=8)
+    doc = build_report(str(out), suite=result, study=study)
+    return out, doc
+
+
+def test_json_first_with_provenance_and_all_parts(report):
+    out, doc = report
+    on_disk = json.loads((out / "report.json").read_text())
+    assert on_disk["provenance"]["git_commit"] == doc["provenance"]["git_commit"]
+    assert on_disk["verification"]["n_failed"] == 1
+    assert {r["estimator"] for r in on_disk["convergence"]} >= {"uniform", "rqmc"}
+    names = set(on_disk["images"])
+    assert {"convergence.png", "efficiency.png"} <= names
+    assert any(n.startswith("failed_") for n in names)
+    for n in names:
+        assert (out / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(out.glob("*.tmp")) and not list(out.glob(".tmp-*"))
+
+
+def test_failed_checks_come_first(report):
+    out, _ = report
+    page = (out / "report.html").read_text()
+    assert page.index("cosine+2%uniform") < page.index("sampler:uniform_disk_polar")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed: `make setup` installs "
+                    "it as root (apt-get install chromium); CI always has it")
+def test_html_renders_every_image_in_headless_chromium(report, tmp_path):
+    out, doc = report
+    url = "file://" + os.path.abspath(out / "report.html")
+    flags = ["--headless", "--no-sandbox", "--disable-gpu", "--enable-logging=stderr", "--v=0"]
+    dom = subprocess.run([CHROMIUM, *flags, "--virtual-time-budget=5000", "--dump-dom", url],
+                         capture_output=True, text=True, timeout=120)
+    n = len(doc["images"])
+    assert f'data-images="{n}/{n}"' in dom.stdout, dom.stdout[-500:]
+    console_errors = [line for line in dom.stderr.splitlines()
+                      if "CONSOLE" in line and ("Error" in line or "Uncaught" in line)]
+    assert not console_errors, console_errors
+    shot = tmp_path / "shot.png"
+    subprocess.run([CHROMIUM, *flags, "--window-size=1400,2000", f"--screenshot={shot}", url],
+                   capture_output=True, timeout=120)
+    assert shot.exists() and shot.stat().st_size > 10_000
+
+
+def test_cli_bench_reports_ratios(tmp_path):
+    out = tmp_path / "bench.json"
+    r = subprocess.run([sys.executable, "-m", "mcverify.cli", "bench", "--n", "20000",
+                        "--repeats", "1", "--json", str(out), "-q"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    groups = {row["group"] for row in doc["results"]}
+    assert "warp:cosine_hemisphere" in groups and "chi2:cosine_hemisphere" in groups
+    assert "ours/mitsuba" in r.stdout
+    assert doc["provenance"]["mitsuba_variant"]
