@@ -23,41 +23,40 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
-def convergence(rows: list[dict]) -> bytes:
-    """RMSE against N, log-log, one panel per integrand, fitted slope in the legend."""
+def _per_integrand(rows: list[dict], draw, xlabel: str) -> bytes:
+    """One log-log panel per integrand; ``draw(ax, row)`` plots one estimator's row."""
     plt = _plt()
     names = list(dict.fromkeys(r["integrand"] for r in rows))
     fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False)
     for ax, name in zip(axes[0], names):
-        for r in (r for r in rows if r["integrand"] == name):
-            ax.loglog(r["ns"], r["rmse"], "o-", ms=3,
-                      label=f"{r['estimator']}: {r['slope']:.2f} "
-                            f"[{r['ci'][0]:.2f}, {r['ci'][1]:.2f}]")
-        ns = np.asarray(rows[0]["ns"], dtype=float)
-        first = next(r for r in rows if r["integrand"] == name and r["estimator"] == "uniform")
-        ax.loglog(ns, first["rmse"][0] * (ns / ns[0]) ** -0.5, "k:", lw=1, label="N^-1/2")
+        mine = [r for r in rows if r["integrand"] == name]
+        for r in mine:
+            draw(ax, r)
+        if mine and "uniform" in {r["estimator"] for r in mine} and xlabel == "N":
+            first = next(r for r in mine if r["estimator"] == "uniform")
+            ns = np.asarray(first["ns"], dtype=float)
+            ax.loglog(ns, first["rmse"][0] * (ns / ns[0]) ** -0.5, "k:", lw=1, label="N^-1/2")
+        ax.xaxis.set_minor_formatter(plt.NullFormatter())
         ax.set_title(name, fontsize=9)
-        ax.set_xlabel("N")
+        ax.set_xlabel(xlabel)
         ax.set_ylabel("RMSE")
         ax.legend(fontsize=6)
     return _png(fig)
+
+
+def convergence(rows: list[dict]) -> bytes:
+    """RMSE against N, log-log, one panel per integrand, fitted slope in the legend."""
+    return _per_integrand(rows, lambda ax, r: ax.loglog(
+        r["ns"], r["rmse"], "o-", ms=3,
+        label=f"{r['estimator']}: {r['slope']:.2f} [{r['ci'][0]:.2f}, {r['ci'][1]:.2f}]"), "N")
 
 
 def efficiency(rows: list[dict]) -> bytes:
-    """RMSE against wall time per estimate, log-log, one panel per integrand."""
-    plt = _plt()
-    names = list(dict.fromkeys(r["integrand"] for r in rows))
-    fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False)
-    for ax, name in zip(axes[0], names):
-        for r in (r for r in rows if r["integrand"] == name):
-            ax.loglog(r["seconds"], r["rmse"], "o-", ms=3,
-                      label=f"{r['estimator']}: 1/(MSE·t) = {r['efficiency'][-1]:.2g}")
-        ax.xaxis.set_minor_formatter(plt.NullFormatter())
-        ax.set_title(name, fontsize=9)
-        ax.set_xlabel("seconds per estimate (median)")
-        ax.set_ylabel("RMSE")
-        ax.legend(fontsize=6)
-    return _png(fig)
+    """RMSE against wall time per estimate (median), log-log, one panel per integrand."""
+    return _per_integrand(rows, lambda ax, r: ax.loglog(
+        r["seconds"], r["rmse"], "o-", ms=3,
+        label=f"{r['estimator']}: 1/(MSE·t) = {r['efficiency'][-1]:.2g}"),
+        "seconds per estimate (median)")
 
 
 def histogram(result: dict) -> bytes | None:

@@ -1,0 +1,64 @@
+"""4×4 affine transforms with Mitsuba's conventions (column vectors, ``T @ p``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def translate(v) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = v
+    return m
+
+
+def scale(v) -> np.ndarray:
+    return np.diag([*np.broadcast_to(np.asarray(v, float), 3), 1.0])
+
+
+def rotate(axis, angle_deg: float) -> np.ndarray:
+    """Rotation by ``angle_deg`` degrees about ``axis`` (right-handed, Rodrigues)."""
+    a = np.asarray(axis, dtype=np.float64)
+    n = np.linalg.norm(a)
+    if n == 0:
+        raise ValueError("rotate: the axis must be non-zero")
+    x, y, z = a / n
+    t = np.radians(angle_deg)
+    c, s = np.cos(t), np.sin(t)
+    k = 1.0 - c
+    m = np.eye(4)
+    m[:3, :3] = [[c + x * x * k, x * y * k - z * s, x * z * k + y * s],
+                 [y * x * k + z * s, c + y * y * k, y * z * k - x * s],
+                 [z * x * k - y * s, z * y * k + x * s, c + z * z * k]]
+    return m
+
+
+def look_at(origin, target, up) -> np.ndarray:
+    """Camera-to-world of a camera at ``origin`` looking at ``target``: columns are
+    (left, up, forward, origin), so camera space looks along +z, +x is to the left."""
+    origin, target, up = (np.asarray(v, dtype=np.float64) for v in (origin, target, up))
+    d = target - origin
+    if np.linalg.norm(d) == 0:
+        raise ValueError("lookat: origin and target coincide")
+    d = d / np.linalg.norm(d)
+    left = np.cross(up, d)
+    if np.linalg.norm(left) == 0:
+        raise ValueError("lookat: 'up' is parallel to the viewing direction")
+    left = left / np.linalg.norm(left)
+    new_up = np.cross(d, left)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, d, origin
+    return m
+
+
+def matrix(values) -> np.ndarray:
+    """A 4×4 matrix from 16 row-major values (Mitsuba's ``<matrix value="...">``)."""
+    return np.asarray(values, dtype=np.float64).reshape(4, 4)
+
+
+def apply_point(m, p) -> np.ndarray:
+    p = np.asarray(p, dtype=np.float64)
+    return p @ m[:3, :3].T + m[:3, 3]
+
+
+def apply_vector(m, v) -> np.ndarray:
+    return np.asarray(v, dtype=np.float64) @ m[:3, :3].T
