@@ -10,6 +10,7 @@ Public API
 ``check_unbiased``              t-test of per-sample estimates, heavy-tail aware
 ``check_variance``              zero variance when p ∝ f, or a known variance
 ``check_convergence``           log-log slope of RMSE against N over seeds
+``compare_images``              two renders, pixelwise: global, block and pixel tests
 ``CheckResult``, ``SuiteResult``  results as frozen data; ``to_dict()``
 ``write_json``, ``write_junit``   sinks (atomic writes)
 ``Interval``, ``Square``, ``Disk``, ``Sphere``, ``Hemisphere``  domains
@@ -22,14 +23,14 @@ Every randomised function takes ``seed``; the same seed gives the same result.
 __version__ = "0.1.0"
 
 from .checks import (check_convergence, check_inverse, check_same_distribution,
-                     check_sampler, check_unbiased, check_variance)
+                     check_sampler, check_unbiased, check_variance, compare_images)
 from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
 from .errors import EnvironmentProblem, InvalidArgument
 from .result import CheckResult, SuiteResult, write_json, write_junit
 
 __all__ = [
     "check_sampler", "check_inverse", "check_same_distribution",
-    "check_unbiased", "check_variance", "check_convergence",
+    "check_unbiased", "check_variance", "check_convergence", "compare_images",
     "CheckResult", "SuiteResult", "write_json", "write_junit",
     "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",
     "InvalidArgument", "EnvironmentProblem", "__version__",

@@ -1,0 +1,102 @@
+"""compare_images: calibrated under A/A (synthetic skewed pixels and real Mitsuba renders),
+and it catches a global ±2 % bias and a local +10 % one, saying which test found what."""
+
+import os
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+from mcverify import stats
+
+ALPHA = 0.01
+RUNS = 200
+BOUND = stats.binomial_upper_bound(RUNS, ALPHA, 0.999)
+
+
+def _pair(rng, shape_k, n, size=(32, 32, 3), scale_b=1.0, local=None):
+    a = rng.gamma(shape_k, 1.0, size + (n,))
+    b = rng.gamma(shape_k, 1.0, size + (n,)) * scale_b
+    if local is not None:
+        b[local] *= 1.10
+    return dict(test_mean=a.mean(-1), ref_mean=b.mean(-1), test_var=a.var(-1, ddof=1),
+                ref_var=b.var(-1, ddof=1), test_n=n, ref_n=n)
+
+
+@pytest.mark.parametrize("shape_k,n", [(0.5, 8), (0.1, 64)], ids=["skewed-n8", "heavy-n64"])
+def test_false_alarms_within_binomial_bound(shape_k, n):
+    alarms = sum(not mv.compare_images(**_pair(np.random.default_rng(s), shape_k, n),
+                                       alpha=ALPHA).passed for s in range(RUNS))
+    assert alarms <= BOUND, (alarms, BOUND)
+
+
+@pytest.mark.parametrize("scale_b", [1.02, 0.98])
+def test_global_two_percent_bias_is_found_by_the_global_test(scale_b):
+    r = mv.compare_images(**_pair(np.random.default_rng(1), 2.0, 64, scale_b=scale_b))
+    assert not r.passed and "global" in r.details["found_by"]
+    assert np.sign(r.details["global"]["relative"]) == -np.sign(scale_b - 1)
+
+
+def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
+    local = (slice(16, 24), slice(8, 16), slice(None))
+    r = mv.compare_images(**_pair(np.random.default_rng(2), 2.0, 64, local=local))
+    assert not r.passed and "blocks" in r.details["found_by"]
+    assert {tuple(b["block"]) for b in r.details["blocks"]["rejected"]} == {(2, 1)}
+
+
+def test_zero_variance_pixels_compare_exactly():
+    z = np.zeros((8, 8))
+    ok = mv.compare_images(z, z, test_var=z, ref_var=z, test_n=4, ref_n=4)
+    assert ok.passed
+    t = z.copy()
+    t[3, 3] = 1e-3
+    t[5, 5] = 1e-30       # below float32 resolution of the image's scale: equal
+    bad = mv.compare_images(t, z, test_var=z, ref_var=z, test_n=4, ref_n=4)
+    assert not bad.passed and "pixels" in bad.details["found_by"]
+    assert bad.details["p_map"][3, 3] == 0.0 and bad.details["p_map"][5, 5] == 1.0
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(ref_mean=np.zeros((4, 5))), "shape"),
+    (dict(test_var=-np.ones((4, 4))), ">= 0"),
+    (dict(test_mean=np.full((4, 4), np.nan)), "NaN"),
+    (dict(test_n=1), "test_n=1"),
+    (dict(block=0), "block=0"),
+], ids=["shape", "negative-var", "nan", "n", "block"])
+def test_bad_input(kwargs, match):
+    base = dict(test_mean=np.zeros((4, 4)), ref_mean=np.zeros((4, 4)),
+                test_var=np.ones((4, 4)), ref_var=np.ones((4, 4)), test_n=4, ref_n=4)
+    base.update(kwargs)
+    with pytest.raises(mv.InvalidArgument, match=match):
+        mv.compare_images(**base)
+
+
+SCENE = os.path.join(os.path.dirname(__file__), "..", "..", "reference", "scenes",
+                     "cornell-box", "scene.xml")
+
+
+def _mitsuba_passes(mi, scene, seed0, passes=16, spp=64):
+    imgs = np.stack([np.asarray(mi.render(scene, spp=spp, seed=seed0 + k), dtype=np.float64)
+                     for k in range(passes)])
+    return imgs.mean(0), imgs.var(0, ddof=1), passes
+
+
+@pytest.mark.mitsuba
+def test_mitsuba_against_itself_passes_and_a_brighter_light_fails():
+    from mcverify import mitsuba as mvm
+
+    if mvm.choose_variant().variant.startswith("scalar"):
+        pytest.skip("rendering the A/A pair needs the llvm variant (libLLVM >= 16) to be fast")
+    mi = mvm._mi()
+    scene = mi.load_file(SCENE)
+    ta, va, n = _mitsuba_passes(mi, scene, 0)
+    tb, vb, _ = _mitsuba_passes(mi, scene, 1000)
+    same = mv.compare_images(ta, tb, test_var=va, ref_var=vb, test_n=n, ref_n=n)
+    assert same.passed, same.details["found_by"]
+    params = mi.traverse(scene)
+    key = next(k for k in params.keys() if k.endswith("emitter.radiance.value"))
+    params[key] = params[key] * 1.02
+    params.update()
+    tc, vc, _ = _mitsuba_passes(mi, scene, 2000)
+    brighter = mv.compare_images(tc, tb, test_var=vc, ref_var=vb, test_n=n, ref_n=n)
+    assert not brighter.passed and "global" in brighter.details["found_by"]
