@@ -172,6 +172,59 @@ def _cmd_bench(args) -> int:
     return EXIT_OK
 
 
+def _cmd_reference_build(args) -> int:
+    from . import reference
+
+    names = args.scenes or reference.list_scenes()
+    if not names:
+        raise InvalidArgument(f"no scenes given and none under {reference.REFERENCE_ROOT}")
+    resolved = [reference.resolve_scene(s) for s in names]    # fail before any rendering
+    from . import mitsuba as mv_mitsuba
+
+    choice = mv_mitsuba.choose_variant()
+    if choice.notice:
+        print(f"notice: {choice.notice}", file=sys.stderr)
+    for name, path in resolved:
+        def show(i, total, name=name):
+            if not args.quiet:
+                print(f"[{name}] pass {i}/{total}", file=sys.stderr)
+
+        out = reference.build_reference(path, spp=args.spp, passes=args.passes, seed=args.seed,
+                                        progress=show)
+        print(f"built {out} ({args.passes} passes × {args.spp} spp, {choice.variant})")
+    return EXIT_OK
+
+
+def _cmd_compare(args) -> int:
+    from . import mitsuba as mv_mitsuba
+    from . import reference
+    from .checks import compare_images
+    from .result import write_json
+
+    _writable("--json", args.json)
+    test = mv_mitsuba.read_exr(args.test)
+    test_var = mv_mitsuba.read_exr(args.test_var)
+    if os.path.isfile(args.ref):
+        if args.ref_var is None or args.ref_n is None:
+            raise InvalidArgument(f"{args.ref}: an image reference needs --ref-var and --ref-n")
+        ref, ref_var, ref_n = mv_mitsuba.read_exr(args.ref), mv_mitsuba.read_exr(args.ref_var), \
+            args.ref_n
+    else:
+        r = reference.load_reference(args.ref)
+        ref, ref_var, ref_n = r.mean, r.var, r.n
+    if test.shape != ref.shape:
+        raise InvalidArgument(f"{args.test}: shape {test.shape} differs from the reference's "
+                              f"{ref.shape}")
+    result = compare_images(test, ref, test_var=test_var, ref_var=ref_var, test_n=args.test_n,
+                            ref_n=ref_n, alpha=args.alpha, name=f"compare:{args.test}")
+    if args.json:
+        write_json(result, args.json)
+    print(result.summary())
+    for m in result.messages:
+        print(f"    {m}")
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
     from . import __version__
@@ -208,6 +261,26 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--n", type=int, default=1_000_000, help="points per workload")
     b.add_argument("-q", "--quiet", action="store_true")
     b.set_defaults(func=_cmd_bench)
+    ref = sub.add_parser("reference", help="Mitsuba reference renders")
+    rsub = ref.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    rb = rsub.add_parser("build", help="(re)render references with per-pixel variance")
+    rb.add_argument("scenes", nargs="*", metavar="SCENE",
+                    help="reference names or scene.xml paths (default: all)")
+    rb.add_argument("--spp", type=int, default=64)
+    rb.add_argument("--passes", type=int, default=16)
+    rb.add_argument("--seed", type=int, default=0)
+    rb.add_argument("-q", "--quiet", action="store_true")
+    rb.set_defaults(func=_cmd_reference_build)
+    cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference")
+    cp.add_argument("test", metavar="TEST.exr")
+    cp.add_argument("ref", metavar="REF", help="REF.exr or a reference name")
+    cp.add_argument("--test-var", required=True, metavar="VAR.exr")
+    cp.add_argument("--test-n", required=True, type=int)
+    cp.add_argument("--ref-var", metavar="VAR.exr")
+    cp.add_argument("--ref-n", type=int)
+    cp.add_argument("--alpha", type=float, default=0.01)
+    cp.add_argument("--json", metavar="PATH")
+    cp.set_defaults(func=_cmd_compare)
     return p
 
 

@@ -184,3 +184,36 @@ def mitsuba_warps() -> list[MitsubaWarp]:
                     hemi(_wrap(w.square_to_beckmann_pdf, 3, alpha)),
                     _wrap(w.beckmann_to_square, 3, alpha), "hemisphere", 2),
     ]
+
+
+def render_passes(scene_path: str, *, spp: int, seeds, params: dict | None = None,
+                  progress=None) -> np.ndarray:
+    """Render ``scene_path`` once per seed (independent passes): (K, H, W, C) float64."""
+    mi = _mi()
+    try:
+        scene = mi.load_file(scene_path, **(params or {}))
+    except Exception as e:  # Mitsuba raises RuntimeError with its parser's message
+        raise EnvironmentProblem(f"{scene_path}: Mitsuba cannot load it ({e})") from None
+    out = []
+    for i, seed in enumerate(seeds):
+        out.append(np.asarray(mi.render(scene, spp=spp, seed=int(seed)), dtype=np.float64))
+        if progress:
+            progress(i + 1, len(seeds))
+    return np.stack(out)
+
+
+def write_exr(path: str, image: np.ndarray) -> None:
+    """Write an (H, W, C) image as a float32 OpenEXR file."""
+    mi = _mi()
+    mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32)).write(path)
+
+
+def read_exr(path: str) -> np.ndarray:
+    """Read an OpenEXR (or any Mitsuba-readable) image as (H, W, C) float64; a missing
+    or corrupt file raises ``EnvironmentProblem`` naming it."""
+    mi = _mi()
+    try:
+        a = np.array(mi.Bitmap(path), dtype=np.float64)
+    except Exception as e:
+        raise EnvironmentProblem(f"{path}: cannot read image ({e})") from None
+    return a[:, :, None] if a.ndim == 2 else a
