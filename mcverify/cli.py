@@ -56,14 +56,20 @@ def _cmd_check(args) -> int:
     from . import suites
     from .result import write_json, write_junit
 
-    if args.scene:
-        raise InvalidArgument(f"--scene {args.scene}: scene planning is not available in "
-                              "this version; run the built-in suites without --scene")
     _writable("--json", args.json)
     _writable("--junit", args.junit)
     extra = {}
-    selected = suites.select(suites.build_suite(args.suite), args.k)
-    if not selected:
+    skipped = []
+    if args.scene:
+        planned, skipped, _ = _plan(args.scene, args.suite)
+        selected = suites.select(planned, args.k)
+        extra["scene"] = os.path.abspath(args.scene)
+    else:
+        selected = suites.select(suites.build_suite(args.suite), args.k)
+    if not selected and args.scene:
+        print(f"mcverify check --scene {args.scene}: the scene needs no sampler or estimator "
+              "checks", file=sys.stderr)
+    elif not selected:
         raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
                               "`mcverify list` shows the names")
     if any("mitsuba" in c.tags for c in selected):
@@ -76,7 +82,7 @@ def _cmd_check(args) -> int:
                  "mitsuba_variant": choice.variant}
     result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
                               progress=None if args.quiet else _progress(sys.stderr),
-                              extra_provenance=extra)
+                              extra_provenance=extra, skipped=skipped)
     if args.json:
         write_json(result, args.json)
     if args.junit:
@@ -96,6 +102,33 @@ def _cmd_check(args) -> int:
           f" (family-wise alpha={args.alpha} by {result.correction}; canaries "
           f"{'bitten' if result.canary_bitten else 'NOT bitten'}; {result.seconds:.1f}s)")
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _plan(scene, suite):
+    from estimators.pathtracer import SceneError
+
+    from . import suites
+
+    try:
+        return suites.plan(scene, suite)
+    except SceneError as e:
+        raise InvalidArgument(str(e)) from None
+
+
+def _cmd_plan(args) -> int:
+    checks, skipped, features = _plan(args.scene, args.suite)
+    print(f"scene {args.scene} uses: {', '.join(sorted(features))}")
+    print(f"checks ({len(checks)}):")
+    for c in checks:
+        print(f"  {c.name}")
+    print(f"skipped ({len(skipped)}):")
+    for name, why in skipped:
+        if why != "not needed by this scene" or args.verbose:
+            print(f"  {name}: {why}")
+    hidden = sum(why == "not needed by this scene" for _, why in skipped)
+    if hidden and not args.verbose:
+        print(f"  ... and {hidden} checks this scene does not need (-v lists them)")
+    return EXIT_OK
 
 
 def _cmd_list(args) -> int:
@@ -247,6 +280,11 @@ def build_parser() -> argparse.ArgumentParser:
     ls.add_argument("--suite", choices=("default", "full"), default="default")
     ls.add_argument("-k", metavar="PATTERN")
     ls.set_defaults(func=_cmd_list)
+    pl = sub.add_parser("plan", help="the checks a scene needs, and what is skipped")
+    pl.add_argument("scene", metavar="SCENE.xml")
+    pl.add_argument("--suite", choices=("default", "full"), default="default")
+    pl.add_argument("-v", "--verbose", action="store_true")
+    pl.set_defaults(func=_cmd_plan)
     rp = sub.add_parser("report", help="convergence, efficiency and verification report")
     rp.add_argument("--out", default=os.path.join("reports", "report"), metavar="DIR")
     rp.add_argument("--suite", choices=("default", "full"), default="default")

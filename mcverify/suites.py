@@ -22,7 +22,7 @@ from .domains import Interval
 from .provenance import provenance
 from .result import CheckResult, SuiteResult
 
-__all__ = ["Check", "SUITES", "build_suite", "run_suite", "canaries", "check_seed"]
+__all__ = ["Check", "SUITES", "build_suite", "run_suite", "canaries", "check_seed", "plan"]
 
 
 @dataclass(frozen=True)
@@ -275,6 +275,70 @@ def build_suite(name: str = "default") -> list[Check]:
             + _scipy_checks(profile) + _mitsuba_checks(profile))
 
 
+#: What each scene feature needs verified: feature -> (check-name prefixes, why).
+_NEEDS = {
+    "bsdf:diffuse": (["sampler:cosine_hemisphere", "inverse:cosine_hemisphere"],
+                     "diffuse BSDF sampling draws cosine-weighted directions"),
+    "bsdf:plastic": (["sampler:cosine_hemisphere"], "plastic's diffuse lobe"),
+    "bsdf:roughplastic": (["sampler:cosine_hemisphere", "sampler:beckmann", "sampler:ggx",
+                           "sampler:ggx_vndf"], "rough plastic: diffuse + microfacet lobes"),
+    "bsdf:roughconductor": (["sampler:beckmann", "inverse:beckmann", "sampler:ggx",
+                             "inverse:ggx", "sampler:ggx_vndf"],
+                            "rough conductor: microfacet normal sampling"),
+    "emitter:area:rectangle": (["sampler:uniform_triangle", "inverse:uniform_triangle"],
+                               "mesh lights are sampled by area, triangle by triangle"),
+    "emitter:area:cube": (["sampler:uniform_triangle", "inverse:uniform_triangle"],
+                          "mesh lights are sampled by area, triangle by triangle"),
+    "emitter:area:obj": (["sampler:uniform_triangle", "inverse:uniform_triangle"],
+                         "mesh lights are sampled by area, triangle by triangle"),
+    "emitter:area:disk": (["sampler:uniform_disk_concentric", "inverse:uniform_disk_concentric"],
+                          "disk lights are sampled by area"),
+    "emitter:area:sphere": (["sampler:uniform_cone", "inverse:uniform_cone",
+                             "sampler:uniform_sphere", "inverse:uniform_sphere"],
+                            "sphere lights: the cone they subtend, or area from inside"),
+    "emitter:envmap": (["sampler:piecewise_constant_2d", "inverse:piecewise_constant_2d"],
+                       "environment maps are sampled by a 2-D piecewise-constant pdf"),
+    "emitter:constant": (["sampler:uniform_sphere", "sampler:cosine_hemisphere"],
+                         "a constant environment is sampled uniformly / by cosine"),
+    "integrator:path": (["unbiased:russian_roulette", "unbiased:mis("],
+                        "path tracing uses Russian roulette and MIS"),
+    "integrator:direct": (["unbiased:mis("], "direct illumination combines strategies by MIS"),
+}
+_DELTA = {"bsdf:conductor": "smooth conductor: a delta BSDF, nothing to sample",
+          "bsdf:dielectric": "smooth dielectric: a delta BSDF, nothing to sample",
+          "emitter:point": "point light: a delta emitter, nothing to sample",
+          "emitter:directional": "directional light: a delta emitter, nothing to sample",
+          "emitter:spot": "spot light: a delta emitter, nothing to sample",
+          "bsdf:twosided": "two-sided adapter: nothing of its own to sample"}
+
+
+def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tuple[str, str]],
+                                                          set[str]]:
+    """The checks a scene needs, and the skipped ones with the reason.
+
+    Reads the scene with the path tracer's loader (an unsupported element raises
+    ``SceneError`` naming it), maps each feature it uses to the samplers and estimators
+    that feature relies on, and keeps only those checks. Returns (checks, skipped,
+    features).
+    """
+    from estimators.pathtracer import load_scene
+
+    desc = load_scene(scene_path)
+    all_checks = build_suite(suite)
+    wanted: dict[str, str] = {}
+    for feature in sorted(desc.features):
+        prefixes, why = _NEEDS.get(feature, ([], ""))
+        for c in all_checks:
+            if any(c.name.startswith(p) for p in prefixes):
+                wanted.setdefault(c.name, f"{feature}: {why}")
+    keep = [c for c in all_checks if c.name in wanted]
+    skipped = [(c.name, "not needed by this scene") for c in all_checks if c.name not in wanted]
+    skipped += [(f, why) for f, why in _DELTA.items() if f in desc.features]
+    skipped.append(("render-check", "the independent path tracer has not landed yet "
+                                    "(issue 4); use `mcverify compare` for other renderers"))
+    return keep, skipped, desc.features
+
+
 def select(checks_: list[Check], pattern: str | None) -> list[Check]:
     """Checks whose name contains ``pattern`` (or matches it as a glob with * ? [ ])."""
     if not pattern:
@@ -299,7 +363,8 @@ def _run_guarded(check: Check, seed: int) -> CheckResult:
 def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
               alpha: float = 0.01, correction: str = "holm", canary: bool = True,
               progress: Callable[[int, int, CheckResult], None] | None = None,
-              extra_provenance: dict | None = None) -> SuiteResult:
+              extra_provenance: dict | None = None,
+              skipped: list[tuple[str, str]] | None = None) -> SuiteResult:
     """Run checks and canaries; judge the checks at family-wise ``alpha``."""
     t0 = time.perf_counter()
     results = []
@@ -320,4 +385,4 @@ def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
                       **(extra_provenance or {}))
     return SuiteResult.judge(name, results, alpha=alpha, correction=correction,
                              seconds=time.perf_counter() - t0, provenance=prov,
-                             canary=tuple(bitten))
+                             canary=tuple(bitten), skipped=tuple(skipped or ()))

@@ -342,7 +342,7 @@ def _features(desc: SceneDescription) -> set[str]:
                     feats |= {"texture:bitmap" for v in b.props.values()
                               if isinstance(v, Plugin)}
             elif c.kind == "emitter":
-                feats.add("emitter:area")
+                feats |= {"emitter:area", f"emitter:area:{s.type}"}
     feats |= {f"emitter:{e.type}" for e in desc.emitters}
     return feats
 

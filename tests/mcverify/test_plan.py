@@ -1,0 +1,64 @@
+"""Planning from a scene: only what the scene uses is checked, the rest is skipped with a
+reason, and an unsupported scene is refused by line."""
+
+import os
+import subprocess
+import sys
+
+from mcverify import suites
+from mcverify.reference import REFERENCE_ROOT
+
+CORNELL = os.path.join(REFERENCE_ROOT, "cornell-box", "scene.xml")
+CMD = [sys.executable, "-m", "mcverify.cli"]
+
+DIFFUSE_POINT = """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="45"/></sensor>
+  <emitter type="point"><point name="position" x="0" y="2" z="0"/></emitter>
+  <shape type="sphere"><bsdf type="diffuse"/></shape>
+</scene>"""
+
+
+def _names(checks):
+    return {c.name for c in checks}
+
+
+def test_cornell_box_plan():
+    checks, skipped, features = suites.plan(CORNELL)
+    names = _names(checks)
+    assert {"sampler:cosine_hemisphere", "sampler:uniform_triangle", "sampler:ggx(alpha=0.3)",
+            "sampler:beckmann(alpha=0.3)", "unbiased:russian_roulette(q=0.3)"} <= names
+    assert not any(n.startswith(("scipy:", "sampler:mitsuba", "sampler:exponential",
+                                 "sampler:uniform_cone")) for n in names)
+    reasons = dict(skipped)
+    assert "delta BSDF" in reasons["bsdf:dielectric"]
+    assert "render-check" in reasons
+
+
+def test_diffuse_scene_with_a_point_light(tmp_path):
+    path = tmp_path / "scene.xml"
+    path.write_text(DIFFUSE_POINT)
+    checks, skipped, _ = suites.plan(str(path))
+    assert _names(checks) == {"sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
+                              "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)",
+                              "unbiased:mis(power)"}
+    assert "delta emitter" in dict(skipped)["emitter:point"]
+
+
+def test_cli_plan_and_check_scene(tmp_path):
+    r = subprocess.run(CMD + ["plan", CORNELL], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "sampler:cosine_hemisphere" in r.stdout
+    assert "delta BSDF" in r.stdout
+    out = tmp_path / "r.json"
+    r = subprocess.run(CMD + ["check", "--scene", CORNELL, "-k", "inverse:", "--json", str(out),
+                              "-q"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    import json
+    doc = json.loads(out.read_text())
+    assert doc["n_checks"] >= 3 and any(s["check"] == "render-check" for s in doc["skipped"])
+
+
+def test_unsupported_scene_is_exit_2_naming_the_line(tmp_path):
+    path = tmp_path / "bad.xml"
+    path.write_text(DIFFUSE_POINT.replace('<bsdf type="diffuse"/>', '<bsdf type="hair"/>'))
+    r = subprocess.run(CMD + ["plan", str(path)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "bad.xml:4" in r.stderr and "hair" in r.stderr
