@@ -3,8 +3,9 @@
 Three tests of the same null hypothesis ("both images have the same expected value in
 every pixel"), each at α/3 (Bonferroni):
 
-1. **global**: the mean over all pixels and channels, a z-test of the difference. It
-   sees a light 2 % too bright long before any single pixel does.
+1. **global**: the image mean of each channel, z-tests of the differences (Bonferroni
+   across channels, whose values are correlated: one path gives all three). It sees a
+   light 2 % too bright long before any single pixel does.
 2. **blocks**: means of ``block × block`` pixel blocks per channel, z-tests under Holm
    (Jung, Hanika, Dachsbacher, JCGT 2020). They see a local bias, one wall's albedo off by
    10 %, and say where.
@@ -85,9 +86,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
 
     Notes
     -----
-    Pixel means of independent renders are independent across pixels, so the image mean
-    has variance :math:`\\sum_p (s_{t,p}^2/n_t + s_{r,p}^2/n_r) / P^2`, and a block mean
-    likewise. Welch's test per pixel uses the Welch–Satterthwaite degrees of freedom.
+    Pixel means of independent renders are independent across pixels (not across the
+    channels of a pixel), so a channel's image mean has variance
+    :math:`\\sum_p (s_{t,p}^2/n_t + s_{r,p}^2/n_r) / P^2`, and a block mean likewise.
+    Welch's test per pixel uses the Welch–Satterthwaite degrees of freedom.
 
     Examples
     --------
@@ -116,8 +118,12 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     # a variance that underflowed (one 1e-22 contribution among zeros) is no evidence.
     tol = 1e-7 * max(float(np.abs(tm).max()), float(np.abs(rm).max()), 1e-300)
 
-    # 1. global
-    p_global = float(_z_p(np.array(diff.mean()), np.array(se2.sum() / diff.size ** 2), tol))
+    # 1. global, per channel: the colour channels of one path are strongly correlated
+    #    (identical on grey scenes), so they cannot be pooled as independent values;
+    #    pixels within a channel are independent. Bonferroni across channels.
+    n_px = h * w
+    p_channels = _z_p(diff.mean(axis=(0, 1)), se2.sum(axis=(0, 1)) / n_px ** 2, tol)
+    p_global = stats.bonferroni_min(p_channels)
 
     # 2. blocks (edge blocks may be smaller)
     by, bx = -(-h // block), -(-w // block)
@@ -173,7 +179,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         "found_by": found, "alpha_per_test": level, "block": block,
         "global": {"difference": float(diff.mean()),
                    "relative": float(diff.mean() / max(abs(rm.mean()), 1e-300)),
-                   "p_value": p_global},
+                   "p_value": p_global, "p_channels": [float(x) for x in p_channels]},
         "blocks": {"n": int(p_blocks.size), "rejected": blocks_info,
                    "min_p_adjusted": float(p_blocks_adj.min())},
         "rejected_fraction": float(rejected_px.any(axis=2).mean()),

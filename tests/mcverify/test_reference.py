@@ -33,7 +33,7 @@ def _render_pair(path, seed0, scale=1.0, passes=16, spp=64):
 def test_build_load_stale_and_corrupt(scene_copy):
     out = reference.build_reference(str(scene_copy), spp=16, passes=4)
     ref = reference.load_reference(str(scene_copy))
-    assert ref.n == 4 and ref.mean.shape == (32, 32, 3)
+    assert ref.n == 4 and ref.mean.shape == (64, 64, 3)
     assert ref.manifest["scene_sha256"] == reference.scene_hash(str(scene_copy / "scene.xml"))
     assert not [p for p in os.listdir(scene_copy) if p.startswith(".ref-")]
     (scene_copy / "scene.xml").write_text((scene_copy / "scene.xml").read_text()
