@@ -58,6 +58,21 @@ def _z_p(diff, var, tol):
     return np.where(exact, np.where(np.abs(diff) <= tol, 1.0, 0.0), p)
 
 
+def delta_e2000(test, ref) -> np.ndarray:
+    """Per-pixel CIEDE2000 colour difference of two linear-sRGB HDR images (H, W, 3),
+    both divided by the reference's 99th-percentile luminance and clipped to [0, 1] (ΔE is
+    defined for display colours; 1 is about the smallest difference a person notices)."""
+    import colour
+
+    lum = ref @ np.array([0.2126, 0.7152, 0.0722])
+    scale = max(float(np.percentile(lum, 99)), 1e-12)
+    space = colour.RGB_COLOURSPACES["sRGB"]
+    labs = [colour.XYZ_to_Lab(colour.RGB_to_XYZ(np.clip(img / scale, 0.0, 1.0), space,
+                                                 apply_cctf_decoding=False))
+            for img in (test, ref)]
+    return np.asarray(colour.delta_E(labs[0], labs[1], method="CIE 2000"))
+
+
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                    alpha: float = 0.01, block: int = 8, name: str = "image") -> CheckResult:
     """Test that two renders have the same expected value in every pixel.
@@ -81,8 +96,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     CheckResult
         ``details``: ``found_by`` (which tests rejected), ``global``, ``blocks``
         (rejected blocks with their position and relative difference),
-        ``rejected_fraction`` of pixels, ``relmse``, ``smape``, and ``p_map`` (per-pixel
-        BH-adjusted p-values, the minimum over channels; left out of JSON by default).
+        ``rejected_fraction`` of pixels, ``relmse``, ``smape``, ``delta_e2000_mean`` and
+        ``_p99`` (CIEDE2000, 3-channel images), and ``p_map`` (per-pixel BH-adjusted
+        p-values, the minimum over channels) and ``maps`` (p-map and ΔE2000 map); the maps
+        are left out of JSON by default.
 
     Notes
     -----
@@ -175,6 +192,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                         f"{diff.mean():+.4g} ({diff.mean() / max(abs(rm.mean()), 1e-300):+.2%})"
                         f"; {len(rejected_blocks)} blocks and "
                         f"{rejected_px.any(axis=2).mean():.2%} of pixels rejected")
+    maps = {"p_map": p_map}
+    if c == 3:
+        de = delta_e2000(tm, rm)
+        maps["delta_e2000"] = de
     details = {
         "found_by": found, "alpha_per_test": level, "block": block,
         "global": {"difference": float(diff.mean()),
@@ -188,7 +209,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         "smape": float(np.mean(np.where(np.abs(tm) + np.abs(rm) > 0,
                                         2 * np.abs(diff) / (np.abs(tm) + np.abs(rm) + 1e-300),
                                         0.0))),
-        "p_map": p_map,
+        "delta_e2000_mean": float(maps["delta_e2000"].mean()) if c == 3 else None,
+        "delta_e2000_p99": float(np.percentile(maps["delta_e2000"], 99)) if c == 3 else None,
+        "p_map": p_map, "maps": maps,
     }
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, ()),
                        p_value=p_value, statistic=float(diff.mean()), alpha=alpha,

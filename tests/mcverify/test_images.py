@@ -37,6 +37,20 @@ def test_global_two_percent_bias_is_found_by_the_global_test(scale_b):
     assert np.sign(r.details["global"]["relative"]) == -np.sign(scale_b - 1)
 
 
+def test_delta_e2000_is_zero_for_identical_images_and_grows_with_a_colour_shift():
+    rng = np.random.default_rng(3)
+    img = rng.random((16, 16, 3))
+    same = mv.compare_images(img, img, test_var=np.full_like(img, 0.01),
+                             ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
+    assert same.details["delta_e2000_mean"] == 0.0
+    shifted = img * np.array([1.0, 1.0, 1.3])
+    r = mv.compare_images(shifted, img, test_var=np.full_like(img, 0.01),
+                          ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
+    assert r.details["delta_e2000_mean"] > 1.0
+    assert r.details["maps"]["delta_e2000"].shape == (16, 16)
+    assert "maps" not in r.to_dict()["details"]
+
+
 def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
     local = (slice(16, 24), slice(8, 16), slice(None))
     r = mv.compare_images(**_pair(np.random.default_rng(2), 2.0, 64, local=local))
