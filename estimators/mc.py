@@ -119,10 +119,10 @@ def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     t = (grid + rng.random(grid.shape)) / m
     vals = np.prod(hi - lo) * _call_f(f, lo + (hi - lo) * t, np.ndim(a) == 0)
     # Pair strata along the first axis: (2k, 2k+1).
-    pairs = vals.reshape(m // 2, 2, -1).mean(axis=1).ravel()
+    paired = vals.reshape(m // 2, 2, -1)
+    pairs = paired.mean(axis=1).ravel()
     value = float(vals.mean())
-    se = float(np.sqrt(np.sum((vals.reshape(m // 2, 2, -1)[:, 0] -
-                               vals.reshape(m // 2, 2, -1)[:, 1]) ** 2)) / vals.size)
+    se = float(np.sqrt(np.sum((paired[:, 0] - paired[:, 1]) ** 2)) / vals.size)
     return Estimate(value, se, int(vals.size), pairs)
 
 

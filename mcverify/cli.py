@@ -52,6 +52,19 @@ def _progress(stream, verdicts: bool = True):
     return show
 
 
+def _mitsuba_provenance(selected) -> dict:
+    """Mitsuba's version and variant for the provenance of a run that checks Mitsuba's
+    warps, printing the fallback notice once; {} when no selected check uses Mitsuba."""
+    if not any("mitsuba" in c.tags for c in selected):
+        return {}
+    from . import mitsuba as mv_mitsuba
+
+    choice = mv_mitsuba.choose_variant()
+    if choice.notice:
+        print(f"notice: {choice.notice}", file=sys.stderr)
+    return {"mitsuba_version": mv_mitsuba.mitsuba_version(), "mitsuba_variant": choice.variant}
+
+
 def _cmd_check(args) -> int:
     from . import suites
     from .result import write_json, write_junit
@@ -72,14 +85,7 @@ def _cmd_check(args) -> int:
     elif not selected:
         raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
                               "`mcverify list` shows the names")
-    if any("mitsuba" in c.tags for c in selected):
-        from . import mitsuba as mv_mitsuba
-
-        choice = mv_mitsuba.choose_variant()
-        if choice.notice:
-            print(f"notice: {choice.notice}", file=sys.stderr)
-        extra = {"mitsuba_version": mv_mitsuba.mitsuba_version(),
-                 "mitsuba_variant": choice.variant}
+    extra.update(_mitsuba_provenance(selected))
     result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
                               progress=None if args.quiet else _progress(sys.stderr),
                               extra_provenance=extra, skipped=skipped)
@@ -153,11 +159,7 @@ def _cmd_report(args) -> int:
         selected = suites.select(suites.build_suite(args.suite), args.k)
         if not selected:
             raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}")
-        if any("mitsuba" in c.tags for c in selected):
-            from . import mitsuba as mv_mitsuba
-
-            extra = {"mitsuba_version": mv_mitsuba.mitsuba_version(),
-                     "mitsuba_variant": mv_mitsuba.choose_variant().variant}
+        extra = _mitsuba_provenance(selected)
         suite = suites.run_suite(selected, name=args.suite, seed=args.seed, progress=show,
                                  extra_provenance=extra)
     # Study rows are judged together (Holm) at the end: no per-row verdict while running.

@@ -19,6 +19,7 @@ import numpy as np
 
 from .errors import EnvironmentProblem, InvalidArgument
 from .provenance import provenance
+from .result import shared_mode
 
 REFERENCE_ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                               "reference", "scenes")
@@ -81,9 +82,7 @@ def build_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0
                               mitsuba_variant=choice.variant, shape=list(imgs.shape[1:]))
         with open(os.path.join(tmp, "manifest.json"), "w", encoding="utf-8") as f:
             json.dump(manifest, f, indent=2)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)     # mkdtemp makes 0700; references are shared
+        os.chmod(tmp, shared_mode(0o777))  # mkdtemp makes 0700; references are shared
         if os.path.isdir(out):
             shutil.rmtree(out)
         os.replace(tmp, out)

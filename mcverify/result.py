@@ -148,17 +148,24 @@ class SuiteResult:
         })
 
 
-def atomic_write(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder + rename."""
+def shared_mode(base: int = 0o666) -> int:
+    """``base`` under the process umask: the mode an ordinary ``open`` would give, for
+    files and folders made by ``mkstemp``/``mkdtemp`` (which make them private)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return base & ~umask
+
+
+def atomic_write(path: str, data: str | bytes) -> None:
+    """Write ``data`` (text as UTF-8, or bytes) to ``path`` through a temporary file in the
+    same folder and a rename; on any failure the temporary file is removed."""
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; a report is for reading
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode("utf-8") if isinstance(data, str) else data)
+        os.chmod(tmp, shared_mode())    # mkstemp makes 0600; results are for reading
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

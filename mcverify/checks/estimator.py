@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import _validate as v
 from .. import stats
+from ..errors import InvalidArgument
 from ..result import CheckResult
 
 __all__ = ["check_unbiased", "check_variance", "check_convergence"]
@@ -105,7 +106,6 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
     x = v.samples_1d("samples", samples)
     ev = v.real("expected_variance", expected_variance)
     if ev < 0:
-        from ..errors import InvalidArgument
         raise InvalidArgument(f"expected_variance={ev}: must be >= 0")
     alpha = v.probability("alpha", alpha)
     failures = []
@@ -163,12 +163,10 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     expected = v.real("expected", expected)
     ns = [v.integer("ns[i]", n, minimum=1) for n in ns]
     if len(ns) < 3 or len(set(ns)) != len(ns):
-        from ..errors import InvalidArgument
         raise InvalidArgument(f"ns={ns}: need at least 3 distinct sample counts")
     r = v.integer("n_seeds", n_seeds, minimum=4)
     alpha = v.probability("alpha", alpha)
     if alternative not in ("two-sided", "less"):
-        from ..errors import InvalidArgument
         raise InvalidArgument(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
     seeds = np.random.SeedSequence(v.seed("seed", seed)).generate_state(r * len(ns))
     e2 = np.empty((len(ns), r))

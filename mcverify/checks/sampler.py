@@ -14,6 +14,7 @@ import numpy as np
 from .. import _domain_kernels as K
 from .. import _validate as v
 from .. import stats
+from ..errors import InvalidArgument
 from ..domains import Domain, as_domain
 from ..quadrature import gauss_legendre_01, integrate_cells, merge_leaves
 from ..result import CheckResult
@@ -360,7 +361,6 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     if u2.shape == (n,) and k == 1:
         u2 = u2.reshape(n, 1)
     if u2.shape != (n, k):
-        from ..errors import InvalidArgument
         raise InvalidArgument(f"inverse returned shape {u2.shape}: expected ({n}, {k})")
     err = np.abs(u2 - u)
     err = np.where(np.isfinite(err), err, np.inf)
@@ -421,7 +421,6 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
             except (TypeError, ValueError):
                 x = None
             if x is None or x.ndim not in (1, 2) or x.shape[0] < 2:
-                from ..errors import InvalidArgument
                 raise InvalidArgument(f"{label}: must be a sampler callable or an array "
                                       f"of points (n, {dom.dim})")
             x = v.points(label, x, x.shape[0], dom.dim)

@@ -20,13 +20,6 @@ from . import plots
 __all__ = ["build_report", "render_html"]
 
 
-def _atomic_bytes(path: str, data: bytes) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
-
-
 def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] | None,
                  extra_provenance: dict | None = None) -> dict:
     """Write the report into ``out_dir``; returns the JSON document."""
@@ -50,7 +43,7 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
                     safe = "".join(c if c.isalnum() else "_" for c in r.name)[:80]
                     images[f"failed_{safe}.png"] = png
     for name, data in images.items():
-        _atomic_bytes(os.path.join(out_dir, name), data)
+        atomic_write(os.path.join(out_dir, name), data)
     doc["images"] = {name: name for name in images}
     atomic_write(os.path.join(out_dir, "report.json"), json.dumps(doc, indent=2) + "\n")
     atomic_write(os.path.join(out_dir, "report.html"), render_html(doc, images))
