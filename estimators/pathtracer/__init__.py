@@ -1,11 +1,16 @@
-"""The independent path tracer (in progress): Mitsuba XML scenes in, mean + variance out.
+"""The independent path tracer: Mitsuba XML scenes in, per-pixel mean + variance out.
 
-Landed so far: the scene loader (``scene``: the supported subset, with clear errors),
-transforms and the perspective camera, proven against Mitsuba's own rays.
+``scene`` parses the supported subset (clear errors for the rest), ``compile`` turns it
+into flat arrays (primitives, SAH hierarchy, BSDF and emitter tables, textures),
+``_kernel`` is the numba path tracer (NEE + MIS, Russian roulette), specialised per scene
+by ``render``.
 """
 
 from .camera import Camera, camera_from_scene, generate_rays
+from .compile import CompiledScene, compile_scene
+from .render import RenderResult, render
 from .scene import SceneDescription, SceneError, load_scene, parse_scene
 
-__all__ = ["Camera", "camera_from_scene", "generate_rays", "SceneDescription", "SceneError",
-           "load_scene", "parse_scene"]
+__all__ = ["Camera", "camera_from_scene", "generate_rays", "CompiledScene", "compile_scene",
+           "RenderResult", "render", "SceneDescription", "SceneError", "load_scene",
+           "parse_scene"]

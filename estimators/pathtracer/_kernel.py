@@ -1,0 +1,217 @@
+"""The path-tracing kernel: unidirectional path tracing with next-event estimation and
+multiple importance sampling (power heuristic) against BSDF sampling, Russian roulette
+after ``rr_depth`` (Mitsuba's rule: continue with probability min(max throughput · η², 0.95)),
+delta BSDFs and delta lights, over numba ``prange`` tiles.
+
+This file is also the template of the specialised kernels: ``specialise.py`` copies it
+with the feature block below rewritten (``FEATURES`` a bit mask of what a scene uses,
+``PDF_SCALE`` the wrong-pdf test hook), and numba compiles the copy with those values as
+constants, so LLVM removes the code a scene does not need. Imported as it is, it is the
+general kernel (every feature on).
+
+Random numbers are counter-based (splitmix64 of seed, pixel and sample index, then a
+Weyl sequence), so an image is bit-identical whatever the number of threads.
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from estimators.pathtracer.bsdfs import ALL_BSDF_FEATURES, bsdf_eval, bsdf_is_smooth, bsdf_sample
+from estimators.pathtracer.camera import _generate_ray_kernel
+from estimators.pathtracer.emitters import (AREA, area_pdf, environment_pdf, eval_environment,
+                                            is_delta, sample_emitter)
+from estimators.pathtracer.geometry import (STACK, coordinate_system, intersect, occluded,
+                                            surface, to_local, to_world)
+
+# --- features (rewritten by specialise.py) ---
+FEATURES = -1
+PDF_SCALE = 1.0
+# --- end features ---
+
+F_ENV = 1 << 8              # an environment (constant or envmap) exists
+F_AREA_LIGHTS = 1 << 9      # emitting shapes exist (hits add emission with MIS)
+F_NONDELTA_LIGHTS = 1 << 10  # some light can be hit or has a density (MIS weights needed)
+F_MANY_LIGHTS = 1 << 11     # more than one light (light selection)
+ALL_FEATURES = (1 << 12) - 1
+MASK = FEATURES & ALL_FEATURES if FEATURES >= 0 else ALL_FEATURES
+BSDF_MASK = MASK & ALL_BSDF_FEATURES
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_TO_UNIT = 2.0 ** -53
+_EPS = 1e-7
+
+
+@njit(cache=True, inline="always")
+def _mix(z):
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+@njit(cache=True, inline="always")
+def _next(state):
+    state = state + _GOLDEN
+    return float(_mix(state) >> _S11) * _TO_UNIT, state
+
+
+@njit(cache=True, inline="always")
+def _mis(a, b):
+    a2, b2 = a * a, b * b
+    s = a2 + b2
+    return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
+
+
+@njit(cache=True, inline="always")
+def _offset(px, py, pz, gx, gy, gz, dx, dy, dz):
+    """Origin lifted off the surface to the side the direction leaves on."""
+    e = _EPS * (1.0 + max(abs(px), abs(py), abs(pz)))
+    if gx * dx + gy * dy + gz * dz < 0.0:
+        e = -e
+    return px + e * gx, py + e * gy, pz + e * gz
+
+
+@njit(cache=True)
+def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state):
+    """Radiance along one camera ray: (r, g, b, rng state)."""
+    (nb, ni, order, prims, info, shape_bsdf, shape_light, shape_flip, bf, bi, btex,
+     tex_data, tex_info, light_f, light_i, light_cdf, env_marg, env_cond, ints) = sc
+    max_depth, rr_depth, hide, env = ints[0], ints[1], ints[2], ints[3]
+    n_lights = light_f.shape[0]
+    sel_pdf = 1.0 / n_lights if n_lights > 0 else 0.0
+    rr, rg, rb = 0.0, 0.0, 0.0
+    tr, tg, tb = 1.0, 1.0, 1.0
+    eta = 1.0
+    prev_pdf, prev_delta = 1.0, True
+    ppx, ppy, ppz = ox, oy, oz
+    depth = 0
+    t_min = 0.0
+    while True:
+        t, j, b1, b2 = intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz,
+                                 t_min, t_max)
+        if j < 0:
+            if MASK & F_ENV and env >= 0 and not (depth == 0 and hide):
+                lr, lg, lb = eval_environment(light_f, light_i, tex_data, tex_info, env,
+                                              dx, dy, dz)
+                w = 1.0
+                if not prev_delta:
+                    w = _mis(prev_pdf, sel_pdf * environment_pdf(
+                        light_f, light_i, env_marg, env_cond, env, dx, dy, dz))
+                rr += tr * lr * w
+                rg += tg * lg * w
+                rb += tb * lb * w
+            break
+        (px, py, pz, gx, gy, gz, sx, sy, sz, u, v) = surface(prims, info, j, ox, oy, oz,
+                                                            dx, dy, dz, t, b1, b2)
+        shape = info[j, 1]
+        if shape_flip[shape]:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+        if MASK & F_AREA_LIGHTS:
+            k = shape_light[shape]
+            if k >= 0 and not (depth == 0 and hide):
+                cos_y = -(sx * dx + sy * dy + sz * dz)
+                if cos_y > 0.0:
+                    w = 1.0
+                    if not prev_delta:
+                        dist = math.sqrt((px - ppx) ** 2 + (py - ppy) ** 2 + (pz - ppz) ** 2)
+                        w = _mis(prev_pdf, sel_pdf * area_pdf(light_f, light_i, prims, info,
+                                                              k, ppx, ppy, ppz, dist, cos_y))
+                    rr += tr * light_f[k, 0] * w
+                    rg += tg * light_f[k, 1] * w
+                    rb += tb * light_f[k, 2] * w
+        if depth + 1 >= max_depth:
+            break
+        b = shape_bsdf[shape]
+        fs, ft = coordinate_system(sx, sy, sz)
+        fn = (sx, sy, sz)
+        wi = to_local(fs, ft, fn, -dx, -dy, -dz)
+        # ---- emitter sampling
+        if n_lights > 0 and bsdf_is_smooth(bi, b):
+            us, state = _next(state)
+            u0, state = _next(state)
+            u1, state = _next(state)
+            u2, state = _next(state)
+            k = min(int(us * n_lights), n_lights - 1) if MASK & F_MANY_LIGHTS else 0
+            wx, wy, wz, dist, lr, lg, lb, lpdf = sample_emitter(
+                light_f, light_i, light_cdf, prims, info, shape_flip, tex_data, tex_info,
+                env_marg, env_cond, k, px, py, pz, u0, u1, u2)
+            if lpdf > 0.0 and (lr > 0.0 or lg > 0.0 or lb > 0.0):
+                wo = to_local(fs, ft, fn, wx, wy, wz)
+                fr, fg, fb, bpdf = bsdf_eval(BSDF_MASK, bf, bi, btex, tex_data, tex_info, b,
+                                             wi, wo, u, v)
+                if fr > 0.0 or fg > 0.0 or fb > 0.0:
+                    sox, soy, soz = _offset(px, py, pz, gx, gy, gz, wx, wy, wz)
+                    smax = dist * (1.0 - 1e-6) if dist < np.inf else np.inf
+                    if not occluded(nb, ni, order, prims, info, stack, sox, soy, soz,
+                                    wx, wy, wz, 0.0, smax):
+                        delta = (MASK & F_NONDELTA_LIGHTS) == 0 or is_delta(light_i[k, 0])
+                        w = 1.0 if delta else _mis(lpdf * sel_pdf, bpdf)
+                        w /= lpdf * sel_pdf
+                        rr += tr * fr * lr * w
+                        rg += tg * fg * lg * w
+                        rb += tb * fb * lb * w
+        # ---- BSDF sampling
+        u0, state = _next(state)
+        u1, state = _next(state)
+        u2, state = _next(state)
+        (wx, wy, wz, wr, wg, wb, pdf, delta, eta_k) = bsdf_sample(
+            BSDF_MASK, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, PDF_SCALE)
+        if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
+            break
+        tr, tg, tb = tr * wr, tg * wg, tb * wb
+        eta *= eta_k
+        prev_pdf, prev_delta = pdf, delta
+        ppx, ppy, ppz = px, py, pz
+        dx, dy, dz = to_world(fs, ft, fn, wx, wy, wz)
+        ox, oy, oz = _offset(px, py, pz, gx, gy, gz, dx, dy, dz)
+        t_max = np.inf
+        depth += 1
+        if depth >= rr_depth:
+            q = min(max(tr, tg, tb) * eta * eta, 0.95)
+            ur, state = _next(state)
+            if ur >= q:
+                break
+            tr, tg, tb = tr / q, tg / q, tb / q
+    return rr, rg, rb, state
+
+
+@njit(cache=True, parallel=True)
+def render_tiles(sc, cam, tiles, width, height, spp, seed, mean, m2, bad):
+    """Render the listed tiles (rows of x0, y0, x1, y1): per pixel, the mean and the sum
+    of squared deviations (Welford) of ``spp`` samples; ``bad`` counts non-finite samples
+    (set to zero)."""
+    for ti in prange(tiles.shape[0]):
+        stack = np.empty(STACK, dtype=np.int64)
+        x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                pixel = y * width + x
+                base = _mix(_mix(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
+                mr, mg, mb = 0.0, 0.0, 0.0
+                sr, sg, sb = 0.0, 0.0, 0.0
+                nbad = 0
+                for s in range(spp):
+                    state = _mix(base ^ (np.uint64(s) * _M2))
+                    fx, state = _next(state)
+                    fy, state = _next(state)
+                    ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(
+                        cam, (x + fx) / width, (y + fy) / height)
+                    r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state)
+                    if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)):
+                        r, g, b = 0.0, 0.0, 0.0
+                        nbad += 1
+                    n = s + 1.0
+                    d0, d1, d2 = r - mr, g - mg, b - mb
+                    mr += d0 / n
+                    mg += d1 / n
+                    mb += d2 / n
+                    sr += d0 * (r - mr)
+                    sg += d1 * (g - mg)
+                    sb += d2 * (b - mb)
+                mean[y, x, 0], mean[y, x, 1], mean[y, x, 2] = mr, mg, mb
+                m2[y, x, 0], m2[y, x, 1], m2[y, x, 2] = sr, sg, sb
+                bad[y, x] = nbad

@@ -1,0 +1,412 @@
+"""Primitives (triangles, spheres, disks), the SAH bounding volume hierarchy over them,
+and ray intersection: numba kernels, float64 throughout.
+
+A primitive is one row of ``prims`` (float64, ``PRIM_WIDTH`` wide) and one row of
+``prim_info`` (type, shape index):
+
+- triangle: vertices ``[0:9]``, vertex normals ``[9:18]`` (all zero: face normal only),
+  texture coordinates ``[18:24]``;
+- sphere: centre ``[0:3]``, radius ``[3]``, world-to-local rotation ``[4:13]`` (for uv);
+- disk: local-to-world 3×4 ``[0:12]``, world-to-local 3×4 ``[12:24]`` (unit disk, z = 0).
+
+The hierarchy is binned SAH (16 bins, leaves of at most 4 primitives), built by a numba
+kernel, flattened depth first: an interior node's first child follows it, the second is
+at ``node_info[i, 0]``; a leaf has ``node_info[i, 1] > 0`` primitives from
+``node_info[i, 0]`` in ``prim_order``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+TRIANGLE, SPHERE, DISK = 0, 1, 2
+PRIM_WIDTH = 24
+_BINS = 16
+_LEAF = 4
+_MAX_DEPTH = 60        # deeper subtrees become leaves, so traversal's stack suffices
+STACK = 64
+
+_jit = njit(cache=True, fastmath=False)
+
+
+# ------------------------------------------------------------------------- bounds
+@_jit
+def _prim_bounds(prims, info):
+    n = prims.shape[0]
+    lo = np.empty((n, 3))
+    hi = np.empty((n, 3))
+    for i in range(n):
+        p = prims[i]
+        t = info[i, 0]
+        if t == TRIANGLE:
+            for a in range(3):
+                lo[i, a] = min(p[a], p[3 + a], p[6 + a])
+                hi[i, a] = max(p[a], p[3 + a], p[6 + a])
+        elif t == SPHERE:
+            for a in range(3):
+                lo[i, a] = p[a] - p[3]
+                hi[i, a] = p[a] + p[3]
+        else:
+            # the unit disk's box: centre ± the extent of the two in-plane axes
+            for a in range(3):
+                e = math.sqrt(p[4 * a] ** 2 + p[4 * a + 1] ** 2)
+                lo[i, a] = p[4 * a + 3] - e
+                hi[i, a] = p[4 * a + 3] + e
+    return lo, hi
+
+
+@_jit
+def _area(lo, hi):
+    dx, dy, dz = hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]
+    if dx < 0.0:
+        return 0.0
+    return 2.0 * (dx * dy + dy * dz + dz * dx)
+
+
+@_jit
+def build_bvh(prims, info):
+    """(node_bounds (m, 6), node_info (m, 3): [first/second, count, axis], prim_order)."""
+    lo, hi = _prim_bounds(prims, info)
+    n = prims.shape[0]
+    cen = 0.5 * (lo + hi)
+    order = np.arange(n)
+    max_nodes = 2 * n + 1
+    nb = np.empty((max_nodes, 6))
+    ni = np.zeros((max_nodes, 3), dtype=np.int64)
+    # explicit stack of (node, start, end)
+    stack = np.empty((max_nodes + 2, 4), dtype=np.int64)
+    stack[0, 3] = 0
+    stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, n
+    sp = 1
+    n_nodes = 1
+    bin_lo = np.empty((_BINS, 3))
+    bin_hi = np.empty((_BINS, 3))
+    bin_n = np.empty(_BINS, dtype=np.int64)
+    while sp > 0:
+        sp -= 1
+        node, start, end, depth = stack[sp, 0], stack[sp, 1], stack[sp, 2], stack[sp, 3]
+        blo = np.full(3, np.inf)
+        bhi = np.full(3, -np.inf)
+        clo = np.full(3, np.inf)
+        chi = np.full(3, -np.inf)
+        for k in range(start, end):
+            j = order[k]
+            for a in range(3):
+                blo[a] = min(blo[a], lo[j, a])
+                bhi[a] = max(bhi[a], hi[j, a])
+                clo[a] = min(clo[a], cen[j, a])
+                chi[a] = max(chi[a], cen[j, a])
+        nb[node, 0:3] = blo
+        nb[node, 3:6] = bhi
+        count = end - start
+        best_cost, best_axis, best_split = np.inf, -1, 0
+        if count > _LEAF:
+            for a in range(3):
+                ext = chi[a] - clo[a]
+                if ext <= 0.0:
+                    continue
+                for b in range(_BINS):
+                    bin_n[b] = 0
+                    for c in range(3):
+                        bin_lo[b, c] = np.inf
+                        bin_hi[b, c] = -np.inf
+                for k in range(start, end):
+                    j = order[k]
+                    b = min(int(_BINS * (cen[j, a] - clo[a]) / ext), _BINS - 1)
+                    bin_n[b] += 1
+                    for c in range(3):
+                        bin_lo[b, c] = min(bin_lo[b, c], lo[j, c])
+                        bin_hi[b, c] = max(bin_hi[b, c], hi[j, c])
+                for s in range(1, _BINS):
+                    llo = np.full(3, np.inf)
+                    lhi = np.full(3, -np.inf)
+                    rlo = np.full(3, np.inf)
+                    rhi = np.full(3, -np.inf)
+                    nl = 0
+                    nr = 0
+                    for b in range(_BINS):
+                        if bin_n[b] == 0:
+                            continue
+                        if b < s:
+                            nl += bin_n[b]
+                            for c in range(3):
+                                llo[c] = min(llo[c], bin_lo[b, c])
+                                lhi[c] = max(lhi[c], bin_hi[b, c])
+                        else:
+                            nr += bin_n[b]
+                            for c in range(3):
+                                rlo[c] = min(rlo[c], bin_lo[b, c])
+                                rhi[c] = max(rhi[c], bin_hi[b, c])
+                    if nl == 0 or nr == 0:
+                        continue
+                    cost = nl * _area(llo, lhi) + nr * _area(rlo, rhi)
+                    if cost < best_cost:
+                        best_cost, best_axis, best_split = cost, a, s
+        if count <= _LEAF or depth >= _MAX_DEPTH:
+            ni[node, 0], ni[node, 1] = start, count
+            continue
+        if best_axis < 0:
+            # every centroid coincides: a leaf if small, else halve the list
+            if count <= 64:
+                ni[node, 0], ni[node, 1] = start, count
+                continue
+            mid = start + count // 2
+        elif count <= 16 and best_cost >= count * _area(blo, bhi):
+            ni[node, 0], ni[node, 1] = start, count
+            continue
+        else:
+            a = best_axis
+            ext = chi[a] - clo[a]
+            i, j = start, end - 1
+            while i <= j:
+                b = min(int(_BINS * (cen[order[i], a] - clo[a]) / ext), _BINS - 1)
+                if b < best_split:
+                    i += 1
+                else:
+                    order[i], order[j] = order[j], order[i]
+                    j -= 1
+            mid = i
+        left, right = n_nodes, n_nodes + 1
+        n_nodes += 2
+        # interior: column 0 the left child, column 1 -(right child) - 1, column 2 axis
+        ni[node, 0], ni[node, 1], ni[node, 2] = left, -right - 1, max(best_axis, 0)
+        stack[sp, 0], stack[sp, 1], stack[sp, 2], stack[sp, 3] = right, mid, end, depth + 1
+        stack[sp + 1, 0], stack[sp + 1, 1], stack[sp + 1, 2] = left, start, mid
+        stack[sp + 1, 3] = depth + 1
+        sp += 2
+    return nb[:n_nodes].copy(), ni[:n_nodes].copy(), order
+
+
+# --------------------------------------------------------------------- intersection
+@_jit
+def _hit_box(nb, node, ox, oy, oz, ix, iy, iz, t_max):
+    t0 = 0.0
+    t1 = t_max
+    a = (nb[node, 0] - ox) * ix
+    b = (nb[node, 3] - ox) * ix
+    t0 = max(t0, min(a, b))
+    t1 = min(t1, max(a, b))
+    a = (nb[node, 1] - oy) * iy
+    b = (nb[node, 4] - oy) * iy
+    t0 = max(t0, min(a, b))
+    t1 = min(t1, max(a, b))
+    a = (nb[node, 2] - oz) * iz
+    b = (nb[node, 5] - oz) * iz
+    t0 = max(t0, min(a, b))
+    t1 = min(t1, max(a, b))
+    return t0 <= t1 * (1.0 + 4e-16)
+
+
+@_jit
+def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
+    """(t, b1, b2) of the nearest hit with t > 0, or (inf, 0, 0)."""
+    if t == TRIANGLE:
+        e1x, e1y, e1z = p[3] - p[0], p[4] - p[1], p[5] - p[2]
+        e2x, e2y, e2z = p[6] - p[0], p[7] - p[1], p[8] - p[2]
+        px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+        det = e1x * px + e1y * py + e1z * pz
+        if det == 0.0:
+            return np.inf, 0.0, 0.0
+        inv = 1.0 / det
+        sx, sy, sz = ox - p[0], oy - p[1], oz - p[2]
+        b1 = (sx * px + sy * py + sz * pz) * inv
+        if b1 < 0.0 or b1 > 1.0:
+            return np.inf, 0.0, 0.0
+        qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+        b2 = (dx * qx + dy * qy + dz * qz) * inv
+        if b2 < 0.0 or b1 + b2 > 1.0:
+            return np.inf, 0.0, 0.0
+        th = (e2x * qx + e2y * qy + e2z * qz) * inv
+        if th <= 0.0:
+            return np.inf, 0.0, 0.0
+        return th, b1, b2
+    if t == SPHERE:
+        fx, fy, fz = ox - p[0], oy - p[1], oz - p[2]
+        b = fx * dx + fy * dy + fz * dz
+        # c = |f|² - r², with the closest-approach form for accuracy far from the sphere
+        qx, qy, qz = fx - b * dx, fy - b * dy, fz - b * dz
+        disc = p[3] * p[3] - (qx * qx + qy * qy + qz * qz)
+        if disc < 0.0:
+            return np.inf, 0.0, 0.0
+        c = fx * fx + fy * fy + fz * fz - p[3] * p[3]
+        s = math.sqrt(disc)
+        # near · far = c: take the root without cancellation, derive the other
+        if b < 0.0:
+            t1 = -b + s
+            t0 = c / t1
+        else:
+            t0 = -b - s
+            t1 = c / t0 if t0 != 0.0 else 0.0
+        if t0 > 0.0:
+            return t0, 0.0, 0.0
+        if t1 > 0.0:
+            return t1, 0.0, 0.0
+        return np.inf, 0.0, 0.0
+    # disk: intersect z = 0 in local space
+    lox = p[12] * ox + p[13] * oy + p[14] * oz + p[15]
+    loy = p[16] * ox + p[17] * oy + p[18] * oz + p[19]
+    loz = p[20] * ox + p[21] * oy + p[22] * oz + p[23]
+    ldz = p[20] * dx + p[21] * dy + p[22] * dz
+    if ldz == 0.0:
+        return np.inf, 0.0, 0.0
+    th = -loz / ldz
+    if th <= 0.0:
+        return np.inf, 0.0, 0.0
+    ldx = p[12] * dx + p[13] * dy + p[14] * dz
+    ldy = p[16] * dx + p[17] * dy + p[18] * dz
+    x, y = lox + th * ldx, loy + th * ldy
+    if x * x + y * y > 1.0:
+        return np.inf, 0.0, 0.0
+    return th, x, y
+
+
+@_jit
+def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
+    """Nearest hit in (t_min, t_max): (t, primitive, b1, b2); primitive -1 if none.
+    ``stack`` is int64 scratch of length ``STACK``, reused across rays."""
+    ix = 1.0 / dx if dx != 0.0 else np.inf
+    iy = 1.0 / dy if dy != 0.0 else np.inf
+    iz = 1.0 / dz if dz != 0.0 else np.inf
+    neg = (dx < 0.0, dy < 0.0, dz < 0.0)
+    sp = 0
+    node = 0
+    best_t, best_p, best_b1, best_b2 = t_max, -1, 0.0, 0.0
+    while True:
+        if _hit_box(nb, node, ox, oy, oz, ix, iy, iz, best_t):
+            c = ni[node, 1]
+            if c > 0:
+                s = ni[node, 0]
+                for k in range(s, s + c):
+                    j = order[k]
+                    t, b1, b2 = _hit_prim(prims[j], info[j, 0], ox, oy, oz, dx, dy, dz)
+                    if t_min < t < best_t:
+                        best_t, best_p, best_b1, best_b2 = t, j, b1, b2
+            else:
+                left, right = ni[node, 0], -c - 1
+                if neg[ni[node, 2]]:
+                    stack[sp] = left
+                    node = right
+                else:
+                    stack[sp] = right
+                    node = left
+                sp += 1
+                continue
+        if sp == 0:
+            break
+        sp -= 1
+        node = stack[sp]
+    return best_t, best_p, best_b1, best_b2
+
+
+@_jit
+def occluded(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
+    """Whether anything lies on the ray in (t_min, t_max)."""
+    ix = 1.0 / dx if dx != 0.0 else np.inf
+    iy = 1.0 / dy if dy != 0.0 else np.inf
+    iz = 1.0 / dz if dz != 0.0 else np.inf
+    sp = 0
+    node = 0
+    while True:
+        if _hit_box(nb, node, ox, oy, oz, ix, iy, iz, t_max):
+            c = ni[node, 1]
+            if c > 0:
+                s = ni[node, 0]
+                for k in range(s, s + c):
+                    j = order[k]
+                    t, _, _ = _hit_prim(prims[j], info[j, 0], ox, oy, oz, dx, dy, dz)
+                    if t_min < t < t_max:
+                        return True
+            else:
+                stack[sp] = -c - 1
+                sp += 1
+                node = ni[node, 0]
+                continue
+        if sp == 0:
+            return False
+        sp -= 1
+        node = stack[sp]
+
+
+# ---------------------------------------------------------------- surface details
+@_jit
+def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
+    """At the hit (j, t, b1, b2): position, unit geometric normal, unit shading normal
+    and texture coordinates, as a flat tuple (px, py, pz, gx, gy, gz, sx, sy, sz, u, v).
+    Normals are the shape's own orientation (outward; ``flip_normals`` is applied by the
+    caller)."""
+    p = prims[j]
+    kind = info[j, 0]
+    if kind == TRIANGLE:
+        b0 = 1.0 - b1 - b2
+        px = b0 * p[0] + b1 * p[3] + b2 * p[6]
+        py = b0 * p[1] + b1 * p[4] + b2 * p[7]
+        pz = b0 * p[2] + b1 * p[5] + b2 * p[8]
+        e1x, e1y, e1z = p[3] - p[0], p[4] - p[1], p[5] - p[2]
+        e2x, e2y, e2z = p[6] - p[0], p[7] - p[1], p[8] - p[2]
+        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+        gx, gy, gz = gx * inv, gy * inv, gz * inv
+        sx = b0 * p[9] + b1 * p[12] + b2 * p[15]
+        sy = b0 * p[10] + b1 * p[13] + b2 * p[16]
+        sz = b0 * p[11] + b1 * p[14] + b2 * p[17]
+        ln = sx * sx + sy * sy + sz * sz
+        if ln > 0.0:
+            inv = 1.0 / math.sqrt(ln)
+            sx, sy, sz = sx * inv, sy * inv, sz * inv
+        else:
+            sx, sy, sz = gx, gy, gz
+        u = b0 * p[18] + b1 * p[20] + b2 * p[22]
+        v = b0 * p[19] + b1 * p[21] + b2 * p[23]
+        return px, py, pz, gx, gy, gz, sx, sy, sz, u, v
+    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    if kind == SPHERE:
+        r = p[3]
+        gx, gy, gz = (px - p[0]) / r, (py - p[1]) / r, (pz - p[2]) / r
+        inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+        gx, gy, gz = gx * inv, gy * inv, gz * inv
+        # re-project onto the sphere (as Mitsuba does) to keep spawned rays outside
+        px, py, pz = p[0] + r * gx, p[1] + r * gy, p[2] + r * gz
+        lx = p[4] * gx + p[5] * gy + p[6] * gz
+        ly = p[7] * gx + p[8] * gy + p[9] * gz
+        lz = p[10] * gx + p[11] * gy + p[12] * gz
+        phi = math.atan2(ly, lx)
+        if phi < 0.0:
+            phi += 2.0 * math.pi
+        u = phi / (2.0 * math.pi)
+        v = math.acos(min(max(lz, -1.0), 1.0)) / math.pi
+        return px, py, pz, gx, gy, gz, gx, gy, gz, u, v
+    # disk: normal = world-to-local's third row (the inverse transpose of +z)
+    gx, gy, gz = p[20], p[21], p[22]
+    inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+    gx, gy, gz = gx * inv, gy * inv, gz * inv
+    r = math.sqrt(b1 * b1 + b2 * b2)
+    phi = math.atan2(b2, b1)
+    if phi < 0.0:
+        phi += 2.0 * math.pi
+    return px, py, pz, gx, gy, gz, gx, gy, gz, r, phi / (2.0 * math.pi)
+
+
+# ------------------------------------------------------------------------- frames
+@_jit
+def coordinate_system(nx, ny, nz):
+    """Two unit tangents completing the unit normal n to a right-handed frame
+    (Duff et al. 2017)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx), (b, sign + ny * ny * a, -ny)
+
+
+@_jit
+def to_local(s, t, n, x, y, z):
+    return (s[0] * x + s[1] * y + s[2] * z, t[0] * x + t[1] * y + t[2] * z,
+            n[0] * x + n[1] * y + n[2] * z)
+
+
+@_jit
+def to_world(s, t, n, x, y, z):
+    return (s[0] * x + t[0] * y + n[0] * z, s[1] * x + t[1] * y + n[1] * z,
+            s[2] * x + t[2] * y + n[2] * z)

@@ -1,0 +1,124 @@
+"""``render(scene, spp=, seed=)``: our path tracer's front end.
+
+The kernel is specialised to the features a scene uses: ``specialised_kernel`` writes a
+copy of ``_kernel.py`` with its feature constants set into a cache folder
+(``$MCVERIFY_CACHE`` or ``~/.cache/mcverify/kernels``), and numba compiles and caches
+that copy on disk, so a second process starts warm. ``general=True`` runs the kernel with
+every feature on, for comparison.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import get_num_threads
+
+from . import _kernel
+from .compile import CompiledScene, compile_scene
+
+TILE = 16
+_MODULES: dict[str, object] = {}
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """Per-pixel mean and sample variance of ``n`` samples, (H, W, 3) float32."""
+
+    mean: np.ndarray
+    variance: np.ndarray
+    n: int
+    seconds: float
+    stats: dict = field(default_factory=dict)
+
+
+def _cache_dir() -> str:
+    d = os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
+                                                         "mcverify", "kernels")
+    os.makedirs(d, exist_ok=True)
+    return d
+
+
+def specialised_kernel(features: int, pdf_scale: float = 1.0):
+    """The kernel module compiled for ``features`` (a bit mask; -1: all)."""
+    with open(_kernel.__file__, encoding="utf-8") as f:
+        template = f.read()
+    start = template.index("# --- features (rewritten by specialise.py) ---")
+    end = template.index("# --- end features ---")
+    source = (template[:start] + f"# --- features (generated) ---\nFEATURES = {int(features)}\n"
+              f"PDF_SCALE = {float(pdf_scale)!r}\n" + template[end:])
+    key = hashlib.sha256(source.encode()).hexdigest()[:16]
+    name = f"mcverify_kernel_{key}"
+    if name in _MODULES:
+        return _MODULES[name]
+    folder = _cache_dir()
+    path = os.path.join(folder, name + ".py")
+    if not os.path.exists(path):
+        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(source)
+        os.replace(tmp, path)
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    _MODULES[name] = module
+    return module
+
+
+def _tiles(width: int, height: int) -> np.ndarray:
+    return np.array([(x, y, min(x + TILE, width), min(y + TILE, height))
+                     for y in range(0, height, TILE) for x in range(0, width, TILE)],
+                    dtype=np.int64)
+
+
+def render(scene, *, spp: int | None = None, seed: int = 0, general: bool = False,
+           pdf_scale: float = 1.0, params: dict | None = None, progress=None
+           ) -> RenderResult:
+    """Render a Mitsuba XML scene (path, ``SceneDescription`` or ``CompiledScene``) with
+    ``spp`` samples per pixel (default: the scene's sampler). The same seed gives the same
+    image bit for bit, whatever the number of threads. ``progress(done, total)`` is called
+    as tiles finish. ``pdf_scale`` != 1 is a test hook: every BSDF sample's pdf is scaled
+    by it, a planted bug the render gate must catch."""
+    cs: CompiledScene = compile_scene(scene, params=params)
+    spp = cs.spp if spp is None else int(spp)
+    if spp < 2:
+        raise ValueError(f"spp must be >= 2 for a per-pixel variance, got {spp}")
+    if not 0 <= seed < 2 ** 63:
+        raise ValueError(f"seed must be in [0, 2^63), got {seed}")
+    features = -1 if general else cs.features
+    module = _kernel if (general and pdf_scale == 1.0) else specialised_kernel(features,
+                                                                              pdf_scale)
+    w, h = cs.width, cs.height
+    mean = np.zeros((h, w, 3))
+    m2 = np.zeros((h, w, 3))
+    bad = np.zeros((h, w), dtype=np.int64)
+    cam = cs.camera.params
+    tiles = _tiles(w, h)
+    t0 = time.perf_counter()
+    module.render_tiles(cs.arrays, cam, tiles[:0], w, h, spp, seed, mean, m2, bad)
+    compile_seconds = time.perf_counter() - t0
+    threads = get_num_threads()
+    n_chunks = max(1, min(20, len(tiles) // (4 * threads)))
+    bounds = np.linspace(0, len(tiles), n_chunks + 1).astype(int)
+    t0 = time.perf_counter()
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        module.render_tiles(cs.arrays, cam, tiles[a:b], w, h, spp, seed, mean, m2, bad)
+        if progress:
+            progress(int(b), len(tiles))
+    seconds = time.perf_counter() - t0
+    variance = m2 / (spp - 1)
+    stats = {"compile_seconds": compile_seconds, "threads": threads,
+             "samples_per_second": w * h * spp / seconds if seconds > 0 else float("inf"),
+             "kernel": "general" if features == -1 else f"specialised({cs.features:#x})",
+             "nonfinite_samples": int(bad.sum()), "triangles": cs.n_triangles,
+             "lights": cs.n_lights, "bsdfs": list(cs.bsdf_names)}
+    return RenderResult(mean.astype(np.float32), variance.astype(np.float32), spp, seconds,
+                        stats)
