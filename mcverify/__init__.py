@@ -11,6 +11,7 @@ Public API
 ``check_variance``              zero variance when p ∝ f, or a known variance
 ``check_convergence``           log-log slope of RMSE against N over seeds
 ``compare_images``              two renders, pixelwise: global, block and pixel tests
+``render_check``                our path tracer against the Mitsuba reference of a scene
 ``CheckResult``, ``SuiteResult``  results as frozen data; ``to_dict()``
 ``write_json``, ``write_junit``   sinks (atomic writes)
 ``Interval``, ``Square``, ``Disk``, ``Sphere``, ``Hemisphere``  domains
@@ -23,7 +24,8 @@ Every randomised function takes ``seed``; the same seed gives the same result.
 __version__ = "0.1.0"
 
 from .checks import (check_convergence, check_inverse, check_same_distribution,
-                     check_sampler, check_unbiased, check_variance, compare_images)
+                     check_sampler, check_unbiased, check_variance, compare_images,
+                     render_check)
 from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
 from .errors import EnvironmentProblem, InvalidArgument
 from .result import CheckResult, SuiteResult, write_json, write_junit
@@ -31,7 +33,7 @@ from .result import CheckResult, SuiteResult, write_json, write_junit
 __all__ = [
     "check_sampler", "check_inverse", "check_same_distribution",
     "check_unbiased", "check_variance", "check_convergence", "compare_images",
-    "CheckResult", "SuiteResult", "write_json", "write_junit",
+    "render_check", "CheckResult", "SuiteResult", "write_json", "write_junit",
     "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",
     "InvalidArgument", "EnvironmentProblem", "__version__",
 ]

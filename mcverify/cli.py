@@ -260,6 +260,47 @@ def _cmd_compare(args) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
+def _params(items) -> dict:
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InvalidArgument(f"--param {item!r}: expected NAME=VALUE")
+        out[key] = value
+    return out
+
+
+def _cmd_render_check(args) -> int:
+    from .checks.render import render_check
+    from .result import write_json
+
+    _writable("--json", args.json)
+    tty = sys.stderr.isatty() and not args.quiet
+
+    def show(done, total):
+        if tty:
+            sys.stderr.write(f"\r\033[K[render] {100 * done // total}%")
+            if done == total:
+                sys.stderr.write("\r\033[K")
+            sys.stderr.flush()
+
+    result = render_check(args.scene, spp=args.spp, passes=args.passes, seed=args.seed,
+                          alpha=args.alpha, params=_params(args.param),
+                          notice=None if args.quiet else
+                          (lambda m: print(f"notice: {m}", file=sys.stderr)),
+                          progress=show if tty else None)
+    if args.json:
+        write_json(result, args.json)
+    d = result.details
+    print(result.summary())
+    for m in result.messages:
+        print(f"    {m}")
+    print(f"    ours: {d['ours_passes']} passes, {d['ours_spp']} spp, {d['ours_seconds']:.2f}s "
+          f"({d['ours_samples_per_second'] / 1e6:.2f} M samples/s, {d['ours_kernel']}); "
+          f"relMSE {d['relmse']:.3g}; found by: {', '.join(d['found_by']) or 'nothing'}")
+    return EXIT_OK if result.passed else EXIT_FAILED
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
     from . import __version__
@@ -321,6 +362,19 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--alpha", type=float, default=0.01)
     cp.add_argument("--json", metavar="PATH")
     cp.set_defaults(func=_cmd_compare)
+    rc = sub.add_parser("render-check", help="our path tracer against the scene's Mitsuba "
+                        "reference, pixel by pixel")
+    rc.add_argument("scene", metavar="SCENE", help="scene.xml path or reference name")
+    rc.add_argument("--spp", type=int, default=1024, help="samples per pixel in all")
+    rc.add_argument("--passes", type=int, default=16, help="independent passes (>= 2)")
+    rc.add_argument("--seed", type=int, default=0)
+    rc.add_argument("--alpha", type=float, default=0.01)
+    rc.add_argument("--param", action="append", metavar="NAME=VALUE",
+                    help="override a scene <default> (both renderers); the reference is "
+                         "then rendered on the fly")
+    rc.add_argument("--json", metavar="PATH")
+    rc.add_argument("-q", "--quiet", action="store_true")
+    rc.set_defaults(func=_cmd_render_check)
     return p
 
 

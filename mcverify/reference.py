@@ -60,9 +60,10 @@ def list_scenes(root: str = REFERENCE_ROOT) -> list[str]:
     return sorted(d for d in os.listdir(root) if os.path.isfile(os.path.join(root, d, "scene.xml")))
 
 
-def build_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0,
-                    progress=None) -> str:
-    """Render the reference of a scene and write it atomically; returns its folder."""
+def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0,
+                     params: dict | None = None, progress=None) -> tuple[Reference, np.ndarray]:
+    """Render a scene with Mitsuba as ``passes`` independent passes (in memory, not
+    cached): (Reference with per-pixel mean and variance across passes, the passes)."""
     from . import mitsuba as mvm
 
     if spp < 1 or passes < 2:
@@ -70,16 +71,28 @@ def build_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0
                               "(the variance needs two passes)")
     name, path = resolve_scene(spec)
     seeds = [int(s) for s in np.random.SeedSequence([seed, 7]).generate_state(passes)]
-    imgs = mvm.render_passes(path, spp=spp, seeds=seeds, progress=progress)
+    imgs = mvm.render_passes(path, spp=spp, seeds=seeds, params=params, progress=progress)
+    choice = mvm.choose_variant()
+    manifest = provenance(scene=name, scene_sha256=scene_hash(path), spp=spp,
+                          passes=passes, seeds=seeds, mitsuba_version=mvm.mitsuba_version(),
+                          mitsuba_variant=choice.variant, shape=list(imgs.shape[1:]),
+                          params={k: str(v) for k, v in (params or {}).items()})
+    return Reference(name, imgs.mean(axis=0), imgs.var(axis=0, ddof=1), passes, manifest), imgs
+
+
+def build_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0,
+                    progress=None) -> str:
+    """Render the reference of a scene and write it atomically; returns its folder."""
+    from . import mitsuba as mvm
+
+    name, path = resolve_scene(spec)
+    ref, imgs = render_reference(path, spp=spp, passes=passes, seed=seed, progress=progress)
     out = os.path.join(os.path.dirname(path), "ref")
     tmp = tempfile.mkdtemp(prefix=".ref-", dir=os.path.dirname(path))
     try:
-        mvm.write_exr(os.path.join(tmp, "mean.exr"), imgs.mean(axis=0))
-        mvm.write_exr(os.path.join(tmp, "var.exr"), imgs.var(axis=0, ddof=1))
-        choice = mvm.choose_variant()
-        manifest = provenance(scene=name, scene_sha256=scene_hash(path), spp=spp,
-                              passes=passes, seeds=seeds, mitsuba_version=mvm.mitsuba_version(),
-                              mitsuba_variant=choice.variant, shape=list(imgs.shape[1:]))
+        mvm.write_exr(os.path.join(tmp, "mean.exr"), ref.mean)
+        mvm.write_exr(os.path.join(tmp, "var.exr"), ref.var)
+        manifest = {k: v for k, v in ref.manifest.items() if k != "params"}
         with open(os.path.join(tmp, "manifest.json"), "w", encoding="utf-8") as f:
             json.dump(manifest, f, indent=2)
         os.chmod(tmp, shared_mode(0o777))  # mkdtemp makes 0700; references are shared

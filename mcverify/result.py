@@ -39,7 +39,7 @@ def _jsonable(v):
 
 
 #: ``details`` keys that hold arrays for plots, not for JSON summaries.
-_BULKY = ("histogram", "p_map", "maps")
+_BULKY = ("histogram", "p_map", "maps", "images")
 
 
 @dataclass(frozen=True)

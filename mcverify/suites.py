@@ -8,7 +8,9 @@ name, so selecting checks with ``-k`` does not change any check's result.
 
 from __future__ import annotations
 
+import dataclasses
 import fnmatch
+import os
 import time
 import zlib
 from dataclasses import dataclass
@@ -331,9 +333,18 @@ def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tup
     keep = [c for c in all_checks if c.name in wanted]
     skipped = [(c.name, "not needed by this scene") for c in all_checks if c.name not in wanted]
     skipped += [(f, why) for f, why in _DELTA.items() if f in desc.features]
-    skipped.append(("render-check", "the independent path tracer has not landed yet "
-                                    "(issue 4); use `mcverify compare` for other renderers"))
+    keep.append(_render_check(scene_path))
     return keep, skipped, desc.features
+
+
+def _render_check(scene_path: str) -> Check:
+    """The scene's render gate: our path tracer against its Mitsuba reference (built on
+    first use)."""
+    from .checks.render import render_check
+
+    name = f"render:{os.path.basename(os.path.dirname(os.path.abspath(scene_path)))}"
+    return Check(name, lambda seed: dataclasses.replace(
+        render_check(scene_path, seed=seed), name=name), ("render", "mitsuba"))
 
 
 def select(checks_: list[Check], pattern: str | None) -> list[Check]:

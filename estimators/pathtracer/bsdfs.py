@@ -364,6 +364,16 @@ def rough_coat_tables(alpha: float, dist: int, eta: float) -> tuple[np.ndarray, 
 
 
 @_jit
+def _beckmann_g1_exact(v, alpha):
+    s2 = v[0] * v[0] + v[1] * v[1]
+    if s2 == 0.0:
+        return 1.0
+    a = v[2] / (alpha * math.sqrt(s2))
+    lam = 0.5 * (math.erf(a) - 1.0) + math.exp(-a * a) / (2.0 * a * math.sqrt(math.pi))
+    return 1.0 / (1.0 + lam)
+
+
+@_jit
 def _coat_average(mu, alpha, dist, eta, ua, ub, w2, transmit):
     """∫ over visible normals m (pdf D_wi(m)) of (1-F) G1(refracted) or F G1(reflected),
     by quadrature of the microfacet warp's unit square with the density ratio."""
@@ -378,8 +388,9 @@ def _coat_average(mu, alpha, dist, eta, ua, ub, w2, transmit):
         if dist == GGX:
             ratio = 1.0          # the warp samples visible normals already
         else:
-            # visible-normal density / warp density = G1 (wi·m) D / cos θ_i / (D cos θ_m)
-            ratio = smith_g1(wi, m, alpha, dist) * wim / (mu * m[2]) if d > 0 else 0.0
+            # visible-normal density / warp density = G1 (wi·m) D / cos θ_i / (D cos θ_m),
+            # normalised with the exact Beckmann G1 (the one Mitsuba's sampler draws from)
+            ratio = _beckmann_g1_exact(wi, alpha) * wim / (mu * m[2]) if d > 0 else 0.0
         f, cos_t, eta_it, eta_ti = fresnel_dielectric(wim, eta)
         if transmit:
             c = wim * eta_ti + cos_t

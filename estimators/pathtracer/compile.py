@@ -10,6 +10,7 @@ air; plastic to polypropylene in air; conductor to a perfect mirror).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -54,6 +55,26 @@ class CompiledScene:
     @property
     def width(self) -> int:
         return self.camera.width
+
+    def planted(self, *, light_scale: float = 1.0, albedo_scale: float = 1.0,
+                bsdf: int | None = None) -> "CompiledScene":
+        """A copy with a planted bug, for testing the render gate: every emitter's
+        radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
+        first textureless diffuse-like one) base colour scaled by ``albedo_scale``."""
+        a = list(self.arrays)
+        light_f = a[13].copy()
+        light_f[:, 0:3] *= light_scale
+        bf = a[8].copy()
+        if albedo_scale != 1.0:
+            if bsdf is None:
+                bsdf = next((i for i, row in enumerate(a[9])
+                             if row[0] in (B.DIFFUSE, B.PLASTIC, B.ROUGHPLASTIC)
+                             and a[10][i, 0] < 0 and bf[i, 0:3].any()), None)
+                if bsdf is None:
+                    raise ValueError("the scene has no untextured diffuse-like BSDF to plant in")
+            bf[bsdf, 0:3] *= albedo_scale
+        a[13], a[8] = light_f, bf
+        return dataclasses.replace(self, arrays=tuple(a))
 
     @property
     def height(self) -> int:

@@ -79,20 +79,28 @@ def _tiles(width: int, height: int) -> np.ndarray:
                     dtype=np.int64)
 
 
-def render(scene, *, spp: int | None = None, seed: int = 0, general: bool = False,
-           pdf_scale: float = 1.0, params: dict | None = None, progress=None
-           ) -> RenderResult:
+def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
+           general: bool = False, pdf_scale: float = 1.0, params: dict | None = None,
+           progress=None) -> RenderResult:
     """Render a Mitsuba XML scene (path, ``SceneDescription`` or ``CompiledScene``) with
     ``spp`` samples per pixel (default: the scene's sampler). The same seed gives the same
     image bit for bit, whatever the number of threads. ``progress(done, total)`` is called
-    as tiles finish. ``pdf_scale`` != 1 is a test hook: every BSDF sample's pdf is scaled
-    by it, a planted bug the render gate must catch."""
+    as tiles finish.
+
+    With ``passes`` = K > 1 the spp are split into K independent passes and ``variance``
+    and ``n`` describe the K pass means (as Mitsuba references do): pass means are far
+    less skewed than single path samples, which keeps a pixelwise t-test calibrated.
+
+    ``pdf_scale`` != 1 is a test hook: every BSDF sample's pdf is scaled by it, a planted
+    bug the render gate must catch."""
     cs: CompiledScene = compile_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
-    if spp < 2:
-        raise ValueError(f"spp must be >= 2 for a per-pixel variance, got {spp}")
     if not 0 <= seed < 2 ** 63:
         raise ValueError(f"seed must be in [0, 2^63), got {seed}")
+    if passes > 1:
+        return _render_passes(cs, spp, seed, int(passes), general, pdf_scale, progress)
+    if spp < 2:
+        raise ValueError(f"spp must be >= 2 for a per-pixel variance, got {spp}")
     features = -1 if general else cs.features
     module = _kernel if (general and pdf_scale == 1.0) else specialised_kernel(features,
                                                                               pdf_scale)
@@ -122,3 +130,25 @@ def render(scene, *, spp: int | None = None, seed: int = 0, general: bool = Fals
              "lights": cs.n_lights, "bsdfs": list(cs.bsdf_names)}
     return RenderResult(mean.astype(np.float32), variance.astype(np.float32), spp, seconds,
                         stats)
+
+
+def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> RenderResult:
+    per = spp // passes
+    if per < 1:
+        raise ValueError(f"spp={spp} cannot be split into {passes} passes")
+    means = []
+    seconds = 0.0
+    stats = {}
+    for k in range(passes):
+        r = render(cs, spp=max(per, 2), seed=(seed + k * 0x9E3779B97F4A7C15) % 2 ** 63,
+                   general=general, pdf_scale=pdf_scale,
+                   progress=(lambda d, t, k=k: progress(k * t + d, passes * t))
+                   if progress else None)
+        means.append(r.mean.astype(np.float64))
+        seconds += r.seconds
+        stats = r.stats
+    m = np.stack(means)
+    stats = dict(stats, passes=passes, spp_per_pass=max(per, 2),
+                 samples_per_second=cs.width * cs.height * max(per, 2) * passes / seconds)
+    return RenderResult(m.mean(axis=0).astype(np.float32),
+                        m.var(axis=0, ddof=1).astype(np.float32), passes, seconds, stats)

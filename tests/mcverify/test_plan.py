@@ -31,7 +31,7 @@ def test_cornell_box_plan():
                                  "sampler:uniform_cone")) for n in names)
     reasons = dict(skipped)
     assert "delta BSDF" in reasons["bsdf:dielectric"]
-    assert "render-check" in reasons
+    assert "render:cornell-box" in names           # the scene's own render gate
 
 
 def test_diffuse_scene_with_a_point_light(tmp_path):
@@ -40,7 +40,7 @@ def test_diffuse_scene_with_a_point_light(tmp_path):
     checks, skipped, _ = suites.plan(str(path))
     assert _names(checks) == {"sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
                               "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)",
-                              "unbiased:mis(power)"}
+                              "unbiased:mis(power)", f"render:{tmp_path.name}"}
     assert "delta emitter" in dict(skipped)["emitter:point"]
 
 
@@ -54,7 +54,12 @@ def test_cli_plan_and_check_scene(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     import json
     doc = json.loads(out.read_text())
-    assert doc["n_checks"] >= 3 and any(s["check"] == "render-check" for s in doc["skipped"])
+    assert doc["n_checks"] >= 3
+    r = subprocess.run(CMD + ["check", "--scene", CORNELL, "-k", "render:", "--json", str(out),
+                              "-q"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    doc = json.loads(out.read_text())
+    assert [x["name"] for x in doc["results"]] == ["render:cornell-box"]
 
 
 def test_unsupported_scene_is_exit_2_naming_the_line(tmp_path):
