@@ -3,11 +3,12 @@ multiple importance sampling (power heuristic) against BSDF sampling, Russian ro
 after ``rr_depth`` (Mitsuba's rule: continue with probability min(max throughput · η², 0.95)),
 delta BSDFs and delta lights, over numba ``prange`` tiles.
 
-This file is also the template of the specialised kernels: ``specialise.py`` copies it
-with the feature block below rewritten (``FEATURES`` a bit mask of what a scene uses,
-``PDF_SCALE`` the wrong-pdf test hook), and numba compiles the copy with those values as
-constants, so LLVM removes the code a scene does not need. Imported as it is, it is the
-general kernel (every feature on).
+This file is the template of the kernels: ``render.specialised_kernel`` copies it with
+the feature block below rewritten (``FEATURES``, a bit mask of what a scene uses; -1 for
+the general kernel), and numba compiles the copy with that value as a constant, so LLVM
+removes the code a scene does not need. The per-ray functions are inlined (numba IR
+inlining): a call that passes arrays costs reference-count updates that all threads
+share, which halved the speed before.
 
 Random numbers are counter-based (splitmix64 of seed, pixel and sample index, then a
 Weyl sequence), so an image is bit-identical whatever the number of threads.
@@ -25,9 +26,8 @@ from estimators.pathtracer.emitters import (AREA, area_pdf, environment_pdf, eva
 from estimators.pathtracer.geometry import (STACK, coordinate_system, intersect, occluded,
                                             surface, to_local, to_world)
 
-# --- features (rewritten by specialise.py) ---
+# --- features (rewritten by render.specialised_kernel) ---
 FEATURES = -1
-PDF_SCALE = 1.0
 # --- end features ---
 
 F_ENV = 1 << 8              # an environment (constant or envmap) exists
@@ -75,9 +75,10 @@ def _offset(px, py, pz, gx, gy, gz, dx, dy, dz):
     return px + e * gx, py + e * gy, pz + e * gz
 
 
-@njit(cache=True)
-def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state):
-    """Radiance along one camera ray: (r, g, b, rng state)."""
+@njit(cache=True, _nrt=False)
+def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
+    """Radiance along one camera ray: (r, g, b, rng state). ``pdf_scale`` is the
+    wrong-pdf test hook (1: correct)."""
     (nb, ni, order, prims, info, shape_bsdf, shape_light, shape_flip, bf, bi, btex,
      tex_data, tex_info, light_f, light_i, light_cdf, env_marg, env_cond, ints) = sc
     max_depth, rr_depth, hide, env = ints[0], ints[1], ints[2], ints[3]
@@ -159,7 +160,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state):
         u1, state = _next(state)
         u2, state = _next(state)
         (wx, wy, wz, wr, wg, wb, pdf, delta, eta_k) = bsdf_sample(
-            BSDF_MASK, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, PDF_SCALE)
+            BSDF_MASK, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale)
         if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
             break
         tr, tg, tb = tr * wr, tg * wg, tb * wb
@@ -180,10 +181,10 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state):
 
 
 @njit(cache=True, parallel=True)
-def render_tiles(sc, cam, tiles, width, height, spp, seed, mean, m2, bad):
-    """Render the listed tiles (rows of x0, y0, x1, y1): per pixel, the mean and the sum
-    of squared deviations (Welford) of ``spp`` samples; ``bad`` counts non-finite samples
-    (set to zero)."""
+def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, bad):
+    """Render the listed tiles (rows of x0, y0, x1, y1) on all threads: per pixel, the
+    mean and the sum of squared deviations (Welford) of ``spp`` samples; ``bad`` counts
+    non-finite samples (set to zero)."""
     for ti in prange(tiles.shape[0]):
         stack = np.empty(STACK, dtype=np.int64)
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
@@ -200,7 +201,8 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, mean, m2, bad):
                     fy, state = _next(state)
                     ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(
                         cam, (x + fx) / width, (y + fy) / height)
-                    r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state)
+                    r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state,
+                                           pdf_scale)
                     if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)):
                         r, g, b = 0.0, 0.0, 0.0
                         nbad += 1

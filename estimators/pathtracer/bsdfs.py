@@ -44,6 +44,7 @@ TABLE_RES = 64
 ETA, ALPHA, EXTRA1, EXTRA2 = 9, 12, 10, 11
 
 _jit = njit(cache=True)
+_fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see emitters.py
 _INV_PI = 1.0 / math.pi
 
 
@@ -182,7 +183,7 @@ def color(mask, bf, btex, tex_data, tex_info, b, slot, u, v):
     return eval_texture(tex_data, tex_info, t, u, v)
 
 
-@_jit
+@_fast
 def _lerp_table(bf, b, x):
     x = x * (TABLE_RES - 1)
     i = min(int(x), TABLE_RES - 2)
@@ -190,7 +191,7 @@ def _lerp_table(bf, b, x):
     return (1.0 - w) * bf[b, TABLE + i] + w * bf[b, TABLE + i + 1]
 
 
-@_jit
+@_fast
 def _rough_plastic_probs(bf, b, cos_i):
     t_i = _lerp_table(bf, b, cos_i)
     w = bf[b, EXTRA2]
@@ -200,7 +201,7 @@ def _rough_plastic_probs(bf, b, cos_i):
     return ps, t_i
 
 
-@_jit
+@_fast
 def _plastic_probs(bf, b, f_i):
     w = bf[b, EXTRA2]
     ps = f_i * w
@@ -337,7 +338,7 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
     return wo[0], wo[1], wo[2], r / pdf, g / pdf, bl / pdf, pdf, False, 1.0
 
 
-@_jit
+@_fast
 def bsdf_is_smooth(bi, b):
     """Whether the BSDF has a non-delta component (so light sampling can help)."""
     k = bi[b, 0]

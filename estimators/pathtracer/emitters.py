@@ -29,6 +29,9 @@ AREA, POINT, SPOT, DIRECTIONAL, CONSTANT, ENVMAP = range(6)
 NAMES = ("area", "point", "spot", "directional", "constant", "envmap")
 LIGHT_WIDTH = 24
 _jit = njit(cache=True)
+# Per-ray functions skip reference counting (_nrt=False): they allocate nothing, and the
+# atomic count updates on shared arrays cost more than the work when all threads call.
+_fast = njit(cache=True, _nrt=False)
 _INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 
 
@@ -37,7 +40,7 @@ def is_delta(kind):
     return kind == POINT or kind == SPOT or kind == DIRECTIONAL
 
 
-@_jit
+@_fast
 def _sphere_cone(prims, j, x, y, z):
     """(cos θ_max, distance to centre) of the cone a sphere subtends from outside, or
     (-2, d) when the point is inside."""
@@ -51,7 +54,7 @@ def _sphere_cone(prims, j, x, y, z):
     return math.sqrt(max(0.0, 1.0 - sin2)), math.sqrt(d2)
 
 
-@_jit
+@_fast
 def _sample_area(light_f, light_i, light_cdf, prims, info, k, x, y, z, u0, u1, u2,
                  flip):
     """A point on area light k as (wx, wy, wz, dist, pdf in solid angle)."""
@@ -124,7 +127,7 @@ def _sample_area(light_f, light_i, light_cdf, prims, info, k, x, y, z, u0, u1, u
     return wx, wy, wz, dist, d2 / (cos_y * area)
 
 
-@_jit
+@_fast
 def area_pdf(light_f, light_i, prims, info, k, x, y, z, dist, cos_y):
     """Solid-angle pdf (excluding the choice of light) with which ``_sample_area`` picks
     the point at ``dist`` along a ray from (x, y, z) meeting the light at cosine cos_y."""
@@ -140,7 +143,7 @@ def area_pdf(light_f, light_i, prims, info, k, x, y, z, dist, cos_y):
     return dist * dist / (abs(cos_y) * area)
 
 
-@_jit
+@_fast
 def eval_environment(light_f, light_i, tex_data, tex_info, k, dx, dy, dz):
     """Radiance arriving from direction -d... i.e. seen along the escaping ray d."""
     if light_i[k, 0] == CONSTANT:
@@ -154,7 +157,7 @@ def eval_environment(light_f, light_i, tex_data, tex_info, k, dx, dy, dz):
     return r * f[0], g * f[0], b * f[0]
 
 
-@_jit
+@_fast
 def environment_pdf(light_f, light_i, env_marg, env_cond, k, dx, dy, dz):
     if light_i[k, 0] == CONSTANT:
         return _INV_FOUR_PI
@@ -169,7 +172,7 @@ def environment_pdf(light_f, light_i, env_marg, env_cond, k, dx, dy, dz):
     return _pc2d_pdf_kernel(env_marg, env_cond, u, v) / (2.0 * math.pi * math.pi * s)
 
 
-@_jit
+@_fast
 def sample_emitter(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data, tex_info,
                    env_marg, env_cond, k, x, y, z, u0, u1, u2):
     """Sample light k from (x, y, z): (wx, wy, wz, dist, Le r, g, b, pdf) with Le the

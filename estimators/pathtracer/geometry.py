@@ -29,7 +29,10 @@ _LEAF = 4
 _MAX_DEPTH = 60        # deeper subtrees become leaves, so traversal's stack suffices
 STACK = 64
 
-_jit = njit(cache=True, fastmath=False)
+_jit = njit(cache=True)
+# the per-ray functions are inlined into the kernel: a call that passes arrays costs
+# reference-count updates shared by all threads
+_inline = njit(cache=True, inline="always")
 
 
 # ------------------------------------------------------------------------- bounds
@@ -181,7 +184,7 @@ def build_bvh(prims, info):
 
 
 # --------------------------------------------------------------------- intersection
-@_jit
+@_inline
 def _hit_box(nb, node, ox, oy, oz, ix, iy, iz, t_max):
     t0 = 0.0
     t1 = t_max
@@ -200,7 +203,7 @@ def _hit_box(nb, node, ox, oy, oz, ix, iy, iz, t_max):
     return t0 <= t1 * (1.0 + 4e-16)
 
 
-@_jit
+@_inline
 def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
     """(t, b1, b2) of the nearest hit with t > 0, or (inf, 0, 0)."""
     if t == TRIANGLE:
@@ -263,7 +266,7 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
     return th, x, y
 
 
-@_jit
+@_inline
 def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Nearest hit in (t_min, t_max): (t, primitive, b1, b2); primitive -1 if none.
     ``stack`` is int64 scratch of length ``STACK``, reused across rays."""
@@ -301,7 +304,7 @@ def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, 
     return best_t, best_p, best_b1, best_b2
 
 
-@_jit
+@_inline
 def occluded(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Whether anything lies on the ray in (t_min, t_max)."""
     ix = 1.0 / dx if dx != 0.0 else np.inf
@@ -331,7 +334,7 @@ def occluded(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t
 
 
 # ---------------------------------------------------------------- surface details
-@_jit
+@_inline
 def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
     """At the hit (j, t, b1, b2): position, unit geometric normal, unit shading normal
     and texture coordinates, as a flat tuple (px, py, pz, gx, gy, gz, sx, sy, sz, u, v).

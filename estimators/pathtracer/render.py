@@ -46,15 +46,30 @@ def _cache_dir() -> str:
     return d
 
 
-def specialised_kernel(features: int, pdf_scale: float = 1.0):
+def _dependency_digest() -> str:
+    """Hash of every source the kernel compiles in. numba's cache checks only the file of
+    the cached function itself, not its callees, so the generated file's name carries
+    this digest: an edit to a BSDF or a warp makes a new kernel, never a stale one."""
+    here = os.path.dirname(__file__)
+    parent = os.path.dirname(here)
+    files = sorted(os.path.join(here, f) for f in os.listdir(here) if f.endswith(".py"))
+    files += [os.path.join(parent, f) for f in ("warps.py", "distributions.py")]
+    h = hashlib.sha256()
+    for path in files:
+        with open(path, "rb") as f:
+            h.update(f.read())
+    return h.hexdigest()
+
+
+def specialised_kernel(features: int):
     """The kernel module compiled for ``features`` (a bit mask; -1: all)."""
     with open(_kernel.__file__, encoding="utf-8") as f:
         template = f.read()
-    start = template.index("# --- features (rewritten by specialise.py) ---")
+    start = template.index("# --- features (rewritten by render.specialised_kernel) ---")
     end = template.index("# --- end features ---")
     source = (template[:start] + f"# --- features (generated) ---\nFEATURES = {int(features)}\n"
-              f"PDF_SCALE = {float(pdf_scale)!r}\n" + template[end:])
-    key = hashlib.sha256(source.encode()).hexdigest()[:16]
+              + template[end:])
+    key = hashlib.sha256((source + _dependency_digest()).encode()).hexdigest()[:16]
     name = f"mcverify_kernel_{key}"
     if name in _MODULES:
         return _MODULES[name]
@@ -102,8 +117,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     if spp < 2:
         raise ValueError(f"spp must be >= 2 for a per-pixel variance, got {spp}")
     features = -1 if general else cs.features
-    module = _kernel if (general and pdf_scale == 1.0) else specialised_kernel(features,
-                                                                              pdf_scale)
+    module = specialised_kernel(features)
     w, h = cs.width, cs.height
     mean = np.zeros((h, w, 3))
     m2 = np.zeros((h, w, 3))
@@ -111,14 +125,16 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     cam = cs.camera.params
     tiles = _tiles(w, h)
     t0 = time.perf_counter()
-    module.render_tiles(cs.arrays, cam, tiles[:0], w, h, spp, seed, mean, m2, bad)
+    pdf_scale = float(pdf_scale)
+    module.render_tiles(cs.arrays, cam, tiles[:0], w, h, spp, seed, pdf_scale, mean, m2, bad)
     compile_seconds = time.perf_counter() - t0
     threads = get_num_threads()
     n_chunks = max(1, min(20, len(tiles) // (4 * threads)))
     bounds = np.linspace(0, len(tiles), n_chunks + 1).astype(int)
     t0 = time.perf_counter()
     for a, b in zip(bounds[:-1], bounds[1:]):
-        module.render_tiles(cs.arrays, cam, tiles[a:b], w, h, spp, seed, mean, m2, bad)
+        module.render_tiles(cs.arrays, cam, tiles[a:b], w, h, spp, seed, pdf_scale, mean, m2,
+                            bad)
         if progress:
             progress(int(b), len(tiles))
     seconds = time.perf_counter() - t0

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 _jit = njit(cache=True)
+_fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see emitters.py
 
 
 def read_image(path: str) -> np.ndarray:
@@ -58,13 +59,13 @@ class TextureStore:
         return np.concatenate([im.ravel() for im in self.images]), info
 
 
-@_jit
+@_fast
 def _texel(tex_data, off, w, x, y):
     k = off + 3 * (y * w + x)
     return tex_data[k], tex_data[k + 1], tex_data[k + 2]
 
 
-@_jit
+@_fast
 def _bilinear(tex_data, tex_info, t, x, y, wrap_y):
     off, w, h = tex_info[t, 0], tex_info[t, 1], tex_info[t, 2]
     x0 = math.floor(x)
@@ -88,7 +89,7 @@ def _bilinear(tex_data, tex_info, t, x, y, wrap_y):
             w00 * a[2] + w10 * b[2] + w01 * c[2] + w11 * d[2])
 
 
-@_jit
+@_fast
 def eval_texture(tex_data, tex_info, t, u, v):
     """A bitmap texture's bilinear value at (u, v), repeating."""
     return _bilinear(tex_data, tex_info, t, u * tex_info[t, 1] - 0.5,
@@ -113,7 +114,7 @@ def envmap_direction(u, v):
     return s * math.sin(phi), math.cos(theta), -s * math.cos(phi)
 
 
-@_jit
+@_fast
 def eval_envmap(tex_data, tex_info, t, u, v):
     h = tex_info[t, 2]
     return _bilinear(tex_data, tex_info, t, u * tex_info[t, 1] - 0.5,
