@@ -17,8 +17,9 @@ import numpy as np
 N = 1_000_000
 
 
-def pairs(n: int = N):
-    """Workloads: [(group, description, ours, theirs or None)]."""
+def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
+    """Workloads: [(group, description, ours, theirs or None, against)]; ``against``
+    names the other side (Mitsuba, or our general kernel for the specialisation row)."""
     from estimators import warps as W
 
     from . import checks
@@ -48,7 +49,7 @@ def pairs(n: int = N):
         theirs = (mi_warp(getattr(mi.warp, mi_name), getattr(mi.warp, mi_name + "_pdf"), *params)
                   if vectorised else None)
         out.append((f"warp:{label}", f"sample + pdf of {n:,} points",
-                    lambda s=sample, p=pdf, a=params: p(s(u, *a), *a), theirs))
+                    lambda s=sample, p=pdf, a=params: p(s(u, *a), *a), theirs, "mitsuba"))
 
     def ours_chi2():
         return checks.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf,
@@ -69,8 +70,66 @@ def pairs(n: int = N):
                     sample_dim=2, sample_count=n).run()
 
     out.append(("chi2:cosine_hemisphere", f"sampler vs pdf test, {n:,} samples", ours_chi2,
-                theirs_chi2))
+                theirs_chi2, "mitsuba"))
+    if renders:
+        out += _render_pairs(mi if vectorised else mvm._mi(), spp)
     return out
+
+
+def _render_pairs(mi, spp: int):
+    """The path tracer: Cornell box at 128 × 128, max_depth 8, ours against Mitsuba at the
+    same spp; and the specialised kernel against the general one on a diffuse-only scene
+    (the white furnace)."""
+    from estimators.pathtracer import compile_scene, render
+
+    from .reference import resolve_scene
+
+    cornell = resolve_scene("cornell-box")[1]
+    ours_scene = compile_scene(cornell, params={"res": 128})
+    their_scene = mi.load_file(cornell, res=128)
+    furnace = compile_scene(resolve_scene("white-furnace")[1], params={"res": 128})
+    what = f"128 x 128, max_depth 8, {spp} spp"
+    return [
+        ("render:cornell-box", what, lambda: render(ours_scene, spp=spp),
+         lambda: np.asarray(mi.render(their_scene, spp=spp)), "mitsuba"),
+        ("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
+         lambda: render(furnace, spp=spp), lambda: render(furnace, spp=spp, general=True),
+         "general kernel"),
+    ]
+
+
+def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1) -> dict:
+    """RMSE of ours and of Mitsuba against the scene's reference when both get the time
+    Mitsuba needs for ``spp`` samples per pixel (JIT excluded on both sides; the
+    reference's own noise, var / passes, is subtracted from both MSEs)."""
+    from estimators.pathtracer import compile_scene, render
+
+    from . import mitsuba as mvm
+    from .reference import load_reference, resolve_scene
+
+    mi = mvm._mi()
+    path = resolve_scene(scene)[1]
+    ref = load_reference(path)
+    their_scene = mi.load_file(path)
+    ours_scene = compile_scene(path)
+    np.asarray(mi.render(their_scene, spp=spp, seed=seed))
+    render(ours_scene, spp=spp, seed=seed)                       # warm-ups
+    t0 = time.perf_counter()
+    theirs = np.asarray(mi.render(their_scene, spp=spp, seed=seed + 1), dtype=np.float64)
+    t_theirs = time.perf_counter() - t0
+    probe = render(ours_scene, spp=spp, seed=seed + 2)
+    ours_spp = max(2, int(round(spp * t_theirs / probe.seconds)))
+    ours = render(ours_scene, spp=ours_spp, seed=seed + 3)
+    noise = float(np.mean(ref.var / ref.n))
+
+    def rmse(img):
+        return float(np.sqrt(max(np.mean((img - ref.mean) ** 2) - noise, 0.0)))
+
+    r_ours, r_theirs = rmse(ours.mean.astype(np.float64)), rmse(theirs)
+    return {"group": f"equal-time-rmse:{scene}", "workload":
+            f"Mitsuba {spp} spp in {t_theirs:.3f}s; ours {ours_spp} spp in {ours.seconds:.3f}s",
+            "ours_rmse": r_ours, "mitsuba_rmse": r_theirs, "ratio": r_ours / r_theirs,
+            "against": "mitsuba"}
 
 
 def _best(fn, repeats: int) -> float:
@@ -83,17 +142,26 @@ def _best(fn, repeats: int) -> float:
     return float(best)
 
 
-def run_bench(*, repeats: int = 5, n: int = N, progress=None) -> list[dict]:
+def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = True,
+              progress=None) -> list[dict]:
+    """Time every pair (best of ``repeats`` after a warm-up) and, with ``renders``, the
+    equal-time RMSE of the path tracer. ``ratio`` is ours / theirs: time for timings,
+    RMSE for the equal-time row."""
     rows = []
-    work = pairs(n)
-    for i, (group, what, ours, theirs) in enumerate(work):
+    work = pairs(n, spp=spp, renders=renders)
+    total = len(work) + int(renders)
+    for i, (group, what, ours, theirs, against) in enumerate(work):
         t_ours = _best(ours, repeats)
         t_theirs = _best(theirs, repeats) if theirs is not None else None
         rows.append({"group": group, "workload": what, "ours_s": t_ours,
-                     "mitsuba_s": t_theirs,
+                     "mitsuba_s": t_theirs, "against": against,
                      "ratio": None if t_theirs is None else t_ours / t_theirs,
                      "note": None if theirs is not None else
                      "Mitsuba's vectorised llvm variant unavailable (no libLLVM >= 16)"})
         if progress:
-            progress(i + 1, len(work), rows[-1])
+            progress(i + 1, total, rows[-1])
+    if renders:
+        rows.append(equal_time_rmse(spp=max(2, spp // 4)))
+        if progress:
+            progress(total, total, rows[-1])
     return rows

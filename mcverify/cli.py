@@ -180,6 +180,8 @@ def _cmd_bench(args) -> int:
     _writable("--json", args.json)
     if args.repeats < 1:
         raise InvalidArgument(f"--repeats {args.repeats}: must be >= 1")
+    if args.spp < 4:
+        raise InvalidArgument(f"--spp {args.spp}: must be >= 4")
     if args.n < 1000:
         raise InvalidArgument(f"--n {args.n}: must be >= 1000 (timings of fewer points "
                               "measure call overhead, not work)")
@@ -193,12 +195,18 @@ def _cmd_bench(args) -> int:
         if not args.quiet:
             print(f"[{i}/{total}] {row['group']} done", file=sys.stderr)
 
-    rows = run_bench(repeats=args.repeats, n=args.n, progress=show)
-    print(f"{'workload':28s} {'ours (s)':>10s} {'mitsuba (s)':>12s} {'ours/mitsuba':>13s}")
+    rows = run_bench(repeats=args.repeats, n=args.n, spp=args.spp,
+                     renders=not args.no_render, progress=show)
+    print(f"{'workload':30s} {'ours':>10s} {'theirs':>10s} {'ours/theirs':>12s}  against")
     for r in rows:
+        if "ours_rmse" in r:
+            print(f"{r['group']:30s} {r['ours_rmse']:10.4g} {r['mitsuba_rmse']:10.4g} "
+                  f"{r['ratio']:12.2f}  mitsuba (RMSE at equal time)")
+            continue
         m = "n/a" if r["mitsuba_s"] is None else f"{r['mitsuba_s']:.4f}"
         ratio = "n/a" if r["ratio"] is None else f"{r['ratio']:.2f}"
-        print(f"{r['group']:28s} {r['ours_s']:10.4f} {m:>12s} {ratio:>13s}")
+        print(f"{r['group']:30s} {r['ours_s']:10.4f} {m:>10s} {ratio:>12s}  {r['against']} "
+              "(seconds)")
     if args.json:
         doc = {"provenance": provenance(mitsuba_version=mv_mitsuba.mitsuba_version(),
                                         mitsuba_variant=choice.variant, repeats=args.repeats),
@@ -340,6 +348,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", metavar="PATH")
     b.add_argument("--repeats", type=int, default=5)
     b.add_argument("--n", type=int, default=1_000_000, help="points per workload")
+    b.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
+    b.add_argument("--no-render", action="store_true", help="skip the path-tracer rows")
     b.add_argument("-q", "--quiet", action="store_true")
     b.set_defaults(func=_cmd_bench)
     ref = sub.add_parser("reference", help="Mitsuba reference renders")

@@ -69,11 +69,14 @@ def test_html_renders_every_image_in_headless_chromium(report, tmp_path):
 def test_cli_bench_reports_ratios(tmp_path):
     out = tmp_path / "bench.json"
     r = subprocess.run([sys.executable, "-m", "mcverify.cli", "bench", "--n", "20000",
-                        "--repeats", "1", "--json", str(out), "-q"],
-                       capture_output=True, text=True, timeout=600)
+                        "--spp", "4", "--repeats", "1", "--json", str(out), "-q"],
+                       capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     doc = json.loads(out.read_text())
-    groups = {row["group"] for row in doc["results"]}
-    assert "warp:cosine_hemisphere" in groups and "chi2:cosine_hemisphere" in groups
-    assert "ours/mitsuba" in r.stdout
+    rows = {row["group"]: row for row in doc["results"]}
+    assert {"warp:cosine_hemisphere", "chi2:cosine_hemisphere", "render:cornell-box",
+            "kernel:specialised/general", "equal-time-rmse:cornell-box"} <= set(rows)
+    assert rows["kernel:specialised/general"]["against"] == "general kernel"
+    assert all(row["ratio"] > 0 for row in rows.values() if row["ratio"] is not None)
+    assert "ours/theirs" in r.stdout
     assert doc["provenance"]["mitsuba_variant"]
