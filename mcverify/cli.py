@@ -165,7 +165,17 @@ def _cmd_report(args) -> int:
     # Study rows are judged together (Holm) at the end: no per-row verdict while running.
     study = run_study(seed=args.seed,
                       progress=None if args.quiet else _progress(sys.stderr, verdicts=False))
-    build_report(out, suite=suite, study=study, extra_provenance=dict(extra, seed=args.seed))
+    renders = None
+    if args.renders != "none":
+        from .reference import list_scenes, resolve_scene
+        from .report.renders import run_renders
+
+        scenes = list_scenes() if args.renders == "all" else args.renders.split(",")
+        for s in scenes:
+            resolve_scene(s)                                     # fail before any work
+        renders = run_renders(scenes, seed=args.seed, progress=show)
+    build_report(out, suite=suite, study=study, renders=renders,
+                 extra_provenance=dict(extra, seed=args.seed))
     print(f"mcverify report: wrote {os.path.join(out, 'report.html')} and report.json")
     return EXIT_OK
 
@@ -341,6 +351,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--suite", choices=("default", "full"), default="default")
     rp.add_argument("-k", metavar="PATTERN", help="only these checks in the verification part")
     rp.add_argument("--no-suite", action="store_true", help="convergence study only")
+    rp.add_argument("--renders", default="all", metavar="SCENES",
+                    help="reference scenes to render and compare (comma-separated), "
+                         "'all' (default) or 'none'")
     rp.add_argument("--seed", type=int, default=0)
     rp.add_argument("-q", "--quiet", action="store_true")
     rp.set_defaults(func=_cmd_report)

@@ -88,3 +88,60 @@ def histogram(result: dict) -> bytes | None:
         ax.set_title(t, fontsize=9)
     fig.suptitle(result["name"], fontsize=10)
     return _png(fig)
+
+
+def _tonemap(img: np.ndarray, scale: float) -> np.ndarray:
+    """Linear RGB to display: exposure so the 99th percentile maps to 1, sRGB gamma."""
+    x = np.clip(np.asarray(img, float) / scale, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
+def render_panels(scene: str, a: dict) -> bytes:
+    """Ours, Mitsuba (one exposure for both), |ours − Mitsuba| (luminance-free max over
+    channels), the pixel test's BH-adjusted p-map (−log10 p) and the ΔE2000 map, each
+    with its colour bar."""
+    plt = _plt()
+    ours, theirs = np.asarray(a["ours"], float), np.asarray(a["mitsuba"], float)
+    scale = max(float(np.percentile(theirs, 99)), 1e-12)
+    fig, axes = plt.subplots(1, 5, figsize=(17, 3.4))
+    for ax, img, t in ((axes[0], ours, "ours"), (axes[1], theirs, "Mitsuba")):
+        ax.imshow(_tonemap(img, scale), interpolation="nearest")
+        ax.set_title(t, fontsize=9)
+    diff = np.abs(ours - theirs).max(axis=2)
+    maps = ((axes[2], diff, "|ours − Mitsuba| (max over RGB)", "magma", None),
+            (axes[3], -np.log10(np.clip(np.asarray(a["p_map"], float), 1e-12, 1.0)),
+             "pixel test: −log10 p (BH-adjusted)", "viridis", (0, 6)),
+            (axes[4], a.get("delta_e"), "ΔE2000", "inferno", None))
+    for ax, img, t, cmap, lim in maps:
+        if img is None:
+            ax.set_axis_off()
+            continue
+        kw = {"vmin": lim[0], "vmax": lim[1]} if lim else {}
+        im = ax.imshow(np.asarray(img, float), cmap=cmap, interpolation="nearest", **kw)
+        fig.colorbar(im, ax=ax, fraction=0.046)
+        ax.set_title(t, fontsize=9)
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(scene, fontsize=10)
+    return _png(fig)
+
+
+def render_error(rows: list[dict]) -> bytes:
+    """RMSE against spp and against seconds, ours and Mitsuba, one column per scene."""
+    plt = _plt()
+    fig, axes = plt.subplots(2, len(rows), figsize=(3.6 * len(rows), 6.4), squeeze=False)
+    for j, r in enumerate(rows):
+        c = r["curve"]
+        for i, x in enumerate(("spp", "seconds")):
+            ax = axes[i, j]
+            for who, style in (("ours", "o-"), ("mitsuba", "s--")):
+                xs = c["spp"] if x == "spp" else c[f"{who}_seconds"]
+                ax.loglog(xs, np.maximum(c[f"{who}_rmse"], 1e-12), style, ms=3, label=who)
+            ax.xaxis.set_minor_formatter(plt.NullFormatter())
+            ax.set_xlabel(x)
+            ax.set_ylabel("RMSE")
+            ax.legend(fontsize=7)
+            if i == 0:
+                ax.set_title(r["scene"], fontsize=9)
+    return _png(fig)

@@ -11,6 +11,7 @@ import pytest
 
 from mcverify import suites
 from mcverify.report import build_report
+from mcverify.report.renders import run_renders
 from mcverify.report.study import run_study
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -23,7 +24,8 @@ def report(tmp_path_factory):
     planted = suites.canaries(200_000)[:1]   # a failing check, so its histogram is drawn
     result = suites.run_suite(checks + planted, seed=0, canary=False)
     study = run_study(ns=(64, 256, 1024), n_seeds=8)
-    doc = build_report(str(out), suite=result, study=study)
+    renders = run_renders(["cornell-box"], spps=(4, 16))
+    doc = build_report(str(out), suite=result, study=study, renders=renders)
     return out, doc
 
 
@@ -34,7 +36,11 @@ def test_json_first_with_provenance_and_all_parts(report):
     assert on_disk["verification"]["n_failed"] == 1
     assert {r["estimator"] for r in on_disk["convergence"]} >= {"uniform", "rqmc"}
     names = set(on_disk["images"])
-    assert {"convergence.png", "efficiency.png"} <= names
+    assert {"convergence.png", "efficiency.png", "render_cornell_box.png",
+            "render_error.png"} <= names
+    (row,) = on_disk["renders"]
+    assert row["scene"] == "cornell-box" and row["passed"]
+    assert len(row["curve"]["ours_rmse"]) == 2 and row["curve"]["mitsuba_seconds"][0] > 0
     assert any(n.startswith("failed_") for n in names)
     for n in names:
         assert (out / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
