@@ -209,6 +209,17 @@ def _plastic_probs(bf, b, f_i):
     return ps / (ps + pd)
 
 
+@_jit
+def _coat_base(r, g, b, internal, nonlinear):
+    """The base colour under a coat that reflects ``internal`` of diffuse light back
+    down: divided by 1 - internal (Mitsuba's default), or by 1 - colour · internal
+    (``nonlinear``, the colour shift of real coated materials)."""
+    if nonlinear:
+        return r / (1.0 - r * internal), g / (1.0 - g * internal), b / (1.0 - b * internal)
+    k = 1.0 / (1.0 - internal)
+    return r * k, g * k, b * k
+
+
 # ------------------------------------------------------------------ eval and sample
 @njit(cache=True, inline="always")
 def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
@@ -239,12 +250,7 @@ def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     if mask & (1 << PLASTIC) and kind == PLASTIC:
         f_i = fresnel_dielectric(ci, eta)[0]
         f_o = fresnel_dielectric(co, eta)[0]
-        fdr = bf[b, EXTRA1]
-        if bi[b, 3]:
-            dr, dg, db = dr / (1.0 - dr * fdr), dg / (1.0 - dg * fdr), db / (1.0 - db * fdr)
-        else:
-            k = 1.0 / (1.0 - fdr)
-            dr, dg, db = dr * k, dg * k, db * k
+        dr, dg, db = _coat_base(dr, dg, db, bf[b, EXTRA1], bi[b, 3])
         s = co * _INV_PI / (eta * eta) * (1.0 - f_i) * (1.0 - f_o)
         pdf = co * _INV_PI * (1.0 - _plastic_probs(bf, b, f_i))
         return dr * s, dg * s, db * s, pdf
@@ -253,12 +259,7 @@ def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     alpha, dist = bf[b, ALPHA], bi[b, 2]
     ps, t_i = _rough_plastic_probs(bf, b, ci)
     t_o = _lerp_table(bf, b, co)
-    ri = bf[b, EXTRA1]
-    if bi[b, 3]:
-        dr, dg, db = dr / (1.0 - dr * ri), dg / (1.0 - dg * ri), db / (1.0 - db * ri)
-    else:
-        k = 1.0 / (1.0 - ri)
-        dr, dg, db = dr * k, dg * k, db * k
+    dr, dg, db = _coat_base(dr, dg, db, bf[b, EXTRA1], bi[b, 3])
     s = _INV_PI / (eta * eta) * co * t_i * t_o
     r, g, bl = dr * s, dg * s, db * s
     val, cos_h = _microfacet_value(wi, wo, alpha, dist)

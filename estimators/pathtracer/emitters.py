@@ -22,7 +22,7 @@ from numba import njit
 from ..distributions import _pc2d_pdf_kernel, _sample_discrete_kernel, _sample_pc2d_kernel
 from ..warps import (_sample_uniform_cone_kernel, _sample_uniform_disk_concentric_kernel,
                      _sample_uniform_sphere_kernel, _sample_uniform_triangle_kernel)
-from .geometry import SPHERE, TRIANGLE, coordinate_system, to_world
+from .geometry import SPHERE, TRIANGLE, coordinate_system, to_world, triangle_point
 from .textures import envmap_direction, envmap_uv, eval_envmap
 
 AREA, POINT, SPOT, DIRECTIONAL, CONSTANT, ENVMAP = range(6)
@@ -92,16 +92,7 @@ def _sample_area(light_f, light_i, light_cdf, prims, info, k, x, y, z, u0, u1, u
         i, _, _ = _sample_discrete_kernel(light_cdf[off:off + count + 1], u0)
         p = prims[first + i]
         bary = _sample_uniform_triangle_kernel((u1, u2), (0.0,))
-        b1, b2 = bary[0], bary[1]
-        b0 = 1.0 - b1 - b2
-        px = b0 * p[0] + b1 * p[3] + b2 * p[6]
-        py = b0 * p[1] + b1 * p[4] + b2 * p[7]
-        pz = b0 * p[2] + b1 * p[5] + b2 * p[8]
-        e1x, e1y, e1z = p[3] - p[0], p[4] - p[1], p[5] - p[2]
-        e2x, e2y, e2z = p[6] - p[0], p[7] - p[1], p[8] - p[2]
-        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-        nx, ny, nz = nx / ln, ny / ln, nz / ln
+        px, py, pz, nx, ny, nz = triangle_point(p, bary[0], bary[1])
         area = light_f[k, 3]
     else:  # disk
         p = prims[first]

@@ -267,9 +267,10 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 
 @_inline
-def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
-    """Nearest hit in (t_min, t_max): (t, primitive, b1, b2); primitive -1 if none.
-    ``stack`` is int64 scratch of length ``STACK``, reused across rays."""
+def _traverse(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
+              any_hit):
+    """Walk the hierarchy, nearer child first: the nearest hit in (t_min, t_max), or
+    with ``any_hit`` the first found. (t, primitive, b1, b2); primitive -1 if none."""
     ix = 1.0 / dx if dx != 0.0 else np.inf
     iy = 1.0 / dy if dy != 0.0 else np.inf
     iz = 1.0 / dz if dz != 0.0 else np.inf
@@ -287,6 +288,8 @@ def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, 
                     t, b1, b2 = _hit_prim(prims[j], info[j, 0], ox, oy, oz, dx, dy, dz)
                     if t_min < t < best_t:
                         best_t, best_p, best_b1, best_b2 = t, j, b1, b2
+                        if any_hit:
+                            return best_t, best_p, best_b1, best_b2
             else:
                 left, right = ni[node, 0], -c - 1
                 if neg[ni[node, 2]]:
@@ -305,35 +308,36 @@ def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, 
 
 
 @_inline
+def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
+    """Nearest hit in (t_min, t_max): (t, primitive, b1, b2); primitive -1 if none.
+    ``stack`` is int64 scratch of length ``STACK``, reused across rays."""
+    return _traverse(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
+                     False)
+
+
+@_inline
 def occluded(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Whether anything lies on the ray in (t_min, t_max)."""
-    ix = 1.0 / dx if dx != 0.0 else np.inf
-    iy = 1.0 / dy if dy != 0.0 else np.inf
-    iz = 1.0 / dz if dz != 0.0 else np.inf
-    sp = 0
-    node = 0
-    while True:
-        if _hit_box(nb, node, ox, oy, oz, ix, iy, iz, t_max):
-            c = ni[node, 1]
-            if c > 0:
-                s = ni[node, 0]
-                for k in range(s, s + c):
-                    j = order[k]
-                    t, _, _ = _hit_prim(prims[j], info[j, 0], ox, oy, oz, dx, dy, dz)
-                    if t_min < t < t_max:
-                        return True
-            else:
-                stack[sp] = -c - 1
-                sp += 1
-                node = ni[node, 0]
-                continue
-        if sp == 0:
-            return False
-        sp -= 1
-        node = stack[sp]
+    return _traverse(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
+                     True)[1] >= 0
 
 
 # ---------------------------------------------------------------- surface details
+@_inline
+def triangle_point(p, b1, b2):
+    """The point of triangle row ``p`` at barycentrics (b1, b2) and its unit normal (by
+    the winding): (px, py, pz, nx, ny, nz)."""
+    b0 = 1.0 - b1 - b2
+    px = b0 * p[0] + b1 * p[3] + b2 * p[6]
+    py = b0 * p[1] + b1 * p[4] + b2 * p[7]
+    pz = b0 * p[2] + b1 * p[5] + b2 * p[8]
+    e1x, e1y, e1z = p[3] - p[0], p[4] - p[1], p[5] - p[2]
+    e2x, e2y, e2z = p[6] - p[0], p[7] - p[1], p[8] - p[2]
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    return px, py, pz, nx * inv, ny * inv, nz * inv
+
+
 @_inline
 def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
     """At the hit (j, t, b1, b2): position, unit geometric normal, unit shading normal
@@ -344,14 +348,7 @@ def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
     kind = info[j, 0]
     if kind == TRIANGLE:
         b0 = 1.0 - b1 - b2
-        px = b0 * p[0] + b1 * p[3] + b2 * p[6]
-        py = b0 * p[1] + b1 * p[4] + b2 * p[7]
-        pz = b0 * p[2] + b1 * p[5] + b2 * p[8]
-        e1x, e1y, e1z = p[3] - p[0], p[4] - p[1], p[5] - p[2]
-        e2x, e2y, e2z = p[6] - p[0], p[7] - p[1], p[8] - p[2]
-        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
-        gx, gy, gz = gx * inv, gy * inv, gz * inv
+        px, py, pz, gx, gy, gz = triangle_point(p, b1, b2)
         sx = b0 * p[9] + b1 * p[12] + b2 * p[15]
         sy = b0 * p[10] + b1 * p[13] + b2 * p[16]
         sz = b0 * p[11] + b1 * p[14] + b2 * p[17]

@@ -77,3 +77,22 @@ def render_check(scene: str, *, spp: int = 1024, passes: int = 16, seed: int = 0
     return dataclasses.replace(result, details=details,
                                seconds=result.seconds + ours.seconds + ref_seconds,
                                n_samples=spp * ours.mean.shape[0] * ours.mean.shape[1])
+
+
+def global_sensitivity(scene: str, *, epsilons=(0.0025, 0.005, 0.01, 0.02, 0.05),
+                       seeds=(0, 1), spp: int = 1024, passes: int = 16) -> dict:
+    """The smallest global bias the render gate catches on a scene at a budget: every
+    emitter scaled by 1 ± ε, for growing ε, until both signs are rejected on every seed.
+    Returns {"scene", "caught_at" (ε or None), "trials": [(ε, sign, seed, p, found_by)]}."""
+    trials = []
+    for eps in epsilons:
+        caught = True
+        for sign in (1, -1):
+            for seed in seeds:
+                r = render_check(scene, spp=spp, passes=passes, seed=seed,
+                                 plant={"light_scale": 1 + sign * eps})
+                trials.append((eps, sign, seed, r.p_value, r.details["found_by"]))
+                caught &= not r.passed
+        if caught:
+            return {"scene": scene, "caught_at": eps, "trials": trials}
+    return {"scene": scene, "caught_at": None, "trials": trials}

@@ -103,3 +103,12 @@ def test_planted_bugs_fail_on_every_scene_where_they_apply(name):
         if r.passed:
             missed.append(f"{label} (p={r.p_value:.3g})")
     assert not missed, missed
+
+
+def test_global_sensitivity_reports_the_smallest_bias_caught():
+    from mcverify.checks.render import global_sensitivity
+
+    s = global_sensitivity("cornell-box", epsilons=(0.0001, 0.05), seeds=(0,), spp=256,
+                           passes=8)
+    assert s["caught_at"] == 0.05
+    assert [t[0] for t in s["trials"]].count(0.05) == 2      # both signs at 5 %
