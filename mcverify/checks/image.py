@@ -66,19 +66,38 @@ def _z_p(diff, var, tol):
     return np.where(exact, np.where(excess == 0, 1.0, 0.0), p)
 
 
+def _display_scale(ref) -> float:
+    """The reference's 99th-percentile luminance: the exposure both ΔE maps use."""
+    lum = ref @ np.array([0.2126, 0.7152, 0.0722])
+    return max(float(np.percentile(lum, 99)), 1e-12)
+
+
 def delta_e2000(test, ref) -> np.ndarray:
     """Per-pixel CIEDE2000 colour difference of two linear-sRGB HDR images (H, W, 3),
     both divided by the reference's 99th-percentile luminance and clipped to [0, 1] (ΔE is
     defined for display colours; 1 is about the smallest difference a person notices)."""
     import colour
 
-    lum = ref @ np.array([0.2126, 0.7152, 0.0722])
-    scale = max(float(np.percentile(lum, 99)), 1e-12)
+    scale = _display_scale(ref)
     space = colour.RGB_COLOURSPACES["sRGB"]
     labs = [colour.XYZ_to_Lab(colour.RGB_to_XYZ(np.clip(img / scale, 0.0, 1.0), space,
                                                  apply_cctf_decoding=False))
             for img in (test, ref)]
     return np.asarray(colour.delta_E(labs[0], labs[1], method="CIE 2000"))
+
+
+def delta_e_itp(test, ref) -> np.ndarray:
+    """Per-pixel ΔE ITP (ITU-R BT.2124) of two linear-sRGB HDR images: the reference's
+    99th-percentile luminance is shown at 100 cd/m², brighter pixels keep their HDR
+    values (ICtCp's PQ encoding covers them); 1 is about a just-noticeable difference."""
+    import colour
+
+    scale = _display_scale(ref)
+    # colour's ICtCp takes absolute luminance in cd/m² (1.0 is 1 cd/m²)
+    ictcp = [colour.RGB_to_ICtCp(colour.RGB_to_RGB(np.maximum(img, 0.0) * (100.0 / scale),
+                                                    "sRGB", "ITU-R BT.2020"))
+             for img in (test, ref)]
+    return np.asarray(colour.difference.delta_E_ITP(ictcp[0], ictcp[1]))
 
 
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
@@ -105,9 +124,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         ``details``: ``found_by`` (which tests rejected), ``global``, ``blocks``
         (rejected blocks with their position and relative difference),
         ``rejected_fraction`` of pixels, ``relmse``, ``smape``, ``delta_e2000_mean`` and
-        ``_p99`` (CIEDE2000, 3-channel images), and ``p_map`` (per-pixel BH-adjusted
-        p-values, the minimum over channels) and ``maps`` (p-map and ΔE2000 map); the maps
-        are left out of JSON by default.
+        ``_p99``, ``delta_e_itp_mean`` and ``_p99`` (CIEDE2000 and ITU-R BT.2124 ΔE ITP,
+        3-channel images), ``p_map`` (per-pixel BH-adjusted p-values, the minimum over
+        channels) and ``maps`` (p-map, ΔE2000 and ΔE ITP maps); the maps are left out of
+        JSON by default.
 
     Notes
     -----
@@ -204,8 +224,8 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                         f"{rejected_px.any(axis=2).mean():.2%} of pixels rejected")
     maps = {"p_map": p_map}
     if c == 3:
-        de = delta_e2000(tm, rm)
-        maps["delta_e2000"] = de
+        maps["delta_e2000"] = delta_e2000(tm, rm)
+        maps["delta_e_itp"] = delta_e_itp(tm, rm)
     details = {
         "found_by": found, "alpha_per_test": level, "block": block,
         "global": {"difference": float(diff.mean()),
@@ -221,6 +241,8 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                                         0.0))),
         "delta_e2000_mean": float(maps["delta_e2000"].mean()) if c == 3 else None,
         "delta_e2000_p99": float(np.percentile(maps["delta_e2000"], 99)) if c == 3 else None,
+        "delta_e_itp_mean": float(maps["delta_e_itp"].mean()) if c == 3 else None,
+        "delta_e_itp_p99": float(np.percentile(maps["delta_e_itp"], 99)) if c == 3 else None,
         "p_map": p_map, "maps": maps,
     }
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, ()),

@@ -1,5 +1,5 @@
 """The render part of a report: per reference scene, the render gate's verdict with its
-images (ours, Mitsuba, difference, p-map, ΔE2000), and error against spp and against
+images (ours, Mitsuba, difference, p-map, ΔE2000, ΔE ITP), and error against spp and against
 seconds for both renderers (RMSE against the reference, the reference's own noise
 subtracted).
 """
@@ -51,13 +51,15 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
         rows.append({"scene": name, "passed": check.passed, "p_value": check.p_value,
                      "found_by": d["found_by"], "relmse": d["relmse"],
                      "delta_e2000_mean": d.get("delta_e2000_mean"),
+                     "delta_e_itp_mean": d.get("delta_e_itp_mean"),
                      "ours_spp": d["ours_spp"], "ours_passes": d["ours_passes"],
                      "ours_seconds": d["ours_seconds"], "kernel": d["ours_kernel"],
                      "reference": {k: d["reference"].get(k) for k in
                                    ("spp", "passes", "mitsuba_version", "mitsuba_variant")},
                      "curve": curve})
         arrays[name] = {"ours": d["images"]["ours"], "mitsuba": d["images"]["mitsuba"],
-                        "p_map": d["p_map"], "delta_e": d["maps"].get("delta_e2000")}
+                        "p_map": d["p_map"], "delta_e": d["maps"].get("delta_e2000"),
+                        "delta_itp": d["maps"].get("delta_e_itp")}
         if progress:
             progress(i + 1, len(scenes), check)
     return rows, arrays

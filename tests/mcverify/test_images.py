@@ -37,17 +37,22 @@ def test_global_two_percent_bias_is_found_by_the_global_test(scale_b):
     assert np.sign(r.details["global"]["relative"]) == -np.sign(scale_b - 1)
 
 
-def test_delta_e2000_is_zero_for_identical_images_and_grows_with_a_colour_shift():
+def test_colour_differences_are_zero_for_identical_images_and_grow_with_a_shift():
     rng = np.random.default_rng(3)
     img = rng.random((16, 16, 3))
     same = mv.compare_images(img, img, test_var=np.full_like(img, 0.01),
                              ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
-    assert same.details["delta_e2000_mean"] == 0.0
+    assert same.details["delta_e2000_mean"] == 0.0 and same.details["delta_e_itp_mean"] == 0.0
     shifted = img * np.array([1.0, 1.0, 1.3])
     r = mv.compare_images(shifted, img, test_var=np.full_like(img, 0.01),
                           ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
-    assert r.details["delta_e2000_mean"] > 1.0
-    assert r.details["maps"]["delta_e2000"].shape == (16, 16)
+    assert r.details["delta_e2000_mean"] > 1.0 and r.details["delta_e_itp_mean"] > 1.0
+    assert r.details["maps"]["delta_e2000"].shape == r.details["maps"]["delta_e_itp"].shape \
+        == (16, 16)
+    # a 1 % grey change is below a just-noticeable ΔE ITP; a 30 % blue shift far above
+    grey = mv.compare_images(img * 1.01, img, test_var=np.full_like(img, 0.01),
+                             ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
+    assert grey.details["delta_e_itp_mean"] < 1.0 < r.details["delta_e_itp_mean"]
     assert "maps" not in r.to_dict()["details"]
 
 
