@@ -77,7 +77,8 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
 
 
 def _render_pairs(mi, spp: int):
-    """The path tracer: Cornell box at 128 × 128, max_depth 8, ours against Mitsuba at the
+    """The path tracer: the render gate's decision time on the Cornell box (no
+    counterpart); the Cornell box at 128 × 128, max_depth 8, ours against Mitsuba at the
     same spp; and the specialised kernel against the general one on a diffuse-only scene
     (the white furnace)."""
     from estimators.pathtracer import compile_scene, render
@@ -89,7 +90,14 @@ def _render_pairs(mi, spp: int):
     their_scene = mi.load_file(cornell, res=128)
     furnace = compile_scene(resolve_scene("white-furnace")[1], params={"res": 128})
     what = f"128 x 128, max_depth 8, {spp} spp"
+
+    def gate():
+        from .checks.render import render_check
+        return render_check("cornell-box")
+
     return [
+        ("render-check:cornell-box", "the render gate at its defaults, 64 x 64, reference "
+         "cached (budget: 30 s)", gate, None, "-"),
         ("render:cornell-box", what, lambda: render(ours_scene, spp=spp),
          lambda: np.asarray(mi.render(their_scene, spp=spp)), "mitsuba"),
         ("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
@@ -157,6 +165,7 @@ def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = Tr
                      "mitsuba_s": t_theirs, "against": against,
                      "ratio": None if t_theirs is None else t_ours / t_theirs,
                      "note": None if theirs is not None else
+                     "no counterpart" if against == "-" else
                      "Mitsuba's vectorised llvm variant unavailable (no libLLVM >= 16)"})
         if progress:
             progress(i + 1, total, rows[-1])

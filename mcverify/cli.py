@@ -370,7 +370,9 @@ def build_parser() -> argparse.ArgumentParser:
     rb = rsub.add_parser("build", help="(re)render references with per-pixel variance")
     rb.add_argument("scenes", nargs="*", metavar="SCENE",
                     help="reference names or scene.xml paths (default: all)")
-    rb.add_argument("--spp", type=int, default=64)
+    rb.add_argument("--spp", type=int, default=256,
+                    help="samples per pixel of each pass (the reference's own noise sets a "
+                         "floor under the gate's sensitivity)")
     rb.add_argument("--passes", type=int, default=16)
     rb.add_argument("--seed", type=int, default=0)
     rb.add_argument("-q", "--quiet", action="store_true")

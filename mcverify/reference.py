@@ -80,7 +80,7 @@ def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 
     return Reference(name, imgs.mean(axis=0), imgs.var(axis=0, ddof=1), passes, manifest), imgs
 
 
-def build_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0,
+def build_reference(spec: str, *, spp: int = 256, passes: int = 16, seed: int = 0,
                     progress=None) -> str:
     """Render the reference of a scene and write it atomically; returns its folder."""
     from . import mitsuba as mvm

@@ -81,6 +81,7 @@ def test_cli_bench_reports_ratios(tmp_path):
     doc = json.loads(out.read_text())
     rows = {row["group"]: row for row in doc["results"]}
     assert {"warp:cosine_hemisphere", "chi2:cosine_hemisphere", "render:cornell-box",
+            "render-check:cornell-box",
             "kernel:specialised/general", "equal-time-rmse:cornell-box"} <= set(rows)
     assert rows["kernel:specialised/general"]["against"] == "general kernel"
     assert all(row["ratio"] > 0 for row in rows.values() if row["ratio"] is not None)
