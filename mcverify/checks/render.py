@@ -15,6 +15,12 @@ from ..errors import EnvironmentProblem, InvalidArgument
 from ..result import CheckResult
 from .image import compare_images
 
+# Pass means of 32 samples on the Cornell box's caustic pixels are skewed enough that the
+# pixel t-test against a low-noise reference raised false alarms on 4 seeds of 4; at 64
+# samples per pass the gate is calibrated (slow test: ours at the defaults against fresh
+# references).
+MIN_SPP_PER_PASS = 64
+
 
 def render_check(scene: str, *, spp: int = 1024, passes: int = 16, seed: int = 0,
                  alpha: float = 0.01, params: dict | None = None, pdf_scale: float = 1.0,
@@ -33,9 +39,10 @@ def render_check(scene: str, *, spp: int = 1024, passes: int = 16, seed: int = 0
 
     from .. import reference as R
 
-    if passes < 2 or spp < 2 * passes:
+    if passes < 2 or spp < MIN_SPP_PER_PASS * passes:
         raise InvalidArgument(f"spp={spp}, passes={passes}: need passes >= 2 and at least "
-                              "2 samples per pass")
+                              f"{MIN_SPP_PER_PASS} samples per pass (pass means of fewer "
+                              "samples are too skewed on caustic pixels for the t-test)")
     name, path = R.resolve_scene(scene)
     t0 = time.perf_counter()
     if params:

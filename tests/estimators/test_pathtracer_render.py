@@ -127,7 +127,7 @@ def test_ours_matches_mitsuba_pixel_for_pixel(scene, depth):
     """Direct light only (max_depth 2: camera conventions, BSDFs, light sampling) and full
     depth, against Mitsuba's reference (rendered on the fly for depth 2, the committed one
     otherwise), by the render gate at α = 0.01."""
-    r = mv.render_check(scene, spp=512, passes=16, seed=11,
+    r = mv.render_check(scene, spp=1024, passes=16, seed=11,
                         params={"max_depth": 2} if depth else None)
     assert r.passed, (r.summary(), r.details["found_by"])
 
@@ -141,3 +141,8 @@ def test_planted_bugs_fail_the_render_gate(plant):
     pdf_scale = plant.pop("pdf_scale", 1.0)
     r = mv.render_check("cornell-box", seed=12, plant=plant or None, pdf_scale=pdf_scale)
     assert not r.passed, r.summary()
+
+
+def test_render_check_refuses_too_few_samples_per_pass():
+    with pytest.raises(mv.InvalidArgument, match="64 samples per pass"):
+        mv.render_check("cornell-box", spp=256, passes=16)

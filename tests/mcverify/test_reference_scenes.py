@@ -59,9 +59,10 @@ def test_mitsuba_against_itself_is_calibrated_on_every_scene():
 
 @pytest.mark.slow
 def test_ours_against_mitsuba_is_calibrated_on_every_scene():
-    """A/A with two renderers: our tracer (8 passes × 32 spp) against a fresh Mitsuba
-    render (8 passes × 32 spp, another seed each time), 20 seed pairs per scene: false
-    alarms within the binomial 99.9 % bound of α = 0.01."""
+    """A/A with two renderers, as users run the gate: our tracer at the render check's
+    defaults (1024 spp in 16 passes) against a fresh Mitsuba reference at the reference
+    builder's defaults (16 passes × 256 spp, another seed each time), 20 seed pairs per
+    scene: false alarms within the binomial 99.9 % bound of α = 0.01."""
     from estimators.pathtracer import render
 
     pairs = 20
@@ -69,8 +70,8 @@ def test_ours_against_mitsuba_is_calibrated_on_every_scene():
     for name in SCENES:
         _, path = reference.resolve_scene(name)
         for k in range(pairs):
-            ref, _ = reference.render_reference(path, spp=32, passes=8, seed=1000 + k)
-            ours = render(path, spp=256, passes=8, seed=2000 + k)
+            ref, _ = reference.render_reference(path, spp=256, passes=16, seed=1000 + k)
+            ours = render(path, spp=1024, passes=16, seed=2000 + k)
             r = mv.compare_images(ours.mean, ref.mean, test_var=ours.variance, ref_var=ref.var,
                                   test_n=ours.n, ref_n=ref.n)
             alarms[name] = alarms.get(name, 0) + (not r.passed)
@@ -108,7 +109,7 @@ def test_planted_bugs_fail_on_every_scene_where_they_apply(name):
 def test_global_sensitivity_reports_the_smallest_bias_caught():
     from mcverify.checks.render import global_sensitivity
 
-    s = global_sensitivity("cornell-box", epsilons=(0.0001, 0.05), seeds=(0,), spp=256,
+    s = global_sensitivity("cornell-box", epsilons=(0.0001, 0.05), seeds=(0,), spp=512,
                            passes=8)
     assert s["caught_at"] == 0.05
     assert [t[0] for t in s["trials"]].count(0.05) == 2      # both signs at 5 %
