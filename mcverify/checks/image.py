@@ -159,17 +159,22 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     h, w, c = tm.shape
     se2 = tv / nt + rv / nr                       # variance of each pixel's difference
     diff = tm - rm
-    # Zero-variance pixels compare exactly, up to float32 resolution at the image's scale:
-    # a variance that underflowed (one 1e-22 contribution among zeros) is no evidence,
-    # and two correct renderers that round differently (float32 film weights against a
-    # float64 sum) differ by a few ulps on a constant pixel: 8 ulps (2^-20) pass.
-    tol = 2.0 ** -20 * max(float(np.abs(tm).max()), float(np.abs(rm).max()), 1e-300)
+    # Rounding is no evidence. A renderer that sums hundreds of samples in float32 drifts
+    # on a constant pixel (Mitsuba at 512 spp: 0.899996 for 0.9, variance 0), and a
+    # variance can underflow (one 1e-22 contribution among zeros). So differences within
+    # 2^-16 of the compared values (plus 2^-24 of the image's scale, for values near 0)
+    # pass; zero-variance values compare exactly beyond that.
+    floor = 2.0 ** -24 * max(float(np.abs(tm).max()), float(np.abs(rm).max()), 1e-300)
+
+    def tol(a, b):
+        return 2.0 ** -16 * np.maximum(np.abs(a), np.abs(b)) + floor
 
     # 1. global, per channel: the colour channels of one path are strongly correlated
     #    (identical on grey scenes), so they cannot be pooled as independent values;
     #    pixels within a channel are independent. Bonferroni across channels.
     n_px = h * w
-    p_channels = _z_p(diff.mean(axis=(0, 1)), se2.sum(axis=(0, 1)) / n_px ** 2, tol)
+    p_channels = _z_p(diff.mean(axis=(0, 1)), se2.sum(axis=(0, 1)) / n_px ** 2,
+                      tol(tm.mean(axis=(0, 1)), rm.mean(axis=(0, 1))))
     p_global = stats.bonferroni_min(p_channels)
 
     # 2. blocks (edge blocks may be smaller)
@@ -184,15 +189,15 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
             bdiff[i, j] = diff[sl].mean(axis=(0, 1))
             bvar[i, j] = se2[sl].sum(axis=(0, 1)) / k ** 2
             bref[i, j] = rm[sl].mean(axis=(0, 1))
-    p_blocks = _z_p(bdiff, bvar, tol)
+    p_blocks = _z_p(bdiff, bvar, tol(bref + bdiff, bref))
     p_blocks_adj = stats.holm(p_blocks.ravel()).reshape(p_blocks.shape)
 
     # 3. pixels: Welch t with Welch–Satterthwaite dof
     with np.errstate(divide="ignore", invalid="ignore"):
         dof = se2 ** 2 / ((tv / nt) ** 2 / (nt - 1) + (rv / nr) ** 2 / (nr - 1))
-        tstat = _excess(diff, tol) / np.sqrt(se2)
+        tstat = _excess(diff, tol(tm, rm)) / np.sqrt(se2)
     p_pix = np.where(se2 > 0, 2.0 * sps.t.sf(tstat, np.where(np.isfinite(dof), dof, 1)),
-                     np.where(np.abs(diff) <= tol, 1.0, 0.0))
+                     np.where(np.abs(diff) <= tol(tm, rm), 1.0, 0.0))
     p_pix_adj = stats.benjamini_hochberg(p_pix.ravel()).reshape(p_pix.shape)
     p_map = p_pix_adj.min(axis=2)
 

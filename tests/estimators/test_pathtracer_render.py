@@ -146,3 +146,32 @@ def test_planted_bugs_fail_the_render_gate(plant):
 def test_render_check_refuses_too_few_samples_per_pass():
     with pytest.raises(mv.InvalidArgument, match="64 samples per pass"):
         mv.render_check("cornell-box", spp=256, passes=16)
+
+
+def test_irradiance_from_a_large_sphere_light_just_above_the_plane(tmp_path):
+    """A sphere light of radius 0.9 whose surface is 0.1 above a diffuse plane (it fills
+    most of the sky): shadow rays must not stop short or run into the light itself.
+    A regression test: a relative-only margin on the shadow ray lost a third of the light."""
+    R, L, rho, height = 0.9, 1.0, 0.5, 1.0
+    path = _scene(tmp_path, f"""
+  <shape type="sphere"><float name="radius" value="{R}"/>
+    <point name="center" x="0" y="{height}" z="0"/>
+    <emitter type="area"><rgb name="radiance" value="{L}, {L}, {L}"/></emitter></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="50"/>
+      <rotate x="1" angle="-90"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="{rho}, {rho}, {rho}"/></bsdf></shape>
+""", depth=2, fov=3, origin="3, 0.5, 0", up="0, 1, 0")
+    cs = compile_scene(path)
+    r = render(cs, spp=256, seed=4, general=True)
+    from estimators.pathtracer import generate_rays
+
+    n = cs.width
+    uv = (np.stack(np.meshgrid(np.arange(n), np.arange(n)), -1).reshape(-1, 2) + 0.5) / n
+    o, d = generate_rays(cs.camera, uv)
+    p = o + (-o[:, 1] / d[:, 1])[:, None] * d
+    to_light = np.array([0, height, 0]) - p
+    dist2 = (to_light ** 2).sum(axis=1)
+    expected = rho * L * R * R / dist2 * (to_light[:, 1] / np.sqrt(dist2))
+    ratio = r.mean.astype(np.float64)[..., 0].ravel() / expected
+    assert mv.check_unbiased(ratio, 1.0).passed
+    assert abs(ratio.mean() - 1) < 5e-3
