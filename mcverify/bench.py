@@ -128,12 +128,7 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1) ->
     probe = render(ours_scene, spp=spp, seed=seed + 2)
     ours_spp = max(2, int(round(spp * t_theirs / probe.seconds)))
     ours = render(ours_scene, spp=ours_spp, seed=seed + 3)
-    noise = float(np.mean(ref.var / ref.n))
-
-    def rmse(img):
-        return float(np.sqrt(max(np.mean((img - ref.mean) ** 2) - noise, 0.0)))
-
-    r_ours, r_theirs = rmse(ours.mean.astype(np.float64)), rmse(theirs)
+    r_ours, r_theirs = ref.rmse(ours.mean), ref.rmse(theirs)
     return {"group": f"equal-time-rmse:{scene}", "workload":
             f"Mitsuba {spp} spp in {t_theirs:.3f}s; ours {ours_spp} spp in {ours.seconds:.3f}s",
             "ours_rmse": r_ours, "mitsuba_rmse": r_theirs, "ratio": r_ours / r_theirs,

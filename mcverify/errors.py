@@ -12,3 +12,7 @@ class InvalidArgument(ValueError):
 class EnvironmentProblem(RuntimeError):
     """The environment cannot do what was asked (a missing package, an unusable
     Mitsuba variant, an unreadable file). The CLI exits with code 2."""
+
+
+class MissingReference(EnvironmentProblem):
+    """A scene has no reference built yet (the render gate builds it on first use)."""

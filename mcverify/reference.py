@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import EnvironmentProblem, InvalidArgument
+from .errors import EnvironmentProblem, InvalidArgument, MissingReference
 from .provenance import provenance
 from .result import shared_mode
 
@@ -32,6 +32,12 @@ class Reference:
     var: np.ndarray
     n: int
     manifest: dict
+
+    def rmse(self, image) -> float:
+        """RMSE of ``image`` against this reference's mean, with the reference's own noise
+        (its per-pixel variance of the mean, var / n) subtracted from the MSE."""
+        mse = np.mean((np.asarray(image, np.float64) - self.mean) ** 2)
+        return float(np.sqrt(max(mse - np.mean(self.var / self.n), 0.0)))
 
 
 def scene_hash(scene_path: str) -> str:
@@ -115,7 +121,7 @@ def load_reference(spec: str) -> Reference:
     mpath = os.path.join(folder, "manifest.json")
     rebuild = f"run `mcverify reference build {name}`"
     if not os.path.isfile(mpath):
-        raise EnvironmentProblem(f"{mpath}: no reference built for {name!r}; {rebuild}")
+        raise MissingReference(f"{mpath}: no reference built for {name!r}; {rebuild}")
     try:
         with open(mpath, encoding="utf-8") as f:
             manifest = json.load(f)

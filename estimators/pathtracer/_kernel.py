@@ -21,7 +21,7 @@ from numba import njit, prange
 
 from estimators.pathtracer.bsdfs import ALL_BSDF_FEATURES, bsdf_eval, bsdf_is_smooth, bsdf_sample
 from estimators.pathtracer.camera import _generate_ray_kernel
-from estimators.pathtracer.emitters import (AREA, area_pdf, environment_pdf, eval_environment,
+from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_environment,
                                             is_delta, sample_emitter)
 from estimators.pathtracer.geometry import (STACK, coordinate_system, intersect, occluded,
                                             surface, to_local, to_world)

@@ -39,8 +39,10 @@ GGX, BECKMANN = 0, 1
 BSDF_WIDTH = 80
 TABLE = 16              # roughplastic: external transmittance at cos θ = linspace(0, 1, 64)
 TABLE_RES = 64
-# f[] slots: 0:3 colour 0, 3:6 colour 1, 6:9 k (conductors), 9 eta (dielectrics) or eta rgb
-# in 3:6... see _pack in compile.py for the per-type layout.
+# f[] slots: 0:3 colour 0; 3:6 colour 1, or η (conductors); 6:9 k (conductors); ETA the
+# relative index (dielectric, plastics); ALPHA the roughness; EXTRA1 Fdr or the internal
+# reflectance, EXTRA2 the specular sampling weight (plastics); TABLE.. the rough coat's
+# transmittance. ``compile._Builder.bsdf`` fills them per type.
 ETA, ALPHA, EXTRA1, EXTRA2 = 9, 12, 10, 11
 
 _jit = njit(cache=True)

@@ -136,7 +136,7 @@ def area_pdf(light_f, light_i, prims, info, k, x, y, z, dist, cos_y):
 
 @_fast
 def eval_environment(light_f, light_i, tex_data, tex_info, k, dx, dy, dz):
-    """Radiance arriving from direction -d... i.e. seen along the escaping ray d."""
+    """Radiance of environment k seen along the escaping ray direction d."""
     if light_i[k, 0] == CONSTANT:
         return light_f[k, 0], light_f[k, 1], light_f[k, 2]
     f = light_f[k]

@@ -79,7 +79,7 @@ def build_bvh(prims, info):
     max_nodes = 2 * n + 1
     nb = np.empty((max_nodes, 6))
     ni = np.zeros((max_nodes, 3), dtype=np.int64)
-    # explicit stack of (node, start, end)
+    # explicit stack of (node, start, end, depth)
     stack = np.empty((max_nodes + 2, 4), dtype=np.int64)
     stack[0, 3] = 0
     stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, n

@@ -9,6 +9,7 @@ every feature on, for comparison.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import importlib.util
@@ -61,8 +62,10 @@ def _dependency_digest() -> str:
     return h.hexdigest()
 
 
-def specialised_kernel(features: int):
-    """The kernel module compiled for ``features`` (a bit mask; -1: all)."""
+@functools.lru_cache(maxsize=None)
+def _kernel_source(features: int) -> tuple[str, str]:
+    """(module name, source) of the kernel for ``features``: read and hashed once per
+    process, not once per render pass."""
     with open(_kernel.__file__, encoding="utf-8") as f:
         template = f.read()
     start = template.index("# --- features (rewritten by render.specialised_kernel) ---")
@@ -70,7 +73,12 @@ def specialised_kernel(features: int):
     source = (template[:start] + f"# --- features (generated) ---\nFEATURES = {int(features)}\n"
               + template[end:])
     key = hashlib.sha256((source + _dependency_digest()).encode()).hexdigest()[:16]
-    name = f"mcverify_kernel_{key}"
+    return f"mcverify_kernel_{key}", source
+
+
+def specialised_kernel(features: int):
+    """The kernel module compiled for ``features`` (a bit mask; -1: all)."""
+    name, source = _kernel_source(int(features))
     if name in _MODULES:
         return _MODULES[name]
     folder = _cache_dir()

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
-from ..errors import EnvironmentProblem, InvalidArgument
+from ..errors import InvalidArgument, MissingReference
 from ..result import CheckResult
 from .image import compare_images
 
@@ -50,8 +50,8 @@ def render_check(scene: str, *, spp: int = 1024, passes: int = 16, seed: int = 0
     else:
         try:
             ref = R.load_reference(path)
-        except EnvironmentProblem as e:
-            if not build_missing or "no reference built" not in str(e):
+        except MissingReference:
+            if not build_missing:
                 raise
             if notice:
                 notice(f"{name}: no reference yet; building it with Mitsuba (once)")

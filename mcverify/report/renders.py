@@ -27,12 +27,6 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
         _, path = resolve_scene(name)
         check = render_check(path, seed=seed)
         ref = load_reference(path)
-        noise = float(np.mean(ref.var / ref.n))
-
-        def rmse(img):
-            return float(np.sqrt(max(np.mean((np.asarray(img, np.float64) - ref.mean) ** 2)
-                                     - noise, 0.0)))
-
         ours_scene, their_scene = compile_scene(path), mi.load_file(path)
         render(ours_scene, spp=2, seed=seed)                     # warm-ups: JIT excluded
         np.asarray(mi.render(their_scene, spp=spps[0], seed=seed))
@@ -40,13 +34,13 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
                  "mitsuba_seconds": []}
         for k, spp in enumerate(spps):
             r = render(ours_scene, spp=max(spp, 2), seed=seed + 10 + k)
-            curve["ours_rmse"].append(rmse(r.mean))
+            curve["ours_rmse"].append(ref.rmse(r.mean))
             curve["ours_seconds"].append(r.seconds)
             np.asarray(mi.render(their_scene, spp=spp, seed=seed + 20 + k))  # JIT per spp
             t0 = time.perf_counter()
             img = np.asarray(mi.render(their_scene, spp=spp, seed=seed + 30 + k))
             curve["mitsuba_seconds"].append(time.perf_counter() - t0)
-            curve["mitsuba_rmse"].append(rmse(img))
+            curve["mitsuba_rmse"].append(ref.rmse(img))
         d = check.details
         rows.append({"scene": name, "passed": check.passed, "p_value": check.p_value,
                      "found_by": d["found_by"], "relmse": d["relmse"],
