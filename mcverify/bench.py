@@ -81,14 +81,14 @@ def _render_pairs(mi, spp: int):
     counterpart); the Cornell box at 128 × 128, max_depth 8, ours against Mitsuba at the
     same spp; and the specialised kernel against the general one on a diffuse-only scene
     (the white furnace)."""
-    from estimators.pathtracer import compile_scene, render
+    from estimators.pathtracer import prepare_scene, render
 
     from .reference import resolve_scene
 
     cornell = resolve_scene("cornell-box")[1]
-    ours_scene = compile_scene(cornell, params={"res": 128})
+    ours_scene = prepare_scene(cornell, params={"res": 128})
     their_scene = mi.load_file(cornell, res=128)
-    furnace = compile_scene(resolve_scene("white-furnace")[1], params={"res": 128})
+    furnace = prepare_scene(resolve_scene("white-furnace")[1], params={"res": 128})
     what = f"128 x 128, max_depth 8, {spp} spp"
 
     def gate():
@@ -110,7 +110,7 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1) ->
     """RMSE of ours and of Mitsuba against the scene's reference when both get the time
     Mitsuba needs for ``spp`` samples per pixel (JIT excluded on both sides; the
     reference's own noise, var / passes, is subtracted from both MSEs)."""
-    from estimators.pathtracer import compile_scene, render
+    from estimators.pathtracer import prepare_scene, render
 
     from . import mitsuba as mvm
     from .reference import load_reference, resolve_scene
@@ -119,7 +119,7 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1) ->
     path = resolve_scene(scene)[1]
     ref = load_reference(path)
     their_scene = mi.load_file(path)
-    ours_scene = compile_scene(path)
+    ours_scene = prepare_scene(path)
     np.asarray(mi.render(their_scene, spp=spp, seed=seed))
     render(ours_scene, spp=spp, seed=seed)                       # warm-ups
     t0 = time.perf_counter()

@@ -1,13 +1,17 @@
 """Primitives (triangles, spheres, disks), the SAH bounding volume hierarchy over them,
 and ray intersection: numba kernels, float64 throughout.
 
-A primitive is one row of ``prims`` (float64, ``PRIM_WIDTH`` wide) and one row of
-``prim_info`` (type, shape index):
+A primitive is one row of ``prims`` and one row of ``prim_info`` (``PRIM_KIND``,
+``PRIM_SHAPE``), laid out as ``layout`` names them (``TRI_P0``, ``SPHERE_CENTER``,
+``DISK_TO_LOCAL``...):
 
 - triangle: vertices ``[0:9]``, vertex normals ``[9:18]`` (all zero: face normal only),
   texture coordinates ``[18:24]``;
 - sphere: centre ``[0:3]``, radius ``[3]``, world-to-local rotation ``[4:13]`` (for uv);
 - disk: local-to-world 3×4 ``[0:12]``, world-to-local 3×4 ``[12:24]`` (unit disk, z = 0).
+
+The intersection arithmetic below reads these rows element by element (the offsets are
+those of the layout's columns; ``tests/estimators/test_scene.py`` checks they agree).
 
 The hierarchy is binned SAH (16 bins, leaves of at most 4 primitives), built by a numba
 kernel, flattened depth first: an interior node's first child follows it, the second is
@@ -22,8 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
-TRIANGLE, SPHERE, DISK = 0, 1, 2
-PRIM_WIDTH = 24
+from .layout import PRIM_KIND, SPHERE, TRIANGLE
+
 _BINS = 16
 _LEAF = 4
 _MAX_DEPTH = 60        # deeper subtrees become leaves, so traversal's stack suffices
@@ -43,7 +47,7 @@ def _prim_bounds(prims, info):
     hi = np.empty((n, 3))
     for i in range(n):
         p = prims[i]
-        t = info[i, 0]
+        t = info[i, PRIM_KIND]
         if t == TRIANGLE:
             for a in range(3):
                 lo[i, a] = min(p[a], p[3 + a], p[6 + a])
@@ -285,7 +289,7 @@ def _traverse(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, 
                 s = ni[node, 0]
                 for k in range(s, s + c):
                     j = order[k]
-                    t, b1, b2 = _hit_prim(prims[j], info[j, 0], ox, oy, oz, dx, dy, dz)
+                    t, b1, b2 = _hit_prim(prims[j], info[j, PRIM_KIND], ox, oy, oz, dx, dy, dz)
                     if t_min < t < best_t:
                         best_t, best_p, best_b1, best_b2 = t, j, b1, b2
                         if any_hit:
@@ -345,7 +349,7 @@ def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
     Normals are the shape's own orientation (outward; ``flip_normals`` is applied by the
     caller)."""
     p = prims[j]
-    kind = info[j, 0]
+    kind = info[j, PRIM_KIND]
     if kind == TRIANGLE:
         b0 = 1.0 - b1 - b2
         px, py, pz, gx, gy, gz = triangle_point(p, b1, b2)

@@ -23,7 +23,7 @@ import numpy as np
 from numba import get_num_threads
 
 from . import _kernel
-from .compile import CompiledScene, compile_scene
+from .prepare import PreparedScene, prepare_scene
 
 TILE = 16
 _MODULES: dict[str, object] = {}
@@ -105,7 +105,7 @@ def _tiles(width: int, height: int) -> np.ndarray:
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
            general: bool = False, pdf_scale: float = 1.0, params: dict | None = None,
            progress=None) -> RenderResult:
-    """Render a Mitsuba XML scene (path, ``SceneDescription`` or ``CompiledScene``) with
+    """Render a Mitsuba XML scene (path, ``SceneDescription`` or ``PreparedScene``) with
     ``spp`` samples per pixel (default: the scene's sampler). The same seed gives the same
     image bit for bit, whatever the number of threads. ``progress(done, total)`` is called
     as tiles finish.
@@ -116,7 +116,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
 
     ``pdf_scale`` != 1 is a test hook: every BSDF sample's pdf is scaled by it, a planted
     bug the render gate must catch."""
-    cs: CompiledScene = compile_scene(scene, params=params)
+    cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
     if not 0 <= seed < 2 ** 63:
         raise ValueError(f"seed must be in [0, 2^63), got {seed}")

@@ -34,8 +34,8 @@ def render_check(scene: str, *, spp: int = 1024, passes: int = 16, seed: int = 0
     error. With ``params`` (XML ``$`` overrides, e.g. ``{"max_depth": 2}``) the reference
     is rendered on the fly with the same overrides (16 passes × 64 spp). ``pdf_scale`` is
     the tracer's wrong-pdf hook (1: correct); ``plant`` plants a bug in our scene
-    (``CompiledScene.planted`` keywords, e.g. ``{"light_scale": 1.02}``)."""
-    from estimators.pathtracer import SceneError, compile_scene, render
+    (``PreparedScene.planted`` keywords, e.g. ``{"light_scale": 1.02}``)."""
+    from estimators.pathtracer import SceneError, prepare_scene, render
 
     from .. import reference as R
 
@@ -59,7 +59,7 @@ def render_check(scene: str, *, spp: int = 1024, passes: int = 16, seed: int = 0
             ref = R.load_reference(path)
     ref_seconds = time.perf_counter() - t0
     try:
-        subject = compile_scene(path, params=params)
+        subject = prepare_scene(path, params=params)
     except SceneError as e:
         raise InvalidArgument(str(e)) from None
     if plant:
