@@ -38,10 +38,6 @@ def _jsonable(v):
     return v
 
 
-#: ``details`` keys that hold arrays for plots, not for JSON summaries.
-_BULKY = ("histogram", "p_map", "maps", "images")
-
-
 @dataclass(frozen=True)
 class CheckResult:
     """One check's verdict.
@@ -50,6 +46,11 @@ class CheckResult:
     samples, points outside the domain, a pdf that does not integrate to 1, ...) and the
     p-value, if the check has one, exceeds ``alpha``. ``p_value`` is None for checks
     that are deterministic (e.g. an inverse round trip).
+
+    ``details`` holds small JSON-able facts (sub-test p-values, worst cells, seeds);
+    ``artifacts`` holds the large arrays a report draws (a histogram with its expected
+    counts, p-value and colour-difference maps, the compared images). JSON summaries
+    leave ``artifacts`` out.
     """
 
     name: str
@@ -62,6 +63,7 @@ class CheckResult:
     details: dict = field(default_factory=dict)
     messages: tuple[str, ...] = ()
     failures: tuple[str, ...] = ()
+    artifacts: dict = field(default_factory=dict, repr=False)
 
     @staticmethod
     def decide(p_value, alpha, failures) -> bool:
@@ -84,11 +86,12 @@ class CheckResult:
         return f"{verdict} {self.name}{p} ({self.seconds:.2f}s){why}"
 
     def to_dict(self, *, arrays: bool = False) -> dict:
-        """JSON-able dict. Bulky arrays (``details["histogram"]``, maps) are left out
-        unless ``arrays=True`` (reports ask for them on failed checks)."""
-        d = asdict(self)
-        if not arrays:
-            d["details"] = {k: x for k, x in d["details"].items() if k not in _BULKY}
+        """JSON-able dict. ``artifacts`` (bulky arrays) are left out unless
+        ``arrays=True`` (reports ask for them on failed checks)."""
+        d = asdict(replace(self, artifacts={}))
+        del d["artifacts"]
+        if arrays:
+            d["artifacts"] = self.artifacts
         return _jsonable(d)
 
 

@@ -125,9 +125,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         (rejected blocks with their position and relative difference),
         ``rejected_fraction`` of pixels, ``relmse``, ``smape``, ``delta_e2000_mean`` and
         ``_p99``, ``delta_e_itp_mean`` and ``_p99`` (CIEDE2000 and ITU-R BT.2124 ΔE ITP,
-        3-channel images), ``p_map`` (per-pixel BH-adjusted p-values, the minimum over
-        channels) and ``maps`` (p-map, ΔE2000 and ΔE ITP maps); the maps are left out of
-        JSON by default.
+        3-channel images). ``artifacts``: ``p_map`` (per-pixel BH-adjusted p-values, the
+        minimum over channels), ``delta_e2000`` and ``delta_e_itp`` maps (3 channels);
+        left out of JSON by default.
 
     Notes
     -----
@@ -248,9 +248,8 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         "delta_e2000_p99": float(np.percentile(maps["delta_e2000"], 99)) if c == 3 else None,
         "delta_e_itp_mean": float(maps["delta_e_itp"].mean()) if c == 3 else None,
         "delta_e_itp_p99": float(np.percentile(maps["delta_e_itp"], 99)) if c == 3 else None,
-        "p_map": p_map, "maps": maps,
     }
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, ()),
                        p_value=p_value, statistic=float(diff.mean()), alpha=alpha,
                        n_samples=int(min(nt, nr)), seconds=time.perf_counter() - t0,
-                       details=details, messages=tuple(messages))
+                       details=details, messages=tuple(messages), artifacts=maps)

@@ -322,13 +322,14 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                   for key, r in sub.items()},
         "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
         "n_valid": n_valid, "worst_cells": worst, "seed": seed,
-        "histogram": {"edges": [e.tolist() for e in edges], "observed": counts,
-                      "expected": expected},
     }
+    histogram = {"edges": [e.tolist() for e in edges], "observed": counts,
+                 "expected": expected}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=full.statistic, alpha=alpha, n_samples=n,
                        seconds=time.perf_counter() - t0, details=details,
-                       messages=tuple(messages), failures=tuple(failures))
+                       messages=tuple(messages), failures=tuple(failures),
+                       artifacts={"histogram": histogram})
 
 
 def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
@@ -444,9 +445,9 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     p_value = stats.bonferroni_min([r.p_value for r in sub.values()])
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
                "tests": {key: {"statistic": r.statistic, "p_value": r.p_value}
-                         for key, r in sub.items()},
-               "histogram": {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}}
+                         for key, r in sub.items()}}
+    histogram = {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=sub["chi2"].statistic, alpha=alpha,
                        n_samples=n, seconds=time.perf_counter() - t0, details=details,
-                       failures=tuple(failures))
+                       failures=tuple(failures), artifacts={"histogram": histogram})

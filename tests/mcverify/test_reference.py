@@ -8,13 +8,13 @@ import sys
 import numpy as np
 import pytest
 
-from mcverify import mitsuba as mvm
-from mcverify import reference
+from mcverify.gate import mitsuba as mvm
+from mcverify.gate import reference
 from mcverify.errors import EnvironmentProblem
 
 pytestmark = pytest.mark.mitsuba
 SCENES = reference.REFERENCE_ROOT
-CMD = [sys.executable, "-m", "mcverify.cli"]
+CMD = [sys.executable, "-m", "mcverify"]
 
 
 @pytest.fixture

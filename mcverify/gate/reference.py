@@ -17,12 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import EnvironmentProblem, InvalidArgument, MissingReference
-from .provenance import provenance
-from .result import shared_mode
+from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
+from ..provenance import provenance
+from ..result import shared_mode
 
-REFERENCE_ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                              "reference", "scenes")
+REFERENCE_ROOT = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+    "reference", "scenes")
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The one place that imports mitsuba: variant choice and adapters.
+"""The one module of mcverify that imports mitsuba: variant choice and adapters.
 
 Variant choice: ``llvm_ad_rgb`` (vectorised, about 3× faster here) needs libLLVM >= 16;
 with LLVM 15 Dr.Jit aborts the *whole process* ("Cannot select fminimum"), so the variant
@@ -17,7 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .errors import EnvironmentProblem
+from ..errors import EnvironmentProblem
 
 __all__ = ["VariantChoice", "choose_variant", "mitsuba_warps", "mitsuba_version"]
 
@@ -99,6 +99,29 @@ def mitsuba_version() -> str:
 
 def _vectorised() -> bool:
     return not choose_variant().variant.startswith("scalar")
+
+
+def chi2_cosine_hemisphere(n: int):
+    """Mitsuba's own χ² test (``mitsuba.chi2.ChiSquareTest``) of its cosine-hemisphere
+    warp at ``n`` samples, as a callable for the benchmark (its pdf clamped at the
+    horizon, as its own tests do); its log is silenced."""
+    import contextlib
+    import io
+
+    import drjit as dr
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+
+    mi = _mi()
+
+    def run():
+        with contextlib.redirect_stdout(io.StringIO()):   # its log goes to stdout
+            return ChiSquareTest(
+                domain=SphericalDomain(),
+                sample_func=lambda s: mi.warp.square_to_cosine_hemisphere(s),
+                pdf_func=lambda v: dr.maximum(mi.warp.square_to_cosine_hemisphere_pdf(v), 0.0),
+                sample_dim=2, sample_count=n).run()
+
+    return run
 
 
 

@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 
-from .errors import EnvironmentProblem, InvalidArgument
+from ..errors import EnvironmentProblem, InvalidArgument
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -67,7 +67,7 @@ def _mitsuba_provenance(selected) -> dict:
 
 def _cmd_check(args) -> int:
     from . import suites
-    from .result import write_json, write_junit
+    from ..result import write_json, write_junit
 
     _writable("--json", args.json)
     _writable("--junit", args.junit)
@@ -113,10 +113,10 @@ def _cmd_check(args) -> int:
 def _plan(scene, suite):
     from estimators.pathtracer import SceneError
 
-    from . import suites
+    from .plan import plan
 
     try:
-        return suites.plan(scene, suite)
+        return plan(scene, suite)
     except SceneError as e:
         raise InvalidArgument(str(e)) from None
 
@@ -184,8 +184,8 @@ def _cmd_bench(args) -> int:
     import json
 
     from .bench import run_bench
-    from .provenance import provenance
-    from .result import atomic_write
+    from ..provenance import provenance
+    from ..result import atomic_write
 
     _writable("--json", args.json)
     if args.repeats < 1:
@@ -251,8 +251,8 @@ def _cmd_reference_build(args) -> int:
 def _cmd_compare(args) -> int:
     from . import mitsuba as mv_mitsuba
     from . import reference
-    from .checks import compare_images
-    from .result import write_json
+    from ..checks import compare_images
+    from ..result import write_json
 
     _writable("--json", args.json)
     test = mv_mitsuba.read_exr(args.test)
@@ -289,8 +289,8 @@ def _params(items) -> dict:
 
 
 def _cmd_render_check(args) -> int:
-    from .checks.render import render_check
-    from .result import write_json
+    from .render_check import render_check
+    from ..result import write_json
 
     _writable("--json", args.json)
     tty = sys.stderr.isatty() and not args.quiet
@@ -321,7 +321,7 @@ def _cmd_render_check(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
-    from . import __version__
+    from .._version import __version__
 
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
