@@ -31,14 +31,18 @@ __all__ = ["compare_images"]
 
 
 def _as_image(name, a, shape=None):
-    try:
-        a = np.asarray(a, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidArgument(f"{name}: must be an array of numbers") from None
+    raw = np.asarray(a)
+    if raw.dtype == object or not (np.issubdtype(raw.dtype, np.floating)
+                                   or np.issubdtype(raw.dtype, np.integer)):
+        raise InvalidArgument(f"{name}: must be an array of real numbers, got dtype "
+                              f"{raw.dtype}")
+    a = raw.astype(np.float64)
     if a.ndim == 2:
         a = a[:, :, None]
     if a.ndim != 3:
         raise InvalidArgument(f"{name}: expected shape (H, W) or (H, W, C), got {a.shape}")
+    if a.size == 0:
+        raise InvalidArgument(f"{name}: empty image (shape {a.shape}); nothing to compare")
     if shape is not None and a.shape != shape:
         raise InvalidArgument(f"{name}: shape {a.shape} differs from test_mean's {shape}")
     if not np.all(np.isfinite(a)):

@@ -320,10 +320,13 @@ def _run_guarded(check: Check, seed: int) -> CheckResult:
 
 def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
               alpha: float = 0.01, correction: str = "holm", canary: bool = True,
-              progress: Callable[[int, int, CheckResult], None] | None = None,
+              progress: Callable[[int, int, CheckResult, Check], None] | None = None,
               extra_provenance: dict | None = None,
               skipped: list[tuple[str, str]] | None = None) -> SuiteResult:
-    """Run checks and canaries; judge the checks at family-wise ``alpha``."""
+    """Run checks and canaries; judge the checks at family-wise ``alpha``.
+
+    ``progress(i, total, result, check)`` is called after each check; ``check.tags`` says
+    what it is (``"canary"``: a planted bug that must be rejected)."""
     t0 = time.perf_counter()
     results = []
     total = len(checks_) + (3 if canary else 0)
@@ -331,14 +334,14 @@ def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
         r = _run_guarded(c, check_seed(seed, c.name))
         results.append(r)
         if progress:
-            progress(i + 1, total, r)
+            progress(i + 1, total, r, c)
     bitten = []
     if canary:
         for j, c in enumerate(canaries()):
             r = _run_guarded(c, check_seed(seed, "canary:" + c.name))
             bitten.append(r)
             if progress:
-                progress(len(checks_) + j + 1, total, r)
+                progress(len(checks_) + j + 1, total, r, c)
     prov = provenance(suite=name, seed=seed, alpha=alpha, correction=correction,
                       **(extra_provenance or {}))
     return SuiteResult.judge(name, results, alpha=alpha, correction=correction,
