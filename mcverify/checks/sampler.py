@@ -187,6 +187,8 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, *
     n = v.integer("n_samples", n_samples, minimum=min_samples)
     res = v.resolution("resolution", resolution, dom.param_dim)
     k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
+    v.memory("n_samples", n, 8 * (k + 3 * dom.dim + 4),
+             "uniform numbers, points, their parameters and cells")
     return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k
 
 
@@ -296,6 +298,9 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     sub = {}
     full = stats.chi2_gof(counts, expected)
     sub["chi2"] = full
+    note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
+    if note:
+        messages.append(note)
     if full.observed_in_empty:
         failures.append(f"{full.observed_in_empty} samples fell in cells where the pdf "
                         "integrates to 0")
@@ -322,13 +327,14 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                   for key, r in sub.items()},
         "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
         "n_valid": n_valid, "worst_cells": worst, "seed": seed,
-        "histogram": {"edges": [e.tolist() for e in edges], "observed": counts,
-                      "expected": expected},
     }
+    histogram = {"edges": [e.tolist() for e in edges], "observed": counts,
+                 "expected": expected}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=full.statistic, alpha=alpha, n_samples=n,
                        seconds=time.perf_counter() - t0, details=details,
-                       messages=tuple(messages), failures=tuple(failures))
+                       messages=tuple(messages), failures=tuple(failures),
+                       artifacts={"histogram": histogram})
 
 
 def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
@@ -353,7 +359,8 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     k = v.integer("sample_dim", sample_dim, minimum=1)
     n = v.integer("n_samples", n_samples, minimum=1)
     seed = v.seed("seed", seed)
-    atol = v.real("atol", atol)
+    atol = v.real("atol", atol, minimum=0.0)
+    v.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips")
     name = name or f"inverse:{_name_of(inverse, 'inverse')}"
     u = np.random.default_rng(seed).random((n, k))
     x = np.asarray(sample(u))
@@ -444,9 +451,9 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     p_value = stats.bonferroni_min([r.p_value for r in sub.values()])
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
                "tests": {key: {"statistic": r.statistic, "p_value": r.p_value}
-                         for key, r in sub.items()},
-               "histogram": {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}}
+                         for key, r in sub.items()}}
+    histogram = {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=sub["chi2"].statistic, alpha=alpha,
                        n_samples=n, seconds=time.perf_counter() - t0, details=details,
-                       failures=tuple(failures))
+                       failures=tuple(failures), artifacts={"histogram": histogram})

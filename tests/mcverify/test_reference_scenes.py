@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 import mcverify as mv
-from mcverify import mitsuba as mvm
-from mcverify import reference, stats
+from mcverify.gate import mitsuba as mvm
+from mcverify import stats
+from mcverify.gate import reference
 
 pytestmark = pytest.mark.mitsuba
 SCENES = reference.list_scenes()
@@ -109,7 +110,7 @@ def test_planted_bugs_fail_on_every_scene_where_they_apply(name):
 
 
 def test_global_sensitivity_reports_the_smallest_bias_caught():
-    from mcverify.checks.render import global_sensitivity
+    from mcverify.gate.render_check import global_sensitivity
 
     s = global_sensitivity("cornell-box", epsilons=(0.0001, 0.05), seeds=(0,), spp=512,
                            passes=8)
