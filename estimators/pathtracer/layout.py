@@ -17,9 +17,9 @@ import numpy as np
 class SceneArrays(NamedTuple):
     """Everything the kernel reads, by name. Tables are one row per item."""
 
-    node_bounds: np.ndarray     # (nodes, 6) float: BVH node boxes (lo xyz, hi xyz)
-    node_info: np.ndarray       # (nodes, 3) int: second child or first primitive, count, axis
-    prim_order: np.ndarray      # (prims,) int: primitive indices in leaf order
+    bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float: see the NODE_ columns
+    leaf_prims: np.ndarray      # (prims, LEAF_WIDTH) float: intersection data in leaf order
+    leaf_info: np.ndarray       # (prims, 2) int: LEAF_KIND, LEAF_PRIM (row of prims)
     prims: np.ndarray           # (prims, PRIM_WIDTH) float: see the PRIM_ columns
     prim_info: np.ndarray       # (prims, 2) int: PRIM_KIND, PRIM_SHAPE
     shape_bsdf: np.ndarray      # (shapes,) int: row of the BSDF tables
@@ -85,6 +85,23 @@ TRI_UV0, TRI_UV1, TRI_UV2 = 18, 20, 22
 SPHERE_CENTER, SPHERE_RADIUS, SPHERE_ROTATION = 0, 3, 4
 # disk (the unit disk at z = 0): local-to-world and world-to-local, 3 × 4 row major
 DISK_TO_WORLD, DISK_TO_LOCAL = 0, 12
+
+# -------------------------------------------------------------------------- BVH
+# bvh_nodes: one 64-byte row per node, the box and the links together (one cache line).
+# Integers are stored as float64 values (exact below 2**53).
+NODE_LO, NODE_HI = 0, 3         # box corners (xyz each)
+NODE_FIRST = 6                  # interior: first child (the second is first + 1);
+                                # leaf: first slot in leaf_prims
+NODE_COUNT = 7                  # leaf: number of primitives (>= 0); interior: -(axis + 1)
+NODE_WIDTH = 8
+# leaf_prims: what the ray test reads, copied in leaf order (no indirection): a triangle's
+# first vertex and its two edges (p1 - p0, p2 - p0, as the test would compute them), a
+# sphere's centre and radius, a disk's world-to-local 3 × 4
+LEAF_P0, LEAF_E1, LEAF_E2 = 0, 3, 6
+LEAF_CENTER, LEAF_RADIUS = 0, 3
+LEAF_TO_LOCAL = 0
+LEAF_WIDTH = 12
+LEAF_KIND, LEAF_PRIM = 0, 1     # leaf_info columns: primitive kind, row of prims
 
 # ------------------------------------------------------------------------ BSDFs
 BSDF_NAMES = ("diffuse", "conductor", "roughconductor", "dielectric", "plastic",

@@ -24,7 +24,7 @@ from ..distributions import DiscreteDistribution, PiecewiseConstant2D
 from . import layout
 from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
-from .geometry import build_bvh
+from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
 from .scene import Plugin, SceneDescription, SceneError, load_scene
 from .textures import TextureStore, envmap_sampling_weights, read_image
@@ -463,11 +463,12 @@ class _Builder:
         prims = np.array(self.prims, dtype=np.float64).reshape(-1, PRIM_WIDTH)
         info = np.array(self.info, dtype=np.int64).reshape(-1, 2)
         if len(prims) == 0:
+            # one empty leaf whose box (lo > hi) no ray hits
             nb, ni, order = np.array([[1.0, 1, 1, -1, -1, -1]]), \
                 np.array([[0, 0, 0]], dtype=np.int64), np.zeros(0, dtype=np.int64)
-            ni[0, 1] = 0
         else:
             nb, ni, order = build_bvh(prims, info)
+        bvh_nodes, leaf_prims, leaf_info = pack_bvh(prims, info, nb, ni, order)
         integ = d.integrator
         if integ.type == "direct":
             max_depth, rr_depth = 2, INFINITE_DEPTH
@@ -480,7 +481,8 @@ class _Builder:
                 self.fail(integ, f"rr_depth must be >= 1, got {rr_depth}")
         tex_data, tex_info = self.textures.arrays()
         arrays = layout.SceneArrays(
-            node_bounds=nb, node_info=ni, prim_order=order, prims=prims, prim_info=info,
+            bvh_nodes=bvh_nodes, leaf_prims=leaf_prims, leaf_info=leaf_info, prims=prims,
+            prim_info=info,
             shape_bsdf=np.array(shape_bsdf, dtype=np.int64),
             shape_light=np.array(shape_light, dtype=np.int64),
             shape_flip=np.array(shape_flip, dtype=np.bool_),

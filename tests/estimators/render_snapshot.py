@@ -19,7 +19,7 @@ from estimators.pathtracer import render
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "..", "reference", "scenes")
 SCENES = ("cornell-box", "envmap", "veach-mis", "rough-conductors", "glass-sphere",
-          "delta-lights", "white-furnace", "textures")
+          "delta-lights", "white-furnace", "textures", "bunny")
 
 
 def snapshot() -> tuple[dict, float]:

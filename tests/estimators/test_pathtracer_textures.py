@@ -167,7 +167,8 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
     (images / "tri.obj").write_text(_TRI_NO_UV)
     cs, scene = _compiled(mi, images, "", shape=shape, shape_props=props)
     a = cs.arrays
-    nb, ni, order, prims, info = a.node_bounds, a.node_info, a.prim_order, a.prims, a.prim_info
+    nodes, leaf, leaf_info, prims, info = a.bvh_nodes, a.leaf_prims, a.leaf_info, a.prims, \
+        a.prim_info
     stack = np.empty(geometry.STACK, dtype=np.int64)
     rng = np.random.default_rng(9)
     hits = 0
@@ -175,7 +176,7 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
         o = -3.0 * d + rng.uniform(-0.6, 0.6, 3)
-        t, j, b1, b2 = geometry.intersect(nb, ni, order, prims, info, stack, *o, *d, 0.0, np.inf)
+        t, j, b1, b2 = geometry.intersect(nodes, leaf, leaf_info, stack, *o, *d, 0.0, np.inf)
         si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*o), mi.Vector3f(*d)))
         assert (j >= 0) == bool(si.is_valid())
         if j < 0:
