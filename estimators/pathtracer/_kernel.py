@@ -23,7 +23,7 @@ from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
 from estimators.pathtracer.camera import _generate_ray_kernel
 from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_environment,
                                             is_delta, sample_emitter)
-from estimators.pathtracer.geometry import (STACK, coordinate_system, intersect, occluded,
+from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
                                             surface, to_local, to_world)
 from estimators.pathtracer.layout import (ALL_BSDF_FEATURES, ALL_FEATURES, F_AREA_LIGHTS,
                                           F_ENV, F_MANY_LIGHTS, F_NONDELTA_LIGHTS, LIGHT_KIND,
@@ -199,7 +199,7 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, 
     mean and the sum of squared deviations (Welford) of ``spp`` samples; ``bad`` counts
     non-finite samples (set to zero)."""
     for ti in prange(tiles.shape[0]):
-        stack = np.empty(STACK, dtype=np.int64)
+        stack = new_stack()
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         for y in range(y0, y1):
             for x in range(x0, x1):

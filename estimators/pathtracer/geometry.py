@@ -225,7 +225,8 @@ def pack_bvh(prims, info, node_bounds, node_info, order):
 
 # --------------------------------------------------------------------- intersection
 @_inline
-def _hit_box(nodes, node, ox, oy, oz, ix, iy, iz, t_max):
+def _box_entry(nodes, node, ox, oy, oz, ix, iy, iz, t_max):
+    """Where the ray enters the node's box within [0, t_max], or inf if it misses."""
     t0 = 0.0
     t1 = t_max
     a = (nodes[node, NODE_LO] - ox) * ix
@@ -240,7 +241,7 @@ def _hit_box(nodes, node, ox, oy, oz, ix, iy, iz, t_max):
     b = (nodes[node, NODE_HI + 2] - oz) * iz
     t0 = max(t0, min(a, b))
     t1 = min(t1, max(a, b))
-    return t0 <= t1 * (1.0 + 4e-16)
+    return t0 if t0 <= t1 * (1.0 + 4e-16) else np.inf
 
 
 @_inline
@@ -311,51 +312,70 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 @_inline
 def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max, any_hit):
-    """Walk the hierarchy, nearer child first: the nearest hit in (t_min, t_max), or
-    with ``any_hit`` the first found. (t, primitive, b1, b2); primitive -1 if none."""
+    """Walk the hierarchy: at an interior node both children's boxes are tested, the
+    nearer entered first and the other stacked with its entry distance (skipped when a
+    hit closer than that is found meanwhile). The nearest hit in (t_min, t_max), or with
+    ``any_hit`` the first found: (t, primitive, b1, b2); primitive -1 if none."""
     ix = 1.0 / dx if dx != 0.0 else np.inf
     iy = 1.0 / dy if dy != 0.0 else np.inf
     iz = 1.0 / dz if dz != 0.0 else np.inf
-    neg = (dx < 0.0, dy < 0.0, dz < 0.0)
+    best_t, best_k, best_b1, best_b2 = t_max, -1, 0.0, 0.0
     sp = 0
     node = 0
-    best_t, best_k, best_b1, best_b2 = t_max, -1, 0.0, 0.0
+    if _box_entry(nodes, 0, ox, oy, oz, ix, iy, iz, best_t) == np.inf:
+        return best_t, -1, best_b1, best_b2
     while True:
-        if _hit_box(nodes, node, ox, oy, oz, ix, iy, iz, best_t):
-            c = int(nodes[node, NODE_COUNT])
-            first = int(nodes[node, NODE_FIRST])
-            if c >= 0:
-                for k in range(first, first + c):
-                    t, b1, b2 = _hit_prim(leaf[k], leaf_info[k, LEAF_KIND], ox, oy, oz,
-                                          dx, dy, dz)
-                    if t_min < t < best_t:
-                        best_t, best_k, best_b1, best_b2 = t, k, b1, b2
-                        if any_hit:
-                            return best_t, leaf_info[k, LEAF_PRIM], best_b1, best_b2
+        c = int(nodes[node, NODE_COUNT])
+        first = int(nodes[node, NODE_FIRST])
+        if c < 0:
+            ta = _box_entry(nodes, first, ox, oy, oz, ix, iy, iz, best_t)
+            tb = _box_entry(nodes, first + 1, ox, oy, oz, ix, iy, iz, best_t)
+            if ta <= tb:
+                near, far, t_near, t_far = first, first + 1, ta, tb
             else:
-                # interior: the count column holds -(split axis + 1)
-                if neg[-c - 1]:
-                    stack[sp] = first
-                    node = first + 1
-                else:
-                    stack[sp] = first + 1
-                    node = first
-                sp += 1
+                near, far, t_near, t_far = first + 1, first, tb, ta
+            if t_near < np.inf:
+                if t_far < np.inf:
+                    stack[sp, 0] = far
+                    stack[sp, 1] = t_far
+                    sp += 1
+                node = near
                 continue
-        if sp == 0:
+        else:
+            for k in range(first, first + c):
+                t, b1, b2 = _hit_prim(leaf[k], leaf_info[k, LEAF_KIND], ox, oy, oz,
+                                      dx, dy, dz)
+                if t_min < t < best_t:
+                    best_t, best_k, best_b1, best_b2 = t, k, b1, b2
+                    if any_hit:
+                        return best_t, leaf_info[k, LEAF_PRIM], best_b1, best_b2
+        # pop the nearest stacked node still worth entering
+        found = False
+        while sp > 0:
+            sp -= 1
+            if stack[sp, 1] <= best_t * (1.0 + 4e-16):
+                found = True
+                break
+        if not found:
             break
-        sp -= 1
-        node = stack[sp]
+        node = int(stack[sp, 0])
     if best_k < 0:
         return best_t, -1, best_b1, best_b2
     return best_t, leaf_info[best_k, LEAF_PRIM], best_b1, best_b2
 
 
 @_inline
+def new_stack():
+    """Traversal scratch (node, entry distance) for ``intersect``/``occluded``; one per
+    thread, reused across rays."""
+    return np.empty((STACK, 2))
+
+
+@_inline
 def intersect(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Nearest hit in (t_min, t_max): (t, primitive, b1, b2); primitive -1 if none.
     ``nodes, leaf, leaf_info`` are the scene's ``bvh_nodes, leaf_prims, leaf_info``;
-    ``stack`` is int64 scratch of length ``STACK``, reused across rays."""
+    ``stack`` is scratch from ``new_stack()``, reused across rays."""
     return _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
                      False)
 

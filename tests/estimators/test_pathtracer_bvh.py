@@ -108,7 +108,7 @@ def test_traversal_finds_the_brute_force_nearest_hit(packed):
     primitive (rays whose two nearest hits are within 1e-9 are ties, not compared)."""
     prims, info, (nodes, leaf, leaf_info) = packed
     rng = np.random.default_rng(5)
-    stack = np.empty(geometry.STACK, dtype=np.int64)
+    stack = geometry.new_stack()
     hits = 0
     for k in range(600):
         o = rng.uniform(-1.2, 1.2, 3) if k % 2 else 3.0 * rng.normal(size=3)

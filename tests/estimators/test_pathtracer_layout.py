@@ -78,7 +78,7 @@ def test_geometry_reads_primitives_where_the_layout_puts_them(tmp_path):
       <shape type="disk"><transform name="to_world"><translate z="-2"/></transform></shape>
     </scene>""")
     a = prepare_scene(str(path)).arrays
-    stack = np.empty(geometry.STACK, dtype=np.int64)
+    stack = geometry.new_stack()
     # rays along -z from z = 0: the disk (radius 1) at 2, the sphere's front at 2.5, the
     # rectangle at 5, and nothing at x = 9
     for ox, expect in ((0.0, 2.0), (3.0, 2.5), (6.5, 5.0), (9.0, None)):

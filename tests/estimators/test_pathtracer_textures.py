@@ -169,7 +169,7 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
     a = cs.arrays
     nodes, leaf, leaf_info, prims, info = a.bvh_nodes, a.leaf_prims, a.leaf_info, a.prims, \
         a.prim_info
-    stack = np.empty(geometry.STACK, dtype=np.int64)
+    stack = geometry.new_stack()
     rng = np.random.default_rng(9)
     hits = 0
     for _ in range(400):
