@@ -219,6 +219,8 @@ class _Loader:
             vals = vals * 3
         if len(vals) != count:
             self.fail(node, f"expected {count} numbers, got {text!r}")
+        if not all(np.isfinite(vals)):
+            self.fail(node, f"expected finite numbers, got {text!r}")
         return np.array(vals)
 
     def value(self, node):
