@@ -133,6 +133,14 @@ def sandbox(tmp_path_factory):
         '<emitter type="envmap"><string name="filename" value="sky.fifo"/></emitter>'))
     (s / "nan-radius.xml").write_text(text.replace('value="0.8"', 'value="nan"'))
     (s / "unsupported.xml").write_text(text.replace('type="diffuse"', 'type="hair"'))
+    look = '<lookat origin="0, 1.2, 5" target="0, 0.3, 0" up="0, 1, 0"/>'
+    assert look in text
+    (s / "rotate-zero-axis.xml").write_text(text.replace(
+        look, look + '<rotate x="0" y="0" z="0" angle="30"/>'))
+    (s / "rotate-angle-text.xml").write_text(text.replace(
+        look, look + '<rotate y="1" angle="thirty"/>'))
+    (s / "lookat-degenerate.xml").write_text(text.replace('target="0, 0.3, 0"',
+                                                          'target="0, 1.2, 5"'))
     return d
 
 
@@ -281,6 +289,9 @@ SCENES = [
     ("malformed", "malformed.xml", "not well-formed"),
     ("nan-radius", "nan-radius.xml", "nan"),
     ("unsupported-bsdf", "unsupported.xml", "hair"),
+    ("rotate-zero-axis", "rotate-zero-axis.xml", "the axis must be non-zero"),
+    ("rotate-angle-text", "rotate-angle-text.xml", "'thirty'"),
+    ("lookat-degenerate", "lookat-degenerate.xml", "origin and target coincide"),
 ]
 
 
