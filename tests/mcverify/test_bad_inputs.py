@@ -735,3 +735,23 @@ def _subparsers(parser, prefix=""):
             for name, sub in a.choices.items():
                 yield (prefix + name, sub)
                 yield from _subparsers(sub, prefix + name + " ")
+
+
+def test_check_resolves_pending_lines_after_holm(monkeypatch, capsys, tmp_path):
+    """A raw p under alpha printed as pending is then reported with its final verdict:
+    rescued by Holm (PASS ... no alarm) or listed as failed."""
+    from mcverify.gate import suites
+
+    def fake_run_suite(selected, *, progress, alpha, **kw):
+        raw = [_result("rescued", 0.006), _result("condemned", 1e-6), _result("fine", 0.5)]
+        for i, r in enumerate(raw):
+            progress(i + 1, 3, r, Check(r.name, None))
+        return SuiteResult.judge("default", raw, alpha=alpha, seconds=0.0)
+
+    monkeypatch.setattr(suites, "run_suite", fake_run_suite)
+    rc, out, err = _run_cli(["check", "-k", "sampler:uniform_disk_polar"], capsys, tmp_path)
+    assert rc == 1
+    assert "rescued pending (p=0.006" in err and "condemned pending (p=1e-06" in err
+    assert "fine ok" in err
+    assert "PASS rescued: p=0.006 is no alarm after Holm (p_adj=0.012)" in out
+    assert "FAIL condemned" in out and "2 passed, 1 failed" in out
