@@ -414,6 +414,16 @@ def _cmd_render_check(args) -> int:
 
     _, scene_path = reference.resolve_scene(args.scene)
     _writable("--json", args.json, [scene_path] + reference.reference_files(scene_path))
+    params = _params(args.param)
+    if args.passes < 2 or args.spp < 1:
+        raise InvalidArgument(f"--spp {args.spp} --passes {args.passes}: need --passes >= 2 "
+                              "and --spp (in all) >= 64 per pass")
+    from estimators.pathtracer import SceneError, load_scene
+
+    try:  # our parser must accept the scene and its --param names before anything renders
+        load_scene(scene_path, params=params)
+    except SceneError as e:
+        raise InvalidArgument(str(e)) from None
     tty = sys.stderr.isatty() and not args.quiet
 
     def show(done, total):
@@ -424,7 +434,7 @@ def _cmd_render_check(args) -> int:
             sys.stderr.flush()
 
     result = render_check(args.scene, spp=args.spp, passes=args.passes, seed=args.seed,
-                          alpha=args.alpha, params=_params(args.param),
+                          alpha=args.alpha, params=params,
                           notice=None if args.quiet else
                           (lambda m: print(f"notice: {m}", file=sys.stderr)),
                           progress=show if tty else None)
