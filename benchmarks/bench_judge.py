@@ -1,10 +1,10 @@
-"""pytest-benchmark over the workloads of ``mcverify.bench.pairs()``: the same callables
+"""pytest-benchmark over the workloads of ``mcverify.gate.bench.pairs()``: the same callables
 ``mcverify bench`` times, here with saved baselines and regression comparison. Each
 group holds ours and Mitsuba's row on the same work; read the ratio column."""
 
 import pytest
 
-from mcverify import bench
+from mcverify.gate import bench
 
 PAIRS = bench.pairs()
 

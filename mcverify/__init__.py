@@ -11,7 +11,8 @@ Public API
 ``check_variance``              zero variance when p ∝ f, or a known variance
 ``check_convergence``           log-log slope of RMSE against N over seeds
 ``compare_images``              two renders, pixelwise: global, block and pixel tests
-``render_check``                our path tracer against the Mitsuba reference of a scene
+``render_check``                a renderer (ours by default) against a scene's Mitsuba
+                                reference (gate layer: ``mcverify.gate.render_check``)
 ``CheckResult``, ``SuiteResult``  results as frozen data; ``to_dict()``
 ``write_json``, ``write_junit``   sinks (atomic writes)
 ``Interval``, ``Square``, ``Disk``, ``Sphere``, ``Hemisphere``  domains
@@ -19,13 +20,17 @@ Public API
 ==============================  ======================================================
 
 Every randomised function takes ``seed``; the same seed gives the same result.
+
+Layers: this package's core (``stats``, ``quadrature``, ``domains``, ``checks``,
+``result``, ``errors``, ``pytest_plugin``) imports neither the subject (``estimators``)
+nor Mitsuba; ``mcverify.gate`` composes them (suites, scene plans, the render check,
+references, the Mitsuba adapters, bench, report, CLI). ``render_check`` is re-exported
+from the gate lazily, so ``import mcverify`` loads neither.
 """
 
-__version__ = "0.1.0"
-
+from ._version import __version__
 from .checks import (check_convergence, check_inverse, check_same_distribution,
-                     check_sampler, check_unbiased, check_variance, compare_images,
-                     render_check)
+                     check_sampler, check_unbiased, check_variance, compare_images)
 from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
 from .errors import EnvironmentProblem, InvalidArgument
 from .result import CheckResult, SuiteResult, write_json, write_junit
@@ -37,3 +42,13 @@ __all__ = [
     "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",
     "InvalidArgument", "EnvironmentProblem", "__version__",
 ]
+
+
+def __getattr__(name):
+    # The gate layer's render check, imported on first use only (PEP 562): the core
+    # stays free of the subject and of Mitsuba.
+    if name == "render_check":
+        from .gate.render_check import render_check
+
+        return render_check
+    raise AttributeError(f"module 'mcverify' has no attribute {name!r}")

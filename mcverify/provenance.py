@@ -8,7 +8,7 @@ import platform
 import subprocess
 from functools import lru_cache
 
-from . import __version__
+from ._version import __version__
 
 
 @lru_cache(maxsize=1)

@@ -3,9 +3,7 @@
 
 from .estimator import check_convergence, check_unbiased, check_variance
 from .image import compare_images
-from .render import render_check
 from .sampler import check_inverse, check_same_distribution, check_sampler
 
 __all__ = ["check_sampler", "check_inverse", "check_same_distribution",
-           "check_unbiased", "check_variance", "check_convergence", "compare_images",
-           "render_check"]
+           "check_unbiased", "check_variance", "check_convergence", "compare_images"]

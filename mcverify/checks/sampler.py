@@ -275,14 +275,21 @@ def _worst_cells(domain, edges, counts, expected, k=5):
     return out
 
 
-def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, *,
+def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, chunk, *,
                        min_samples):
     """Validate the arguments shared by the histogram tests; returns them normalised."""
     dom = as_domain(domain)
     n = v.integer("n_samples", n_samples, minimum=min_samples)
     res = v.resolution("resolution", resolution, dom.param_dim)
     k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
-    return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k
+    chunk = v.integer("chunk", chunk, minimum=STREAM_BLOCK)
+    if chunk % STREAM_BLOCK:
+        raise InvalidArgument(f"chunk={chunk}: must be a multiple of {STREAM_BLOCK} (the "
+                              "rows of one seeded block of uniforms)")
+    # Streamed: two chunks of uniforms and one of points in memory at a time, whatever n.
+    v.memory("chunk", min(n, chunk), 8 * (2 * k + 2 * dom.dim),
+             "uniform numbers and points of one chunk")
+    return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k, chunk
 
 
 def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution=None,
@@ -373,9 +380,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     t0 = time.perf_counter()
     v.callable_("sample", sample)
     v.callable_("pdf", pdf)
-    dom, n, res, alpha, seed, k = _histogram_test_iv(domain, n_samples, resolution, alpha,
-                                                     seed, sample_dim, min_samples=1)
-    chunk = _chunk_iv(chunk)
+    dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
+        domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=1)
     name = name or f"sampler:{_name_of(sample, 'sample')}"
     m = dom.param_dim
     res = res or dom.default_resolution(n)
@@ -430,6 +436,9 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
 
     full = stats.chi2_gof(counts, expected)
     sub["chi2"] = full
+    note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
+    if note:
+        messages.append(note)
     if full.observed_in_empty:
         failures.append(f"{full.observed_in_empty} samples fell in cells where the pdf "
                         "integrates to 0")
@@ -458,17 +467,18 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         "tests": {key: _test_details(r) for key, r in sub.items()},
         "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
         "n_valid": n_valid, "worst_cells": worst, "seed": seed,
-        "histogram": {"edges": [e.tolist() for e in edges], "observed": counts,
-                      "expected": expected},
     }
     if rejection:
         details["rejection"] = {"rejected": n_rejected, "accepted": n - n_rejected,
                                 "acceptance_rate": (n - n_rejected) / n,
                                 "pdf_integral": total}
+    histogram = {"edges": [e.tolist() for e in edges], "observed": counts,
+                 "expected": expected}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=full.statistic, alpha=alpha, n_samples=n,
                        seconds=time.perf_counter() - t0, details=details,
-                       messages=tuple(messages), failures=tuple(failures))
+                       messages=tuple(messages), failures=tuple(failures),
+                       artifacts={"histogram": histogram})
 
 
 def _test_details(r) -> dict:
@@ -478,14 +488,6 @@ def _test_details(r) -> dict:
     if isinstance(r, stats.BinomialResult):
         out.update(statistic=r.successes, trials=r.trials, rate=r.p)
     return out
-
-
-def _chunk_iv(chunk) -> int:
-    c = v.integer("chunk", chunk, minimum=STREAM_BLOCK)
-    if c % STREAM_BLOCK:
-        raise InvalidArgument(f"chunk={c}: must be a multiple of {STREAM_BLOCK} (the rows "
-                              "of one seeded block of uniforms)")
-    return c
 
 
 def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
@@ -510,7 +512,8 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     k = v.integer("sample_dim", sample_dim, minimum=1)
     n = v.integer("n_samples", n_samples, minimum=1)
     seed = v.seed("seed", seed)
-    atol = v.real("atol", atol)
+    atol = v.real("atol", atol, minimum=0.0)
+    v.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips")
     name = name or f"inverse:{_name_of(inverse, 'inverse')}"
     u = np.random.default_rng(seed).random((n, k))
     x = np.asarray(sample(u))
@@ -569,9 +572,8 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     True
     """
     t0 = time.perf_counter()
-    dom, n, res, alpha, seed, k = _histogram_test_iv(domain, n_samples, resolution, alpha,
-                                                     seed, sample_dim, min_samples=2)
-    chunk = _chunk_iv(chunk)
+    dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
+        domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=2)
     name = name or "same_distribution"
     seqs = np.random.SeedSequence(seed).spawn(2)
     sides = []
@@ -618,12 +620,12 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
         sub["ks"] = stats.ks_2samp_binned(fa, fb)
     p_value = stats.bonferroni_min([r.p_value for r in sub.values()])
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
-               "tests": {key: _test_details(r) for key, r in sub.items()},
-               "histogram": {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}}
+               "tests": {key: _test_details(r) for key, r in sub.items()}}
     if rejection:
         details["rejection"] = {label: {"rejected": int(h.n_status[K.REJECTED]), "n": size}
                                 for (label, *_, size), h in zip(sides, hists)}
+    histogram = {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=sub["chi2"].statistic, alpha=alpha,
                        n_samples=n, seconds=time.perf_counter() - t0, details=details,
-                       failures=tuple(failures))
+                       failures=tuple(failures), artifacts={"histogram": histogram})

@@ -12,7 +12,7 @@ pytestmark = pytest.mark.mitsuba
 
 @pytest.fixture(scope="module")
 def mi():
-    from mcverify import mitsuba as mvm
+    from mcverify.gate import mitsuba as mvm
 
     if mvm.choose_variant().variant.startswith("scalar"):
         pytest.skip("pointwise cross-check runs on the vectorised llvm variant only "
@@ -21,7 +21,7 @@ def mi():
 
 
 def _mitsuba(fn, u, *params):
-    from mcverify import mitsuba as mvm
+    from mcverify.gate import mitsuba as mvm
 
     return mvm._wrap(fn, 2, *params)(u)
 

@@ -62,7 +62,7 @@ CORNELL = """<scene version="3.0.0">
 
 @pytest.fixture(scope="module")
 def mi():
-    from mcverify import mitsuba as mvm
+    from mcverify.gate import mitsuba as mvm
 
     return mvm._mi()
 

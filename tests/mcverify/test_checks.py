@@ -136,7 +136,8 @@ def test_stream_is_independent_of_chunk_size_and_thread_count():
                              n_samples=5 * STREAM_BLOCK + 123, seed=8, chunk=4 * STREAM_BLOCK)
     finally:
         numba.set_num_threads(before)
-    assert np.array_equal(a.details["histogram"]["observed"], b.details["histogram"]["observed"])
+    assert np.array_equal(a.artifacts["histogram"]["observed"],
+                          b.artifacts["histogram"]["observed"])
     assert a.p_value == b.p_value and a.statistic == b.statistic
 
 

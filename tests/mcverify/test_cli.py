@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-CMD = [sys.executable, "-m", "mcverify.cli"]
+CMD = [sys.executable, "-m", "mcverify"]
 
 
 def run(*args, timeout=600):

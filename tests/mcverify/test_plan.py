@@ -5,11 +5,11 @@ import os
 import subprocess
 import sys
 
-from mcverify import suites
-from mcverify.reference import REFERENCE_ROOT
+from mcverify.gate.plan import plan
+from mcverify.gate.reference import REFERENCE_ROOT
 
 CORNELL = os.path.join(REFERENCE_ROOT, "cornell-box", "scene.xml")
-CMD = [sys.executable, "-m", "mcverify.cli"]
+CMD = [sys.executable, "-m", "mcverify"]
 
 DIFFUSE_POINT = """<scene version="3.0.0">
   <sensor type="perspective"><float name="fov" value="45"/></sensor>
@@ -23,7 +23,7 @@ def _names(checks):
 
 
 def test_cornell_box_plan():
-    checks, skipped, features = suites.plan(CORNELL)
+    checks, skipped, features = plan(CORNELL)
     names = _names(checks)
     assert {"sampler:cosine_hemisphere", "sampler:uniform_triangle", "sampler:ggx(alpha=0.3)",
             "sampler:beckmann(alpha=0.3)", "unbiased:russian_roulette(q=0.3)"} <= names
@@ -37,7 +37,7 @@ def test_cornell_box_plan():
 def test_diffuse_scene_with_a_point_light(tmp_path):
     path = tmp_path / "scene.xml"
     path.write_text(DIFFUSE_POINT)
-    checks, skipped, _ = suites.plan(str(path))
+    checks, skipped, _ = plan(str(path))
     assert _names(checks) == {"sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
                               "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)",
                               "unbiased:mis(power)", f"render:{tmp_path.name}"}

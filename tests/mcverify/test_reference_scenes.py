@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 import mcverify as mv
-from mcverify import mitsuba as mvm
-from mcverify import reference, stats
+from mcverify.gate import mitsuba as mvm
+from mcverify import stats
+from mcverify.gate import reference
 
 pytestmark = pytest.mark.mitsuba
 SCENES = reference.list_scenes()
@@ -109,9 +110,22 @@ def test_planted_bugs_fail_on_every_scene_where_they_apply(name):
 
 
 def test_global_sensitivity_reports_the_smallest_bias_caught():
-    from mcverify.checks.render import global_sensitivity
+    from mcverify.gate.render_check import global_sensitivity
 
     s = global_sensitivity("cornell-box", epsilons=(0.0001, 0.05), seeds=(0,), spp=512,
                            passes=8)
     assert s["caught_at"] == 0.05
     assert [t[0] for t in s["trials"]].count(0.05) == 2      # both signs at 5 %
+
+
+# scenes added for issue 12, one fast gate run each (the older scenes are checked in
+# tests/estimators/test_pathtracer_render.py)
+NEW_SCENES = ["textures"]
+
+
+@pytest.mark.parametrize("name", NEW_SCENES)
+def test_new_scene_passes_the_render_gate(name):
+    """Our tracer against the committed Mitsuba reference at the gate's defaults
+    (1024 spp in 16 passes, α = 0.01)."""
+    r = mv.render_check(name, seed=21)
+    assert r.passed, (r.summary(), r.details["found_by"])

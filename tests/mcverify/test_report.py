@@ -9,10 +9,10 @@ import sys
 
 import pytest
 
-from mcverify import suites
-from mcverify.report import build_report
-from mcverify.report.renders import run_renders
-from mcverify.report.study import run_study
+from mcverify.gate import suites
+from mcverify.gate.report import build_report
+from mcverify.gate.report.renders import run_renders
+from mcverify.gate.report.study import run_study
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
@@ -74,7 +74,7 @@ def test_html_renders_every_image_in_headless_chromium(report, tmp_path):
 
 def test_cli_bench_reports_ratios(tmp_path):
     out = tmp_path / "bench.json"
-    r = subprocess.run([sys.executable, "-m", "mcverify.cli", "bench", "--n", "20000",
+    r = subprocess.run([sys.executable, "-m", "mcverify", "bench", "--n", "20000",
                         "--spp", "4", "--repeats", "1", "--json", str(out), "-q"],
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr

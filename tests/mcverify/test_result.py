@@ -9,7 +9,8 @@ from mcverify.result import CheckResult, SuiteResult
 
 def _r(name, p, failures=()):
     return CheckResult(name, CheckResult.decide(p, 0.01, failures), p, 1.0, 0.01, 10, 0.1,
-                       {"histogram": {"observed": np.zeros(3)}}, (), tuple(failures))
+                       {"seed": 1}, (), tuple(failures),
+                       artifacts={"histogram": {"observed": np.zeros(3)}})
 
 
 def test_holm_judging_across_checks():
@@ -28,7 +29,9 @@ def test_json_and_junit_writers(tmp_path):
                               provenance={"seed": 0})
     mv.write_json(suite, str(tmp_path / "r.json"))
     d = json.loads((tmp_path / "r.json").read_text())
-    assert d["n_failed"] == 1 and "histogram" not in d["results"][0]["details"]
+    assert d["n_failed"] == 1 and "artifacts" not in d["results"][0]
+    assert d["results"][0]["details"]["seed"] == 1
+    assert suite.results[0].to_dict(arrays=True)["artifacts"]["histogram"]["observed"] == [0, 0, 0]
     mv.write_junit(suite, str(tmp_path / "r.xml"))
     root = ET.parse(tmp_path / "r.xml").getroot()
     assert root.get("tests") == "2" and root.get("failures") == "1"

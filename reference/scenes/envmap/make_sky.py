@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from mcverify.mitsuba import write_exr
+from mcverify.gate.mitsuba import write_exr
 
 
 def sky(width: int = 64, height: int = 32) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The one place that imports mitsuba: variant choice and adapters.
+"""The one module of mcverify that imports mitsuba: variant choice and adapters.
 
 Variant choice: ``llvm_ad_rgb`` (vectorised, about 3× faster here) needs libLLVM >= 16;
 with LLVM 15 Dr.Jit aborts the *whole process* ("Cannot select fminimum"), so the variant
@@ -17,7 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .errors import EnvironmentProblem
+from ..errors import EnvironmentProblem
 
 __all__ = ["VariantChoice", "choose_variant", "mitsuba_warps", "mitsuba_version"]
 
@@ -33,9 +33,10 @@ _PROBE = (
 
 @dataclass(frozen=True)
 class VariantChoice:
+    """The Mitsuba variant this process uses, and the notice to print if it fell back."""
+
     variant: str
     notice: str | None
-    libllvm: str | None
 
 
 def _find_libllvm() -> str | None:
@@ -64,11 +65,11 @@ def choose_variant() -> VariantChoice:
     except ImportError as e:  # pragma: no cover - mitsuba is a dependency
         raise EnvironmentProblem(f"mitsuba is not importable ({e}); run `make setup`") from e
     if forced:
-        return VariantChoice(forced, None, os.environ.get("DRJIT_LIBLLVM_PATH"))
+        return VariantChoice(forced, None)
     lib = os.environ.get("DRJIT_LIBLLVM_PATH") or _find_libllvm()
     if lib is None:
         return VariantChoice(_SCALAR_VARIANT, "mitsuba: no libLLVM >= 16 found (apt-get install "
-                             "libllvm19 for the 3x faster llvm_ad_rgb); using scalar_rgb", None)
+                             "libllvm19 for the 3x faster llvm_ad_rgb); using scalar_rgb")
     env = dict(os.environ, DRJIT_LIBLLVM_PATH=lib)
     try:
         r = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
@@ -78,9 +79,9 @@ def choose_variant() -> VariantChoice:
         ok = False
     if not ok:
         return VariantChoice(_SCALAR_VARIANT, f"mitsuba: {_LLVM_VARIANT} does not work with "
-                             f"{lib}; using scalar_rgb", None)
+                             f"{lib}; using scalar_rgb")
     os.environ["DRJIT_LIBLLVM_PATH"] = lib
-    return VariantChoice(_LLVM_VARIANT, None, lib)
+    return VariantChoice(_LLVM_VARIANT, None)
 
 
 @lru_cache(maxsize=1)
@@ -99,6 +100,29 @@ def mitsuba_version() -> str:
 
 def _vectorised() -> bool:
     return not choose_variant().variant.startswith("scalar")
+
+
+def chi2_cosine_hemisphere(n: int):
+    """Mitsuba's own χ² test (``mitsuba.chi2.ChiSquareTest``) of its cosine-hemisphere
+    warp at ``n`` samples, as a callable for the benchmark (its pdf clamped at the
+    horizon, as its own tests do); its log is silenced."""
+    import contextlib
+    import io
+
+    import drjit as dr
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+
+    mi = _mi()
+
+    def run():
+        with contextlib.redirect_stdout(io.StringIO()):   # its log goes to stdout
+            return ChiSquareTest(
+                domain=SphericalDomain(),
+                sample_func=lambda s: mi.warp.square_to_cosine_hemisphere(s),
+                pdf_func=lambda v: dr.maximum(mi.warp.square_to_cosine_hemisphere_pdf(v), 0.0),
+                sample_dim=2, sample_count=n).run()
+
+    return run
 
 
 

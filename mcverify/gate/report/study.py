@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import check_convergence
-from ..stats import holm
+from ...checks import check_convergence
+from ...stats import holm
 
 
 @dataclass(frozen=True)

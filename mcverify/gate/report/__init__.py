@@ -13,8 +13,8 @@ import html
 import json
 import os
 
-from ..provenance import provenance
-from ..result import SuiteResult, atomic_write
+from ...provenance import provenance
+from ...result import SuiteResult, atomic_write
 from . import plots
 
 __all__ = ["build_report", "render_html"]
@@ -44,7 +44,7 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
         images["efficiency.png"] = plots.efficiency(study)
     if suite is not None:
         for r in suite.results:
-            if not r.passed and "histogram" in r.details:
+            if not r.passed and "histogram" in r.artifacts:
                 png = plots.histogram(r.to_dict(arrays=True))
                 if png:
                     images[f"failed_{_safe(r.name)}.png"] = png

@@ -3,37 +3,60 @@
 A suite is a list of named checks run at one family-wise α (Holm across checks), plus
 the *canaries*: known-wrong samplers that must be rejected, or the gate itself fails
 ("judge has no teeth"). Each check's seed derives from the suite seed and the check's
-name, so selecting checks with ``-k`` does not change any check's result.
+name, so selecting checks with ``-k`` does not change any check's result, and neither
+does where checks run (``run_suite(..., pool=Pool(jobs=2))``: see ``executors``).
+
+Checks reach worker processes by recipe, not by pickling: a check carries ``source``,
+a module-level builder and its arguments (``(build_suite, ("full",))``), and the worker
+rebuilds that list (once per process) and runs the check of that name with the seed the
+client derived. Checks close over lambdas, numba kernels and Mitsuba objects, which do
+not pickle; names and seeds do, and rebuilding a suite costs milliseconds. Workers check
+that they run the same sources as the client (``executors.same_source``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import fnmatch
-import os
+import pickle
 import time
 import zlib
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
 from scipy import stats as sps
 
-from . import checks
-from .domains import Interval
-from .provenance import provenance
-from .result import CheckResult, SuiteResult
+from .. import checks
+from ..domains import Interval
+from ..errors import InvalidArgument
+from ..provenance import provenance
+from ..result import CheckResult, SuiteResult
+from .executors import Pool, Unit, same_source, source_fingerprint
 
-__all__ = ["Check", "SUITES", "build_suite", "run_suite", "canaries", "check_seed", "plan"]
+__all__ = ["Check", "SUITES", "build_suite", "run_suite", "canaries", "check_seed", "select"]
 
 
 @dataclass(frozen=True)
 class Check:
-    """A named, seeded check: ``run(seed) -> CheckResult``."""
+    """A named, seeded check: ``run(seed) -> CheckResult``.
+
+    ``tags`` group checks (``"mitsuba"``: needs Mitsuba; ``"canary"``; ...).
+    ``verifies`` says what the check proves, as ``(kind, subject)`` pairs such as
+    ``("sampler", "cosine_hemisphere")`` or ``("unbiased", "mis")``: the scene planner
+    matches these against what a scene's features need, never the check's name.
+
+    ``source`` is how a worker process rebuilds the check: ``(builder, args)`` with a
+    module-level ``builder(*args)`` returning a list of checks (or one check) that holds
+    one of this name. Without it a check must pickle to run outside this process.
+    """
 
     name: str
     run: Callable[[int], CheckResult]
     tags: tuple[str, ...] = ()
+    verifies: frozenset[tuple[str, str]] = frozenset()
+    source: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -98,14 +121,16 @@ def _warp_checks(profile: Profile) -> list[Check]:
                     _domain(w.domain_spec(*p)), n_samples=profile.n_samples, seed=seed,
                     sample_dim=w.sample_dim, name="sampler:" + label)
 
-            out.append(Check("sampler:" + label, run_sampler, ("estimators", "warp")))
+            out.append(Check("sampler:" + label, run_sampler, ("estimators", "warp"),
+                             frozenset({("sampler", warp.name)})))
             if warp.invert is not None:
                 def run_inverse(seed, w=warp, p=params, label=label):
                     return checks.check_inverse(
                         lambda u: w.sample(u, *p), lambda x: w.invert(x, *p), w.sample_dim,
                         seed=seed, atol=1e-9, name="inverse:" + label)
 
-                out.append(Check("inverse:" + label, run_inverse, ("estimators", "inverse")))
+                out.append(Check("inverse:" + label, run_inverse, ("estimators", "inverse"),
+                                 frozenset({("inverse", warp.name)})))
     return out
 
 
@@ -121,7 +146,7 @@ def _scipy_checks(profile: Profile) -> list[Check]:
                                         n_samples=profile.n_samples, seed=seed,
                                         name="scipy:" + label)
 
-        out.append(Check("scipy:" + label, run, ("scipy",)))
+        out.append(Check("scipy:" + label, run, ("scipy",), frozenset({("sampler", label)})))
     return out
 
 
@@ -139,7 +164,8 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
             return checks.check_sampler(w.sample, w.pdf, w.domain, n_samples=n, seed=seed,
                                         sample_dim=w.sample_dim, name="sampler:" + w.name)
 
-        out.append(Check("sampler:" + w.name, run, ("mitsuba",)))
+        out.append(Check("sampler:" + w.name, run, ("mitsuba",),
+                         frozenset({("sampler", w.name)})))
         if w.invert is not None:
             def run_inv(seed, w=w):
                 # float32 round trips lose up to ~2e-4 near the poles (Beckmann at
@@ -148,7 +174,8 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
                                             n_samples=min(n, 100_000), seed=seed, atol=1e-3,
                                             name="inverse:" + w.name)
 
-            out.append(Check("inverse:" + w.name, run_inv, ("mitsuba",)))
+            out.append(Check("inverse:" + w.name, run_inv, ("mitsuba",),
+                             frozenset({("inverse", w.name)})))
     return out
 
 
@@ -162,16 +189,18 @@ def _distribution_checks(profile: Profile) -> list[Check]:
     # The 2-D subject is checked on cells aligned with its 16 × 32 pieces (each piece
     # split 2 × 2): a valid χ² whose expected counts need no refinement along the
     # pieces' 48 discontinuity lines (pilot-placed cells take ~10× longer).
-    subjects = [
-        ("piecewise_constant_1d", D.PiecewiseConstant1D([1.0, 0.0, 4.0, 2.5, 0.2], -1.0, 2.0),
-         Interval(-1.0, 2.0), 1),
-        ("piecewise_constant_2d", D.PiecewiseConstant2D(img), "square", 2),
-        ("inverted_cdf(step)", D.InvertedCDF(lambda t: np.where(t < 0.3, 1.0, 5.0), 0.0, 1.0),
-         Interval(0.0, 1.0), 1),
-        ("inverted_cdf(sin)", D.InvertedCDF(np.sin, 0.0, np.pi), Interval(0.0, np.pi), 1),
+    subjects = [   # (subject, label, distribution, domain, sample dimension)
+        ("piecewise_constant_1d", "piecewise_constant_1d",
+         D.PiecewiseConstant1D([1.0, 0.0, 4.0, 2.5, 0.2], -1.0, 2.0), Interval(-1.0, 2.0), 1),
+        ("piecewise_constant_2d", "piecewise_constant_2d", D.PiecewiseConstant2D(img),
+         "square", 2),
+        ("inverted_cdf", "inverted_cdf(step)",
+         D.InvertedCDF(lambda t: np.where(t < 0.3, 1.0, 5.0), 0.0, 1.0), Interval(0.0, 1.0), 1),
+        ("inverted_cdf", "inverted_cdf(sin)", D.InvertedCDF(np.sin, 0.0, np.pi),
+         Interval(0.0, np.pi), 1),
     ]
     out = []
-    for label, dist, dom, k in subjects:
+    for subject, label, dist, dom, k in subjects:
         aligned = dict(resolution=(32, 64), pilot=False) if dom == "square" else {}
 
         def run(seed, d=dist, dom=dom, k=k, label=label, aligned=aligned):
@@ -183,8 +212,10 @@ def _distribution_checks(profile: Profile) -> list[Check]:
             return checks.check_inverse(d.sample, d.invert, k, seed=seed, n_samples=20_000,
                                         atol=1e-9, name="inverse:" + label)
 
-        out += [Check("sampler:" + label, run, ("estimators", "distribution")),
-                Check("inverse:" + label, run_inv, ("estimators", "distribution"))]
+        out += [Check("sampler:" + label, run, ("estimators", "distribution"),
+                      frozenset({("sampler", subject)})),
+                Check("inverse:" + label, run_inv, ("estimators", "distribution"),
+                      frozenset({("inverse", subject)}))]
     return out
 
 
@@ -205,36 +236,41 @@ def _estimator_checks(profile: Profile) -> list[Check]:
     sin_pdf = lambda x: np.sin(x) / 2.0            # noqa: E731
     lin_pdf = lambda x: 2.0 * x / np.pi ** 2       # noqa: E731
     techniques = [(sin_sampler, sin_pdf, n // 4, 1), (lin_sampler, lin_pdf, n // 4, 1)]
-    subjects = [
-        ("uniform(sin)", lambda s: mc.uniform(np.sin, 0.0, np.pi, n, seed=s), 2.0),
-        ("uniform(cos)", lambda s: mc.uniform(np.cos, 0.0, np.pi, n, seed=s), 0.0),
-        ("importance(sin|linear)", lambda s: mc.importance(np.sin, lin_sampler, lin_pdf, n,
-                                                           seed=s), 2.0),
-        ("stratified(sin)", lambda s: mc.stratified(np.sin, 0.0, np.pi, n // 10, seed=s), 2.0),
-        ("rqmc(exp(xy))", lambda s: mc.rqmc(lambda x: np.exp(x[:, 0] * x[:, 1]), [0, 0],
-                                            [1, 1], 1024, seed=s, replicates=32),
-         1.3179021514544038),
-        ("mis(balance)", lambda s: mc.mis(np.sin, techniques, seed=s), 2.0),
-        ("mis(power)", lambda s: mc.mis(np.sin, techniques, seed=s, heuristic="power"), 2.0),
-        ("russian_roulette(q=0.3)", lambda s: mc.russian_roulette(np.sin, lin_sampler, lin_pdf,
-                                                                  n, 0.3, seed=s), 2.0),
-        ("antithetic(exp)", lambda s: mc.antithetic(np.exp, 0.0, 1.0, n, seed=s), np.e - 1.0),
-        ("importance(cos irradiance)", lambda s: mc.importance(
+    subjects = [   # (estimator, label, estimate(seed), true integral)
+        ("uniform", "uniform(sin)", lambda s: mc.uniform(np.sin, 0.0, np.pi, n, seed=s), 2.0),
+        ("uniform", "uniform(cos)", lambda s: mc.uniform(np.cos, 0.0, np.pi, n, seed=s), 0.0),
+        ("importance", "importance(sin|linear)",
+         lambda s: mc.importance(np.sin, lin_sampler, lin_pdf, n, seed=s), 2.0),
+        ("stratified", "stratified(sin)",
+         lambda s: mc.stratified(np.sin, 0.0, np.pi, n // 10, seed=s), 2.0),
+        ("rqmc", "rqmc(exp(xy))",
+         lambda s: mc.rqmc(lambda x: np.exp(x[:, 0] * x[:, 1]), [0, 0], [1, 1], 1024, seed=s,
+                           replicates=32), 1.3179021514544038),
+        ("mis", "mis(balance)", lambda s: mc.mis(np.sin, techniques, seed=s), 2.0),
+        ("mis", "mis(power)",
+         lambda s: mc.mis(np.sin, techniques, seed=s, heuristic="power"), 2.0),
+        ("russian_roulette", "russian_roulette(q=0.3)",
+         lambda s: mc.russian_roulette(np.sin, lin_sampler, lin_pdf, n, 0.3, seed=s), 2.0),
+        ("antithetic", "antithetic(exp)",
+         lambda s: mc.antithetic(np.exp, 0.0, 1.0, n, seed=s), np.e - 1.0),
+        ("importance", "importance(cos irradiance)", lambda s: mc.importance(
             lambda x: x[:, 2], W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, n, seed=s,
             sample_dim=2), np.pi),
     ]
     out = []
-    for label, make, truth in subjects:
+    for subject, label, make, truth in subjects:
         def run(seed, make=make, truth=truth, label=label):
             return checks.check_unbiased(make(seed).samples, truth, name="unbiased:" + label)
 
-        out.append(Check("unbiased:" + label, run, ("estimators", "mc")))
+        out.append(Check("unbiased:" + label, run, ("estimators", "mc"),
+                         frozenset({("unbiased", subject)})))
 
     def perfect(seed):
         e = mc.importance(np.sin, sin_sampler, sin_pdf, 10_000, seed=seed)
         return checks.check_variance(e.samples, 0.0, name="zero_variance:importance(sin|sin)")
 
-    out.append(Check("zero_variance:importance(sin|sin)", perfect, ("estimators", "mc")))
+    out.append(Check("zero_variance:importance(sin|sin)", perfect, ("estimators", "mc"),
+                     frozenset({("zero_variance", "importance")})))
     return out
 
 
@@ -242,7 +278,7 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
     """Planted bugs the judge must reject on every run of the gate.
 
     Each is a known-wrong sampler whose rejection probability at 1e6 samples is 1 to
-    many decimal places (see tests/mcverify/test_power.py): contamination of a cosine
+    many decimal places (see the slow power tests in tests/mcverify/test_calibration.py): contamination of a cosine
     sampler by 2 % uniform directions, GGX sampled at α = 0.30 against the pdf of
     α = 0.32, and a cosine pdf scaled by 1.03.
     """
@@ -267,84 +303,20 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
                                         name=label)
 
         out.append(Check(label, run, ("canary",)))
-    return out
+    return _sourced(out, canaries, n_samples)
 
 
 def build_suite(name: str = "default") -> list[Check]:
     """The checks of a built-in suite."""
     profile = SUITES[name]
-    return (_warp_checks(profile) + _distribution_checks(profile) + _estimator_checks(profile)
-            + _scipy_checks(profile) + _mitsuba_checks(profile))
+    out = (_warp_checks(profile) + _distribution_checks(profile) + _estimator_checks(profile)
+           + _scipy_checks(profile) + _mitsuba_checks(profile))
+    return _sourced(out, build_suite, name)
 
 
-#: What each scene feature needs verified: feature -> (check-name prefixes, why).
-_NEEDS = {
-    "bsdf:diffuse": (["sampler:cosine_hemisphere", "inverse:cosine_hemisphere"],
-                     "diffuse BSDF sampling draws cosine-weighted directions"),
-    "bsdf:plastic": (["sampler:cosine_hemisphere"], "plastic's diffuse lobe"),
-    "bsdf:roughplastic": (["sampler:cosine_hemisphere", "sampler:beckmann", "sampler:ggx",
-                           "sampler:ggx_vndf"], "rough plastic: diffuse + microfacet lobes"),
-    "bsdf:roughconductor": (["sampler:beckmann", "inverse:beckmann", "sampler:ggx",
-                             "inverse:ggx", "sampler:ggx_vndf"],
-                            "rough conductor: microfacet normal sampling"),
-    **{f"emitter:area:{mesh}": (["sampler:uniform_triangle", "inverse:uniform_triangle"],
-                                "mesh lights are sampled by area, triangle by triangle")
-       for mesh in ("rectangle", "cube", "obj")},
-    "emitter:area:disk": (["sampler:uniform_disk_concentric", "inverse:uniform_disk_concentric"],
-                          "disk lights are sampled by area"),
-    "emitter:area:sphere": (["sampler:uniform_cone", "inverse:uniform_cone",
-                             "sampler:uniform_sphere", "inverse:uniform_sphere"],
-                            "sphere lights: the cone they subtend, or area from inside"),
-    "emitter:envmap": (["sampler:piecewise_constant_2d", "inverse:piecewise_constant_2d"],
-                       "environment maps are sampled by a 2-D piecewise-constant pdf"),
-    "emitter:constant": (["sampler:uniform_sphere", "sampler:cosine_hemisphere"],
-                         "a constant environment is sampled uniformly / by cosine"),
-    "integrator:path": (["unbiased:russian_roulette", "unbiased:mis("],
-                        "path tracing uses Russian roulette and MIS"),
-    "integrator:direct": (["unbiased:mis("], "direct illumination combines strategies by MIS"),
-}
-_DELTA = {"bsdf:conductor": "smooth conductor: a delta BSDF, nothing to sample",
-          "bsdf:dielectric": "smooth dielectric: a delta BSDF, nothing to sample",
-          "emitter:point": "point light: a delta emitter, nothing to sample",
-          "emitter:directional": "directional light: a delta emitter, nothing to sample",
-          "emitter:spot": "spot light: a delta emitter, nothing to sample",
-          "bsdf:twosided": "two-sided adapter: nothing of its own to sample"}
-
-
-def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tuple[str, str]],
-                                                          set[str]]:
-    """The checks a scene needs, and the skipped ones with the reason.
-
-    Reads the scene with the path tracer's loader (an unsupported element raises
-    ``SceneError`` naming it), maps each feature it uses to the samplers and estimators
-    that feature relies on, and keeps only those checks. Returns (checks, skipped,
-    features).
-    """
-    from estimators.pathtracer import load_scene
-
-    desc = load_scene(scene_path)
-    all_checks = build_suite(suite)
-    wanted: dict[str, str] = {}
-    for feature in sorted(desc.features):
-        prefixes, why = _NEEDS.get(feature, ([], ""))
-        for c in all_checks:
-            if any(c.name.startswith(p) for p in prefixes):
-                wanted.setdefault(c.name, f"{feature}: {why}")
-    keep = [c for c in all_checks if c.name in wanted]
-    skipped = [(c.name, "not needed by this scene") for c in all_checks if c.name not in wanted]
-    skipped += [(f, why) for f, why in _DELTA.items() if f in desc.features]
-    keep.append(_render_check(scene_path))
-    return keep, skipped, desc.features
-
-
-def _render_check(scene_path: str) -> Check:
-    """The scene's render gate: our path tracer against its Mitsuba reference (built on
-    first use)."""
-    from .checks.render import render_check
-
-    name = f"render:{os.path.basename(os.path.dirname(os.path.abspath(scene_path)))}"
-    return Check(name, lambda seed: dataclasses.replace(
-        render_check(scene_path, seed=seed), name=name), ("render", "mitsuba"))
+def _sourced(checks_: list[Check], builder, *args) -> list[Check]:
+    """The checks, each with the recipe that rebuilds it in a worker."""
+    return [dataclasses.replace(c, source=(builder, args)) for c in checks_]
 
 
 def select(checks_: list[Check], pattern: str | None) -> list[Check]:
@@ -368,29 +340,69 @@ def _run_guarded(check: Check, seed: int) -> CheckResult:
                            failures=(f"raised {type(e).__name__}: {e}",))
 
 
+@lru_cache(maxsize=16)
+def _rebuilt(source: tuple) -> dict[str, Check]:
+    builder, args = source
+    built = builder(*args)
+    return {c.name: c for c in ([built] if isinstance(built, Check) else built)}
+
+
+def _run_unit(check, name: str, seed: int, fingerprint: str | None) -> CheckResult:
+    """A check as a unit of work: ``check`` is the Check itself (in-process) or its
+    ``source`` recipe (in a worker, which rebuilds the list once and looks the name up)."""
+    same_source(fingerprint)
+    if not isinstance(check, Check):
+        check = _rebuilt(check)[name]
+    return _run_guarded(check, seed)
+
+
+def _units(checks_: list[Check], seeds: list[int], pool: Pool) -> list[Unit]:
+    if pool.in_process:
+        return [Unit(c.name, _run_unit, (c, c.name, s, None)) for c, s in zip(checks_, seeds)]
+    fingerprint = source_fingerprint()
+    units = []
+    for c, s in zip(checks_, seeds):
+        ship = c.source
+        if ship is None:
+            try:
+                pickle.dumps(c)
+            except Exception as e:  # noqa: BLE001 - any pickling failure says the same
+                raise InvalidArgument(
+                    f"check {c.name!r}: cannot be sent to {pool.describe()} ({e}); give it "
+                    "source=(builder, args) to rebuild it there, or run it in-process"
+                ) from None
+            ship = c
+        units.append(Unit(c.name, _run_unit, (ship, c.name, s, fingerprint)))
+    return units
+
+
 def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
               alpha: float = 0.01, correction: str = "holm", canary: bool = True,
-              progress: Callable[[int, int, CheckResult], None] | None = None,
+              progress: Callable[[int, int, CheckResult, Check], None] | None = None,
               extra_provenance: dict | None = None,
-              skipped: list[tuple[str, str]] | None = None) -> SuiteResult:
-    """Run checks and canaries; judge the checks at family-wise ``alpha``."""
+              skipped: list[tuple[str, str]] | None = None,
+              pool: Pool | None = None) -> SuiteResult:
+    """Run checks and canaries; judge the checks at family-wise ``alpha``.
+
+    ``pool`` says where the checks run (default: in this process); results come back in
+    the checks' order and do not depend on it. ``progress(done, total, result, check)``
+    is called as checks finish; ``check.tags`` says what it is (``"canary"``: a planted
+    bug that must be rejected)."""
     t0 = time.perf_counter()
-    results = []
-    total = len(checks_) + (3 if canary else 0)
-    for i, c in enumerate(checks_):
-        r = _run_guarded(c, check_seed(seed, c.name))
-        results.append(r)
-        if progress:
-            progress(i + 1, total, r)
-    bitten = []
-    if canary:
-        for j, c in enumerate(canaries()):
-            r = _run_guarded(c, check_seed(seed, "canary:" + c.name))
-            bitten.append(r)
-            if progress:
-                progress(len(checks_) + j + 1, total, r)
+    bait = canaries() if canary else []
+    seeds = ([check_seed(seed, c.name) for c in checks_]
+             + [check_seed(seed, "canary:" + c.name) for c in bait])
+    by_name = {c.name: c for c in checks_ + bait}
+    show = None if progress is None else (
+        lambda done, total, unit, r: progress(done, total, r, by_name[unit.key]))
+    if pool is None:
+        with Pool() as pool:
+            out = pool.map(_units(checks_ + bait, seeds, pool), progress=show)
+    else:
+        out = pool.map(_units(checks_ + bait, seeds, pool), progress=show)
+    results, bitten = out[:len(checks_)], out[len(checks_):]
     prov = provenance(suite=name, seed=seed, alpha=alpha, correction=correction,
-                      **(extra_provenance or {}))
+                      executor=pool.describe(), **(extra_provenance or {}))
     return SuiteResult.judge(name, results, alpha=alpha, correction=correction,
                              seconds=time.perf_counter() - t0, provenance=prov,
                              canary=tuple(bitten), skipped=tuple(skipped or ()))

@@ -63,7 +63,7 @@ def histogram(result: dict) -> bytes | None:
     """Observed vs expected counts of a sampler check and their standardised difference
     ((O − E)/√E), over the domain's parameter cells: where a sampler and its pdf
     disagree."""
-    h = result.get("details", {}).get("histogram")
+    h = result.get("artifacts", {}).get("histogram")
     if not h or "expected" not in h:
         return None
     plt = _plt()

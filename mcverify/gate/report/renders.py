@@ -18,7 +18,7 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
     from estimators.pathtracer import compile_scene, render
 
     from .. import mitsuba as mvm
-    from ..checks.render import render_check
+    from ..render_check import render_check
     from ..reference import load_reference, resolve_scene
 
     mi = mvm._mi()
@@ -51,9 +51,9 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
                      "reference": {k: d["reference"].get(k) for k in
                                    ("spp", "passes", "mitsuba_version", "mitsuba_variant")},
                      "curve": curve})
-        arrays[name] = {"ours": d["images"]["ours"], "mitsuba": d["images"]["mitsuba"],
-                        "p_map": d["p_map"], "delta_e": d["maps"].get("delta_e2000"),
-                        "delta_itp": d["maps"].get("delta_e_itp")}
+        a = check.artifacts
+        arrays[name] = {"ours": a["ours"], "mitsuba": a["mitsuba"], "p_map": a["p_map"],
+                        "delta_e": a.get("delta_e2000"), "delta_itp": a.get("delta_e_itp")}
         if progress:
             progress(i + 1, len(scenes), check)
     return rows, arrays

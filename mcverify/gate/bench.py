@@ -8,8 +8,6 @@ pytest-benchmark for saved baselines.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import time
 
 import numpy as np
@@ -22,10 +20,10 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
     names the other side (Mitsuba, or our general kernel for the specialisation row)."""
     from estimators import warps as W
 
-    from . import checks
+    from .. import checks
     from . import mitsuba as mvm
 
-    vectorised = not mvm.choose_variant().variant.startswith("scalar")
+    vectorised = mvm._vectorised()
     mi = mvm._mi() if vectorised else None
     u = np.random.default_rng(0).random((n, 2))
     out = []
@@ -55,20 +53,7 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
         return checks.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf,
                                     "hemisphere", n_samples=n, seed=0)
 
-    theirs_chi2 = None
-    if vectorised:
-        import drjit as dr
-        from mitsuba.chi2 import ChiSquareTest, SphericalDomain
-
-        def theirs_chi2():
-            with contextlib.redirect_stdout(io.StringIO()):   # its log goes to stdout
-                return ChiSquareTest(
-                    domain=SphericalDomain(),
-                    sample_func=lambda s: mi.warp.square_to_cosine_hemisphere(s),
-                    pdf_func=lambda v: dr.maximum(mi.warp.square_to_cosine_hemisphere_pdf(v),
-                                                  0.0),
-                    sample_dim=2, sample_count=n).run()
-
+    theirs_chi2 = mvm.chi2_cosine_hemisphere(n) if vectorised else None
     out.append(("chi2:cosine_hemisphere", f"sampler vs pdf test, {n:,} samples", ours_chi2,
                 theirs_chi2, "mitsuba"))
     if renders:
@@ -89,10 +74,13 @@ def _render_pairs(mi, spp: int):
     ours_scene = compile_scene(cornell, params={"res": 128})
     their_scene = mi.load_file(cornell, res=128)
     furnace = compile_scene(resolve_scene("white-furnace")[1], params={"res": 128})
+    bunny = resolve_scene("bunny")[1]
+    ours_bunny = compile_scene(bunny, params={"res": 128})
+    their_bunny = mi.load_file(bunny, res=128)
     what = f"128 x 128, max_depth 8, {spp} spp"
 
     def gate():
-        from .checks.render import render_check
+        from .render_check import render_check
         return render_check("cornell-box")
 
     return [
@@ -100,6 +88,9 @@ def _render_pairs(mi, spp: int):
          "cached (budget: 30 s)", gate, None, "-"),
         ("render:cornell-box", what, lambda: render(ours_scene, spp=spp),
          lambda: np.asarray(mi.render(their_scene, spp=spp)), "mitsuba"),
+        ("render:bunny", f"58,784-triangle scanned mesh, 128 x 128, max_depth 6, {spp} spp",
+         lambda: render(ours_bunny, spp=spp),
+         lambda: np.asarray(mi.render(their_bunny, spp=spp)), "mitsuba"),
         ("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
          lambda: render(furnace, spp=spp), lambda: render(furnace, spp=spp, general=True),
          "general kernel"),

@@ -1,0 +1,14 @@
+"""The gate layer: where the judge (``mcverify``'s core), the subject (``estimators``)
+and the oracle (Mitsuba, ``reference/``) meet.
+
+==================  ==========================================================
+``suites``          built-in suites, canaries, seeds, ``run_suite``
+``plan``            a scene's features -> the checks it needs (and what it skips)
+``render_check``    any renderer's image against a scene's Mitsuba reference
+``reference``       Mitsuba reference renders: build, load, staleness
+``mitsuba``         the one module that imports Mitsuba (variants, adapters)
+``bench``           ours against Mitsuba, as ratios
+``report``          JSON -> PNG -> self-contained HTML
+``cli``             ``mcverify`` command line
+==================  ==========================================================
+"""

@@ -1,0 +1,102 @@
+"""Plan the checks a scene needs: "skip what a scene doesn't need".
+
+The scene's features (its BSDFs, emitters by the shape they sit on, textures and
+integrator, as the path tracer's loader reports them) are looked up in ``NEEDS``, one
+table of what each feature relies on, as ``(kind, subject)`` pairs that checks declare
+in ``Check.verifies``. Delta features have nothing to sample and are listed in
+``NOTHING_TO_SAMPLE`` with the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+from .suites import Check, build_suite
+
+__all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "plan"]
+
+
+def _pairs(kind: str, *subjects: str) -> set[tuple[str, str]]:
+    return {(kind, s) for s in subjects}
+
+
+_MESH_LIGHT = (_pairs("sampler", "uniform_triangle") | _pairs("inverse", "uniform_triangle"),
+               "mesh lights are sampled by area, triangle by triangle")
+
+#: What each scene feature needs verified: feature -> ({(kind, subject)}, why).
+NEEDS: dict[str, tuple[set[tuple[str, str]], str]] = {
+    "bsdf:diffuse": (_pairs("sampler", "cosine_hemisphere") | _pairs("inverse", "cosine_hemisphere"),
+                     "diffuse BSDF sampling draws cosine-weighted directions"),
+    "bsdf:plastic": (_pairs("sampler", "cosine_hemisphere"), "plastic's diffuse lobe"),
+    "bsdf:roughplastic": (_pairs("sampler", "cosine_hemisphere", "beckmann", "ggx", "ggx_vndf"),
+                          "rough plastic: diffuse + microfacet lobes"),
+    "bsdf:roughconductor": (_pairs("sampler", "beckmann", "ggx", "ggx_vndf")
+                            | _pairs("inverse", "beckmann", "ggx", "ggx_vndf"),
+                            "rough conductor: microfacet normal sampling"),
+    "emitter:area:rectangle": _MESH_LIGHT,
+    "emitter:area:cube": _MESH_LIGHT,
+    "emitter:area:obj": _MESH_LIGHT,
+    "emitter:area:disk": (_pairs("sampler", "uniform_disk_concentric")
+                          | _pairs("inverse", "uniform_disk_concentric"),
+                          "disk lights are sampled by area"),
+    "emitter:area:sphere": (_pairs("sampler", "uniform_cone", "uniform_sphere")
+                            | _pairs("inverse", "uniform_cone", "uniform_sphere"),
+                            "sphere lights: the cone they subtend, or area from inside"),
+    "emitter:envmap": (_pairs("sampler", "piecewise_constant_2d")
+                       | _pairs("inverse", "piecewise_constant_2d"),
+                       "environment maps are sampled by a 2-D piecewise-constant pdf"),
+    "emitter:constant": (_pairs("sampler", "uniform_sphere", "cosine_hemisphere"),
+                         "a constant environment is sampled uniformly / by cosine"),
+    "integrator:path": (_pairs("unbiased", "russian_roulette", "mis"),
+                        "path tracing uses Russian roulette and MIS"),
+    "integrator:direct": (_pairs("unbiased", "mis"),
+                          "direct illumination combines strategies by MIS"),
+}
+
+#: Features with nothing of their own to sample: feature -> why it is skipped.
+NOTHING_TO_SAMPLE = {
+    "bsdf:conductor": "smooth conductor: a delta BSDF, nothing to sample",
+    "bsdf:dielectric": "smooth dielectric: a delta BSDF, nothing to sample",
+    "emitter:point": "point light: a delta emitter, nothing to sample",
+    "emitter:directional": "directional light: a delta emitter, nothing to sample",
+    "emitter:spot": "spot light: a delta emitter, nothing to sample",
+    "bsdf:twosided": "two-sided adapter: nothing of its own to sample",
+}
+
+
+def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tuple[str, str]],
+                                                          set[str]]:
+    """The checks a scene needs, and the skipped ones with the reason.
+
+    Reads the scene with the path tracer's loader (an unsupported element raises
+    ``SceneError`` naming it), keeps the suite's checks whose ``verifies`` meets what the
+    scene's features need (``NEEDS``), and adds the scene's render check. Returns
+    (checks, skipped, features).
+    """
+    from estimators.pathtracer import load_scene
+
+    desc = load_scene(scene_path)
+    all_checks = build_suite(suite)
+    wanted: dict[str, str] = {}
+    for feature in sorted(desc.features):
+        needs, why = NEEDS.get(feature, (set(), ""))
+        for c in all_checks:
+            if c.verifies & needs:
+                wanted.setdefault(c.name, f"{feature}: {why}")
+    keep = [c for c in all_checks if c.name in wanted]
+    skipped = [(c.name, "not needed by this scene") for c in all_checks if c.name not in wanted]
+    skipped += [(f, why) for f, why in NOTHING_TO_SAMPLE.items() if f in desc.features]
+    keep.append(_render_check(scene_path))
+    return keep, skipped, desc.features
+
+
+def _render_check(scene_path: str) -> Check:
+    """The scene's render gate: our path tracer against its Mitsuba reference (built on
+    first use)."""
+    from .render_check import render_check
+
+    name = f"render:{os.path.basename(os.path.dirname(os.path.abspath(scene_path)))}"
+    return Check(name, lambda seed: dataclasses.replace(
+        render_check(scene_path, seed=seed), name=name), ("render", "mitsuba"),
+        frozenset({("render", name)}), source=(_render_check, (scene_path,)))

@@ -1,0 +1,128 @@
+"""The import rules of the house (docs/ARCHITECTURE.md), kept by a test:
+
+- ``estimators`` (the subject) never imports ``mcverify`` (its judge);
+- ``mcverify``'s core (everything outside ``mcverify/gate/``) imports neither
+  ``estimators`` nor Mitsuba nor the gate, at module level or inside functions; the one
+  exception is the lazy re-export of ``render_check`` in ``mcverify.__getattr__``;
+- within ``mcverify``, Mitsuba and Dr.Jit are imported by ``mcverify/gate/mitsuba.py``
+  only; within ``estimators``, only by the image reader and the materials generator
+  (Mitsuba's bitmap codec and spectral tables as data sources, never its rendering).
+"""
+
+import ast
+import os
+import subprocess
+import sys
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MITSUBA = ("mitsuba", "drjit")
+
+#: (file, enclosing function, imported module): imports that are allowed by design.
+ALLOWED = {
+    ("mcverify/__init__.py", "__getattr__", "mcverify.gate.render_check"),
+    ("estimators/pathtracer/textures.py", "read_image", "mitsuba"),
+    ("estimators/pathtracer/make_materials.py", "main", "mitsuba"),
+}
+
+
+def _package(rel: str) -> str:
+    parts = rel[:-3].split("/")
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts[:-1])
+
+
+def imports(rel: str):
+    """(module imported, enclosing function or None) for every import in a file,
+    relative imports resolved against the file's package."""
+    tree = ast.parse(open(os.path.join(ROOT, rel), encoding="utf-8").read(), rel)
+    out = []
+
+    def visit(node, func):
+        for child in ast.iter_child_nodes(node):
+            f = child.name if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)) \
+                else func
+            if isinstance(child, ast.Import):
+                out.extend((a.name, func) for a in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                if child.level:
+                    base = _package(rel).split(".")
+                    base = base[:len(base) - child.level + 1]
+                    mod = ".".join(base + ([child.module] if child.module else []))
+                else:
+                    mod = child.module
+                out.append((mod, func))
+                out.extend((f"{mod}.{a.name}", func) for a in child.names)
+            visit(child, f)
+
+    visit(tree, None)
+    return out
+
+
+def files(package: str):
+    for folder, _, names in os.walk(os.path.join(ROOT, package)):
+        for n in sorted(names):
+            if n.endswith(".py"):
+                yield os.path.relpath(os.path.join(folder, n), ROOT).replace(os.sep, "/")
+
+
+def _under(mod, prefix):
+    return mod == prefix or mod.startswith(prefix + ".")
+
+
+def _hits(rel, bad):
+    return [(mod, func) for mod, func in imports(rel)
+            if any(_under(mod, b) for b in bad)
+            and not any(rel == r and func == f and _under(mod, m) for r, f, m in ALLOWED)]
+
+
+def test_the_rule_finds_what_it_looks_for():
+    # the checker itself: a relative import of the gate from the core is resolved and seen
+    mods = dict(imports("mcverify/__init__.py"))
+    assert "mcverify.gate.render_check" in mods and "mcverify._version" in mods
+    assert any(m == "mitsuba" for m, _ in imports("mcverify/gate/mitsuba.py"))
+    assert _hits("mcverify/gate/bench.py", ("estimators",))     # the gate may, and is seen
+
+
+def test_the_subject_never_imports_its_judge():
+    bad = {rel: _hits(rel, ("mcverify",)) for rel in files("estimators")}
+    assert not {k: v for k, v in bad.items() if v}
+
+
+def test_the_core_imports_neither_subject_nor_mitsuba_nor_gate():
+    core = [rel for rel in files("mcverify")
+            if not rel.startswith("mcverify/gate/") and rel != "mcverify/__main__.py"]
+    assert "mcverify/checks/sampler.py" in core and "mcverify/result.py" in core
+    bad = {rel: _hits(rel, ("estimators", "mcverify.gate") + MITSUBA) for rel in core}
+    assert not {k: v for k, v in bad.items() if v}
+
+
+def test_mitsuba_is_imported_in_one_module_of_mcverify():
+    bad = {rel: _hits(rel, MITSUBA) for rel in files("mcverify")
+           if rel != "mcverify/gate/mitsuba.py"}
+    assert not {k: v for k, v in bad.items() if v}
+    assert not {rel: _hits(rel, MITSUBA) for rel in files("estimators")
+                if _hits(rel, MITSUBA)}
+
+
+@pytest.mark.parametrize("code", [
+    "import mcverify",
+    "import mcverify as mv, numpy as np; mv.check_sampler(lambda u: u, lambda x: "
+    "np.ones(len(x)), 'square', n_samples=20000)",
+])
+def test_importing_the_core_loads_neither(code):
+    probe = (code + "; import sys; print(sorted(m for m in sys.modules if m.split('.')[0] in "
+             "('estimators', 'mitsuba', 'drjit') or m.startswith('mcverify.gate')))")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                       cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_render_check_is_re_exported_lazily():
+    import mcverify
+    from mcverify.gate.render_check import render_check
+
+    assert mcverify.render_check is render_check
+    with pytest.raises(AttributeError):
+        mcverify.no_such_thing   # noqa: B018
