@@ -10,9 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats as _sps
+from scipy.optimize import brentq as _brentq
 
 __all__ = [
-    "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells",
+    "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells", "chi2_detectable_mixture",
     "KSResult", "ks_uniform", "ks_2samp", "ks_binned", "ks_2samp_binned",
     "BinomialResult", "binomial_test", "FisherResult", "fisher_exact_2x2",
     "TTestResult", "ttest_mean",
@@ -123,6 +124,38 @@ def chi2_gof(observed, expected, *, min_expected: float = MIN_EXPECTED,
         p = 0.0
     return Chi2Result(stat, max(dof, 0), p, int(e.size), n_bins,
                       int(np.count_nonzero((e > 0) & (e < min_expected))), in_empty)
+
+
+def chi2_detectable_mixture(expected, alternative, *, alpha: float, power: float = 0.95,
+                            min_expected: float = MIN_EXPECTED) -> float:
+    """Smallest mixture weight ε at which :func:`chi2_gof` at level ``alpha`` rejects
+    with probability ``power`` when the counts' true means are
+    ``(1 - ε)·expected + ε·alternative`` (both arrays of expected counts for the same n).
+
+    Noncentral χ² approximation on the pooled bins: the statistic is
+    :math:`\\chi'^2_{B-1}(\\lambda)` with :math:`\\lambda = \\varepsilon^2 \\sum_b
+    (A_b - E_b)^2 / E_b`; ε solves ``P(χ'² > χ²_{1-α}) = power``. Returns inf when no
+    mixture weight up to 1 is detected (the alternative matches ``expected`` on the
+    bins).
+    """
+    e = np.asarray(expected, dtype=np.float64).ravel()
+    a = np.asarray(alternative, dtype=np.float64).ravel()
+    label = pool_cells(e, min_expected).ravel()
+    n_bins = int(label.max()) + 1 if (label >= 0).any() else 0
+    if n_bins < 2:
+        return float("inf")
+    eb, ab = _pooled_sums(e, label, n_bins), _pooled_sums(a, label, n_bins)
+    spread = float(np.sum((ab - eb) ** 2 / eb))
+    if not spread > 0:
+        return float("inf")
+    dof = n_bins - 1
+    crit = _sps.chi2.isf(alpha, dof)
+    hi = 1.0
+    while _sps.ncx2.sf(crit, dof, hi) < power:
+        hi *= 2.0
+    lam = _brentq(lambda t: _sps.ncx2.sf(crit, dof, t) - power, 0.0, hi, xtol=1e-6)
+    eps = float(np.sqrt(lam / spread))
+    return eps if eps <= 1.0 else float("inf")
 
 
 def chi2_homogeneity(counts_a, counts_b, *, min_expected: float = MIN_EXPECTED) -> Chi2Result:

@@ -21,7 +21,8 @@ from ..domains import Domain, as_domain
 from ..quadrature import gauss_legendre_01, integrate_cells, merge_leaves
 from ..result import CheckResult
 
-__all__ = ["check_sampler", "check_inverse", "check_same_distribution"]
+__all__ = ["check_sampler", "check_inverse", "check_same_distribution",
+           "detectable_contamination"]
 
 #: Cells re-integrated more finely when their χ² contribution exceeds this (a 5σ cell):
 #: under a correct pdf this only happens where the quadrature missed a narrow feature.
@@ -488,6 +489,37 @@ def _test_details(r) -> dict:
     if isinstance(r, stats.BinomialResult):
         out.update(statistic=r.successes, trials=r.trials, rate=r.p)
     return out
+
+
+def detectable_contamination(result: CheckResult, *, power: float = 0.95,
+                             alpha: float | None = None) -> float:
+    """The power a :func:`check_sampler` result had: the smallest ε such that the
+    sampler ``(1 - ε)·pdf + ε·uniform`` (uniform over the domain) would have been
+    rejected with probability ``power`` by the same check, at the same n and cells.
+
+    Each χ² sub-test (full grid and, in 2-D, both marginals) runs at ``alpha`` (default:
+    the check's own) divided by the number of sub-tests, as the check combines them;
+    the check rejects when any does, so the smallest ε over the sub-tests is an upper
+    bound on the check's (the KS test's extra power in 1-D is not counted). Computed
+    from the noncentral χ² distribution (:func:`mcverify.stats.chi2_detectable_mixture`);
+    uniform contamination is the cell volume in parameter space, since every domain
+    maps to it with a constant Jacobian.
+    """
+    h = result.artifacts.get("histogram")
+    if h is None or "expected" not in h:
+        raise InvalidArgument(f"result {result.name!r}: no histogram artifact; pass the "
+                              "CheckResult of check_sampler")
+    alpha = result.alpha if alpha is None else v.probability("alpha", alpha)
+    expected = np.asarray(h["expected"], dtype=np.float64)
+    widths = [np.diff(np.asarray(e, dtype=np.float64)) for e in h["edges"]]
+    volume = widths[0] if len(widths) == 1 else np.outer(widths[0], widths[1])
+    uniform = volume * expected.sum()
+    pairs = [(expected, uniform)]
+    if expected.ndim == 2:
+        pairs += [(expected.sum(axis=1), uniform.sum(axis=1)),
+                  (expected.sum(axis=0), uniform.sum(axis=0))]
+    level = alpha / (len(pairs) if expected.ndim == 2 else 2)
+    return min(stats.chi2_detectable_mixture(e, u, alpha=level, power=power) for e, u in pairs)
 
 
 def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
