@@ -115,12 +115,13 @@ def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
     return n_samples, predicted, tuple(notes)
 
 
-def power_bought(results, alpha: float) -> dict[str, float]:
+def power_bought(results, alpha: float, n_checks: int | None = None) -> dict[str, float]:
     """For each sampler check result: the mixture weight ε of uniform contamination it
     catches with 95 % power at the level Holm gives the most significant of the family
-    (α / number of checks: the worst case, so the figure is an upper bound); None where
-    the pdf is itself uniform (a uniform admixture changes nothing)."""
-    level = alpha / max(len(results), 1)
+    (α / ``n_checks``, default the number of results: the worst case, so the figure is
+    an upper bound); None where the pdf is itself uniform (a uniform admixture changes
+    nothing)."""
+    level = alpha / max(n_checks or len(results), 1)
     out = {}
     for r in results:
         if "histogram" in r.artifacts and "expected" in r.artifacts["histogram"]:

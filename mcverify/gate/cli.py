@@ -201,7 +201,7 @@ def _cmd_check(args) -> int:
         from .budget import power_bought
 
         bought = power_bought([r for r in result.results if r.name in plan.n_samples],
-                              args.alpha)
+                              args.alpha, n_checks=len(result.results))
         result = dataclasses.replace(result, provenance={
             **result.provenance,
             "budget": {**plan.to_dict(), "detectable_contamination": bought}})
