@@ -8,6 +8,7 @@ images differ; 2 bad input or environment, with one line on stderr naming what a
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 
@@ -163,10 +164,25 @@ def _cmd_check(args) -> int:
     _distinct_outputs(("--json", args.json), ("--junit", args.junit))
     extra = {}
     skipped = []
+    plan = None
+    if args.budget is not None and args.scene:
+        raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
+                              "has its own spp and passes (use --budget without --scene)")
     if args.scene:
         planned, skipped, _ = _plan(args.scene, args.suite)
         selected = suites.select(planned, args.k)
         extra["scene"] = os.path.abspath(args.scene)
+    elif args.budget is not None:
+        from .budget import plan_budget
+
+        if not suites.select(suites.build_suite(args.suite), args.k):
+            raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
+                                  "`mcverify list` shows the names")
+        if not args.quiet:
+            print(f"mcverify check --budget {args.budget:g}: calibrating this machine ...",
+                  file=sys.stderr)
+        plan = plan_budget(args.suite, args.k, args.budget, seed=args.seed)
+        selected = suites.select(suites.build_suite(args.suite, plan.n_overrides), args.k)
     else:
         selected = suites.select(suites.build_suite(args.suite), args.k)
     if not selected and args.scene:
@@ -180,6 +196,15 @@ def _cmd_check(args) -> int:
                               progress=None if args.quiet else
                               _progress(sys.stderr, alpha=args.alpha),
                               extra_provenance=extra, skipped=skipped)
+    bought = None
+    if plan is not None:
+        from .budget import power_bought
+
+        bought = power_bought([r for r in result.results if r.name in plan.n_samples],
+                              args.alpha, n_checks=len(result.results))
+        result = dataclasses.replace(result, provenance={
+            **result.provenance,
+            "budget": {**plan.to_dict(), "detectable_contamination": bought}})
     if args.json:
         write_json(result, args.json)
     if args.junit:
@@ -199,6 +224,17 @@ def _cmd_check(args) -> int:
             if c.passed:
                 print(f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected "
                       f"(p={c.p_value:.3g})")
+    if plan is not None:
+        for note in plan.notes:
+            print(f"note: {note}")
+        ns = sorted(plan.n_samples.values())
+        seen = {k: e for k, e in (bought or {}).items() if e is not None}
+        if ns and seen:
+            worst = max(seen, key=seen.get)
+            print(f"budget {args.budget:g}s (predicted {plan.predicted_seconds:.1f}s, "
+                  f"calibration {plan.calibration_seconds:.1f}s): sampler checks at n = "
+                  f"{ns[0]:,} to {ns[-1]:,}; each catches uniform contamination of "
+                  f"{100 * seen[worst]:.2g} % or less at 95 % power (worst: {worst})")
     n = len(result.results)
     print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
           f" (family-wise alpha={args.alpha} by {result.correction}; canaries "
@@ -474,6 +510,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", metavar="PATH", help="write the results as JSON; default: none")
     c.add_argument("--junit", metavar="PATH",
                    help="write the results as JUnit XML; default: none")
+    c.add_argument("--budget", type=float, metavar="SECONDS",
+                   help="choose each sampler check's n so the run (with a short "
+                        "calibration of this machine) takes about SECONDS, and say what "
+                        "power that buys; the chosen n go into the JSON; default: the "
+                        "suite's fixed n")
     c.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     c.set_defaults(func=_cmd_check)
 
