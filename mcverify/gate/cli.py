@@ -493,7 +493,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
                            metavar="COMMAND")
-    suite_help = "suite: 'default' (the CI gate) or 'full' (parameter sweeps, 2e6 samples)"
+    suite_help = ("suite: 'default' (the CI gate, 4e6 samples) or 'full' (parameter sweeps, "
+                  "8e6 samples)")
     seed_help = f"master seed, 0 to {MAX_SEED}; each check's seed derives from it"
     quiet_help = "no progress lines on stderr"
 

@@ -136,12 +136,21 @@ def _from_mitsuba(v, n):
     return a.T if a.shape[0] != n else a
 
 
-def _wrap(fn, n_in, *params):
-    """numpy front end for a Mitsuba warp function (vectorised or a per-row loop)."""
+#: The largest float32 below 1. Mitsuba computes in float32, and a uniform u in
+#: (1 - 2^-25, 1) rounds to 1.0f, outside the warps' domain [0, 1): Beckmann then returns
+#: a horizon direction where its pdf is 0 (seen once in 4e6 draws).
+_BELOW_ONE_F32 = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+
+
+def _wrap(fn, n_in, *params, uniforms=False):
+    """numpy front end for a Mitsuba warp function (vectorised or a per-row loop);
+    ``uniforms``: the input is uniform numbers, clamped below float32's 1 (pbrt's habit)."""
     mi = _mi()
 
     def call(x):
         x = np.asarray(x, dtype=np.float64)
+        if uniforms:
+            x = np.minimum(x, _BELOW_ONE_F32)
         if x.ndim == 1:
             x = x.reshape(-1, 1)
         n = x.shape[0]
@@ -191,20 +200,24 @@ def mitsuba_warps() -> list[MitsubaWarp]:
         return lambda x: np.where(np.asarray(x)[:, 2] >= cos_cut, pdf(x), 0.0)
 
     return [
-        MitsubaWarp("mitsuba.cosine_hemisphere", _wrap(w.square_to_cosine_hemisphere, 2),
+        MitsubaWarp("mitsuba.cosine_hemisphere",
+                    _wrap(w.square_to_cosine_hemisphere, 2, uniforms=True),
                     hemi(_wrap(w.square_to_cosine_hemisphere_pdf, 3)),
                     _wrap(w.cosine_hemisphere_to_square, 3), "hemisphere", 2),
-        MitsubaWarp("mitsuba.uniform_sphere", _wrap(w.square_to_uniform_sphere, 2),
+        MitsubaWarp("mitsuba.uniform_sphere",
+                    _wrap(w.square_to_uniform_sphere, 2, uniforms=True),
                     _wrap(w.square_to_uniform_sphere_pdf, 3),
                     _wrap(w.uniform_sphere_to_square, 3), "sphere", 2),
         MitsubaWarp("mitsuba.uniform_disk_concentric",
-                    _wrap(w.square_to_uniform_disk_concentric, 2),
+                    _wrap(w.square_to_uniform_disk_concentric, 2, uniforms=True),
                     lambda x: np.where(np.sum(np.asarray(x) ** 2, 1) <= 1, 1 / np.pi, 0.0),
                     _wrap(w.uniform_disk_to_square_concentric, 2), "disk", 2),
-        MitsubaWarp("mitsuba.uniform_cone", _wrap(w.square_to_uniform_cone, 2, cos_cut),
+        MitsubaWarp("mitsuba.uniform_cone",
+                    _wrap(w.square_to_uniform_cone, 2, cos_cut, uniforms=True),
                     cone(_wrap(w.square_to_uniform_cone_pdf, 3, cos_cut)),
                     _wrap(w.uniform_cone_to_square, 3, cos_cut), "sphere", 2),
-        MitsubaWarp("mitsuba.beckmann", _wrap(w.square_to_beckmann, 2, alpha),
+        MitsubaWarp("mitsuba.beckmann",
+                    _wrap(w.square_to_beckmann, 2, alpha, uniforms=True),
                     hemi(_wrap(w.square_to_beckmann_pdf, 3, alpha)),
                     _wrap(w.beckmann_to_square, 3, alpha), "hemisphere", 2),
     ]
