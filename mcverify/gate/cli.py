@@ -65,20 +65,42 @@ def _mitsuba_provenance(selected) -> dict:
     return {"mitsuba_version": mv_mitsuba.mitsuba_version(), "mitsuba_variant": choice.variant}
 
 
+def _suite_checks(args):
+    """The suite(s) to run: ``--suite``, else ``[tool.mcverify]`` of the project's
+    pyproject.toml, else "default". Fills in ``args.alpha``/``args.seed`` from the table
+    where the command line left them; returns (suite name, checks, skipped, provenance)."""
+    from . import suites
+    from .usersuite import find_config
+
+    config = None if args.suite else find_config()
+    names = (args.suite,) if args.suite else (config.suites if config and config.suites
+                                              else ("default",))
+    if args.alpha is None:
+        args.alpha = config.alpha if config and config.alpha is not None else 0.01
+    if args.seed is None:
+        args.seed = config.seed if config and config.seed is not None else 0
+    roots = [os.path.join(config.root, p) for p in config.path] if config else ["."]
+    checks, skipped = [], []
+    for n in names:
+        c, s = suites.resolve_suite(n, roots=roots)
+        checks += c
+        skipped += s
+    return "+".join(names), checks, skipped, ({"config": config.file} if config else {})
+
+
 def _cmd_check(args) -> int:
     from . import suites
     from ..result import write_json, write_junit
 
     _writable("--json", args.json)
     _writable("--junit", args.junit)
-    extra = {}
-    skipped = []
+    args.suite, checks, skipped, extra = _suite_checks(args)
     if args.scene:
         planned, skipped, _ = _plan(args.scene, args.suite)
         selected = suites.select(planned, args.k)
         extra["scene"] = os.path.abspath(args.scene)
     else:
-        selected = suites.select(suites.build_suite(args.suite), args.k)
+        selected = suites.select(checks, args.k)
     if not selected and args.scene:
         print(f"mcverify check --scene {args.scene}: the scene needs no sampler or estimator "
               "checks", file=sys.stderr)
@@ -103,6 +125,12 @@ def _cmd_check(args) -> int:
             if c.passed:
                 print(f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected "
                       f"(p={c.p_value:.3g})")
+    if skipped and not args.scene:
+        reasons = {}
+        for _, why in skipped:
+            reasons[why] = reasons.get(why, 0) + 1
+        for why, count in reasons.items():
+            print(f"skipped {count}: {why}")
     n = len(result.results)
     print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
           f" (family-wise alpha={args.alpha} by {result.correction}; canaries "
@@ -140,7 +168,9 @@ def _cmd_plan(args) -> int:
 def _cmd_list(args) -> int:
     from . import suites
 
-    for c in suites.select(suites.build_suite(args.suite), args.k):
+    args.alpha = args.seed = 0   # not used by list
+    _, checks, _, _ = _suite_checks(args)
+    for c in suites.select(checks, args.k):
         print(c.name)
     return EXIT_OK
 
@@ -325,20 +355,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    suite_help = ("default, full, mitsuba (Mitsuba's own plugins), or MODULE:ATTR (your "
+                  "list of mcverify.gate.suites.Check, or a callable returning one); "
+                  "default: [tool.mcverify] suite of pyproject.toml, else default")
     c = sub.add_parser("check", help="run a verification suite (the CI gate)")
-    c.add_argument("--suite", choices=("default", "full"), default="default")
+    c.add_argument("--suite", metavar="SUITE", help=suite_help)
     c.add_argument("--scene", metavar="SCENE.xml", help="plan checks from a scene")
     c.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
                    "(or matches it as a glob)")
-    c.add_argument("--seed", type=int, default=0)
-    c.add_argument("--alpha", type=float, default=0.01,
-                   help="family-wise significance level (Holm across checks)")
+    c.add_argument("--seed", type=int, help="suite seed (default: [tool.mcverify] seed, "
+                   "else 0)")
+    c.add_argument("--alpha", type=float,
+                   help="family-wise significance level (Holm across checks; default: "
+                        "[tool.mcverify] alpha, else 0.01)")
     c.add_argument("--json", metavar="PATH", help="write the results as JSON")
     c.add_argument("--junit", metavar="PATH", help="write the results as JUnit XML")
     c.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     c.set_defaults(func=_cmd_check)
     ls = sub.add_parser("list", help="list the checks of a suite")
-    ls.add_argument("--suite", choices=("default", "full"), default="default")
+    ls.add_argument("--suite", metavar="SUITE", help=suite_help)
     ls.add_argument("-k", metavar="PATTERN")
     ls.set_defaults(func=_cmd_list)
     pl = sub.add_parser("plan", help="the checks a scene needs, and what is skipped")
@@ -405,10 +440,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "seed", 0) < 0:
+    if (getattr(args, "seed", 0) or 0) < 0:
         print(f"mcverify: error: --seed {args.seed}: must be >= 0", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if hasattr(args, "alpha") and not 0.0 < args.alpha < 1.0:
+    if getattr(args, "alpha", None) is not None and not 0.0 < args.alpha < 1.0:
         print(f"mcverify: error: --alpha {args.alpha}: must be strictly between 0 and 1",
               file=sys.stderr)
         return EXIT_BAD_INPUT

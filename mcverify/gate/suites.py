@@ -21,10 +21,12 @@ from scipy import stats as sps
 
 from .. import checks
 from ..domains import Interval
+from ..errors import InvalidArgument
 from ..provenance import provenance
 from ..result import CheckResult, SuiteResult
 
-__all__ = ["Check", "SUITES", "build_suite", "run_suite", "canaries", "check_seed", "select"]
+__all__ = ["Check", "SUITES", "SUITE_NAMES", "build_suite", "resolve_suite", "run_suite",
+           "canaries", "check_seed", "select"]
 
 
 @dataclass(frozen=True)
@@ -295,6 +297,31 @@ def build_suite(name: str = "default") -> list[Check]:
     profile = SUITES[name]
     return (_warp_checks(profile) + _distribution_checks(profile) + _estimator_checks(profile)
             + _scipy_checks(profile) + _mitsuba_checks(profile))
+
+
+def resolve_suite(name: str, *, roots=(".",)) -> tuple[list[Check], list[tuple[str, str]]]:
+    """The checks of a suite given by name, and what it skips (name, reason).
+
+    ``name``: ``"default"`` or ``"full"`` (``SUITES``), ``"mitsuba"`` (Mitsuba's own
+    plugins, :mod:`mcverify.gate.mitsuba_suite`), or a user suite ``MODULE:ATTR``
+    (:mod:`mcverify.gate.usersuite`, imported with ``roots`` on ``sys.path``).
+    """
+    from .usersuite import is_user_suite, load_user_suite
+
+    if name in SUITES:
+        return build_suite(name), []
+    if name == "mitsuba":
+        from .mitsuba_suite import mitsuba_suite
+
+        return mitsuba_suite(SUITES["default"].mitsuba_samples)
+    if is_user_suite(name):
+        return load_user_suite(name, roots=roots), []
+    raise InvalidArgument(f"--suite {name!r}: expected one of {', '.join(SUITE_NAMES)} or "
+                          "MODULE:ATTR (a list of Check, or a callable returning one)")
+
+
+#: Built-in suite names, as ``--suite`` accepts them.
+SUITE_NAMES = (*SUITES, "mitsuba")
 
 
 def select(checks_: list[Check], pattern: str | None) -> list[Check]:
