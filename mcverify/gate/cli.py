@@ -68,18 +68,20 @@ def _mitsuba_provenance(selected) -> dict:
 def _suite_checks(args):
     """The suite(s) to run: ``--suite``, else ``[tool.mcverify]`` of the project's
     pyproject.toml, else "default". Fills in ``args.alpha``/``args.seed`` from the table
-    where the command line left them; returns (suite name, checks, skipped, provenance)."""
+    where the command line left them; user suites import from the table's ``path`` and
+    the current directory. Returns (suite name, checks, skipped, provenance)."""
     from . import suites
     from .usersuite import find_config
 
-    config = None if args.suite else find_config()
+    config = find_config()
     names = (args.suite,) if args.suite else (config.suites if config and config.suites
                                               else ("default",))
     if args.alpha is None:
         args.alpha = config.alpha if config and config.alpha is not None else 0.01
     if args.seed is None:
         args.seed = config.seed if config and config.seed is not None else 0
-    roots = [os.path.join(config.root, p) for p in config.path] if config else ["."]
+    roots = [os.path.join(config.root, p) for p in config.path] if config else []
+    roots.append(".")
     checks, skipped = [], []
     for n in names:
         c, s = suites.resolve_suite(n, roots=roots)

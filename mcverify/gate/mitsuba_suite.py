@@ -103,6 +103,9 @@ def _bsdfs(mvm) -> list[Entry]:
     out = [Entry("bsdf", f"diffuse@wi={t:g}°",
                  lambda t=t: mvm.bsdf({"type": "diffuse"}, direction(t)))
            for t in (0.0, 70.0)]
+    for name in ("plastic", "roughplastic"):   # component 1: the diffuse lobe alone
+        out.append(Entry("bsdf", f"{name}(diffuse component)@wi=30°",
+                         lambda n=name: mvm.bsdf({"type": n}, direction(30.0), component=1)))
     rough = []
     for dist in ("ggx", "beckmann"):
         for alpha in _ALPHAS:
