@@ -19,7 +19,8 @@ import numpy as np
 from .. import checks
 from .suites import Check
 
-__all__ = ["Entry", "NEEDS_REJECTION", "direction", "mitsuba_suite", "sweep"]
+__all__ = ["Entry", "NEEDS_REJECTION", "direction", "mitsuba_checks", "mitsuba_suite",
+           "sweep"]
 
 #: Why BSDFs that reject draws are not judged yet.
 NEEDS_REJECTION = ("Mitsuba's sampler rejects draws (zero weight); needs "
@@ -139,7 +140,20 @@ def sweep() -> list[Entry]:
 
 
 def mitsuba_suite(n_samples: int) -> tuple[list[Check], list[tuple[str, str]]]:
-    """The suite's checks and the configurations skipped, with the reason."""
+    """The suite's checks (each rebuildable in a worker process) and the configurations
+    skipped, with the reason."""
+    from .suites import _sourced
+
+    checks_, skipped = _build(n_samples)
+    return _sourced(checks_, mitsuba_checks, n_samples), skipped
+
+
+def mitsuba_checks(n_samples: int) -> list[Check]:
+    """The suite's checks alone (the recipe a worker process rebuilds them from)."""
+    return _build(n_samples)[0]
+
+
+def _build(n_samples: int) -> tuple[list[Check], list[tuple[str, str]]]:
     from . import mitsuba as mvm
 
     if mvm.choose_variant().variant.startswith("scalar"):

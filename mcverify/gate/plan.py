@@ -99,4 +99,4 @@ def _render_check(scene_path: str) -> Check:
     name = f"render:{os.path.basename(os.path.dirname(os.path.abspath(scene_path)))}"
     return Check(name, lambda seed: dataclasses.replace(
         render_check(scene_path, seed=seed), name=name), ("render", "mitsuba"),
-        frozenset({("render", name)}))
+        frozenset({("render", name)}), source=(_render_check, (scene_path,)))

@@ -3,17 +3,26 @@
 A suite is a list of named checks run at one family-wise α (Holm across checks), plus
 the *canaries*: known-wrong samplers that must be rejected, or the gate itself fails
 ("judge has no teeth"). Each check's seed derives from the suite seed and the check's
-name, so selecting checks with ``-k`` does not change any check's result.
+name, so selecting checks with ``-k`` does not change any check's result, and neither
+does where checks run (``run_suite(..., pool=Pool(jobs=2))``: see ``executors``).
+
+Checks reach worker processes by recipe, not by pickling: a check carries ``source``,
+a module-level builder and its arguments (``(build_suite, ("full",))``), and the worker
+rebuilds that list (once per process) and runs the check of that name with the seed the
+client derived. Checks close over lambdas, numba kernels and Mitsuba objects, which do
+not pickle; names and seeds do, and rebuilding a suite costs milliseconds. Workers check
+that they run the same sources as the client (``executors.same_source``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import fnmatch
-import os
+import pickle
 import time
 import zlib
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
@@ -24,6 +33,7 @@ from ..domains import Interval
 from ..errors import InvalidArgument
 from ..provenance import provenance
 from ..result import CheckResult, SuiteResult
+from .executors import Pool, Unit, same_source, source_fingerprint
 
 __all__ = ["Check", "SUITES", "SUITE_NAMES", "build_suite", "resolve_suite", "run_suite",
            "canaries", "check_seed", "select"]
@@ -37,12 +47,17 @@ class Check:
     ``verifies`` says what the check proves, as ``(kind, subject)`` pairs such as
     ``("sampler", "cosine_hemisphere")`` or ``("unbiased", "mis")``: the scene planner
     matches these against what a scene's features need, never the check's name.
+
+    ``source`` is how a worker process rebuilds the check: ``(builder, args)`` with a
+    module-level ``builder(*args)`` returning a list of checks (or one check) that holds
+    one of this name. Without it a check must pickle to run outside this process.
     """
 
     name: str
     run: Callable[[int], CheckResult]
     tags: tuple[str, ...] = ()
     verifies: frozenset[tuple[str, str]] = frozenset()
+    source: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -289,14 +304,20 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
                                         name=label)
 
         out.append(Check(label, run, ("canary",)))
-    return out
+    return _sourced(out, canaries, n_samples)
 
 
 def build_suite(name: str = "default") -> list[Check]:
     """The checks of a built-in suite."""
     profile = SUITES[name]
-    return (_warp_checks(profile) + _distribution_checks(profile) + _estimator_checks(profile)
-            + _scipy_checks(profile) + _mitsuba_checks(profile))
+    out = (_warp_checks(profile) + _distribution_checks(profile) + _estimator_checks(profile)
+           + _scipy_checks(profile) + _mitsuba_checks(profile))
+    return _sourced(out, build_suite, name)
+
+
+def _sourced(checks_: list[Check], builder, *args) -> list[Check]:
+    """The checks, each with the recipe that rebuilds it in a worker."""
+    return [dataclasses.replace(c, source=(builder, args)) for c in checks_]
 
 
 def resolve_suite(name: str, *, roots=(".",)) -> tuple[list[Check], list[tuple[str, str]]]:
@@ -345,29 +366,69 @@ def _run_guarded(check: Check, seed: int) -> CheckResult:
                            failures=(f"raised {type(e).__name__}: {e}",))
 
 
+@lru_cache(maxsize=16)
+def _rebuilt(source: tuple) -> dict[str, Check]:
+    builder, args = source
+    built = builder(*args)
+    return {c.name: c for c in ([built] if isinstance(built, Check) else built)}
+
+
+def _run_unit(check, name: str, seed: int, fingerprint: str | None) -> CheckResult:
+    """A check as a unit of work: ``check`` is the Check itself (in-process) or its
+    ``source`` recipe (in a worker, which rebuilds the list once and looks the name up)."""
+    same_source(fingerprint)
+    if not isinstance(check, Check):
+        check = _rebuilt(check)[name]
+    return _run_guarded(check, seed)
+
+
+def _units(checks_: list[Check], seeds: list[int], pool: Pool) -> list[Unit]:
+    if pool.in_process:
+        return [Unit(c.name, _run_unit, (c, c.name, s, None)) for c, s in zip(checks_, seeds)]
+    fingerprint = source_fingerprint()
+    units = []
+    for c, s in zip(checks_, seeds):
+        ship = c.source
+        if ship is None:
+            try:
+                pickle.dumps(c)
+            except Exception as e:  # noqa: BLE001 - any pickling failure says the same
+                raise InvalidArgument(
+                    f"check {c.name!r}: cannot be sent to {pool.describe()} ({e}); give it "
+                    "source=(builder, args) to rebuild it there, or run it in-process"
+                ) from None
+            ship = c
+        units.append(Unit(c.name, _run_unit, (ship, c.name, s, fingerprint)))
+    return units
+
+
 def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
               alpha: float = 0.01, correction: str = "holm", canary: bool = True,
-              progress: Callable[[int, int, CheckResult], None] | None = None,
+              progress: Callable[[int, int, CheckResult, Check], None] | None = None,
               extra_provenance: dict | None = None,
-              skipped: list[tuple[str, str]] | None = None) -> SuiteResult:
-    """Run checks and canaries; judge the checks at family-wise ``alpha``."""
+              skipped: list[tuple[str, str]] | None = None,
+              pool: Pool | None = None) -> SuiteResult:
+    """Run checks and canaries; judge the checks at family-wise ``alpha``.
+
+    ``pool`` says where the checks run (default: in this process); results come back in
+    the checks' order and do not depend on it. ``progress(done, total, result, check)``
+    is called as checks finish; ``check.tags`` says what it is (``"canary"``: a planted
+    bug that must be rejected)."""
     t0 = time.perf_counter()
-    results = []
-    total = len(checks_) + (3 if canary else 0)
-    for i, c in enumerate(checks_):
-        r = _run_guarded(c, check_seed(seed, c.name))
-        results.append(r)
-        if progress:
-            progress(i + 1, total, r)
-    bitten = []
-    if canary:
-        for j, c in enumerate(canaries()):
-            r = _run_guarded(c, check_seed(seed, "canary:" + c.name))
-            bitten.append(r)
-            if progress:
-                progress(len(checks_) + j + 1, total, r)
+    bait = canaries() if canary else []
+    seeds = ([check_seed(seed, c.name) for c in checks_]
+             + [check_seed(seed, "canary:" + c.name) for c in bait])
+    by_name = {c.name: c for c in checks_ + bait}
+    show = None if progress is None else (
+        lambda done, total, unit, r: progress(done, total, r, by_name[unit.key]))
+    if pool is None:
+        with Pool() as pool:
+            out = pool.map(_units(checks_ + bait, seeds, pool), progress=show)
+    else:
+        out = pool.map(_units(checks_ + bait, seeds, pool), progress=show)
+    results, bitten = out[:len(checks_)], out[len(checks_):]
     prov = provenance(suite=name, seed=seed, alpha=alpha, correction=correction,
-                      **(extra_provenance or {}))
+                      executor=pool.describe(), **(extra_provenance or {}))
     return SuiteResult.judge(name, results, alpha=alpha, correction=correction,
                              seconds=time.perf_counter() - t0, provenance=prov,
                              canary=tuple(bitten), skipped=tuple(skipped or ()))

@@ -18,6 +18,7 @@ table, its settings apply (command-line options win)::
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 import sys
@@ -161,4 +162,10 @@ def load_user_suite(spec: str, *, roots=(".",)) -> list[Check]:
             raise InvalidArgument(f"--suite {spec!r}: two checks are named {c.name!r} "
                                   "(seeds derive from names; make them unique)")
         seen.add(c.name)
-    return list(obj)
+    recipe = (_rebuild, (spec, tuple(os.path.abspath(r) for r in roots)))
+    return [c if c.source is not None else dataclasses.replace(c, source=recipe) for c in obj]
+
+
+def _rebuild(spec: str, roots: tuple) -> list[Check]:
+    """How a worker process rebuilds a user suite: the same import, the same roots."""
+    return load_user_suite(spec, roots=roots)

@@ -1,0 +1,297 @@
+"""Where the gate's independent units of work run: in this process, in local worker
+processes (``-j N``) or on a Dask cluster (``--dask``), behind one ``concurrent.futures``
+interface.
+
+A *unit* is a module-level function and picklable arguments (a check named within its
+suite's recipe and its seed; one reference pass; one render pass). Seeds derive from
+names and pass indices, never from which worker runs a unit or when, and results are
+handed back in the order the units were given; so every result (timings aside) is
+bit-identical whatever the executor.
+
+A worker that dies mid-run (killed, out of memory, a crash in native code) never
+leaves a silent gap: with local processes the pool is restarted and the units that were
+in flight are run again (``retries`` times, 1 by default); Dask's scheduler reruns them
+itself (``distributed.scheduler.allowed-failures``). A unit that still cannot finish
+raises ``WorkerLost`` naming it (the CLI exits 2).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import multiprocessing
+import os
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any, Callable, Iterable, Iterator
+
+from ..errors import EnvironmentProblem, InvalidArgument
+
+__all__ = ["Unit", "Pool", "WorkerLost", "InProcessExecutor", "source_fingerprint",
+           "same_source"]
+
+
+class WorkerLost(EnvironmentProblem):
+    """A unit's worker died and the unit could not be finished elsewhere."""
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One independent piece of work: ``fn(*args)`` with ``fn`` defined at module level
+    (workers import it by name) and picklable ``args``. ``key`` names it in progress
+    lines and errors."""
+
+    key: str
+    fn: Callable
+    args: tuple = ()
+
+
+class InProcessExecutor(cf.Executor):
+    """A ``concurrent.futures.Executor`` that runs each call in the calling thread, at
+    submission: the default executor (no pickling, no workers, exceptions as raised)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        f = cf.Future()
+        f.set_running_or_notify_cancel()
+        try:
+            f.set_result(fn(*args, **kwargs))
+        except BaseException as e:  # noqa: BLE001 - delivered through the future
+            f.set_exception(e)
+        return f
+
+
+@lru_cache(maxsize=1)
+def source_fingerprint() -> str:
+    """SHA-256 of the sources of ``mcverify`` and ``estimators`` as this process sees
+    them: a worker that would rebuild checks from different code refuses to run."""
+    here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    h = hashlib.sha256()
+    for pkg in ("mcverify", "estimators"):
+        for folder, dirs, files in sorted(os.walk(os.path.join(here, pkg))):
+            dirs.sort()
+            for name in sorted(files):
+                if name.endswith((".py", ".json")):
+                    path = os.path.join(folder, name)
+                    h.update(os.path.relpath(path, here).encode())
+                    with open(path, "rb") as f:
+                        h.update(f.read())
+    return h.hexdigest()
+
+
+def same_source(expected: str | None) -> None:
+    """Called by units in workers: refuse to run code that differs from the client's."""
+    if expected is not None and expected != source_fingerprint():
+        raise EnvironmentProblem(
+            f"worker {os.uname().nodename} (pid {os.getpid()}) runs different mcverify/"
+            f"estimators sources (fingerprint {source_fingerprint()[:12]}, client "
+            f"{expected[:12]}); install the same version on every worker")
+
+
+def _worker_init(threads: int) -> None:
+    # Local worker processes share the machine: numba's parallel loops get an equal
+    # share of the cores each (results do not depend on the thread count).
+    os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+
+
+def _lost_errors() -> tuple[type[BaseException], ...]:
+    errors: list[type[BaseException]] = [BrokenProcessPool]
+    try:
+        from distributed.scheduler import KilledWorker
+
+        errors.append(KilledWorker)
+    except ImportError:
+        pass
+    return tuple(errors)
+
+
+@dataclass
+class Pool:
+    """Runs units on an executor: ``Pool()`` in this process, ``Pool(jobs=N)`` on N local
+    worker processes, ``Pool(dask="tcp://HOST:PORT")`` or
+    ``Pool(dask_scheduler_file=PATH)`` on a Dask cluster (``Client.get_executor()``).
+
+    Use as a context manager (workers and the Dask client are closed on exit)."""
+
+    jobs: int = 1
+    dask: str | None = None
+    dask_scheduler_file: str | None = None
+    retries: int = 1
+    _executor: Any = field(default=None, init=False, repr=False)
+    _client: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self):
+        if isinstance(self.jobs, bool) or not isinstance(self.jobs, int) or self.jobs < 1:
+            raise InvalidArgument(f"-j {self.jobs!r}: the number of local worker processes "
+                                  "must be an integer >= 1")
+        if self.dask and self.dask_scheduler_file:
+            raise InvalidArgument("--dask and --dask-scheduler-file: give one of them")
+        if (self.dask or self.dask_scheduler_file) and self.jobs != 1:
+            raise InvalidArgument(f"-j {self.jobs} with a Dask cluster: the cluster's "
+                                  "workers set the parallelism; drop -j")
+        if self.dask_scheduler_file and not os.path.isfile(self.dask_scheduler_file):
+            raise InvalidArgument(f"--dask-scheduler-file {self.dask_scheduler_file}: no "
+                                  "such file (dask-scheduler --scheduler-file writes it)")
+        if self.retries < 0:
+            raise InvalidArgument(f"retries={self.retries}: must be >= 0")
+
+    # ------------------------------------------------------------------ set-up
+    @property
+    def kind(self) -> str:
+        if self.dask or self.dask_scheduler_file:
+            return "dask"
+        return "processes" if self.jobs > 1 else "in-process"
+
+    @property
+    def in_process(self) -> bool:
+        return self.kind == "in-process"
+
+    def describe(self) -> str:
+        if self.kind == "dask":
+            return f"dask {self.dask or self.dask_scheduler_file}"
+        return f"{self.jobs} local processes" if self.jobs > 1 else "in-process"
+
+    def __enter__(self) -> "Pool":
+        self._start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _start(self) -> None:
+        if self._executor is not None:
+            return
+        if self.kind == "in-process":
+            self._executor = InProcessExecutor()
+        elif self.kind == "processes":
+            threads = max(1, (os.cpu_count() or 1) // self.jobs)
+            self._executor = cf.ProcessPoolExecutor(
+                self.jobs, mp_context=multiprocessing.get_context("spawn"),
+                initializer=_worker_init, initargs=(threads,))
+        else:
+            try:
+                from distributed import Client
+            except ImportError:
+                raise EnvironmentProblem("--dask needs dask.distributed: pip install "
+                                         "'dask[distributed]'") from None
+            where = self.dask or self.dask_scheduler_file
+            try:
+                if self.dask:
+                    self._client = Client(self.dask, timeout="20s")
+                else:
+                    self._client = Client(scheduler_file=self.dask_scheduler_file,
+                                          timeout="20s")
+            except (OSError, TimeoutError, ValueError) as e:
+                raise EnvironmentProblem(f"--dask {where}: cannot connect to the scheduler "
+                                         f"({e})") from None
+            # pure=False: a unit rerun after a lost worker is a new task, never a cached
+            # failure
+            self._executor = self._client.get_executor(pure=False)
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True) \
+                if self.kind == "processes" else self._executor.shutdown(wait=False)
+            self._executor = None
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    @property
+    def width(self) -> int:
+        """Units that can run at once."""
+        self._start()
+        if self.kind == "dask":
+            return max(1, sum(self._client.nthreads().values()))
+        return self.jobs
+
+    def _restart(self) -> None:
+        """A local worker died: the process pool is broken; start a fresh one."""
+        self._executor.shutdown(wait=False, cancel_futures=True)
+        self._executor = None
+        self._start()
+
+    # ------------------------------------------------------------------ running
+    def map(self, units: Iterable[Unit], *, progress=None) -> list:
+        """Run all units; their results in the units' order."""
+        return list(self.imap(units, progress=progress))
+
+    def imap(self, units: Iterable[Unit], *, progress=None,
+             lookahead: int | None = None) -> Iterator:
+        """Results of ``units`` in order, as they become available. At most
+        ``lookahead`` units are submitted ahead of the one being waited for (default: one
+        per local worker, so a dead worker takes only the units it was running with it;
+        on Dask all of them, its scheduler queues; in-process: one at a time, so a
+        consumer that stops early, such as a sequential test that has decided, never pays
+        for the rest). Closing the iterator
+        cancels what has not started. ``progress(done, total, unit, result)`` is called as
+        units finish, in whatever order workers finish them."""
+        self._start()
+        units = list(units)
+        total = len(units)
+        limit = 1 if self.in_process else (lookahead or (
+            total if self.kind == "dask" else self.jobs))
+        lost = _lost_errors()
+        attempts = [0] * total
+        inflight: dict[int, cf.Future] = {}
+        results: dict[int, Any] = {}
+        submitted = given = done = 0
+        try:
+            while given < total:
+                while submitted < total and submitted - given < limit:
+                    inflight[submitted] = self._submit(units[submitted])
+                    submitted += 1
+                if given in results:
+                    yield results.pop(given)
+                    given += 1
+                    continue
+                cf.wait(list(inflight.values()), return_when=cf.FIRST_COMPLETED)
+                broken = []
+                for i in sorted(inflight):
+                    f = inflight[i]
+                    if not f.done():
+                        continue
+                    e = f.exception()
+                    if e is None:
+                        del inflight[i]
+                        results[i] = f.result()
+                        done += 1
+                        if progress:
+                            progress(done, total, units[i], results[i])
+                    elif isinstance(e, lost):
+                        broken.append((i, e))
+                    else:
+                        raise e
+                if broken:
+                    self._recover(units, inflight, broken, attempts)
+        finally:
+            for f in inflight.values():
+                f.cancel()
+
+    def _submit(self, unit: Unit) -> cf.Future:
+        return self._executor.submit(unit.fn, *unit.args)
+
+    def _recover(self, units, inflight, broken, attempts) -> None:
+        """Units whose worker died: run them again, or raise ``WorkerLost``."""
+        if self.kind == "processes":
+            # The whole pool is broken: every unit still in flight is lost with it.
+            cf.wait(list(inflight.values()))
+            broken = [(i, f.exception()) for i, f in inflight.items()
+                      if isinstance(f.exception(), BrokenProcessPool)]
+            names = ", ".join(units[i].key for i, _ in broken)
+            for i, _ in broken:
+                attempts[i] += 1
+            over = [i for i, _ in broken if attempts[i] > self.retries]
+            if over:
+                raise WorkerLost(f"a worker process died while running {names} (one of "
+                                 f"them killed it, or the system did); tried {attempts[over[0]]} times, giving up on "
+                                 f"{', '.join(units[i].key for i in over)} (no partial "
+                                 "result is reported)")
+            self._restart()
+            for i, _ in broken:
+                inflight[i] = self._submit(units[i])
+            return
+        # Dask has rerun the task on other workers already (allowed-failures times).
+        i, e = broken[0]
+        raise WorkerLost(f"unit {units[i].key}: its Dask worker died on every attempt "
+                         f"({type(e).__name__}: {e}); no partial result is reported")
