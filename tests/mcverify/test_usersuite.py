@@ -166,3 +166,15 @@ def test_the_readme_example_passes_and_its_planted_bug_fails():
     bad = _cli(["check", "-q", "--suite", "mychecks:planted"], cwd=EXAMPLE)
     assert bad.returncode == 1, bad.stdout + bad.stderr
     assert bad.stdout.count("FAIL powercosine(exponent=4,bug)") == 2
+
+
+def test_a_user_suite_runs_in_worker_processes_with_the_same_results(project):
+    """Workers rebuild the suite from its recipe (the same import, the same roots)."""
+    from mcverify.gate.executors import Pool
+    from mcverify.gate.suites import run_suite
+
+    checks = load_user_suite("mine.checks:good", roots=[str(project)])
+    here = run_suite(checks, seed=5, canary=False)
+    with Pool(jobs=2) as pool:
+        there = run_suite(checks, seed=5, canary=False, pool=pool)
+    assert [r.p_value for r in here.results] == [r.p_value for r in there.results]
