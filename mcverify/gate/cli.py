@@ -388,40 +388,81 @@ def _cmd_reference_build(args) -> int:
     return EXIT_OK
 
 
+def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
+                  passes: str | None, *, reference_ok: bool):
+    """One side of ``mcverify compare`` -> (ImageStats or a reference name, input files).
+
+    Pass images (``--X-passes``), or an image with ``--X-var``/``--X-n``, or (reference
+    side only) a reference name or folder. Every input is checked before any work."""
+    from . import reference
+    from .passes import pass_files, pass_stats
+
+    opt = f"--{label}"
+    if passes is not None:
+        for o, v in ((f"{opt}-var", var), (f"{opt}-n", n)):
+            if v is not None:
+                raise InvalidArgument(f"{o}: not with {opt}-passes (the passes give the "
+                                      "variance and n)")
+        files = pass_files(passes, option=f"{opt}-passes")
+        return (lambda: pass_stats(passes, option=f"{opt}-passes")), files
+    if reference_ok and not os.path.isfile(image):
+        return None, reference.reference_files(image)
+    if var is None or n is None:
+        raise InvalidArgument(f"{image}: an image needs {opt}-var and {opt}-n (or give "
+                              f"{opt}-passes)")
+    if n < 2:
+        raise InvalidArgument(f"{opt}-n {n}: must be >= 2 (values per pixel behind the "
+                              "variance)")
+    for path in (image, var):
+        reference.exr_channel_types(path)
+
+    def load():
+        from .passes import ImageStats, read_radiance
+
+        (m, a), (v, b) = read_radiance(image), read_radiance(var)
+        return ImageStats(m, v, n, (image, var), tuple(x for x in (a, b) if x))
+
+    return load, [image, var]
+
+
 def _cmd_compare(args) -> int:
     from . import reference
     from ..checks import compare_images
     from ..result import write_json
 
-    if args.test_n < 2 or (args.ref_n is not None and args.ref_n < 2):
-        bad = "--test-n" if args.test_n < 2 else "--ref-n"
-        raise InvalidArgument(f"{bad} {getattr(args, bad[2:].replace('-', '_'))}: must be "
-                              ">= 2 (values per pixel behind the variance)")
-    for path in (args.test, args.test_var):       # inputs in order, before any work
-        reference.exr_channel_types(path)
-    image_ref = os.path.isfile(args.ref)
-    if image_ref:
-        if args.ref_var is None or args.ref_n is None:
-            raise InvalidArgument(f"{args.ref}: an image reference needs --ref-var and --ref-n")
-        ref_files = [args.ref, args.ref_var]
+    want = (args.test_passes is None) + (args.ref_passes is None)
+    if len(args.images) != want:
+        shape = " ".join(x for x, given in (("TEST.exr", args.test_passes is None),
+                                            ("REF", args.ref_passes is None)) if given)
+        raise InvalidArgument(f"compare: got {len(args.images)} image argument(s) "
+                              f"{args.images}, expected {want}: {shape or 'none'} (with "
+                              "--test-passes there is no TEST.exr, with --ref-passes no REF)")
+    images = list(args.images)
+    test_image = images.pop(0) if args.test_passes is None else None
+    ref_image = images.pop(0) if args.ref_passes is None else None
+    test_load, test_files = _compare_side("test", test_image, args.test_var, args.test_n,
+                                          args.test_passes, reference_ok=False)
+    ref_load, ref_files = _compare_side("ref", ref_image, args.ref_var, args.ref_n,
+                                        args.ref_passes, reference_ok=True)
+    _writable("--json", args.json, test_files + ref_files)
+    test = test_load()
+    if ref_load is None:
+        r = reference.load_reference(ref_image)
+        ref_mean, ref_var, ref_n = r.mean, r.var, r.n
     else:
-        ref_files = reference.reference_files(args.ref)
-    _writable("--json", args.json, [args.test, args.test_var] + ref_files)
-    test = reference.read_float_exr(args.test)
-    test_var = reference.read_float_exr(args.test_var)
-    if image_ref:
-        ref, ref_var, ref_n = (reference.read_float_exr(args.ref),
-                               reference.read_float_exr(args.ref_var), args.ref_n)
-    else:
-        r = reference.load_reference(args.ref)
-        ref, ref_var, ref_n = r.mean, r.var, r.n
-    if test.shape != ref.shape:
-        raise InvalidArgument(f"{args.test}: shape {test.shape} differs from the reference's "
-                              f"{ref.shape}")
-    result = compare_images(test, ref, test_var=test_var, ref_var=ref_var, test_n=args.test_n,
-                            ref_n=ref_n, alpha=args.alpha, name=f"compare:{args.test}")
+        ref = ref_load()
+        ref_mean, ref_var, ref_n = ref.mean, ref.var, ref.n
+    label = test_image or args.test_passes
+    if test.mean.shape != ref_mean.shape:
+        raise InvalidArgument(f"{label}: shape {test.mean.shape} differs from the "
+                              f"reference's {ref_mean.shape}")
+    result = compare_images(test.mean, ref_mean, test_var=test.var, ref_var=ref_var,
+                            test_n=test.n, ref_n=ref_n, alpha=args.alpha,
+                            name=f"compare:{label}")
     if args.json:
         write_json(result, args.json)
+    for note in test.notes + (() if ref_load is None else ref.notes):
+        print(f"notice: {note}", file=sys.stderr)
     print(result.summary())
     for m in result.messages:
         print(f"    {m}")
@@ -563,19 +604,29 @@ def build_parser() -> argparse.ArgumentParser:
 
     cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference",
                         epilog=EPILOG)
-    cp.add_argument("test", metavar="TEST.exr", help="the image under test (float OpenEXR)")
-    cp.add_argument("ref", metavar="REF", help="REF.exr, or a reference name or folder")
-    cp.add_argument("--test-var", required=True, metavar="VAR.exr",
-                    help="per-pixel variance of the --test-n values averaged into TEST "
-                         "(float OpenEXR); required")
-    cp.add_argument("--test-n", required=True, type=int, metavar="N",
-                    help="values per pixel behind TEST (samples or passes, >= 2); required")
+    cp.add_argument("images", nargs="*", metavar="[TEST.exr] [REF]",
+                    help="TEST.exr: the image under test (float OpenEXR; RGBA and YA are "
+                         "compared on colour, alpha ignored), unless --test-passes; REF: "
+                         "REF.exr, or a reference name or folder, unless --ref-passes")
+    cp.add_argument("--test-var", metavar="VAR.exr",
+                    help="per-pixel variance of the --test-n values averaged into TEST.exr "
+                         "(float OpenEXR); required with TEST.exr")
+    cp.add_argument("--test-n", type=int, metavar="N",
+                    help="values per pixel behind TEST.exr (samples or passes, >= 2); "
+                         "required with TEST.exr")
+    cp.add_argument("--test-passes", metavar="GLOB",
+                    help="instead of TEST.exr: K >= 2 independently seeded pass images "
+                         "(quote the glob, e.g. 'out/pass_*.exr'); mean, variance and "
+                         "n = K come from them")
     cp.add_argument("--ref-var", metavar="VAR.exr",
                     help="variance image of REF.exr; required with an image REF, read from "
                          "the reference otherwise")
     cp.add_argument("--ref-n", type=int, metavar="M",
                     help="values per pixel behind REF.exr; required with an image REF, the "
                          "reference's passes otherwise")
+    cp.add_argument("--ref-passes", metavar="GLOB",
+                    help="instead of REF: K >= 2 independently seeded pass images of the "
+                         "reference renderer")
     cp.add_argument("--alpha", type=float, default=0.01,
                     help="family-wise significance level of the whole comparison")
     cp.add_argument("--json", metavar="PATH",
