@@ -604,10 +604,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference",
                         epilog=EPILOG)
-    cp.add_argument("images", nargs="*", metavar="[TEST.exr] [REF]",
-                    help="TEST.exr: the image under test (float OpenEXR; RGBA and YA are "
-                         "compared on colour, alpha ignored), unless --test-passes; REF: "
-                         "REF.exr, or a reference name or folder, unless --ref-passes")
+    cp.add_argument("images", nargs="*", metavar="IMAGE",
+                    help="TEST.exr REF; only REF with --test-passes, only TEST.exr with "
+                         "--ref-passes, none with both. TEST.exr: the image under test "
+                         "(float OpenEXR; RGBA and YA are compared on colour, alpha "
+                         "ignored); REF: REF.exr, or a reference name or folder")
     cp.add_argument("--test-var", metavar="VAR.exr",
                     help="per-pixel variance of the --test-n values averaged into TEST.exr "
                          "(float OpenEXR); required with TEST.exr")
