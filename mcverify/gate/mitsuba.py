@@ -279,19 +279,6 @@ def mi():
 _ONE_MINUS_EPS32 = 1.0 - 2.0 ** -24   # float32 uniform numbers stay below 1
 
 
-def _unit3(name: str, v) -> tuple[float, float, float]:
-    try:
-        a = np.asarray(v, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        a = np.empty(0)
-    if a.size != 3 or not np.all(np.isfinite(a)):
-        raise InvalidArgument(f"{name}={v!r}: expected a finite 3-vector")
-    if abs(float(np.linalg.norm(a)) - 1.0) > 1e-6:
-        raise InvalidArgument(f"{name}={v!r}: length {np.linalg.norm(a):.6g}, expected a "
-                              "unit vector (normalise it)")
-    return tuple(float(c) for c in a)
-
-
 def _point3(name: str, v) -> tuple[float, float, float]:
     try:
         a = np.asarray(v, dtype=np.float64).reshape(-1)
@@ -300,6 +287,15 @@ def _point3(name: str, v) -> tuple[float, float, float]:
     if a.size != 3 or not np.all(np.isfinite(a)):
         raise InvalidArgument(f"{name}={v!r}: expected a finite 3-vector")
     return tuple(float(c) for c in a)
+
+
+def _unit3(name: str, v) -> tuple[float, float, float]:
+    a = _point3(name, v)
+    length = float(np.linalg.norm(a))
+    if abs(length - 1.0) > 1e-6:
+        raise InvalidArgument(f"{name}={v!r}: length {length:.6g}, expected a unit vector "
+                              "(normalise it)")
+    return a
 
 
 def _load(plugin, what: str, classes: tuple):
