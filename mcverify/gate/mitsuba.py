@@ -372,7 +372,13 @@ def _np_out(v, n, d):
 
 
 def _zeros(T, n):
-    return _dr().zeros(T, n) if _vectorised() else _dr().zeros(T)
+    if _vectorised():
+        return _dr().zeros(T, n)
+    try:
+        return _dr().zeros(T)
+    except RuntimeError:     # scalar DirectionSample3f has no zeros(); emitters without
+        # a shape read only its direction, which the caller sets
+        return T()
 
 
 def _dr():
