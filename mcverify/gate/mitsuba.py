@@ -404,7 +404,8 @@ def _nan_rejected(x, ok):
     """Mitsuba's float32 directions as float64 points, rejected rows NaN.
 
     Near a pole, float32 rounds z to ±1 within 2.4e-4 rad (GGX at α = 0.01 puts 0.06 %
-    of its normals there), while x and y keep their precision. The judge parameterises
+    of its normals there), while x and y keep theirs where the plugin computed them
+    directly (not from a rounded cos θ: see the README's findings). The judge parameterises
     by z, so such points would pile into the first cell: z is recomputed from x and y in
     float64 where |z| > 0.5, for unit vectors only (a vector whose length is off by more
     than float32 rounding is passed on as it is, for the judge to flag).
