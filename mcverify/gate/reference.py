@@ -220,6 +220,17 @@ def list_scenes(root: str = REFERENCE_ROOT) -> list[str]:
     return sorted(d for d in os.listdir(root) if os.path.isfile(os.path.join(root, d, "scene.xml")))
 
 
+def _interrupted(e: BaseException) -> bool:
+    """True if a KeyboardInterrupt is anywhere in ``e``'s chain of causes."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0,
                      params: dict | None = None, progress=None) -> tuple[Reference, np.ndarray]:
     """Render a scene with Mitsuba as ``passes`` independent passes (in memory, not
@@ -237,6 +248,8 @@ def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 
     except (InvalidArgument, EnvironmentProblem):
         raise
     except Exception as e:  # noqa: BLE001 - Mitsuba raises plain Exception/RuntimeError
+        if _interrupted(e):   # Ctrl-C inside a render arrives wrapped in a drjit error
+            raise KeyboardInterrupt from None
         raise EnvironmentProblem(f"{path}: Mitsuba cannot render it ("
                                  f"{' '.join(str(e).split())})") from None
     choice = mvm.choose_variant()
