@@ -38,8 +38,8 @@ from .executors import Pool, Unit, same_source, source_fingerprint
 #: Tag of the checks whose sample count a time budget may set (``check_sampler`` runs).
 SCALABLE = "scalable"
 
-__all__ = ["Check", "SUITES", "SCALABLE", "build_suite", "run_suite", "canaries",
-           "check_seed", "select"]
+__all__ = ["Check", "SUITES", "SUITE_NAMES", "SCALABLE", "build_suite", "resolve_suite",
+           "run_suite", "canaries", "check_seed", "select"]
 
 
 @dataclass(frozen=True)
@@ -342,6 +342,31 @@ def build_suite(name: str = "default", n_overrides: tuple[tuple[str, int], ...] 
 def _sourced(checks_: list[Check], builder, *args) -> list[Check]:
     """The checks, each with the recipe that rebuilds it in a worker."""
     return [dataclasses.replace(c, source=(builder, args)) for c in checks_]
+
+
+def resolve_suite(name: str, *, roots=(".",)) -> tuple[list[Check], list[tuple[str, str]]]:
+    """The checks of a suite given by name, and what it skips (name, reason).
+
+    ``name``: ``"default"`` or ``"full"`` (``SUITES``), ``"mitsuba"`` (Mitsuba's own
+    plugins, :mod:`mcverify.gate.mitsuba_suite`), or a user suite ``MODULE:ATTR``
+    (:mod:`mcverify.gate.usersuite`, imported with ``roots`` on ``sys.path``).
+    """
+    from .usersuite import is_user_suite, load_user_suite
+
+    if name in SUITES:
+        return build_suite(name), []
+    if name == "mitsuba":
+        from .mitsuba_suite import mitsuba_suite
+
+        return mitsuba_suite(SUITES["default"].mitsuba_samples)
+    if is_user_suite(name):
+        return load_user_suite(name, roots=roots), []
+    raise InvalidArgument(f"--suite {name!r}: expected one of {', '.join(SUITE_NAMES)} or "
+                          "MODULE:ATTR (a list of Check, or a callable returning one)")
+
+
+#: Built-in suite names, as ``--suite`` accepts them.
+SUITE_NAMES = (*SUITES, "mitsuba")
 
 
 def select(checks_: list[Check], pattern: str | None) -> list[Check]:
