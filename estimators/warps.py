@@ -109,16 +109,33 @@ def _invert_uniform_disk_polar_kernel(x, p):
 
 
 @_jit
+def _sincos_quarter(t):
+    """(sin t, cos t) for |t| <= π/4 by their Taylor polynomials to degree 15 and 16
+    (truncation error below 5e-17): no libm call and no branch, so a loop over points
+    vectorises (numba has no vector sin/cos without Intel's SVML)."""
+    t2 = t * t
+    s = t * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 * (
+        1.0 / 362880.0 + t2 * (-1.0 / 39916800.0 + t2 * (1.0 / 6227020800.0 + t2 * (
+            -1.0 / 1307674368000.0))))))))
+    c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 * (1.0 / 40320.0 + t2 * (
+        -1.0 / 3628800.0 + t2 * (1.0 / 479001600.0 + t2 * (-1.0 / 87178291200.0 + t2 * (
+            1.0 / 20922789888000.0))))))))
+    return s, c
+
+
+@_jit
 def _sample_uniform_disk_concentric_kernel(u, p):
+    # Shirley–Chiu in pbrt's form: the wedge |a| > |b| maps to r·(cos φ, sin φ), the
+    # other to r·(sin φ, cos φ) (= r·(cos, sin)(π/2 - φ)), with φ = (π/4)·q/r in
+    # [-π/4, π/4] either way; (a, b) = (0, 0) gives r = 0, the centre.
     a = 2.0 * u[0] - 1.0
     b = 2.0 * u[1] - 1.0
-    if a == 0.0 and b == 0.0:
-        return (0.0, 0.0)
-    if abs(a) > abs(b):
-        r, theta = a, _PI_OVER_4 * (b / a)
-    else:
-        r, theta = b, _PI_OVER_2 - _PI_OVER_4 * (a / b)
-    return (r * math.cos(theta), r * math.sin(theta))
+    wide = abs(a) > abs(b)
+    r = a if wide else b
+    q = b if wide else a
+    phi = _PI_OVER_4 * (q / r) if r != 0.0 else 0.0
+    s, c = _sincos_quarter(phi)
+    return (r * c, r * s) if wide else (r * s, r * c)
 
 
 @_jit

@@ -4,6 +4,7 @@ naming the parameter, the value received and what is valid, before any work is d
 from __future__ import annotations
 
 import numbers
+import os
 
 import numpy as np
 
@@ -35,12 +36,56 @@ def probability(name: str, v) -> float:
     return float(v)
 
 
-def real(name: str, v, *, finite: bool = True) -> float:
+def real(name: str, v, *, finite: bool = True, minimum: float | None = None) -> float:
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
         raise InvalidArgument(f"{name}={_show(v)}: must be a real number")
     if finite and not np.isfinite(v):
         raise InvalidArgument(f"{name}={v}: must be finite")
+    if minimum is not None and not v >= minimum:
+        raise InvalidArgument(f"{name}={v}: must be >= {minimum}")
     return float(v)
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available now (Linux: MemAvailable), else physical memory."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n:.3g} {unit}"
+        n /= 1024
+
+
+def memory(name: str, n: int, bytes_each: int, what: str) -> None:
+    """Refuse ``n`` items of ``bytes_each`` bytes when they need more than half the memory
+    available, before any work (numpy would raise MemoryError half-way, or the system
+    would swap)."""
+    need, avail = n * bytes_each, _available_memory()
+    if avail is not None and need > avail // 2:
+        raise InvalidArgument(f"{name}={n}: needs about {_bytes(need)} of memory ({what}), "
+                              f"more than half of the {_bytes(avail)} available; use at "
+                              f"most {max(avail // 2 // bytes_each, 1)}")
+
+
+def few_bins_note(name: str, n: int, n_bins: int) -> str | None:
+    """A message when a χ² test pooled its histogram into so few bins (fewer than 5
+    expected per cell elsewhere) that it can detect only gross errors."""
+    if n_bins >= 5:
+        return None
+    return (f"{name}={n}: the χ² test pooled its histogram into {n_bins} bin(s), so it has "
+            "almost no power (a wrong sampler may pass); draw more samples")
 
 
 def seed(name: str, v) -> int:
@@ -79,11 +124,21 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
 
 
 def values(name: str, v, n: int) -> np.ndarray:
-    a = np.asarray(v, dtype=np.float64)
+    """Output of a user callable as (n,) float64. A single number is taken as that value
+    at every point (a constant pdf, e.g. ``lambda x: 1 / (4 * np.pi)``)."""
+    a = np.asarray(v)
+    if a.dtype == object or not (np.issubdtype(a.dtype, np.floating)
+                                 or np.issubdtype(a.dtype, np.integer)):
+        raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers "
+                              f"(first value {_show(a.flat[0] if a.size else None)})")
+    a = a.astype(np.float64, copy=False)
+    if a.shape == ():
+        return np.full(n, float(a))
     if a.shape == (n, 1):
         a = a.reshape(n)
     if a.shape != (n,):
-        raise InvalidArgument(f"{name} returned shape {a.shape}: expected ({n},)")
+        raise InvalidArgument(f"{name} returned shape {a.shape}: expected ({n},) or one "
+                              "number for all points")
     return a
 
 

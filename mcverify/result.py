@@ -2,7 +2,8 @@
 
 A statistical rejection is a result (``passed=False`` with readable ``messages``), never
 an exception. Writers go through a temporary file and a rename, so a crash never leaves a
-half-written report behind.
+half-written report behind; symlinks are followed and FIFOs/devices written into, never
+replaced (``atomic_write``).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass, field, replace
@@ -17,8 +19,10 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from . import stats
+from .errors import InvalidArgument
 
-__all__ = ["CheckResult", "SuiteResult", "write_json", "write_junit", "atomic_write"]
+__all__ = ["CheckResult", "SuiteResult", "write_json", "write_junit", "atomic_write",
+           "output_target"]
 
 
 def _jsonable(v):
@@ -159,17 +163,58 @@ def shared_mode(base: int = 0o666) -> int:
     return base & ~umask
 
 
-def atomic_write(path: str, data: str | bytes) -> None:
-    """Write ``data`` (text as UTF-8, or bytes) to ``path`` through a temporary file in the
-    same folder and a rename; on any failure the temporary file is removed."""
-    folder = os.path.dirname(os.path.abspath(path))
+def output_target(path) -> tuple[str, str]:
+    """Where a write to ``path`` lands and how: ``(target, "replace" | "stream")``.
+
+    A symlink is followed to its target (the link stays a link). An existing FIFO or
+    character device (``/dev/stdout``, ``/dev/null``, a pipe) is written into as it is
+    ("stream"): replacing it with a plain file would destroy it. A regular file, or a path
+    that does not exist yet, is written through a temporary file and a rename
+    ("replace"). Anything else (a directory, a socket, a block device) is refused with
+    ``InvalidArgument`` naming the path."""
+    if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
+        raise InvalidArgument(f"path={path!r}: give a file path (an empty path writes nothing)")
+    path = os.fspath(path)
+    target = os.path.realpath(path)
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        return target, "replace"
+    if stat.S_ISREG(mode):
+        return target, "replace"
+    if stat.S_ISFIFO(mode) or stat.S_ISCHR(mode):
+        return target, "stream"
+    what = "a directory" if stat.S_ISDIR(mode) else "not a regular file, FIFO or character device"
+    shown = path if target == os.path.abspath(path) else f"{path} (-> {target})"
+    raise InvalidArgument(f"{shown}: is {what}; give a file path")
+
+
+def atomic_write(path, data: str | bytes) -> None:
+    """Write ``data`` (text as UTF-8, or bytes) to ``path`` without losing anything.
+
+    A regular file (or a new one) is replaced through a temporary file in the same folder
+    and a rename: readers see the old or the new content, never half of it, and on any
+    failure the temporary file is removed and the old file is untouched. An existing
+    file keeps its permission bits. A symlink is followed and its target written; a FIFO
+    or character device is written into directly (see ``output_target``)."""
+    target, how = output_target(path)
+    payload = data.encode("utf-8") if isinstance(data, str) else data
+    if how == "stream":
+        with open(target, "wb") as f:
+            f.write(payload)
+        return
+    try:
+        mode = stat.S_IMODE(os.stat(target).st_mode)
+    except FileNotFoundError:
+        mode = shared_mode()    # mkstemp makes 0600; results are for reading
+    folder = os.path.dirname(target)
     os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(path))
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(target))
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data.encode("utf-8") if isinstance(data, str) else data)
-        os.chmod(tmp, shared_mode())    # mkstemp makes 0600; results are for reading
-        os.replace(tmp, path)
+            f.write(payload)
+        os.chmod(tmp, mode)
+        os.replace(tmp, target)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

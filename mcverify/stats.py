@@ -17,7 +17,7 @@ __all__ = [
     "TTestResult", "ttest_mean",
     "TailResult", "hill_tail_index",
     "VarianceTestResult", "variance_test",
-    "SlopeResult", "loglog_slope",
+    "SlopeResult", "loglog_slope", "z_test_beyond", "welch_t_beyond",
     "holm", "sidak", "benjamini_hochberg", "bonferroni_min",
     "binomial_upper_bound",
     "obrien_fleming_spending", "spending_weights", "sequential_p_value",
@@ -336,6 +336,36 @@ def loglog_slope(ns, sq_errors, *, expected: float, alternative: str = "two-side
 
 
 # ------------------------------------------------------------ multiple testing
+def _beyond(diff, tol):
+    """|diff| beyond a rounding tolerance: differences within it are no evidence, however
+    small the sampling variance (a constant pixel's variance is rounding noise)."""
+    return np.maximum(np.abs(diff) - tol, 0.0)
+
+
+def z_test_beyond(diff, var, tol) -> np.ndarray:
+    """Two-sided normal p-values of differences ``diff`` with variance ``var``, counting
+    only the part of ``|diff|`` beyond ``tol``. Where the variance is 0 the comparison is
+    exact: equal (p = 1) when ``|diff| <= tol``, else different (p = 0). Elementwise."""
+    excess = _beyond(diff, tol)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = excess / np.sqrt(var)
+    p = 2.0 * _sps.norm.sf(z)
+    return np.where(var <= 0, np.where(excess == 0, 1.0, 0.0), p)
+
+
+def welch_t_beyond(diff, var_a, n_a, var_b, n_b, tol) -> np.ndarray:
+    """Two-sided Welch t p-values of mean differences ``diff`` of two samples (per-element
+    sample variances ``var_a``, ``var_b`` of ``n_a``, ``n_b`` values; Welch–Satterthwaite
+    degrees of freedom), counting only ``|diff|`` beyond ``tol``; exact where both
+    variances are 0 (as ``z_test_beyond``). Elementwise."""
+    se2 = var_a / n_a + var_b / n_b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dof = se2 ** 2 / ((var_a / n_a) ** 2 / (n_a - 1) + (var_b / n_b) ** 2 / (n_b - 1))
+        t = _beyond(diff, tol) / np.sqrt(se2)
+    return np.where(se2 > 0, 2.0 * _sps.t.sf(t, np.where(np.isfinite(dof), dof, 1)),
+                    np.where(np.abs(diff) <= tol, 1.0, 0.0))
+
+
 def holm(p_values) -> np.ndarray:
     """Holm–Bonferroni adjusted p-values (strong family-wise error control)."""
     p = np.asarray(p_values, dtype=np.float64)

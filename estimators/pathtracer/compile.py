@@ -24,7 +24,7 @@ from . import emitters as E
 from .camera import Camera, camera_from_scene
 from .geometry import DISK, PRIM_WIDTH, SPHERE, TRIANGLE, build_bvh
 from .scene import Plugin, SceneDescription, SceneError, load_scene
-from .textures import TextureStore, envmap_sampling_weights, read_image
+from .textures import (FILTERS, WRAPS, TextureStore, envmap_sampling_weights, read_image)
 
 _MATERIALS = None
 INFINITE_DEPTH = 1 << 40
@@ -104,12 +104,30 @@ class _Builder:
                          f"type=\"{plugin.type}\">: {message}")
 
     # ---------------------------------------------------------------- textures
-    def _image(self, plugin: Plugin, filename: str) -> np.ndarray:
+    def _image(self, plugin: Plugin, filename: str, raw: bool = False) -> np.ndarray:
         path = filename if os.path.isabs(filename) else os.path.join(self.dir, filename)
         try:
-            return read_image(path)
+            return read_image(path, raw=raw)
         except OSError as e:
             self.fail(plugin, str(e))
+
+    def _bitmap(self, tex: Plugin) -> int:
+        """Store a ``bitmap`` texture with its filter, wrap mode and ``to_uv``."""
+        img = self._image(tex, tex.get("filename", ""), raw=bool(tex.get("raw", False)))
+        options = {}
+        for name, names, default in (("filter_type", FILTERS, "bilinear"),
+                                     ("wrap_mode", WRAPS, "repeat")):
+            value = tex.get(name, default)
+            if value not in names:
+                self.fail(tex, f"{name} {value!r}; supported: {', '.join(names)}")
+            options[name] = names.index(value)
+        m = np.asarray(tex.get("to_uv", np.eye(4)), dtype=np.float64)
+        if np.any(m[2, [0, 1, 3]] != 0) or np.any(m[[0, 1], 2] != 0):
+            self.fail(tex, "to_uv must map the uv plane to itself (x and y only)")
+        to_uv = (m[0, 0], m[0, 1], m[0, 3], m[1, 0], m[1, 1], m[1, 3])
+        tex._mean = float(img.mean())
+        return self.textures.add(img, filter_type=options["filter_type"],
+                                 wrap=options["wrap_mode"], to_uv=to_uv)
 
     def _colour(self, plugin: Plugin, name: str, default: float):
         """(rgb, texture id or -1, mean) of a colour property."""
@@ -117,10 +135,8 @@ class _Builder:
         if isinstance(v, Plugin):
             key = id(v)
             if key not in self.texture_ids:
-                img = self._image(v, v.get("filename", ""))
-                self.texture_ids[key] = self.textures.add(img)
+                self.texture_ids[key] = self._bitmap(v)
                 self.features |= B.F_TEXTURES
-                v._mean = float(img.mean())
             return np.zeros(3), self.texture_ids[key], v._mean
         rgb = np.broadcast_to(np.asarray(v, dtype=np.float64), 3).astype(np.float64)
         return rgb, -1, float(rgb.mean())
@@ -312,14 +328,20 @@ class _Builder:
 
         verts, uvs, normals, faces, pidx = [], [], [], [], []
         use_vn = len(vn) > 0 and not s.get("face_normals", False)
+        with_uv = {bool(ti) for tri in corners for (_, ti, _) in tri}
+        if len(with_uv) > 1:
+            self.fail(s, f"{path}: some faces have texture coordinates and some do not "
+                         "(Mitsuba's uv on those is undefined); give every face vt indices "
+                         "or none")
         try:
             for tri in corners:
                 f = []
-                for (pi, ti, ni) in tri:
+                for k, (pi, ti, ni) in enumerate(tri):
                     verts.append(v[fix(pi, len(v))])
                     pidx.append(fix(pi, len(v)))
+                    # without texture coordinates Mitsuba's uv is the barycentric (b1, b2)
                     uvs.append([vt[fix(ti, len(vt))][0], 1.0 - vt[fix(ti, len(vt))][1]]
-                               if ti else [0.0, 0.0])
+                               if ti else _BARYCENTRIC_UV[k])
                     normals.append(vn[fix(ni, len(vn))] if (ni and use_vn) else [0, 0, 0])
                     f.append(len(verts) - 1)
                 faces.append(tuple(f))
@@ -458,6 +480,9 @@ class _Builder:
 E_FEATURES = {"env": 1 << 8, "area": 1 << 9, "nondelta": 1 << 10, "many": 1 << 11}
 
 
+_BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
+
+
 def _vertex_normals(verts, faces, pidx, n_positions):
     """Smooth normals for a mesh without them, as Mitsuba computes: each face's normal
     weighted by its angle at the vertex (Thürmer and Wüthrich), summed per position."""
@@ -481,23 +506,21 @@ def _rectangle():
     return verts, [(0, 1, 2), (0, 2, 3)], uvs
 
 
+# Mitsuba's cube, face by face: the four corners of each face (bit k of a corner index is
+# the sign of axis k: set means +1) and the uv every face repeats; the face's triangles are
+# (0, 1, 2) and (3, 0, 2) of its corners. The texture layout depends on this order.
+_CUBE_FACES = ((1, 5, 4, 0), (3, 2, 6, 7), (1, 3, 7, 5), (5, 7, 6, 4), (4, 6, 2, 0),
+               (3, 1, 0, 2))
+_CUBE_FACE_UV = ((0.0, 1.0), (1.0, 1.0), (1.0, 0.0), (0.0, 0.0))
+
+
 def _cube():
     verts, uvs, faces = [], [], []
-    for axis in range(3):
-        for sign in (-1.0, 1.0):
-            b, c = (axis + 1) % 3, (axis + 2) % 3
-            quad = []
-            for sb, sc in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-                p = np.zeros(3)
-                p[axis], p[b], p[c] = sign, sb, sc
-                quad.append(p)
-            n = np.cross(quad[1] - quad[0], quad[2] - quad[0])
-            if n[axis] * sign < 0:
-                quad = quad[::-1]
-            k = len(verts)
-            verts += quad
-            uvs += [[0, 0], [1, 0], [1, 1], [0, 1]]
-            faces += [(k, k + 1, k + 2), (k, k + 2, k + 3)]
+    for corners in _CUBE_FACES:
+        k = len(verts)
+        verts += [[1.0 if c >> axis & 1 else -1.0 for axis in range(3)] for c in corners]
+        uvs += _CUBE_FACE_UV
+        faces += [(k, k + 1, k + 2), (k + 3, k, k + 2)]
     return np.array(verts), faces, np.array(uvs, dtype=np.float64)
 
 

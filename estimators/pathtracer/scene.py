@@ -148,7 +148,8 @@ SUPPORTED = {
         "envmap": {"filename": ("string",), "scale": ("float",), "to_world": ("transform",)},
     },
     "texture": {"bitmap": {"filename": ("string",), "filter_type": ("string",),
-                           "wrap_mode": ("string",), "raw": ("boolean",)}},
+                           "wrap_mode": ("string",), "raw": ("boolean",),
+                           "to_uv": ("transform",)}},
 }
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
@@ -273,7 +274,15 @@ class _Loader:
                 if target not in self.ids:
                     self.fail(child, f"no object with id {target!r} defined before this line")
                 ref = self.ids[target]
-                if ref.kind not in allowed_children and ref.kind != "texture":
+                if ref.kind == "texture":
+                    # a texture is a property value: <ref id="..." name="reflectance"/>
+                    name = child.attrib.get("name")
+                    if name is None or name not in spec or "texture" not in spec[name]:
+                        self.fail(child, f"texture {target!r} needs name=\"...\" naming a "
+                                         f"property of {kind} {ptype!r} that takes a texture")
+                    p.props[name] = ref
+                    continue
+                if ref.kind not in allowed_children:
                     self.fail(child, f"a {ref.kind} cannot go inside {kind} {ptype!r}")
                 p.children.append(ref)
             elif child.tag == "texture":

@@ -1,14 +1,17 @@
 """Bitmap textures and environment maps: image files in, bilinear lookups out.
 
-Conventions (Mitsuba's, measured against it in the tests): a ``bitmap`` texture at
-(u, v) filters texels bilinearly with texel centres at ((i + ½)/w, (j + ½)/h), row 0 at
-v = 0, repeating in both directions. An ``envmap`` maps the local direction d to
+Conventions (Mitsuba's, measured against it in the tests): a ``bitmap`` texture maps
+the surface's (u, v) through its ``to_uv`` affine transform, then either filters texels
+bilinearly with texel centres at ((i + ½)/w, (j + ½)/h) (``filter_type`` bilinear) or takes
+texel (⌊u·w⌋, ⌊v·h⌋) (nearest), row 0 at v = 0; texel indices outside the image repeat,
+mirror or clamp (``wrap_mode``). An ``envmap`` maps the local direction d to
 u = atan2(d.x, -d.z) / 2π, v = acos(d.y) / π and filters with x = u·w - ½ (periodic) and
 y = v·(h - 1) (clamped).
 
-Images are stored back to back in one float64 array; ``tex_info[t] = (offset, width,
-height)``. Files are decoded with Mitsuba's image reader (file I/O only; 8-bit sRGB
-images are linearised), imported lazily.
+Images are stored back to back in one float64 array; each texture is one float64 row of
+``tex_info`` with the columns named below (``TEX_OFFSET``, ``TEX_WIDTH``...; integers are
+stored exactly). Files are decoded with Mitsuba's image reader (file I/O only; 8-bit sRGB
+images are linearised unless ``raw``), imported lazily.
 """
 
 from __future__ import annotations
@@ -22,13 +25,27 @@ _jit = njit(cache=True)
 _fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see emitters.py
 
 
-def read_image(path: str) -> np.ndarray:
-    """(H, W, 3) float64 linear RGB of an image file; raises OSError naming the file."""
+# texture table columns (one row per image)
+TEX_OFFSET, TEX_WIDTH, TEX_HEIGHT, TEX_FILTER, TEX_WRAP = range(5)
+TEX_UV = 5                      # 6 entries: the to_uv affine map, rows (a, b, c), (d, e, f)
+TEX_COLUMNS = TEX_UV + 6
+BILINEAR, NEAREST = 0, 1
+FILTERS = ("bilinear", "nearest")
+REPEAT, CLAMP, MIRROR = 0, 1, 2
+WRAPS = ("repeat", "clamp", "mirror")
+_IDENTITY_UV = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+
+
+def read_image(path: str, *, raw: bool = False) -> np.ndarray:
+    """(H, W, 3) float64 RGB of an image file, 8-bit sRGB decoded to linear unless
+    ``raw`` (as Mitsuba's ``bitmap`` does); raises OSError naming the file."""
     try:
         import mitsuba as mi
         if mi.variant() is None:
             mi.set_variant("scalar_rgb")
         bmp = mi.Bitmap(path)
+        if raw:
+            bmp.set_srgb_gamma(False)
         bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False)
         a = np.array(bmp, dtype=np.float64)
     except Exception as e:  # noqa: BLE001 - any decoder failure is a bad file
@@ -43,18 +60,25 @@ class TextureStore:
 
     def __init__(self):
         self.images: list[np.ndarray] = []
+        self.modes: list[tuple] = []
 
-    def add(self, image: np.ndarray) -> int:
+    def add(self, image: np.ndarray, *, filter_type: int = BILINEAR, wrap: int = REPEAT,
+            to_uv=_IDENTITY_UV) -> int:
+        """Store an image with its lookup settings; returns its index. ``to_uv``: the six
+        entries (a, b, c, d, e, f) of u' = a u + b v + c, v' = d u + e v + f."""
         self.images.append(np.ascontiguousarray(image, dtype=np.float64))
+        self.modes.append((filter_type, wrap, *to_uv))
         return len(self.images) - 1
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(texel data, texture table (n, TEX_COLUMNS) float64)."""
         if not self.images:
-            return np.zeros(3), np.zeros((1, 3), dtype=np.int64)
-        info = np.zeros((len(self.images), 3), dtype=np.int64)
+            return np.zeros(3), np.zeros((1, TEX_COLUMNS))
+        info = np.zeros((len(self.images), TEX_COLUMNS))
         off = 0
-        for i, im in enumerate(self.images):
-            info[i] = off, im.shape[1], im.shape[0]
+        for i, (im, modes) in enumerate(zip(self.images, self.modes)):
+            info[i, :TEX_FILTER] = off, im.shape[1], im.shape[0]
+            info[i, TEX_FILTER:] = modes
             off += im.size
         return np.concatenate([im.ravel() for im in self.images]), info
 
@@ -66,19 +90,31 @@ def _texel(tex_data, off, w, x, y):
 
 
 @_fast
-def _bilinear(tex_data, tex_info, t, x, y, wrap_y):
-    off, w, h = tex_info[t, 0], tex_info[t, 1], tex_info[t, 2]
+def _wrap(i, n, mode):
+    """Texel index i of a row of n, repeated, clamped or mirrored into [0, n)."""
+    if mode == CLAMP:
+        return min(max(i, 0), n - 1)
+    if mode == MIRROR:
+        i = i % (2 * n)
+        return i if i < n else 2 * n - 1 - i
+    return i % n
+
+
+@_fast
+def _size(tex_info, t):
+    return int(tex_info[t, TEX_OFFSET]), int(tex_info[t, TEX_WIDTH]), int(tex_info[t, TEX_HEIGHT])
+
+
+@_fast
+def _bilinear(tex_data, tex_info, t, x, y, wrap_x, wrap_y):
+    off, w, h = _size(tex_info, t)
     x0 = math.floor(x)
     y0 = math.floor(y)
     fx, fy = x - x0, y - y0
-    xa = int(x0) % w
-    xb = (xa + 1) % w
-    if wrap_y:
-        ya = int(y0) % h
-        yb = (ya + 1) % h
-    else:
-        ya = min(max(int(y0), 0), h - 1)
-        yb = min(ya + 1, h - 1)
+    xa = _wrap(int(x0), w, wrap_x)
+    xb = _wrap(int(x0) + 1, w, wrap_x)
+    ya = _wrap(int(y0), h, wrap_y)
+    yb = _wrap(int(y0) + 1, h, wrap_y)
     a = _texel(tex_data, off, w, xa, ya)
     b = _texel(tex_data, off, w, xb, ya)
     c = _texel(tex_data, off, w, xa, yb)
@@ -91,9 +127,19 @@ def _bilinear(tex_data, tex_info, t, x, y, wrap_y):
 
 @_fast
 def eval_texture(tex_data, tex_info, t, u, v):
-    """A bitmap texture's bilinear value at (u, v), repeating."""
-    return _bilinear(tex_data, tex_info, t, u * tex_info[t, 1] - 0.5,
-                     v * tex_info[t, 2] - 0.5, True)
+    """A bitmap texture's value at surface coordinates (u, v): mapped by its ``to_uv``,
+    then filtered (bilinear or nearest) with its wrap mode."""
+    row = tex_info[t]
+    uu = row[TEX_UV] * u + row[TEX_UV + 1] * v + row[TEX_UV + 2]
+    vv = row[TEX_UV + 3] * u + row[TEX_UV + 4] * v + row[TEX_UV + 5]
+    w, h = row[TEX_WIDTH], row[TEX_HEIGHT]
+    wrap = int(row[TEX_WRAP])
+    if row[TEX_FILTER] == NEAREST:
+        off = int(row[TEX_OFFSET])
+        iw, ih = int(w), int(h)
+        return _texel(tex_data, off, iw, _wrap(int(math.floor(uu * w)), iw, wrap),
+                      _wrap(int(math.floor(vv * h)), ih, wrap))
+    return _bilinear(tex_data, tex_info, t, uu * w - 0.5, vv * h - 0.5, wrap, wrap)
 
 
 @_jit
@@ -116,9 +162,9 @@ def envmap_direction(u, v):
 
 @_fast
 def eval_envmap(tex_data, tex_info, t, u, v):
-    h = tex_info[t, 2]
-    return _bilinear(tex_data, tex_info, t, u * tex_info[t, 1] - 0.5,
-                     v * (h - 1) if h > 1 else 0.0, False)
+    h = tex_info[t, TEX_HEIGHT]
+    return _bilinear(tex_data, tex_info, t, u * tex_info[t, TEX_WIDTH] - 0.5,
+                     v * (h - 1) if h > 1 else 0.0, REPEAT, CLAMP)
 
 
 def envmap_sampling_weights(image: np.ndarray) -> np.ndarray:

@@ -16,19 +16,19 @@ def scale(v) -> np.ndarray:
 
 
 def rotate(axis, angle_deg: float) -> np.ndarray:
-    """Rotation by ``angle_deg`` degrees about ``axis`` (right-handed, Rodrigues)."""
-    a = np.asarray(axis, dtype=np.float64)
-    n = np.linalg.norm(a)
-    if n == 0:
+    """Rotation by ``angle_deg`` degrees about ``axis`` (right-handed, Rodrigues), with
+    the axis taken as given, as Mitsuba does: it does not normalise it, so an axis such
+    as (1, 1, 0) gives Mitsuba's (non-rigid) matrix, and both renderers see one scene."""
+    x, y, z = np.asarray(axis, dtype=np.float64)
+    if x == y == z == 0:
         raise ValueError("rotate: the axis must be non-zero")
-    x, y, z = a / n
     t = np.radians(angle_deg)
     c, s = np.cos(t), np.sin(t)
     k = 1.0 - c
     m = np.eye(4)
-    m[:3, :3] = [[c + x * x * k, x * y * k - z * s, x * z * k + y * s],
-                 [y * x * k + z * s, c + y * y * k, y * z * k - x * s],
-                 [z * x * k - y * s, z * y * k + x * s, c + z * z * k]]
+    m[:3, :3] = [[x * x + (1.0 - x * x) * c, x * y * k - z * s, x * z * k + y * s],
+                 [y * x * k + z * s, y * y + (1.0 - y * y) * c, y * z * k - x * s],
+                 [z * x * k - y * s, z * y * k + x * s, z * z + (1.0 - z * z) * c]]
     return m
 
 

@@ -20,6 +20,10 @@ _FINITE_VARIANCE_INDEX = 2.0
 #: Fewest samples for the tail test: Hill's estimator uses the sqrt(n) largest values,
 #: and below ~30 of them its confidence bound is not worth a verdict.
 _MIN_TAIL_SAMPLES = 1000
+#: Relative rounding allowance of a mean of float64 values: numpy sums pairwise, so the
+#: sum of n values errs by about log2(n)·ε relative to the sum of |x|; 64·ε (1.4e-14)
+#: covers n up to 2^64. Spreads and differences within it are rounding, not evidence.
+_ROUNDING = 64 * np.finfo(np.float64).eps
 
 
 def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbiased",
@@ -91,6 +95,36 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         failures.append(f"{np.count_nonzero(~finite)} of {x.size} samples are NaN/Inf "
                         f"(first at index {int(np.flatnonzero(~finite)[0])})")
         x = x[finite]
+    with np.errstate(over="ignore", invalid="ignore"):
+        scale = float(np.mean(np.abs(x))) if x.size else 0.0
+        spread = float(np.std(x)) if x.size > 1 else 0.0
+    if not (np.isfinite(scale) and np.isfinite(spread)):
+        failures.append(f"the samples' mean or variance overflows float64 (largest |x| = "
+                        f"{np.abs(x).max():.3g}): rescale the estimates (e.g. divide f "
+                        "by a constant) before testing")
+        return CheckResult(name=name, passed=False, p_value=None, statistic=None,
+                           alpha=alpha, n_samples=int(x.size),
+                           seconds=time.perf_counter() - t0,
+                           details={"expected": expected}, failures=tuple(failures))
+    tol = _ROUNDING * max(abs(expected), scale)
+    if x.size > 1 and spread <= tol:
+        # Constant to rounding (a perfect estimator, p ∝ f): its standard error is rounding
+        # noise (1e-19 for 0.1), so the t-test would accuse any last-bit difference.
+        # Compare the value itself, within rounding.
+        mean = float(np.mean(x))
+        ok = abs(mean - expected) <= tol
+        if not ok:
+            failures.append(f"every sample is {mean:.17g} (to rounding), but expected is "
+                            f"{expected:.17g}")
+        return CheckResult(name=name, passed=CheckResult.decide(None, alpha, failures),
+                           p_value=None, statistic=None, alpha=alpha, n_samples=int(x.size),
+                           seconds=time.perf_counter() - t0,
+                           details={"mean": mean, "std_error": 0.0, "expected": expected,
+                                    "bias": mean - expected, "constant": True,
+                                    "rounding_tolerance": tol},
+                           messages=("the samples are constant to rounding: compared "
+                                     f"exactly, within {tol:.2g}",),
+                           failures=tuple(failures))
     tt = stats.ttest_mean(x, expected) if x.size > 1 else None
     tail = stats.hill_tail_index(x) if x.size >= _MIN_TAIL_SAMPLES else None
     if tail is None:
@@ -156,6 +190,19 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
                        failures=tuple(failures))
 
 
+def _estimate(estimate, n: int, seed: int) -> float:
+    """One estimate as a float, or InvalidArgument saying what ``estimate`` returned."""
+    out = estimate(n, seed)
+    try:
+        value = np.asarray(out, dtype=np.float64)
+    except (TypeError, ValueError):
+        value = None
+    if value is None or value.size != 1 or isinstance(out, (str, bytes)):
+        raise InvalidArgument(f"estimate(n={n}, seed={seed}) returned {v._show(out)}: "
+                              "expected one number")
+    return float(value.reshape(()))
+
+
 def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
                       n_seeds: int = 64, expected_slope: float = -0.5,
                       alternative: str = "two-sided", alpha: float = 0.01, seed: int = 0,
@@ -205,14 +252,32 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     e2 = np.empty((len(ns), r))
     for i, n in enumerate(ns):
         for j in range(r):
-            e2[i, j] = (float(estimate(n, int(seeds[i * r + j]))) - expected) ** 2
+            e2[i, j] = _estimate(estimate, n, int(seeds[i * r + j]))
+    with np.errstate(over="ignore", invalid="ignore"):
+        e2 = (e2 - expected) ** 2
     failures = []
     if not np.all(np.isfinite(e2)):
-        failures.append("some estimates are NaN/Inf")
+        bad = np.argwhere(~np.isfinite(e2))[0]
+        failures.append(f"{np.count_nonzero(~np.isfinite(e2))} estimates are NaN/Inf or "
+                        f"overflow when squared (first: N={ns[bad[0]]}, seed index {bad[1]})")
         e2 = np.where(np.isfinite(e2), e2, 0.0)
+    rmse = np.sqrt(e2.mean(axis=1))
+    exact = [] if failures else [n for n, e in zip(ns, rmse)
+                                 if e <= _ROUNDING * max(abs(expected), 1e-300)]
+    if exact or failures:
+        if exact:
+            failures.append(f"RMSE is 0 (to rounding) at N={exact}: the estimator is exact "
+                            "there, so the log-log slope is undefined; test an exact "
+                            "estimator with check_variance(samples, 0) instead")
+        return CheckResult(name=name, passed=False, p_value=None, statistic=None,
+                           alpha=alpha, n_samples=int(sum(ns) * r),
+                           seconds=time.perf_counter() - t0,
+                           details={"ns": ns, "rmse": rmse.tolist(), "n_seeds": r,
+                                    "expected_slope": expected_slope,
+                                    "alternative": alternative},
+                           failures=tuple(failures))
     fit = stats.loglog_slope(ns, e2, expected=expected_slope, alternative=alternative,
                              confidence=1.0 - alpha)
-    rmse = np.sqrt(e2.mean(axis=1))
     if alternative == "two-sided":
         p = fit.p_value
     else:

@@ -187,6 +187,8 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, *
     n = v.integer("n_samples", n_samples, minimum=min_samples)
     res = v.resolution("resolution", resolution, dom.param_dim)
     k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
+    v.memory("n_samples", n, 8 * (k + 3 * dom.dim + 4),
+             "uniform numbers, points, their parameters and cells")
     return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k
 
 
@@ -296,6 +298,9 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     sub = {}
     full = stats.chi2_gof(counts, expected)
     sub["chi2"] = full
+    note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
+    if note:
+        messages.append(note)
     if full.observed_in_empty:
         failures.append(f"{full.observed_in_empty} samples fell in cells where the pdf "
                         "integrates to 0")
@@ -354,7 +359,8 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     k = v.integer("sample_dim", sample_dim, minimum=1)
     n = v.integer("n_samples", n_samples, minimum=1)
     seed = v.seed("seed", seed)
-    atol = v.real("atol", atol)
+    atol = v.real("atol", atol, minimum=0.0)
+    v.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips")
     name = name or f"inverse:{_name_of(inverse, 'inverse')}"
     u = np.random.default_rng(seed).random((n, k))
     x = np.asarray(sample(u))

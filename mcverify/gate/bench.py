@@ -74,6 +74,9 @@ def _render_pairs(mi, spp: int):
     ours_scene = compile_scene(cornell, params={"res": 128})
     their_scene = mi.load_file(cornell, res=128)
     furnace = compile_scene(resolve_scene("white-furnace")[1], params={"res": 128})
+    bunny = resolve_scene("bunny")[1]
+    ours_bunny = compile_scene(bunny, params={"res": 128})
+    their_bunny = mi.load_file(bunny, res=128)
     what = f"128 x 128, max_depth 8, {spp} spp"
 
     def gate():
@@ -85,6 +88,9 @@ def _render_pairs(mi, spp: int):
          "cached (budget: 30 s)", gate, None, "-"),
         ("render:cornell-box", what, lambda: render(ours_scene, spp=spp),
          lambda: np.asarray(mi.render(their_scene, spp=spp)), "mitsuba"),
+        ("render:bunny", f"58,784-triangle scanned mesh, 128 x 128, max_depth 6, {spp} spp",
+         lambda: render(ours_bunny, spp=spp),
+         lambda: np.asarray(mi.render(their_bunny, spp=spp)), "mitsuba"),
         ("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
          lambda: render(furnace, spp=spp), lambda: render(furnace, spp=spp, general=True),
          "general kernel"),

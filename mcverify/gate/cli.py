@@ -1,7 +1,8 @@
-"""``mcverify`` command line: the CI gate.
+"""mcverify command line: the CI gate and its tools.
 
-Exit codes: 0 all checks passed; 1 a check failed (or the judge has no teeth); 2 bad
-input or environment, with one line on stderr naming what and where.
+Exit codes: 0 all checks passed (images equal); 1 a check failed, a canary survived or
+images differ; 2 bad input or environment, with one line on stderr naming what and where;
+130 interrupted (Ctrl-C), with nothing written.
 """
 
 from __future__ import annotations
@@ -12,36 +13,123 @@ import sys
 
 from ..errors import EnvironmentProblem, InvalidArgument
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: Seeds must fit the path tracer's counter-based RNG (and numpy's SeedSequence).
+MAX_SEED = 2 ** 63 - 1
+
+EPILOG = """exit codes:
+  0    all checks passed (compare, render-check: the images agree)
+  1    a check failed or a canary survived (compare, render-check: the images differ)
+  2    bad input or environment: one line on stderr names what and where; no output is
+       written or replaced
+  130  interrupted (Ctrl-C); output files are left as they were
+
+output files (--json, --junit) are written when the run ends: a regular file is replaced
+atomically, a symlink is followed to its target, a FIFO or device (/dev/stdout) is
+written into; paths are checked before any work"""
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Help with each option's default (when it has one worth showing)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("%(default)" not in text and action.default not in (None, False)
+                and action.default is not argparse.SUPPRESS and action.option_strings):
+            text += " (default: %(default)s)"
+        return text
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *a, **kw):
+        kw.setdefault("formatter_class", _Formatter)
+        super().__init__(*a, **kw)
+
     def error(self, message):  # one line, exit 2 (argparse's own convention too)
         self.exit(EXIT_BAD_INPUT, f"mcverify: error: {message} (see `mcverify --help`)\n")
 
 
-def _writable(option: str, path: str | None) -> None:
-    """Fail before any work if an output path cannot be written."""
+def _same_file(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _writable(option: str, path: str | None, inputs=()) -> None:
+    """Fail before any work if ``path`` cannot be written as an output: an empty path, a
+    directory, a socket, a folder that cannot be made or written, or one of ``inputs``
+    (writing it would replace the data being read)."""
+    from ..result import output_target
+
     if path is None:
         return
-    folder = os.path.dirname(os.path.abspath(path)) or "."
-    if os.path.isdir(path):
-        raise InvalidArgument(f"{option} {path}: is a directory; give a file path")
+    if not path.strip():
+        raise InvalidArgument(f"{option} {path!r}: empty path; give a file path")
+    try:
+        target, how = output_target(path)
+    except InvalidArgument as e:
+        raise InvalidArgument(f"{option} {e}") from None
+    for other in inputs:
+        if other and os.path.exists(target) and _same_file(target, other):
+            raise InvalidArgument(f"{option} {path}: is also an input ({other}); writing "
+                                  "it would replace the data being read; give another path")
+    if how == "stream":
+        if not os.access(target, os.W_OK):
+            raise InvalidArgument(f"{option} {path}: {target} is not writable")
+        return
+    folder = os.path.dirname(target)
     try:
         os.makedirs(folder, exist_ok=True)
     except OSError as e:
         raise InvalidArgument(f"{option} {path}: cannot create folder {folder} "
                               f"({e.strerror})") from None
-    if not os.access(folder, os.W_OK):
-        raise InvalidArgument(f"{option} {path}: folder {folder} is not writable")
+    import tempfile
+
+    try:  # the very operation the writer will do: a temporary file in that folder
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".tmp-probe-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise InvalidArgument(f"{option} {path}: folder {folder} is not writable "
+                              f"({e.strerror})") from None
 
 
-def _progress(stream, verdicts: bool = True):
+def _distinct_outputs(*pairs) -> None:
+    """Two output options naming the same file would overwrite each other."""
+    given = [(o, p) for o, p in pairs if p]
+    for i, (o1, p1) in enumerate(given):
+        for o2, p2 in given[i + 1:]:
+            if os.path.realpath(p1) == os.path.realpath(p2):
+                raise InvalidArgument(f"{o1} {p1} and {o2} {p2}: the same file; give "
+                                      "two paths")
+
+
+def _verdict(r, check, alpha: float | None) -> str:
+    """What the final verdict on ``r`` will be, as far as it is known now.
+
+    Canaries are judged alone at their own level: "bitten" (rejected, as they must be)
+    or "NOT bitten". A check with a deterministic failure is "FAIL"; one without a
+    p-value, or whose raw p exceeds the family-wise ``alpha``, is "ok" (Holm only raises
+    p-values). Otherwise the verdict waits for Holm across all checks: "pending"."""
+    if check is not None and "canary" in check.tags:
+        return "bitten" if not r.passed else "NOT bitten"
+    if r.failures:
+        return "FAIL"
+    if alpha is None:
+        return "ok" if r.passed else "FAIL"
+    if r.p_value is None or r.p_value > alpha:
+        return "ok"
+    return f"pending (p={r.p_value:.2g}; Holm across all checks decides)"
+
+
+def _progress(stream, verdicts: bool = True, alpha: float | None = None):
+    """Progress lines ``[i/total] name verdict (seconds)``. ``alpha``: the family-wise
+    level the results are judged at later (None: each result's verdict is final)."""
     tty = stream.isatty()
 
-    def show(i, total, r):
-        verdict = "ok" if r.passed else ("bitten" if "canary" in str(r.name) else "FAIL")
-        verdict = verdict if verdicts else "done"
+    def show(i, total, r, check=None):
+        verdict = _verdict(r, check, alpha) if verdicts else "done"
         line = f"[{i}/{total}] {r.name} {verdict} ({r.seconds:.1f}s)"
         if tty:
             stream.write("\r\033[K" + line + ("\n" if i == total else ""))
@@ -69,8 +157,10 @@ def _cmd_check(args) -> int:
     from . import suites
     from ..result import write_json, write_junit
 
-    _writable("--json", args.json)
-    _writable("--junit", args.junit)
+    inputs = [args.scene] if args.scene else []
+    _writable("--json", args.json, inputs)
+    _writable("--junit", args.junit, inputs)
+    _distinct_outputs(("--json", args.json), ("--junit", args.junit))
     extra = {}
     skipped = []
     if args.scene:
@@ -87,13 +177,19 @@ def _cmd_check(args) -> int:
                               "`mcverify list` shows the names")
     extra.update(_mitsuba_provenance(selected))
     result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
-                              progress=None if args.quiet else _progress(sys.stderr),
+                              progress=None if args.quiet else
+                              _progress(sys.stderr, alpha=args.alpha),
                               extra_provenance=extra, skipped=skipped)
     if args.json:
         write_json(result, args.json)
     if args.junit:
         write_junit(result, args.junit)
     failed = [r for r in result.results if not r.passed]
+    if not args.quiet:  # the checks whose progress line said "pending", now judged
+        for r in result.results:
+            if not r.failures and r.p_value is not None and r.p_value <= args.alpha and r.passed:
+                print(f"PASS {r.name}: p={r.p_value:.3g} is no alarm after Holm "
+                      f"(p_adj={r.details.get('p_adjusted'):.3g})")
     for r in failed:
         print(r.summary())
         for m in r.messages:
@@ -140,7 +236,10 @@ def _cmd_plan(args) -> int:
 def _cmd_list(args) -> int:
     from . import suites
 
-    for c in suites.select(suites.build_suite(args.suite), args.k):
+    selected = suites.select(suites.build_suite(args.suite), args.k)
+    if not selected:
+        raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}")
+    for c in selected:
         print(c.name)
     return EXIT_OK
 
@@ -151,8 +250,10 @@ def _cmd_report(args) -> int:
     from .report.study import run_study
 
     out = args.out
+    if not out.strip():
+        raise InvalidArgument(f"--out {out!r}: empty path; give a folder")
     _writable("--out", os.path.join(out, "report.json"))
-    show = None if args.quiet else _progress(sys.stderr)
+    show = None if args.quiet else _progress(sys.stderr, alpha=0.01)
     suite = None
     extra = {}
     if not args.no_suite:
@@ -173,7 +274,8 @@ def _cmd_report(args) -> int:
         scenes = list_scenes() if args.renders == "all" else args.renders.split(",")
         for s in scenes:
             resolve_scene(s)                                     # fail before any work
-        renders = run_renders(scenes, seed=args.seed, progress=show)
+        renders = run_renders(scenes, seed=args.seed,
+                              progress=None if args.quiet else _progress(sys.stderr))
     build_report(out, suite=suite, study=study, renders=renders,
                  extra_provenance=dict(extra, seed=args.seed))
     print(f"mcverify report: wrote {os.path.join(out, 'report.html')} and report.json")
@@ -231,7 +333,12 @@ def _cmd_reference_build(args) -> int:
     names = args.scenes or reference.list_scenes()
     if not names:
         raise InvalidArgument(f"no scenes given and none under {reference.REFERENCE_ROOT}")
+    if args.spp < 1 or args.passes < 2:
+        raise InvalidArgument(f"--spp {args.spp} --passes {args.passes}: need --spp >= 1 "
+                              "(per pass) and --passes >= 2 (the variance needs two passes)")
     resolved = [reference.resolve_scene(s) for s in names]    # fail before any rendering
+    for _, path in resolved:
+        reference.precheck_scene(path)
     from . import mitsuba as mv_mitsuba
 
     choice = mv_mitsuba.choose_variant()
@@ -244,24 +351,35 @@ def _cmd_reference_build(args) -> int:
 
         out = reference.build_reference(path, spp=args.spp, passes=args.passes, seed=args.seed,
                                         progress=show)
-        print(f"built {out} ({args.passes} passes × {args.spp} spp, {choice.variant})")
+        print(f"built {out} ({args.passes} passes × {args.spp} spp per pass = "
+              f"{args.passes * args.spp} spp, {choice.variant})")
     return EXIT_OK
 
 
 def _cmd_compare(args) -> int:
-    from . import mitsuba as mv_mitsuba
     from . import reference
     from ..checks import compare_images
     from ..result import write_json
 
-    _writable("--json", args.json)
-    test = mv_mitsuba.read_exr(args.test)
-    test_var = mv_mitsuba.read_exr(args.test_var)
-    if os.path.isfile(args.ref):
+    if args.test_n < 2 or (args.ref_n is not None and args.ref_n < 2):
+        bad = "--test-n" if args.test_n < 2 else "--ref-n"
+        raise InvalidArgument(f"{bad} {getattr(args, bad[2:].replace('-', '_'))}: must be "
+                              ">= 2 (values per pixel behind the variance)")
+    for path in (args.test, args.test_var):       # inputs in order, before any work
+        reference.exr_channel_types(path)
+    image_ref = os.path.isfile(args.ref)
+    if image_ref:
         if args.ref_var is None or args.ref_n is None:
             raise InvalidArgument(f"{args.ref}: an image reference needs --ref-var and --ref-n")
-        ref, ref_var, ref_n = mv_mitsuba.read_exr(args.ref), mv_mitsuba.read_exr(args.ref_var), \
-            args.ref_n
+        ref_files = [args.ref, args.ref_var]
+    else:
+        ref_files = reference.reference_files(args.ref)
+    _writable("--json", args.json, [args.test, args.test_var] + ref_files)
+    test = reference.read_float_exr(args.test)
+    test_var = reference.read_float_exr(args.test_var)
+    if image_ref:
+        ref, ref_var, ref_n = (reference.read_float_exr(args.ref),
+                               reference.read_float_exr(args.ref_var), args.ref_n)
     else:
         r = reference.load_reference(args.ref)
         ref, ref_var, ref_n = r.mean, r.var, r.n
@@ -292,7 +410,10 @@ def _cmd_render_check(args) -> int:
     from .render_check import render_check
     from ..result import write_json
 
-    _writable("--json", args.json)
+    from . import reference
+
+    _, scene_path = reference.resolve_scene(args.scene)
+    _writable("--json", args.json, [scene_path] + reference.reference_files(scene_path))
     tty = sys.stderr.isatty() and not args.quiet
 
     def show(done, total):
@@ -313,116 +434,166 @@ def _cmd_render_check(args) -> int:
     print(result.summary())
     for m in result.messages:
         print(f"    {m}")
-    print(f"    ours: {d['ours_passes']} passes, {d['ours_spp']} spp, {d['ours_seconds']:.2f}s "
+    print(f"    ours: {d['ours_spp']} spp in {d['ours_passes']} passes, {d['ours_seconds']:.2f}s "
           f"({d['ours_samples_per_second'] / 1e6:.2f} M samples/s, {d['ours_kernel']}); "
           f"relMSE {d['relmse']:.3g}; found by: {', '.join(d['found_by']) or 'nothing'}")
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
+    p = _Parser(prog="mcverify", description=__doc__.splitlines()[0], epilog=EPILOG)
     from .._version import __version__
 
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    c = sub.add_parser("check", help="run a verification suite (the CI gate)")
-    c.add_argument("--suite", choices=("default", "full"), default="default")
-    c.add_argument("--scene", metavar="SCENE.xml", help="plan checks from a scene")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
+                           metavar="COMMAND")
+    suite_help = "suite: 'default' (the CI gate) or 'full' (parameter sweeps, 2e6 samples)"
+    seed_help = f"master seed, 0 to {MAX_SEED}; each check's seed derives from it"
+    quiet_help = "no progress lines on stderr"
+
+    c = sub.add_parser("check", help="run a verification suite (the CI gate)", epilog=EPILOG)
+    c.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
+    c.add_argument("--scene", metavar="SCENE.xml",
+                   help="plan the checks from a scene (and run its render check); "
+                        "default: the whole suite")
     c.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
-                   "(or matches it as a glob)")
-    c.add_argument("--seed", type=int, default=0)
+                   "(or matches it as a glob); default: all; no match exits 2")
+    c.add_argument("--seed", type=int, default=0, help=seed_help)
     c.add_argument("--alpha", type=float, default=0.01,
                    help="family-wise significance level (Holm across checks)")
-    c.add_argument("--json", metavar="PATH", help="write the results as JSON")
-    c.add_argument("--junit", metavar="PATH", help="write the results as JUnit XML")
-    c.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    c.add_argument("--json", metavar="PATH", help="write the results as JSON; default: none")
+    c.add_argument("--junit", metavar="PATH",
+                   help="write the results as JUnit XML; default: none")
+    c.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     c.set_defaults(func=_cmd_check)
+
     ls = sub.add_parser("list", help="list the checks of a suite")
-    ls.add_argument("--suite", choices=("default", "full"), default="default")
-    ls.add_argument("-k", metavar="PATTERN")
+    ls.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
+    ls.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
+                    "(or matches it as a glob); default: all; no match exits 2")
     ls.set_defaults(func=_cmd_list)
+
     pl = sub.add_parser("plan", help="the checks a scene needs, and what is skipped")
-    pl.add_argument("scene", metavar="SCENE.xml")
-    pl.add_argument("--suite", choices=("default", "full"), default="default")
-    pl.add_argument("-v", "--verbose", action="store_true")
+    pl.add_argument("scene", metavar="SCENE.xml", help="a Mitsuba XML scene")
+    pl.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
+    pl.add_argument("-v", "--verbose", action="store_true",
+                    help="also list the checks the scene does not need")
     pl.set_defaults(func=_cmd_plan)
+
     rp = sub.add_parser("report", help="convergence, efficiency and verification report")
-    rp.add_argument("--out", default=os.path.join("reports", "report"), metavar="DIR")
-    rp.add_argument("--suite", choices=("default", "full"), default="default")
-    rp.add_argument("-k", metavar="PATTERN", help="only these checks in the verification part")
-    rp.add_argument("--no-suite", action="store_true", help="convergence study only")
+    rp.add_argument("--out", default=os.path.join("reports", "report"), metavar="DIR",
+                    help="folder for report.json, report.html and the PNGs")
+    rp.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
+    rp.add_argument("-k", metavar="PATTERN",
+                    help="only these checks in the verification part; default: all")
+    rp.add_argument("--no-suite", action="store_true",
+                    help="skip the verification part (convergence study and renders only)")
     rp.add_argument("--renders", default="all", metavar="SCENES",
                     help="reference scenes to render and compare (comma-separated), "
-                         "'all' (default) or 'none'")
-    rp.add_argument("--seed", type=int, default=0)
-    rp.add_argument("-q", "--quiet", action="store_true")
+                         "'all' or 'none'")
+    rp.add_argument("--seed", type=int, default=0, help=seed_help)
+    rp.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     rp.set_defaults(func=_cmd_report)
+
     b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios")
-    b.add_argument("--json", metavar="PATH")
-    b.add_argument("--repeats", type=int, default=5)
-    b.add_argument("--n", type=int, default=1_000_000, help="points per workload")
-    b.add_argument("--spp", type=int, default=64, help="samples per pixel of the renders")
+    b.add_argument("--json", metavar="PATH", help="write the timings as JSON; default: none")
+    b.add_argument("--repeats", type=int, default=5,
+                   help="timed repetitions per workload (the minimum is reported)")
+    b.add_argument("--n", type=int, default=1_000_000, help="points per workload (>= 1000)")
+    b.add_argument("--spp", type=int, default=64,
+                   help="samples per pixel of the renders (in all, one pass)")
     b.add_argument("--no-render", action="store_true", help="skip the path-tracer rows")
-    b.add_argument("-q", "--quiet", action="store_true")
+    b.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     b.set_defaults(func=_cmd_bench)
+
     ref = sub.add_parser("reference", help="Mitsuba reference renders")
-    rsub = ref.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    rsub = ref.add_subparsers(dest="action", required=True, parser_class=_Parser,
+                              metavar="ACTION")
     rb = rsub.add_parser("build", help="(re)render references with per-pixel variance")
     rb.add_argument("scenes", nargs="*", metavar="SCENE",
                     help="reference names or scene.xml paths (default: all)")
     rb.add_argument("--spp", type=int, default=256,
-                    help="samples per pixel of each pass (the reference's own noise sets a "
-                         "floor under the gate's sensitivity)")
-    rb.add_argument("--passes", type=int, default=16)
-    rb.add_argument("--seed", type=int, default=0)
-    rb.add_argument("-q", "--quiet", action="store_true")
+                    help="samples per pixel of EACH pass (a reference has passes × spp "
+                         "samples per pixel; its own noise sets a floor under the gate's "
+                         "sensitivity)")
+    rb.add_argument("--passes", type=int, default=16,
+                    help="independent passes (>= 2), whose spread is the variance")
+    rb.add_argument("--seed", type=int, default=0, help=seed_help)
+    rb.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     rb.set_defaults(func=_cmd_reference_build)
-    cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference")
-    cp.add_argument("test", metavar="TEST.exr")
-    cp.add_argument("ref", metavar="REF", help="REF.exr or a reference name")
-    cp.add_argument("--test-var", required=True, metavar="VAR.exr")
-    cp.add_argument("--test-n", required=True, type=int)
-    cp.add_argument("--ref-var", metavar="VAR.exr")
-    cp.add_argument("--ref-n", type=int)
-    cp.add_argument("--alpha", type=float, default=0.01)
-    cp.add_argument("--json", metavar="PATH")
+
+    cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference",
+                        epilog=EPILOG)
+    cp.add_argument("test", metavar="TEST.exr", help="the image under test (float OpenEXR)")
+    cp.add_argument("ref", metavar="REF", help="REF.exr, or a reference name or folder")
+    cp.add_argument("--test-var", required=True, metavar="VAR.exr",
+                    help="per-pixel variance of the --test-n values averaged into TEST "
+                         "(float OpenEXR); required")
+    cp.add_argument("--test-n", required=True, type=int, metavar="N",
+                    help="values per pixel behind TEST (samples or passes, >= 2); required")
+    cp.add_argument("--ref-var", metavar="VAR.exr",
+                    help="variance image of REF.exr; required with an image REF, read from "
+                         "the reference otherwise")
+    cp.add_argument("--ref-n", type=int, metavar="M",
+                    help="values per pixel behind REF.exr; required with an image REF, the "
+                         "reference's passes otherwise")
+    cp.add_argument("--alpha", type=float, default=0.01,
+                    help="family-wise significance level of the whole comparison")
+    cp.add_argument("--json", metavar="PATH",
+                    help="write the result as JSON (not one of the inputs); default: none")
     cp.set_defaults(func=_cmd_compare)
+
     rc = sub.add_parser("render-check", help="our path tracer against the scene's Mitsuba "
-                        "reference, pixel by pixel")
+                        "reference, pixel by pixel", epilog=EPILOG)
     rc.add_argument("scene", metavar="SCENE", help="scene.xml path or reference name")
-    rc.add_argument("--spp", type=int, default=1024, help="samples per pixel in all")
+    rc.add_argument("--spp", type=int, default=1024,
+                    help="samples per pixel IN ALL, split over --passes (at least 64 per "
+                         "pass); unlike `reference build --spp`, which is per pass")
     rc.add_argument("--passes", type=int, default=16, help="independent passes (>= 2)")
-    rc.add_argument("--seed", type=int, default=0)
-    rc.add_argument("--alpha", type=float, default=0.01)
+    rc.add_argument("--seed", type=int, default=0, help=f"seed of our renders, 0 to {MAX_SEED}")
+    rc.add_argument("--alpha", type=float, default=0.01,
+                    help="significance level of the image comparison")
     rc.add_argument("--param", action="append", metavar="NAME=VALUE",
                     help="override a scene <default> (both renderers); the reference is "
-                         "then rendered on the fly")
-    rc.add_argument("--json", metavar="PATH")
-    rc.add_argument("-q", "--quiet", action="store_true")
+                         "then rendered on the fly; repeatable")
+    rc.add_argument("--json", metavar="PATH", help="write the result as JSON; default: none")
+    rc.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     rc.set_defaults(func=_cmd_render_check)
     return p
 
 
+def _validate_common(args) -> None:
+    """Checks every command shares, before any work."""
+    seed = getattr(args, "seed", 0)
+    if not 0 <= seed <= MAX_SEED:
+        raise InvalidArgument(f"--seed {seed}: must be in [0, 2^63 - 1]")
+    if hasattr(args, "alpha") and not 0.0 < args.alpha < 1.0:
+        raise InvalidArgument(f"--alpha {args.alpha}: must be strictly between 0 and 1")
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "seed", 0) < 0:
-        print(f"mcverify: error: --seed {args.seed}: must be >= 0", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if hasattr(args, "alpha") and not 0.0 < args.alpha < 1.0:
-        print(f"mcverify: error: --alpha {args.alpha}: must be strictly between 0 and 1",
-              file=sys.stderr)
-        return EXIT_BAD_INPUT
     try:
+        _validate_common(args)
         return args.func(args)
     except (InvalidArgument, EnvironmentProblem) as e:
-        print(f"mcverify: error: {e}", file=sys.stderr)
+        print(f"mcverify: error: {' '.join(str(e).split())}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as e:
-        print(f"mcverify: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"mcverify: error: {where}{e.strerror or e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print("mcverify: interrupted", file=sys.stderr)
-        return 130
+        print("mcverify: interrupted (outputs are written whole or not at all)",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as e:  # noqa: BLE001 - a crash must not read as "a check failed" (1)
+        if os.environ.get("MCVERIFY_TRACEBACK"):
+            raise
+        text = " ".join(str(e).split())
+        print(f"mcverify: error: unexpected {type(e).__name__}: {text} (set "
+              "MCVERIFY_TRACEBACK=1 to see where)", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

@@ -33,9 +33,10 @@ _PROBE = (
 
 @dataclass(frozen=True)
 class VariantChoice:
+    """The Mitsuba variant this process uses, and the notice to print if it fell back."""
+
     variant: str
     notice: str | None
-    libllvm: str | None
 
 
 def _find_libllvm() -> str | None:
@@ -64,11 +65,11 @@ def choose_variant() -> VariantChoice:
     except ImportError as e:  # pragma: no cover - mitsuba is a dependency
         raise EnvironmentProblem(f"mitsuba is not importable ({e}); run `make setup`") from e
     if forced:
-        return VariantChoice(forced, None, os.environ.get("DRJIT_LIBLLVM_PATH"))
+        return VariantChoice(forced, None)
     lib = os.environ.get("DRJIT_LIBLLVM_PATH") or _find_libllvm()
     if lib is None:
         return VariantChoice(_SCALAR_VARIANT, "mitsuba: no libLLVM >= 16 found (apt-get install "
-                             "libllvm19 for the 3x faster llvm_ad_rgb); using scalar_rgb", None)
+                             "libllvm19 for the 3x faster llvm_ad_rgb); using scalar_rgb")
     env = dict(os.environ, DRJIT_LIBLLVM_PATH=lib)
     try:
         r = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
@@ -78,9 +79,9 @@ def choose_variant() -> VariantChoice:
         ok = False
     if not ok:
         return VariantChoice(_SCALAR_VARIANT, f"mitsuba: {_LLVM_VARIANT} does not work with "
-                             f"{lib}; using scalar_rgb", None)
+                             f"{lib}; using scalar_rgb")
     os.environ["DRJIT_LIBLLVM_PATH"] = lib
-    return VariantChoice(_LLVM_VARIANT, None, lib)
+    return VariantChoice(_LLVM_VARIANT, None)
 
 
 @lru_cache(maxsize=1)

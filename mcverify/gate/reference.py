@@ -3,7 +3,10 @@ variance across passes and a manifest, so a stale or corrupt reference is never 
 
 Layout: ``reference/scenes/<name>/scene.xml`` and, built from it,
 ``reference/scenes/<name>/ref/{mean.exr, var.exr, manifest.json}``. The manifest records
-Mitsuba's version and variant, spp, passes, seeds, the scene's SHA-256 and UTC time.
+Mitsuba's version and variant, spp, passes, seeds, UTC time and the SHA-256 of the scene,
+``mean.exr`` and ``var.exr``: a changed scene or a swapped image is refused as stale.
+Images are read only as float OpenEXR (``read_float_exr``): an 8-bit PNG renamed ``.exr``
+would otherwise be read as radiance.
 """
 
 from __future__ import annotations
@@ -12,8 +15,11 @@ import hashlib
 import json
 import os
 import shutil
+import stat
+import struct
 import tempfile
 from dataclasses import dataclass
+from xml.parsers import expat
 
 import numpy as np
 
@@ -42,9 +48,136 @@ class Reference:
         return float(np.sqrt(max(mse - np.mean(self.var / self.n), 0.0)))
 
 
+#: Reference files whose SHA-256 the manifest records (besides the scene).
+IMAGES = ("mean.exr", "var.exr")
+#: OpenEXR pixel types (the ``chlist`` attribute of the header).
+_EXR_TYPES = {0: "uint", 1: "half", 2: "float"}
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+#: Largest image or scene file read (a reference image of 4096² RGB float32 is 200 MB).
+MAX_FILE_BYTES = 1 << 30
+
+
+def file_hash(path: str) -> str:
+    """SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
 def scene_hash(scene_path: str) -> str:
-    with open(scene_path, "rb") as f:
-        return hashlib.sha256(f.read()).hexdigest()
+    """SHA-256 of a scene file (the manifest's ``scene_sha256``)."""
+    return file_hash(scene_path)
+
+
+def _regular_file(path: str, what: str) -> None:
+    """A readable regular file of sane size, or InvalidArgument naming it (a FIFO or
+    /dev/zero would block or never end)."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise InvalidArgument(f"{path}: cannot read {what} ({e.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InvalidArgument(f"{path}: not a regular file; give the {what} file itself")
+    if st.st_size > MAX_FILE_BYTES:
+        raise InvalidArgument(f"{path}: {st.st_size} bytes, more than the "
+                              f"{MAX_FILE_BYTES >> 20} MiB any {what} may have")
+
+
+def exr_channel_types(path: str) -> dict[str, str]:
+    """The channels of an OpenEXR file and their pixel types ("half", "float", "uint"),
+    from its header; InvalidArgument naming the file if it is not OpenEXR."""
+    _regular_file(path, "OpenEXR image")
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    if head[:4] != _EXR_MAGIC:
+        raise InvalidArgument(f"{path}: not an OpenEXR file (it starts with "
+                              f"{head[:4]!r}); give a float OpenEXR image")
+    pos, channels = 8, None
+    try:
+        while head[pos] != 0:
+            end = head.index(b"\0", pos)
+            name = head[pos:end].decode("latin-1")
+            tend = head.index(b"\0", end + 1)
+            kind = head[end + 1:tend]
+            size = struct.unpack_from("<i", head, tend + 1)[0]
+            value = head[tend + 5:tend + 5 + size]
+            if size < 0 or len(value) != size:
+                raise ValueError("attribute runs past the header")
+            if name == "channels" and kind == b"chlist":
+                channels, q = {}, 0
+                while value[q] != 0:
+                    cend = value.index(b"\0", q)
+                    ptype = struct.unpack_from("<i", value, cend + 1)[0]
+                    channels[value[q:cend].decode("latin-1")] = _EXR_TYPES.get(ptype, "?")
+                    q = cend + 1 + 16
+            pos = tend + 5 + size
+    except (IndexError, ValueError, struct.error) as e:
+        raise InvalidArgument(f"{path}: corrupt OpenEXR header ({e})") from None
+    if not channels:
+        raise InvalidArgument(f"{path}: OpenEXR header without channels")
+    return channels
+
+
+def read_float_exr(path: str) -> np.ndarray:
+    """An OpenEXR image with half or float channels as (H, W, C) float64. Anything else
+    (another format, integer channels, a truncated file, NaN/Inf) raises InvalidArgument
+    or EnvironmentProblem naming the file: code values are not radiance."""
+    from . import mitsuba as mvm
+
+    types = exr_channel_types(path)
+    if any(t not in ("half", "float") for t in types.values()):
+        raise InvalidArgument(f"{path}: channels {types}: only half or float channels hold "
+                              "radiance; give a float OpenEXR image")
+    img = mvm.read_exr(path)
+    if not np.all(np.isfinite(img)):
+        raise InvalidArgument(f"{path}: contains NaN/Inf at "
+                              f"{np.argwhere(~np.isfinite(img))[0].tolist()}")
+    return img
+
+
+def precheck_scene(path: str) -> None:
+    """What Mitsuba needs before rendering anything: a readable, well-formed XML file
+    whose root is <scene> with an <integrator> (Mitsuba has no default one) and a
+    <sensor> (or an <include> that may hold them). InvalidArgument names the file."""
+    _regular_file(path, "scene")
+    with open(path, "rb") as f:
+        text = f.read()
+    tags, depth = [], [0]
+    parser = expat.ParserCreate()
+
+    def refuse(*_):
+        raise InvalidArgument(f"{path}: has a DOCTYPE/entity declaration; Mitsuba scenes "
+                              "need none (refused: entity expansion)")
+
+    def start(tag, attrib):
+        if depth[0] == 1:
+            tags.append(tag)
+        elif depth[0] == 0:
+            tags.append("<root>" + tag)
+        depth[0] += 1
+
+    def end(tag):
+        depth[0] -= 1
+
+    parser.StartDoctypeDeclHandler = refuse
+    parser.EntityDeclHandler = refuse
+    parser.StartElementHandler, parser.EndElementHandler = start, end
+    try:
+        parser.Parse(text, True)
+    except expat.ExpatError as e:
+        raise InvalidArgument(f"{path}:{e.lineno}: not well-formed XML "
+                              f"({expat.ErrorString(e.code)})") from None
+    if not tags or tags[0] != "<root>scene":
+        raise InvalidArgument(f"{path}: the root element must be <scene>")
+    if "include" not in tags:
+        for need in ("integrator", "sensor"):
+            if need not in tags:
+                raise InvalidArgument(f"{path}: no <{need}>; Mitsuba cannot render a "
+                                      f"scene without one (add e.g. <{need} type="
+                                      f"\"{'path' if need == 'integrator' else 'perspective'}"
+                                      "\">)")
 
 
 def resolve_scene(spec: str, root: str = REFERENCE_ROOT) -> tuple[str, str]:
@@ -77,7 +210,13 @@ def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarr
     from . import mitsuba as mvm
 
     same_source(fingerprint)
-    return mvm.render_pass(path, spp=spp, seed=seed, params=params, variant=variant)
+    try:
+        return mvm.render_pass(path, spp=spp, seed=seed, params=params, variant=variant)
+    except (InvalidArgument, EnvironmentProblem):
+        raise
+    except Exception as e:  # noqa: BLE001 - Mitsuba raises plain Exception/RuntimeError
+        raise EnvironmentProblem(f"{path}: Mitsuba cannot render it ("
+                                 f"{' '.join(str(e).split())})") from None
 
 
 @dataclass(frozen=True)
@@ -114,6 +253,7 @@ def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _J
         raise InvalidArgument(f"spp={spp}, passes={passes}: need spp >= 1 and passes >= 2 "
                               "(the variance needs two passes)")
     name, path = resolve_scene(spec)
+    precheck_scene(path)
     return _Job(name, path, spp, _pass_seeds(seed, passes), params)
 
 
@@ -154,8 +294,8 @@ def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 
 def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
                      progress=None, pool: Pool | None = None) -> list[str]:
     """Render the references of several scenes (all their passes as units on ``pool``,
-    default this process) and write each atomically; returns their folders. Every scene
-    is resolved before any rendering."""
+    default this process) and write each (see ``build_reference``); returns their
+    folders. Every scene is resolved and prechecked before any rendering."""
     jobs = [_job(s, spp, passes, seed, None) for s in specs]
     return [_write(job.path, ref) for job, (ref, _) in
             zip(jobs, _render_jobs(jobs, pool, progress))]
@@ -163,43 +303,67 @@ def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
 
 def build_reference(spec: str, *, spp: int = 256, passes: int = 16, seed: int = 0,
                     progress=None, pool: Pool | None = None) -> str:
-    """Render the reference of a scene and write it atomically; returns its folder."""
+    """Render the reference of a scene and write it; returns its folder.
+
+    Nothing is lost at any instant: the new reference is written into a temporary folder,
+    the old one renamed aside, the new one renamed in, and only then the old one deleted.
+    An interruption restores the old reference (or, if even that is cut short, leaves it
+    as ``.ref-old-*`` beside the scene, which ``load_reference`` points to)."""
     return build_references([spec], spp=spp, passes=passes, seed=seed, progress=progress,
                             pool=pool)[0]
 
 
 def _write(path: str, ref: Reference) -> str:
+    """Write a rendered reference beside its scene (``build_reference``'s swap)."""
     from . import mitsuba as mvm
 
-    out = os.path.join(os.path.dirname(path), "ref")
-    tmp = tempfile.mkdtemp(prefix=".ref-", dir=os.path.dirname(path))
+    folder = os.path.dirname(path)
+    out = os.path.join(folder, "ref")
+    tmp = tempfile.mkdtemp(prefix=".ref-new-", dir=folder)
+    old = None
     try:
-        mvm.write_exr(os.path.join(tmp, "mean.exr"), ref.mean)
-        mvm.write_exr(os.path.join(tmp, "var.exr"), ref.var)
         manifest = {k: v for k, v in ref.manifest.items() if k != "params"}
+        for label, img in zip(IMAGES, (ref.mean, ref.var)):
+            mvm.write_exr(os.path.join(tmp, label), img)
+            manifest[label.replace(".exr", "_sha256")] = file_hash(os.path.join(tmp, label))
         with open(os.path.join(tmp, "manifest.json"), "w", encoding="utf-8") as f:
             json.dump(manifest, f, indent=2)
         os.chmod(tmp, shared_mode(0o777))  # mkdtemp makes 0700; references are shared
-        if os.path.isdir(out):
-            shutil.rmtree(out)
-        os.replace(tmp, out)
+        if os.path.lexists(out):
+            old = tempfile.mkdtemp(prefix=".ref-old-", dir=folder)
+            os.rename(out, os.path.join(old, "ref"))
+        os.rename(tmp, out)
     except BaseException:
+        if old is not None and not os.path.lexists(out):
+            os.rename(os.path.join(old, "ref"), out)
+            os.rmdir(old)
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
     return out
+
+
+def reference_files(spec: str) -> list[str]:
+    """The files a reference is made of (scene, manifest, images), for refusing to
+    write an output over one of them."""
+    _, path = resolve_scene(spec)
+    folder = os.path.join(os.path.dirname(path), "ref")
+    return [path] + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES]
 
 
 def load_reference(spec: str) -> Reference:
     """Load a built reference; a missing, stale (scene changed) or corrupt one raises
     ``EnvironmentProblem`` naming the file and saying how to rebuild it."""
-    from . import mitsuba as mvm
-
     name, path = resolve_scene(spec)
     folder = os.path.join(os.path.dirname(path), "ref")
     mpath = os.path.join(folder, "manifest.json")
     rebuild = f"run `mcverify reference build {name}`"
     if not os.path.isfile(mpath):
-        raise MissingReference(f"{mpath}: no reference built for {name!r}; {rebuild}")
+        aside = sorted(d for d in os.listdir(os.path.dirname(path)) if d.startswith(".ref-old-"))
+        where = (f" (an interrupted build left the previous one in "
+                 f"{os.path.join(os.path.dirname(path), aside[-1], 'ref')})" if aside else "")
+        raise MissingReference(f"{mpath}: no reference built for {name!r}{where}; {rebuild}")
     try:
         with open(mpath, encoding="utf-8") as f:
             manifest = json.load(f)
@@ -210,8 +374,21 @@ def load_reference(spec: str) -> Reference:
     if digest != scene_hash(path):
         raise EnvironmentProblem(f"{mpath}: stale: {path} changed since the reference was "
                                  f"built; {rebuild}")
-    mean = mvm.read_exr(os.path.join(folder, "mean.exr"))
-    var = mvm.read_exr(os.path.join(folder, "var.exr"))
+    for label in IMAGES:
+        key = label.replace(".exr", "_sha256")
+        file = os.path.join(folder, label)
+        if key not in manifest:
+            raise EnvironmentProblem(f"{mpath}: stale: records no {key} (built before "
+                                     f"references were hashed); {rebuild}")
+        if not os.path.isfile(file):
+            raise EnvironmentProblem(f"{file}: missing; {rebuild}")
+        if file_hash(file) != manifest[key]:
+            raise EnvironmentProblem(f"{file}: stale: its SHA-256 differs from the "
+                                     f"manifest's (the file was replaced); {rebuild}")
+    try:
+        mean, var = (read_float_exr(os.path.join(folder, label)) for label in IMAGES)
+    except InvalidArgument as e:
+        raise EnvironmentProblem(f"{e}; {rebuild}") from None
     shape = tuple(manifest.get("shape", mean.shape))
     for label, img in (("mean.exr", mean), ("var.exr", var)):
         if img.shape != shape or not np.all(np.isfinite(img)):

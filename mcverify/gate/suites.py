@@ -401,15 +401,16 @@ def _units(checks_: list[Check], seeds: list[int], stops: list, pool: Pool) -> l
 
 def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
               alpha: float = 0.01, correction: str = "holm", canary: bool = True,
-              progress: Callable[[int, int, CheckResult], None] | None = None,
+              progress: Callable[[int, int, CheckResult, Check], None] | None = None,
               extra_provenance: dict | None = None,
               skipped: list[tuple[str, str]] | None = None,
               pool: Pool | None = None) -> SuiteResult:
     """Run checks and canaries; judge the checks at family-wise ``alpha``.
 
     ``pool`` says where the checks run (default: in this process); results come back in
-    the checks' order and do not depend on it. ``progress(done, total, result)`` is
-    called as checks finish.
+    the checks' order and do not depend on it. ``progress(done, total, result, check)``
+    is called as checks finish; ``check.tags`` says what it is (``"canary"``: a planted
+    bug that must be rejected).
 
     Sequential checks stop early once their p-value is at most ``alpha / len(checks_)``:
     Holm's (and Šidák's) smallest threshold is no lower, so such a check is rejected by
@@ -420,7 +421,9 @@ def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
     seeds = ([check_seed(seed, c.name) for c in checks_]
              + [check_seed(seed, "canary:" + c.name) for c in bait])
     stops = [alpha / max(len(checks_), 1)] * len(checks_) + [None] * len(bait)
-    show = None if progress is None else (lambda done, total, unit, r: progress(done, total, r))
+    by_name = {c.name: c for c in checks_ + bait}
+    show = None if progress is None else (
+        lambda done, total, unit, r: progress(done, total, r, by_name[unit.key]))
     if pool is None:
         with Pool() as pool:
             out = pool.map(_units(checks_ + bait, seeds, stops, pool), progress=show)

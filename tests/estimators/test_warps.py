@@ -158,3 +158,31 @@ def test_pdf_is_the_inverse_jacobian_of_the_sample_map(name):
         keep = np.ones(len(u), bool)
     rel = np.abs(pdf * stretch - 1.0)[keep]
     assert np.max(rel) < 1e-4, (name, float(np.max(rel)))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_front_ends_are_bit_identical_whatever_the_thread_count(name):
+    """The array front ends run in parallel blocks; every row is computed on its own, so
+    one thread and two give the same bits (float64 and float32)."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has a single thread here")
+    w = WARPS[name]
+    u = np.random.default_rng(5).random((3 * 512 + 7, w.sample_dim))
+    before = numba.get_num_threads()
+    runs = []
+    try:
+        for threads in (1, 2):
+            numba.set_num_threads(threads)
+            out = []
+            for dtype in (np.float64, np.float32):
+                x = w.sample(u.astype(dtype), *w.defaults)
+                out += [x, w.pdf(x, *w.defaults)]
+                if w.invert is not None:
+                    out.append(w.invert(x, *w.defaults))
+            runs.append(out)
+    finally:
+        numba.set_num_threads(before)
+    for a, b in zip(*runs):
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)

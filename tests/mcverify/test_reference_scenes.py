@@ -116,3 +116,16 @@ def test_global_sensitivity_reports_the_smallest_bias_caught():
                            passes=8)
     assert s["caught_at"] == 0.05
     assert [t[0] for t in s["trials"]].count(0.05) == 2      # both signs at 5 %
+
+
+# scenes added for issue 12, one fast gate run each (the older scenes are checked in
+# tests/estimators/test_pathtracer_render.py)
+NEW_SCENES = ["textures"]
+
+
+@pytest.mark.parametrize("name", NEW_SCENES)
+def test_new_scene_passes_the_render_gate(name):
+    """Our tracer against the committed Mitsuba reference at the gate's defaults
+    (1024 spp in 16 passes, α = 0.01)."""
+    r = mv.render_check(name, seed=21)
+    assert r.passed, (r.summary(), r.details["found_by"])

@@ -80,3 +80,21 @@ def test_loglog_slope_recovers_known_rate():
     r = stats.loglog_slope(ns, e2, expected=-0.5)
     assert r.ci_low < -0.5 < r.ci_high and r.p_value > 0.01
     assert stats.loglog_slope(ns, e2, expected=-1.0).p_value < 1e-6
+
+
+def test_welch_and_z_tests_beyond_a_tolerance():
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(0.0, 1.0, (8, 16)), rng.normal(0.3, 2.0, (8, 24))
+    diff = a.mean(1) - b.mean(1)
+    va, vb = a.var(1, ddof=1), b.var(1, ddof=1)
+    p = stats.welch_t_beyond(diff, va, 16, vb, 24, 0.0)
+    ref = sps.ttest_ind_from_stats(a.mean(1), np.sqrt(va), 16, b.mean(1), np.sqrt(vb), 24,
+                                   equal_var=False).pvalue
+    np.testing.assert_allclose(p, ref, rtol=1e-10)
+    # the tolerance is subtracted before testing; zero variance compares exactly
+    assert stats.welch_t_beyond(np.array([0.5]), np.array([1.0]), 4, np.array([1.0]), 4,
+                                0.5)[0] == 1.0
+    np.testing.assert_array_equal(
+        stats.z_test_beyond(np.array([1e-9, 1e-6]), np.zeros(2), 1e-8), [1.0, 0.0])
+    np.testing.assert_allclose(stats.z_test_beyond(np.array([1.96]), np.array([1.0]), 0.0),
+                               0.05, rtol=1e-3)
