@@ -7,6 +7,8 @@ Public API
 ``check_sampler``               χ² (+ marginals / KS) of a sampler against its pdf
 ``check_inverse``               CDF-inversion round trip ``inverse(sample(u)) ≈ u``
 ``check_same_distribution``     two-sample test of two samplers (regression checks)
+``detectable_contamination``    the power a ``check_sampler`` result had: the mixture
+                                weight of uniform it would catch at 95 %
 ``check_unbiased``              t-test of per-sample estimates, heavy-tail aware;
                                 group-sequential over batches (``batches=``)
 ``check_variance``              zero variance when p ∝ f, or a known variance
@@ -31,13 +33,14 @@ from the gate lazily, so ``import mcverify`` loads neither.
 
 from ._version import __version__
 from .checks import (check_convergence, check_inverse, check_same_distribution,
-                     check_sampler, check_unbiased, check_variance, compare_images)
+                     check_sampler, check_unbiased, check_variance, compare_images,
+                     detectable_contamination)
 from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
 from .errors import EnvironmentProblem, InvalidArgument
 from .result import CheckResult, SuiteResult, write_json, write_junit
 
 __all__ = [
-    "check_sampler", "check_inverse", "check_same_distribution",
+    "check_sampler", "check_inverse", "check_same_distribution", "detectable_contamination",
     "check_unbiased", "check_variance", "check_convergence", "compare_images",
     "render_check", "CheckResult", "SuiteResult", "write_json", "write_junit",
     "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",

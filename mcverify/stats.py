@@ -10,10 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats as _sps
+from scipy.optimize import brentq as _brentq
 
 __all__ = [
-    "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells",
-    "KSResult", "ks_uniform", "ks_2samp",
+    "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells", "chi2_detectable_mixture",
+    "KSResult", "ks_uniform", "ks_2samp", "ks_binned", "ks_2samp_binned",
+    "BinomialResult", "binomial_test", "FisherResult", "fisher_exact_2x2",
     "TTestResult", "ttest_mean",
     "TailResult", "hill_tail_index",
     "VarianceTestResult", "variance_test",
@@ -125,6 +127,38 @@ def chi2_gof(observed, expected, *, min_expected: float = MIN_EXPECTED,
                       int(np.count_nonzero((e > 0) & (e < min_expected))), in_empty)
 
 
+def chi2_detectable_mixture(expected, alternative, *, alpha: float, power: float = 0.95,
+                            min_expected: float = MIN_EXPECTED) -> float:
+    """Smallest mixture weight ε at which :func:`chi2_gof` at level ``alpha`` rejects
+    with probability ``power`` when the counts' true means are
+    ``(1 - ε)·expected + ε·alternative`` (both arrays of expected counts for the same n).
+
+    Noncentral χ² approximation on the pooled bins: the statistic is
+    :math:`\\chi'^2_{B-1}(\\lambda)` with :math:`\\lambda = \\varepsilon^2 \\sum_b
+    (A_b - E_b)^2 / E_b`; ε solves ``P(χ'² > χ²_{1-α}) = power``. Returns inf when no
+    mixture weight up to 1 is detected (the alternative matches ``expected`` on the
+    bins).
+    """
+    e = np.asarray(expected, dtype=np.float64).ravel()
+    a = np.asarray(alternative, dtype=np.float64).ravel()
+    label = pool_cells(e, min_expected).ravel()
+    n_bins = int(label.max()) + 1 if (label >= 0).any() else 0
+    if n_bins < 2:
+        return float("inf")
+    eb, ab = _pooled_sums(e, label, n_bins), _pooled_sums(a, label, n_bins)
+    spread = float(np.sum((ab - eb) ** 2 / eb))
+    if not spread > 0:
+        return float("inf")
+    dof = n_bins - 1
+    crit = _sps.chi2.isf(alpha, dof)
+    hi = 1.0
+    while _sps.ncx2.sf(crit, dof, hi) < power:
+        hi *= 2.0
+    lam = _brentq(lambda t: _sps.ncx2.sf(crit, dof, t) - power, 0.0, hi, xtol=1e-6)
+    eps = float(np.sqrt(lam / spread))
+    return eps if eps <= 1.0 else float("inf")
+
+
 def chi2_homogeneity(counts_a, counts_b, *, min_expected: float = MIN_EXPECTED) -> Chi2Result:
     """Two-sample χ² test that two histograms come from the same distribution.
 
@@ -173,6 +207,79 @@ def ks_2samp(a, b) -> KSResult:
     method = "asymp" if a.size * b.size > 10_000 else "auto"
     r = _sps.ks_2samp(a, b, method=method)
     return KSResult(float(r.statistic), float(r.pvalue), a.size + b.size)
+
+
+def ks_binned(counts, cdf_at_edges) -> KSResult:
+    """Kolmogorov–Smirnov test from a fine histogram: ``counts`` of n samples in the
+    cells between consecutive edges, ``cdf_at_edges`` the claimed CDF at every edge
+    (first 0, last 1). The statistic is the largest gap between the empirical and the
+    claimed CDF *at the edges*, which never exceeds the gap over all points, so the
+    p-value (the exact one-sample distribution of D for n samples) is conservative: the
+    false-alarm rate stays at most the nominal α. On a grid much finer than the
+    distribution's features the power is that of the full test.
+
+    A stream of 10⁹ samples needs only the histogram, not the samples."""
+    c = np.asarray(counts, dtype=np.float64).ravel()
+    f = np.asarray(cdf_at_edges, dtype=np.float64).ravel()
+    n = int(round(c.sum()))
+    if n == 0:
+        return KSResult(0.0, 1.0, 0)
+    ecdf = np.concatenate([[0.0], np.cumsum(c)]) / n
+    d = float(np.max(np.abs(ecdf - f)))
+    return KSResult(d, float(_sps.kstwo.sf(d, n)), n)
+
+
+def ks_2samp_binned(counts_a, counts_b) -> KSResult:
+    """Two-sample Kolmogorov–Smirnov test from two histograms on the same fine cells:
+    the gap between the empirical CDFs at the edges (never above the gap over all
+    points, so conservative) with scipy's asymptotic p-value
+    (``kstwo`` at the effective size ``n·m / (n + m)``)."""
+    a = np.asarray(counts_a, dtype=np.float64).ravel()
+    b = np.asarray(counts_b, dtype=np.float64).ravel()
+    na, nb = a.sum(), b.sum()
+    if na == 0 or nb == 0:
+        return KSResult(0.0, 1.0, int(na + nb))
+    d = float(np.max(np.abs(np.cumsum(a) / na - np.cumsum(b) / nb)))
+    en = max(1, int(round(na * nb / (na + nb))))
+    return KSResult(d, float(_sps.kstwo.sf(d, en)), int(na + nb))
+
+
+@dataclass(frozen=True)
+class BinomialResult:
+    successes: int
+    trials: int
+    p: float
+    p_value: float
+
+
+def binomial_test(successes: int, trials: int, p: float) -> BinomialResult:
+    """Exact two-sided binomial test of ``successes`` in ``trials`` against rate ``p``
+    (e.g. accepted draws of a sampler that rejects, against ∫pdf)."""
+    p = float(min(max(p, 0.0), 1.0))
+    k, n = int(successes), int(trials)
+    if n == 0:
+        return BinomialResult(k, n, p, 1.0)
+    if p in (0.0, 1.0):
+        pv = 1.0 if k == n * p else 0.0
+    else:
+        pv = float(_sps.binomtest(k, n, p).pvalue)
+    return BinomialResult(k, n, p, pv)
+
+
+@dataclass(frozen=True)
+class FisherResult:
+    table: tuple[int, int, int, int]
+    p_value: float
+
+
+def fisher_exact_2x2(a: int, b: int, c: int, d: int) -> FisherResult:
+    """Fisher's exact two-sided test that two binomial rates agree, from the table
+    ``[[a, b], [c, d]]`` (e.g. accepted and rejected draws of two samplers)."""
+    t = tuple(int(v) for v in (a, b, c, d))
+    if (t[0] + t[1]) == 0 or (t[2] + t[3]) == 0 or (t[0] + t[2]) == 0 or (t[1] + t[3]) == 0:
+        return FisherResult(t, 1.0)
+    r = _sps.fisher_exact([[t[0], t[1]], [t[2], t[3]]])
+    return FisherResult(t, float(r.pvalue))
 
 
 # ----------------------------------------------------------------------- mean tests

@@ -23,7 +23,8 @@ from . import bsdfs as B
 from . import emitters as E
 from .camera import Camera, camera_from_scene
 from .geometry import DISK, PRIM_WIDTH, SPHERE, TRIANGLE, build_bvh
-from .scene import Plugin, SceneDescription, SceneError, load_scene
+from .scene import (MAX_ASSET_BYTES, Plugin, SceneDescription, SceneError, file_problem,
+                    load_scene)
 from .textures import (FILTERS, WRAPS, TextureStore, envmap_sampling_weights, read_image)
 
 _MATERIALS = None
@@ -106,6 +107,9 @@ class _Builder:
     # ---------------------------------------------------------------- textures
     def _image(self, plugin: Plugin, filename: str, raw: bool = False) -> np.ndarray:
         path = filename if os.path.isabs(filename) else os.path.join(self.dir, filename)
+        problem = file_problem(path, MAX_ASSET_BYTES)
+        if problem:
+            self.fail(plugin, problem)
         try:
             return read_image(path, raw=raw)
         except OSError as e:
@@ -292,11 +296,14 @@ class _Builder:
         if not name:
             self.fail(s, "set <string name=\"filename\" .../>")
         path = name if os.path.isabs(name) else os.path.join(self.dir, name)
+        problem = file_problem(path, MAX_ASSET_BYTES)
+        if problem:
+            self.fail(s, problem)
         try:
             with open(path, encoding="utf-8") as fh:
                 lines = fh.readlines()
-        except OSError as e:
-            self.fail(s, f"cannot read {path} ({e.strerror})")
+        except (OSError, UnicodeDecodeError) as e:
+            self.fail(s, f"cannot read {path} ({getattr(e, 'strerror', None) or e})")
         v, vt, vn = [], [], []
         corners = []
         for ln, line in enumerate(lines, 1):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 from dataclasses import dataclass, field
 from xml.parsers import expat
 
@@ -31,6 +32,26 @@ __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scen
 class SceneError(ValueError):
     """A scene the path tracer cannot render as written; the message names the file,
     line, element and what is supported."""
+
+
+#: Largest files read: a scene's XML, and a mesh or image it names (reading /dev/zero
+#: or a runaway file would otherwise run until memory is gone).
+MAX_SCENE_BYTES = 16 << 20
+MAX_ASSET_BYTES = 1 << 30
+
+
+def file_problem(path: str, limit: int) -> str | None:
+    """Why ``path`` cannot be read as a scene file or asset (missing, not a regular file,
+    larger than ``limit`` bytes), or None."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        return f"cannot read {path} ({e.strerror})"
+    if not stat.S_ISREG(st.st_mode):
+        return f"{path} is not a regular file"
+    if st.st_size > limit:
+        return f"{path} has {st.st_size} bytes, more than the {limit >> 20} MiB limit"
+    return None
 
 
 @dataclass
@@ -47,6 +68,10 @@ def _parse_xml(text: str, origin: str) -> _Node:
     root = _Node("#document", {}, 0)
     stack = [root]
 
+    def no_dtd(*_):  # Mitsuba scenes have no DTD; entities could expand without bound
+        raise SceneError(f"{origin}:{parser.CurrentLineNumber}: a DOCTYPE or entity "
+                         "declaration; scene files must not have one")
+
     def start(tag, attrib):
         node = _Node(tag, dict(attrib), parser.CurrentLineNumber)
         stack[-1].children.append(node)
@@ -57,6 +82,8 @@ def _parse_xml(text: str, origin: str) -> _Node:
 
     parser.StartElementHandler = start
     parser.EndElementHandler = end
+    parser.StartDoctypeDeclHandler = no_dtd
+    parser.EntityDeclHandler = no_dtd
     try:
         parser.Parse(text, True)
     except expat.ExpatError as e:
@@ -160,6 +187,8 @@ class _Loader:
     def __init__(self, path: str, params: dict):
         self.path = path
         self.params = {k: str(v) for k, v in params.items()}
+        self.given = set(self.params)
+        self.declared: set[str] = set()
         self.ids: dict[str, Plugin] = {}
 
     def fail(self, node, message):
@@ -174,6 +203,7 @@ class _Loader:
 
         def sub(m):
             key = m.group(1)
+            self.declared.add(key)
             if key not in self.params:
                 self.fail(node, f"${key} has no value: add <default name=\"{key}\" .../> or "
                                 "pass it as a parameter")
@@ -190,6 +220,8 @@ class _Loader:
             vals = vals * 3
         if len(vals) != count:
             self.fail(node, f"expected {count} numbers, got {text!r}")
+        if not all(np.isfinite(vals)):
+            self.fail(node, f"expected finite numbers, got {text!r}")
         return np.array(vals)
 
     def value(self, node):
@@ -306,6 +338,7 @@ class _Loader:
         for node in root.children:
             if node.tag == "default":
                 name = self.attr(node, "name")
+                self.declared.add(name)
                 self.params.setdefault(name, node.attrib.get("value", ""))
             elif node.tag == "integrator":
                 integrator = self.plugin(node)
@@ -326,6 +359,10 @@ class _Loader:
                                 "integrator, sensor, shape, emitter, bsdf, texture")
         if sensor is None:
             self.fail(root, "the scene has no <sensor>")
+        unknown = sorted(self.given - self.declared)
+        if unknown:
+            raise SceneError(f"{self.path}: params {unknown}: the scene has no such "
+                             f"parameter (it has: {', '.join(sorted(self.declared)) or 'none'})")
         integrator = integrator or Plugin("integrator", "path", {}, root.line)
         film = next((c for c in sensor.children if c.kind == "film"), None) or \
             Plugin("film", "hdrfilm", {}, sensor.line)
@@ -364,11 +401,14 @@ def parse_scene(text: str, *, path: str = "<string>", params: dict | None = None
 
 def load_scene(path: str, *, params: dict | None = None) -> SceneDescription:
     """Parse a Mitsuba XML scene file."""
+    problem = file_problem(path, MAX_SCENE_BYTES)
+    if problem:
+        raise SceneError(problem)
     try:
         with open(path, encoding="utf-8") as f:
-            text = f.read()
-    except OSError as e:
-        raise SceneError(f"{path}: cannot read ({e.strerror})") from None
+            text = f.read(MAX_SCENE_BYTES + 1)
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
     desc = parse_scene(text, path=path, params=params)
     desc.path = os.path.abspath(path)
     return desc

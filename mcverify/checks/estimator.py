@@ -114,8 +114,8 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         mean = float(np.mean(x))
         ok = abs(mean - expected) <= tol
         if not ok:
-            failures.append(f"every sample is {mean:.17g} (to rounding), but expected is "
-                            f"{expected:.17g}")
+            failures.append(f"every sample is {mean:.15g} (to rounding), but expected is "
+                            f"{expected:.15g}")
         return CheckResult(name=name, passed=CheckResult.decide(None, alpha, failures),
                            p_value=None, statistic=None, alpha=alpha, n_samples=int(x.size),
                            seconds=time.perf_counter() - t0,

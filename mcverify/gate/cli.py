@@ -8,6 +8,7 @@ images differ; 2 bad input or environment, with one line on stderr naming what a
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 
@@ -180,10 +181,25 @@ def _cmd_check(args) -> int:
     _distinct_outputs(("--json", args.json), ("--junit", args.junit))
     extra = {}
     skipped = []
+    plan = None
+    if args.budget is not None and args.scene:
+        raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
+                              "has its own spp and passes (use --budget without --scene)")
     if args.scene:
         planned, skipped, _ = _plan(args.scene, args.suite)
         selected = suites.select(planned, args.k)
         extra["scene"] = os.path.abspath(args.scene)
+    elif args.budget is not None:
+        from .budget import plan_budget
+
+        if not suites.select(suites.build_suite(args.suite), args.k):
+            raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
+                                  "`mcverify list` shows the names")
+        if not args.quiet:
+            print(f"mcverify check --budget {args.budget:g}: calibrating this machine ...",
+                  file=sys.stderr)
+        plan = plan_budget(args.suite, args.k, args.budget, seed=args.seed)
+        selected = suites.select(suites.build_suite(args.suite, plan.n_overrides), args.k)
     else:
         selected = suites.select(suites.build_suite(args.suite), args.k)
     if not selected and args.scene:
@@ -198,6 +214,15 @@ def _cmd_check(args) -> int:
                                   progress=None if args.quiet else
                                   _progress(sys.stderr, alpha=args.alpha),
                                   extra_provenance=extra, skipped=skipped, pool=pool)
+    bought = None
+    if plan is not None:
+        from .budget import power_bought
+
+        bought = power_bought([r for r in result.results if r.name in plan.n_samples],
+                              args.alpha, n_checks=len(result.results))
+        result = dataclasses.replace(result, provenance={
+            **result.provenance,
+            "budget": {**plan.to_dict(), "detectable_contamination": bought}})
     if args.json:
         write_json(result, args.json)
     if args.junit:
@@ -217,6 +242,17 @@ def _cmd_check(args) -> int:
             if c.passed:
                 print(f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected "
                       f"(p={c.p_value:.3g})")
+    if plan is not None:
+        for note in plan.notes:
+            print(f"note: {note}")
+        ns = sorted(plan.n_samples.values())
+        seen = {k: e for k, e in (bought or {}).items() if e is not None}
+        if ns and seen:
+            worst = max(seen, key=seen.get)
+            print(f"budget {args.budget:g}s (predicted {plan.predicted_seconds:.1f}s, "
+                  f"calibration {plan.calibration_seconds:.1f}s): sampler checks at n = "
+                  f"{ns[0]:,} to {ns[-1]:,}; each catches uniform contamination of "
+                  f"{100 * seen[worst]:.2g} % or less at 95 % power (worst: {worst})")
     n = len(result.results)
     print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
           f" (family-wise alpha={args.alpha} by {result.correction}; canaries "
@@ -435,6 +471,16 @@ def _cmd_render_check(args) -> int:
 
     _, scene_path = reference.resolve_scene(args.scene)
     _writable("--json", args.json, [scene_path] + reference.reference_files(scene_path))
+    params = _params(args.param)
+    if args.passes < 2 or args.spp < 1:
+        raise InvalidArgument(f"--spp {args.spp} --passes {args.passes}: need --passes >= 2 "
+                              "and --spp (in all) >= 64 per pass")
+    from estimators.pathtracer import SceneError, load_scene
+
+    try:  # our parser must accept the scene and its --param names before anything renders
+        load_scene(scene_path, params=params)
+    except SceneError as e:
+        raise InvalidArgument(str(e)) from None
     tty = sys.stderr.isatty() and not args.quiet
 
     def show(done, total):
@@ -446,7 +492,7 @@ def _cmd_render_check(args) -> int:
 
     with _pool(args) as pool:
         result = render_check(args.scene, spp=args.spp, passes=args.passes, seed=args.seed,
-                              alpha=args.alpha, params=_params(args.param),
+                              alpha=args.alpha, params=params,
                               notice=None if args.quiet else
                               (lambda m: print(f"notice: {m}", file=sys.stderr)),
                               progress=show if tty else None, pool=pool)
@@ -486,6 +532,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", metavar="PATH", help="write the results as JSON; default: none")
     c.add_argument("--junit", metavar="PATH",
                    help="write the results as JUnit XML; default: none")
+    c.add_argument("--budget", type=float, metavar="SECONDS",
+                   help="choose each sampler check's n so the run (with a short "
+                        "calibration of this machine) takes about SECONDS, and say what "
+                        "power that buys; the chosen n go into the JSON; default: the "
+                        "suite's fixed n")
     c.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(c)
     c.set_defaults(func=_cmd_check)

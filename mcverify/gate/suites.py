@@ -35,7 +35,11 @@ from ..provenance import provenance
 from ..result import CheckResult, SuiteResult
 from .executors import Pool, Unit, same_source, source_fingerprint
 
-__all__ = ["Check", "SUITES", "build_suite", "run_suite", "canaries", "check_seed", "select"]
+#: Tag of the checks whose sample count a time budget may set (``check_sampler`` runs).
+SCALABLE = "scalable"
+
+__all__ = ["Check", "SUITES", "SCALABLE", "build_suite", "run_suite", "canaries",
+           "check_seed", "select"]
 
 
 @dataclass(frozen=True)
@@ -66,11 +70,17 @@ class Check:
 
 @dataclass(frozen=True)
 class Profile:
-    """How hard a suite looks: samples per sampler check, parameter sweep density."""
+    """How hard a suite looks: samples per sampler check, parameter sweep density.
+    ``n_overrides``: (check name, n_samples) pairs that replace the profile's count for
+    those checks (a time budget chooses them: ``mcverify.gate.budget``)."""
 
     n_samples: int
     sweep: bool
     mitsuba_samples: int
+    n_overrides: tuple[tuple[str, int], ...] = ()
+
+    def n(self, name: str, default: int) -> int:
+        return dict(self.n_overrides).get(name, default)
 
 
 #: Batches of a sequential check's budget: it looks after 1, 2, 4, 8 and 16 of them.
@@ -126,10 +136,11 @@ def _warp_checks(profile: Profile) -> list[Check]:
             def run_sampler(seed, w=warp, p=params, label=label):
                 return checks.check_sampler(
                     lambda u: w.sample(u, *p), lambda x: w.pdf(x, *p),
-                    _domain(w.domain_spec(*p)), n_samples=profile.n_samples, seed=seed,
-                    sample_dim=w.sample_dim, name="sampler:" + label)
+                    _domain(w.domain_spec(*p)), seed=seed, sample_dim=w.sample_dim,
+                    n_samples=profile.n("sampler:" + label, profile.n_samples),
+                    name="sampler:" + label)
 
-            out.append(Check("sampler:" + label, run_sampler, ("estimators", "warp"),
+            out.append(Check("sampler:" + label, run_sampler, ("estimators", "warp", SCALABLE),
                              frozenset({("sampler", warp.name)})))
             if warp.invert is not None:
                 def run_inverse(seed, w=warp, p=params, label=label):
@@ -151,10 +162,12 @@ def _scipy_checks(profile: Profile) -> list[Check]:
     for label, dist, dom in subjects:
         def run(seed, d=dist, dom=dom, label=label):
             return checks.check_sampler(lambda u: d.ppf(u[:, 0]), lambda x: d.pdf(x[:, 0]), dom,
-                                        n_samples=profile.n_samples, seed=seed,
-                                        name="scipy:" + label)
+                                        n_samples=profile.n("scipy:" + label,
+                                                            profile.n_samples),
+                                        seed=seed, name="scipy:" + label)
 
-        out.append(Check("scipy:" + label, run, ("scipy",), frozenset({("sampler", label)})))
+        out.append(Check("scipy:" + label, run, ("scipy", SCALABLE),
+                         frozenset({("sampler", label)})))
     return out
 
 
@@ -169,10 +182,11 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
     out = []
     for w in mv_mitsuba.mitsuba_warps():
         def run(seed, w=w):
-            return checks.check_sampler(w.sample, w.pdf, w.domain, n_samples=n, seed=seed,
+            return checks.check_sampler(w.sample, w.pdf, w.domain, seed=seed,
+                                        n_samples=profile.n("sampler:" + w.name, n),
                                         sample_dim=w.sample_dim, name="sampler:" + w.name)
 
-        out.append(Check("sampler:" + w.name, run, ("mitsuba",),
+        out.append(Check("sampler:" + w.name, run, ("mitsuba", SCALABLE),
                          frozenset({("sampler", w.name)})))
         if w.invert is not None:
             def run_inv(seed, w=w):
@@ -212,15 +226,16 @@ def _distribution_checks(profile: Profile) -> list[Check]:
         aligned = dict(resolution=(32, 64), pilot=False) if dom == "square" else {}
 
         def run(seed, d=dist, dom=dom, k=k, label=label, aligned=aligned):
-            return checks.check_sampler(d.sample, d.pdf, dom, n_samples=profile.n_samples,
-                                        seed=seed, sample_dim=k, name="sampler:" + label,
-                                        **aligned)
+            return checks.check_sampler(d.sample, d.pdf, dom, seed=seed, sample_dim=k,
+                                        n_samples=profile.n("sampler:" + label,
+                                                            profile.n_samples),
+                                        name="sampler:" + label, **aligned)
 
         def run_inv(seed, d=dist, k=k, label=label):
             return checks.check_inverse(d.sample, d.invert, k, seed=seed, n_samples=20_000,
                                         atol=1e-9, name="inverse:" + label)
 
-        out += [Check("sampler:" + label, run, ("estimators", "distribution"),
+        out += [Check("sampler:" + label, run, ("estimators", "distribution", SCALABLE),
                       frozenset({("sampler", subject)})),
                 Check("inverse:" + label, run_inv, ("estimators", "distribution"),
                       frozenset({("inverse", subject)}))]
@@ -324,12 +339,14 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
     return _sourced(out, canaries, n_samples)
 
 
-def build_suite(name: str = "default") -> list[Check]:
-    """The checks of a built-in suite."""
-    profile = SUITES[name]
+def build_suite(name: str = "default", n_overrides: tuple[tuple[str, int], ...] = ()
+                ) -> list[Check]:
+    """The checks of a built-in suite; ``n_overrides`` sets the sample count of the
+    named checks tagged ``SCALABLE``."""
+    profile = dataclasses.replace(SUITES[name], n_overrides=tuple(n_overrides))
     out = (_warp_checks(profile) + _distribution_checks(profile) + _estimator_checks(profile)
            + _scipy_checks(profile) + _mitsuba_checks(profile))
-    return _sourced(out, build_suite, name)
+    return _sourced(out, build_suite, name, *((tuple(n_overrides),) if n_overrides else ()))
 
 
 def _sourced(checks_: list[Check], builder, *args) -> list[Check]:
