@@ -133,15 +133,15 @@ def _warp_checks(profile: Profile) -> list[Check]:
             tag = ",".join(f"{k}={v:g}" for k, v in zip(warp.params, params))
             label = f"{warp.name}({tag})" if tag else warp.name
 
-            def run_sampler(seed, w=warp, p=params, label=label):
+            def run_sampler(seed, stop_alpha=None, w=warp, p=params, label=label):
                 return checks.check_sampler(
                     lambda u: w.sample(u, *p), lambda x: w.pdf(x, *p),
                     _domain(w.domain_spec(*p)), seed=seed, sample_dim=w.sample_dim,
                     n_samples=profile.n("sampler:" + label, profile.n_samples),
-                    name="sampler:" + label)
+                    name="sampler:" + label, batches=BATCHES, stop_alpha=stop_alpha)
 
             out.append(Check("sampler:" + label, run_sampler, ("estimators", "warp", SCALABLE),
-                             frozenset({("sampler", warp.name)})))
+                             frozenset({("sampler", warp.name)}), sequential=True))
             if warp.invert is not None:
                 def run_inverse(seed, w=warp, p=params, label=label):
                     return checks.check_inverse(
@@ -160,14 +160,15 @@ def _scipy_checks(profile: Profile) -> list[Check]:
                 ("triang(0.3)", sps.triang(0.3), Interval(0.0, 1.0))]
     out = []
     for label, dist, dom in subjects:
-        def run(seed, d=dist, dom=dom, label=label):
+        def run(seed, stop_alpha=None, d=dist, dom=dom, label=label):
             return checks.check_sampler(lambda u: d.ppf(u[:, 0]), lambda x: d.pdf(x[:, 0]), dom,
                                         n_samples=profile.n("scipy:" + label,
                                                             profile.n_samples),
-                                        seed=seed, name="scipy:" + label)
+                                        seed=seed, name="scipy:" + label, batches=BATCHES,
+                                        stop_alpha=stop_alpha)
 
         out.append(Check("scipy:" + label, run, ("scipy", SCALABLE),
-                         frozenset({("sampler", label)})))
+                         frozenset({("sampler", label)}), sequential=True))
     return out
 
 
@@ -181,13 +182,14 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
     n = profile.mitsuba_samples if vectorised else profile.mitsuba_samples // 10
     out = []
     for w in mv_mitsuba.mitsuba_warps():
-        def run(seed, w=w):
+        def run(seed, stop_alpha=None, w=w):
             return checks.check_sampler(w.sample, w.pdf, w.domain, seed=seed,
                                         n_samples=profile.n("sampler:" + w.name, n),
-                                        sample_dim=w.sample_dim, name="sampler:" + w.name)
+                                        sample_dim=w.sample_dim, name="sampler:" + w.name,
+                                        batches=BATCHES, stop_alpha=stop_alpha)
 
         out.append(Check("sampler:" + w.name, run, ("mitsuba", SCALABLE),
-                         frozenset({("sampler", w.name)})))
+                         frozenset({("sampler", w.name)}), sequential=True))
         if w.invert is not None:
             def run_inv(seed, w=w):
                 # float32 round trips lose up to ~2e-4 near the poles (Beckmann at
@@ -225,18 +227,19 @@ def _distribution_checks(profile: Profile) -> list[Check]:
     for subject, label, dist, dom, k in subjects:
         aligned = dict(resolution=(32, 64), pilot=False) if dom == "square" else {}
 
-        def run(seed, d=dist, dom=dom, k=k, label=label, aligned=aligned):
+        def run(seed, stop_alpha=None, d=dist, dom=dom, k=k, label=label, aligned=aligned):
             return checks.check_sampler(d.sample, d.pdf, dom, seed=seed, sample_dim=k,
                                         n_samples=profile.n("sampler:" + label,
                                                             profile.n_samples),
-                                        name="sampler:" + label, **aligned)
+                                        name="sampler:" + label, batches=BATCHES,
+                                        stop_alpha=stop_alpha, **aligned)
 
         def run_inv(seed, d=dist, k=k, label=label):
             return checks.check_inverse(d.sample, d.invert, k, seed=seed, n_samples=20_000,
                                         atol=1e-9, name="inverse:" + label)
 
         out += [Check("sampler:" + label, run, ("estimators", "distribution", SCALABLE),
-                      frozenset({("sampler", subject)})),
+                      frozenset({("sampler", subject)}), sequential=True),
                 Check("inverse:" + label, run_inv, ("estimators", "distribution"),
                       frozenset({("inverse", subject)}))]
     return out
@@ -331,11 +334,11 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
     ]
     out = []
     for label, smp, pdf in subjects:
-        def run(seed, s=smp, p=pdf, label=label):
+        def run(seed, stop_alpha=None, s=smp, p=pdf, label=label):
             return checks.check_sampler(s, p, "hemisphere", n_samples=n_samples, seed=seed,
-                                        name=label)
+                                        name=label, batches=BATCHES, stop_alpha=stop_alpha)
 
-        out.append(Check(label, run, ("canary",)))
+        out.append(Check(label, run, ("canary",), sequential=True))
     return _sourced(out, canaries, n_samples)
 
 

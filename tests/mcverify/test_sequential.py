@@ -139,3 +139,30 @@ def test_deterministic_failure_stops_at_once():
 def test_bad_sequential_arguments(kwargs, needle):
     with pytest.raises(mv.InvalidArgument, match=needle):
         mv.check_unbiased(expected=1.0, **kwargs)
+
+
+def test_sequential_check_sampler_judges_a_correct_sampler_on_the_same_histogram():
+    """Batches are consecutive parts of the one stream: the final look's χ² and marginals
+    are those of the one-shot check, and a correct sampler runs all 16 batches."""
+    from estimators import warps as W
+
+    args = (W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, "hemisphere")
+    once = mv.check_sampler(*args, n_samples=300_000, seed=5)
+    seq = mv.check_sampler(*args, n_samples=300_000, seed=5, batches=16)
+    s = seq.details["sequential"]
+    assert seq.passed and s["batch"] == 16 and seq.n_samples == 300_000
+    assert s["p_looks"][-1] == once.p_value
+    assert seq.details["tests"] == once.details["tests"]
+    assert seq.p_value == stats.sequential_p_value(s["p_looks"], s["weights"])
+    with pytest.raises(mv.InvalidArgument, match="batches=16: more batches than n_samples=10"):
+        mv.check_sampler(*args, n_samples=10, batches=16)
+
+
+def test_canaries_are_rejected_on_at_most_a_quarter_of_their_samples():
+    from mcverify.gate import suites
+
+    for c in suites.canaries():
+        r = suites._run_guarded(c, suites.check_seed(0, "canary:" + c.name))
+        s = r.details["sequential"]
+        assert not r.passed and s["batches"] == 16 and s["batch"] <= 4, (c.name, s)
+        assert r.n_samples <= 1_000_000 // 4
