@@ -226,17 +226,42 @@ def mitsuba_warps() -> list[MitsubaWarp]:
     ]
 
 
+@lru_cache(maxsize=4)
+def _loaded(scene_path: str, params: tuple, mtime: int):
+    mi = _mi()
+    try:
+        return mi.load_file(scene_path, **dict(params))
+    except Exception as e:  # Mitsuba raises RuntimeError with its parser's message
+        raise EnvironmentProblem(f"{scene_path}: Mitsuba cannot load it ({e})") from None
+
+
+def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = None,
+                variant: str | None = None) -> np.ndarray:
+    """One independent pass of ``scene_path``: (H, W, C) float64. The loaded scene is
+    kept per process (keyed by path, ``$`` parameters and modification time), so a
+    worker rendering many passes parses the scene once. ``variant``: the variant the
+    caller uses; a process that would render with another one refuses (its images would
+    differ)."""
+    if variant is not None and choose_variant().variant != variant:
+        raise EnvironmentProblem(f"{scene_path}: this process renders with Mitsuba "
+                                 f"{choose_variant().variant}, the client with {variant}; "
+                                 "set MCVERIFY_MITSUBA_VARIANT alike on every worker")
+    try:
+        mtime = os.stat(scene_path).st_mtime_ns
+    except OSError as e:
+        raise EnvironmentProblem(f"{scene_path}: cannot read it here ({e.strerror}); workers "
+                                 "need the scenes at the same path") from None
+    scene = _loaded(scene_path, tuple(sorted((params or {}).items())), mtime)
+    return np.asarray(_mi().render(scene, spp=spp, seed=int(seed)), dtype=np.float64)
+
+
 def render_passes(scene_path: str, *, spp: int, seeds, params: dict | None = None,
                   progress=None) -> np.ndarray:
     """Render ``scene_path`` once per seed (independent passes): (K, H, W, C) float64."""
-    mi = _mi()
-    try:
-        scene = mi.load_file(scene_path, **(params or {}))
-    except Exception as e:  # Mitsuba raises RuntimeError with its parser's message
-        raise EnvironmentProblem(f"{scene_path}: Mitsuba cannot load it ({e})") from None
+    seeds = list(seeds)
     out = []
     for i, seed in enumerate(seeds):
-        out.append(np.asarray(mi.render(scene, spp=spp, seed=int(seed)), dtype=np.float64))
+        out.append(render_pass(scene_path, spp=spp, seed=seed, params=params))
         if progress:
             progress(i + 1, len(seeds))
     return np.stack(out)
