@@ -178,8 +178,10 @@ def _scene_file(name):
 
 API = [
     # check_sampler
-    ("sampler-n-1e12", _sampler(n_samples=10 ** 12), InvalidArgument,
-     "n_samples=1000000000000: needs about"),
+    # n_samples is streamed in chunks (any n fits); a chunk that cannot fit is refused
+    ("sampler-chunk-2^46", _sampler(n_samples=10 ** 15, chunk=1 << 46), InvalidArgument,
+     "chunk=70368744177664: needs about"),
+    ("sampler-chunk-ragged", _sampler(chunk=(1 << 16) + 1), InvalidArgument, "chunk=65537"),
     ("sampler-n-float", _sampler(n_samples=2.5), InvalidArgument, "n_samples=2.5"),
     ("sampler-not-callable", _sampler(sample=3), InvalidArgument, "sample=3"),
     ("sampler-pdf-strings", _sampler(pdf=lambda x: np.array(["0.5"] * len(x))),
