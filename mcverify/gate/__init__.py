@@ -5,6 +5,7 @@ and the oracle (Mitsuba, ``reference/``) meet.
 ``suites``          built-in suites, canaries, seeds, ``run_suite``
 ``plan``            a scene's features -> the checks it needs (and what it skips)
 ``render_check``    any renderer's image against a scene's Mitsuba reference
+``executors``       where units run: in-process, local processes (-j), Dask
 ``reference``       Mitsuba reference renders: build, load, staleness
 ``mitsuba``         the one module that imports Mitsuba (variants, plugin adapters:
                     ``bsdf``, ``emitter``, ``microfacet``, ``phase``)

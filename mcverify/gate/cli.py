@@ -141,6 +141,23 @@ def _progress(stream, verdicts: bool = True, alpha: float | None = None):
     return show
 
 
+def _pool(args):
+    """The executor of ``-j`` / ``--dask`` / ``--dask-scheduler-file`` (``executors``)."""
+    from .executors import Pool
+
+    return Pool(jobs=args.jobs, dask=args.dask, dask_scheduler_file=args.dask_scheduler_file)
+
+
+def _add_pool_options(parser) -> None:
+    parser.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
+                        help="run independent units (checks, passes) on N local worker "
+                             "processes; default 1: in this process. Results are identical")
+    parser.add_argument("--dask", metavar="tcp://HOST:PORT",
+                        help="run the units on this Dask scheduler's workers")
+    parser.add_argument("--dask-scheduler-file", metavar="FILE",
+                        help="run the units on the Dask cluster this scheduler file names")
+
+
 def _mitsuba_provenance(selected) -> dict:
     """Mitsuba's version and variant for the provenance of a run that checks Mitsuba's
     warps, printing the fallback notice once; {} when no selected check uses Mitsuba."""
@@ -219,10 +236,11 @@ def _cmd_check(args) -> int:
         raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
                               "`mcverify list` shows the names")
     extra.update(_mitsuba_provenance(selected))
-    result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
-                              progress=None if args.quiet else
-                              _progress(sys.stderr, alpha=args.alpha),
-                              extra_provenance=extra, skipped=skipped)
+    with _pool(args) as pool:
+        result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
+                                  progress=None if args.quiet else
+                                  _progress(sys.stderr, alpha=args.alpha),
+                                  extra_provenance=extra, skipped=skipped, pool=pool)
     bought = None
     if plan is not None:
         from .budget import power_bought
@@ -332,8 +350,9 @@ def _cmd_report(args) -> int:
         if not selected:
             raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}")
         extra = _mitsuba_provenance(selected)
-        suite = suites.run_suite(selected, name=args.suite, seed=args.seed, progress=show,
-                                 extra_provenance=extra)
+        with _pool(args) as pool:
+            suite = suites.run_suite(selected, name=args.suite, seed=args.seed, progress=show,
+                                     extra_provenance=extra, pool=pool)
     # Study rows are judged together (Holm) at the end: no per-row verdict while running.
     study = run_study(seed=args.seed,
                       progress=None if args.quiet else _progress(sys.stderr, verdicts=False))
@@ -415,13 +434,15 @@ def _cmd_reference_build(args) -> int:
     choice = mv_mitsuba.choose_variant()
     if choice.notice:
         print(f"notice: {choice.notice}", file=sys.stderr)
-    for name, path in resolved:
-        def show(i, total, name=name):
-            if not args.quiet:
-                print(f"[{name}] pass {i}/{total}", file=sys.stderr)
+    def show(done, total, label):
+        if not args.quiet:
+            print(f"[{done}/{total}] {label}", file=sys.stderr)
 
-        out = reference.build_reference(path, spp=args.spp, passes=args.passes, seed=args.seed,
-                                        progress=show)
+    with _pool(args) as pool:   # every pass of every scene is a unit
+        outs = reference.build_references([p for _, p in resolved], spp=args.spp,
+                                          passes=args.passes, seed=args.seed, progress=show,
+                                          pool=pool)
+    for out in outs:
         print(f"built {out} ({args.passes} passes × {args.spp} spp per pass = "
               f"{args.passes * args.spp} spp, {choice.variant})")
     return EXIT_OK
@@ -545,11 +566,12 @@ def _cmd_render_check(args) -> int:
                 sys.stderr.write("\r\033[K")
             sys.stderr.flush()
 
-    result = render_check(args.scene, spp=args.spp, passes=args.passes, seed=args.seed,
-                          alpha=args.alpha, params=params,
-                          notice=None if args.quiet else
-                          (lambda m: print(f"notice: {m}", file=sys.stderr)),
-                          progress=show if tty else None)
+    with _pool(args) as pool:
+        result = render_check(args.scene, spp=args.spp, passes=args.passes, seed=args.seed,
+                              alpha=args.alpha, params=params,
+                              notice=None if args.quiet else
+                              (lambda m: print(f"notice: {m}", file=sys.stderr)),
+                              progress=show if tty else None, pool=pool)
     if args.json:
         write_json(result, args.json)
     d = result.details
@@ -569,9 +591,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
                            metavar="COMMAND")
-    suite_help = "suite: 'default' (the CI gate) or 'full' (parameter sweeps, 2e6 samples)"
-    any_suite_help = ("suite: 'default' (the CI gate), 'full' (parameter sweeps, 2e6 "
-                      "samples), 'mitsuba' (Mitsuba's own plugins over sweeps) or "
+    suite_help = ("suite: 'default' (the CI gate, 4e6 samples) or 'full' (parameter sweeps, "
+                  "8e6 samples)")
+    any_suite_help = ("suite: 'default' (the CI gate, 4e6 samples), 'full' (parameter sweeps, "
+                      "8e6 samples), 'mitsuba' (Mitsuba's own plugins over sweeps) or "
                       "MODULE:ATTR (your list of mcverify.gate.suites.Check, or a callable "
                       "returning one); default: the [tool.mcverify] suite of the nearest "
                       "pyproject.toml, else 'default'")
@@ -599,6 +622,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "power that buys; the chosen n go into the JSON; default: the "
                         "suite's fixed n")
     c.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
+    _add_pool_options(c)
     c.set_defaults(func=_cmd_check)
 
     ls = sub.add_parser("list", help="list the checks of a suite")
@@ -627,6 +651,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "'all' or 'none'")
     rp.add_argument("--seed", type=int, default=0, help=seed_help)
     rp.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
+    _add_pool_options(rp)
     rp.set_defaults(func=_cmd_report)
 
     b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios")
@@ -654,6 +679,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="independent passes (>= 2), whose spread is the variance")
     rb.add_argument("--seed", type=int, default=0, help=seed_help)
     rb.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
+    _add_pool_options(rb)
     rb.set_defaults(func=_cmd_reference_build)
 
     cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference",
@@ -703,6 +729,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "then rendered on the fly; repeatable")
     rc.add_argument("--json", metavar="PATH", help="write the result as JSON; default: none")
     rc.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
+    _add_pool_options(rc)
     rc.set_defaults(func=_cmd_render_check)
     return p
 

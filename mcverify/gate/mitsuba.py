@@ -139,12 +139,21 @@ def _from_mitsuba(v, n):
     return a.T if a.shape[0] != n else a
 
 
-def _wrap(fn, n_in, *params):
-    """numpy front end for a Mitsuba warp function (vectorised or a per-row loop)."""
+#: The largest float32 below 1. Mitsuba computes in float32, and a uniform u in
+#: (1 - 2^-25, 1) rounds to 1.0f, outside the warps' domain [0, 1): Beckmann then returns
+#: a horizon direction where its pdf is 0 (seen once in 4e6 draws).
+_BELOW_ONE_F32 = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+
+
+def _wrap(fn, n_in, *params, uniforms=False):
+    """numpy front end for a Mitsuba warp function (vectorised or a per-row loop);
+    ``uniforms``: the input is uniform numbers, clamped below float32's 1 (pbrt's habit)."""
     mi = _mi()
 
     def call(x):
         x = np.asarray(x, dtype=np.float64)
+        if uniforms:
+            x = np.minimum(x, _BELOW_ONE_F32)
         if x.ndim == 1:
             x = x.reshape(-1, 1)
         n = x.shape[0]
@@ -194,36 +203,65 @@ def mitsuba_warps() -> list[MitsubaWarp]:
         return lambda x: np.where(np.asarray(x)[:, 2] >= cos_cut, pdf(x), 0.0)
 
     return [
-        MitsubaWarp("mitsuba.cosine_hemisphere", _wrap(w.square_to_cosine_hemisphere, 2),
+        MitsubaWarp("mitsuba.cosine_hemisphere",
+                    _wrap(w.square_to_cosine_hemisphere, 2, uniforms=True),
                     hemi(_wrap(w.square_to_cosine_hemisphere_pdf, 3)),
                     _wrap(w.cosine_hemisphere_to_square, 3), "hemisphere", 2),
-        MitsubaWarp("mitsuba.uniform_sphere", _wrap(w.square_to_uniform_sphere, 2),
+        MitsubaWarp("mitsuba.uniform_sphere",
+                    _wrap(w.square_to_uniform_sphere, 2, uniforms=True),
                     _wrap(w.square_to_uniform_sphere_pdf, 3),
                     _wrap(w.uniform_sphere_to_square, 3), "sphere", 2),
         MitsubaWarp("mitsuba.uniform_disk_concentric",
-                    _wrap(w.square_to_uniform_disk_concentric, 2),
+                    _wrap(w.square_to_uniform_disk_concentric, 2, uniforms=True),
                     lambda x: np.where(np.sum(np.asarray(x) ** 2, 1) <= 1, 1 / np.pi, 0.0),
                     _wrap(w.uniform_disk_to_square_concentric, 2), "disk", 2),
-        MitsubaWarp("mitsuba.uniform_cone", _wrap(w.square_to_uniform_cone, 2, cos_cut),
+        MitsubaWarp("mitsuba.uniform_cone",
+                    _wrap(w.square_to_uniform_cone, 2, cos_cut, uniforms=True),
                     cone(_wrap(w.square_to_uniform_cone_pdf, 3, cos_cut)),
                     _wrap(w.uniform_cone_to_square, 3, cos_cut), "sphere", 2),
-        MitsubaWarp("mitsuba.beckmann", _wrap(w.square_to_beckmann, 2, alpha),
+        MitsubaWarp("mitsuba.beckmann",
+                    _wrap(w.square_to_beckmann, 2, alpha, uniforms=True),
                     hemi(_wrap(w.square_to_beckmann_pdf, 3, alpha)),
                     _wrap(w.beckmann_to_square, 3, alpha), "hemisphere", 2),
     ]
 
 
+@lru_cache(maxsize=4)
+def _loaded(scene_path: str, params: tuple, mtime: int):
+    mi = _mi()
+    try:
+        return mi.load_file(scene_path, **dict(params))
+    except Exception as e:  # Mitsuba raises RuntimeError with its parser's message
+        raise EnvironmentProblem(f"{scene_path}: Mitsuba cannot load it ({e})") from None
+
+
+def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = None,
+                variant: str | None = None) -> np.ndarray:
+    """One independent pass of ``scene_path``: (H, W, C) float64. The loaded scene is
+    kept per process (keyed by path, ``$`` parameters and modification time), so a
+    worker rendering many passes parses the scene once. ``variant``: the variant the
+    caller uses; a process that would render with another one refuses (its images would
+    differ)."""
+    if variant is not None and choose_variant().variant != variant:
+        raise EnvironmentProblem(f"{scene_path}: this process renders with Mitsuba "
+                                 f"{choose_variant().variant}, the client with {variant}; "
+                                 "set MCVERIFY_MITSUBA_VARIANT alike on every worker")
+    try:
+        mtime = os.stat(scene_path).st_mtime_ns
+    except OSError as e:
+        raise EnvironmentProblem(f"{scene_path}: cannot read it here ({e.strerror}); workers "
+                                 "need the scenes at the same path") from None
+    scene = _loaded(scene_path, tuple(sorted((params or {}).items())), mtime)
+    return np.asarray(_mi().render(scene, spp=spp, seed=int(seed)), dtype=np.float64)
+
+
 def render_passes(scene_path: str, *, spp: int, seeds, params: dict | None = None,
                   progress=None) -> np.ndarray:
     """Render ``scene_path`` once per seed (independent passes): (K, H, W, C) float64."""
-    mi = _mi()
-    try:
-        scene = mi.load_file(scene_path, **(params or {}))
-    except Exception as e:  # Mitsuba raises RuntimeError with its parser's message
-        raise EnvironmentProblem(f"{scene_path}: Mitsuba cannot load it ({e})") from None
+    seeds = list(seeds)
     out = []
     for i, seed in enumerate(seeds):
-        out.append(np.asarray(mi.render(scene, spp=spp, seed=int(seed)), dtype=np.float64))
+        out.append(render_pass(scene_path, spp=spp, seed=seed, params=params))
         if progress:
             progress(i + 1, len(seeds))
     return np.stack(out)

@@ -93,10 +93,14 @@ def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tup
 
 def _render_check(scene_path: str) -> Check:
     """The scene's render gate: our path tracer against its Mitsuba reference (built on
-    first use)."""
+    first use); sequential, so the suite tells it where it may stop early."""
     from .render_check import render_check
 
     name = f"render:{os.path.basename(os.path.dirname(os.path.abspath(scene_path)))}"
-    return Check(name, lambda seed: dataclasses.replace(
-        render_check(scene_path, seed=seed), name=name), ("render", "mitsuba"),
-        frozenset({("render", name)}), source=(_render_check, (scene_path,)))
+
+    def run(seed, stop_alpha=None):
+        return dataclasses.replace(render_check(scene_path, seed=seed, stop_alpha=stop_alpha),
+                                   name=name)
+
+    return Check(name, run, ("render", "mitsuba"), frozenset({("render", name)}),
+                 source=(_render_check, (scene_path,)), sequential=True)
