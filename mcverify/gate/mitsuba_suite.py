@@ -4,9 +4,10 @@ Each entry of :func:`sweep` names a plugin configuration and how to build its ad
 (:mod:`mcverify.gate.mitsuba`); the checks run at the gate's family-wise α like any
 other suite. Microfacet distributions sweep α from 0.01 to 1, isotropic and
 anisotropic, with and without visible normals, at incident angles 0°, 45° and 80°;
-phase functions and emitters cover Mitsuba's samplable ones. Rough BSDFs reject draws
-(zero weight below the horizon), which ``check_sampler`` cannot judge yet: they are
-listed as skipped, with that reason, until it can.
+phase functions and emitters cover Mitsuba's samplable ones; BSDFs at several incident
+angles, from both sides of a dielectric. Rough BSDFs reject draws (zero weight below the
+horizon; smooth plastic's delta lobe comes back as a rejected row too): they are judged
+with ``check_sampler(rejection=True)``, their pdf integrating to the acceptance.
 """
 
 from __future__ import annotations
@@ -19,13 +20,7 @@ import numpy as np
 from .. import checks
 from .suites import Check
 
-__all__ = ["Entry", "NEEDS_REJECTION", "direction", "mitsuba_checks", "mitsuba_suite",
-           "sweep"]
-
-#: Why BSDFs that reject draws are not judged yet.
-NEEDS_REJECTION = ("Mitsuba's sampler rejects draws (zero weight); needs "
-                   "check_sampler(rejection=True), not in this version of the judge")
-
+__all__ = ["Entry", "direction", "mitsuba_suite", "sweep"]
 
 def direction(theta_deg: float, phi_deg: float = 0.0) -> tuple[float, float, float]:
     """The unit vector at polar angle ``theta_deg`` and azimuth ``phi_deg`` (degrees)."""
@@ -40,7 +35,7 @@ class Entry:
     kind: str            # "microfacet", "phase", "emitter", "bsdf"
     label: str           # plugin and parameters, as the check's name shows them
     make: Callable
-    rejects: bool = False
+    rejects: bool = False   # draws may be rejected: check_sampler(rejection=True)
 
 
 _ANGLES = (0.0, 45.0, 80.0)
@@ -107,24 +102,27 @@ def _bsdfs(mvm) -> list[Entry]:
     for name in ("plastic", "roughplastic"):   # component 1: the diffuse lobe alone
         out.append(Entry("bsdf", f"{name}(diffuse component)@wi=30°",
                          lambda n=name: mvm.bsdf({"type": n}, direction(30.0), component=1)))
-    rough = []
+    rough = []   # (label, plugin, incident angles): these reject draws
     for dist in ("ggx", "beckmann"):
         for alpha in _ALPHAS:
             rough.append((f"roughconductor({dist},alpha={alpha:g})",
                           {"type": "roughconductor", "distribution": dist, "alpha": alpha},
-                          _ANGLES))
+                          (45.0, 80.0)))
         rough.append((f"roughconductor({dist},alpha=0.05,0.5)",
                       {"type": "roughconductor", "distribution": dist, "alpha_u": 0.05,
-                       "alpha_v": 0.5}, _ANGLES))
+                       "alpha_v": 0.5}, (45.0,)))
         for alpha in (0.1, 0.5):
             rough.append((f"roughdielectric({dist},alpha={alpha:g},eta=1.5)",
                           {"type": "roughdielectric", "distribution": dist, "alpha": alpha},
-                          _ANGLES + (100.0, 135.0, 180.0)))   # from inside too
+                          (45.0, 135.0)))                 # from outside and from inside
         for alpha in (0.1, 0.3):
             rough.append((f"roughplastic({dist},alpha={alpha:g})",
                           {"type": "roughplastic", "distribution": dist, "alpha": alpha},
-                          (0.0, 33.0, 80.0)))
-    rough.append(("principled", {"type": "principled"}, _ANGLES))
+                          (33.0,)))
+    rough += [("roughconductor(beckmann,alpha=0.5,not visible)",
+               {"type": "roughconductor", "alpha": 0.5, "sample_visible": False}, (45.0,)),
+              ("principled", {"type": "principled"}, (45.0,)),
+              ("plastic(delta lobe rejected)", {"type": "plastic"}, (30.0,))]
     for label, plugin, angles in rough:
         for t in angles:
             out.append(Entry("bsdf", f"{label}@wi={t:g}°",
@@ -139,38 +137,26 @@ def sweep() -> list[Entry]:
     return _microfacets(mvm) + _phases(mvm) + _emitters(mvm) + _bsdfs(mvm)
 
 
-def mitsuba_suite(n_samples: int) -> tuple[list[Check], list[tuple[str, str]]]:
-    """The suite's checks (each rebuildable in a worker process) and the configurations
-    skipped, with the reason."""
-    from .suites import _sourced
+def mitsuba_suite(n_samples: int) -> list[Check]:
+    """The suite's checks, each carrying the recipe that rebuilds it in a worker process.
 
-    checks_, skipped = _build(n_samples)
-    return _sourced(checks_, mitsuba_checks, n_samples), skipped
-
-
-def mitsuba_checks(n_samples: int) -> list[Check]:
-    """The suite's checks alone (the recipe a worker process rebuilds them from)."""
-    return _build(n_samples)[0]
-
-
-def _build(n_samples: int) -> tuple[list[Check], list[tuple[str, str]]]:
+    ``n_samples`` per check (a tenth on a scalar Mitsuba variant, one Python call per
+    sample, as for the default suite's warps)."""
     from . import mitsuba as mvm
 
-    if mvm.choose_variant().variant.startswith("scalar"):
-        n_samples //= 10   # one Python call per sample: as for the default suite's warps
-    out, skipped = [], []
+    scalar = mvm.choose_variant().variant.startswith("scalar")
+    n = n_samples // 10 if scalar else n_samples
+    out = []
     for e in sweep():
         name = f"sampler:mitsuba.{e.kind}:{e.label}"
-        if e.rejects:
-            skipped.append((name, NEEDS_REJECTION))
-            continue
 
         def run(seed, e=e, name=name):
             s, p, d, kw = e.make()
-            return checks.check_sampler(s, p, d, n_samples=n_samples, seed=seed,
-                                        **dict(kw, name=name))
+            return checks.check_sampler(s, p, d, n_samples=n, seed=seed,
+                                        rejection=e.rejects, **dict(kw, name=name))
 
         plugin = e.label.split("(")[0].split("@")[0]
         out.append(Check(name, run, ("mitsuba", "mitsuba-plugin", e.kind),
-                         frozenset({("sampler", f"mitsuba.{e.kind}:{plugin}")})))
-    return out, skipped
+                         frozenset({("sampler", f"mitsuba.{e.kind}:{plugin}")}),
+                         source=(mitsuba_suite, (n_samples,))))
+    return out

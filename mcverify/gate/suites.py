@@ -380,7 +380,7 @@ def resolve_suite(name: str, *, roots=(".",)) -> tuple[list[Check], list[tuple[s
     if name == "mitsuba":
         from .mitsuba_suite import mitsuba_suite
 
-        return mitsuba_suite(SUITES["default"].mitsuba_samples)
+        return mitsuba_suite(SUITES["default"].mitsuba_samples), []
     if is_user_suite(name):
         return load_user_suite(name, roots=roots), []
     raise InvalidArgument(f"--suite {name!r}: expected one of {', '.join(SUITE_NAMES)} or "

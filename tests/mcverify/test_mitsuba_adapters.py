@@ -78,20 +78,15 @@ def test_rejected_draws_are_nan_rows_and_the_pdf_integrates_to_the_acceptance():
     assert abs(z) < 4.5, (accepted, integral)
 
 
-def test_the_accepted_draws_follow_the_normalised_pdf():
-    """Until the judge takes rejected draws: the accepted ones, against pdf / ∫pdf."""
-    subject = mvm.bsdf({"type": "roughdielectric", "alpha": 0.3}, wi=direction(150.0))
-    integral = _check(subject, n=20_000).details["pdf_integral"]
-    assert 0.9 < integral < 1.0
-
-    def accepted(u):                         # the first n accepted draws of a larger run
-        rng = np.random.default_rng(int(u[0, 0] * 2 ** 32))
-        x = subject.sample(rng.random((int(u.shape[0] / integral * 1.1) + 1000, 3)))
-        return x[~np.isnan(x).any(axis=1)][: u.shape[0]]
-
-    r = mv.check_sampler(accepted, lambda x: subject.pdf(x) / integral, "sphere",
-                         n_samples=N, seed=2, sample_dim=3)
+@pytest.mark.parametrize("plugin, theta", [
+    ({"type": "roughconductor", "alpha": 0.1, "distribution": "ggx"}, 80.0),
+    ({"type": "roughdielectric", "alpha": 0.3}, 150.0),            # from inside
+    ({"type": "plastic"}, 30.0),                                   # a delta lobe
+], ids=["roughconductor-80deg", "roughdielectric-inside", "plastic-delta"])
+def test_rejecting_bsdfs_pass_the_judge_with_rejection(plugin, theta):
+    r = _check(mvm.bsdf(plugin, wi=direction(theta)), rejection=True)
     assert r.passed, (r.p_value, r.failures)
+    assert 0 < r.details["rejection"]["rejected"] < N
 
 
 def test_roughplastic_pdf_is_positive_below_the_horizon_where_sample_never_goes():
@@ -111,6 +106,8 @@ def test_roughplastic_pdf_is_positive_below_the_horizon_where_sample_never_goes(
     sigma = math.sqrt(accepted * (1 - accepted) / N)
     assert whole - accepted > 0.05
     assert abs(upper - accepted) < 4.5 * sigma, (upper, accepted)
+    judged = _check(subject, rejection=True)
+    assert not judged.passed and "above 1" in judged.failures[0]
 
 
 def test_delta_lobe_draws_are_rejected_rows():
