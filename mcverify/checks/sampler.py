@@ -310,8 +310,8 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
         raise InvalidArgument(f"chunk={chunk}: must be a multiple of {STREAM_BLOCK} (the "
                               "rows of one seeded block of uniforms)")
     # Streamed: two chunks of uniforms and one of points in memory at a time, whatever n.
-    v.memory("chunk", min(n, chunk), 8 * (2 * k + 2 * dom.dim),
-             "uniform numbers and points of one chunk")
+    v.memory("chunk" if chunk <= n else "n_samples", min(n, chunk),
+             8 * (2 * k + 2 * dom.dim), "uniform numbers and points of one chunk")
     return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k, chunk
 
 
@@ -491,8 +491,13 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
             for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):
                 sub[label] = stats.chi2_gof(counts.sum(axis=axis), expected.sum(axis=axis))
         elif n_valid > 0 and leaves is not None and total > 0:
-            cdf = _cdf_from_leaves(density, leaves, hist_edges[0], total)
-            cdf[0], cdf[-1] = 0.0, 1.0
+            if leaves is integral.leaves and integrated[1:]:
+                cdf = integrated[1]     # a later look, nothing re-integrated: same CDF
+            else:
+                cdf = _cdf_from_leaves(density, leaves, hist_edges[0], total)
+                cdf[0], cdf[-1] = 0.0, 1.0
+                if leaves is integral.leaves:
+                    integrated[1:] = [cdf]
             sub["ks"] = stats.ks_binned(fine, cdf)
         p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
         if n_valid == 0:
@@ -529,16 +534,19 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     if batches is None:
         _stream(sample, main_seq, n, k, dom.dim, hist, chunk)
         return evaluate(n)
-    from ..sequential import run_sequential
+    from ..sequential import looks, run_sequential
 
     k_batches = v.integer("batches", batches, minimum=1)
-    bounds = [int(x) for x in np.linspace(0, n_budget, k_batches + 1)[1:]]
-    if len(set(bounds)) < k_batches or bounds[0] < 1:
+    if k_batches > n_budget:
         raise InvalidArgument(f"batches={k_batches}: more batches than n_samples={n_budget}")
-    feed = _stream_batches(sample, main_seq, n_budget, k, dom.dim, hist, chunk, bounds)
+    # Rows end where a look is taken (the batches in between need no pause of their own:
+    # fewer, larger calls of sample and of the binning kernel).
+    bounds = {b: n_budget * b // k_batches for b in looks(k_batches)}
+    feed = _stream_batches(sample, main_seq, n_budget, k, dom.dim, hist, chunk,
+                           list(bounds.values()))
 
     def look(b: int) -> CheckResult:
-        while hist_rows[0] < bounds[b - 1]:
+        while hist_rows[0] < bounds[b]:
             hist_rows[0] = next(feed)
         return evaluate(hist_rows[0])
 

@@ -178,8 +178,13 @@ def _scene_file(name):
 
 API = [
     # check_sampler
-    ("sampler-n-1e12", _sampler(n_samples=10 ** 12), InvalidArgument,
-     "n_samples=1000000000000: needs about"),
+    # Streamed: n = 1e12 needs no more memory than one chunk, but a chunk of 2^40 rows does.
+    ("sampler-chunk-2^40", _sampler(n_samples=10 ** 13, chunk=2 ** 40), InvalidArgument,
+     "chunk=1099511627776: needs about"),
+    ("sampler-chunk-not-multiple", _sampler(chunk=1000), InvalidArgument, "chunk=1000"),
+    ("sampler-chunk-2^46", _sampler(n_samples=10 ** 15, chunk=1 << 46), InvalidArgument,
+     "chunk=70368744177664: needs about"),
+    ("sampler-chunk-ragged", _sampler(chunk=(1 << 16) + 1), InvalidArgument, "chunk=65537"),
     ("sampler-n-float", _sampler(n_samples=2.5), InvalidArgument, "n_samples=2.5"),
     ("sampler-not-callable", _sampler(sample=3), InvalidArgument, "sample=3"),
     ("sampler-pdf-strings", _sampler(pdf=lambda x: np.array(["0.5"] * len(x))),
