@@ -470,7 +470,8 @@ class _Builder:
         prims = np.array(self.prims, dtype=np.float64).reshape(-1, PRIM_WIDTH)
         info = np.array(self.info, dtype=np.int64).reshape(-1, 2)
         if len(prims) == 0:
-            # one empty leaf whose box (lo > hi) no ray hits
+            # no shapes: one empty leaf whose box (lo > hi) no ray enters (the packed
+            # layout reads a count >= 0 as a leaf, so the root is not taken for an interior)
             nb, ni, order = np.array([[1.0, 1, 1, -1, -1, -1]]), \
                 np.array([[0, 0, 0]], dtype=np.int64), np.zeros(0, dtype=np.int64)
         else:
@@ -506,7 +507,8 @@ class _Builder:
             max_depth=int(max_depth), rr_depth=int(rr_depth),
             hide_emitters=bool(integ.get("hide_emitters", False)), env=int(self.env))
         spp = int(d.sampler.get("sample_count", 4))
-        n_tri = int(np.sum(info[:, layout.PRIM_KIND] == TRIANGLE)) if len(info) else 0
+        n_tri = int(np.sum((info[:, layout.PRIM_KIND] == TRIANGLE)
+                           & (info[:, layout.PRIM_SHAPE] >= 0)))
         return PreparedScene(d, camera_from_scene(d), arrays, self.features, spp, n_tri,
                              len(self.lights), self.bsdf_names)
 
