@@ -7,7 +7,10 @@ Public API
 ``check_sampler``               χ² (+ marginals / KS) of a sampler against its pdf
 ``check_inverse``               CDF-inversion round trip ``inverse(sample(u)) ≈ u``
 ``check_same_distribution``     two-sample test of two samplers (regression checks)
-``check_unbiased``              t-test of per-sample estimates, heavy-tail aware
+``detectable_contamination``    the power a ``check_sampler`` result had: the mixture
+                                weight of uniform it would catch at 95 %
+``check_unbiased``              t-test of per-sample estimates, heavy-tail aware;
+                                group-sequential over batches (``batches=``)
 ``check_variance``              zero variance when p ∝ f, or a known variance
 ``check_convergence``           log-log slope of RMSE against N over seeds
 ``compare_images``              two renders, pixelwise: global, block and pixel tests
@@ -22,7 +25,7 @@ Public API
 Every randomised function takes ``seed``; the same seed gives the same result.
 
 Layers: this package's core (``stats``, ``quadrature``, ``domains``, ``checks``,
-``result``, ``errors``, ``pytest_plugin``) imports neither the subject (``estimators``)
+``sequential`` (group-sequential looks), ``result``, ``errors``, ``pytest_plugin``) imports neither the subject (``estimators``)
 nor Mitsuba; ``mcverify.gate`` composes them (suites, scene plans, the render check,
 references, the Mitsuba adapters, bench, report, CLI). ``render_check`` is re-exported
 from the gate lazily, so ``import mcverify`` loads neither.
@@ -30,13 +33,14 @@ from the gate lazily, so ``import mcverify`` loads neither.
 
 from ._version import __version__
 from .checks import (check_convergence, check_inverse, check_same_distribution,
-                     check_sampler, check_unbiased, check_variance, compare_images)
+                     check_sampler, check_unbiased, check_variance, compare_images,
+                     detectable_contamination)
 from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
 from .errors import EnvironmentProblem, InvalidArgument
 from .result import CheckResult, SuiteResult, write_json, write_junit
 
 __all__ = [
-    "check_sampler", "check_inverse", "check_same_distribution",
+    "check_sampler", "check_inverse", "check_same_distribution", "detectable_contamination",
     "check_unbiased", "check_variance", "check_convergence", "compare_images",
     "render_check", "CheckResult", "SuiteResult", "write_json", "write_junit",
     "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",

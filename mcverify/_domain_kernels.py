@@ -1,8 +1,9 @@
 """numba kernels behind the domains: map a point to parameter space, screen it, bin it.
 
-One pass per sample replaces several numpy passes over 1e6 points (finite?, inside?,
-to parameters, bin along each axis). Domains are identified by a small integer
-``kind`` with float parameters ``args``; ``domains.py`` holds the numpy front ends.
+One parallel pass per chunk of samples replaces several numpy passes (finite?, inside?,
+to parameters, bin along each axis); float32 points are read as they are. Domains are
+identified by a small integer ``kind`` with float parameters ``args``; ``domains.py``
+holds the numpy front ends.
 """
 
 from __future__ import annotations
@@ -13,57 +14,106 @@ import numpy as np
 from numba import njit, prange
 
 INTERVAL, SQUARE, DISK, SPHERE, HEMISPHERE = 0, 1, 2, 3, 4
-#: Status codes of ``classify``: a valid point, a NaN/Inf coordinate, outside the domain.
-VALID, NONFINITE, OUTSIDE = 0, 1, 2
+#: Status codes of ``classify``: a valid point, a NaN/Inf coordinate, outside the domain,
+#: a rejected draw (a row of NaN, when the caller accepts rejected draws).
+VALID, NONFINITE, OUTSIDE, REJECTED = 0, 1, 2, 3
+N_STATUS = 4
+#: The histogram kernel splits its rows into this many fixed parts, each with its own
+#: counts (summed at the end: integer sums, so the result does not depend on threads).
+_PARTS = 16
 _S_MAX = 1.0 - 2.0 ** -52
 _INV_TWO_PI = 1.0 / (2.0 * math.pi)
 
 
+# Cephes' atan (S. L. Moshier): a rational approximation on [0, 0.66] after one range
+# reduction, accurate to about one ulp; four times faster than libm's atan2 here, which
+# dominated the cost of binning a point on the sphere.
+_ATAN_P = (-8.750608600031904122785e-1, -1.615753718733365076637e1,
+           -7.500855792314704667340e1, -1.228866684490136173410e2,
+           -6.485021904942025371773e1)
+_ATAN_Q = (2.485846490142306297962e1, 1.650270098316988542046e2,
+           4.328810604912902668951e2, 4.853903996359136964868e2,
+           1.945506571482613964425e2)
+_MOREBITS = 6.123233995736765886130e-17
+
+
+@njit(cache=True, inline="always")
+def _atan01(a):
+    """atan(a) for 0 <= a <= 1."""
+    big = a > 0.66
+    t = (a - 1.0) / (a + 1.0) if big else a
+    z = t * t
+    p = (((_ATAN_P[0] * z + _ATAN_P[1]) * z + _ATAN_P[2]) * z + _ATAN_P[3]) * z + _ATAN_P[4]
+    q = ((((z + _ATAN_Q[0]) * z + _ATAN_Q[1]) * z + _ATAN_Q[2]) * z + _ATAN_Q[3]) * z + _ATAN_Q[4]
+    r = t * (z * p / q) + t
+    return (0.25 * math.pi + (r + 0.5 * _MOREBITS)) if big else r
+
+
 @njit(cache=True)
 def _azimuth(x, y):
-    phi = math.atan2(y, x)
-    if phi < 0.0:
-        phi += 2.0 * math.pi
+    """φ / 2π in [0, 1] of the direction (x, y), φ = atan2(y, x) taken to [0, 2π)."""
+    ax, ay = abs(x), abs(y)
+    hi = max(ax, ay)
+    phi = _atan01(min(ax, ay) / hi) if hi > 0.0 else 0.0
+    if ay > ax:
+        phi = 0.5 * math.pi - phi
+    if x < 0.0:
+        phi = math.pi - phi
+    if y < 0.0:
+        phi = 2.0 * math.pi - phi if phi > 0.0 else 0.0
     return phi * _INV_TWO_PI
 
 
 @njit(cache=True)
-def _classify_kernel(kind, args, tol, x):
-    """(status, s0, s1) of one point ``x``."""
-    for j in range(x.shape[0]):
-        if not math.isfinite(x[j]):
-            return NONFINITE, 0.0, 0.0
+def _classify_kernel(kind, args, tol, xr, rejection=False):
+    """(status, s0, s1) of one point ``xr`` (float32 or float64; computed in float64).
+    With ``rejection``, a row of NaN is a rejected draw."""
+    d = xr.shape[0]
+    n_nan = 0
+    finite = True
+    for j in range(d):
+        if math.isnan(xr[j]):
+            n_nan += 1
+        elif not math.isfinite(xr[j]):
+            finite = False
+    if rejection and n_nan == d:
+        return REJECTED, 0.0, 0.0
+    if n_nan or not finite:
+        return NONFINITE, 0.0, 0.0
+    x0 = np.float64(xr[0])
+    x1 = np.float64(xr[1]) if d > 1 else 0.0
+    x2 = np.float64(xr[2]) if d > 2 else 0.0
     if kind == INTERVAL:
         a, b = args[0], args[1]
         t = tol * (b - a)
-        if x[0] < a - t or x[0] > b + t:
+        if x0 < a - t or x0 > b + t:
             return OUTSIDE, 0.0, 0.0
-        return VALID, (x[0] - a) / (b - a), 0.0
+        return VALID, (x0 - a) / (b - a), 0.0
     if kind == SQUARE:
-        if x[0] < -tol or x[0] > 1.0 + tol or x[1] < -tol or x[1] > 1.0 + tol:
+        if x0 < -tol or x0 > 1.0 + tol or x1 < -tol or x1 > 1.0 + tol:
             return OUTSIDE, 0.0, 0.0
-        return VALID, x[0], x[1]
+        return VALID, x0, x1
     if kind == DISK:
-        r2 = x[0] * x[0] + x[1] * x[1]
+        r2 = x0 * x0 + x1 * x1
         if r2 > 1.0 + tol:
             return OUTSIDE, 0.0, 0.0
-        return VALID, r2, _azimuth(x[0], x[1])
+        return VALID, r2, _azimuth(x0, x1)
     # SPHERE / HEMISPHERE: unit vectors; s0 = (1 - z) / span, span 2 or 1.
-    norm = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+    norm = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
     if abs(norm - 1.0) > tol:
         return OUTSIDE, 0.0, 0.0
     if kind == HEMISPHERE:
-        if x[2] < -tol:
+        if x2 < -tol:
             return OUTSIDE, 0.0, 0.0
-        return VALID, 1.0 - x[2], _azimuth(x[0], x[1])
-    return VALID, 0.5 * (1.0 - x[2]), _azimuth(x[0], x[1])
+        return VALID, 1.0 - x2, _azimuth(x0, x1)
+    return VALID, 0.5 * (1.0 - x2), _azimuth(x0, x1)
 
 
 @njit(cache=True, parallel=True)
-def to_param_kernel(kind, args, tol, x, out_s, out_status):
+def to_param_kernel(kind, args, tol, x, out_s, out_status, rejection):
     """Fill ``out_s`` (n, 2) with clamped parameters and ``out_status`` (n,) codes."""
     for i in prange(x.shape[0]):
-        st, s0, s1 = _classify_kernel(kind, args, tol, x[i])
+        st, s0, s1 = _classify_kernel(kind, args, tol, x[i], rejection)
         out_status[i] = st
         out_s[i, 0] = min(max(s0, 0.0), _S_MAX)
         out_s[i, 1] = min(max(s1, 0.0), _S_MAX)
@@ -88,25 +138,36 @@ def _find_cell(e, lut, s):
     return k
 
 
-@njit(cache=True)
-def histogram_kernel(kind, args, tol, x, e0, lut0, e1, lut1, param_dim):
-    """One pass: counts per cell (flat, row-major), status counts, first bad index of
+@njit(cache=True, parallel=True)
+def histogram_kernel(kind, args, tol, x, e0, lut0, e1, lut1, param_dim, rejection, counts):
+    """One parallel pass over the points ``x`` (n, dim): adds each valid point to
+    ``counts`` (flat, row-major cells); returns the status counts and the first index of
     each status (-1 if none). ``lut*`` from ``cell_lookup``."""
+    n = x.shape[0]
     n0 = e0.shape[0] - 1
     n1 = e1.shape[0] - 1 if param_dim == 2 else 1
-    counts = np.zeros(n0 * n1, dtype=np.int64)
-    n_status = np.zeros(3, dtype=np.int64)
-    first = np.full(3, -1, dtype=np.int64)
-    for i in range(x.shape[0]):
-        st, s0, s1 = _classify_kernel(kind, args, tol, x[i])
-        n_status[st] += 1
-        if st != VALID:
+    part_counts = np.zeros((_PARTS, n0 * n1), dtype=np.int64)
+    part_status = np.zeros((_PARTS, N_STATUS), dtype=np.int64)
+    part_first = np.full((_PARTS, N_STATUS), -1, dtype=np.int64)
+    for q in prange(_PARTS):
+        for i in range(n * q // _PARTS, n * (q + 1) // _PARTS):
+            st, s0, s1 = _classify_kernel(kind, args, tol, x[i], rejection)
+            part_status[q, st] += 1
+            if st != VALID:
+                if part_first[q, st] < 0:
+                    part_first[q, st] = i
+                continue
+            k = _find_cell(e0, lut0, min(max(s0, 0.0), _S_MAX))
+            if param_dim == 2:
+                k = k * n1 + _find_cell(e1, lut1, min(max(s1, 0.0), _S_MAX))
+            part_counts[q, k] += 1
+    n_status = np.zeros(N_STATUS, dtype=np.int64)
+    first = np.full(N_STATUS, -1, dtype=np.int64)
+    for q in range(_PARTS):
+        for c in range(counts.shape[0]):
+            counts[c] += part_counts[q, c]
+        for st in range(N_STATUS):
+            n_status[st] += part_status[q, st]
             if first[st] < 0:
-                first[st] = i
-            continue
-        s0 = min(max(s0, 0.0), _S_MAX)
-        k = _find_cell(e0, lut0, s0)
-        if param_dim == 2:
-            k = k * n1 + _find_cell(e1, lut1, min(max(s1, 0.0), _S_MAX))
-        counts[k] += 1
-    return counts, n_status, first
+                first[st] = part_first[q, st]
+    return n_status, first

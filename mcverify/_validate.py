@@ -110,7 +110,8 @@ def resolution(name: str, v, param_dim: int) -> tuple[int, ...] | None:
 
 
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
-    """Output of a user callable as an (n, dim) float64 array, or InvalidArgument."""
+    """Output of a user callable as an (n, dim) array (float32 kept, anything else as
+    float64), or InvalidArgument."""
     a = np.asarray(x)
     if a.dtype == object or not (np.issubdtype(a.dtype, np.floating)
                                  or np.issubdtype(a.dtype, np.integer)):
@@ -120,7 +121,7 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
     if a.shape != (n, dim):
         raise InvalidArgument(f"{name} returned shape {a.shape}: expected ({n}, {dim})"
                               + (" or (n,)" if dim == 1 else ""))
-    return a.astype(np.float64, copy=False)
+    return a if a.dtype == np.float32 else a.astype(np.float64, copy=False)
 
 
 def values(name: str, v, n: int) -> np.ndarray:

@@ -46,16 +46,20 @@ class Domain:
         return self.jacobian
 
     def points(self, x) -> np.ndarray:
-        """``x`` as a C-contiguous (n, dim) float64 array."""
-        return np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, self.dim))
+        """``x`` as a C-contiguous (n, dim) array: float32 stays float32 (the kernels
+        read it in float64), anything else becomes float64."""
+        a = np.asarray(x)
+        a = a if a.dtype in (np.float32, np.float64) else a.astype(np.float64)
+        return np.ascontiguousarray(a.reshape(-1, self.dim))
 
-    def classify(self, x) -> tuple[np.ndarray, np.ndarray]:
+    def classify(self, x, *, rejection: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Parameters (n, m), clamped to [0, 1), and a status per point
-        (``_domain_kernels.VALID`` / ``NONFINITE`` / ``OUTSIDE``), in one numba pass."""
+        (``_domain_kernels.VALID`` / ``NONFINITE`` / ``OUTSIDE``, and ``REJECTED`` for
+        rows of NaN with ``rejection``), in one numba pass."""
         x = self.points(x)
         s = np.empty((x.shape[0], 2))
         status = np.empty(x.shape[0], dtype=np.int8)
-        K.to_param_kernel(self.kind, self.args, self.tolerance, x, s, status)
+        K.to_param_kernel(self.kind, self.args, self.tolerance, x, s, status, rejection)
         return s[:, :self.param_dim], status
 
     def to_param(self, x) -> np.ndarray:

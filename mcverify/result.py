@@ -178,7 +178,7 @@ def output_target(path) -> tuple[str, str]:
     target = os.path.realpath(path)
     try:
         mode = os.stat(target).st_mode
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):   # new (its folder may not exist yet)
         return target, "replace"
     if stat.S_ISREG(mode):
         return target, "replace"

@@ -10,16 +10,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats as _sps
+from scipy.optimize import brentq as _brentq
 
 __all__ = [
-    "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells",
-    "KSResult", "ks_uniform", "ks_2samp",
+    "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells", "chi2_detectable_mixture",
+    "KSResult", "ks_uniform", "ks_2samp", "ks_binned", "ks_2samp_binned",
+    "BinomialResult", "binomial_test", "FisherResult", "fisher_exact_2x2",
     "TTestResult", "ttest_mean",
     "TailResult", "hill_tail_index",
     "VarianceTestResult", "variance_test",
     "SlopeResult", "loglog_slope", "z_test_beyond", "welch_t_beyond",
     "holm", "sidak", "benjamini_hochberg", "bonferroni_min",
     "binomial_upper_bound",
+    "obrien_fleming_spending", "spending_weights", "sequential_p_value",
 ]
 
 #: Smallest expected count of a χ² cell; smaller cells are pooled (Cochran's rule, as
@@ -124,6 +127,38 @@ def chi2_gof(observed, expected, *, min_expected: float = MIN_EXPECTED,
                       int(np.count_nonzero((e > 0) & (e < min_expected))), in_empty)
 
 
+def chi2_detectable_mixture(expected, alternative, *, alpha: float, power: float = 0.95,
+                            min_expected: float = MIN_EXPECTED) -> float:
+    """Smallest mixture weight ε at which :func:`chi2_gof` at level ``alpha`` rejects
+    with probability ``power`` when the counts' true means are
+    ``(1 - ε)·expected + ε·alternative`` (both arrays of expected counts for the same n).
+
+    Noncentral χ² approximation on the pooled bins: the statistic is
+    :math:`\\chi'^2_{B-1}(\\lambda)` with :math:`\\lambda = \\varepsilon^2 \\sum_b
+    (A_b - E_b)^2 / E_b`; ε solves ``P(χ'² > χ²_{1-α}) = power``. Returns inf when no
+    mixture weight up to 1 is detected (the alternative matches ``expected`` on the
+    bins).
+    """
+    e = np.asarray(expected, dtype=np.float64).ravel()
+    a = np.asarray(alternative, dtype=np.float64).ravel()
+    label = pool_cells(e, min_expected).ravel()
+    n_bins = int(label.max()) + 1 if (label >= 0).any() else 0
+    if n_bins < 2:
+        return float("inf")
+    eb, ab = _pooled_sums(e, label, n_bins), _pooled_sums(a, label, n_bins)
+    spread = float(np.sum((ab - eb) ** 2 / eb))
+    if not spread > 0:
+        return float("inf")
+    dof = n_bins - 1
+    crit = _sps.chi2.isf(alpha, dof)
+    hi = 1.0
+    while _sps.ncx2.sf(crit, dof, hi) < power:
+        hi *= 2.0
+    lam = _brentq(lambda t: _sps.ncx2.sf(crit, dof, t) - power, 0.0, hi, xtol=1e-6)
+    eps = float(np.sqrt(lam / spread))
+    return eps if eps <= 1.0 else float("inf")
+
+
 def chi2_homogeneity(counts_a, counts_b, *, min_expected: float = MIN_EXPECTED) -> Chi2Result:
     """Two-sample χ² test that two histograms come from the same distribution.
 
@@ -172,6 +207,79 @@ def ks_2samp(a, b) -> KSResult:
     method = "asymp" if a.size * b.size > 10_000 else "auto"
     r = _sps.ks_2samp(a, b, method=method)
     return KSResult(float(r.statistic), float(r.pvalue), a.size + b.size)
+
+
+def ks_binned(counts, cdf_at_edges) -> KSResult:
+    """Kolmogorov–Smirnov test from a fine histogram: ``counts`` of n samples in the
+    cells between consecutive edges, ``cdf_at_edges`` the claimed CDF at every edge
+    (first 0, last 1). The statistic is the largest gap between the empirical and the
+    claimed CDF *at the edges*, which never exceeds the gap over all points, so the
+    p-value (the exact one-sample distribution of D for n samples) is conservative: the
+    false-alarm rate stays at most the nominal α. On a grid much finer than the
+    distribution's features the power is that of the full test.
+
+    A stream of 10⁹ samples needs only the histogram, not the samples."""
+    c = np.asarray(counts, dtype=np.float64).ravel()
+    f = np.asarray(cdf_at_edges, dtype=np.float64).ravel()
+    n = int(round(c.sum()))
+    if n == 0:
+        return KSResult(0.0, 1.0, 0)
+    ecdf = np.concatenate([[0.0], np.cumsum(c)]) / n
+    d = float(np.max(np.abs(ecdf - f)))
+    return KSResult(d, float(_sps.kstwo.sf(d, n)), n)
+
+
+def ks_2samp_binned(counts_a, counts_b) -> KSResult:
+    """Two-sample Kolmogorov–Smirnov test from two histograms on the same fine cells:
+    the gap between the empirical CDFs at the edges (never above the gap over all
+    points, so conservative) with scipy's asymptotic p-value
+    (``kstwo`` at the effective size ``n·m / (n + m)``)."""
+    a = np.asarray(counts_a, dtype=np.float64).ravel()
+    b = np.asarray(counts_b, dtype=np.float64).ravel()
+    na, nb = a.sum(), b.sum()
+    if na == 0 or nb == 0:
+        return KSResult(0.0, 1.0, int(na + nb))
+    d = float(np.max(np.abs(np.cumsum(a) / na - np.cumsum(b) / nb)))
+    en = max(1, int(round(na * nb / (na + nb))))
+    return KSResult(d, float(_sps.kstwo.sf(d, en)), int(na + nb))
+
+
+@dataclass(frozen=True)
+class BinomialResult:
+    successes: int
+    trials: int
+    p: float
+    p_value: float
+
+
+def binomial_test(successes: int, trials: int, p: float) -> BinomialResult:
+    """Exact two-sided binomial test of ``successes`` in ``trials`` against rate ``p``
+    (e.g. accepted draws of a sampler that rejects, against ∫pdf)."""
+    p = float(min(max(p, 0.0), 1.0))
+    k, n = int(successes), int(trials)
+    if n == 0:
+        return BinomialResult(k, n, p, 1.0)
+    if p in (0.0, 1.0):
+        pv = 1.0 if k == n * p else 0.0
+    else:
+        pv = float(_sps.binomtest(k, n, p).pvalue)
+    return BinomialResult(k, n, p, pv)
+
+
+@dataclass(frozen=True)
+class FisherResult:
+    table: tuple[int, int, int, int]
+    p_value: float
+
+
+def fisher_exact_2x2(a: int, b: int, c: int, d: int) -> FisherResult:
+    """Fisher's exact two-sided test that two binomial rates agree, from the table
+    ``[[a, b], [c, d]]`` (e.g. accepted and rejected draws of two samplers)."""
+    t = tuple(int(v) for v in (a, b, c, d))
+    if (t[0] + t[1]) == 0 or (t[2] + t[3]) == 0 or (t[0] + t[2]) == 0 or (t[1] + t[3]) == 0:
+        return FisherResult(t, 1.0)
+    r = _sps.fisher_exact([[t[0], t[1]], [t[2], t[3]]])
+    return FisherResult(t, float(r.pvalue))
 
 
 # ----------------------------------------------------------------------- mean tests
@@ -403,3 +511,57 @@ def binomial_upper_bound(n_trials: int, rate: float, confidence: float = 0.999) 
     """Largest count of rejections still consistent with a true ``rate`` at one-sided
     ``confidence`` (used to judge false-alarm calibration over many seeded runs)."""
     return int(_sps.binom.ppf(confidence, n_trials, rate))
+
+
+# ------------------------------------------------------- group-sequential testing
+def obrien_fleming_spending(t, alpha: float) -> np.ndarray:
+    """Lan–DeMets O'Brien–Fleming-type α-spending function: the type I error spent by
+    information fraction ``t`` (0 < t <= 1) of a two-sided test at level ``alpha``.
+
+    .. math:: \\alpha(t) = 2 - 2 \\Phi(z_{1-\\alpha/2} / \\sqrt{t}),
+              \\qquad \\alpha(1) = \\alpha
+
+    It spends almost nothing early (at t = 1/4 and α = 0.01: 2.6e-7), so a test that
+    looks early keeps nearly all of α for its final look, and still stops at once on
+    overwhelming evidence.
+
+    References: K. K. G. Lan, D. L. DeMets, "Discrete sequential boundaries for clinical
+    trials", Biometrika 70 (1983); P. C. O'Brien, T. R. Fleming, Biometrics 35 (1979).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if np.any((t <= 0) | (t > 1)):
+        raise ValueError(f"t={t}: information fractions must lie in (0, 1]")
+    z = _sps.norm.isf(alpha / 2.0)
+    return 2.0 * _sps.norm.sf(z / np.sqrt(t))
+
+
+def spending_weights(fractions, alpha: float) -> np.ndarray:
+    """Share of ``alpha`` spent at each look: ``(α(t_k) − α(t_{k−1})) / α`` for
+    increasing information fractions ``t_1 < … < t_K = 1`` (they sum to 1)."""
+    t = np.asarray(fractions, dtype=np.float64)
+    if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0) or t[-1] != 1.0:
+        raise ValueError(f"fractions={t.tolist()}: need increasing values ending at 1")
+    spent = obrien_fleming_spending(t, alpha)
+    return np.diff(np.concatenate([[0.0], spent])) / alpha
+
+
+def sequential_p_value(p_values, weights) -> float:
+    """p-value of a group-sequential test from the looks taken so far:
+    ``min_k p_k / w_k`` (capped at 1), with ``w_k`` the α-spending weights.
+
+    Rejecting when this is <= α rejects at look k when ``p_k <= α(t_k) − α(t_{k−1})``:
+    the spending function's increments as per-look levels. By the union bound the
+    false-alarm probability is at most ``Σ_k α w_k = α`` whatever the dependence between
+    looks and whatever the test (χ², a composite image test), and ``P(p <= x) <= x`` for
+    every x, so it is a valid p-value for Holm across checks. A test that stops at an
+    early look only has a larger (more conservative) value than had it gone on. The rate
+    is at least ``α − α(t_{K−1})``, the final look's own level: with O'Brien–Fleming
+    spending and looks up to t = 1/2 that is 0.973 α at α = 0.01 (the exact boundaries
+    for a z-statistic would gain at most the other 2.7 %); tests/mcverify/
+    test_sequential.py simulates both bounds.
+    """
+    p = np.asarray(p_values, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)[:p.size]
+    with np.errstate(divide="ignore"):
+        ratio = np.where(w > 0, p / w, np.where(p == 0, 0.0, np.inf))
+    return float(min(1.0, ratio.min())) if p.size else 1.0

@@ -26,7 +26,8 @@ from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
 from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
-from .scene import Plugin, SceneDescription, SceneError, load_scene
+from .scene import (MAX_ASSET_BYTES, Plugin, SceneDescription, SceneError, file_problem,
+                    load_scene)
 from .textures import TextureStore, envmap_sampling_weights, read_image
 
 _MATERIALS = None
@@ -120,6 +121,9 @@ class _Builder:
     # ---------------------------------------------------------------- textures
     def _image(self, plugin: Plugin, filename: str, raw: bool = False) -> np.ndarray:
         path = filename if os.path.isabs(filename) else os.path.join(self.dir, filename)
+        problem = file_problem(path, MAX_ASSET_BYTES)
+        if problem:
+            self.fail(plugin, problem)
         try:
             return read_image(path, raw=raw)
         except OSError as e:
@@ -312,11 +316,14 @@ class _Builder:
         if not name:
             self.fail(s, "set <string name=\"filename\" .../>")
         path = name if os.path.isabs(name) else os.path.join(self.dir, name)
+        problem = file_problem(path, MAX_ASSET_BYTES)
+        if problem:
+            self.fail(s, problem)
         try:
             with open(path, encoding="utf-8") as fh:
                 lines = fh.readlines()
-        except OSError as e:
-            self.fail(s, f"cannot read {path} ({e.strerror})")
+        except (OSError, UnicodeDecodeError) as e:
+            self.fail(s, f"cannot read {path} ({getattr(e, 'strerror', None) or e})")
         v, vt, vn = [], [], []
         corners = []
         for ln, line in enumerate(lines, 1):

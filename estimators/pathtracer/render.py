@@ -13,6 +13,8 @@ import functools
 import hashlib
 import importlib
 import importlib.util
+import math
+import numbers
 import os
 import sys
 import tempfile
@@ -108,6 +110,28 @@ def _tiles(width: int, height: int, threads: int) -> np.ndarray:
     return np.concatenate([rows[i::threads] for i in range(threads)])
 
 
+def _integer(name: str, v, minimum: int, maximum: int | None = None) -> None:
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ValueError(f"{name}={v!r}: must be an integer (got {type(v).__name__})")
+    if v < minimum or (maximum is not None and v > maximum):
+        raise ValueError(f"{name}={v}: must be in [{minimum}, "
+                         f"{'∞' if maximum is None else maximum}]")
+
+
+def _render_iv(spp, seed, passes, pdf_scale, params) -> None:
+    """render()'s arguments, checked before the scene is compiled: a ValueError names the
+    parameter (no silent coercion of '64' or 2.5)."""
+    if spp is not None:
+        _integer("spp", spp, 1)
+    _integer("seed", seed, 0, 2 ** 63 - 1)
+    _integer("passes", passes, 1)
+    if isinstance(pdf_scale, bool) or not isinstance(pdf_scale, numbers.Real) \
+            or not (math.isfinite(pdf_scale) and pdf_scale > 0):
+        raise ValueError(f"pdf_scale={pdf_scale!r}: must be a finite number > 0")
+    if params is not None and not isinstance(params, dict):
+        raise ValueError(f"params={params!r}: must be a dict of scene parameters")
+
+
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
            general: bool = False, pdf_scale: float = 1.0, params: dict | None = None,
            progress=None) -> RenderResult:
@@ -122,10 +146,9 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
 
     ``pdf_scale`` != 1 is a test hook: every BSDF sample's pdf is scaled by it, a planted
     bug the render gate must catch."""
+    _render_iv(spp, seed, passes, pdf_scale, params)
     cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
-    if not 0 <= seed < 2 ** 63:
-        raise ValueError(f"seed must be in [0, 2^63), got {seed}")
     if passes > 1:
         return _render_passes(cs, spp, seed, int(passes), general, pdf_scale, progress)
     if spp < 2:
@@ -169,6 +192,12 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
                         stats)
 
 
+def pass_seed(seed: int, k: int) -> int:
+    """Seed of pass ``k`` of a render with ``passes`` > 1 (render one pass alone with it
+    and ``spp // passes`` samples, and it is bit-identical to that pass of the whole)."""
+    return (seed + k * 0x9E3779B97F4A7C15) % 2 ** 63
+
+
 def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> RenderResult:
     per = spp // passes
     if per < 1:
@@ -177,7 +206,7 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
     seconds = 0.0
     stats = {}
     for k in range(passes):
-        r = render(cs, spp=max(per, 2), seed=(seed + k * 0x9E3779B97F4A7C15) % 2 ** 63,
+        r = render(cs, spp=max(per, 2), seed=pass_seed(seed, k),
                    general=general, pdf_scale=pdf_scale,
                    progress=(lambda d, t, k=k: progress(k * t + d, passes * t))
                    if progress else None)

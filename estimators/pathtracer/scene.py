@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 from dataclasses import dataclass, field
 from xml.parsers import expat
 
@@ -31,6 +32,26 @@ __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scen
 class SceneError(ValueError):
     """A scene the path tracer cannot render as written; the message names the file,
     line, element and what is supported."""
+
+
+#: Largest files read: a scene's XML, and a mesh or image it names (reading /dev/zero
+#: or a runaway file would otherwise run until memory is gone).
+MAX_SCENE_BYTES = 16 << 20
+MAX_ASSET_BYTES = 1 << 30
+
+
+def file_problem(path: str, limit: int) -> str | None:
+    """Why ``path`` cannot be read as a scene file or asset (missing, not a regular file,
+    larger than ``limit`` bytes), or None."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        return f"cannot read {path} ({e.strerror})"
+    if not stat.S_ISREG(st.st_mode):
+        return f"{path} is not a regular file"
+    if st.st_size > limit:
+        return f"{path} has {st.st_size} bytes, more than the {limit >> 20} MiB limit"
+    return None
 
 
 @dataclass
@@ -47,6 +68,10 @@ def _parse_xml(text: str, origin: str) -> _Node:
     root = _Node("#document", {}, 0)
     stack = [root]
 
+    def no_dtd(*_):  # Mitsuba scenes have no DTD; entities could expand without bound
+        raise SceneError(f"{origin}:{parser.CurrentLineNumber}: a DOCTYPE or entity "
+                         "declaration; scene files must not have one")
+
     def start(tag, attrib):
         node = _Node(tag, dict(attrib), parser.CurrentLineNumber)
         stack[-1].children.append(node)
@@ -57,6 +82,8 @@ def _parse_xml(text: str, origin: str) -> _Node:
 
     parser.StartElementHandler = start
     parser.EndElementHandler = end
+    parser.StartDoctypeDeclHandler = no_dtd
+    parser.EntityDeclHandler = no_dtd
     try:
         parser.Parse(text, True)
     except expat.ExpatError as e:
@@ -160,6 +187,8 @@ class _Loader:
     def __init__(self, path: str, params: dict):
         self.path = path
         self.params = {k: str(v) for k, v in params.items()}
+        self.given = set(self.params)
+        self.declared: set[str] = set()
         self.ids: dict[str, Plugin] = {}
 
     def fail(self, node, message):
@@ -174,6 +203,7 @@ class _Loader:
 
         def sub(m):
             key = m.group(1)
+            self.declared.add(key)
             if key not in self.params:
                 self.fail(node, f"${key} has no value: add <default name=\"{key}\" .../> or "
                                 "pass it as a parameter")
@@ -190,6 +220,8 @@ class _Loader:
             vals = vals * 3
         if len(vals) != count:
             self.fail(node, f"expected {count} numbers, got {text!r}")
+        if not all(np.isfinite(vals)):
+            self.fail(node, f"expected finite numbers, got {text!r}")
         return np.array(vals)
 
     def value(self, node):
@@ -213,8 +245,7 @@ class _Loader:
         if tag in ("point", "vector"):
             if "value" in node.attrib:
                 return tag, self.numbers(node, self.attr(node, "value"), 3)
-            return tag, np.array([float(self.attr(node, k)) if k in node.attrib else 0.0
-                                  for k in "xyz"])
+            return tag, self._xyz(node, 0.0)
         if tag == "transform":
             return "transform", self.transform(node)
         self.fail(node, "unsupported value type")
@@ -222,30 +253,36 @@ class _Loader:
     def transform(self, node):
         m = np.eye(4)
         for op in node.children:
-            if op.tag == "lookat":
-                t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
-                            self.numbers(op, self.attr(op, "target"), 3),
-                            self.numbers(op, self.attr(op, "up"), 3)
-                            if "up" in op.attrib else np.array([0.0, 1.0, 0.0]))
-            elif op.tag == "translate":
-                t = translate(self._xyz(op, 0.0))
-            elif op.tag == "scale":
-                t = scale(self._xyz(op, 1.0))
-            elif op.tag == "rotate":
-                axis = self._xyz(op, 0.0)
-                t = rotate(axis, float(self.attr(op, "angle")))
-            elif op.tag == "matrix":
-                t = matrix(self.numbers(op, self.attr(op, "value"), 16))
-            else:
-                self.fail(op, "unsupported transform operation; supported: lookat, "
-                              "translate, rotate, scale, matrix")
+            try:
+                if op.tag == "lookat":
+                    t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
+                                self.numbers(op, self.attr(op, "target"), 3),
+                                self.numbers(op, self.attr(op, "up"), 3)
+                                if "up" in op.attrib else np.array([0.0, 1.0, 0.0]))
+                elif op.tag == "translate":
+                    t = translate(self._xyz(op, 0.0))
+                elif op.tag == "scale":
+                    t = scale(self._xyz(op, 1.0))
+                elif op.tag == "rotate":
+                    axis = self._xyz(op, 0.0)
+                    t = rotate(axis, self.numbers(op, self.attr(op, "angle"), 1)[0])
+                elif op.tag == "matrix":
+                    t = matrix(self.numbers(op, self.attr(op, "value"), 16))
+                else:
+                    self.fail(op, "unsupported transform operation; supported: lookat, "
+                                  "translate, rotate, scale, matrix")
+            except SceneError:
+                raise
+            except ValueError as e:     # a degenerate transform (zero axis, up ∥ view)
+                self.fail(op, str(e))
             m = t @ m
         return m
 
     def _xyz(self, op, default):
         if "value" in op.attrib:
             return self.numbers(op, self.attr(op, "value"), 3)
-        return np.array([float(self.attr(op, k)) if k in op.attrib else default for k in "xyz"])
+        return np.array([self.numbers(op, self.attr(op, k), 1)[0] if k in op.attrib
+                         else default for k in "xyz"])
 
     def plugin(self, node, kind=None):
         kind = kind or node.tag
@@ -306,6 +343,7 @@ class _Loader:
         for node in root.children:
             if node.tag == "default":
                 name = self.attr(node, "name")
+                self.declared.add(name)
                 self.params.setdefault(name, node.attrib.get("value", ""))
             elif node.tag == "integrator":
                 integrator = self.plugin(node)
@@ -326,6 +364,10 @@ class _Loader:
                                 "integrator, sensor, shape, emitter, bsdf, texture")
         if sensor is None:
             self.fail(root, "the scene has no <sensor>")
+        unknown = sorted(self.given - self.declared)
+        if unknown:
+            raise SceneError(f"{self.path}: params {unknown}: the scene has no such "
+                             f"parameter (it has: {', '.join(sorted(self.declared)) or 'none'})")
         integrator = integrator or Plugin("integrator", "path", {}, root.line)
         film = next((c for c in sensor.children if c.kind == "film"), None) or \
             Plugin("film", "hdrfilm", {}, sensor.line)
@@ -364,11 +406,14 @@ def parse_scene(text: str, *, path: str = "<string>", params: dict | None = None
 
 def load_scene(path: str, *, params: dict | None = None) -> SceneDescription:
     """Parse a Mitsuba XML scene file."""
+    problem = file_problem(path, MAX_SCENE_BYTES)
+    if problem:
+        raise SceneError(problem)
     try:
         with open(path, encoding="utf-8") as f:
-            text = f.read()
-    except OSError as e:
-        raise SceneError(f"{path}: cannot read ({e.strerror})") from None
+            text = f.read(MAX_SCENE_BYTES + 1)
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
     desc = parse_scene(text, path=path, params=params)
     desc.path = os.path.abspath(path)
     return desc

@@ -7,7 +7,10 @@ uniform numbers ``u`` of shape (n, k) to points (n, d); ``pdf(x)`` maps (n, d) p
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -19,7 +22,8 @@ from ..domains import Domain, as_domain
 from ..quadrature import gauss_legendre_01, integrate_cells, merge_leaves
 from ..result import CheckResult
 
-__all__ = ["check_sampler", "check_inverse", "check_same_distribution"]
+__all__ = ["check_sampler", "check_inverse", "check_same_distribution",
+           "detectable_contamination"]
 
 #: Cells re-integrated more finely when their χ² contribution exceeds this (a 5σ cell):
 #: under a correct pdf this only happens where the quadrature missed a narrow feature.
@@ -27,45 +31,159 @@ _SUSPICIOUS = 25.0
 _MAX_SUSPICIOUS_CELLS = 256
 
 
+#: Rows of one seeded block of the uniform stream: block b of a stream is drawn from its
+#: own generator, seeded by (stream seed, b), so the numbers do not depend on how the
+#: stream is cut into chunks for ``sample`` or on the thread count.
+STREAM_BLOCK = 1 << 16
+#: Default rows per call of ``sample`` (a multiple of ``STREAM_BLOCK``): 2^20 rows keep
+#: a chunk's uniforms and points (~60 MB at k = 2, d = 3) well inside memory.
+DEFAULT_CHUNK = 1 << 20
+#: Each χ² cell of a 1-D histogram is split into this many equal sub-cells for the
+#: binned Kolmogorov–Smirnov test.
+KS_SPLIT = 64
+_POOL: ThreadPoolExecutor | None = None
+
+
 def _name_of(f, default):
     return getattr(f, "__name__", None) or default
 
 
-def _draw(sample, rng, n, k, dim, name="sample"):
-    u = rng.random((n, k))
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1),
+                                   thread_name_prefix="mcverify-uniforms")
+    return _POOL
+
+
+def _fill_block(seq: np.random.SeedSequence, block: int, out: np.ndarray) -> None:
+    child = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key + (block,))
+    np.random.Generator(np.random.PCG64(child)).random(out=out)
+
+
+def _uniform_chunks(seq: np.random.SeedSequence, n: int, k: int, chunk: int):
+    """Yield ``(start, u)`` chunks of the seeded stream of n × k uniforms: row r lies in
+    block ``r // STREAM_BLOCK``, drawn by that block's generator. Blocks are drawn on a
+    thread pool (numpy releases the GIL), the next chunk while the caller works on this
+    one. Memory: two chunks."""
+    def submit(start):
+        u = np.empty((min(chunk, n - start), k))
+        jobs = [_pool().submit(_fill_block, seq, (start + a) // STREAM_BLOCK,
+                               u[a:a + STREAM_BLOCK])
+                for a in range(0, u.shape[0], STREAM_BLOCK)]
+        return start, u, jobs
+
+    pending = submit(0) if n > 0 else None
+    while pending is not None:
+        start, u, jobs = pending
+        for j in jobs:
+            j.result()
+        nxt = start + u.shape[0]
+        pending = submit(nxt) if nxt < n else None
+        yield start, u
+
+
+def _draw(sample, seq, n, k, dim, name="sample"):
+    """All n points at once (the pilot): uniforms (n, k) and points (n, dim)."""
+    u = np.empty((n, k))
+    for start, c in _uniform_chunks(seq, n, k, DEFAULT_CHUNK):
+        u[start:start + c.shape[0]] = c
     return u, v.points(name, sample(u), n, dim)
 
 
-def _status_failures(n_status, first, x, u, domain: Domain, what="sample"):
-    """Failure messages for NaN/Inf points and points outside the domain."""
+_STATUS_TEXT = {K.NONFINITE: "are NaN/Inf", K.OUTSIDE: "lie outside the {} domain"}
+
+
+def _status_failures(n_status, examples, domain: Domain, what="sample"):
+    """Failure messages for NaN/Inf points and points outside the domain, each with its
+    first example ``(u, x)``."""
     failures = []
-    for code, text in ((K.NONFINITE, "are NaN/Inf"),
-                       (K.OUTSIDE, f"lie outside the {domain.name} domain")):
+    for code, text in _STATUS_TEXT.items():
         if n_status[code]:
-            i = int(first[code])
-            origin = "" if np.isnan(u[i]).all() else f"u={u[i].tolist()} -> "
-            failures.append(f"{int(n_status[code])} {what}s {text} "
-                            f"(first: {origin}x={x[i].tolist()})")
+            u, x = examples[code]
+            origin = "" if u is None or np.isnan(u).all() else f"u={u.tolist()} -> "
+            failures.append(f"{int(n_status[code])} {what}s {text.format(domain.name)} "
+                            f"(first: {origin}x={x.tolist()})")
     return failures
 
 
-def _screen(x, u, domain: Domain, what="sample"):
+def _screen(x, u, domain: Domain, what="sample", rejection=False):
     """Valid points' parameters, and failure messages (NaN/Inf, outside domain)."""
-    s, status = domain.classify(x)
-    codes = np.bincount(status, minlength=3)
-    first = np.array([np.argmax(status == c) if codes[c] else -1 for c in range(3)])
-    return s[status == K.VALID], _status_failures(codes, first, x, u, domain, what)
+    s, status = domain.classify(x, rejection=rejection)
+    codes = np.bincount(status, minlength=K.N_STATUS)
+    examples = {}
+    for c in _STATUS_TEXT:
+        if codes[c]:
+            i = int(np.argmax(status == c))
+            examples[c] = (u[i], np.asarray(x[i]))
+    return s[status == K.VALID], _status_failures(codes, examples, domain, what)
 
 
-def _histogram(x, u, domain: Domain, edges, what="sample"):
-    """Counts per cell of the points ``x`` (one numba pass), and failure messages."""
-    e1 = edges[1] if len(edges) == 2 else np.array([0.0, 1.0])
-    counts, codes, first = K.histogram_kernel(
-        domain.kind, domain.args, domain.tolerance, domain.points(x),
-        edges[0], K.cell_lookup(edges[0]), e1, K.cell_lookup(e1), len(edges))
-    shape = tuple(e.size - 1 for e in edges)
-    return (counts.reshape(shape).astype(np.float64), int(codes[K.VALID]),
-            _status_failures(codes, first, x, u, domain, what))
+class _Histogram:
+    """Counts of points on a tensor grid of parameter cells, fed chunk by chunk (memory
+    O(cells)): status counts and the first example of each bad status ride along."""
+
+    def __init__(self, domain: Domain, edges, *, rejection=False):
+        self.domain, self.edges, self.rejection = domain, edges, rejection
+        self.e1 = edges[1] if len(edges) == 2 else np.array([0.0, 1.0])
+        self.lut0, self.lut1 = K.cell_lookup(edges[0]), K.cell_lookup(self.e1)
+        self.shape = tuple(e.size - 1 for e in edges)
+        self.flat = np.zeros(int(np.prod(self.shape)), dtype=np.int64)
+        self.n_status = np.zeros(K.N_STATUS, dtype=np.int64)
+        self.examples = {}
+
+    def add(self, x, u=None):
+        d = self.domain
+        x = d.points(x)
+        codes, first = K.histogram_kernel(d.kind, d.args, d.tolerance, x, self.edges[0],
+                                          self.lut0, self.e1, self.lut1, len(self.edges),
+                                          self.rejection, self.flat)
+        self.n_status += codes
+        for c in _STATUS_TEXT:
+            if first[c] >= 0 and c not in self.examples:
+                i = int(first[c])
+                self.examples[c] = (None if u is None else u[i].copy(), x[i].copy())
+
+    @property
+    def counts(self) -> np.ndarray:
+        return self.flat.reshape(self.shape).astype(np.float64)
+
+    def failures(self, what="sample"):
+        return _status_failures(self.n_status, self.examples, self.domain, what)
+
+
+def _stream_batches(sample, seq, n, k, dim, hist: _Histogram, chunk: int, bounds,
+                    name="sample"):
+    """Draw the stream's rows up to each of ``bounds`` (increasing row counts ending at n)
+    chunk by chunk and bin them; a generator that yields each bound once its rows are
+    binned, so a caller can look between batches. The rows are the same stream whatever
+    the bounds; a chunk straddling a bound is passed to ``sample`` in two parts."""
+    stops = iter(bounds)
+    stop = next(stops)
+    for start, u in _uniform_chunks(seq, n, k, chunk):
+        a = 0
+        while a < u.shape[0]:
+            b = min(u.shape[0], stop - start)
+            hist.add(v.points(name, sample(u[a:b]), b - a, dim), u[a:b])
+            a = b
+            if start + a == stop:
+                yield stop
+                stop = next(stops, None)
+                if stop is None:
+                    return
+
+
+def _stream(sample, seq, n, k, dim, hist: _Histogram, chunk: int, name="sample"):
+    """Draw n points chunk by chunk and bin them; nothing of size n is kept."""
+    for _ in _stream_batches(sample, seq, n, k, dim, hist, chunk, (n,), name):
+        pass
+
+
+def _split_edges(edges: np.ndarray, parts: int) -> np.ndarray:
+    """Each cell of ``edges`` split into ``parts`` equal sub-cells."""
+    t = np.arange(parts) / parts
+    fine = (edges[:-1, None] + np.diff(edges)[:, None] * t[None, :]).ravel()
+    return np.append(fine, edges[-1])
 
 
 def _edges(pilot_s, resolution):
@@ -180,21 +298,28 @@ def _worst_cells(domain, edges, counts, expected, k=5):
     return out
 
 
-def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, *,
+def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, chunk, *,
                        min_samples):
     """Validate the arguments shared by the histogram tests; returns them normalised."""
     dom = as_domain(domain)
     n = v.integer("n_samples", n_samples, minimum=min_samples)
     res = v.resolution("resolution", resolution, dom.param_dim)
     k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
-    v.memory("n_samples", n, 8 * (k + 3 * dom.dim + 4),
-             "uniform numbers, points, their parameters and cells")
-    return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k
+    chunk = v.integer("chunk", chunk, minimum=STREAM_BLOCK)
+    if chunk % STREAM_BLOCK:
+        raise InvalidArgument(f"chunk={chunk}: must be a multiple of {STREAM_BLOCK} (the "
+                              "rows of one seeded block of uniforms)")
+    # Streamed: two chunks of uniforms and one of points in memory at a time, whatever n.
+    v.memory("chunk" if chunk <= n else "n_samples", min(n, chunk),
+             8 * (2 * k + 2 * dom.dim), "uniform numbers and points of one chunk")
+    return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k, chunk
 
 
 def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution=None,
                   alpha: float = 0.01, seed: int = 0, sample_dim: int | None = None,
-                  pilot: bool = True, name: str | None = None) -> CheckResult:
+                  pilot: bool = True, name: str | None = None, rejection: bool = False,
+                  chunk: int = DEFAULT_CHUNK, batches: int | None = None,
+                  stop_alpha: float | None = None) -> CheckResult:
     """Test that ``sample`` draws from the distribution whose density is ``pdf``.
 
     Parameters
@@ -220,22 +345,51 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         k, the uniform numbers per sample (default ``domain.sample_dim``).
     pilot : bool
         Place cell edges by an independent pilot sample (see Notes).
+    rejection : bool
+        ``sample`` may reject draws: a row of NaN is a rejected draw, and ``pdf`` is the
+        density of the accepted points, integrating to the acceptance probability P.
+        The check then adds an exact binomial test of the number accepted against
+        n·P, and tests the accepted points against ``pdf / P``. Without it a NaN row is
+        a failure.
+    chunk : int
+        Rows per call of ``sample`` (a multiple of ``STREAM_BLOCK`` = 2^16). The
+        points are binned chunk by chunk and never kept, so memory is O(chunk + cells)
+        and any n fits; the result does not depend on ``chunk``.
+    batches : int, optional
+        Test group-sequentially (:mod:`mcverify.sequential`): the same stream of n draws
+        is cut into this many batches, the tests look at everything binned after 1, 2,
+        4, … batches and after all of them, and the check stops as soon as the evidence
+        against the sampler is clear. ``details["sequential"]`` says at which batch it
+        decided; a correct sampler is judged on all n draws, by the same histogram as
+        without ``batches``.
+    stop_alpha : float, optional
+        With ``batches``: stop early when the sequential p-value reaches this (default
+        ``alpha``; a suite passes the level the check must reach within it).
 
     Returns
     -------
     CheckResult
         ``p_value`` combines the sub-tests by Bonferroni. ``failures`` lists NaN/Inf
         samples, samples outside the domain, negative/NaN pdf values, samples in cells
-        where the pdf integrates to zero, and a pdf whose integral differs from 1 by more
-        than the quadrature's error bound (at least 1e-4).
+        where the pdf integrates to zero, and a pdf whose integral differs from 1 (with
+        ``rejection``: exceeds 1) by more than the quadrature's error bound (at least
+        1e-4).
 
     Notes
     -----
+    The uniforms are one seeded stream cut into blocks of 2^16 rows, block b drawn by
+    its own generator seeded from (seed, b): the same seed gives the same numbers
+    whatever the chunk size or thread count. Drawing the next chunk's uniforms (on a
+    thread pool) overlaps ``sample`` and the binning of this one (a parallel numba
+    pass); ``sample`` itself is called from one thread, in order.
+
     Sub-tests, each on the same samples: Pearson's χ² on the full grid (low-expectation
     cells pooled); on 2-D domains also χ² of the two marginal histograms (few cells,
     hence high power against smooth deviations such as a mixture with another
-    distribution); on 1-D domains the Kolmogorov–Smirnov test of ``F(X)`` against
-    uniform, with ``F`` integrated from the pdf (binning-free).
+    distribution); on 1-D domains the Kolmogorov–Smirnov test, from a histogram whose
+    cells are the χ² cells split 64 ways (the largest CDF gap at those edges, never
+    above the gap over all points: a conservative p-value, and no need to keep n
+    samples), with ``F`` integrated from the pdf.
 
     .. math:: E_j = n \\int_{C_j} p(x)\\, dx, \\qquad X^2 = \\sum_j (O_j - E_j)^2 / E_j
 
@@ -260,8 +414,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     t0 = time.perf_counter()
     v.callable_("sample", sample)
     v.callable_("pdf", pdf)
-    dom, n, res, alpha, seed, k = _histogram_test_iv(domain, n_samples, resolution, alpha,
-                                                     seed, sample_dim, min_samples=1)
+    dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
+        domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=1)
     name = name or f"sampler:{_name_of(sample, 'sample')}"
     m = dom.param_dim
     res = res or dom.default_resolution(n)
@@ -270,71 +424,176 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     pilot_s = None
     if pilot:
         n_pilot = int(min(max(n // 10, 1000), 100_000))
-        pu, px = _draw(sample, np.random.default_rng(pilot_seq), n_pilot, k, dom.dim)
-        pilot_s, _ = _screen(px, pu, dom)
+        pu, px = _draw(sample, pilot_seq, n_pilot, k, dom.dim)
+        pilot_s, _ = _screen(px, pu, dom, rejection=rejection)
     edges = _edges(pilot_s, res)
-    u, x = _draw(sample, np.random.default_rng(main_seq), n, k, dom.dim)
-    counts, n_valid, failures = _histogram(x, u, dom, edges)
-
+    # 1-D: a fine histogram (each cell split in KS_SPLIT) serves the binned KS test; the
+    # χ² counts are its sums.
+    hist_edges = [_split_edges(edges[0], KS_SPLIT)] if m == 1 else edges
+    hist = _Histogram(dom, hist_edges, rejection=rejection)
     density = _Density(pdf, dom)
-    integral = integrate_cells(density, edges, n_samples=max(n_valid, 1), keep_leaves=(m == 1))
-    mass, error, n_evals, unconverged, leaves = _refine_suspicious(
-        density, edges, counts, integral, max(n_valid, 1), m)
-    if density.negative or density.nonfinite:
-        failures.append(f"pdf returned {density.negative} negative and {density.nonfinite} "
-                        f"NaN/Inf values (first: pdf({density.example[0]}) = "
-                        f"{density.example[1]})")
-    total, err_bound = float(mass.sum()), float(error.sum())
-    norm_tol = max(1e-4, 2.0 * err_bound)
-    if not abs(total - 1.0) <= norm_tol:
-        failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain, not 1 "
-                        f"(quadrature error bound {err_bound:.2g})")
-    messages = []
-    if unconverged:
-        messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
-                        f"(error bound {err_bound:.2g})")
+    n_budget = n
+    integrated: list = []
 
-    expected = mass * n_valid
-    sub = {}
-    full = stats.chi2_gof(counts, expected)
-    sub["chi2"] = full
-    note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
-    if note:
-        messages.append(note)
-    if full.observed_in_empty:
-        failures.append(f"{full.observed_in_empty} samples fell in cells where the pdf "
-                        "integrates to 0")
-    if m == 2:
-        for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):
-            sub[label] = stats.chi2_gof(counts.sum(axis=axis), expected.sum(axis=axis))
-    elif n_valid > 0 and leaves is not None and total > 0:
-        s, _ = _screen(x, u, dom)
-        sub["ks"] = stats.ks_uniform(_cdf_from_leaves(density, leaves, s[:, 0], total))
-    p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
-    if n_valid == 0:
-        failures.append("no valid samples to test")
+    def evaluate(n_drawn: int) -> CheckResult:
+        """The tests on the first ``n_drawn`` draws (everything binned so far)."""
+        n = n_drawn
+        fine = hist.counts
+        counts = fine.reshape(-1, KS_SPLIT).sum(axis=1) if m == 1 else fine
+        n_valid = int(hist.n_status[K.VALID])
+        n_rejected = int(hist.n_status[K.REJECTED])
+        failures = hist.failures()
 
-    worst = _worst_cells(dom, edges, counts, expected)
-    if p_value <= alpha and worst:
-        w = worst[0]
-        messages.append(f"largest discrepancy at x≈{np.round(w['point'], 4).tolist()}: "
-                        f"observed {w['observed']:.0f}, expected {w['expected']:.1f}")
-    details = {
-        "domain": repr(dom), "resolution": list(res), "sample_dim": k,
-        "tests": {key: {"statistic": r.statistic, "p_value": r.p_value,
-                        **({"dof": r.dof, "n_bins": r.n_bins, "n_pooled": r.n_pooled}
-                           if isinstance(r, stats.Chi2Result) else {})}
-                  for key, r in sub.items()},
-        "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
-        "n_valid": n_valid, "worst_cells": worst, "seed": seed,
-    }
-    histogram = {"edges": [e.tolist() for e in edges], "observed": counts,
-                 "expected": expected}
-    return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
-                       p_value=p_value, statistic=full.statistic, alpha=alpha, n_samples=n,
-                       seconds=time.perf_counter() - t0, details=details,
-                       messages=tuple(messages), failures=tuple(failures),
-                       artifacts={"histogram": histogram})
+        if not integrated:
+            # Integrated once, to the tolerance the whole budget needs (the valid share of
+            # the draws so far, projected to the budget).
+            integrated.append(integrate_cells(
+                density, edges, n_samples=max(round(n_valid * n_budget / n_drawn), 1),
+                keep_leaves=(m == 1)))
+        integral = integrated[0]
+        mass, error, n_evals, unconverged, leaves = _refine_suspicious(
+            density, edges, counts, integral, max(n_valid, 1), m)
+        if density.negative or density.nonfinite:
+            failures.append(f"pdf returned {density.negative} negative and {density.nonfinite} "
+                            f"NaN/Inf values (first: pdf({density.example[0]}) = "
+                            f"{density.example[1]})")
+        total, err_bound = float(mass.sum()), float(error.sum())
+        norm_tol = max(1e-4, 2.0 * err_bound)
+        sub = {}
+        if rejection:
+            # Accepted draws: Binomial(n, P) with P = ∫pdf; given their number, the accepted
+            # points are i.i.d. with density pdf / P.
+            if total > 1.0 + norm_tol:
+                failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain: "
+                                f"above 1, so it is no acceptance probability (quadrature "
+                                f"error bound {err_bound:.2g})")
+            sub["acceptance"] = stats.binomial_test(n - n_rejected, n, total)
+            expected = mass * (n_valid / total) if total > 0 else mass * 0.0
+        else:
+            if not abs(total - 1.0) <= norm_tol:
+                failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain, "
+                                f"not 1 (quadrature error bound {err_bound:.2g})")
+            expected = mass * n_valid
+        messages = []
+        if unconverged:
+            messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
+                            f"(error bound {err_bound:.2g})")
+
+        full = stats.chi2_gof(counts, expected)
+        sub["chi2"] = full
+        note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
+        if note:
+            messages.append(note)
+        if full.observed_in_empty:
+            failures.append(f"{full.observed_in_empty} samples fell in cells where the pdf "
+                            "integrates to 0")
+        if m == 2:
+            for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):
+                sub[label] = stats.chi2_gof(counts.sum(axis=axis), expected.sum(axis=axis))
+        elif n_valid > 0 and leaves is not None and total > 0:
+            if leaves is integral.leaves and integrated[1:]:
+                cdf = integrated[1]     # a later look, nothing re-integrated: same CDF
+            else:
+                cdf = _cdf_from_leaves(density, leaves, hist_edges[0], total)
+                cdf[0], cdf[-1] = 0.0, 1.0
+                if leaves is integral.leaves:
+                    integrated[1:] = [cdf]
+            sub["ks"] = stats.ks_binned(fine, cdf)
+        p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
+        if n_valid == 0:
+            failures.append("no valid samples to test")
+        if rejection and sub["acceptance"].p_value <= alpha / len(sub):
+            messages.append(f"acceptance: {n - n_rejected} of {n} draws accepted "
+                            f"({(n - n_rejected) / n:.6g}), but the pdf integrates to "
+                            f"{total:.6g} (binomial p = {sub['acceptance'].p_value:.3g})")
+
+        worst = _worst_cells(dom, edges, counts, expected)
+        if p_value <= alpha and worst:
+            w = worst[0]
+            messages.append(f"largest discrepancy at x≈{np.round(w['point'], 4).tolist()}: "
+                            f"observed {w['observed']:.0f}, expected {w['expected']:.1f}")
+        details = {
+            "domain": repr(dom), "resolution": list(res), "sample_dim": k,
+            "tests": {key: _test_details(r) for key, r in sub.items()},
+            "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
+            "n_valid": n_valid, "worst_cells": worst, "seed": seed,
+        }
+        if rejection:
+            details["rejection"] = {"rejected": n_rejected, "accepted": n - n_rejected,
+                                    "acceptance_rate": (n - n_rejected) / n,
+                                    "pdf_integral": total}
+        histogram = {"edges": [e.tolist() for e in edges], "observed": counts,
+                     "expected": expected}
+        return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
+                           p_value=p_value, statistic=full.statistic, alpha=alpha, n_samples=n,
+                           seconds=time.perf_counter() - t0, details=details,
+                           messages=tuple(messages), failures=tuple(failures),
+                           artifacts={"histogram": histogram})
+
+
+    if batches is None:
+        _stream(sample, main_seq, n, k, dom.dim, hist, chunk)
+        return evaluate(n)
+    from ..sequential import looks, run_sequential
+
+    k_batches = v.integer("batches", batches, minimum=1)
+    if k_batches > n_budget:
+        raise InvalidArgument(f"batches={k_batches}: more batches than n_samples={n_budget}")
+    # Rows end where a look is taken (the batches in between need no pause of their own:
+    # fewer, larger calls of sample and of the binning kernel).
+    bounds = {b: n_budget * b // k_batches for b in looks(k_batches)}
+    feed = _stream_batches(sample, main_seq, n_budget, k, dom.dim, hist, chunk,
+                           list(bounds.values()))
+
+    def look(b: int) -> CheckResult:
+        while hist_rows[0] < bounds[b]:
+            hist_rows[0] = next(feed)
+        return evaluate(hist_rows[0])
+
+    hist_rows = [0]
+    r = run_sequential(look, batches=k_batches, alpha=alpha, stop_alpha=stop_alpha)
+    feed.close()
+    return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+
+
+def _test_details(r) -> dict:
+    out = {"statistic": getattr(r, "statistic", None), "p_value": r.p_value}
+    if isinstance(r, stats.Chi2Result):
+        out.update(dof=r.dof, n_bins=r.n_bins, n_pooled=r.n_pooled)
+    if isinstance(r, stats.BinomialResult):
+        out.update(statistic=r.successes, trials=r.trials, rate=r.p)
+    return out
+
+
+def detectable_contamination(result: CheckResult, *, power: float = 0.95,
+                             alpha: float | None = None) -> float:
+    """The power a :func:`check_sampler` result had: the smallest ε such that the
+    sampler ``(1 - ε)·pdf + ε·uniform`` (uniform over the domain) would have been
+    rejected with probability ``power`` by the same check, at the same n and cells.
+
+    Each χ² sub-test (full grid and, in 2-D, both marginals) runs at ``alpha`` (default:
+    the check's own) divided by the number of sub-tests, as the check combines them;
+    the check rejects when any does, so the smallest ε over the sub-tests is an upper
+    bound on the check's (the KS test's extra power in 1-D is not counted). Computed
+    from the noncentral χ² distribution (:func:`mcverify.stats.chi2_detectable_mixture`);
+    uniform contamination is the cell volume in parameter space, since every domain
+    maps to it with a constant Jacobian.
+    """
+    h = result.artifacts.get("histogram")
+    if h is None or "expected" not in h:
+        raise InvalidArgument(f"result {result.name!r}: no histogram artifact; pass the "
+                              "CheckResult of check_sampler")
+    alpha = result.alpha if alpha is None else v.probability("alpha", alpha)
+    expected = np.asarray(h["expected"], dtype=np.float64)
+    widths = [np.diff(np.asarray(e, dtype=np.float64)) for e in h["edges"]]
+    volume = widths[0] if len(widths) == 1 else np.outer(widths[0], widths[1])
+    uniform = volume * expected.sum()
+    pairs = [(expected, uniform)]
+    if expected.ndim == 2:
+        pairs += [(expected.sum(axis=1), uniform.sum(axis=1)),
+                  (expected.sum(axis=0), uniform.sum(axis=0))]
+    level = alpha / (len(pairs) if expected.ndim == 2 else 2)
+    return min(stats.chi2_detectable_mixture(e, u, alpha=level, power=power) for e, u in pairs)
 
 
 def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
@@ -394,7 +653,8 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
 def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_000_000,
                             resolution=None, alpha: float = 0.01, seed: int = 0,
                             sample_dim: int | None = None,
-                            name: str | None = None) -> CheckResult:
+                            name: str | None = None, rejection: bool = False,
+                            chunk: int = DEFAULT_CHUNK) -> CheckResult:
     """Two-sample test that two samplers draw from the same distribution.
 
     For regression-checking a sampler without a closed-form pdf against its previous
@@ -402,7 +662,11 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     (fed independent uniform numbers) or arrays of points. Sub-tests, combined by
     Bonferroni: χ² homogeneity on a shared histogram (edges from both samples' pooled
     quantiles would depend on the data, so uniform parameter cells are used), on 2-D
-    domains χ² of both marginals, and in 1-D the two-sample Kolmogorov–Smirnov test.
+    domains χ² of both marginals, and in 1-D the two-sample Kolmogorov–Smirnov test on
+    a fine histogram (conservative, as in :func:`check_sampler`). Samplers are streamed
+    in chunks (memory O(chunk + cells)). With ``rejection``, rows of NaN are rejected
+    draws: Fisher's exact test compares the two acceptance rates, and the tests above
+    compare the accepted points.
 
     Examples
     --------
@@ -414,44 +678,58 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     True
     """
     t0 = time.perf_counter()
-    dom, n, res, alpha, seed, k = _histogram_test_iv(domain, n_samples, resolution, alpha,
-                                                     seed, sample_dim, min_samples=2)
+    dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
+        domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=2)
     name = name or "same_distribution"
     seqs = np.random.SeedSequence(seed).spawn(2)
-    draws, failures = [], []
+    sides = []
     for label, smp, seq in (("sample_a", sample_a, seqs[0]), ("sample_b", sample_b, seqs[1])):
         if callable(smp):
-            u, x = _draw(smp, np.random.default_rng(seq), n, k, dom.dim, name=label)
-        else:
-            try:
-                x = np.asarray(smp, dtype=np.float64)
-            except (TypeError, ValueError):
-                x = None
-            if x is None or x.ndim not in (1, 2) or x.shape[0] < 2:
-                raise InvalidArgument(f"{label}: must be a sampler callable or an array "
-                                      f"of points (n, {dom.dim})")
-            x = v.points(label, x, x.shape[0], dom.dim)
-            u = np.full((x.shape[0], 1), np.nan)
-        draws.append((label, x, u))
-    res = res or dom.default_resolution(min(x.shape[0] for _, x, _ in draws))
+            sides.append((label, smp, seq, n))
+            continue
+        try:
+            x = np.asarray(smp)
+            x = x if x.dtype == np.float32 else x.astype(np.float64)
+        except (TypeError, ValueError):
+            x = None
+        if x is None or x.ndim not in (1, 2) or x.shape[0] < 2:
+            raise InvalidArgument(f"{label}: must be a sampler callable or an array "
+                                  f"of points (n, {dom.dim})")
+        sides.append((label, v.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
+    res = res or dom.default_resolution(min(size for *_, size in sides))
     edges = _edges(None, res)
-    hists = []
-    for label, x, u in draws:
-        h, _, f = _histogram(x, u, dom, edges, what=label + " point")
+    m = dom.param_dim
+    hist_edges = [_split_edges(edges[0], KS_SPLIT)] if m == 1 else edges
+    hists, failures = [], []
+    for label, smp, seq, size in sides:
+        h = _Histogram(dom, hist_edges, rejection=rejection)
+        if seq is not None:
+            _stream(smp, seq, size, k, dom.dim, h, chunk, name=label)
+        else:
+            for a in range(0, size, chunk):
+                h.add(smp[a:a + chunk])
         hists.append(h)
-        failures += f
-    ha, hb = hists
-    sub = {"chi2": stats.chi2_homogeneity(ha, hb)}
-    if dom.param_dim == 2:
+        failures += h.failures(what=label + " point")
+    fa, fb = (h.counts for h in hists)
+    ha, hb = ((f.reshape(-1, KS_SPLIT).sum(axis=1) if m == 1 else f) for f in (fa, fb))
+    sub = {}
+    if rejection:
+        # Equal acceptance probabilities: Fisher's exact test on the 2 × 2 table.
+        (na, ra), (nb, rb) = ((size, int(h.n_status[K.REJECTED]))
+                              for (*_, size), h in zip(sides, hists))
+        sub["acceptance"] = stats.fisher_exact_2x2(na - ra, ra, nb - rb, rb)
+    sub["chi2"] = stats.chi2_homogeneity(ha, hb)
+    if m == 2:
         sub["chi2_axis0"] = stats.chi2_homogeneity(ha.sum(axis=1), hb.sum(axis=1))
         sub["chi2_axis1"] = stats.chi2_homogeneity(ha.sum(axis=0), hb.sum(axis=0))
     else:
-        sa, sb = (_screen(x, u, dom)[0][:, 0] for _, x, u in draws)
-        sub["ks"] = stats.ks_2samp(sa, sb)
+        sub["ks"] = stats.ks_2samp_binned(fa, fb)
     p_value = stats.bonferroni_min([r.p_value for r in sub.values()])
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
-               "tests": {key: {"statistic": r.statistic, "p_value": r.p_value}
-                         for key, r in sub.items()}}
+               "tests": {key: _test_details(r) for key, r in sub.items()}}
+    if rejection:
+        details["rejection"] = {label: {"rejected": int(h.n_status[K.REJECTED]), "n": size}
+                                for (label, *_, size), h in zip(sides, hists)}
     histogram = {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=sub["chi2"].statistic, alpha=alpha,

@@ -28,7 +28,7 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
     u = np.random.default_rng(0).random((n, 2))
     out = []
 
-    def mi_warp(sample, pdf, *params):
+    def mi_warp(sample, pdf, *params, u=u):
         def run():
             d = sample(mi.Point2f(u[:, 0], u[:, 1]), *params)
             return np.asarray(pdf(d, *params))
@@ -48,6 +48,13 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
                   if vectorised else None)
         out.append((f"warp:{label}", f"sample + pdf of {n:,} points",
                     lambda s=sample, p=pdf, a=params: p(s(u, *a), *a), theirs, "mitsuba"))
+    # float32 in, as Mitsuba computes: our front ends read and write float32 directly.
+    u32 = u.astype(np.float32)
+    out.append(("warp:cosine_hemisphere(float32)", f"sample + pdf of {n:,} float32 points",
+                lambda: W.cosine_hemisphere_pdf(W.sample_cosine_hemisphere(u32)),
+                mi_warp(mi.warp.square_to_cosine_hemisphere,
+                        mi.warp.square_to_cosine_hemisphere_pdf, u=u32) if vectorised else None,
+                "mitsuba"))
 
     def ours_chi2():
         return checks.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf,

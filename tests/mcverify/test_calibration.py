@@ -69,3 +69,17 @@ def test_power_against_contamination(eps, min_rate):
                                         seed=s).passed for s in range(seeds))
     print(f"eps={eps}: rejected {rejected}/{seeds}")
     assert rejected / seeds >= min_rate
+
+
+def test_detectable_contamination_is_what_the_check_catches():
+    """The power figure is honest: at the ε that ``detectable_contamination`` says a
+    check catches with 95 % power, 40 seeded runs reject at least the binomial 99.9 %
+    lower bound of 95 % (33 of 40)."""
+    ok = mv.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, "hemisphere",
+                          seed=0)
+    eps = mv.detectable_contamination(ok)
+    seeds = 40
+    rejected = sum(not mv.check_sampler(_mixture(eps), W.cosine_hemisphere_pdf, "hemisphere",
+                                        seed=s).passed for s in range(seeds))
+    print(f"eps95={eps:.4g}: rejected {rejected}/{seeds}")
+    assert rejected >= 33

@@ -116,3 +116,120 @@ def test_convergence_slope():
     def biased(n, s):   # a constant bias: RMSE stops falling, slope -> 0
         return np.mean(np.random.default_rng(s).random(n)) + 0.01
     assert not mv.check_convergence(biased, 0.5, n_seeds=32).passed
+
+
+# ----------------------------------------------------------------- streaming judge
+def test_stream_is_independent_of_chunk_size_and_thread_count():
+    """The uniforms come in seeded blocks of STREAM_BLOCK rows, so cutting the stream into
+    other chunks, or binning on one thread instead of two, changes nothing."""
+    import numba
+
+    from mcverify.checks.sampler import STREAM_BLOCK
+
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        a = mv.check_sampler(cosine, W.cosine_hemisphere_pdf, "hemisphere",
+                             n_samples=5 * STREAM_BLOCK + 123, seed=8, chunk=STREAM_BLOCK)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        b = mv.check_sampler(cosine, W.cosine_hemisphere_pdf, "hemisphere",
+                             n_samples=5 * STREAM_BLOCK + 123, seed=8, chunk=4 * STREAM_BLOCK)
+    finally:
+        numba.set_num_threads(before)
+    assert np.array_equal(a.artifacts["histogram"]["observed"],
+                          b.artifacts["histogram"]["observed"])
+    assert a.p_value == b.p_value and a.statistic == b.statistic
+
+
+def test_bad_chunk_is_rejected_before_any_work():
+    with pytest.raises(mv.InvalidArgument, match="chunk=1000"):
+        mv.check_sampler(cosine, W.cosine_hemisphere_pdf, "hemisphere", chunk=1000)
+
+
+def test_float32_points_are_binned_as_they_are():
+    a = mv.check_sampler(lambda u: W.sample_cosine_hemisphere(u.astype(np.float32)),
+                         W.cosine_hemisphere_pdf, "hemisphere", n_samples=200_000, seed=2)
+    assert a.passed, a.summary()
+
+
+def test_binned_ks_in_one_dimension_catches_a_small_shift():
+    # A 0.3 % shift of a tent: the χ² cells barely see it, the fine-grid KS does.
+    r = mv.check_sampler(lambda u: W.sample_tent(u, 1.0) + 0.003, lambda x: W.tent_pdf(x, 1.0),
+                         mv.Interval(-1.5, 1.5), n_samples=1_000_000, seed=3)
+    assert not r.passed and r.details["tests"]["ks"]["p_value"] < 1e-4
+
+
+# ------------------------------------------------------------------ rejected draws
+def _rejecting(u):
+    """Cosine-weighted candidates accepted with probability cos θ: the accepted points
+    have the sub-density cos²θ / π, which integrates to P = 2/3."""
+    x = W.sample_cosine_hemisphere(u[:, :2])
+    x[u[:, 2] >= x[:, 2]] = np.nan
+    return x
+
+
+def _sub_density(scale=1.0, power=2.0):
+    # ∫ c z^power dω over the hemisphere = 2π c / (power + 1); c keeps P = 2/3 · scale.
+    c = scale * (2.0 / 3.0) * (power + 1.0) / (2.0 * np.pi)
+    return lambda x: c * np.maximum(x[:, 2], 0.0) ** power
+
+
+def test_rejection_sampler_passes_and_reports_its_acceptance():
+    r = mv.check_sampler(_rejecting, _sub_density(), "hemisphere", sample_dim=3,
+                         rejection=True, seed=5)
+    assert r.passed, (r.summary(), r.failures, r.messages)
+    rej = r.details["rejection"]
+    assert abs(rej["acceptance_rate"] - 2 / 3) < 3e-3
+    assert abs(rej["pdf_integral"] - 2 / 3) < 1e-6
+    assert r.details["tests"]["acceptance"]["p_value"] > 0.01
+
+
+def test_rejected_draws_are_failures_without_rejection():
+    r = mv.check_sampler(_rejecting, _sub_density(), "hemisphere", sample_dim=3,
+                         n_samples=50_000)
+    assert not r.passed and any("NaN/Inf" in f for f in r.failures)
+
+
+def test_wrong_acceptance_rate_fails_and_says_so():
+    r = mv.check_sampler(_rejecting, _sub_density(scale=1.01), "hemisphere", sample_dim=3,
+                         rejection=True, seed=5)
+    assert not r.passed
+    assert r.details["tests"]["acceptance"]["p_value"] < 1e-6
+    assert r.details["tests"]["chi2"]["p_value"] > 1e-3   # the shape is right
+    assert any(m.startswith("acceptance:") for m in r.messages), r.messages
+
+
+def test_wrong_shape_of_accepted_samples_fails():
+    r = mv.check_sampler(_rejecting, _sub_density(power=1.9), "hemisphere", sample_dim=3,
+                         rejection=True, seed=5)
+    assert not r.passed
+    assert r.details["tests"]["acceptance"]["p_value"] > 1e-3   # the rate is right
+    assert min(r.details["tests"][k]["p_value"] for k in ("chi2", "chi2_axis0")) < 1e-6
+
+
+def test_pdf_above_one_cannot_be_an_acceptance_probability():
+    r = mv.check_sampler(cosine, lambda x: 1.2 * W.cosine_hemisphere_pdf(x), "hemisphere",
+                         rejection=True, n_samples=100_000)
+    assert not r.passed and any("above 1" in f for f in r.failures)
+
+
+def test_same_distribution_with_rejected_draws():
+    def other_rejecting(u):     # same law, drawn by a different map: u2 compared to z
+        x = W.sample_cosine_hemisphere(u[:, 1:])
+        x[u[:, 0] >= x[:, 2]] = np.nan
+        return x
+
+    def fewer(u):               # accepts with probability 0.99·cos θ
+        x = W.sample_cosine_hemisphere(u[:, :2])
+        x[u[:, 2] >= 0.99 * x[:, 2]] = np.nan
+        return x
+
+    same = mv.check_same_distribution(_rejecting, other_rejecting, "hemisphere",
+                                      sample_dim=3, rejection=True, seed=2)
+    assert same.passed, same.details["tests"]
+    diff = mv.check_same_distribution(_rejecting, fewer, "hemisphere", sample_dim=3,
+                                      rejection=True, seed=2)
+    assert not diff.passed and diff.details["tests"]["acceptance"]["p_value"] < 1e-6
+    plain = mv.check_same_distribution(_rejecting, other_rejecting, "hemisphere",
+                                       sample_dim=3, n_samples=20_000)
+    assert not plain.passed and any("NaN/Inf" in f for f in plain.failures)

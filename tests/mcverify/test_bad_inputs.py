@@ -1,0 +1,771 @@
+"""Bad input as users hit it (issue 14): nothing lost, nothing replaced, nothing cryptic.
+
+Every case asserts the exception type (API) or exit code (CLI), a message naming the
+parameter or file, no traceback, and that every file that existed before is byte-identical
+afterwards. CLI cases run ``main()`` in-process (each subprocess would pay seconds of
+imports); the interrupt tests run the real command and send SIGINT.
+"""
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+from estimators.pathtracer import SceneError, prepare_scene, load_scene, render
+from mcverify.errors import EnvironmentProblem, InvalidArgument, MissingReference
+from mcverify.gate import cli, reference
+from mcverify.gate.suites import Check
+from mcverify.result import CheckResult, SuiteResult, atomic_write, write_json
+
+ROOT = reference.REFERENCE_ROOT
+FURNACE = os.path.join(ROOT, "white-furnace", "scene.xml")
+CMD = [sys.executable, "-m", "mcverify"]
+REPO = os.path.dirname(os.path.dirname(ROOT))
+
+
+# ------------------------------------------------------------------ helpers
+#: Files larger than this (the sparse 1 GiB mesh) are compared by size, mtime and inode.
+BIG = 64 << 20
+
+
+def snapshot(*folders) -> dict:
+    """Every entry under ``folders``: regular files by SHA-256 and mode, links by target,
+    other nodes by type. Equal snapshots: nothing lost, nothing replaced."""
+    out = {}
+    for folder in folders:
+        for dirpath, dirnames, filenames in os.walk(folder):
+            for name in filenames + dirnames:
+                p = os.path.join(dirpath, name)
+                st = os.lstat(p)
+                if stat.S_ISLNK(st.st_mode):
+                    out[p] = ("link", os.readlink(p))
+                elif stat.S_ISREG(st.st_mode) and st.st_size > BIG:
+                    out[p] = ("big file", st.st_size, st.st_mtime_ns, st.st_ino)
+                elif stat.S_ISREG(st.st_mode):
+                    with open(p, "rb") as f:
+                        out[p] = ("file", hashlib.sha256(f.read()).hexdigest(),
+                                  stat.S_IMODE(st.st_mode))
+                elif not stat.S_ISDIR(st.st_mode):
+                    out[p] = ("node", stat.S_IFMT(st.st_mode))
+    return out
+
+
+def _img(h=8, w=8, value=1.0):
+    return np.full((h, w, 3), value)
+
+
+@pytest.fixture(scope="module")
+def sandbox(tmp_path_factory):
+    """Files the cases read: good and bad EXRs, a copy of a reference with good and
+    broken variants, bad scenes."""
+    from mcverify.gate import mitsuba as mvm
+
+    d = tmp_path_factory.mktemp("bad")
+    mvm.write_exr(str(d / "good.exr"), _img())
+    mvm.write_exr(str(d / "var.exr"), _img(value=0.01))
+    mvm.write_exr(str(d / "big.exr"), _img(16, 16))
+    mvm.write_exr(str(d / "nan.exr"), np.where(np.arange(192).reshape(8, 8, 3) == 5,
+                                               np.nan, 1.0))
+    mi = mvm._mi()
+    mi.Bitmap(np.zeros((8, 8, 3), np.uint8)).write(str(d / "photo.png"))
+    os.rename(d / "photo.png", d / "png.exr")                # 8-bit PNG named .exr
+    mi.Bitmap(np.zeros((8, 8, 3), np.uint32)).write(str(d / "uint.exr"))
+    good = (d / "good.exr").read_bytes()
+    (d / "header_cut.exr").write_bytes(good[:len(good) // 2])
+    (d / "data_cut.exr").write_bytes(good[:-40])
+    (d / "garbage.exr").write_bytes(good[:8] + os.urandom(300))
+    (d / "notes.txt").write_text("a file, not a folder\n")
+    (d / "adir").mkdir()
+    # references: a fresh copy of white-furnace per variant
+    for variant in ("ok", "stale", "swapped", "unhashed", "corrupt", "missing"):
+        shutil.copytree(os.path.dirname(FURNACE), d / f"ref-{variant}")
+    ref = d / "ref-stale"
+    (ref / "scene.xml").write_text((ref / "scene.xml").read_text().replace('"0.8"', '"0.9"'))
+    ref = d / "ref-swapped" / "ref"
+    os.replace(ref / "var.exr", ref / "tmp.exr")
+    os.replace(ref / "mean.exr", ref / "var.exr")
+    os.replace(ref / "tmp.exr", ref / "mean.exr")
+    m = d / "ref-unhashed" / "ref" / "manifest.json"
+    doc = json.loads(m.read_text())
+    del doc["mean_sha256"], doc["var_sha256"]
+    m.write_text(json.dumps(doc, indent=2))
+    (d / "ref-corrupt" / "ref" / "manifest.json").write_text("{ not json")
+    shutil.rmtree(d / "ref-missing" / "ref")
+    # scenes
+    text = open(FURNACE).read()
+    (d / "scenes").mkdir()
+    s = d / "scenes"
+    (s / "no-integrator.xml").write_text("\n".join(ln for ln in text.splitlines()
+                                                   if "<integrator" not in ln))
+    (s / "malformed.xml").write_text(text.replace("</scene>", ""))
+    (s / "laughs.xml").write_text(
+        '<?xml version="1.0"?>\n<!DOCTYPE scene [<!ENTITY a "aaaaaaaaaa">'
+        + "".join(f'<!ENTITY {c} "{("&" + p + ";") * 10}">'
+                  for p, c in zip("abcdefgh", "bcdefghi"))
+        + ']>\n<scene version="3.0.0"><integrator type="path"/>&i;</scene>\n')
+    (s / "xxe.xml").write_text(
+        '<?xml version="1.0"?>\n<!DOCTYPE scene [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n'
+        '<scene version="3.0.0"><integrator type="path"/>&x;</scene>\n')
+    (s / "obj-dev-zero.xml").write_text(text.replace(
+        '<shape type="sphere">',
+        '<shape type="obj"><string name="filename" value="/dev/zero"/></shape>'
+        '<shape type="sphere">'))
+    with open(s / "huge.obj", "wb") as f:                      # sparse: no disk used
+        f.truncate((1 << 30) + 1)
+    (s / "obj-huge.xml").write_text(text.replace(
+        '<shape type="sphere">',
+        '<shape type="obj"><string name="filename" value="huge.obj"/></shape>'
+        '<shape type="sphere">'))
+    os.mkfifo(s / "sky.fifo")
+    (s / "envmap-fifo.xml").write_text(text.replace(
+        '<emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>',
+        '<emitter type="envmap"><string name="filename" value="sky.fifo"/></emitter>'))
+    (s / "nan-radius.xml").write_text(text.replace('value="0.8"', 'value="nan"'))
+    (s / "unsupported.xml").write_text(text.replace('type="diffuse"', 'type="hair"'))
+    look = '<lookat origin="0, 1.2, 5" target="0, 0.3, 0" up="0, 1, 0"/>'
+    assert look in text
+    (s / "rotate-zero-axis.xml").write_text(text.replace(
+        look, look + '<rotate x="0" y="0" z="0" angle="30"/>'))
+    (s / "rotate-angle-text.xml").write_text(text.replace(
+        look, look + '<rotate y="1" angle="thirty"/>'))
+    (s / "lookat-degenerate.xml").write_text(text.replace('target="0, 0.3, 0"',
+                                                          'target="0, 1.2, 5"'))
+    return d
+
+
+def _run_cli(argv, capsys, cwd):
+    """main(argv) in ``cwd``: (exit code, stdout, stderr)."""
+    old = os.getcwd()
+    os.chdir(cwd)
+    try:
+        rc = cli.main([str(a) for a in argv])
+    finally:
+        os.chdir(old)
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+# ------------------------------------------------------------------ the API
+def _sampler(**kw):
+    args = dict(sample=lambda u: u[:, :1], pdf=lambda x: np.ones(len(x)), domain="interval",
+                n_samples=1000)
+    args.update(kw)
+    return lambda: mv.check_sampler(args.pop("sample"), args.pop("pdf"), args.pop("domain"),
+                                    **args)
+
+
+def _compare(**kw):
+    args = dict(test_mean=_img(), ref_mean=_img(), test_var=_img(value=0.1),
+                ref_var=_img(value=0.1), test_n=4, ref_n=4)
+    args.update(kw)
+    return lambda: mv.compare_images(args.pop("test_mean"), args.pop("ref_mean"), **args)
+
+
+def _scene_file(name):
+    return lambda d: os.path.join(d, "scenes", name)
+
+
+API = [
+    # check_sampler
+    # Streamed: n = 1e12 needs no more memory than one chunk, but a chunk of 2^40 rows does.
+    ("sampler-chunk-2^40", _sampler(n_samples=10 ** 13, chunk=2 ** 40), InvalidArgument,
+     "chunk=1099511627776: needs about"),
+    ("sampler-chunk-not-multiple", _sampler(chunk=1000), InvalidArgument, "chunk=1000"),
+    ("sampler-chunk-2^46", _sampler(n_samples=10 ** 15, chunk=1 << 46), InvalidArgument,
+     "chunk=70368744177664: needs about"),
+    ("sampler-chunk-ragged", _sampler(chunk=(1 << 16) + 1), InvalidArgument, "chunk=65537"),
+    ("sampler-n-float", _sampler(n_samples=2.5), InvalidArgument, "n_samples=2.5"),
+    ("sampler-not-callable", _sampler(sample=3), InvalidArgument, "sample=3"),
+    ("sampler-pdf-strings", _sampler(pdf=lambda x: np.array(["0.5"] * len(x))),
+     InvalidArgument, "pdf returned dtype"),
+    ("sampler-pdf-objects", _sampler(pdf=lambda x: [None] * len(x)), InvalidArgument,
+     "pdf returned dtype object"),
+    ("sampler-pdf-shape", _sampler(pdf=lambda x: np.ones((len(x), 2))), InvalidArgument,
+     "pdf returned shape"),
+    ("sampler-sample-shape", _sampler(sample=lambda u: u[:5]), InvalidArgument,
+     "sample returned shape"),
+    ("sampler-sample-strings", _sampler(sample=lambda u: np.full(len(u), "x")),
+     InvalidArgument, "sample returned dtype"),
+    ("sampler-domain", _sampler(domain="cube"), InvalidArgument, "domain='cube'"),
+    ("sampler-resolution", _sampler(domain="square", resolution=(3, 0),
+                                    sample=lambda u: u), InvalidArgument, "resolution="),
+    ("sampler-alpha", _sampler(alpha=1.5), InvalidArgument, "alpha=1.5"),
+    ("sampler-seed", _sampler(seed=-1), InvalidArgument, "seed=-1"),
+    ("same-distribution-one-point", lambda: mv.check_same_distribution(
+        np.zeros((1, 1)), np.zeros((5, 1)), "interval"), InvalidArgument, "sample_a"),
+    # check_inverse
+    ("inverse-atol-negative", lambda: mv.check_inverse(np.sqrt, np.square, 1, atol=-1),
+     InvalidArgument, "atol=-1"),
+    ("inverse-atol-nan", lambda: mv.check_inverse(np.sqrt, np.square, 1, atol=float("nan")),
+     InvalidArgument, "atol=nan"),
+    ("inverse-sample-dim", lambda: mv.check_inverse(np.sqrt, np.square, 0), InvalidArgument,
+     "sample_dim=0"),
+    ("inverse-shape", lambda: mv.check_inverse(np.sqrt, lambda x: np.ones((3, 3)), 1,
+                                               n_samples=10), InvalidArgument,
+     "inverse returned shape"),
+    ("inverse-n-1e12", lambda: mv.check_inverse(np.sqrt, np.square, 1, n_samples=10 ** 12),
+     InvalidArgument, "n_samples=1000000000000"),
+    # estimators
+    ("unbiased-2d", lambda: mv.check_unbiased(np.ones((3, 3)), 1.0), InvalidArgument,
+     "samples: must be 1-D"),
+    ("unbiased-strings", lambda: mv.check_unbiased(["a", "b"], 1.0), InvalidArgument,
+     "samples: must be"),
+    ("unbiased-one", lambda: mv.check_unbiased([1.0], 1.0), InvalidArgument,
+     "samples: needs at least 2"),
+    ("unbiased-expected-nan", lambda: mv.check_unbiased([1.0, 2.0], float("nan")),
+     InvalidArgument, "expected=nan"),
+    ("unbiased-expected-str", lambda: mv.check_unbiased([1.0, 2.0], "1"), InvalidArgument,
+     "expected='1'"),
+    ("variance-negative", lambda: mv.check_variance([1.0, 2.0], -1.0), InvalidArgument,
+     "expected_variance=-1"),
+    ("convergence-ns", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0, ns=[4, 4, 4]),
+     InvalidArgument, "ns="),
+    ("convergence-n-seeds", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0, n_seeds=2),
+     InvalidArgument, "n_seeds=2"),
+    ("convergence-alternative", lambda: mv.check_convergence(
+        lambda n, s: 0.0, 0.0, alternative="greater"), InvalidArgument, "alternative="),
+    ("convergence-not-callable", lambda: mv.check_convergence(None, 0.0), InvalidArgument,
+     "estimate=None"),
+    ("convergence-returns-str", lambda: mv.check_convergence(lambda n, s: "0.5", 0.5),
+     InvalidArgument, "estimate(n=256"),
+    ("convergence-returns-array", lambda: mv.check_convergence(lambda n, s: np.ones(3), 0.5),
+     InvalidArgument, "expected one number"),
+    # compare_images
+    ("compare-empty", _compare(test_mean=np.zeros((0, 0)), ref_mean=np.zeros((0, 0)),
+                               test_var=np.zeros((0, 0)), ref_var=np.zeros((0, 0))),
+     InvalidArgument, "test_mean: empty image"),
+    ("compare-shape", _compare(ref_mean=_img(4, 4)), InvalidArgument, "ref_mean: shape"),
+    ("compare-nan", _compare(test_mean=np.where(_img() > 0, np.nan, 0)), InvalidArgument,
+     "test_mean: contains NaN/Inf"),
+    ("compare-inf-var", _compare(ref_var=_img(value=np.inf)), InvalidArgument,
+     "ref_var: contains NaN/Inf"),
+    ("compare-negative-var", _compare(test_var=_img(value=-1.0)), InvalidArgument,
+     "test_var/ref_var"),
+    ("compare-n", _compare(test_n=1), InvalidArgument, "test_n=1"),
+    ("compare-strings", _compare(test_mean=np.full((8, 8), "a")), InvalidArgument,
+     "test_mean: must be an array of real numbers"),
+    ("compare-4d", _compare(test_mean=np.ones((2, 2, 2, 2))), InvalidArgument,
+     "test_mean: expected shape"),
+    ("compare-alpha", _compare(alpha=0.0), InvalidArgument, "alpha=0.0"),
+    ("compare-block", _compare(block=0), InvalidArgument, "block=0"),
+    # the path tracer
+    ("render-passes-0", lambda: render(FURNACE, passes=0), ValueError, "passes=0"),
+    ("render-spp-str", lambda: render(FURNACE, spp="64"), ValueError, "spp='64'"),
+    ("render-spp-0", lambda: render(FURNACE, spp=0), ValueError, "spp=0"),
+    ("render-seed-float", lambda: render(FURNACE, seed=2.5), ValueError, "seed=2.5"),
+    ("render-seed-2^63", lambda: render(FURNACE, seed=2 ** 63), ValueError,
+     "seed=9223372036854775808"),
+    ("render-pdf-scale", lambda: render(FURNACE, pdf_scale=-1.0), ValueError, "pdf_scale=-1"),
+    ("render-unknown-param", lambda: render(FURNACE, params={"nosuch": 3}), SceneError,
+     "nosuch"),
+    # render_check validates before it loads (or builds) a reference: a scene with no
+    # reference would otherwise raise MissingReference first
+    ("render-check-seed-2^63", lambda: mv.render_check("/nonexistent/scene.xml", seed=2 ** 63,
+                                                       build_missing=False),
+     InvalidArgument, "seed=9223372036854775808"),
+    ("render-check-spp-str", lambda: mv.render_check("/nonexistent/scene.xml", spp="64"),
+     InvalidArgument, "spp='64'"),
+    ("render-check-alpha", lambda: mv.render_check("/nonexistent/scene.xml", alpha=1.5),
+     InvalidArgument, "alpha=1.5"),
+    ("scene-missing", lambda: load_scene("/nonexistent/scene.xml"), SceneError,
+     "/nonexistent/scene.xml"),
+    ("scene-dev-zero", lambda: load_scene("/dev/zero"), SceneError,
+     "/dev/zero is not a regular file"),
+]
+
+
+@pytest.mark.parametrize("call,exc,needle", [a[1:] for a in API], ids=[a[0] for a in API])
+def test_api_bad_input(call, exc, needle):
+    before = snapshot(os.path.dirname(FURNACE))
+    with pytest.raises(exc) as info:
+        call()
+    assert needle in str(info.value), str(info.value)
+    assert snapshot(os.path.dirname(FURNACE)) == before
+
+
+SCENES = [
+    ("obj-dev-zero", "obj-dev-zero.xml", "/dev/zero is not a regular file"),
+    ("obj-over-cap", "obj-huge.xml", "MiB limit"),
+    ("envmap-fifo", "envmap-fifo.xml", "sky.fifo is not a regular file"),
+    ("billion-laughs", "laughs.xml", "DOCTYPE"),
+    ("xxe", "xxe.xml", "DOCTYPE"),
+    ("malformed", "malformed.xml", "not well-formed"),
+    ("nan-radius", "nan-radius.xml", "nan"),
+    ("unsupported-bsdf", "unsupported.xml", "hair"),
+    ("rotate-zero-axis", "rotate-zero-axis.xml", "the axis must be non-zero"),
+    ("rotate-angle-text", "rotate-angle-text.xml", "'thirty'"),
+    ("lookat-degenerate", "lookat-degenerate.xml", "origin and target coincide"),
+]
+
+
+@pytest.mark.parametrize("name,needle", [s[1:] for s in SCENES], ids=[s[0] for s in SCENES])
+def test_scene_bad_input(sandbox, name, needle):
+    path = os.path.join(sandbox, "scenes", name)
+    before = snapshot(os.path.join(sandbox, "scenes"))
+    with pytest.raises(SceneError) as info:
+        prepare_scene(path)
+    assert name in str(info.value) and needle in str(info.value), str(info.value)
+    assert snapshot(os.path.join(sandbox, "scenes")) == before
+
+
+REFS = [
+    ("stale-scene", "ref-stale", EnvironmentProblem, "stale"),
+    ("swapped-images", "ref-swapped", EnvironmentProblem, "mean.exr: stale: its SHA-256"),
+    ("unhashed-manifest", "ref-unhashed", EnvironmentProblem, "records no mean_sha256"),
+    ("corrupt-manifest", "ref-corrupt", EnvironmentProblem, "corrupt manifest"),
+    ("missing", "ref-missing", MissingReference, "no reference built"),
+]
+
+
+@pytest.mark.parametrize("folder,exc,needle", [r[1:] for r in REFS], ids=[r[0] for r in REFS])
+def test_reference_bad(sandbox, folder, exc, needle):
+    before = snapshot(sandbox / folder)
+    with pytest.raises(exc) as info:
+        reference.load_reference(str(sandbox / folder))
+    assert folder in str(info.value) and needle in str(info.value), str(info.value)
+    assert "mcverify reference build" in str(info.value)
+    assert snapshot(sandbox / folder) == before
+
+
+EXRS = [
+    ("png-renamed", "png.exr", InvalidArgument, "not an OpenEXR file"),
+    ("uint-channels", "uint.exr", InvalidArgument, "only half or float channels"),
+    ("header-truncated", "header_cut.exr", InvalidArgument, "corrupt OpenEXR header"),
+    ("data-truncated", "data_cut.exr", EnvironmentProblem, "cannot read image"),
+    ("garbage", "garbage.exr", (InvalidArgument, EnvironmentProblem), "garbage.exr"),
+    ("nan-pixels", "nan.exr", InvalidArgument, "contains NaN/Inf"),
+    ("missing", "nosuch.exr", InvalidArgument, "cannot read OpenEXR image"),
+    ("directory", "adir", InvalidArgument, "not a regular file"),
+]
+
+
+@pytest.mark.parametrize("name,exc,needle", [e[1:] for e in EXRS], ids=[e[0] for e in EXRS])
+def test_exr_bad(sandbox, name, exc, needle):
+    before = snapshot(sandbox)
+    with pytest.raises(exc) as info:
+        reference.read_float_exr(str(sandbox / name))
+    assert name in str(info.value) and needle in str(info.value), str(info.value)
+    assert snapshot(sandbox) == before
+
+
+def test_precheck_scene_without_integrator(sandbox):
+    with pytest.raises(InvalidArgument, match="no-integrator.xml: no <integrator>"):
+        reference.precheck_scene(str(sandbox / "scenes" / "no-integrator.xml"))
+
+
+# ------------------------------------------------------------------ the CLI
+def _exr(name):
+    return lambda d: os.path.join(d, name)
+
+
+CLI = [
+    # output paths, checked before any work
+    ("json-empty", ["check", "--json", ""], "--json '': empty path"),
+    ("json-directory", ["check", "--json", "{d}/adir"], "is a directory"),
+    ("json-proc", ["check", "--json", "/proc/forbidden/x.json"], "--json /proc/forbidden"),
+    ("json-under-a-file", ["check", "--json", "{d}/notes.txt/x.json"], "notes.txt"),
+    ("json-is-junit", ["check", "--json", "{d}/o.json", "--junit", "{d}/o.json"],
+     "the same file"),
+    ("json-socket", ["check", "--json", "{d}/sock"], "not a regular file, FIFO"),
+    ("json-is-scene", ["check", "--scene", "{d}/ref-ok/scene.xml", "--json",
+                       "{d}/ref-ok/scene.xml"], "is also an input"),
+    ("report-out-empty", ["report", "--out", ""], "--out ''"),
+    # arguments
+    ("check-k-nomatch", ["check", "-k", "nomatch"], "-k 'nomatch'"),
+    ("list-k-nomatch", ["list", "-k", "nomatch"], "-k 'nomatch'"),
+    ("check-seed-2^63", ["check", "--seed", str(2 ** 63)], "--seed 9223372036854775808"),
+    ("check-seed-text", ["check", "--seed", "abc"], "--seed"),
+    ("check-alpha-0", ["check", "--alpha", "0"], "--alpha 0.0"),
+    ("check-suite", ["check", "--suite", "nightly"], "--suite"),
+    ("check-scene-missing", ["check", "--scene", "{d}/nosuch.xml"], "nosuch.xml"),
+    ("plan-dev-zero", ["plan", "/dev/zero"], "/dev/zero is not a regular file"),
+    ("plan-malformed", ["plan", "{d}/scenes/malformed.xml"], "not well-formed"),
+    ("plan-laughs", ["plan", "{d}/scenes/laughs.xml"], "DOCTYPE"),
+    ("bench-repeats", ["bench", "--repeats", "0"], "--repeats 0"),
+    # compare: images and references
+    ("compare-png", ["compare", "{d}/png.exr", "{d}/good.exr", "--test-var", "{d}/var.exr",
+                     "--test-n", "4", "--ref-var", "{d}/var.exr", "--ref-n", "4"],
+     "png.exr: not an OpenEXR file"),
+    ("compare-uint", ["compare", "{d}/good.exr", "{d}/uint.exr", "--test-var", "{d}/var.exr",
+                      "--test-n", "4", "--ref-var", "{d}/var.exr", "--ref-n", "4"],
+     "uint.exr: channels"),
+    ("compare-truncated", ["compare", "{d}/data_cut.exr", "ref-ok", "--test-var",
+                           "{d}/var.exr", "--test-n", "4"], "data_cut.exr"),
+    ("compare-missing", ["compare", "{d}/nosuch.exr", "ref-ok", "--test-var", "{d}/var.exr",
+                         "--test-n", "4"], "nosuch.exr: cannot read"),
+    ("compare-json-is-test", ["compare", "{d}/good.exr", "{d}/good.exr", "--test-var",
+                              "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
+                              "--ref-n", "4", "--json", "{d}/good.exr"], "is also an input"),
+    ("compare-json-is-var", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
+                             "{d}/var.exr", "--test-n", "4", "--json", "{d}/var.exr"],
+     "is also an input"),
+    ("compare-json-is-ref-mean", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
+                                  "{d}/var.exr", "--test-n", "4", "--json",
+                                  "{d}/ref-ok/ref/mean.exr"], "is also an input"),
+    ("compare-json-via-link", ["compare", "{d}/good.exr", "{d}/good.exr", "--test-var",
+                               "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
+                               "--ref-n", "4", "--json", "{d}/link-to-good"],
+     "is also an input"),
+    ("compare-no-ref-var", ["compare", "{d}/good.exr", "{d}/good.exr", "--test-var",
+                            "{d}/var.exr", "--test-n", "4"], "needs --ref-var and --ref-n"),
+    ("compare-test-n-1", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
+                          "{d}/var.exr", "--test-n", "1"], "--test-n 1"),
+    ("compare-stale", ["compare", "{d}/good.exr", "{d}/ref-stale", "--test-var",
+                       "{d}/var.exr", "--test-n", "4"], "stale"),
+    ("compare-swapped", ["compare", "{d}/good.exr", "{d}/ref-swapped", "--test-var",
+                         "{d}/var.exr", "--test-n", "4"], "SHA-256"),
+    ("compare-shape", ["compare", "{d}/big.exr", "{d}/good.exr", "--test-var",
+                       "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
+                       "--ref-n", "4"], "big.exr: shape"),
+    ("compare-unknown-ref", ["compare", "{d}/good.exr", "nosuch-ref", "--test-var",
+                             "{d}/var.exr", "--test-n", "4"], "scene 'nosuch-ref'"),
+    # references and render checks: refused before Mitsuba or our kernel run
+    ("reference-no-integrator", ["reference", "build", "{d}/scenes/no-integrator.xml"],
+     "no-integrator.xml: no <integrator>"),
+    ("reference-passes-1", ["reference", "build", "{d}/ref-ok", "--passes", "1"],
+     "--passes 1"),
+    ("reference-unknown", ["reference", "build", "nosuch-scene"], "scene 'nosuch-scene'"),
+    ("reference-xxe", ["reference", "build", "{d}/scenes/xxe.xml"], "DOCTYPE"),
+    ("render-check-seed", ["render-check", "{d}/ref-ok", "--seed", str(2 ** 63)], "--seed"),
+    ("render-check-param", ["render-check", "{d}/ref-ok", "--param", "nosuch=3"], "nosuch"),
+    ("render-check-param-form", ["render-check", "{d}/ref-ok", "--param", "oops"],
+     "--param 'oops'"),
+    ("render-check-json-is-scene", ["render-check", "{d}/ref-ok", "--json",
+                                    "{d}/ref-ok/scene.xml"], "is also an input"),
+    ("render-check-spp", ["render-check", "{d}/ref-ok", "--spp", "100"], "spp=100"),
+]
+
+
+@pytest.fixture(scope="module")
+def cli_sandbox(sandbox):
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(sandbox / "sock"))
+    if not os.path.lexists(sandbox / "link-to-good"):
+        os.symlink(sandbox / "good.exr", sandbox / "link-to-good")
+    yield sandbox
+    sock.close()
+
+
+@pytest.mark.parametrize("argv,needle", [c[1:] for c in CLI], ids=[c[0] for c in CLI])
+def test_cli_bad_input_exit_2(cli_sandbox, capsys, argv, needle):
+    d = str(cli_sandbox)
+    argv = [a.replace("{d}", d) for a in argv]
+    argv = [os.path.join(d, a) if a.startswith("ref-") else a for a in argv]
+    before = snapshot(d, ROOT)
+    try:
+        rc, out, err = _run_cli(argv, capsys, d)
+    except SystemExit as e:          # argparse's own errors exit from parse_args
+        rc = e.code
+        out, err = capsys.readouterr()
+    assert rc == 2, (out, err)
+    assert needle in err, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert snapshot(d, ROOT) == before
+
+
+def test_every_cli_case_and_api_case_counted():
+    n = len(API) + len(SCENES) + len(REFS) + len(EXRS) + len(CLI) + 1
+    assert n >= 60, n
+
+
+# ------------------------------------------------------------------ nothing lost
+def _suite():
+    r = CheckResult("c", True, 0.5, 1.0, 0.01, 10, 0.0)
+    return SuiteResult.judge("s", [r], alpha=0.01, seconds=0.0)
+
+
+def test_write_follows_symlink_and_keeps_it(tmp_path):
+    target = tmp_path / "real.json"
+    target.write_text("old\n")
+    os.chmod(target, 0o640)
+    link = tmp_path / "link.json"
+    os.symlink(target, link)
+    write_json(_suite(), str(link))
+    assert os.path.islink(link) and os.readlink(link) == str(target)
+    assert json.loads(target.read_text())["suite"] == "s"
+    assert stat.S_IMODE(os.stat(target).st_mode) == 0o640
+    assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_write_into_fifo_and_dev_null(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()))
+    reader.start()
+    atomic_write(str(fifo), "through the pipe\n")
+    reader.join(10)
+    assert got == [b"through the pipe\n"]
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)           # still a FIFO, not a file
+    before = os.stat("/dev/null")
+    write_json(_suite(), "/dev/null")
+    after = os.stat("/dev/null")
+    assert stat.S_ISCHR(after.st_mode) and after.st_rdev == before.st_rdev
+    assert after.st_ino == before.st_ino
+
+
+@pytest.mark.parametrize("what", ["directory", "socket", "empty"])
+def test_write_refuses_what_it_would_destroy(tmp_path, what):
+    if what == "directory":
+        path = tmp_path / "d"
+        path.mkdir()
+    elif what == "socket":
+        path = tmp_path / "s"
+        sock = socket.socket(socket.AF_UNIX)
+        sock.bind(str(path))
+    else:
+        path = ""
+    before = snapshot(tmp_path)
+    with pytest.raises(InvalidArgument, match="give a file path"):
+        atomic_write(str(path), "x")
+    assert snapshot(tmp_path) == before
+
+
+def test_cli_compare_writes_through_symlink_and_fifo(cli_sandbox, capsys, tmp_path):
+    d = cli_sandbox
+    base = ["compare", d / "good.exr", d / "good.exr", "--test-var", d / "var.exr",
+            "--test-n", "4", "--ref-var", d / "var.exr", "--ref-n", "4", "--json"]
+    target = tmp_path / "result.json"
+    target.write_text("{}")
+    os.symlink(target, tmp_path / "latest.json")
+    rc, out, err = _run_cli(base + [tmp_path / "latest.json"], capsys, tmp_path)
+    assert rc == 0, err
+    assert os.path.islink(tmp_path / "latest.json")
+    assert json.loads(target.read_text())["passed"] is True
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()))
+    reader.start()
+    rc, out, err = _run_cli(base + [fifo], capsys, tmp_path)
+    reader.join(10)
+    assert rc == 0 and json.loads(got[0])["passed"] is True
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_reference_swap_keeps_the_old_one_on_interrupt(sandbox, tmp_path, monkeypatch):
+    """Interrupted between renaming the old reference aside and renaming the new one in:
+    the old one is back in place, byte for byte."""
+    scene = tmp_path / "furnace"
+    shutil.copytree(sandbox / "ref-ok", scene)
+    before = snapshot(scene)
+    fake = reference.Reference("furnace", _img(), _img(value=0.01), 2,
+                               {"scene": "furnace", "spp": 1, "passes": 2})
+    monkeypatch.setattr(reference, "render_reference", lambda *a, **k: (fake, None))
+    real_rename = os.rename
+    calls = []
+
+    def rename(a, b):
+        calls.append((a, b))
+        if len(calls) == 2:                  # the new one renamed in: interrupted
+            raise KeyboardInterrupt
+        real_rename(a, b)
+
+    monkeypatch.setattr(os, "rename", rename)
+    with pytest.raises(KeyboardInterrupt):
+        reference.build_reference(str(scene), spp=1, passes=2)
+    monkeypatch.setattr(os, "rename", real_rename)
+    assert snapshot(scene) == before
+    # and uninterrupted, the new one replaces it with its images hashed
+    reference.build_reference(str(scene), spp=1, passes=2)
+    m = json.loads((scene / "ref" / "manifest.json").read_text())
+    assert m["mean_sha256"] == reference.file_hash(str(scene / "ref" / "mean.exr"))
+    assert sorted(os.listdir(scene)) == ["ref", "scene.xml"]
+
+
+# ------------------------------------------------------------------ SIGINT
+def _interrupt(args, wait_for, cwd, timeout=240):
+    """Start the command, send SIGINT once ``wait_for`` appears on stderr: (rc, stderr)."""
+    p = subprocess.Popen(CMD + [str(a) for a in args], cwd=cwd, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    lines = []
+    deadline = time.monotonic() + timeout
+    try:
+        for line in p.stderr:
+            lines.append(line)
+            if wait_for in line:
+                p.send_signal(signal.SIGINT)
+                break
+            assert time.monotonic() < deadline, "".join(lines)
+        rest = p.communicate(timeout=120)[1]
+    finally:
+        if p.poll() is None:
+            p.kill()
+    return p.returncode, "".join(lines) + rest
+
+
+def test_sigint_during_check_leaves_outputs(tmp_path):
+    out = tmp_path / "result.json"
+    out.write_text('{"previous": "run"}\n')
+    (tmp_path / "r.xml").write_text("<previous/>\n")
+    before = snapshot(tmp_path)
+    rc, err = _interrupt(["check", "-k", "sampler:uniform_", "--json", out, "--junit",
+                          tmp_path / "r.xml"], "[1/", tmp_path)
+    assert rc == 130, err
+    assert "mcverify: interrupted" in err and "Traceback" not in err
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.mitsuba
+def test_sigint_during_reference_build_keeps_old_reference(sandbox, tmp_path):
+    scene = tmp_path / "tiny"
+    shutil.copytree(sandbox / "ref-ok", scene)
+    xml = scene / "scene.xml"
+    xml.write_text(xml.read_text().replace('name="res" value="64"', 'name="res" value="8"'))
+    before = snapshot(scene)
+    rc, err = _interrupt(["reference", "build", scene, "--spp", "4", "--passes", "100000"],
+                         "pass 2/", tmp_path)
+    assert rc == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert snapshot(scene) == before
+
+
+# ------------------------------------------------------------------ verdicts, not crashes
+def test_constant_estimator_passes_and_wrong_constant_fails():
+    r = mv.check_unbiased(np.full(5000, 0.1), 0.1)
+    assert r.passed and "constant to rounding" in r.messages[0]
+    r = mv.check_unbiased(np.full(5000, 0.1), 0.1 + 1e-9)
+    assert not r.passed and "every sample is 0.1" in r.failures[0]
+
+
+def test_overflowing_and_exact_estimates_say_why():
+    r = mv.check_unbiased(np.linspace(1e308, 1.7e308, 5000), 1.3e308)
+    assert not r.passed and "overflows float64" in r.failures[0]
+    r = mv.check_convergence(lambda n, s: 0.5, 0.5, n_seeds=4)
+    assert not r.passed and r.p_value is None and "estimator is exact" in r.failures[0]
+    r = mv.check_convergence(lambda n, s: 1e200, 0.5, n_seeds=4)
+    assert not r.passed and "overflow when squared" in r.failures[0]
+
+
+def test_powerless_sampler_check_says_so():
+    wrong = mv.check_sampler(lambda u: u[:, :1] ** 0.5, lambda x: np.ones(len(x)), "interval",
+                             n_samples=10)
+    assert any("almost no power" in m and "n_samples=10" in m for m in wrong.messages)
+    right = mv.check_sampler(lambda u: u[:, :1], lambda x: np.ones(len(x)), "interval",
+                             n_samples=20_000)
+    assert right.passed and not any("power" in m for m in right.messages)
+
+
+def test_constant_scalar_pdf_is_that_value_everywhere():
+    r = mv.check_sampler(lambda u: u, lambda x: 1.0, "square", n_samples=20_000)
+    assert r.passed and abs(r.details["pdf_integral"] - 1.0) < 1e-9
+    r = mv.check_sampler(lambda u: u, lambda x: 0.5, "square", n_samples=20_000)
+    assert not r.passed and "integrates to 0.5" in r.failures[0]
+
+
+# ------------------------------------------------------------------ progress = verdict
+def _result(name, p, failures=()):
+    return CheckResult(name, CheckResult.decide(p, 0.01, failures), p, 1.0, 0.01, 10, 0.0,
+                       failures=tuple(failures))
+
+
+class _Stream:
+    def __init__(self):
+        self.text = ""
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+    def isatty(self):
+        return False
+
+
+def test_progress_lines_agree_with_the_verdict():
+    """Seeded: 200 suites of 12 checks with p-values log-uniform in [1e-6, 1] (α = 0.05,
+    so Holm both rescues and condemns raw rejections). Every "ok" is a final pass, every
+    "FAIL" a final fail; "pending" ones are resolved after judging."""
+    rng = np.random.default_rng(14)
+    alpha = 0.05
+    checks = [Check(f"c{i}", None) for i in range(12)]
+    for _ in range(200):
+        raw = [_result(f"c{i}", float(10 ** rng.uniform(-6, 0)),
+                       ("NaN",) if rng.random() < 0.05 else ()) for i in range(12)]
+        stream = _Stream()
+        show = cli._progress(stream, alpha=alpha)
+        for i, (r, c) in enumerate(zip(raw, checks)):
+            show(i + 1, 12, r, c)
+        final = SuiteResult.judge("s", raw, alpha=alpha, seconds=0.0).results
+        for line, r in zip(stream.text.splitlines(), final):
+            if " ok " in line:
+                assert r.passed, line
+            elif " FAIL " in line:
+                assert not r.passed, line
+            else:
+                assert " pending (" in line, line
+    canary = Check("cosine-pdf*1.03", None, ("canary",))
+    stream = _Stream()
+    cli._progress(stream, alpha=alpha)(1, 2, _result("cosine-pdf*1.03", 1e-9), canary)
+    cli._progress(stream, alpha=alpha)(2, 2, _result("cosine-pdf*1.03", 0.5), canary)
+    assert stream.text.splitlines()[0].split()[2] == "bitten"
+    assert "NOT bitten" in stream.text.splitlines()[1]
+
+
+# ------------------------------------------------------------------ help
+def _parsers(p):
+    yield p
+    for a in p._actions:
+        if a.choices and hasattr(a, "_name_parser_map"):
+            for sub in a.choices.values():
+                yield from _parsers(sub)
+
+
+def test_help_describes_every_option_with_its_default_and_exit_codes():
+    parser = cli.build_parser()
+    top = parser.format_help()
+    assert "exit codes:" in top and "130" in top and "``" not in top
+    for p in _parsers(parser):
+        text = p.format_help()
+        for a in p._actions:
+            if (a.help == "==SUPPRESS==" or "-h" in a.option_strings
+                    or hasattr(a, "_name_parser_map")):
+                continue
+            assert a.help, (p.prog, a.dest)
+            if a.option_strings and a.default not in (None, False, "==SUPPRESS=="):
+                assert "default" in p._get_formatter()._format_action(a), (p.prog, a.dest)
+        assert "``" not in text
+    rb = dict((n, s) for n, s in _subparsers(parser)).get("reference build")
+    assert "EACH pass" in rb.format_help()
+    rc = dict(_subparsers(parser))["render-check"]
+    assert "IN ALL" in rc.format_help()
+
+
+def _subparsers(parser, prefix=""):
+    for a in parser._actions:
+        if hasattr(a, "_name_parser_map"):
+            for name, sub in a.choices.items():
+                yield (prefix + name, sub)
+                yield from _subparsers(sub, prefix + name + " ")
+
+
+def test_check_resolves_pending_lines_after_holm(monkeypatch, capsys, tmp_path):
+    """A raw p under alpha printed as pending is then reported with its final verdict:
+    rescued by Holm (PASS ... no alarm) or listed as failed."""
+    from mcverify.gate import suites
+
+    def fake_run_suite(selected, *, progress, alpha, **kw):
+        raw = [_result("rescued", 0.006), _result("condemned", 1e-6), _result("fine", 0.5)]
+        for i, r in enumerate(raw):
+            progress(i + 1, 3, r, Check(r.name, None))
+        return SuiteResult.judge("default", raw, alpha=alpha, seconds=0.0)
+
+    monkeypatch.setattr(suites, "run_suite", fake_run_suite)
+    rc, out, err = _run_cli(["check", "-k", "sampler:uniform_disk_polar"], capsys, tmp_path)
+    assert rc == 1
+    assert "rescued pending (p=0.006" in err and "condemned pending (p=1e-06" in err
+    assert "fine ok" in err
+    assert "PASS rescued: p=0.006 is no alarm after Holm (p_adj=0.012)" in out
+    assert "FAIL condemned" in out and "2 passed, 1 failed" in out

@@ -1,0 +1,75 @@
+"""The time-budgeted gate: allocation of a budget (exact, no timing) and the CLI's
+``--budget`` end to end (structure only: the chosen n depend on this machine)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+import mcverify as mv
+from estimators import warps as W
+from mcverify.gate.budget import allocate
+
+
+def test_allocate_gives_equal_time_shares():
+    fixed = {"a": 1.0, "b": 3.0}
+    per = {"a": 1e-8, "b": 1e-7}
+    n, predicted, notes = allocate(20.0, 4.0, 2.0, fixed, per, n_min=1000, n_max=10**12)
+    # 14 s left, 7 s each: a gets (7 - 1) / 1e-8, b gets (7 - 3) / 1e-7.
+    assert n == {"a": 600_000_000, "b": 40_000_000}
+    assert predicted == pytest.approx(20.0) and notes == ()
+
+
+def test_allocate_clamps_and_says_when_the_budget_is_too_small():
+    n, predicted, notes = allocate(5.0, 4.0, 2.0, {"a": 1.0}, {"a": 1e-8}, n_min=1000,
+                                   n_max=10**9)
+    assert n == {"a": 1000} and predicted > 5.0 and "too small" in notes[0]
+    n, _, _ = allocate(1e6, 0.0, 0.0, {"a": 0.0}, {"a": 1e-9}, n_min=1000, n_max=10**9)
+    assert n == {"a": 10**9}
+
+
+def test_detectable_contamination_falls_as_one_over_root_n():
+    r1 = mv.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, "hemisphere",
+                          n_samples=250_000, seed=1, pilot=False, resolution=(16, 32))
+    r4 = mv.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, "hemisphere",
+                          n_samples=1_000_000, seed=1, pilot=False, resolution=(16, 32))
+    e1, e4 = mv.detectable_contamination(r1), mv.detectable_contamination(r4)
+    # Same cells, 4× the samples: the noncentrality is linear in n·ε², so ε halves.
+    assert e4 == pytest.approx(e1 / 2, rel=1e-3)
+    assert 0.001 < e4 < 0.02
+    assert mv.detectable_contamination(r4, alpha=1e-4) > e4
+
+
+def test_uniform_contamination_of_a_uniform_pdf_is_invisible():
+    r = mv.check_sampler(W.sample_uniform_disk_polar, W.uniform_disk_pdf, "disk",
+                         n_samples=100_000, seed=1)
+    assert mv.detectable_contamination(r) == float("inf")
+
+
+def test_detectable_contamination_needs_a_sampler_result():
+    r = mv.check_unbiased([1.0, 2.0, 3.0] * 10, 2.0)
+    with pytest.raises(mv.InvalidArgument, match="histogram"):
+        mv.detectable_contamination(r)
+
+
+def test_cli_budget_puts_the_chosen_n_and_the_power_into_the_json(tmp_path):
+    out = tmp_path / "b.json"
+    r = subprocess.run([sys.executable, "-m", "mcverify", "check", "--budget", "30", "-k",
+                        "sampler:cosine_hemisphere", "--json", str(out), "-q"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "budget 30s" in r.stdout and "95 % power" in r.stdout
+    d = json.loads(out.read_text())
+    budget = d["provenance"]["budget"]
+    chosen = budget["n_samples"]["sampler:cosine_hemisphere"]
+    assert [x["n_samples"] for x in d["results"]] == [chosen]
+    assert 0 < budget["detectable_contamination"]["sampler:cosine_hemisphere"] < 1
+
+
+def test_cli_budget_refuses_bad_values():
+    for args, needle in ((["--budget", "0"], "positive"),
+                         (["--budget", "5", "--scene", "x.xml"], "--scene")):
+        r = subprocess.run([sys.executable, "-m", "mcverify", "check", *args], text=True,
+                           capture_output=True, timeout=600)
+        assert r.returncode == 2 and needle in r.stderr, r.stderr
