@@ -157,3 +157,15 @@ def test_planted_bugs_fail_the_render_gate(plant):
 def test_render_check_refuses_too_few_samples_per_pass():
     with pytest.raises(mv.InvalidArgument, match="64 samples per pass"):
         mv.render_check("cornell-box", spp=256, passes=16)
+
+
+def test_a_scene_without_shapes_renders_its_environment(tmp_path):
+    """No shapes at all: every pixel sees the constant environment (this crashed the
+    process: an empty hierarchy's root was read as an interior node)."""
+    path = tmp_path / "empty.xml"
+    path.write_text('<scene version="3.0.0"><sensor type="perspective"><float name="fov" '
+                    'value="50"/><film type="hdrfilm"><integer name="width" value="8"/>'
+                    '<integer name="height" value="6"/><rfilter type="box"/></film>'
+                    '</sensor><emitter type="constant"/></scene>')
+    r = render(str(path), spp=4, seed=1, general=True)
+    np.testing.assert_array_equal(r.mean, 1.0)
