@@ -9,7 +9,8 @@ Public API
 ``check_same_distribution``     two-sample test of two samplers (regression checks)
 ``detectable_contamination``    the power a ``check_sampler`` result had: the mixture
                                 weight of uniform it would catch at 95 %
-``check_unbiased``              t-test of per-sample estimates, heavy-tail aware
+``check_unbiased``              t-test of per-sample estimates, heavy-tail aware;
+                                group-sequential over batches (``batches=``)
 ``check_variance``              zero variance when p ∝ f, or a known variance
 ``check_convergence``           log-log slope of RMSE against N over seeds
 ``compare_images``              two renders, pixelwise: global, block and pixel tests
@@ -24,7 +25,7 @@ Public API
 Every randomised function takes ``seed``; the same seed gives the same result.
 
 Layers: this package's core (``stats``, ``quadrature``, ``domains``, ``checks``,
-``result``, ``errors``, ``pytest_plugin``) imports neither the subject (``estimators``)
+``sequential`` (group-sequential looks), ``result``, ``errors``, ``pytest_plugin``) imports neither the subject (``estimators``)
 nor Mitsuba; ``mcverify.gate`` composes them (suites, scene plans, the render check,
 references, the Mitsuba adapters, bench, report, CLI). ``render_check`` is re-exported
 from the gate lazily, so ``import mcverify`` loads neither.

@@ -179,6 +179,12 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
                         stats)
 
 
+def pass_seed(seed: int, k: int) -> int:
+    """Seed of pass ``k`` of a render with ``passes`` > 1 (render one pass alone with it
+    and ``spp // passes`` samples, and it is bit-identical to that pass of the whole)."""
+    return (seed + k * 0x9E3779B97F4A7C15) % 2 ** 63
+
+
 def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> RenderResult:
     per = spp // passes
     if per < 1:
@@ -187,7 +193,7 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
     seconds = 0.0
     stats = {}
     for k in range(passes):
-        r = render(cs, spp=max(per, 2), seed=(seed + k * 0x9E3779B97F4A7C15) % 2 ** 63,
+        r = render(cs, spp=max(per, 2), seed=pass_seed(seed, k),
                    general=general, pdf_scale=pdf_scale,
                    progress=(lambda d, t, k=k: progress(k * t + d, passes * t))
                    if progress else None)

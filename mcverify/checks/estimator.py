@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -25,8 +26,8 @@ _MIN_TAIL_SAMPLES = 1000
 _ROUNDING = 64 * np.finfo(np.float64).eps
 
 
-def check_unbiased(samples, expected, *, alpha: float = 0.01,
-                   name: str = "unbiased") -> CheckResult:
+def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbiased",
+                   batches: int | None = None, stop_alpha: float | None = None) -> CheckResult:
     """One-sample t-test that per-sample estimates ``f(X)/p(X)`` have mean ``expected``.
 
     The t-test leans on the central limit theorem, which needs finite variance. An
@@ -44,6 +45,14 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01,
         The true value of the integral.
     alpha : float
         Significance level (a suite corrects it for multiplicity).
+    batches : int, optional
+        With ``samples`` a callable ``draw(b) -> 1-D array`` (the estimates of batch
+        ``b``, independent of the other batches): a group-sequential test over
+        ``batches`` batches (:mod:`mcverify.sequential`). It stops drawing as soon as the
+        bias is clear; ``details["sequential"]`` says at which batch it decided.
+    stop_alpha : float, optional
+        Sequential only: stop early when the sequential p-value reaches this (default
+        ``alpha``; a suite passes the level the check must reach within it).
 
     Examples
     --------
@@ -51,7 +60,31 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01,
     >>> x = np.random.default_rng(0).random(100_000) * np.pi
     >>> mv.check_unbiased(np.pi * np.sin(x), 2.0).passed   # ∫₀^π sin = 2
     True
+    >>> draw = lambda b: 1.1 * np.random.default_rng(b).random(10_000)   # mean 0.55
+    >>> r = mv.check_unbiased(draw, 0.5, batches=16)
+    >>> r.passed, r.details["sequential"]["batch"]    # a 10 % bias: decided at batch 1
+    (False, 1)
     """
+    if callable(samples):
+        from ..sequential import run_sequential
+
+        k = v.integer("batches", 1 if batches is None else batches, minimum=1)
+        alpha = v.probability("alpha", alpha)
+        drawn: list[np.ndarray] = []
+
+        def look(b):
+            t0 = time.perf_counter()
+            while len(drawn) < b:
+                drawn.append(v.samples_1d(f"samples({len(drawn)})", samples(len(drawn))))
+            r = check_unbiased(np.concatenate(drawn), expected, alpha=alpha, name=name)
+            return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+
+        t0 = time.perf_counter()
+        r = run_sequential(look, batches=k, alpha=alpha, stop_alpha=stop_alpha)
+        return dataclasses.replace(r, seconds=time.perf_counter() - t0)
+    if batches is not None:
+        raise InvalidArgument(f"batches={batches}: only with samples given as a callable "
+                              "draw(batch) -> estimates")
     t0 = time.perf_counter()
     x = v.samples_1d("samples", samples)
     expected = v.real("expected", expected)

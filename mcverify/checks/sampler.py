@@ -7,6 +7,7 @@ uniform numbers ``u`` of shape (n, k) to points (n, d); ``pdf(x)`` maps (n, d) p
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -151,10 +152,31 @@ class _Histogram:
         return _status_failures(self.n_status, self.examples, self.domain, what)
 
 
+def _stream_batches(sample, seq, n, k, dim, hist: _Histogram, chunk: int, bounds,
+                    name="sample"):
+    """Draw the stream's rows up to each of ``bounds`` (increasing row counts ending at n)
+    chunk by chunk and bin them; a generator that yields each bound once its rows are
+    binned, so a caller can look between batches. The rows are the same stream whatever
+    the bounds; a chunk straddling a bound is passed to ``sample`` in two parts."""
+    stops = iter(bounds)
+    stop = next(stops)
+    for start, u in _uniform_chunks(seq, n, k, chunk):
+        a = 0
+        while a < u.shape[0]:
+            b = min(u.shape[0], stop - start)
+            hist.add(v.points(name, sample(u[a:b]), b - a, dim), u[a:b])
+            a = b
+            if start + a == stop:
+                yield stop
+                stop = next(stops, None)
+                if stop is None:
+                    return
+
+
 def _stream(sample, seq, n, k, dim, hist: _Histogram, chunk: int, name="sample"):
     """Draw n points chunk by chunk and bin them; nothing of size n is kept."""
-    for _, u in _uniform_chunks(seq, n, k, chunk):
-        hist.add(v.points(name, sample(u), u.shape[0], dim), u)
+    for _ in _stream_batches(sample, seq, n, k, dim, hist, chunk, (n,), name):
+        pass
 
 
 def _split_edges(edges: np.ndarray, parts: int) -> np.ndarray:
@@ -296,7 +318,8 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
 def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution=None,
                   alpha: float = 0.01, seed: int = 0, sample_dim: int | None = None,
                   pilot: bool = True, name: str | None = None, rejection: bool = False,
-                  chunk: int = DEFAULT_CHUNK) -> CheckResult:
+                  chunk: int = DEFAULT_CHUNK, batches: int | None = None,
+                  stop_alpha: float | None = None) -> CheckResult:
     """Test that ``sample`` draws from the distribution whose density is ``pdf``.
 
     Parameters
@@ -332,6 +355,16 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         Rows per call of ``sample`` (a multiple of ``STREAM_BLOCK`` = 2^16). The
         points are binned chunk by chunk and never kept, so memory is O(chunk + cells)
         and any n fits; the result does not depend on ``chunk``.
+    batches : int, optional
+        Test group-sequentially (:mod:`mcverify.sequential`): the same stream of n draws
+        is cut into this many batches, the tests look at everything binned after 1, 2,
+        4, … batches and after all of them, and the check stops as soon as the evidence
+        against the sampler is clear. ``details["sequential"]`` says at which batch it
+        decided; a correct sampler is judged on all n draws, by the same histogram as
+        without ``batches``.
+    stop_alpha : float, optional
+        With ``batches``: stop early when the sequential p-value reaches this (default
+        ``alpha``; a suite passes the level the check must reach within it).
 
     Returns
     -------
@@ -398,88 +431,129 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     # χ² counts are its sums.
     hist_edges = [_split_edges(edges[0], KS_SPLIT)] if m == 1 else edges
     hist = _Histogram(dom, hist_edges, rejection=rejection)
-    _stream(sample, main_seq, n, k, dom.dim, hist, chunk)
-    fine = hist.counts
-    counts = fine.reshape(-1, KS_SPLIT).sum(axis=1) if m == 1 else fine
-    n_valid = int(hist.n_status[K.VALID])
-    n_rejected = int(hist.n_status[K.REJECTED])
-    failures = hist.failures()
-
     density = _Density(pdf, dom)
-    integral = integrate_cells(density, edges, n_samples=max(n_valid, 1), keep_leaves=(m == 1))
-    mass, error, n_evals, unconverged, leaves = _refine_suspicious(
-        density, edges, counts, integral, max(n_valid, 1), m)
-    if density.negative or density.nonfinite:
-        failures.append(f"pdf returned {density.negative} negative and {density.nonfinite} "
-                        f"NaN/Inf values (first: pdf({density.example[0]}) = "
-                        f"{density.example[1]})")
-    total, err_bound = float(mass.sum()), float(error.sum())
-    norm_tol = max(1e-4, 2.0 * err_bound)
-    sub = {}
-    if rejection:
-        # Accepted draws: Binomial(n, P) with P = ∫pdf; given their number, the accepted
-        # points are i.i.d. with density pdf / P.
-        if total > 1.0 + norm_tol:
-            failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain: "
-                            f"above 1, so it is no acceptance probability (quadrature "
-                            f"error bound {err_bound:.2g})")
-        sub["acceptance"] = stats.binomial_test(n - n_rejected, n, total)
-        expected = mass * (n_valid / total) if total > 0 else mass * 0.0
-    else:
-        if not abs(total - 1.0) <= norm_tol:
-            failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain, "
-                            f"not 1 (quadrature error bound {err_bound:.2g})")
-        expected = mass * n_valid
-    messages = []
-    if unconverged:
-        messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
-                        f"(error bound {err_bound:.2g})")
+    n_budget = n
+    integrated: list = []
 
-    full = stats.chi2_gof(counts, expected)
-    sub["chi2"] = full
-    note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
-    if note:
-        messages.append(note)
-    if full.observed_in_empty:
-        failures.append(f"{full.observed_in_empty} samples fell in cells where the pdf "
-                        "integrates to 0")
-    if m == 2:
-        for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):
-            sub[label] = stats.chi2_gof(counts.sum(axis=axis), expected.sum(axis=axis))
-    elif n_valid > 0 and leaves is not None and total > 0:
-        cdf = _cdf_from_leaves(density, leaves, hist_edges[0], total)
-        cdf[0], cdf[-1] = 0.0, 1.0
-        sub["ks"] = stats.ks_binned(fine, cdf)
-    p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
-    if n_valid == 0:
-        failures.append("no valid samples to test")
-    if rejection and sub["acceptance"].p_value <= alpha / len(sub):
-        messages.append(f"acceptance: {n - n_rejected} of {n} draws accepted "
-                        f"({(n - n_rejected) / n:.6g}), but the pdf integrates to "
-                        f"{total:.6g} (binomial p = {sub['acceptance'].p_value:.3g})")
+    def evaluate(n_drawn: int) -> CheckResult:
+        """The tests on the first ``n_drawn`` draws (everything binned so far)."""
+        n = n_drawn
+        fine = hist.counts
+        counts = fine.reshape(-1, KS_SPLIT).sum(axis=1) if m == 1 else fine
+        n_valid = int(hist.n_status[K.VALID])
+        n_rejected = int(hist.n_status[K.REJECTED])
+        failures = hist.failures()
 
-    worst = _worst_cells(dom, edges, counts, expected)
-    if p_value <= alpha and worst:
-        w = worst[0]
-        messages.append(f"largest discrepancy at x≈{np.round(w['point'], 4).tolist()}: "
-                        f"observed {w['observed']:.0f}, expected {w['expected']:.1f}")
-    details = {
-        "domain": repr(dom), "resolution": list(res), "sample_dim": k,
-        "tests": {key: _test_details(r) for key, r in sub.items()},
-        "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
-        "n_valid": n_valid, "worst_cells": worst, "seed": seed,
-    }
-    if rejection:
-        details["rejection"] = {"rejected": n_rejected, "accepted": n - n_rejected,
-                                "acceptance_rate": (n - n_rejected) / n,
-                                "pdf_integral": total}
-    histogram = {"edges": [e.tolist() for e in edges], "observed": counts,
-                 "expected": expected}
-    return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
-                       p_value=p_value, statistic=full.statistic, alpha=alpha, n_samples=n,
-                       seconds=time.perf_counter() - t0, details=details,
-                       messages=tuple(messages), failures=tuple(failures),
-                       artifacts={"histogram": histogram})
+        if not integrated:
+            # Integrated once, to the tolerance the whole budget needs (the valid share of
+            # the draws so far, projected to the budget).
+            integrated.append(integrate_cells(
+                density, edges, n_samples=max(round(n_valid * n_budget / n_drawn), 1),
+                keep_leaves=(m == 1)))
+        integral = integrated[0]
+        mass, error, n_evals, unconverged, leaves = _refine_suspicious(
+            density, edges, counts, integral, max(n_valid, 1), m)
+        if density.negative or density.nonfinite:
+            failures.append(f"pdf returned {density.negative} negative and {density.nonfinite} "
+                            f"NaN/Inf values (first: pdf({density.example[0]}) = "
+                            f"{density.example[1]})")
+        total, err_bound = float(mass.sum()), float(error.sum())
+        norm_tol = max(1e-4, 2.0 * err_bound)
+        sub = {}
+        if rejection:
+            # Accepted draws: Binomial(n, P) with P = ∫pdf; given their number, the accepted
+            # points are i.i.d. with density pdf / P.
+            if total > 1.0 + norm_tol:
+                failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain: "
+                                f"above 1, so it is no acceptance probability (quadrature "
+                                f"error bound {err_bound:.2g})")
+            sub["acceptance"] = stats.binomial_test(n - n_rejected, n, total)
+            expected = mass * (n_valid / total) if total > 0 else mass * 0.0
+        else:
+            if not abs(total - 1.0) <= norm_tol:
+                failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain, "
+                                f"not 1 (quadrature error bound {err_bound:.2g})")
+            expected = mass * n_valid
+        messages = []
+        if unconverged:
+            messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
+                            f"(error bound {err_bound:.2g})")
+
+        full = stats.chi2_gof(counts, expected)
+        sub["chi2"] = full
+        note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
+        if note:
+            messages.append(note)
+        if full.observed_in_empty:
+            failures.append(f"{full.observed_in_empty} samples fell in cells where the pdf "
+                            "integrates to 0")
+        if m == 2:
+            for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):
+                sub[label] = stats.chi2_gof(counts.sum(axis=axis), expected.sum(axis=axis))
+        elif n_valid > 0 and leaves is not None and total > 0:
+            if leaves is integral.leaves and integrated[1:]:
+                cdf = integrated[1]     # a later look, nothing re-integrated: same CDF
+            else:
+                cdf = _cdf_from_leaves(density, leaves, hist_edges[0], total)
+                cdf[0], cdf[-1] = 0.0, 1.0
+                if leaves is integral.leaves:
+                    integrated[1:] = [cdf]
+            sub["ks"] = stats.ks_binned(fine, cdf)
+        p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
+        if n_valid == 0:
+            failures.append("no valid samples to test")
+        if rejection and sub["acceptance"].p_value <= alpha / len(sub):
+            messages.append(f"acceptance: {n - n_rejected} of {n} draws accepted "
+                            f"({(n - n_rejected) / n:.6g}), but the pdf integrates to "
+                            f"{total:.6g} (binomial p = {sub['acceptance'].p_value:.3g})")
+
+        worst = _worst_cells(dom, edges, counts, expected)
+        if p_value <= alpha and worst:
+            w = worst[0]
+            messages.append(f"largest discrepancy at x≈{np.round(w['point'], 4).tolist()}: "
+                            f"observed {w['observed']:.0f}, expected {w['expected']:.1f}")
+        details = {
+            "domain": repr(dom), "resolution": list(res), "sample_dim": k,
+            "tests": {key: _test_details(r) for key, r in sub.items()},
+            "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
+            "n_valid": n_valid, "worst_cells": worst, "seed": seed,
+        }
+        if rejection:
+            details["rejection"] = {"rejected": n_rejected, "accepted": n - n_rejected,
+                                    "acceptance_rate": (n - n_rejected) / n,
+                                    "pdf_integral": total}
+        histogram = {"edges": [e.tolist() for e in edges], "observed": counts,
+                     "expected": expected}
+        return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
+                           p_value=p_value, statistic=full.statistic, alpha=alpha, n_samples=n,
+                           seconds=time.perf_counter() - t0, details=details,
+                           messages=tuple(messages), failures=tuple(failures),
+                           artifacts={"histogram": histogram})
+
+
+    if batches is None:
+        _stream(sample, main_seq, n, k, dom.dim, hist, chunk)
+        return evaluate(n)
+    from ..sequential import looks, run_sequential
+
+    k_batches = v.integer("batches", batches, minimum=1)
+    if k_batches > n_budget:
+        raise InvalidArgument(f"batches={k_batches}: more batches than n_samples={n_budget}")
+    # Rows end where a look is taken (the batches in between need no pause of their own:
+    # fewer, larger calls of sample and of the binning kernel).
+    bounds = {b: n_budget * b // k_batches for b in looks(k_batches)}
+    feed = _stream_batches(sample, main_seq, n_budget, k, dom.dim, hist, chunk,
+                           list(bounds.values()))
+
+    def look(b: int) -> CheckResult:
+        while hist_rows[0] < bounds[b]:
+            hist_rows[0] = next(feed)
+        return evaluate(hist_rows[0])
+
+    hist_rows = [0]
+    r = run_sequential(look, batches=k_batches, alpha=alpha, stop_alpha=stop_alpha)
+    feed.close()
+    return dataclasses.replace(r, seconds=time.perf_counter() - t0)
 
 
 def _test_details(r) -> dict:

@@ -291,7 +291,9 @@ class Pool:
             for i, _ in broken:
                 inflight[i] = self._submit(units[i])
             return
-        # Dask has rerun the task on other workers already (allowed-failures times).
-        i, e = broken[0]
-        raise WorkerLost(f"unit {units[i].key}: its Dask worker died on every attempt "
-                         f"({type(e).__name__}: {e}); no partial result is reported")
+        # Dask has rerun the tasks on other workers already (allowed-failures times); a
+        # unit queued on a dying worker counts as running there, so name every one.
+        names = ", ".join(units[i].key for i, _ in broken)
+        raise WorkerLost(f"unit {names}: its Dask worker died on every attempt "
+                         f"({type(broken[0][1]).__name__}: {broken[0][1]}); no partial result "
+                         "is reported")

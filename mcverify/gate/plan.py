@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import os
 
-from .suites import Check, build_suite
+from .suites import Check, resolve_suite
 
 __all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "plan"]
 
@@ -77,7 +77,7 @@ def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tup
     from estimators.pathtracer import load_scene
 
     desc = load_scene(scene_path)
-    all_checks = build_suite(suite)
+    all_checks, _ = resolve_suite(suite)
     wanted: dict[str, str] = {}
     for feature in sorted(desc.features):
         needs, why = NEEDS.get(feature, (set(), ""))
@@ -93,10 +93,14 @@ def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tup
 
 def _render_check(scene_path: str) -> Check:
     """The scene's render gate: our path tracer against its Mitsuba reference (built on
-    first use)."""
+    first use); sequential, so the suite tells it where it may stop early."""
     from .render_check import render_check
 
     name = f"render:{os.path.basename(os.path.dirname(os.path.abspath(scene_path)))}"
-    return Check(name, lambda seed: dataclasses.replace(
-        render_check(scene_path, seed=seed), name=name), ("render", "mitsuba"),
-        frozenset({("render", name)}), source=(_render_check, (scene_path,)))
+
+    def run(seed, stop_alpha=None):
+        return dataclasses.replace(render_check(scene_path, seed=seed, stop_alpha=stop_alpha),
+                                   name=name)
+
+    return Check(name, run, ("render", "mitsuba"), frozenset({("render", name)}),
+                 source=(_render_check, (scene_path,)), sequential=True)

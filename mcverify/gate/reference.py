@@ -26,10 +26,31 @@ import numpy as np
 from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
 from ..provenance import provenance
 from ..result import shared_mode
+from .executors import Pool, Unit, same_source, source_fingerprint
 
-REFERENCE_ROOT = os.path.join(
-    os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-    "reference", "scenes")
+def _reference_root() -> str:
+    """Where the reference scenes are: ``$MCVERIFY_REFS`` if set; else this checkout's
+    ``reference/scenes``; else, for an installed (non-editable) mcverify, the copy
+    installed with it under ``<prefix>/share/mcverify/scenes`` (pyproject's data-files)."""
+    forced = os.environ.get("MCVERIFY_REFS")
+    if forced:
+        return os.path.abspath(forced)
+    checkout = os.path.join(
+        os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+        "reference", "scenes")
+    if os.path.isdir(checkout):
+        return checkout
+    import site
+    import sys
+
+    for base in (sys.prefix, site.USER_BASE or ""):
+        installed = os.path.join(base, "share", "mcverify", "scenes")
+        if base and os.path.isdir(installed):
+            return installed
+    return checkout
+
+
+REFERENCE_ROOT = _reference_root()
 
 
 @dataclass(frozen=True)
@@ -211,20 +232,17 @@ def _interrupted(e: BaseException) -> bool:
     return False
 
 
-def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0,
-                     params: dict | None = None, progress=None) -> tuple[Reference, np.ndarray]:
-    """Render a scene with Mitsuba as ``passes`` independent passes (in memory, not
-    cached): (Reference with per-pixel mean and variance across passes, the passes)."""
+def _pass_seeds(seed: int, passes: int) -> list[int]:
+    return [int(s) for s in np.random.SeedSequence([seed, 7]).generate_state(passes)]
+
+
+def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarray:
+    """One Mitsuba pass as a unit of work (in this process or a worker)."""
     from . import mitsuba as mvm
 
-    if spp < 1 or passes < 2:
-        raise InvalidArgument(f"spp={spp}, passes={passes}: need spp >= 1 and passes >= 2 "
-                              "(the variance needs two passes)")
-    name, path = resolve_scene(spec)
-    precheck_scene(path)
-    seeds = [int(s) for s in np.random.SeedSequence([seed, 7]).generate_state(passes)]
+    same_source(fingerprint)
     try:
-        imgs = mvm.render_passes(path, spp=spp, seeds=seeds, params=params, progress=progress)
+        return mvm.render_pass(path, spp=spp, seed=seed, params=params, variant=variant)
     except (InvalidArgument, EnvironmentProblem):
         raise
     except Exception as e:  # noqa: BLE001 - Mitsuba raises plain Exception/RuntimeError
@@ -232,26 +250,106 @@ def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 
             raise KeyboardInterrupt from None
         raise EnvironmentProblem(f"{path}: Mitsuba cannot render it ("
                                  f"{' '.join(str(e).split())})") from None
-    choice = mvm.choose_variant()
-    manifest = provenance(scene=name, scene_sha256=scene_hash(path), spp=spp,
-                          passes=passes, seeds=seeds, mitsuba_version=mvm.mitsuba_version(),
-                          mitsuba_variant=choice.variant, shape=list(imgs.shape[1:]),
-                          params={k: str(v) for k, v in (params or {}).items()})
-    return Reference(name, imgs.mean(axis=0), imgs.var(axis=0, ddof=1), passes, manifest), imgs
+
+
+@dataclass(frozen=True)
+class _Job:
+    """The passes of one scene's reference: what to render and how to label it."""
+
+    name: str
+    path: str
+    spp: int
+    seeds: list
+    params: dict | None
+
+    def units(self, pool: Pool, variant: str) -> list[Unit]:
+        fingerprint = None if pool.in_process else source_fingerprint()
+        k = len(self.seeds)
+        return [Unit(f"{self.name} pass {i + 1}/{k}", _render_pass_unit,
+                     (fingerprint, self.path, self.spp, s, self.params, variant))
+                for i, s in enumerate(self.seeds)]
+
+    def assemble(self, imgs: np.ndarray, variant: str) -> Reference:
+        from . import mitsuba as mvm
+
+        manifest = provenance(scene=self.name, scene_sha256=scene_hash(self.path),
+                              spp=self.spp, passes=len(self.seeds), seeds=self.seeds,
+                              mitsuba_version=mvm.mitsuba_version(), mitsuba_variant=variant,
+                              shape=list(imgs.shape[1:]),
+                              params={k: str(v) for k, v in (self.params or {}).items()})
+        return Reference(self.name, imgs.mean(axis=0), imgs.var(axis=0, ddof=1),
+                         len(self.seeds), manifest)
+
+
+def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _Job:
+    if spp < 1 or passes < 2:
+        raise InvalidArgument(f"spp={spp}, passes={passes}: need spp >= 1 and passes >= 2 "
+                              "(the variance needs two passes)")
+    name, path = resolve_scene(spec)
+    precheck_scene(path)
+    return _Job(name, path, spp, _pass_seeds(seed, passes), params)
+
+
+def _render_jobs(jobs: list[_Job], pool: Pool | None, progress) -> list[tuple[Reference,
+                                                                             np.ndarray]]:
+    """Every pass of every job as one batch of units (passes of different scenes run side
+    by side); (Reference, passes) per job, in order."""
+    from . import mitsuba as mvm
+
+    variant = mvm.choose_variant().variant
+    show = None if progress is None else (lambda d, t, unit, _: progress(d, t, unit.key))
+    own = pool is None
+    pool = Pool() if own else pool
+    try:
+        units = [u for job in jobs for u in job.units(pool, variant)]
+        imgs = pool.map(units, progress=show)
+    finally:
+        if own:
+            pool.close()
+    out, at = [], 0
+    for job in jobs:
+        stack = np.stack(imgs[at:at + len(job.seeds)])
+        at += len(job.seeds)
+        out.append((job.assemble(stack, variant), stack))
+    return out
+
+
+def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 0,
+                     params: dict | None = None, progress=None,
+                     pool: Pool | None = None) -> tuple[Reference, np.ndarray]:
+    """Render a scene with Mitsuba as ``passes`` independent passes (in memory, not
+    cached): (Reference with per-pixel mean and variance across passes, the passes).
+    Passes are units of work on ``pool`` (default: this process);
+    ``progress(done, total, label)`` is called as passes finish."""
+    return _render_jobs([_job(spec, spp, passes, seed, params)], pool, progress)[0]
+
+
+def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
+                     progress=None, pool: Pool | None = None) -> list[str]:
+    """Render the references of several scenes (all their passes as units on ``pool``,
+    default this process) and write each (see ``build_reference``); returns their
+    folders. Every scene is resolved and prechecked before any rendering."""
+    jobs = [_job(s, spp, passes, seed, None) for s in specs]
+    return [_write(job.path, ref) for job, (ref, _) in
+            zip(jobs, _render_jobs(jobs, pool, progress))]
 
 
 def build_reference(spec: str, *, spp: int = 256, passes: int = 16, seed: int = 0,
-                    progress=None) -> str:
+                    progress=None, pool: Pool | None = None) -> str:
     """Render the reference of a scene and write it; returns its folder.
 
     Nothing is lost at any instant: the new reference is written into a temporary folder,
     the old one renamed aside, the new one renamed in, and only then the old one deleted.
     An interruption restores the old reference (or, if even that is cut short, leaves it
     as ``.ref-old-*`` beside the scene, which ``load_reference`` points to)."""
+    return build_references([spec], spp=spp, passes=passes, seed=seed, progress=progress,
+                            pool=pool)[0]
+
+
+def _write(path: str, ref: Reference) -> str:
+    """Write a rendered reference beside its scene (``build_reference``'s swap)."""
     from . import mitsuba as mvm
 
-    name, path = resolve_scene(spec)
-    ref, imgs = render_reference(path, spp=spp, passes=passes, seed=seed, progress=progress)
     folder = os.path.dirname(path)
     out = os.path.join(folder, "ref")
     tmp = tempfile.mkdtemp(prefix=".ref-new-", dir=folder)

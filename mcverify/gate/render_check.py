@@ -9,12 +9,18 @@ the pixelwise t-test calibrated on heavy-tailed pixels (caustics, a small sun).
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
+from functools import lru_cache
 from typing import Callable
 
+import numpy as np
+
+from .. import _validate as validate
+from ..checks.image import TESTS, compare_images
 from ..errors import InvalidArgument, MissingReference
 from ..result import CheckResult
-from ..checks.image import compare_images
+from .executors import Pool, Unit, same_source, source_fingerprint
 
 # Pass means of 32 samples on the Cornell box's caustic pixels are skewed enough that the
 # pixel t-test against a low-noise reference raised false alarms on 4 seeds of 4; at 64
@@ -23,6 +29,12 @@ from ..checks.image import compare_images
 MIN_SPP_PER_PASS = 64
 
 
+#: Batches of our passes in the sequential render gate: it looks after 1, 2 and 4 of
+#: them (4, 8 and 16 passes at the defaults), so a clear bug is rejected on a quarter of
+#: the samples. Early looks test the image and block means only (see ``compare_images``'s
+#: ``tests``); the pixel t-tests join at the final look, on all passes.
+RENDER_BATCHES = 4
+
 #: A renderer under test: ``render(scene_path, spp, seed)`` returning ``(mean, var, n)``:
 #: the per-pixel mean (H, W) or (H, W, C), the per-pixel variance of the ``n`` i.i.d.
 #: values averaged into it (samples or independent passes), and ``n``. An object with
@@ -30,25 +42,27 @@ MIN_SPP_PER_PASS = 64
 Renderer = Callable[[str, int, int], object]
 
 
-def path_tracer(*, passes: int = 16, params: dict | None = None, pdf_scale: float = 1.0,
-                plant: dict | None = None, progress=None) -> Renderer:
-    """Our path tracer (``estimators.pathtracer``) as a ``Renderer``: ``passes``
-    independent passes of ``spp / passes`` samples, so ``n = passes`` pass means.
-    ``params`` are XML ``$`` overrides, ``pdf_scale`` the wrong-pdf hook (1: correct),
-    ``plant`` plants a bug (``CompiledScene.planted`` keywords)."""
-    def render_ours(scene_path: str, spp: int, seed: int):
-        from estimators.pathtracer import SceneError, compile_scene, render
+@lru_cache(maxsize=4)
+def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
+    from estimators.pathtracer import SceneError, compile_scene
 
-        try:
-            subject = compile_scene(scene_path, params=params)
-        except SceneError as e:
-            raise InvalidArgument(str(e)) from None
-        if plant:
-            subject = subject.planted(**plant)
-        return render(subject, spp=spp, passes=passes, seed=seed, pdf_scale=pdf_scale,
-                      progress=progress)
+    try:
+        subject = compile_scene(scene_path, params=dict(params) or None)
+    except SceneError as e:
+        raise InvalidArgument(str(e)) from None
+    return subject.planted(**dict(plant)) if plant else subject
 
-    return render_ours
+
+def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_scale: float,
+              spp: int, seed: int):
+    """One pass of our path tracer, a unit of work: (mean float32 (H, W, 3), seconds,
+    stats). The compiled scene is kept per process (its kernel is cached on disk)."""
+    from estimators.pathtracer import render
+
+    same_source(fingerprint)
+    cs = _compiled(scene_path, params, plant, os.stat(scene_path).st_mtime_ns)
+    r = render(cs, spp=spp, seed=seed, pdf_scale=pdf_scale)
+    return r.mean, r.seconds, r.stats
 
 
 def _rendered(out, who: str):
@@ -65,71 +79,146 @@ def _rendered(out, who: str):
     return mean, var, n, None, {}
 
 
+class _OurPasses:
+    """Our path tracer's passes, rendered batch by batch on a pool as a sequential look
+    asks for them; ``image(b)`` is (mean, var, n, seconds, stats) of the first b batches,
+    computed as ``render(passes=...)`` computes it (float32 mean and variance of the pass
+    means), so the final look sees the very image a one-shot render would."""
+
+    def __init__(self, path, spp, passes, seed, params, plant, pdf_scale, pool, progress):
+        from estimators.pathtracer.render import pass_seed
+
+        fingerprint = None if pool.in_process else source_fingerprint()
+        key = (tuple(sorted((params or {}).items())), tuple(sorted((plant or {}).items())))
+        self.units = [Unit(f"pass {k + 1}/{passes}", _our_pass,
+                           (fingerprint, path, *key, float(pdf_scale), spp // passes,
+                            pass_seed(seed, k))) for k in range(passes)]
+        self.batches = RENDER_BATCHES if passes % RENDER_BATCHES == 0 and \
+            passes // RENDER_BATCHES >= 2 else 1
+        self.per = passes // self.batches
+        show = None if progress is None else (lambda d, t, unit, r: progress(d, t))
+        self.stream = pool.imap(self.units, progress=show, lookahead=max(self.per, pool.width))
+        self.done: list = []
+
+    def image(self, b):
+        while len(self.done) < b * self.per:
+            self.done.append(next(self.stream))
+        m = np.stack([d[0].astype(np.float64) for d in self.done])
+        seconds = sum(d[1] for d in self.done)
+        stats = dict(self.done[-1][2], passes=len(self.done), spp_per_pass=self.units[0].args[5])
+        h, w = m.shape[1:3]
+        stats["samples_per_second"] = h * w * stats["spp_per_pass"] * len(self.done) / seconds \
+            if seconds > 0 else float("inf")
+        return (m.mean(axis=0).astype(np.float32), m.var(axis=0, ddof=1).astype(np.float32),
+                len(self.done), seconds, stats)
+
+    def close(self):
+        self.stream.close()
+
+
 def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 1024,
                  passes: int = 16, seed: int = 0, alpha: float = 0.01,
                  params: dict | None = None, pdf_scale: float = 1.0,
                  plant: dict | None = None, build_missing: bool = True, notice=None,
-                 progress=None) -> CheckResult:
+                 progress=None, stop_alpha: float | None = None,
+                 pool: Pool | None = None) -> CheckResult:
     """Render ``scene`` (a reference name or a scene.xml path) and compare the image with
     Mitsuba's reference by ``compare_images``.
 
     ``renderer`` is any ``Renderer`` (``render(scene_path, spp, seed) -> (mean, var,
-    n)``); by default our path tracer in ``passes`` passes (``path_tracer``), whose
-    ``pdf_scale`` and ``plant`` hooks plant bugs for the gate's own tests.
+    n)``), compared once. By default it is our path tracer in ``passes`` passes of
+    ``spp / passes`` samples, whose ``pdf_scale`` and ``plant`` hooks plant bugs for the
+    gate's own tests; its passes are units of work on ``pool`` (default: this process),
+    and the comparison is group-sequential (``mcverify.sequential``): it looks after
+    ``RENDER_BATCHES`` batches of passes grow 1, 2, 4, stops as soon as the sequential
+    p-value is at most ``stop_alpha`` (default ``alpha``), and says "decided at batch k of
+    K" (``details["sequential"]``). ``progress(done, total)`` counts passes.
 
     The cached reference (``<scene folder>/ref``) is used when ``params`` is empty; a
     missing one is built first (``notice(message)`` says so); a stale or corrupt one is an
     error. With ``params`` (XML ``$`` overrides, e.g. ``{"max_depth": 2}``) the reference
     is rendered on the fly with the same overrides (16 passes × 64 spp)."""
+    from ..sequential import run_sequential
     from . import reference
 
-    if renderer is None:
+    seed = validate.seed("seed", seed)
+    if seed > 2 ** 63 - 1:
+        raise InvalidArgument(f"seed={seed}: must be at most 2**63 - 1 (renderers take a "
+                              "signed 64-bit seed)")
+    spp = validate.integer("spp", spp, minimum=1)
+    passes = validate.integer("passes", passes, minimum=1)
+    alpha = validate.probability("alpha", alpha)
+    ours = renderer is None
+    if ours:
         if passes < 2 or spp < MIN_SPP_PER_PASS * passes:
             raise InvalidArgument(f"spp={spp}, passes={passes}: need passes >= 2 and at least "
                                   f"{MIN_SPP_PER_PASS} samples per pass (pass means of fewer "
                                   "samples are too skewed on caustic pixels for the t-test)")
-        renderer = path_tracer(passes=passes, params=params, pdf_scale=pdf_scale, plant=plant,
-                               progress=progress)
     elif pdf_scale != 1.0 or plant:
         raise InvalidArgument("pdf_scale/plant: planted bugs are hooks of our path tracer; "
                               "they cannot be applied to a renderer= of your own")
     name, path = reference.resolve_scene(scene)
-    t0 = time.perf_counter()
-    if params:
-        ref, _ = reference.render_reference(path, params=params, seed=seed + 1)
-    else:
+    own_pool = pool is None
+    pool = Pool() if own_pool else pool
+    try:
+        t0 = time.perf_counter()
+        if params:
+            ref, _ = reference.render_reference(path, params=params, seed=seed + 1, pool=pool)
+        else:
+            try:
+                ref = reference.load_reference(path)
+            except MissingReference:
+                if not build_missing:
+                    raise
+                if notice:
+                    notice(f"{name}: no reference yet; building it with Mitsuba (once)")
+                reference.build_reference(path, pool=pool)
+                ref = reference.load_reference(path)
+        ref_seconds = time.perf_counter() - t0
+        label = name + "".join(f",{k}={v}" for k, v in sorted(
+            {**(params or {}), **(plant or {}),
+             **({"pdf_scale": pdf_scale} if pdf_scale != 1 else {})}.items()))
+        if ours:
+            source = _OurPasses(path, spp, passes, seed, params, plant, pdf_scale, pool,
+                                progress)
+            batches, image = source.batches, source.image
+        else:
+            t1 = time.perf_counter()
+            out = _rendered(renderer(path, spp, seed), getattr(renderer, "__name__", "renderer"))
+            out = out[:3] + (time.perf_counter() - t1 if out[3] is None else out[3], out[4])
+            batches, image, source = 1, (lambda b: out), None
+        shown = {}
+
+        def look(b):
+            mean, var, n, seconds, stats = image(b)
+            if getattr(mean, "shape", None) != ref.mean.shape:
+                raise InvalidArgument(f"{path}: the rendered image is "
+                                      f"{getattr(mean, 'shape', None)}, the reference "
+                                      f"{ref.mean.shape}; rebuild the reference")
+            shown.update(mean=mean, n=n, seconds=seconds, stats=stats)
+            return compare_images(mean, ref.mean, test_var=var, ref_var=ref.var, test_n=n,
+                                  ref_n=ref.n, alpha=alpha, name=f"render:{label}",
+                                  tests=TESTS if b == batches else ("global", "blocks"))
+
         try:
-            ref = reference.load_reference(path)
-        except MissingReference:
-            if not build_missing:
-                raise
-            if notice:
-                notice(f"{name}: no reference yet; building it with Mitsuba (once)")
-            reference.build_reference(path)
-            ref = reference.load_reference(path)
-    ref_seconds = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    mean, var, n, seconds, stats = _rendered(renderer(path, spp, seed),
-                                             getattr(renderer, "__name__", "renderer"))
-    seconds = time.perf_counter() - t1 if seconds is None else seconds
-    if getattr(mean, "shape", None) != ref.mean.shape:
-        raise InvalidArgument(f"{path}: the rendered image is {getattr(mean, 'shape', None)}, "
-                              f"the reference {ref.mean.shape}; rebuild the reference")
-    label = name + "".join(f",{k}={v}" for k, v in sorted({**(params or {}), **(plant or {}),
-                                                           **({"pdf_scale": pdf_scale}
-                                                              if pdf_scale != 1 else {})
-                                                           }.items()))
-    result = compare_images(mean, ref.mean, test_var=var, ref_var=ref.var,
-                            test_n=n, ref_n=ref.n, alpha=alpha, name=f"render:{label}")
-    details = dict(result.details, scene=path, ours_spp=spp, ours_passes=n,
-                   ours_seconds=seconds, ours_kernel=stats.get("kernel"),
+            result = run_sequential(look, batches=batches, alpha=alpha, stop_alpha=stop_alpha)
+        finally:
+            if source is not None:
+                source.close()
+    finally:
+        if own_pool:
+            pool.close()
+    mean, stats, seconds = shown["mean"], shown["stats"], shown["seconds"]
+    details = dict(result.details, scene=path, ours_spp=spp * shown["n"] // passes if ours
+                   else spp, ours_passes=shown["n"], ours_seconds=seconds,
+                   ours_kernel=stats.get("kernel"),
                    ours_samples_per_second=stats.get("samples_per_second"),
                    compile_seconds=stats.get("compile_seconds"),
                    reference=ref.manifest, reference_seconds=ref_seconds)
     artifacts = dict(result.artifacts, ours=mean, mitsuba=ref.mean)
     return dataclasses.replace(result, details=details, artifacts=artifacts,
                                seconds=result.seconds + seconds + ref_seconds,
-                               n_samples=spp * mean.shape[0] * mean.shape[1])
+                               n_samples=details["ours_spp"] * mean.shape[0] * mean.shape[1])
 
 
 def global_sensitivity(scene: str, *, epsilons=(0.0025, 0.005, 0.01, 0.02, 0.05),

@@ -38,8 +38,8 @@ from .executors import Pool, Unit, same_source, source_fingerprint
 #: Tag of the checks whose sample count a time budget may set (``check_sampler`` runs).
 SCALABLE = "scalable"
 
-__all__ = ["Check", "SUITES", "SCALABLE", "build_suite", "run_suite", "canaries",
-           "check_seed", "select"]
+__all__ = ["Check", "SUITES", "SUITE_NAMES", "SCALABLE", "build_suite", "resolve_suite",
+           "run_suite", "canaries", "check_seed", "select"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,10 @@ class Check:
     ``source`` is how a worker process rebuilds the check: ``(builder, args)`` with a
     module-level ``builder(*args)`` returning a list of checks (or one check) that holds
     one of this name. Without it a check must pickle to run outside this process.
+
+    ``sequential`` checks are group-sequential tests (``mcverify.sequential``) and take
+    ``run(seed, stop_alpha=...)``: the suite tells each the level at which it may stop
+    early, the level at which the suite's correction is sure to reject it.
     """
 
     name: str
@@ -61,6 +65,7 @@ class Check:
     tags: tuple[str, ...] = ()
     verifies: frozenset[tuple[str, str]] = frozenset()
     source: tuple | None = None
+    sequential: bool = False
 
 
 @dataclass(frozen=True)
@@ -80,6 +85,9 @@ class Profile:
     def n(self, name: str, default: int) -> int:
         return dict(self.n_overrides).get(name, default)
 
+
+#: Batches of a sequential check's budget: it looks after 1, 2, 4, 8 and 16 of them.
+BATCHES = 16
 
 SUITES = {
     # "default": the CI gate, each subject at its default parameters, 4e6 samples (the
@@ -134,15 +142,15 @@ def _warp_checks(profile: Profile) -> list[Check]:
             tag = ",".join(f"{k}={v:g}" for k, v in zip(warp.params, params))
             label = f"{warp.name}({tag})" if tag else warp.name
 
-            def run_sampler(seed, w=warp, p=params, label=label):
+            def run_sampler(seed, stop_alpha=None, w=warp, p=params, label=label):
                 return checks.check_sampler(
                     lambda u: w.sample(u, *p), lambda x: w.pdf(x, *p),
                     _domain(w.domain_spec(*p)), seed=seed, sample_dim=w.sample_dim,
                     n_samples=profile.n("sampler:" + label, profile.n_samples),
-                    name="sampler:" + label)
+                    name="sampler:" + label, batches=BATCHES, stop_alpha=stop_alpha)
 
             out.append(Check("sampler:" + label, run_sampler, ("estimators", "warp", SCALABLE),
-                             frozenset({("sampler", warp.name)})))
+                             frozenset({("sampler", warp.name)}), sequential=True))
             if warp.invert is not None:
                 def run_inverse(seed, w=warp, p=params, label=label):
                     return checks.check_inverse(
@@ -161,13 +169,14 @@ def _scipy_checks(profile: Profile) -> list[Check]:
                 ("triang(0.3)", sps.triang(0.3), Interval(0.0, 1.0), profile.n_samples)]
     out = []
     for label, dist, dom, n in subjects:
-        def run(seed, d=dist, dom=dom, label=label, n=n):
+        def run(seed, stop_alpha=None, d=dist, dom=dom, label=label, n=n):
             return checks.check_sampler(lambda u: d.ppf(u[:, 0]), lambda x: d.pdf(x[:, 0]), dom,
                                         n_samples=profile.n("scipy:" + label, n),
-                                        seed=seed, name="scipy:" + label)
+                                        seed=seed, name="scipy:" + label, batches=BATCHES,
+                                        stop_alpha=stop_alpha)
 
         out.append(Check("scipy:" + label, run, ("scipy", SCALABLE),
-                         frozenset({("sampler", label)})))
+                         frozenset({("sampler", label)}), sequential=True))
     return out
 
 
@@ -181,13 +190,14 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
     n = profile.mitsuba_samples if vectorised else profile.mitsuba_samples // 10
     out = []
     for w in mv_mitsuba.mitsuba_warps():
-        def run(seed, w=w):
+        def run(seed, stop_alpha=None, w=w):
             return checks.check_sampler(w.sample, w.pdf, w.domain, seed=seed,
                                         n_samples=profile.n("sampler:" + w.name, n),
-                                        sample_dim=w.sample_dim, name="sampler:" + w.name)
+                                        sample_dim=w.sample_dim, name="sampler:" + w.name,
+                                        batches=BATCHES, stop_alpha=stop_alpha)
 
         out.append(Check("sampler:" + w.name, run, ("mitsuba", SCALABLE),
-                         frozenset({("sampler", w.name)})))
+                         frozenset({("sampler", w.name)}), sequential=True))
         if w.invert is not None:
             def run_inv(seed, w=w):
                 # float32 round trips lose up to ~2e-4 near the poles (Beckmann at
@@ -226,17 +236,19 @@ def _distribution_checks(profile: Profile) -> list[Check]:
         aligned = dict(resolution=(32, 64), pilot=False) if dom == "square" else {}
         n = profile.costly_samples if subject == "inverted_cdf" else profile.n_samples
 
-        def run(seed, d=dist, dom=dom, k=k, label=label, aligned=aligned, n=n):
+        def run(seed, stop_alpha=None, d=dist, dom=dom, k=k, label=label, aligned=aligned,
+                n=n):
             return checks.check_sampler(d.sample, d.pdf, dom, seed=seed, sample_dim=k,
                                         n_samples=profile.n("sampler:" + label, n),
-                                        name="sampler:" + label, **aligned)
+                                        name="sampler:" + label, batches=BATCHES,
+                                        stop_alpha=stop_alpha, **aligned)
 
         def run_inv(seed, d=dist, k=k, label=label):
             return checks.check_inverse(d.sample, d.invert, k, seed=seed, n_samples=20_000,
                                         atol=1e-9, name="inverse:" + label)
 
         out += [Check("sampler:" + label, run, ("estimators", "distribution", SCALABLE),
-                      frozenset({("sampler", subject)})),
+                      frozenset({("sampler", subject)}), sequential=True),
                 Check("inverse:" + label, run_inv, ("estimators", "distribution"),
                       frozenset({("inverse", subject)}))]
     return out
@@ -258,35 +270,45 @@ def _estimator_checks(profile: Profile) -> list[Check]:
 
     sin_pdf = lambda x: np.sin(x) / 2.0            # noqa: E731
     lin_pdf = lambda x: 2.0 * x / np.pi ** 2       # noqa: E731
-    techniques = [(sin_sampler, sin_pdf, n // 4, 1), (lin_sampler, lin_pdf, n // 4, 1)]
-    subjects = [   # (estimator, label, estimate(seed), true integral)
-        ("uniform", "uniform(sin)", lambda s: mc.uniform(np.sin, 0.0, np.pi, n, seed=s), 2.0),
-        ("uniform", "uniform(cos)", lambda s: mc.uniform(np.cos, 0.0, np.pi, n, seed=s), 0.0),
+    techniques = [(sin_sampler, sin_pdf), (lin_sampler, lin_pdf)]
+    # (estimator, label, estimate(seed, n) of n samples (rqmc: n replicates), total
+    # budget, true integral). The budget is drawn in BATCHES independent batches.
+    subjects = [
+        ("uniform", "uniform(sin)", lambda s, m: mc.uniform(np.sin, 0.0, np.pi, m, seed=s),
+         n, 2.0),
+        ("uniform", "uniform(cos)", lambda s, m: mc.uniform(np.cos, 0.0, np.pi, m, seed=s),
+         n, 0.0),
         ("importance", "importance(sin|linear)",
-         lambda s: mc.importance(np.sin, lin_sampler, lin_pdf, n, seed=s), 2.0),
+         lambda s, m: mc.importance(np.sin, lin_sampler, lin_pdf, m, seed=s), n, 2.0),
         ("stratified", "stratified(sin)",
-         lambda s: mc.stratified(np.sin, 0.0, np.pi, n // 10, seed=s), 2.0),
+         lambda s, m: mc.stratified(np.sin, 0.0, np.pi, m, seed=s), n // 10, 2.0),
         ("rqmc", "rqmc(exp(xy))",
-         lambda s: mc.rqmc(lambda x: np.exp(x[:, 0] * x[:, 1]), [0, 0], [1, 1], 1024, seed=s,
-                           replicates=32), 1.3179021514544038),
-        ("mis", "mis(balance)", lambda s: mc.mis(np.sin, techniques, seed=s), 2.0),
+         lambda s, m: mc.rqmc(lambda x: np.exp(x[:, 0] * x[:, 1]), [0, 0], [1, 1], 1024,
+                              seed=s, replicates=m), 32, 1.3179021514544038),
+        ("mis", "mis(balance)",
+         lambda s, m: mc.mis(np.sin, [(t[0], t[1], m // 4, 1) for t in techniques], seed=s),
+         n, 2.0),
         ("mis", "mis(power)",
-         lambda s: mc.mis(np.sin, techniques, seed=s, heuristic="power"), 2.0),
+         lambda s, m: mc.mis(np.sin, [(t[0], t[1], m // 4, 1) for t in techniques], seed=s,
+                             heuristic="power"), n, 2.0),
         ("russian_roulette", "russian_roulette(q=0.3)",
-         lambda s: mc.russian_roulette(np.sin, lin_sampler, lin_pdf, n, 0.3, seed=s), 2.0),
+         lambda s, m: mc.russian_roulette(np.sin, lin_sampler, lin_pdf, m, 0.3, seed=s), n, 2.0),
         ("antithetic", "antithetic(exp)",
-         lambda s: mc.antithetic(np.exp, 0.0, 1.0, n, seed=s), np.e - 1.0),
-        ("importance", "importance(cos irradiance)", lambda s: mc.importance(
-            lambda x: x[:, 2], W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, n, seed=s,
-            sample_dim=2), np.pi),
+         lambda s, m: mc.antithetic(np.exp, 0.0, 1.0, m, seed=s), n, np.e - 1.0),
+        ("importance", "importance(cos irradiance)", lambda s, m: mc.importance(
+            lambda x: x[:, 2], W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, m, seed=s,
+            sample_dim=2), n, np.pi),
     ]
     out = []
-    for subject, label, make, truth in subjects:
-        def run(seed, make=make, truth=truth, label=label):
-            return checks.check_unbiased(make(seed).samples, truth, name="unbiased:" + label)
+    for subject, label, make, budget, truth in subjects:
+        def run(seed, stop_alpha=None, make=make, budget=budget, truth=truth, label=label):
+            seeds = np.random.SeedSequence(seed).generate_state(BATCHES)
+            return checks.check_unbiased(
+                lambda b: make(int(seeds[b]), budget // BATCHES).samples, truth,
+                batches=BATCHES, stop_alpha=stop_alpha, name="unbiased:" + label)
 
         out.append(Check("unbiased:" + label, run, ("estimators", "mc"),
-                         frozenset({("unbiased", subject)})))
+                         frozenset({("unbiased", subject)}), sequential=True))
 
     def perfect(seed):
         e = mc.importance(np.sin, sin_sampler, sin_pdf, 10_000, seed=seed)
@@ -321,11 +343,11 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
     ]
     out = []
     for label, smp, pdf in subjects:
-        def run(seed, s=smp, p=pdf, label=label):
+        def run(seed, stop_alpha=None, s=smp, p=pdf, label=label):
             return checks.check_sampler(s, p, "hemisphere", n_samples=n_samples, seed=seed,
-                                        name=label)
+                                        name=label, batches=BATCHES, stop_alpha=stop_alpha)
 
-        out.append(Check(label, run, ("canary",)))
+        out.append(Check(label, run, ("canary",), sequential=True))
     return _sourced(out, canaries, n_samples)
 
 
@@ -344,6 +366,31 @@ def _sourced(checks_: list[Check], builder, *args) -> list[Check]:
     return [dataclasses.replace(c, source=(builder, args)) for c in checks_]
 
 
+def resolve_suite(name: str, *, roots=(".",)) -> tuple[list[Check], list[tuple[str, str]]]:
+    """The checks of a suite given by name, and what it skips (name, reason).
+
+    ``name``: ``"default"`` or ``"full"`` (``SUITES``), ``"mitsuba"`` (Mitsuba's own
+    plugins, :mod:`mcverify.gate.mitsuba_suite`), or a user suite ``MODULE:ATTR``
+    (:mod:`mcverify.gate.usersuite`, imported with ``roots`` on ``sys.path``).
+    """
+    from .usersuite import is_user_suite, load_user_suite
+
+    if name in SUITES:
+        return build_suite(name), []
+    if name == "mitsuba":
+        from .mitsuba_suite import mitsuba_suite
+
+        return mitsuba_suite(SUITES["default"].mitsuba_samples), []
+    if is_user_suite(name):
+        return load_user_suite(name, roots=roots), []
+    raise InvalidArgument(f"--suite {name!r}: expected one of {', '.join(SUITE_NAMES)} or "
+                          "MODULE:ATTR (a list of Check, or a callable returning one)")
+
+
+#: Built-in suite names, as ``--suite`` accepts them.
+SUITE_NAMES = (*SUITES, "mitsuba")
+
+
 def select(checks_: list[Check], pattern: str | None) -> list[Check]:
     """Checks whose name contains ``pattern`` (or matches it as a glob with * ? [ ])."""
     if not pattern:
@@ -353,10 +400,13 @@ def select(checks_: list[Check], pattern: str | None) -> list[Check]:
     return [c for c in checks_ if pattern in c.name]
 
 
-def _run_guarded(check: Check, seed: int) -> CheckResult:
-    """Run a check; a subject that raises is a failed check naming the exception."""
+def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> CheckResult:
+    """Run a check; a subject that raises is a failed check naming the exception.
+    ``stop_alpha``: where a sequential check may stop early (None: its own level)."""
     t0 = time.perf_counter()
     try:
+        if check.sequential and stop_alpha is not None:
+            return check.run(seed, stop_alpha=stop_alpha)
         return check.run(seed)
     except Exception as e:  # noqa: BLE001 - any subject error is a finding, not a crash
         return CheckResult(name=check.name, passed=False, p_value=None, statistic=None,
@@ -372,21 +422,23 @@ def _rebuilt(source: tuple) -> dict[str, Check]:
     return {c.name: c for c in ([built] if isinstance(built, Check) else built)}
 
 
-def _run_unit(check, name: str, seed: int, fingerprint: str | None) -> CheckResult:
+def _run_unit(check, name: str, seed: int, stop_alpha: float | None,
+              fingerprint: str | None) -> CheckResult:
     """A check as a unit of work: ``check`` is the Check itself (in-process) or its
     ``source`` recipe (in a worker, which rebuilds the list once and looks the name up)."""
     same_source(fingerprint)
     if not isinstance(check, Check):
         check = _rebuilt(check)[name]
-    return _run_guarded(check, seed)
+    return _run_guarded(check, seed, stop_alpha)
 
 
-def _units(checks_: list[Check], seeds: list[int], pool: Pool) -> list[Unit]:
+def _units(checks_: list[Check], seeds: list[int], stops: list, pool: Pool) -> list[Unit]:
     if pool.in_process:
-        return [Unit(c.name, _run_unit, (c, c.name, s, None)) for c, s in zip(checks_, seeds)]
+        return [Unit(c.name, _run_unit, (c, c.name, s, a, None))
+                for c, s, a in zip(checks_, seeds, stops)]
     fingerprint = source_fingerprint()
     units = []
-    for c, s in zip(checks_, seeds):
+    for c, s, a in zip(checks_, seeds, stops):
         ship = c.source
         if ship is None:
             try:
@@ -397,7 +449,7 @@ def _units(checks_: list[Check], seeds: list[int], pool: Pool) -> list[Unit]:
                     "source=(builder, args) to rebuild it there, or run it in-process"
                 ) from None
             ship = c
-        units.append(Unit(c.name, _run_unit, (ship, c.name, s, fingerprint)))
+        units.append(Unit(c.name, _run_unit, (ship, c.name, s, a, fingerprint)))
     return units
 
 
@@ -412,19 +464,25 @@ def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
     ``pool`` says where the checks run (default: in this process); results come back in
     the checks' order and do not depend on it. ``progress(done, total, result, check)``
     is called as checks finish; ``check.tags`` says what it is (``"canary"``: a planted
-    bug that must be rejected)."""
+    bug that must be rejected).
+
+    Sequential checks stop early once their p-value is at most ``alpha / len(checks_)``:
+    Holm's (and Šidák's) smallest threshold is no lower, so such a check is rejected by
+    the family-wise judgement whatever the other checks find; one that stops is never
+    rescued by a later look. Canaries stop at their own level, at which they are judged."""
     t0 = time.perf_counter()
     bait = canaries() if canary else []
     seeds = ([check_seed(seed, c.name) for c in checks_]
              + [check_seed(seed, "canary:" + c.name) for c in bait])
+    stops = [alpha / max(len(checks_), 1)] * len(checks_) + [None] * len(bait)
     by_name = {c.name: c for c in checks_ + bait}
     show = None if progress is None else (
         lambda done, total, unit, r: progress(done, total, r, by_name[unit.key]))
     if pool is None:
         with Pool() as pool:
-            out = pool.map(_units(checks_ + bait, seeds, pool), progress=show)
+            out = pool.map(_units(checks_ + bait, seeds, stops, pool), progress=show)
     else:
-        out = pool.map(_units(checks_ + bait, seeds, pool), progress=show)
+        out = pool.map(_units(checks_ + bait, seeds, stops, pool), progress=show)
     results, bitten = out[:len(checks_)], out[len(checks_):]
     prov = provenance(suite=name, seed=seed, alpha=alpha, correction=correction,
                       executor=pool.describe(), **(extra_provenance or {}))

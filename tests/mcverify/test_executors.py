@@ -1,0 +1,160 @@
+"""Executors: the same results in-process, on local worker processes and on a Dask
+cluster; dead workers are retried or named; progress counts units across workers."""
+
+import os
+import pickle
+
+import numpy as np
+import pytest
+
+from mcverify.errors import EnvironmentProblem, InvalidArgument
+from mcverify.gate import suites
+from mcverify.gate.executors import Pool, Unit, WorkerLost, same_source
+
+distributed = pytest.importorskip("distributed")
+
+
+def _timeless(d):
+    """A result's JSON without what may differ between runs: timings (``seconds``,
+    ``*_seconds``, ``*_per_second``), the UTC time and the executor's name."""
+    if isinstance(d, dict):
+        return {k: _timeless(v) for k, v in d.items()
+                if not k.endswith(("seconds", "per_second")) and k not in ("utc_time", "executor")}
+    if isinstance(d, list):
+        return [_timeless(x) for x in d]
+    return d
+
+
+def _small_suite():
+    return [c for c in suites.build_suite("default")
+            if c.name.startswith("unbiased:") or "uniform_disk_polar" in c.name]
+
+
+def test_suite_json_is_identical_in_process_on_2_processes_and_on_a_dask_cluster():
+    checks = _small_suite()
+    assert len(checks) == 12
+    serial = suites.run_suite(checks, seed=3, canary=False).to_dict()
+    with Pool(jobs=2) as pool:
+        calls = []
+        local = suites.run_suite(checks, seed=3, canary=False, pool=pool,
+                                 progress=lambda i, n, r, c: calls.append((i, n, c.name)))
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        with Pool(dask=cluster.scheduler_address) as pool:
+            assert pool.width == 2
+            dask = suites.run_suite(checks, seed=3, canary=False, pool=pool)
+    assert _timeless(serial) == _timeless(local.to_dict()) == _timeless(dask.to_dict())
+    assert serial["provenance"]["executor"] == "in-process"
+    assert local.provenance["executor"] == "2 local processes"
+    # progress: every unit once, counted 1..N whatever order the workers finish in
+    assert sorted(i for i, _, _ in calls) == list(range(1, 13))
+    assert {n for _, n, _ in calls} == {12}
+    assert sorted(name for _, _, name in calls) == sorted(c.name for c in checks)
+
+
+def _die_once(marker: str) -> int:
+    if not os.path.exists(marker):
+        open(marker, "w").close()
+        os._exit(3)                   # the worker process dies mid-unit
+    return 42
+
+
+def _die_always() -> int:
+    os._exit(3)
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_a_unit_whose_worker_dies_once_is_rerun(tmp_path):
+    units = [Unit(f"sq{i}", _square, (i,)) for i in range(4)]
+    units.insert(2, Unit("flaky", _die_once, (str(tmp_path / "died"),)))
+    with Pool(jobs=2) as pool:
+        assert pool.map(units) == [0, 1, 42, 4, 9]
+
+
+def test_a_unit_that_kills_every_worker_is_named_and_nothing_partial_returned():
+    units = [Unit("sq", _square, (3,)), Unit("killer", _die_always)]
+    with Pool(jobs=2) as pool:
+        with pytest.raises(WorkerLost, match="killer.*tried 2 times"):
+            pool.map(units)
+    assert issubclass(WorkerLost, EnvironmentProblem)      # the CLI exits 2
+
+
+def test_a_unit_that_kills_every_dask_worker_is_named():
+    import dask
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster:
+            with Pool(dask=cluster.scheduler_address) as pool:
+                with pytest.raises(WorkerLost, match="unit .*killer.*: its Dask worker died"):
+                    pool.map([Unit("sq", _square, (2,)), Unit("killer", _die_always)])
+
+
+def test_unit_errors_are_raised_as_they_are():
+    with Pool(jobs=2) as pool:
+        with pytest.raises(ZeroDivisionError):
+            pool.map([Unit("div", divmod, (1, 0))])
+
+
+def test_in_process_imap_runs_units_only_as_they_are_consumed():
+    ran = []
+    units = [Unit(str(i), ran.append, (i,)) for i in range(5)]
+    with Pool() as pool:
+        it = pool.imap(units)
+        next(it)
+        next(it)
+        it.close()
+    assert ran == [0, 1]
+
+
+def test_a_check_without_a_recipe_must_pickle_to_leave_the_process():
+    check = suites.Check("lambda-check", lambda seed: None)
+    with pytest.raises((pickle.PicklingError, AttributeError)):
+        pickle.dumps(check)
+    with Pool(jobs=2) as pool:
+        with pytest.raises(InvalidArgument, match="check 'lambda-check': cannot be sent to "
+                                                  "2 local processes"):
+            suites.run_suite([check], canary=False, pool=pool)
+
+
+def test_a_worker_with_other_sources_refuses():
+    same_source(None)
+    with pytest.raises(EnvironmentProblem, match="different mcverify/estimators sources"):
+        same_source("0" * 64)
+
+
+@pytest.mark.parametrize("kwargs,needle", [
+    (dict(jobs=0), "-j 0"),
+    (dict(jobs=2, dask="tcp://localhost:1"), "-j 2 with a Dask cluster"),
+    (dict(dask="tcp://a:1", dask_scheduler_file="f"), "give one of them"),
+    (dict(dask_scheduler_file="/no/such/file.json"), "--dask-scheduler-file /no/such"),
+], ids=["jobs", "jobs-and-dask", "both-dask", "scheduler-file"])
+def test_bad_pool_arguments(kwargs, needle):
+    with pytest.raises(InvalidArgument, match=needle):
+        Pool(**kwargs)
+
+
+def test_an_unreachable_scheduler_is_an_environment_problem():
+    with pytest.raises(EnvironmentProblem, match="cannot connect"):
+        with Pool(dask="tcp://127.0.0.1:9"):
+            pass
+
+
+@pytest.mark.mitsuba
+def test_reference_and_render_passes_are_bit_identical_on_worker_processes():
+    from mcverify.gate import reference
+    from mcverify.gate.render_check import render_check
+
+    a, imgs_a = reference.render_reference("cornell-box", spp=4, passes=4, seed=1)
+    with Pool(jobs=2) as pool:
+        b, imgs_b = reference.render_reference("cornell-box", spp=4, passes=4, seed=1,
+                                               pool=pool)
+        ours_b = render_check("cornell-box", spp=256, passes=4, seed=2, pool=pool,
+                              params={"res": 32})
+    ours_a = render_check("cornell-box", spp=256, passes=4, seed=2, params={"res": 32})
+    assert np.array_equal(imgs_a, imgs_b) and np.array_equal(a.var, b.var)
+    assert np.array_equal(ours_a.artifacts["ours"], ours_b.artifacts["ours"])
+    assert _timeless(ours_a.to_dict()) == _timeless(ours_b.to_dict())

@@ -1,0 +1,168 @@
+"""Group-sequential testing: the α-spending function, the sequential p-value, and that
+stopping early keeps the false-alarm rate (seeded simulations against binomial bounds)."""
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+import mcverify as mv
+from mcverify import stats
+from mcverify.result import CheckResult
+from mcverify.sequential import looks, run_sequential
+
+
+def test_obrien_fleming_spending_values():
+    a = 0.01
+    assert stats.obrien_fleming_spending(1.0, a) == pytest.approx(a, rel=1e-12)
+    # α(t) = 2 − 2Φ(z_{α/2}/√t): at t = 1/4, z = 2 · 2.5758 = 5.1517
+    assert stats.obrien_fleming_spending(0.25, a) == pytest.approx(2.58e-7, rel=1e-2)
+    t = np.linspace(0.01, 1, 50)
+    assert np.all(np.diff(stats.obrien_fleming_spending(t, a)) > 0)
+    w = stats.spending_weights([1 / 16, 1 / 8, 1 / 4, 1 / 2, 1], a)
+    assert w.sum() == pytest.approx(1.0) and np.all(w > 0)
+    assert w[-1] == pytest.approx(1 - stats.obrien_fleming_spending(0.5, a) / a)
+    with pytest.raises(ValueError, match="ending at 1"):
+        stats.spending_weights([0.5, 0.75], a)
+    with pytest.raises(ValueError, match=r"\(0, 1\]"):
+        stats.obrien_fleming_spending(0.0, a)
+
+
+def test_looks_double_up_to_the_budget():
+    assert looks(16) == [1, 2, 4, 8, 16]
+    assert looks(12) == [1, 2, 4, 8, 12]
+    assert looks(1) == [1]
+
+
+def test_sequential_p_value_is_the_weighted_bonferroni_minimum():
+    w = np.array([0.001, 0.009, 0.99])
+    assert stats.sequential_p_value([0.5], w) == pytest.approx(1.0)         # 0.5/0.001 capped
+    assert stats.sequential_p_value([1e-6, 0.2], w) == pytest.approx(1e-3)
+    assert stats.sequential_p_value([0.3, 0.3, 0.0099], w) == pytest.approx(0.01)
+
+
+def _z_streams(rng, n_streams, batches, drift=0.0):
+    """Cumulative z-statistics of i.i.d. N(drift, 1) batch means at every batch count."""
+    inc = rng.standard_normal((n_streams, batches)) + drift
+    b = np.arange(1, batches + 1)
+    return np.cumsum(inc, axis=1) / np.sqrt(b)
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.01])
+def test_false_alarm_rate_of_null_z_streams_is_within_binomial_bounds(alpha):
+    """20 000 seeded null streams, K = 16 batches, looks after 1, 2, 4, 8, 16: the
+    rejection rate must not exceed α (one-sided 99.9 % binomial bound), and not fall
+    below the final look's own level α − α(1/2) either (the rule is not over-cautious).
+    """
+    n, k = 20_000, 16
+    at = looks(k)
+    z = _z_streams(np.random.default_rng(2026), n, k)[:, np.array(at) - 1]
+    p = 2 * sps.norm.sf(np.abs(z))
+    w = stats.spending_weights([b / k for b in at], alpha)
+    p_seq = np.array([stats.sequential_p_value(row, w) for row in p])
+    rejected = int(np.count_nonzero(p_seq <= alpha))
+    assert rejected <= stats.binomial_upper_bound(n, alpha, 0.999), rejected
+    floor = alpha - stats.obrien_fleming_spending(0.5, alpha)
+    assert rejected >= sps.binom.ppf(0.001, n, floor), (rejected, n * floor)
+
+
+def test_false_alarm_rate_of_null_chi2_streams_is_within_the_binomial_bound():
+    """The rule holds for statistics that are not z-streams: χ² of cumulative multinomial
+    counts (20 equiprobable cells) under the null, 4000 seeded streams at α = 0.05."""
+    n, k, cells, per_batch, alpha = 4000, 16, 20, 200, 0.05
+    at = looks(k)
+    rng = np.random.default_rng(7)
+    counts = rng.multinomial(per_batch, np.full(cells, 1 / cells), size=(n, k)).cumsum(axis=1)
+    w = stats.spending_weights([b / k for b in at], alpha)
+    rejected = 0
+    for s in range(n):
+        ps = [stats.chi2_gof(counts[s, b - 1], np.full(cells, b * per_batch / cells)).p_value
+              for b in at]
+        rejected += stats.sequential_p_value(ps, w) <= alpha
+    assert rejected <= stats.binomial_upper_bound(n, alpha, 0.999), rejected
+
+
+def test_false_alarm_rate_of_sequential_check_unbiased():
+    """The whole path (check_unbiased streaming batches through run_sequential), 300
+    seeded null runs with skewed (exponential) estimates at α = 0.05."""
+    n, alpha, rejected = 300, 0.05, 0
+    for s in range(n):
+        seeds = np.random.SeedSequence(s).generate_state(16)
+        r = mv.check_unbiased(lambda b: np.random.default_rng(seeds[b]).exponential(1.0, 2000),
+                              1.0, alpha=alpha, batches=16)
+        rejected += not r.passed
+    assert rejected <= stats.binomial_upper_bound(n, alpha, 0.999), rejected
+
+
+def test_a_clear_bias_stops_at_the_first_batch_and_a_correct_estimator_runs_its_budget():
+    draws = []
+
+    def biased(b):
+        draws.append(b)
+        return np.random.default_rng(b).normal(1.05, 1.0, 100_000)
+
+    r = mv.check_unbiased(biased, 1.0, batches=16, name="biased")
+    seq = r.details["sequential"]
+    assert not r.passed and seq["batch"] == 1 and seq["stopped_early"] and draws == [0]
+    assert "decided at batch 1 of 16 (stopped early)" in r.messages
+    assert r.n_samples == 100_000 and r.p_value <= r.alpha
+    ok = mv.check_unbiased(lambda b: np.random.default_rng(b).normal(1.0, 1.0, 1000), 1.0,
+                           batches=16)
+    assert ok.passed and ok.details["sequential"]["batch"] == 16
+    assert ok.n_samples == 16_000 and ok.details["sequential"]["looks"] == [1, 2, 4, 8, 16]
+
+
+def test_stop_alpha_only_moves_where_it_stops():
+    """A stricter stop level (a suite's α/m) keeps drawing where the default would stop;
+    the reported sequential p-value is computed from the same weights either way."""
+    draw = lambda b: np.random.default_rng(b).normal(1.01, 1.0, 20_000)  # noqa: E731
+    loose = mv.check_unbiased(draw, 1.0, batches=16)
+    strict = mv.check_unbiased(draw, 1.0, batches=16, stop_alpha=1e-12)
+    assert loose.details["sequential"]["batch"] < strict.details["sequential"]["batch"]
+
+
+def test_deterministic_failure_stops_at_once():
+    calls = []
+
+    def look(b):
+        calls.append(b)
+        return CheckResult("x", False, 0.5, None, 0.01, b, 0.0, failures=("NaN samples",))
+
+    r = run_sequential(look, batches=16, alpha=0.01)
+    assert calls == [1] and not r.passed and r.details["sequential"]["batch"] == 1
+
+
+@pytest.mark.parametrize("kwargs,needle", [
+    (dict(samples=np.ones(10), batches=4), "batches=4: only with samples given as a callable"),
+    (dict(samples=lambda b: np.ones(10), batches=0), "batches"),
+    (dict(samples=lambda b: np.ones(10), batches=4, stop_alpha=2.0), "stop_alpha"),
+], ids=["array-with-batches", "zero-batches", "stop-alpha"])
+def test_bad_sequential_arguments(kwargs, needle):
+    with pytest.raises(mv.InvalidArgument, match=needle):
+        mv.check_unbiased(expected=1.0, **kwargs)
+
+
+def test_sequential_check_sampler_judges_a_correct_sampler_on_the_same_histogram():
+    """Batches are consecutive parts of the one stream: the final look's χ² and marginals
+    are those of the one-shot check, and a correct sampler runs all 16 batches."""
+    from estimators import warps as W
+
+    args = (W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, "hemisphere")
+    once = mv.check_sampler(*args, n_samples=300_000, seed=5)
+    seq = mv.check_sampler(*args, n_samples=300_000, seed=5, batches=16)
+    s = seq.details["sequential"]
+    assert seq.passed and s["batch"] == 16 and seq.n_samples == 300_000
+    assert s["p_looks"][-1] == once.p_value
+    assert seq.details["tests"] == once.details["tests"]
+    assert seq.p_value == stats.sequential_p_value(s["p_looks"], s["weights"])
+    with pytest.raises(mv.InvalidArgument, match="batches=16: more batches than n_samples=10"):
+        mv.check_sampler(*args, n_samples=10, batches=16)
+
+
+def test_canaries_are_rejected_on_at_most_a_quarter_of_their_samples():
+    from mcverify.gate import suites
+
+    for c in suites.canaries():
+        r = suites._run_guarded(c, suites.check_seed(0, "canary:" + c.name))
+        s = r.details["sequential"]
+        assert not r.passed and s["batches"] == 16 and s["batch"] <= 4, (c.name, s)
+        assert r.n_samples <= 1_000_000 // 4
