@@ -44,10 +44,10 @@ Renderer = Callable[[str, int, int], object]
 
 @lru_cache(maxsize=4)
 def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
-    from estimators.pathtracer import SceneError, compile_scene
+    from estimators.pathtracer import SceneError, prepare_scene
 
     try:
-        subject = compile_scene(scene_path, params=dict(params) or None)
+        subject = prepare_scene(scene_path, params=dict(params) or None)
     except SceneError as e:
         raise InvalidArgument(str(e)) from None
     return subject.planted(**dict(plant)) if plant else subject

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import mcverify as mv
-from estimators.pathtracer import SceneError, compile_scene, load_scene, render
+from estimators.pathtracer import SceneError, prepare_scene, load_scene, render
 from mcverify.errors import EnvironmentProblem, InvalidArgument, MissingReference
 from mcverify.gate import cli, reference
 from mcverify.gate.suites import Check
@@ -310,7 +310,7 @@ def test_scene_bad_input(sandbox, name, needle):
     path = os.path.join(sandbox, "scenes", name)
     before = snapshot(os.path.join(sandbox, "scenes"))
     with pytest.raises(SceneError) as info:
-        compile_scene(path)
+        prepare_scene(path)
     assert name in str(info.value) and needle in str(info.value), str(info.value)
     assert snapshot(os.path.join(sandbox, "scenes")) == before
 
