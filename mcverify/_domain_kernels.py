@@ -1,8 +1,9 @@
 """numba kernels behind the domains: map a point to parameter space, screen it, bin it.
 
 One parallel pass per chunk of samples replaces several numpy passes (finite?, inside?,
-to parameters, bin along each axis); float32 points are read as they are. Domains are identified by a small integer
-``kind`` with float parameters ``args``; ``domains.py`` holds the numpy front ends.
+to parameters, bin along each axis); float32 points are read as they are. Domains are
+identified by a small integer ``kind`` with float parameters ``args``; ``domains.py``
+holds the numpy front ends.
 """
 
 from __future__ import annotations

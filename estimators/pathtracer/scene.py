@@ -245,8 +245,7 @@ class _Loader:
         if tag in ("point", "vector"):
             if "value" in node.attrib:
                 return tag, self.numbers(node, self.attr(node, "value"), 3)
-            return tag, np.array([float(self.attr(node, k)) if k in node.attrib else 0.0
-                                  for k in "xyz"])
+            return tag, self._xyz(node, 0.0)
         if tag == "transform":
             return "transform", self.transform(node)
         self.fail(node, "unsupported value type")
@@ -254,30 +253,36 @@ class _Loader:
     def transform(self, node):
         m = np.eye(4)
         for op in node.children:
-            if op.tag == "lookat":
-                t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
-                            self.numbers(op, self.attr(op, "target"), 3),
-                            self.numbers(op, self.attr(op, "up"), 3)
-                            if "up" in op.attrib else np.array([0.0, 1.0, 0.0]))
-            elif op.tag == "translate":
-                t = translate(self._xyz(op, 0.0))
-            elif op.tag == "scale":
-                t = scale(self._xyz(op, 1.0))
-            elif op.tag == "rotate":
-                axis = self._xyz(op, 0.0)
-                t = rotate(axis, float(self.attr(op, "angle")))
-            elif op.tag == "matrix":
-                t = matrix(self.numbers(op, self.attr(op, "value"), 16))
-            else:
-                self.fail(op, "unsupported transform operation; supported: lookat, "
-                              "translate, rotate, scale, matrix")
+            try:
+                if op.tag == "lookat":
+                    t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
+                                self.numbers(op, self.attr(op, "target"), 3),
+                                self.numbers(op, self.attr(op, "up"), 3)
+                                if "up" in op.attrib else np.array([0.0, 1.0, 0.0]))
+                elif op.tag == "translate":
+                    t = translate(self._xyz(op, 0.0))
+                elif op.tag == "scale":
+                    t = scale(self._xyz(op, 1.0))
+                elif op.tag == "rotate":
+                    axis = self._xyz(op, 0.0)
+                    t = rotate(axis, self.numbers(op, self.attr(op, "angle"), 1)[0])
+                elif op.tag == "matrix":
+                    t = matrix(self.numbers(op, self.attr(op, "value"), 16))
+                else:
+                    self.fail(op, "unsupported transform operation; supported: lookat, "
+                                  "translate, rotate, scale, matrix")
+            except SceneError:
+                raise
+            except ValueError as e:     # a degenerate transform (zero axis, up ∥ view)
+                self.fail(op, str(e))
             m = t @ m
         return m
 
     def _xyz(self, op, default):
         if "value" in op.attrib:
             return self.numbers(op, self.attr(op, "value"), 3)
-        return np.array([float(self.attr(op, k)) if k in op.attrib else default for k in "xyz"])
+        return np.array([self.numbers(op, self.attr(op, k), 1)[0] if k in op.attrib
+                         else default for k in "xyz"])
 
     def plugin(self, node, kind=None):
         kind = kind or node.tag

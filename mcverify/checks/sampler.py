@@ -310,8 +310,8 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
         raise InvalidArgument(f"chunk={chunk}: must be a multiple of {STREAM_BLOCK} (the "
                               "rows of one seeded block of uniforms)")
     # Streamed: two chunks of uniforms and one of points in memory at a time, whatever n.
-    v.memory("chunk", min(n, chunk), 8 * (2 * k + 2 * dom.dim),
-             "uniform numbers and points of one chunk")
+    v.memory("chunk" if chunk <= n else "n_samples", min(n, chunk),
+             8 * (2 * k + 2 * dom.dim), "uniform numbers and points of one chunk")
     return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k, chunk
 
 

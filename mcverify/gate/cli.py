@@ -171,6 +171,31 @@ def _mitsuba_provenance(selected) -> dict:
     return {"mitsuba_version": mv_mitsuba.mitsuba_version(), "mitsuba_variant": choice.variant}
 
 
+def _suite_checks(args):
+    """The suite(s) to run: ``--suite``, else ``[tool.mcverify]`` of the project's
+    pyproject.toml, else "default". Fills in ``args.alpha``/``args.seed`` from the table
+    where the command line left them; user suites import from the table's ``path`` and
+    the current directory. Returns (suite name, checks, skipped, provenance)."""
+    from . import suites
+    from .usersuite import find_config
+
+    config = find_config()
+    names = (args.suite,) if args.suite else (config.suites if config and config.suites
+                                              else ("default",))
+    if args.alpha is None:
+        args.alpha = config.alpha if config and config.alpha is not None else 0.01
+    if args.seed is None:
+        args.seed = config.seed if config and config.seed is not None else 0
+    roots = [os.path.join(config.root, p) for p in config.path] if config else []
+    roots.append(".")
+    checks, skipped = [], []
+    for n in names:
+        c, s = suites.resolve_suite(n, roots=roots)
+        checks += c
+        skipped += s
+    return "+".join(names), checks, skipped, ({"config": config.file} if config else {})
+
+
 def _cmd_check(args) -> int:
     from . import suites
     from ..result import write_json, write_junit
@@ -179,12 +204,14 @@ def _cmd_check(args) -> int:
     _writable("--json", args.json, inputs)
     _writable("--junit", args.junit, inputs)
     _distinct_outputs(("--json", args.json), ("--junit", args.junit))
-    extra = {}
-    skipped = []
+    args.suite, checks, skipped, extra = _suite_checks(args)
     plan = None
     if args.budget is not None and args.scene:
         raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
                               "has its own spp and passes (use --budget without --scene)")
+    if args.budget is not None and args.suite not in suites.SUITES:
+        raise InvalidArgument(f"--budget with --suite {args.suite}: only the built-in suites "
+                              f"{', '.join(suites.SUITES)} can be sized to a time budget")
     if args.scene:
         planned, skipped, _ = _plan(args.scene, args.suite)
         selected = suites.select(planned, args.k)
@@ -201,7 +228,7 @@ def _cmd_check(args) -> int:
         plan = plan_budget(args.suite, args.k, args.budget, seed=args.seed)
         selected = suites.select(suites.build_suite(args.suite, plan.n_overrides), args.k)
     else:
-        selected = suites.select(suites.build_suite(args.suite), args.k)
+        selected = suites.select(checks, args.k)
     if not selected and args.scene:
         print(f"mcverify check --scene {args.scene}: the scene needs no sampler or estimator "
               "checks", file=sys.stderr)
@@ -242,6 +269,12 @@ def _cmd_check(args) -> int:
             if c.passed:
                 print(f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected "
                       f"(p={c.p_value:.3g})")
+    if skipped and not args.scene:
+        reasons = {}
+        for _, why in skipped:
+            reasons[why] = reasons.get(why, 0) + 1
+        for why, count in reasons.items():
+            print(f"skipped {count}: {why}")
     if plan is not None:
         for note in plan.notes:
             print(f"note: {note}")
@@ -290,7 +323,9 @@ def _cmd_plan(args) -> int:
 def _cmd_list(args) -> int:
     from . import suites
 
-    selected = suites.select(suites.build_suite(args.suite), args.k)
+    args.alpha = args.seed = 0   # not used by list
+    _, checks, _, _ = _suite_checks(args)
+    selected = suites.select(checks, args.k)
     if not selected:
         raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}")
     for c in selected:
@@ -413,40 +448,81 @@ def _cmd_reference_build(args) -> int:
     return EXIT_OK
 
 
+def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
+                  passes: str | None, *, reference_ok: bool):
+    """One side of ``mcverify compare`` -> (ImageStats or a reference name, input files).
+
+    Pass images (``--X-passes``), or an image with ``--X-var``/``--X-n``, or (reference
+    side only) a reference name or folder. Every input is checked before any work."""
+    from . import reference
+    from .passes import pass_files, pass_stats
+
+    opt = f"--{label}"
+    if passes is not None:
+        for o, v in ((f"{opt}-var", var), (f"{opt}-n", n)):
+            if v is not None:
+                raise InvalidArgument(f"{o}: not with {opt}-passes (the passes give the "
+                                      "variance and n)")
+        files = pass_files(passes, option=f"{opt}-passes")
+        return (lambda: pass_stats(passes, option=f"{opt}-passes")), files
+    if reference_ok and not os.path.isfile(image):
+        return None, reference.reference_files(image)
+    if var is None or n is None:
+        raise InvalidArgument(f"{image}: an image needs {opt}-var and {opt}-n (or give "
+                              f"{opt}-passes)")
+    if n < 2:
+        raise InvalidArgument(f"{opt}-n {n}: must be >= 2 (values per pixel behind the "
+                              "variance)")
+    for path in (image, var):
+        reference.exr_channel_types(path)
+
+    def load():
+        from .passes import ImageStats, read_radiance
+
+        (m, a), (v, b) = read_radiance(image), read_radiance(var)
+        return ImageStats(m, v, n, (image, var), tuple(x for x in (a, b) if x))
+
+    return load, [image, var]
+
+
 def _cmd_compare(args) -> int:
     from . import reference
     from ..checks import compare_images
     from ..result import write_json
 
-    if args.test_n < 2 or (args.ref_n is not None and args.ref_n < 2):
-        bad = "--test-n" if args.test_n < 2 else "--ref-n"
-        raise InvalidArgument(f"{bad} {getattr(args, bad[2:].replace('-', '_'))}: must be "
-                              ">= 2 (values per pixel behind the variance)")
-    for path in (args.test, args.test_var):       # inputs in order, before any work
-        reference.exr_channel_types(path)
-    image_ref = os.path.isfile(args.ref)
-    if image_ref:
-        if args.ref_var is None or args.ref_n is None:
-            raise InvalidArgument(f"{args.ref}: an image reference needs --ref-var and --ref-n")
-        ref_files = [args.ref, args.ref_var]
+    want = (args.test_passes is None) + (args.ref_passes is None)
+    if len(args.images) != want:
+        shape = " ".join(x for x, given in (("TEST.exr", args.test_passes is None),
+                                            ("REF", args.ref_passes is None)) if given)
+        raise InvalidArgument(f"compare: got {len(args.images)} image argument(s) "
+                              f"{args.images}, expected {want}: {shape or 'none'} (with "
+                              "--test-passes there is no TEST.exr, with --ref-passes no REF)")
+    images = list(args.images)
+    test_image = images.pop(0) if args.test_passes is None else None
+    ref_image = images.pop(0) if args.ref_passes is None else None
+    test_load, test_files = _compare_side("test", test_image, args.test_var, args.test_n,
+                                          args.test_passes, reference_ok=False)
+    ref_load, ref_files = _compare_side("ref", ref_image, args.ref_var, args.ref_n,
+                                        args.ref_passes, reference_ok=True)
+    _writable("--json", args.json, test_files + ref_files)
+    test = test_load()
+    if ref_load is None:
+        r = reference.load_reference(ref_image)
+        ref_mean, ref_var, ref_n = r.mean, r.var, r.n
     else:
-        ref_files = reference.reference_files(args.ref)
-    _writable("--json", args.json, [args.test, args.test_var] + ref_files)
-    test = reference.read_float_exr(args.test)
-    test_var = reference.read_float_exr(args.test_var)
-    if image_ref:
-        ref, ref_var, ref_n = (reference.read_float_exr(args.ref),
-                               reference.read_float_exr(args.ref_var), args.ref_n)
-    else:
-        r = reference.load_reference(args.ref)
-        ref, ref_var, ref_n = r.mean, r.var, r.n
-    if test.shape != ref.shape:
-        raise InvalidArgument(f"{args.test}: shape {test.shape} differs from the reference's "
-                              f"{ref.shape}")
-    result = compare_images(test, ref, test_var=test_var, ref_var=ref_var, test_n=args.test_n,
-                            ref_n=ref_n, alpha=args.alpha, name=f"compare:{args.test}")
+        ref = ref_load()
+        ref_mean, ref_var, ref_n = ref.mean, ref.var, ref.n
+    label = test_image or args.test_passes
+    if test.mean.shape != ref_mean.shape:
+        raise InvalidArgument(f"{label}: shape {test.mean.shape} differs from the "
+                              f"reference's {ref_mean.shape}")
+    result = compare_images(test.mean, ref_mean, test_var=test.var, ref_var=ref_var,
+                            test_n=test.n, ref_n=ref_n, alpha=args.alpha,
+                            name=f"compare:{label}")
     if args.json:
         write_json(result, args.json)
+    for note in test.notes + (() if ref_load is None else ref.notes):
+        print(f"notice: {note}", file=sys.stderr)
     print(result.summary())
     for m in result.messages:
         print(f"    {m}")
@@ -515,20 +591,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
                            metavar="COMMAND")
-    suite_help = "suite: 'default' (the CI gate) or 'full' (parameter sweeps, 2e6 samples)"
+    suite_help = ("suite: 'default' (the CI gate, 4e6 samples) or 'full' (parameter sweeps, "
+                  "8e6 samples)")
+    any_suite_help = ("suite: 'default' (the CI gate, 4e6 samples), 'full' (parameter sweeps, "
+                      "8e6 samples), 'mitsuba' (Mitsuba's own plugins over sweeps) or "
+                      "MODULE:ATTR (your list of mcverify.gate.suites.Check, or a callable "
+                      "returning one); default: the [tool.mcverify] suite of the nearest "
+                      "pyproject.toml, else 'default'")
     seed_help = f"master seed, 0 to {MAX_SEED}; each check's seed derives from it"
     quiet_help = "no progress lines on stderr"
 
     c = sub.add_parser("check", help="run a verification suite (the CI gate)", epilog=EPILOG)
-    c.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
+    c.add_argument("--suite", metavar="SUITE", help=any_suite_help)
     c.add_argument("--scene", metavar="SCENE.xml",
                    help="plan the checks from a scene (and run its render check); "
                         "default: the whole suite")
     c.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
                    "(or matches it as a glob); default: all; no match exits 2")
-    c.add_argument("--seed", type=int, default=0, help=seed_help)
-    c.add_argument("--alpha", type=float, default=0.01,
-                   help="family-wise significance level (Holm across checks)")
+    c.add_argument("--seed", type=int, help=seed_help + "; default: [tool.mcverify] seed, "
+                   "else 0")
+    c.add_argument("--alpha", type=float,
+                   help="family-wise significance level (Holm across checks); default: "
+                        "[tool.mcverify] alpha, else 0.01")
     c.add_argument("--json", metavar="PATH", help="write the results as JSON; default: none")
     c.add_argument("--junit", metavar="PATH",
                    help="write the results as JUnit XML; default: none")
@@ -542,7 +626,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=_cmd_check)
 
     ls = sub.add_parser("list", help="list the checks of a suite")
-    ls.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
+    ls.add_argument("--suite", metavar="SUITE", help=any_suite_help)
     ls.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
                     "(or matches it as a glob); default: all; no match exits 2")
     ls.set_defaults(func=_cmd_list)
@@ -600,19 +684,30 @@ def build_parser() -> argparse.ArgumentParser:
 
     cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference",
                         epilog=EPILOG)
-    cp.add_argument("test", metavar="TEST.exr", help="the image under test (float OpenEXR)")
-    cp.add_argument("ref", metavar="REF", help="REF.exr, or a reference name or folder")
-    cp.add_argument("--test-var", required=True, metavar="VAR.exr",
-                    help="per-pixel variance of the --test-n values averaged into TEST "
-                         "(float OpenEXR); required")
-    cp.add_argument("--test-n", required=True, type=int, metavar="N",
-                    help="values per pixel behind TEST (samples or passes, >= 2); required")
+    cp.add_argument("images", nargs="*", metavar="IMAGE",
+                    help="TEST.exr REF; only REF with --test-passes, only TEST.exr with "
+                         "--ref-passes, none with both. TEST.exr: the image under test "
+                         "(float OpenEXR; RGBA and YA are compared on colour, alpha "
+                         "ignored); REF: REF.exr, or a reference name or folder")
+    cp.add_argument("--test-var", metavar="VAR.exr",
+                    help="per-pixel variance of the --test-n values averaged into TEST.exr "
+                         "(float OpenEXR); required with TEST.exr")
+    cp.add_argument("--test-n", type=int, metavar="N",
+                    help="values per pixel behind TEST.exr (samples or passes, >= 2); "
+                         "required with TEST.exr")
+    cp.add_argument("--test-passes", metavar="GLOB",
+                    help="instead of TEST.exr: K >= 2 independently seeded pass images "
+                         "(quote the glob, e.g. 'out/pass_*.exr'); mean, variance and "
+                         "n = K come from them")
     cp.add_argument("--ref-var", metavar="VAR.exr",
                     help="variance image of REF.exr; required with an image REF, read from "
                          "the reference otherwise")
     cp.add_argument("--ref-n", type=int, metavar="M",
                     help="values per pixel behind REF.exr; required with an image REF, the "
                          "reference's passes otherwise")
+    cp.add_argument("--ref-passes", metavar="GLOB",
+                    help="instead of REF: K >= 2 independently seeded pass images of the "
+                         "reference renderer")
     cp.add_argument("--alpha", type=float, default=0.01,
                     help="family-wise significance level of the whole comparison")
     cp.add_argument("--json", metavar="PATH",
@@ -641,10 +736,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _validate_common(args) -> None:
     """Checks every command shares, before any work."""
-    seed = getattr(args, "seed", 0)
-    if not 0 <= seed <= MAX_SEED:
+    seed = getattr(args, "seed", None)   # None: check takes [tool.mcverify]'s or 0
+    if seed is not None and not 0 <= seed <= MAX_SEED:
         raise InvalidArgument(f"--seed {seed}: must be in [0, 2^63 - 1]")
-    if hasattr(args, "alpha") and not 0.0 < args.alpha < 1.0:
+    if getattr(args, "alpha", None) is not None and not 0.0 < args.alpha < 1.0:
         raise InvalidArgument(f"--alpha {args.alpha}: must be strictly between 0 and 1")
 
 

@@ -10,16 +10,19 @@ from __future__ import annotations
 
 import glob
 import os
+import re
 import subprocess
 import sys
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from ..errors import EnvironmentProblem
+from ..errors import EnvironmentProblem, InvalidArgument
 
-__all__ = ["VariantChoice", "choose_variant", "mitsuba_warps", "mitsuba_version"]
+__all__ = ["VariantChoice", "choose_variant", "mitsuba_warps", "mitsuba_version", "mi",
+           "Subject", "bsdf", "emitter", "microfacet", "phase"]
 
 _LLVM_VARIANT = "llvm_ad_rgb"
 _SCALAR_VARIANT = "scalar_rgb"
@@ -136,12 +139,21 @@ def _from_mitsuba(v, n):
     return a.T if a.shape[0] != n else a
 
 
-def _wrap(fn, n_in, *params):
-    """numpy front end for a Mitsuba warp function (vectorised or a per-row loop)."""
+#: The largest float32 below 1. Mitsuba computes in float32, and a uniform u in
+#: (1 - 2^-25, 1) rounds to 1.0f, outside the warps' domain [0, 1): Beckmann then returns
+#: a horizon direction where its pdf is 0 (seen once in 4e6 draws).
+_BELOW_ONE_F32 = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+
+
+def _wrap(fn, n_in, *params, uniforms=False):
+    """numpy front end for a Mitsuba warp function (vectorised or a per-row loop);
+    ``uniforms``: the input is uniform numbers, clamped below float32's 1 (pbrt's habit)."""
     mi = _mi()
 
     def call(x):
         x = np.asarray(x, dtype=np.float64)
+        if uniforms:
+            x = np.minimum(x, _BELOW_ONE_F32)
         if x.ndim == 1:
             x = x.reshape(-1, 1)
         n = x.shape[0]
@@ -191,20 +203,24 @@ def mitsuba_warps() -> list[MitsubaWarp]:
         return lambda x: np.where(np.asarray(x)[:, 2] >= cos_cut, pdf(x), 0.0)
 
     return [
-        MitsubaWarp("mitsuba.cosine_hemisphere", _wrap(w.square_to_cosine_hemisphere, 2),
+        MitsubaWarp("mitsuba.cosine_hemisphere",
+                    _wrap(w.square_to_cosine_hemisphere, 2, uniforms=True),
                     hemi(_wrap(w.square_to_cosine_hemisphere_pdf, 3)),
                     _wrap(w.cosine_hemisphere_to_square, 3), "hemisphere", 2),
-        MitsubaWarp("mitsuba.uniform_sphere", _wrap(w.square_to_uniform_sphere, 2),
+        MitsubaWarp("mitsuba.uniform_sphere",
+                    _wrap(w.square_to_uniform_sphere, 2, uniforms=True),
                     _wrap(w.square_to_uniform_sphere_pdf, 3),
                     _wrap(w.uniform_sphere_to_square, 3), "sphere", 2),
         MitsubaWarp("mitsuba.uniform_disk_concentric",
-                    _wrap(w.square_to_uniform_disk_concentric, 2),
+                    _wrap(w.square_to_uniform_disk_concentric, 2, uniforms=True),
                     lambda x: np.where(np.sum(np.asarray(x) ** 2, 1) <= 1, 1 / np.pi, 0.0),
                     _wrap(w.uniform_disk_to_square_concentric, 2), "disk", 2),
-        MitsubaWarp("mitsuba.uniform_cone", _wrap(w.square_to_uniform_cone, 2, cos_cut),
+        MitsubaWarp("mitsuba.uniform_cone",
+                    _wrap(w.square_to_uniform_cone, 2, cos_cut, uniforms=True),
                     cone(_wrap(w.square_to_uniform_cone_pdf, 3, cos_cut)),
                     _wrap(w.uniform_cone_to_square, 3, cos_cut), "sphere", 2),
-        MitsubaWarp("mitsuba.beckmann", _wrap(w.square_to_beckmann, 2, alpha),
+        MitsubaWarp("mitsuba.beckmann",
+                    _wrap(w.square_to_beckmann, 2, alpha, uniforms=True),
                     hemi(_wrap(w.square_to_beckmann_pdf, 3, alpha)),
                     _wrap(w.beckmann_to_square, 3, alpha), "hemisphere", 2),
     ]
@@ -266,3 +282,378 @@ def read_exr(path: str) -> np.ndarray:
     except Exception as e:
         raise EnvironmentProblem(f"{path}: cannot read image ({e})") from None
     return a[:, :, None] if a.ndim == 2 else a
+
+
+# --------------------------------------------------------------------------------------
+# Plugin adapters: a Mitsuba plugin's sampling routine as the judge's sampler contract.
+# --------------------------------------------------------------------------------------
+
+class Subject(NamedTuple):
+    """A Mitsuba sampling routine in the shape ``mcverify.check_sampler`` takes.
+
+    ``sample(u)`` maps (n, k) uniform numbers to (n, 3) directions; a row of NaN is a
+    draw the plugin rejected (zero weight or zero pdf: below the horizon, behind a
+    light) or one that went to a delta lobe (no density to test; its probability is the
+    mass the continuous part is missing). ``pdf(x)`` is the plugin's own density of the
+    continuous part, per unit solid angle. ``kwargs`` holds ``sample_dim`` and a
+    ``name``. Use it as ``s, p, d, kw = mvm.bsdf(...); mv.check_sampler(s, p, d, **kw)``.
+    """
+
+    sample: Callable
+    pdf: Callable
+    domain: str
+    kwargs: dict
+
+
+def mi():
+    """The ``mitsuba`` module with the gate's variant set (see :func:`choose_variant`).
+
+    Register your own plugins through it (``mvm.mi().register_bsdf(...)``) so that they
+    exist in the variant the adapters use.
+    """
+    return _mi()
+
+
+_ONE_MINUS_EPS32 = 1.0 - 2.0 ** -24   # float32 uniform numbers stay below 1
+
+
+def _point3(name: str, v) -> tuple[float, float, float]:
+    try:
+        a = np.asarray(v, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        a = np.empty(0)
+    if a.size != 3 or not np.all(np.isfinite(a)):
+        raise InvalidArgument(f"{name}={v!r}: expected a finite 3-vector")
+    return tuple(float(c) for c in a)
+
+
+def _unit3(name: str, v) -> tuple[float, float, float]:
+    a = _point3(name, v)
+    length = float(np.linalg.norm(a))
+    if abs(length - 1.0) > 1e-6:
+        raise InvalidArgument(f"{name}={v!r}: length {length:.6g}, expected a unit vector "
+                              "(normalise it)")
+    return a
+
+
+def _load(plugin, what: str, classes: tuple):
+    """A dict (``mi.load_dict``), an XML string (``mi.load_string``) or a loaded plugin."""
+    m = _mi()
+    if isinstance(plugin, dict):
+        loader, arg = m.load_dict, _bitmaps(plugin)
+    elif isinstance(plugin, str):
+        if not plugin.lstrip().startswith("<"):
+            raise InvalidArgument(f"{what}={plugin[:40]!r}: a string must be Mitsuba XML "
+                                  f"such as '<bsdf type=\"diffuse\"/>'; give a dict for "
+                                  "load_dict")
+        loader, arg = m.load_string, plugin
+    else:
+        loader, arg = None, None
+    if loader is not None:
+        try:
+            plugin = loader(arg)
+        except Exception as e:  # Mitsuba raises RuntimeError with its parser's message
+            raise InvalidArgument(f"{what}: Mitsuba cannot load it ({e})") from None
+    if not isinstance(plugin, tuple(getattr(m, c) for c in classes)):
+        raise InvalidArgument(f"{what}: got {type(plugin).__name__}, expected a "
+                              f"{' or '.join('mitsuba.' + c for c in classes)} (a dict, an "
+                              "XML string or a loaded plugin)")
+    return plugin
+
+
+def _bitmaps(d: dict) -> dict:
+    """A plugin dict with (H, W, C) numpy arrays turned into ``mi.Bitmap`` (an envmap's
+    or a bitmap texture's image given inline)."""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            v = _bitmaps(v)
+        elif isinstance(v, np.ndarray) and v.ndim == 3:
+            v = _mi().Bitmap(np.ascontiguousarray(v, dtype=np.float32))
+        out[k] = v
+    return out
+
+
+def _label(plugin, obj) -> str:
+    if isinstance(plugin, dict):
+        inner = ",".join(f"{k}={v}" for k, v in plugin.items()
+                         if k != "type" and isinstance(v, (str, int, float)))
+        return f"{plugin.get('type', '?')}({inner})" if inner else str(plugin.get("type"))
+    if isinstance(plugin, str):
+        found = re.search(r'type\s*=\s*"([^"]+)"', plugin)
+        if found:
+            return found.group(1)
+    return str(obj).split("[", 1)[0].strip() or type(obj).__name__
+
+
+def _rows(fn, x: np.ndarray, d_out: int):
+    """Run ``fn(columns, n)`` on (n, k) float64 rows: one vectorised call, or one call
+    per row on a scalar variant. ``fn`` returns (points (d_out, n) or (n,), ok (n,))."""
+    x = np.asarray(x, dtype=np.float64)
+    n = x.shape[0]
+    if _vectorised():
+        out, ok = fn([x[:, j] for j in range(x.shape[1])], n)
+        return _np_out(out, n, d_out), np.broadcast_to(np.asarray(ok, bool).reshape(-1), (n,))
+    outs, oks = [], []
+    for row in x:
+        out, ok = fn([float(c) for c in row], 1)
+        outs.append(_np_out(out, 1, d_out)[0])
+        oks.append(bool(np.asarray(ok).reshape(-1)[0]))
+    return np.asarray(outs).reshape(n, *(() if d_out == 1 else (d_out,))), np.asarray(oks)
+
+
+def _np_out(v, n, d):
+    a = np.asarray(v, dtype=np.float64)
+    if d == 1:
+        return np.broadcast_to(a.reshape(-1), (n,)).copy() if a.size in (1, n) else a
+    return np.broadcast_to(a.reshape(d, -1), (d, n)).T.copy()
+
+
+def _zeros(T, n):
+    if _vectorised():
+        return _dr().zeros(T, n)
+    try:
+        return _dr().zeros(T)
+    except RuntimeError:     # scalar DirectionSample3f has no zeros(); emitters without
+        # a shape read only its direction, which the caller sets
+        return T()
+
+
+def _dr():
+    import drjit
+
+    return drjit
+
+
+def _float(col):
+    return _mi().Float(col) if _vectorised() else float(col)
+
+
+def _uniform(u):
+    """Uniform numbers as float32-safe values (below 1 after rounding)."""
+    return np.minimum(np.asarray(u, dtype=np.float64), _ONE_MINUS_EPS32)
+
+
+def _vec3(cols):
+    return _mi().Vector3f(_float(cols[0]), _float(cols[1]), _float(cols[2]))
+
+
+def _nan_rejected(x, ok):
+    """Mitsuba's float32 directions as float64 points, rejected rows NaN.
+
+    Near a pole, float32 rounds z to ±1 within 2.4e-4 rad (GGX at α = 0.01 puts 0.06 %
+    of its normals there), while x and y keep theirs where the plugin computed them
+    directly (not from a rounded cos θ: see the README's findings). The judge parameterises
+    by z, so such points would pile into the first cell: z is recomputed from x and y in
+    float64 where |z| > 0.5, for unit vectors only (a vector whose length is off by more
+    than float32 rounding is passed on as it is, for the judge to flag).
+    """
+    x = np.array(x, dtype=np.float64)
+    x[~ok] = np.nan
+    with np.errstate(invalid="ignore"):
+        r2 = x[:, 0] ** 2 + x[:, 1] ** 2
+        unit = np.abs(np.sqrt(r2 + x[:, 2] ** 2) - 1.0) <= 4e-7
+        polar = unit & (np.abs(x[:, 2]) > 0.5)
+    x[polar, 2] = np.copysign(np.sqrt(np.maximum(0.0, 1.0 - r2[polar])), x[polar, 2])
+    return x
+
+
+def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
+    """A BSDF's ``sample``/``pdf`` pair at incident direction ``wi`` (local frame).
+
+    ``plugin``: a ``load_dict`` dict, an XML string or a loaded ``mi.BSDF`` (one
+    registered from Python with ``mi.register_bsdf`` included). The sample is 3-D: the
+    first number selects the lobe, as in Mitsuba's own χ² tests, so lobe selection is
+    part of what is checked. Draws with zero weight (Mitsuba's way of rejecting: below
+    the horizon, total internal reflection lost) or into a delta lobe come back as NaN
+    rows (see :class:`Subject`). ``component`` restricts sampling and pdf to one
+    component through ``BSDFContext.component``.
+
+    The domain is the sphere: reflection and transmission together.
+    """
+    m = _mi()
+    obj = _load(plugin, "plugin", ("BSDF",))
+    w = _unit3("wi", wi)
+    if component is not None and not (isinstance(component, int)
+                                      and 0 <= component < obj.component_count()):
+        raise InvalidArgument(f"component={component!r}: this BSDF has "
+                              f"{obj.component_count()} components (0..."
+                              f"{obj.component_count() - 1})")
+    ctx = m.BSDFContext()
+    if component is not None:
+        ctx.component = component
+    delta = int(m.BSDFFlags.Delta)
+
+    def interaction(n):
+        si = _zeros(m.SurfaceInteraction3f, n)
+        si.wi = m.Vector3f(*w)
+        si.n = m.Normal3f(0.0, 0.0, 1.0)
+        si.sh_frame = m.Frame3f(m.Vector3f(0.0, 0.0, 1.0))
+        si.uv = m.Point2f(float(uv[0]), float(uv[1]))
+        return si
+
+    def draw(cols, n):
+        bs, weight = obj.sample(ctx, interaction(n), _float(cols[0]),
+                                m.Point2f(_float(cols[1]), _float(cols[2])))
+        wt = np.asarray(weight, dtype=np.float64).reshape(3, -1)
+        kind = np.asarray(bs.sampled_type).reshape(-1)
+        ok = (np.any(wt != 0, axis=0) & (np.asarray(bs.pdf).reshape(-1) > 0)
+              & ((kind & delta) == 0))
+        return bs.wo, ok
+
+    def sample(u):
+        x, ok = _rows(draw, _uniform(u), 3)
+        return _nan_rejected(x, ok)
+
+    def pdf(x):
+        return _rows(lambda c, n: (obj.pdf(ctx, interaction(n), _vec3(c)), True), x, 1)[0]
+
+    return Subject(sample, pdf, "sphere",
+                   {"sample_dim": 3, "name": f"mitsuba.bsdf:{_label(plugin, obj)}"
+                                             f"@wi={_fmt(w)}"})
+
+
+def _fmt(v) -> str:
+    return "(" + ",".join(f"{c:.3g}" for c in v) + ")"
+
+
+def emitter(plugin, ref=(0.0, 0.0, 0.0)) -> Subject:
+    """An emitter's ``sample_direction``/``pdf_direction`` pair seen from point ``ref``.
+
+    ``plugin``: an emitter (``{"type": "envmap", ...}``, ``"constant"``, ...) or a shape
+    carrying an ``area`` emitter (``{"type": "sphere", "emitter": {"type": "area"}}``),
+    as a dict, an XML string or a loaded plugin. ``pdf(d)`` traces the ray ``ref + t·d``
+    against the shape, builds the ``DirectionSample3f`` from the hit (as Mitsuba's
+    integrators do for MIS) and returns 0 where it misses. Draws with zero weight (the
+    light's back side) come back as NaN rows. Delta emitters (point, spot, directional)
+    have no density and are refused.
+    """
+    m = _mi()
+    obj = _load(plugin, "plugin", ("Emitter", "Shape"))
+    p = _point3("ref", ref)
+    scene = None
+    if isinstance(obj, m.Shape):
+        light = obj.emitter()
+        if light is None:
+            raise InvalidArgument("plugin: a shape without an emitter; add "
+                                  "'emitter': {'type': 'area'}")
+        scene = m.load_dict({"type": "scene", "shape": obj})
+        obj = light
+    if int(obj.flags()) & int(m.EmitterFlags.Delta):
+        raise InvalidArgument(f"plugin: {_label(plugin, obj)} is a delta emitter (point, spot,"
+                              " directional): no density to test")
+    if scene is None and int(obj.flags()) & int(m.EmitterFlags.Surface):
+        raise InvalidArgument("plugin: an area emitter must be given with its shape, e.g. "
+                              "{'type': 'rectangle', 'emitter': {'type': 'area'}}")
+
+    def origin(n):
+        it = _zeros(m.Interaction3f, n)
+        it.p = m.Point3f(*p)
+        return it
+
+    def draw(cols, n):
+        ds, weight = obj.sample_direction(origin(n), m.Point2f(_float(cols[0]),
+                                                              _float(cols[1])))
+        wt = np.asarray(weight, dtype=np.float64).reshape(3, -1)
+        ok = np.any(wt != 0, axis=0) & (np.asarray(ds.pdf).reshape(-1) > 0)
+        return ds.d, ok
+
+    def sample(u):
+        x, ok = _rows(draw, _uniform(u), 3)
+        return _nan_rejected(x, ok)
+
+    def density(cols, n):
+        it, d = origin(n), _vec3(cols)
+        if scene is None:
+            ds = _zeros(m.DirectionSample3f, n)
+            ds.d = d
+            return obj.pdf_direction(it, ds), True
+        si = scene.ray_intersect(it.spawn_ray(d))
+        ds = m.DirectionSample3f(scene, si, it)
+        return obj.pdf_direction(it, ds, si.is_valid()), si.is_valid()
+
+    def pdf(x):
+        v, hit = _rows(density, x, 1)
+        return np.where(hit, v, 0.0)
+
+    return Subject(sample, pdf, "sphere",
+                   {"sample_dim": 2, "name": f"mitsuba.emitter:{_label(plugin, obj)}"
+                                             f"@ref={_fmt(p)}"})
+
+
+def microfacet(distribution: str, alpha, *, wi=(0.0, 0.0, 1.0),
+               sample_visible: bool = True) -> Subject:
+    """``mi.MicrofacetDistribution``'s normal sampling: ``sample(wi, u)`` against
+    ``pdf(wi, m)``, over the hemisphere of microfacet normals.
+
+    ``distribution``: ``"ggx"`` or ``"beckmann"``; ``alpha``: one roughness or
+    ``(alpha_u, alpha_v)`` (anisotropic); ``sample_visible``: the distribution of
+    visible normals from ``wi`` (Heitz 2018) instead of ``D(m) cos θ_m``.
+    """
+    m = _mi()
+    types = {"ggx": m.MicrofacetType.GGX, "beckmann": m.MicrofacetType.Beckmann}
+    if distribution not in types:
+        raise InvalidArgument(f"distribution={distribution!r}: expected 'ggx' or 'beckmann'")
+    au, av = (alpha, alpha) if np.ndim(alpha) == 0 else tuple(alpha)
+    for name, a in (("alpha_u", au), ("alpha_v", av)):
+        if not (isinstance(a, (int, float)) and np.isfinite(a) and a > 0):
+            raise InvalidArgument(f"alpha={alpha!r}: {name} must be a positive number")
+    w = _unit3("wi", wi)
+    if sample_visible and w[2] <= 0:
+        raise InvalidArgument(f"wi={wi!r}: visible normals need wi above the horizon (z > 0)")
+    dist = m.MicrofacetDistribution(types[distribution], float(au), float(av),
+                                    bool(sample_visible))
+
+    def draw(cols, n):
+        mm, pdf_ = dist.sample(m.Vector3f(*w), m.Point2f(_float(cols[0]), _float(cols[1])))
+        return mm, np.asarray(pdf_).reshape(-1) > 0
+
+    def sample(u):
+        x, ok = _rows(draw, _uniform(u), 3)
+        return _nan_rejected(x, ok)
+
+    def pdf(x):
+        return _rows(lambda c, n: (dist.pdf(m.Vector3f(*w), _vec3(c)), True), x, 1)[0]
+
+    a = f"{au:g}" if au == av else f"{au:g},{av:g}"
+    label = f"mitsuba.microfacet:{distribution}(alpha={a}{',visible' if sample_visible else ''})"
+    return Subject(sample, pdf, "hemisphere",
+                   {"sample_dim": 2, "name": label + (f"@wi={_fmt(w)}" if sample_visible
+                                                      else "")})
+
+
+def phase(plugin, wi=(0.0, 0.0, 1.0)) -> Subject:
+    """A phase function's ``sample``/``eval_pdf`` pair for incident direction ``wi``.
+
+    ``plugin``: a dict (``{"type": "hg", "g": 0.5}``), an XML string or a loaded
+    ``mi.PhaseFunction``. The sample is 3-D (Mitsuba passes a lobe-selection number
+    first); the domain is the sphere.
+    """
+    m = _mi()
+    obj = _load(plugin, "plugin", ("PhaseFunction",))
+    w = _unit3("wi", wi)
+    ctx = m.PhaseFunctionContext()
+
+    def interaction(n):
+        mei = _zeros(m.MediumInteraction3f, n)
+        mei.wi = m.Vector3f(*w)
+        mei.sh_frame = m.Frame3f(m.Vector3f(*w))
+        return mei
+
+    def draw(cols, n):
+        wo, weight, pdf_ = obj.sample(ctx, interaction(n), _float(cols[0]),
+                                      m.Point2f(_float(cols[1]), _float(cols[2])))
+        wt = np.asarray(weight, dtype=np.float64).reshape(3, -1)
+        return wo, np.any(wt != 0, axis=0) & (np.asarray(pdf_).reshape(-1) > 0)
+
+    def sample(u):
+        x, ok = _rows(draw, _uniform(u), 3)
+        return _nan_rejected(x, ok)
+
+    def pdf(x):
+        return _rows(lambda c, n: (obj.eval_pdf(ctx, interaction(n), _vec3(c))[1], True),
+                     x, 1)[0]
+
+    return Subject(sample, pdf, "sphere",
+                   {"sample_dim": 3, "name": f"mitsuba.phase:{_label(plugin, obj)}"
+                                             f"@wi={_fmt(w)}"})

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import os
 
-from .suites import Check, build_suite
+from .suites import Check, resolve_suite
 
 __all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "plan"]
 
@@ -77,7 +77,7 @@ def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tup
     from estimators.pathtracer import load_scene
 
     desc = load_scene(scene_path)
-    all_checks = build_suite(suite)
+    all_checks, _ = resolve_suite(suite)
     wanted: dict[str, str] = {}
     for feature in sorted(desc.features):
         needs, why = NEEDS.get(feature, (set(), ""))

@@ -28,9 +28,29 @@ from ..provenance import provenance
 from ..result import shared_mode
 from .executors import Pool, Unit, same_source, source_fingerprint
 
-REFERENCE_ROOT = os.path.join(
-    os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-    "reference", "scenes")
+def _reference_root() -> str:
+    """Where the reference scenes are: ``$MCVERIFY_REFS`` if set; else this checkout's
+    ``reference/scenes``; else, for an installed (non-editable) mcverify, the copy
+    installed with it under ``<prefix>/share/mcverify/scenes`` (pyproject's data-files)."""
+    forced = os.environ.get("MCVERIFY_REFS")
+    if forced:
+        return os.path.abspath(forced)
+    checkout = os.path.join(
+        os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+        "reference", "scenes")
+    if os.path.isdir(checkout):
+        return checkout
+    import site
+    import sys
+
+    for base in (sys.prefix, site.USER_BASE or ""):
+        installed = os.path.join(base, "share", "mcverify", "scenes")
+        if base and os.path.isdir(installed):
+            return installed
+    return checkout
+
+
+REFERENCE_ROOT = _reference_root()
 
 
 @dataclass(frozen=True)

@@ -133,6 +133,14 @@ def sandbox(tmp_path_factory):
         '<emitter type="envmap"><string name="filename" value="sky.fifo"/></emitter>'))
     (s / "nan-radius.xml").write_text(text.replace('value="0.8"', 'value="nan"'))
     (s / "unsupported.xml").write_text(text.replace('type="diffuse"', 'type="hair"'))
+    look = '<lookat origin="0, 1.2, 5" target="0, 0.3, 0" up="0, 1, 0"/>'
+    assert look in text
+    (s / "rotate-zero-axis.xml").write_text(text.replace(
+        look, look + '<rotate x="0" y="0" z="0" angle="30"/>'))
+    (s / "rotate-angle-text.xml").write_text(text.replace(
+        look, look + '<rotate y="1" angle="thirty"/>'))
+    (s / "lookat-degenerate.xml").write_text(text.replace('target="0, 0.3, 0"',
+                                                          'target="0, 1.2, 5"'))
     return d
 
 
@@ -170,8 +178,13 @@ def _scene_file(name):
 
 API = [
     # check_sampler
-    ("sampler-n-1e12", _sampler(n_samples=10 ** 12), InvalidArgument,
-     "n_samples=1000000000000: needs about"),
+    # Streamed: n = 1e12 needs no more memory than one chunk, but a chunk of 2^40 rows does.
+    ("sampler-chunk-2^40", _sampler(n_samples=10 ** 13, chunk=2 ** 40), InvalidArgument,
+     "chunk=1099511627776: needs about"),
+    ("sampler-chunk-not-multiple", _sampler(chunk=1000), InvalidArgument, "chunk=1000"),
+    ("sampler-chunk-2^46", _sampler(n_samples=10 ** 15, chunk=1 << 46), InvalidArgument,
+     "chunk=70368744177664: needs about"),
+    ("sampler-chunk-ragged", _sampler(chunk=(1 << 16) + 1), InvalidArgument, "chunk=65537"),
     ("sampler-n-float", _sampler(n_samples=2.5), InvalidArgument, "n_samples=2.5"),
     ("sampler-not-callable", _sampler(sample=3), InvalidArgument, "sample=3"),
     ("sampler-pdf-strings", _sampler(pdf=lambda x: np.array(["0.5"] * len(x))),
@@ -281,6 +294,9 @@ SCENES = [
     ("malformed", "malformed.xml", "not well-formed"),
     ("nan-radius", "nan-radius.xml", "nan"),
     ("unsupported-bsdf", "unsupported.xml", "hair"),
+    ("rotate-zero-axis", "rotate-zero-axis.xml", "the axis must be non-zero"),
+    ("rotate-angle-text", "rotate-angle-text.xml", "'thirty'"),
+    ("lookat-degenerate", "lookat-degenerate.xml", "origin and target coincide"),
 ]
 
 
@@ -724,3 +740,23 @@ def _subparsers(parser, prefix=""):
             for name, sub in a.choices.items():
                 yield (prefix + name, sub)
                 yield from _subparsers(sub, prefix + name + " ")
+
+
+def test_check_resolves_pending_lines_after_holm(monkeypatch, capsys, tmp_path):
+    """A raw p under alpha printed as pending is then reported with its final verdict:
+    rescued by Holm (PASS ... no alarm) or listed as failed."""
+    from mcverify.gate import suites
+
+    def fake_run_suite(selected, *, progress, alpha, **kw):
+        raw = [_result("rescued", 0.006), _result("condemned", 1e-6), _result("fine", 0.5)]
+        for i, r in enumerate(raw):
+            progress(i + 1, 3, r, Check(r.name, None))
+        return SuiteResult.judge("default", raw, alpha=alpha, seconds=0.0)
+
+    monkeypatch.setattr(suites, "run_suite", fake_run_suite)
+    rc, out, err = _run_cli(["check", "-k", "sampler:uniform_disk_polar"], capsys, tmp_path)
+    assert rc == 1
+    assert "rescued pending (p=0.006" in err and "condemned pending (p=1e-06" in err
+    assert "fine ok" in err
+    assert "PASS rescued: p=0.006 is no alarm after Holm (p_adj=0.012)" in out
+    assert "FAIL condemned" in out and "2 passed, 1 failed" in out

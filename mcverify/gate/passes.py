@@ -1,0 +1,90 @@
+"""Any renderer's images as inputs of the compare gate.
+
+``compare_images`` needs, per pixel, a mean, the sample variance of the values averaged
+into it and their number n. A renderer that writes one EXR per run gives them through K
+independently seeded passes: the mean of the passes, their variance (ddof = 1) and
+n = K (Jung et al. 2020 compare pass means for the same reason: they are far less skewed
+than single paths). Alpha is ignored: an RGBA or YA image is compared on its colour
+channels, and a note says so.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InvalidArgument
+from . import reference
+
+__all__ = ["ImageStats", "read_radiance", "pass_files", "pass_stats"]
+
+
+@dataclass(frozen=True)
+class ImageStats:
+    """One side of a comparison: per-pixel mean, variance of the n values behind it."""
+
+    mean: np.ndarray
+    var: np.ndarray
+    n: int
+    files: tuple[str, ...]
+    notes: tuple[str, ...] = ()
+
+
+def read_radiance(path: str) -> tuple[np.ndarray, str | None]:
+    """An OpenEXR image's colour channels as (H, W, C) float64, and a note if an alpha
+    channel was dropped (RGBA -> RGB, YA -> Y). Other checks as ``read_float_exr``."""
+    names = list(reference.exr_channel_types(path))
+    img = reference.read_float_exr(path)
+    alpha = [c for c in names if c == "A" or c.endswith(".A")]
+    if alpha and img.shape[2] in (2, 4) and len(names) == img.shape[2]:
+        return img[:, :, :-1], f"{path}: alpha channel ignored"
+    return img, None
+
+
+def pass_files(pattern: str, *, option: str = "--test-passes") -> list[str]:
+    """The pass images matching ``pattern``, sorted, each an OpenEXR file (its header
+    read); fewer than two raise ``InvalidArgument`` naming ``option``."""
+    files = sorted(glob.glob(os.path.expanduser(pattern)))
+    if len(files) < 2:
+        raise InvalidArgument(f"{option} {pattern!r}: matches {len(files)} file(s); give a "
+                              "glob (quoted) matching at least 2 independently seeded passes")
+    for f in files:
+        reference.exr_channel_types(f)
+    return files
+
+
+def pass_stats(pattern: str, *, option: str = "--test-passes") -> ImageStats:
+    """Mean, variance (ddof = 1) and n = K of the K pass images matching ``pattern``.
+
+    The passes must be independent renders (different seeds): two identical files mean
+    the renderer reused its seed, and are refused, as are fewer than two passes and
+    passes of different sizes. Pixels are accumulated one pass at a time (Welford), so
+    K large images need the memory of three.
+    """
+    files = pass_files(pattern, option=option)     # every input readable before any work
+    mean = m2 = None
+    seen: dict[str, str] = {}
+    notes = set()
+    for k, f in enumerate(files, start=1):
+        img, note = read_radiance(f)
+        if note:
+            notes.add("alpha channels ignored")
+        digest = hashlib.sha256(np.ascontiguousarray(img).tobytes()).hexdigest()
+        if digest in seen:
+            raise InvalidArgument(f"{option}: {f} is identical to {seen[digest]}: the passes "
+                                  "must be rendered with different seeds")
+        seen[digest] = f
+        if mean is None:
+            mean, m2 = np.zeros_like(img), np.zeros_like(img)
+        elif img.shape != mean.shape:
+            raise InvalidArgument(f"{option}: {f} has shape {img.shape}, {files[0]} has "
+                                  f"{mean.shape}; all passes must have one size")
+        delta = img - mean
+        mean += delta / k
+        m2 += delta * (img - mean)
+    return ImageStats(mean=mean, var=m2 / (len(files) - 1), n=len(files), files=tuple(files),
+                      notes=tuple(sorted(notes)))

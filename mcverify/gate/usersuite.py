@@ -1,0 +1,171 @@
+"""The user's own checks in the gate: ``--suite MODULE:ATTR`` and ``[tool.mcverify]``.
+
+A user suite is a Python object named ``package.module:attribute``: a list (or tuple)
+of :class:`mcverify.gate.suites.Check`, or a callable returning one. The gate runs it
+like a built-in suite: one family-wise α, the canaries, seeds derived from the check
+names, JSON and JUnit.
+
+``mcverify check`` without ``--suite`` looks for ``pyproject.toml`` from the current
+directory upward; the first one found is the project's. If it has a ``[tool.mcverify]``
+table, its settings apply (command-line options win)::
+
+    [tool.mcverify]
+    suite = "mychecks:suite"      # or a list of MODULE:ATTR
+    alpha = 0.01                  # family-wise significance level
+    seed = 0
+    path = ["."]                  # import roots, relative to pyproject.toml
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import os
+import sys
+from dataclasses import dataclass
+
+from ..errors import InvalidArgument
+from .suites import Check
+
+__all__ = ["ProjectConfig", "find_config", "load_user_suite", "is_user_suite"]
+
+#: Keys of ``[tool.mcverify]`` and their types.
+_KEYS = {"suite": (str, list), "alpha": (float, int), "seed": (int,), "path": (str, list)}
+
+
+@dataclass(frozen=True)
+class ProjectConfig:
+    """``[tool.mcverify]`` of a project's ``pyproject.toml``."""
+
+    file: str
+    suites: tuple[str, ...] = ()
+    alpha: float | None = None
+    seed: int | None = None
+    path: tuple[str, ...] = (".",)
+
+    @property
+    def root(self) -> str:
+        return os.path.dirname(self.file)
+
+
+def is_user_suite(name: str) -> bool:
+    """Whether a ``--suite`` value names a user suite (``MODULE:ATTR``)."""
+    return ":" in name
+
+
+def find_config(start: str | None = None) -> ProjectConfig | None:
+    """``[tool.mcverify]`` of the first ``pyproject.toml`` from ``start`` (default: the
+    current directory) upward; None if that file has no such table or there is none.
+    A malformed table raises ``InvalidArgument`` naming the file and the key."""
+    folder = os.path.abspath(start or os.getcwd())
+    while True:
+        candidate = os.path.join(folder, "pyproject.toml")
+        if os.path.isfile(candidate):
+            return _read_config(candidate)
+        parent = os.path.dirname(folder)
+        if parent == folder:
+            return None
+        folder = parent
+
+
+def _read_config(file: str) -> ProjectConfig | None:
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        import tomli as tomllib
+    try:
+        with open(file, "rb") as f:
+            doc = tomllib.load(f)
+    except tomllib.TOMLDecodeError as e:
+        raise InvalidArgument(f"{file}: not valid TOML ({e})") from None
+    table = doc.get("tool", {}).get("mcverify")
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise InvalidArgument(f"{file}: [tool.mcverify] must be a table")
+    for key, value in table.items():
+        if key not in _KEYS:
+            raise InvalidArgument(f"{file}: [tool.mcverify] {key!r}: unknown key; "
+                                  f"valid keys: {', '.join(sorted(_KEYS))}")
+        if not isinstance(value, _KEYS[key]) or isinstance(value, bool):
+            raise InvalidArgument(f"{file}: [tool.mcverify] {key} = {value!r}: expected "
+                                  f"{' or '.join(t.__name__ for t in _KEYS[key])}")
+
+    def strings(key):
+        v = table.get(key)
+        items = [v] if isinstance(v, str) else list(v or [])
+        bad = [x for x in items if not isinstance(x, str)]
+        if bad:
+            raise InvalidArgument(f"{file}: [tool.mcverify] {key}: {bad[0]!r} is not a string")
+        return tuple(items)
+
+    suites = strings("suite")
+    for s in suites:
+        if not is_user_suite(s):
+            from .suites import SUITES
+
+            if s not in SUITES and s != "mitsuba":
+                raise InvalidArgument(f"{file}: [tool.mcverify] suite {s!r}: expected "
+                                      "MODULE:ATTR or a built-in suite name")
+    alpha = table.get("alpha")
+    if alpha is not None and not 0.0 < alpha < 1.0:
+        raise InvalidArgument(f"{file}: [tool.mcverify] alpha = {alpha}: must be strictly "
+                              "between 0 and 1")
+    seed = table.get("seed")
+    if seed is not None and seed < 0:
+        raise InvalidArgument(f"{file}: [tool.mcverify] seed = {seed}: must be >= 0")
+    return ProjectConfig(file=file, suites=suites, alpha=None if alpha is None else
+                         float(alpha), seed=seed, path=strings("path") or (".",))
+
+
+def _import_roots(roots) -> None:
+    for r in reversed([os.path.abspath(r) for r in roots]):
+        if r not in sys.path:
+            sys.path.insert(0, r)
+
+
+def load_user_suite(spec: str, *, roots=(".",)) -> list[Check]:
+    """The checks named by ``spec`` (``package.module:attribute``).
+
+    ``roots`` are put on ``sys.path`` first (the current directory by default), as
+    pytest does with a project's root. The attribute is a list or tuple of ``Check``,
+    or a callable returning one. Names must be unique (each seed derives from its name).
+    """
+    module_name, _, attr = spec.partition(":")
+    if not module_name or not attr:
+        raise InvalidArgument(f"--suite {spec!r}: expected MODULE:ATTR, e.g. "
+                              "mypkg.checks:suite")
+    _import_roots(roots)
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as e:
+        raise InvalidArgument(f"--suite {spec!r}: cannot import {module_name!r} ({e}); "
+                              f"import roots: {', '.join(roots)}") from None
+    obj = module
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise InvalidArgument(f"--suite {spec!r}: {module_name} has no attribute "
+                                  f"{attr!r}")
+        obj = getattr(obj, part)
+    if callable(obj) and not isinstance(obj, (list, tuple)):
+        obj = obj()
+    if not isinstance(obj, (list, tuple)):
+        raise InvalidArgument(f"--suite {spec!r}: expected a list of "
+                              f"mcverify.gate.suites.Check, got {type(obj).__name__}")
+    seen = set()
+    for i, c in enumerate(obj):
+        if not isinstance(c, Check):
+            raise InvalidArgument(f"--suite {spec!r}: item {i} is a {type(c).__name__}, "
+                                  "not a mcverify.gate.suites.Check(name, run, tags, "
+                                  "verifies)")
+        if c.name in seen:
+            raise InvalidArgument(f"--suite {spec!r}: two checks are named {c.name!r} "
+                                  "(seeds derive from names; make them unique)")
+        seen.add(c.name)
+    recipe = (_rebuild, (spec, tuple(os.path.abspath(r) for r in roots)))
+    return [c if c.source is not None else dataclasses.replace(c, source=recipe) for c in obj]
+
+
+def _rebuild(spec: str, roots: tuple) -> list[Check]:
+    """How a worker process rebuilds a user suite: the same import, the same roots."""
+    return load_user_suite(spec, roots=roots)

@@ -1,0 +1,95 @@
+"""Any renderer's images: K pass EXRs -> mean, variance, n (``mcverify compare
+--test-passes/--ref-passes``), RGBA compared on colour."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+from mcverify.gate import mitsuba as mvm
+from mcverify.gate import reference
+from mcverify.gate.passes import pass_stats, read_radiance
+
+pytestmark = pytest.mark.mitsuba
+CMD = [sys.executable, "-m", "mcverify"]
+
+
+def _write(folder, images, stem="pass"):
+    os.makedirs(folder, exist_ok=True)
+    for i, img in enumerate(images):
+        mvm.write_exr(os.path.join(folder, f"{stem}_{i:02d}.exr"), img)
+    return os.path.join(folder, f"{stem}_*.exr")
+
+
+def test_mean_variance_and_n_of_the_passes(tmp_path):
+    rng = np.random.default_rng(0)
+    imgs = rng.random((6, 5, 7, 3)).astype(np.float32) * 4
+    s = pass_stats(_write(tmp_path, imgs))
+    assert s.n == 6 and len(s.files) == 6 and s.notes == ()
+    np.testing.assert_allclose(s.mean, imgs.astype(np.float64).mean(0), rtol=1e-12)
+    np.testing.assert_allclose(s.var, imgs.astype(np.float64).var(0, ddof=1), rtol=1e-9)
+
+
+def test_rgba_is_compared_on_colour_and_says_so(tmp_path):
+    rgba = np.random.default_rng(1).random((4, 4, 4)).astype(np.float32)
+    path = str(tmp_path / "a.exr")
+    mvm.write_exr(path, rgba)
+    assert set(reference.exr_channel_types(path)) == {"R", "G", "B", "A"}
+    img, note = read_radiance(path)
+    np.testing.assert_array_equal(img, rgba[:, :, :3].astype(np.float64))
+    assert "alpha channel ignored" in note
+    s = pass_stats(_write(tmp_path / "p", [rgba, rgba * 2]))
+    assert s.mean.shape == (4, 4, 3) and s.notes == ("alpha channels ignored",)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda d: _write(d, [np.ones((3, 3, 3))]), "matches 1 file"),
+    (lambda d: os.path.join(d, "nothing_*.exr"), "matches 0 file"),
+    (lambda d: _write(d, [np.ones((3, 3, 3)), np.ones((3, 3, 3))]), "identical to"),
+    (lambda d: _write(d, [np.ones((3, 3, 3)), np.zeros((3, 4, 3))]), "all passes must have"),
+], ids=["one-pass", "no-pass", "same-seed", "sizes"])
+def test_bad_passes_are_refused(tmp_path, make, match):
+    with pytest.raises(mv.InvalidArgument, match=match):
+        pass_stats(make(str(tmp_path)))
+
+
+def _scene():
+    return os.path.join(reference.REFERENCE_ROOT, "cornell-box", "scene.xml")
+
+
+def _mitsuba_passes(seed0, k=16, scale=1.0):
+    return mvm.render_passes(_scene(), spp=64, seeds=range(seed0, seed0 + k),
+                             params={"res": "16"}) * scale
+
+
+def test_compare_two_renderers_pass_folders_end_to_end(tmp_path):
+    """Mitsuba against itself as "any renderer" (16 passes each, RGBA on the test side):
+    the same scene passes, 5 % brighter fails."""
+    ref = _write(tmp_path / "ref", _mitsuba_passes(0))
+    test = _mitsuba_passes(1000)
+    alpha = np.ones(test.shape[:3] + (1,))
+    same = _write(tmp_path / "same", np.concatenate([test, alpha], axis=3))
+    bright = _write(tmp_path / "bright", _mitsuba_passes(2000, scale=1.05))
+    r = subprocess.run(CMD + ["compare", "--test-passes", same, "--ref-passes", ref],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "notice: alpha channels ignored" in r.stderr
+    r = subprocess.run(CMD + ["compare", "--test-passes", bright, "--ref-passes", ref],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1, r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["compare", "--test-passes", "p_*.exr"], "expected 1: REF"),
+    (["compare", "a.exr", "b.exr", "--test-passes", "p_*.exr"], "expected 1: REF"),
+    (["compare", "r", "--test-passes", "p_*.exr", "--test-n", "4"],
+     "--test-n: not with --test-passes"),
+    (["compare", "a.exr", "r"], "a.exr: an image needs --test-var and --test-n"),
+    (["compare", "r", "--test-passes", "none_*.exr"], "matches 0 file"),
+], ids=["no-ref", "two-positionals", "n-with-passes", "no-var", "empty-glob"])
+def test_compare_bad_input_exit_2(tmp_path, args, needle):
+    r = subprocess.run(CMD + args, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr

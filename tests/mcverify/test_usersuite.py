@@ -1,0 +1,180 @@
+"""User suites in the gate: ``--suite MODULE:ATTR`` and ``[tool.mcverify]``."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+import mcverify as mv
+from mcverify.gate.suites import Check, resolve_suite
+from mcverify.gate.usersuite import find_config, load_user_suite
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+EXAMPLE = os.path.join(ROOT, "examples", "user-suite")
+
+CHECKS = textwrap.dedent('''
+    import numpy as np
+    import mcverify as mv
+    from mcverify.gate.suites import Check
+
+    def _check(name, scale):
+        def run(seed):
+            return mv.check_sampler(lambda u: np.sqrt(u), lambda x: scale * 2 * x[:, 0],
+                                    "interval", n_samples=20_000, seed=seed, name=name)
+        return Check(name, run)
+
+    good = [_check("sqrt", 1.0), _check("sqrt-again", 1.0)]
+    bad = [_check("sqrt*1.1", 1.1)]
+
+    def factory():
+        return good[:1]
+
+    not_checks = [1, 2]
+    duplicates = [good[0], good[0]]
+    number = 3
+''')
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    """A user's project: mine/checks.py and a pyproject.toml; cwd in a subfolder."""
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "__init__.py").write_text("")
+    (tmp_path / "mine" / "checks.py").write_text(CHECKS)
+    (tmp_path / "sub" / "deeper").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path / "sub" / "deeper")
+    for name in list(sys.modules):
+        if name == "mine" or name.startswith("mine."):
+            monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    return tmp_path
+
+
+def _pyproject(root, body):
+    (root / "pyproject.toml").write_text(body)
+
+
+def test_a_list_and_a_factory_load(project):
+    checks = load_user_suite("mine.checks:good", roots=[str(project)])
+    assert [c.name for c in checks] == ["sqrt", "sqrt-again"]
+    assert [c.name for c in load_user_suite("mine.checks:factory", roots=[str(project)])] \
+        == ["sqrt"]
+    assert checks[0].run(0).passed
+
+
+@pytest.mark.parametrize("spec, match", [
+    ("mine.checks", "expected MODULE:ATTR"),
+    ("mine.nothere:x", "cannot import 'mine.nothere'"),
+    ("mine.checks:missing", "has no attribute 'missing'"),
+    ("mine.checks:number", "expected a list of mcverify.gate.suites.Check, got int"),
+    ("mine.checks:not_checks", "item 0 is a int"),
+    ("mine.checks:duplicates", "two checks are named 'sqrt'"),
+])
+def test_bad_user_suites_are_refused_by_name(project, spec, match):
+    with pytest.raises(mv.InvalidArgument, match=match):
+        load_user_suite(spec, roots=[str(project)])
+
+
+def test_the_config_is_found_from_a_subfolder(project):
+    _pyproject(project, '[tool.mcverify]\nsuite = ["mine.checks:good", "default"]\n'
+                        'alpha = 0.05\nseed = 7\npath = ["."]\n')
+    config = find_config()
+    assert config.file == str(project / "pyproject.toml")
+    assert config.suites == ("mine.checks:good", "default")
+    assert (config.alpha, config.seed, config.path) == (0.05, 7, (".",))
+
+
+def test_the_first_pyproject_decides_even_without_a_table(project):
+    _pyproject(project, '[tool.mcverify]\nsuite = "mine.checks:good"\n')
+    (project / "sub" / "pyproject.toml").write_text('[project]\nname = "x"\n')
+    assert find_config() is None
+
+
+@pytest.mark.parametrize("body, match", [
+    ('[tool.mcverify]\nsuites = "a:b"\n', "'suites': unknown key"),
+    ('[tool.mcverify]\nalpha = 2.0\n', "alpha = 2.0: must be strictly between 0 and 1"),
+    ('[tool.mcverify]\nalpha = "x"\n', "alpha = 'x': expected float or int"),
+    ('[tool.mcverify]\nseed = -1\n', "seed = -1: must be >= 0"),
+    ('[tool.mcverify]\nseed = true\n', "seed = True: expected int"),
+    ('[tool.mcverify]\nsuite = "nightly"\n', "suite 'nightly': expected MODULE:ATTR"),
+    ('[tool.mcverify]\nsuite = [1]\n', "suite: 1 is not a string"),
+    ('[tool.mcverify\n', "not valid TOML"),
+], ids=["unknown-key", "alpha-range", "alpha-type", "seed-negative", "seed-bool",
+        "suite-name", "suite-type", "toml"])
+def test_a_malformed_table_names_the_file_and_key(project, body, match):
+    _pyproject(project, body)
+    with pytest.raises(mv.InvalidArgument, match=match) as e:
+        find_config()
+    assert str(project / "pyproject.toml") in str(e.value)
+
+
+def test_resolve_suite_knows_the_built_in_names_and_user_specs(project):
+    checks, skipped = resolve_suite("mine.checks:bad", roots=[str(project)])
+    assert [c.name for c in checks] == ["sqrt*1.1"] and skipped == []
+    assert resolve_suite("default")[0]
+    with pytest.raises(mv.InvalidArgument, match="--suite 'nightly'"):
+        resolve_suite("nightly")
+
+
+def _cli(args, cwd):
+    env = dict(os.environ, PYTHONPATH=ROOT)
+    return subprocess.run([sys.executable, "-m", "mcverify", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_mcverify_check_runs_the_projects_suite_with_its_alpha_and_seed(project, tmp_path):
+    _pyproject(project, '[tool.mcverify]\nsuite = "mine.checks:good"\nalpha = 0.02\n'
+                        'seed = 3\n')
+    out = tmp_path / "r.json"
+    r = _cli(["check", "-q", "--json", str(out), "--junit", str(tmp_path / "r.xml")],
+             cwd=project / "sub" / "deeper")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["suite"] == "mine.checks:good" and doc["alpha"] == 0.02
+    assert doc["provenance"]["seed"] == 3
+    assert doc["provenance"]["config"] == str(project / "pyproject.toml")
+    assert [x["name"] for x in doc["results"]] == ["sqrt", "sqrt-again"]
+    assert doc["canary_bitten"]
+    assert 'tests="5"' in (tmp_path / "r.xml").read_text()      # 2 checks + 3 canaries
+    # the command line wins over the table
+    r2 = _cli(["check", "-q", "--suite", "mine.checks:bad", "--alpha", "0.01", "--json",
+               str(out)], cwd=project / "sub" / "deeper")
+    assert r2.returncode == 1 and "FAIL sqrt*1.1" in r2.stdout
+    assert json.loads(out.read_text())["alpha"] == 0.01
+
+
+def test_list_shows_a_user_suite_and_a_bad_table_exits_2(project):
+    _pyproject(project, '[tool.mcverify]\nsuite = "mine.checks:good"\n')
+    r = _cli(["list"], cwd=project)
+    assert r.returncode == 0 and r.stdout.split() == ["sqrt", "sqrt-again"]
+    _pyproject(project, '[tool.mcverify]\nsute = "mine.checks:good"\n')
+    r = _cli(["check"], cwd=project)
+    assert r.returncode == 2 and "'sute': unknown key" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+@pytest.mark.mitsuba
+def test_the_readme_example_passes_and_its_planted_bug_fails():
+    """examples/user-suite: a Python-registered Mitsuba BSDF gated from its own
+    pyproject.toml; the same checks on the planted off-by-one exponent fail."""
+    ok = _cli(["check", "-q"], cwd=EXAMPLE)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert "mychecks:suite: 2 passed, 0 failed" in ok.stdout
+    bad = _cli(["check", "-q", "--suite", "mychecks:planted"], cwd=EXAMPLE)
+    assert bad.returncode == 1, bad.stdout + bad.stderr
+    assert bad.stdout.count("FAIL powercosine(exponent=4,bug)") == 2
+
+
+def test_a_user_suite_runs_in_worker_processes_with_the_same_results(project):
+    """Workers rebuild the suite from its recipe (the same import, the same roots)."""
+    from mcverify.gate.executors import Pool
+    from mcverify.gate.suites import run_suite
+
+    checks = load_user_suite("mine.checks:good", roots=[str(project)])
+    here = run_suite(checks, seed=5, canary=False)
+    with Pool(jobs=2) as pool:
+        there = run_suite(checks, seed=5, canary=False, pool=pool)
+    assert [r.p_value for r in here.results] == [r.p_value for r in there.results]

@@ -1,0 +1,69 @@
+"""An installed mcverify works without the checkout: a non-editable ``pip install .`` in
+a fresh venv, run from another directory, runs ``check``, ``render-check cornell-box``
+and ``report`` (the reference scenes are installed as data)."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _pyproject():
+    import tomllib
+
+    with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:
+        return tomllib.load(f)
+
+
+def test_every_reference_folder_is_installed_as_data():
+    data = _pyproject()["tool"]["setuptools"]["data-files"]
+    scenes = os.path.join(ROOT, "reference", "scenes")
+    folders = {os.path.relpath(r, scenes) for r, _, files in os.walk(scenes) if files}
+    listed = {k.removeprefix("share/mcverify/scenes/"): v for k, v in data.items()}
+    assert set(listed) == folders
+    for rel, globs in listed.items():
+        assert globs == [f"reference/scenes/{rel}/*.*"]
+        names = [f for f in os.listdir(os.path.join(scenes, rel))
+                 if os.path.isfile(os.path.join(scenes, rel, f))]
+        assert all("." in f for f in names), (rel, names)   # the glob needs an extension
+
+
+def test_package_data_holds_what_the_code_opens():
+    assert _pyproject()["tool"]["setuptools"]["package-data"]["estimators.pathtracer"] == [
+        "*.json"]
+    assert os.path.isfile(os.path.join(ROOT, "estimators", "pathtracer", "materials.json"))
+
+
+@pytest.mark.slow
+def test_a_non_editable_install_runs_check_render_check_and_report(tmp_path):
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    pip = subprocess.run([str(venv / "bin" / "pip"), "install", "-q", ROOT],
+                         capture_output=True, text=True, timeout=1800)
+    assert pip.returncode == 0, pip.stdout[-2000:] + pip.stderr[-2000:]
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "MCVERIFY_REFS")}
+    exe = str(venv / "bin" / "mcverify")
+
+    def run(*args):
+        return subprocess.run([exe, *args], cwd=elsewhere, env=env, capture_output=True,
+                              text=True, timeout=1200)
+
+    where = subprocess.run([str(venv / "bin" / "python"), "-c",
+                            "import mcverify, mcverify.gate.reference as r; "
+                            "print(mcverify.__file__); print(r.REFERENCE_ROOT)"],
+                           cwd=elsewhere, env=env, capture_output=True, text=True, timeout=300)
+    module, root = where.stdout.split()
+    assert module.startswith(str(venv)) and root == str(venv / "share" / "mcverify" / "scenes")
+    r = run("check", "-q", "-k", "uniform_disk_polar")
+    assert r.returncode == 0 and "2 passed, 0 failed" in r.stdout, r.stdout + r.stderr
+    r = run("render-check", "cornell-box", "-q")
+    assert r.returncode == 0 and "PASS" in r.stdout, r.stdout + r.stderr
+    r = run("report", "-q", "--out", "rep", "-k", "uniform_disk_polar", "--renders",
+            "white-furnace")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert (elsewhere / "rep" / "report.html").is_file()
