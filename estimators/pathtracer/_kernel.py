@@ -19,22 +19,20 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from estimators.pathtracer.bsdfs import ALL_BSDF_FEATURES, bsdf_eval, bsdf_is_smooth, bsdf_sample
+from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
 from estimators.pathtracer.camera import _generate_ray_kernel
 from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_environment,
                                             is_delta, sample_emitter)
-from estimators.pathtracer.geometry import (STACK, coordinate_system, intersect, occluded,
+from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
                                             surface, to_local, to_world)
+from estimators.pathtracer.layout import (ALL_BSDF_FEATURES, ALL_FEATURES, F_AREA_LIGHTS,
+                                          F_ENV, F_MANY_LIGHTS, F_NONDELTA_LIGHTS, LIGHT_KIND,
+                                          LIGHT_RADIANCE, PRIM_SHAPE)
 
 # --- features (rewritten by render.specialised_kernel) ---
 FEATURES = -1
 # --- end features ---
 
-F_ENV = 1 << 8              # an environment (constant or envmap) exists
-F_AREA_LIGHTS = 1 << 9      # emitting shapes exist (hits add emission with MIS)
-F_NONDELTA_LIGHTS = 1 << 10  # some light can be hit or has a density (MIS weights needed)
-F_MANY_LIGHTS = 1 << 11     # more than one light (light selection)
-ALL_FEATURES = (1 << 12) - 1
 MASK = FEATURES & ALL_FEATURES if FEATURES >= 0 else ALL_FEATURES
 BSDF_MASK = MASK & ALL_BSDF_FEATURES
 
@@ -77,11 +75,16 @@ def _offset(px, py, pz, gx, gy, gz, dx, dy, dz):
 
 @njit(cache=True, _nrt=False)
 def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
-    """Radiance along one camera ray: (r, g, b, rng state). ``pdf_scale`` is the
-    wrong-pdf test hook (1: correct)."""
-    (nb, ni, order, prims, info, shape_bsdf, shape_light, shape_flip, bf, bi, btex,
-     tex_data, tex_info, light_f, light_i, light_cdf, env_marg, env_cond, ints) = sc
-    max_depth, rr_depth, hide, env = ints[0], ints[1], ints[2], ints[3]
+    """Radiance along one camera ray: (r, g, b, rng state). ``sc`` is the scene's
+    ``layout.SceneArrays``; ``pdf_scale`` is the wrong-pdf test hook (1: correct)."""
+    nodes, leaf, leaf_info = sc.bvh_nodes, sc.leaf_prims, sc.leaf_info
+    prims, info = sc.prims, sc.prim_info
+    bf, bi, btex, tex_data, tex_info = sc.bsdf_f, sc.bsdf_i, sc.bsdf_tex, sc.tex_data, \
+        sc.tex_info
+    light_f, light_i, light_cdf = sc.light_f, sc.light_i, sc.light_cdf
+    env_marg, env_cond = sc.env_marginal, sc.env_conditional
+    shape_bsdf, shape_light, shape_flip = sc.shape_bsdf, sc.shape_light, sc.shape_flip
+    max_depth, rr_depth, hide, env = sc.max_depth, sc.rr_depth, sc.hide_emitters, sc.env
     n_lights = light_f.shape[0]
     sel_pdf = 1.0 / n_lights if n_lights > 0 else 0.0
     rr, rg, rb = 0.0, 0.0, 0.0
@@ -92,7 +95,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     depth = 0
     t_min = 0.0
     while True:
-        t, j, b1, b2 = intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz,
+        t, j, b1, b2 = intersect(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz,
                                  t_min, t_max)
         if j < 0:
             if MASK & F_ENV and env >= 0 and not (depth == 0 and hide):
@@ -108,7 +111,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
             break
         (px, py, pz, gx, gy, gz, sx, sy, sz, u, v) = surface(prims, info, j, ox, oy, oz,
                                                             dx, dy, dz, t, b1, b2)
-        shape = info[j, 1]
+        shape = info[j, PRIM_SHAPE]
         if shape_flip[shape]:
             gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
         if MASK & F_AREA_LIGHTS:
@@ -121,9 +124,9 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                         dist = math.sqrt((px - ppx) ** 2 + (py - ppy) ** 2 + (pz - ppz) ** 2)
                         w = _mis(prev_pdf, sel_pdf * area_pdf(light_f, light_i, prims, info,
                                                               k, ppx, ppy, ppz, dist, cos_y))
-                    rr += tr * light_f[k, 0] * w
-                    rg += tg * light_f[k, 1] * w
-                    rb += tb * light_f[k, 2] * w
+                    rr += tr * light_f[k, LIGHT_RADIANCE] * w
+                    rg += tg * light_f[k, LIGHT_RADIANCE + 1] * w
+                    rb += tb * light_f[k, LIGHT_RADIANCE + 2] * w
         if depth + 1 >= max_depth:
             break
         b = shape_bsdf[shape]
@@ -157,9 +160,9 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                         sdz = pz + dist * wz - soz
                         ln = math.sqrt(sdx * sdx + sdy * sdy + sdz * sdz)
                         sdx, sdy, sdz, smax = sdx / ln, sdy / ln, sdz / ln, ln * (1.0 - 1e-6)
-                    if not occluded(nb, ni, order, prims, info, stack, sox, soy, soz,
+                    if not occluded(nodes, leaf, leaf_info, stack, sox, soy, soz,
                                     sdx, sdy, sdz, 0.0, smax):
-                        delta = (MASK & F_NONDELTA_LIGHTS) == 0 or is_delta(light_i[k, 0])
+                        delta = (MASK & F_NONDELTA_LIGHTS) == 0 or is_delta(light_i[k, LIGHT_KIND])
                         w = 1.0 if delta else _mis(lpdf * sel_pdf, bpdf)
                         w /= lpdf * sel_pdf
                         rr += tr * fr * lr * w
@@ -196,7 +199,7 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, 
     mean and the sum of squared deviations (Welford) of ``spp`` samples; ``bad`` counts
     non-finite samples (set to zero)."""
     for ti in prange(tiles.shape[0]):
-        stack = np.empty(STACK, dtype=np.int64)
+        stack = new_stack()
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         for y in range(y0, y1):
             for x in range(x0, x1):

@@ -7,9 +7,9 @@ with radiance scaled by η² on refraction), ``plastic`` and ``roughplastic`` (a
 under a dielectric coat, with Mitsuba's internal-scattering normalisation), and the
 ``twosided`` wrapper (a flag: the back side mirrors the front).
 
-Each BSDF is one row of ``bsdf_f`` (float64, ``BSDF_WIDTH``) and ``bsdf_i`` (int64: type,
-twosided, microfacet distribution, nonlinear). Colours live in two slots, ``f[0:3]`` and
-``f[3:6]``, which a bitmap texture may replace (``bsdf_tex[b, slot]`` >= 0). Values:
+Each BSDF is one row of ``bsdf_f`` and ``bsdf_i``, with the columns named in ``layout``
+(``COLOR0``, ``ETA``, ``ALPHA``, ``BSDF_KIND``...). Colours live in two slots, ``COLOR0``
+and ``COLOR1``, which a bitmap texture may replace (``bsdf_tex[b, slot]`` >= 0). Values:
 ``eval`` returns f · cos θ_o; ``sample`` returns the weight f · cos θ_o / pdf.
 
 Sampling is our own where it does not change the expectation: GGX samples visible normals
@@ -26,24 +26,15 @@ from numba import njit
 from ..warps import (_beckmann_pdf_kernel, _cosine_hemisphere_pdf_kernel, _ggx_d,
                      _sample_beckmann_kernel, _sample_cosine_hemisphere_kernel,
                      _sample_ggx_vndf_kernel)
+from .layout import (ALPHA, BSDF_DISTRIBUTION, BSDF_KIND, BSDF_NONLINEAR, BSDF_TWOSIDED,
+                     COAT_INTERNAL, COAT_TABLE, COAT_TABLE_RES, COLOR0, COLOR1, COND_ETA,
+                     COND_K, CONDUCTOR, DIELECTRIC, DIFFUSE, ETA, F_CONDUCTOR, F_DIELECTRIC,
+                     F_DIFFUSE, F_PLASTIC, F_ROUGHCONDUCTOR, F_ROUGHPLASTIC, F_TEXTURES,
+                     F_TWOSIDED, GGX, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, SPECULAR_WEIGHT)
 from .textures import eval_texture
 
-DIFFUSE, CONDUCTOR, ROUGHCONDUCTOR, DIELECTRIC, PLASTIC, ROUGHPLASTIC = range(6)
-# Feature bits: a kernel compiled for a mask holds only the code of the enabled parts
-# (``bsdf_eval``/``bsdf_sample``/``color`` are inlined, so LLVM drops the dead branches).
-F_TEXTURES = 1 << 6
-F_TWOSIDED = 1 << 7
-ALL_BSDF_FEATURES = (1 << 8) - 1
-NAMES = ("diffuse", "conductor", "roughconductor", "dielectric", "plastic", "roughplastic")
-GGX, BECKMANN = 0, 1
-BSDF_WIDTH = 80
-TABLE = 16              # roughplastic: external transmittance at cos θ = linspace(0, 1, 64)
-TABLE_RES = 64
-# f[] slots: 0:3 colour 0; 3:6 colour 1, or η (conductors); 6:9 k (conductors); ETA the
-# relative index (dielectric, plastics); ALPHA the roughness; EXTRA1 Fdr or the internal
-# reflectance, EXTRA2 the specular sampling weight (plastics); TABLE.. the rough coat's
-# transmittance. ``compile._Builder.bsdf`` fills them per type.
-ETA, ALPHA, EXTRA1, EXTRA2 = 9, 12, 10, 11
+__all__ = ["bsdf_eval", "bsdf_sample", "bsdf_is_smooth", "rough_coat_tables",
+           "fresnel_dielectric", "fresnel_conductor", "fresnel_diffuse_reflectance"]
 
 _jit = njit(cache=True)
 _fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see emitters.py
@@ -89,6 +80,14 @@ def fresnel_conductor(cos_i, eta, k):
     term4 = term2 * s2
     rp = rs * (term3 - term4) / (term3 + term4)
     return 0.5 * (rs + rp)
+
+
+@njit(cache=True, inline="always")
+def _conductor_fresnel(bf, b, cos_i):
+    """BSDF b's conductor reflectance per colour channel."""
+    return (fresnel_conductor(cos_i, bf[b, COND_ETA], bf[b, COND_K]),
+            fresnel_conductor(cos_i, bf[b, COND_ETA + 1], bf[b, COND_K + 1]),
+            fresnel_conductor(cos_i, bf[b, COND_ETA + 2], bf[b, COND_K + 2]))
 
 
 def fresnel_diffuse_reflectance(eta: float) -> float:
@@ -180,23 +179,23 @@ def _microfacet_value(wi, wo, alpha, dist):
 def color(mask, bf, btex, tex_data, tex_info, b, slot, u, v):
     t = btex[b, slot] if mask & F_TEXTURES else -1
     if t < 0:
-        o = 3 * slot
+        o = COLOR1 if slot else COLOR0
         return bf[b, o], bf[b, o + 1], bf[b, o + 2]
     return eval_texture(tex_data, tex_info, t, u, v)
 
 
 @_fast
 def _lerp_table(bf, b, x):
-    x = x * (TABLE_RES - 1)
-    i = min(int(x), TABLE_RES - 2)
+    x = x * (COAT_TABLE_RES - 1)
+    i = min(int(x), COAT_TABLE_RES - 2)
     w = x - i
-    return (1.0 - w) * bf[b, TABLE + i] + w * bf[b, TABLE + i + 1]
+    return (1.0 - w) * bf[b, COAT_TABLE + i] + w * bf[b, COAT_TABLE + i + 1]
 
 
 @_fast
 def _rough_plastic_probs(bf, b, cos_i):
     t_i = _lerp_table(bf, b, cos_i)
-    w = bf[b, EXTRA2]
+    w = bf[b, SPECULAR_WEIGHT]
     ps = (1.0 - t_i) * w
     pd = t_i * (1.0 - w)
     ps = ps / (ps + pd)
@@ -205,7 +204,7 @@ def _rough_plastic_probs(bf, b, cos_i):
 
 @_fast
 def _plastic_probs(bf, b, f_i):
-    w = bf[b, EXTRA2]
+    w = bf[b, SPECULAR_WEIGHT]
     ps = f_i * w
     pd = (1.0 - f_i) * (1.0 - w)
     return ps / (ps + pd)
@@ -226,42 +225,41 @@ def _coat_base(r, g, b, internal, nonlinear):
 @njit(cache=True, inline="always")
 def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     """(f · cos θ_o as r, g, b, pdf) of the non-delta components."""
-    kind = bi[b, 0]
-    if mask & F_TWOSIDED and bi[b, 1] and wi[2] < 0.0:
+    kind = bi[b, BSDF_KIND]
+    if mask & F_TWOSIDED and bi[b, BSDF_TWOSIDED] and wi[2] < 0.0:
         wi = (wi[0], wi[1], -wi[2])
         wo = (wo[0], wo[1], -wo[2])
     ci, co = wi[2], wo[2]
     if ci <= 0.0 or co <= 0.0 or kind == CONDUCTOR or kind == DIELECTRIC:
         return 0.0, 0.0, 0.0, 0.0
-    if mask & (1 << DIFFUSE) and kind == DIFFUSE:
+    if mask & F_DIFFUSE and kind == DIFFUSE:
         r, g, bl = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
         s = co * _INV_PI
         return r * s, g * s, bl * s, s
-    if mask & (1 << ROUGHCONDUCTOR) and kind == ROUGHCONDUCTOR:
-        alpha, dist = bf[b, ALPHA], bi[b, 2]
+    if mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
+        alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
         val, cos_h = _microfacet_value(wi, wo, alpha, dist)
         if val == 0.0:
             return 0.0, 0.0, 0.0, 0.0
         r, g, bl = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
         pdf = microfacet_reflect_pdf(wi, wo, alpha, dist)
-        return (r * val * fresnel_conductor(cos_h, bf[b, 3], bf[b, 6]),
-                g * val * fresnel_conductor(cos_h, bf[b, 4], bf[b, 7]),
-                bl * val * fresnel_conductor(cos_h, bf[b, 5], bf[b, 8]), pdf)
+        f0, f1, f2 = _conductor_fresnel(bf, b, cos_h)
+        return r * val * f0, g * val * f1, bl * val * f2, pdf
     eta = bf[b, ETA]
     dr, dg, db = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
-    if mask & (1 << PLASTIC) and kind == PLASTIC:
+    if mask & F_PLASTIC and kind == PLASTIC:
         f_i = fresnel_dielectric(ci, eta)[0]
         f_o = fresnel_dielectric(co, eta)[0]
-        dr, dg, db = _coat_base(dr, dg, db, bf[b, EXTRA1], bi[b, 3])
+        dr, dg, db = _coat_base(dr, dg, db, bf[b, COAT_INTERNAL], bi[b, BSDF_NONLINEAR])
         s = co * _INV_PI / (eta * eta) * (1.0 - f_i) * (1.0 - f_o)
         pdf = co * _INV_PI * (1.0 - _plastic_probs(bf, b, f_i))
         return dr * s, dg * s, db * s, pdf
-    if not (mask & (1 << ROUGHPLASTIC)):
+    if not (mask & F_ROUGHPLASTIC):
         return 0.0, 0.0, 0.0, 0.0
-    alpha, dist = bf[b, ALPHA], bi[b, 2]
+    alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
     ps, t_i = _rough_plastic_probs(bf, b, ci)
     t_o = _lerp_table(bf, b, co)
-    dr, dg, db = _coat_base(dr, dg, db, bf[b, EXTRA1], bi[b, 3])
+    dr, dg, db = _coat_base(dr, dg, db, bf[b, COAT_INTERNAL], bi[b, BSDF_NONLINEAR])
     s = _INV_PI / (eta * eta) * co * t_i * t_o
     r, g, bl = dr * s, dg * s, db * s
     val, cos_h = _microfacet_value(wi, wo, alpha, dist)
@@ -279,13 +277,13 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
     """(wo x, y, z, weight r, g, b, pdf, delta, η) with weight = f cos θ_o / pdf.
     A zero weight ends the path. ``pdf_scale`` is a test hook: a wrong pdf (not 1)
     must make the renderer biased, and the render gate must notice."""
-    kind = bi[b, 0]
-    flip = bool(mask & F_TWOSIDED) and bool(bi[b, 1]) and wi[2] < 0.0
+    kind = bi[b, BSDF_KIND]
+    flip = bool(mask & F_TWOSIDED) and bool(bi[b, BSDF_TWOSIDED]) and wi[2] < 0.0
     if flip:
         wi = (wi[0], wi[1], -wi[2])
     zero = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0)
     ci = wi[2]
-    if mask & (1 << DIELECTRIC) and kind == DIELECTRIC:
+    if mask & F_DIELECTRIC and kind == DIELECTRIC:
         eta = bf[b, ETA]
         r, cos_t, eta_it, eta_ti = fresnel_dielectric(ci, eta)
         if u0 <= r:
@@ -300,14 +298,14 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
                 eta_it)
     if ci <= 0.0:
         return zero
-    if mask & (1 << CONDUCTOR) and kind == CONDUCTOR:
+    if mask & F_CONDUCTOR and kind == CONDUCTOR:
         c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
         w = 1.0 / pdf_scale
         wo = (-wi[0], -wi[1], ci) if not flip else (-wi[0], -wi[1], -ci)
-        return (wo[0], wo[1], wo[2], c0 * fresnel_conductor(ci, bf[b, 3], bf[b, 6]) * w,
-                c1 * fresnel_conductor(ci, bf[b, 4], bf[b, 7]) * w,
-                c2 * fresnel_conductor(ci, bf[b, 5], bf[b, 8]) * w, pdf_scale, True, 1.0)
-    if mask & (1 << PLASTIC) and kind == PLASTIC:
+        f0, f1, f2 = _conductor_fresnel(bf, b, ci)
+        return (wo[0], wo[1], wo[2], c0 * f0 * w, c1 * f1 * w, c2 * f2 * w, pdf_scale, True,
+                1.0)
+    if mask & F_PLASTIC and kind == PLASTIC:
         f_i = fresnel_dielectric(ci, bf[b, ETA])[0]
         ps = _plastic_probs(bf, b, f_i)
         if u0 < ps:
@@ -316,15 +314,15 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
             zs = -ci if flip else ci
             return -wi[0], -wi[1], zs, c0 * w, c1 * w, c2 * w, ps * pdf_scale, True, 1.0
         wo = _sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
-    elif mask & (1 << DIFFUSE) and kind == DIFFUSE:
+    elif mask & F_DIFFUSE and kind == DIFFUSE:
         wo = _sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
-    elif mask & (1 << ROUGHCONDUCTOR) and kind == ROUGHCONDUCTOR:
-        m = sample_microfacet(wi, bf[b, ALPHA], bi[b, 2], u1, u2)
+    elif mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
+        m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
         wo = _reflect(wi, m)
-    elif mask & (1 << ROUGHPLASTIC) and kind == ROUGHPLASTIC:
+    elif mask & F_ROUGHPLASTIC and kind == ROUGHPLASTIC:
         ps = _rough_plastic_probs(bf, b, ci)[0]
         if u0 < ps:
-            m = sample_microfacet(wi, bf[b, ALPHA], bi[b, 2], u1, u2)
+            m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
             wo = _reflect(wi, m)
         else:
             wo = _sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
@@ -344,7 +342,7 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
 @_fast
 def bsdf_is_smooth(bi, b):
     """Whether the BSDF has a non-delta component (so light sampling can help)."""
-    k = bi[b, 0]
+    k = bi[b, BSDF_KIND]
     return k != CONDUCTOR and k != DIELECTRIC
 
 
@@ -356,7 +354,7 @@ def rough_coat_tables(alpha: float, dist: int, eta: float) -> tuple[np.ndarray, 
     reflectance is 2 · mean over the same grid of R(μ; 1/η) μ (Mitsuba's Riemann sum, kept
     so that both renderers scale the base identically). Our own quadrature: Gauss–Legendre
     over the microfacet warp, 64 × 64 nodes."""
-    mus = np.maximum(1e-6, np.linspace(0.0, 1.0, TABLE_RES))
+    mus = np.maximum(1e-6, np.linspace(0.0, 1.0, COAT_TABLE_RES))
     nodes, weights = np.polynomial.legendre.leggauss(64)
     x = 0.5 * (nodes + 1.0)
     w2 = np.outer(weights, weights).ravel() * 0.25

@@ -1,18 +1,23 @@
 """Primitives (triangles, spheres, disks), the SAH bounding volume hierarchy over them,
 and ray intersection: numba kernels, float64 throughout.
 
-A primitive is one row of ``prims`` (float64, ``PRIM_WIDTH`` wide) and one row of
-``prim_info`` (type, shape index):
+A primitive is one row of ``prims`` and one row of ``prim_info`` (``PRIM_KIND``,
+``PRIM_SHAPE``), laid out as ``layout`` names them (``TRI_P0``, ``SPHERE_CENTER``,
+``DISK_TO_LOCAL``...):
 
 - triangle: vertices ``[0:9]``, vertex normals ``[9:18]`` (all zero: face normal only),
   texture coordinates ``[18:24]``;
 - sphere: centre ``[0:3]``, radius ``[3]``, world-to-local rotation ``[4:13]`` (for uv);
 - disk: local-to-world 3×4 ``[0:12]``, world-to-local 3×4 ``[12:24]`` (unit disk, z = 0).
 
+The intersection arithmetic below reads these rows element by element (the offsets are
+those of the layout's columns; ``tests/estimators/test_scene.py`` checks they agree).
+
 The hierarchy is binned SAH (16 bins, leaves of at most 4 primitives), built by a numba
-kernel, flattened depth first: an interior node's first child follows it, the second is
-at ``node_info[i, 0]``; a leaf has ``node_info[i, 1] > 0`` primitives from
-``node_info[i, 0]`` in ``prim_order``.
+kernel (``build_bvh``); ``pack_bvh`` lays it out for traversal as ``layout``'s
+``bvh_nodes`` (box and links of a node in one 64-byte row, the two children of a node
+adjacent) and ``leaf_prims`` (what the ray tests read, copied in leaf order, so a leaf is
+one contiguous run of rows and triangle edges are not recomputed per test).
 """
 
 from __future__ import annotations
@@ -22,8 +27,11 @@ import math
 import numpy as np
 from numba import njit
 
-TRIANGLE, SPHERE, DISK = 0, 1, 2
-PRIM_WIDTH = 24
+from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_KIND, LEAF_P0,
+                     LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_COUNT,
+                     NODE_FIRST, NODE_HI, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
+                     SPHERE_CENTER, SPHERE_RADIUS, TRI_P0, TRI_P1, TRI_P2, TRIANGLE)
+
 _BINS = 16
 _LEAF = 4
 _MAX_DEPTH = 60        # deeper subtrees become leaves, so traversal's stack suffices
@@ -43,7 +51,7 @@ def _prim_bounds(prims, info):
     hi = np.empty((n, 3))
     for i in range(n):
         p = prims[i]
-        t = info[i, 0]
+        t = info[i, PRIM_KIND]
         if t == TRIANGLE:
             for a in range(3):
                 lo[i, a] = min(p[a], p[3 + a], p[6 + a])
@@ -183,38 +191,72 @@ def build_bvh(prims, info):
     return nb[:n_nodes].copy(), ni[:n_nodes].copy(), order
 
 
+def pack_bvh(prims, info, node_bounds, node_info, order):
+    """The hierarchy as the kernel reads it: ``(bvh_nodes, leaf_prims, leaf_info)`` of
+    ``layout`` (one 64-byte row per node; the ray-test data of every primitive copied in
+    leaf order, triangle edges precomputed), from ``build_bvh``'s output. The edges are
+    the same float64 differences the test computed from the vertices, so hits are the
+    same to the bit."""
+    nodes = np.empty((len(node_bounds), NODE_WIDTH))
+    nodes[:, NODE_LO:NODE_LO + 3] = node_bounds[:, 0:3]
+    nodes[:, NODE_HI:NODE_HI + 3] = node_bounds[:, 3:6]
+    leaf = node_info[:, 1] >= 0
+    interior = ~leaf
+    # build_bvh allocates an interior node's two children next to each other
+    if not np.array_equal(-node_info[interior, 1] - 1, node_info[interior, 0] + 1):
+        raise AssertionError("build_bvh: children of a node are not adjacent")
+    nodes[:, NODE_FIRST] = node_info[:, 0]
+    nodes[:, NODE_COUNT] = np.where(leaf, node_info[:, 1], -(node_info[:, 2] + 1))
+    p = prims[order]
+    kind = info[order, PRIM_KIND]
+    rows = np.zeros((len(order), LEAF_WIDTH))
+    tri, sph, dsk = kind == TRIANGLE, kind == SPHERE, kind == DISK
+    rows[tri, LEAF_P0:LEAF_P0 + 3] = p[tri, TRI_P0:TRI_P0 + 3]
+    rows[tri, LEAF_E1:LEAF_E1 + 3] = p[tri, TRI_P1:TRI_P1 + 3] - p[tri, TRI_P0:TRI_P0 + 3]
+    rows[tri, LEAF_E2:LEAF_E2 + 3] = p[tri, TRI_P2:TRI_P2 + 3] - p[tri, TRI_P0:TRI_P0 + 3]
+    rows[sph, LEAF_CENTER:LEAF_CENTER + 3] = p[sph, SPHERE_CENTER:SPHERE_CENTER + 3]
+    rows[sph, LEAF_RADIUS] = p[sph, SPHERE_RADIUS]
+    rows[dsk, LEAF_TO_LOCAL:LEAF_TO_LOCAL + 12] = p[dsk, DISK_TO_LOCAL:DISK_TO_LOCAL + 12]
+    leaf_info = np.empty((len(order), 2), dtype=np.int64)
+    leaf_info[:, LEAF_KIND] = kind
+    leaf_info[:, LEAF_PRIM] = order
+    return nodes, rows, leaf_info
+
+
 # --------------------------------------------------------------------- intersection
 @_inline
-def _hit_box(nb, node, ox, oy, oz, ix, iy, iz, t_max):
+def _box_entry(nodes, node, ox, oy, oz, ix, iy, iz, t_max):
+    """Where the ray enters the node's box within [0, t_max], or inf if it misses."""
     t0 = 0.0
     t1 = t_max
-    a = (nb[node, 0] - ox) * ix
-    b = (nb[node, 3] - ox) * ix
+    a = (nodes[node, NODE_LO] - ox) * ix
+    b = (nodes[node, NODE_HI] - ox) * ix
     t0 = max(t0, min(a, b))
     t1 = min(t1, max(a, b))
-    a = (nb[node, 1] - oy) * iy
-    b = (nb[node, 4] - oy) * iy
+    a = (nodes[node, NODE_LO + 1] - oy) * iy
+    b = (nodes[node, NODE_HI + 1] - oy) * iy
     t0 = max(t0, min(a, b))
     t1 = min(t1, max(a, b))
-    a = (nb[node, 2] - oz) * iz
-    b = (nb[node, 5] - oz) * iz
+    a = (nodes[node, NODE_LO + 2] - oz) * iz
+    b = (nodes[node, NODE_HI + 2] - oz) * iz
     t0 = max(t0, min(a, b))
     t1 = min(t1, max(a, b))
-    return t0 <= t1 * (1.0 + 4e-16)
+    return t0 if t0 <= t1 * (1.0 + 4e-16) else np.inf
 
 
 @_inline
 def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
-    """(t, b1, b2) of the nearest hit with t > 0, or (inf, 0, 0)."""
+    """(t, b1, b2) of the nearest hit with t > 0 on the primitive whose ``leaf_prims`` row
+    is ``p`` (kind ``t``), or (inf, 0, 0)."""
     if t == TRIANGLE:
-        e1x, e1y, e1z = p[3] - p[0], p[4] - p[1], p[5] - p[2]
-        e2x, e2y, e2z = p[6] - p[0], p[7] - p[1], p[8] - p[2]
+        e1x, e1y, e1z = p[LEAF_E1], p[LEAF_E1 + 1], p[LEAF_E1 + 2]
+        e2x, e2y, e2z = p[LEAF_E2], p[LEAF_E2 + 1], p[LEAF_E2 + 2]
         px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
         det = e1x * px + e1y * py + e1z * pz
         if det == 0.0:
             return np.inf, 0.0, 0.0
         inv = 1.0 / det
-        sx, sy, sz = ox - p[0], oy - p[1], oz - p[2]
+        sx, sy, sz = ox - p[LEAF_P0], oy - p[LEAF_P0 + 1], oz - p[LEAF_P0 + 2]
         b1 = (sx * px + sy * py + sz * pz) * inv
         if b1 < 0.0 or b1 > 1.0:
             return np.inf, 0.0, 0.0
@@ -227,14 +269,15 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
             return np.inf, 0.0, 0.0
         return th, b1, b2
     if t == SPHERE:
-        fx, fy, fz = ox - p[0], oy - p[1], oz - p[2]
+        r = p[LEAF_RADIUS]
+        fx, fy, fz = ox - p[LEAF_CENTER], oy - p[LEAF_CENTER + 1], oz - p[LEAF_CENTER + 2]
         b = fx * dx + fy * dy + fz * dz
         # c = |f|² - r², with the closest-approach form for accuracy far from the sphere
         qx, qy, qz = fx - b * dx, fy - b * dy, fz - b * dz
-        disc = p[3] * p[3] - (qx * qx + qy * qy + qz * qz)
+        disc = r * r - (qx * qx + qy * qy + qz * qz)
         if disc < 0.0:
             return np.inf, 0.0, 0.0
-        c = fx * fx + fy * fy + fz * fz - p[3] * p[3]
+        c = fx * fx + fy * fy + fz * fz - r * r
         s = math.sqrt(disc)
         # near · far = c: take the root without cancellation, derive the other
         if b < 0.0:
@@ -249,17 +292,18 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
             return t1, 0.0, 0.0
         return np.inf, 0.0, 0.0
     # disk: intersect z = 0 in local space
-    lox = p[12] * ox + p[13] * oy + p[14] * oz + p[15]
-    loy = p[16] * ox + p[17] * oy + p[18] * oz + p[19]
-    loz = p[20] * ox + p[21] * oy + p[22] * oz + p[23]
-    ldz = p[20] * dx + p[21] * dy + p[22] * dz
+    m = LEAF_TO_LOCAL
+    lox = p[m] * ox + p[m + 1] * oy + p[m + 2] * oz + p[m + 3]
+    loy = p[m + 4] * ox + p[m + 5] * oy + p[m + 6] * oz + p[m + 7]
+    loz = p[m + 8] * ox + p[m + 9] * oy + p[m + 10] * oz + p[m + 11]
+    ldz = p[m + 8] * dx + p[m + 9] * dy + p[m + 10] * dz
     if ldz == 0.0:
         return np.inf, 0.0, 0.0
     th = -loz / ldz
     if th <= 0.0:
         return np.inf, 0.0, 0.0
-    ldx = p[12] * dx + p[13] * dy + p[14] * dz
-    ldy = p[16] * dx + p[17] * dy + p[18] * dz
+    ldx = p[m] * dx + p[m + 1] * dy + p[m + 2] * dz
+    ldy = p[m + 4] * dx + p[m + 5] * dy + p[m + 6] * dz
     x, y = lox + th * ldx, loy + th * ldy
     if x * x + y * y > 1.0:
         return np.inf, 0.0, 0.0
@@ -267,58 +311,79 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 
 @_inline
-def _traverse(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
-              any_hit):
-    """Walk the hierarchy, nearer child first: the nearest hit in (t_min, t_max), or
-    with ``any_hit`` the first found. (t, primitive, b1, b2); primitive -1 if none."""
+def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max, any_hit):
+    """Walk the hierarchy: at an interior node both children's boxes are tested, the
+    nearer entered first and the other stacked with its entry distance (skipped when a
+    hit closer than that is found meanwhile). The nearest hit in (t_min, t_max), or with
+    ``any_hit`` the first found: (t, primitive, b1, b2); primitive -1 if none."""
     ix = 1.0 / dx if dx != 0.0 else np.inf
     iy = 1.0 / dy if dy != 0.0 else np.inf
     iz = 1.0 / dz if dz != 0.0 else np.inf
-    neg = (dx < 0.0, dy < 0.0, dz < 0.0)
+    best_t, best_k, best_b1, best_b2 = t_max, -1, 0.0, 0.0
     sp = 0
     node = 0
-    best_t, best_p, best_b1, best_b2 = t_max, -1, 0.0, 0.0
+    if _box_entry(nodes, 0, ox, oy, oz, ix, iy, iz, best_t) == np.inf:
+        return best_t, -1, best_b1, best_b2
     while True:
-        if _hit_box(nb, node, ox, oy, oz, ix, iy, iz, best_t):
-            c = ni[node, 1]
-            if c > 0:
-                s = ni[node, 0]
-                for k in range(s, s + c):
-                    j = order[k]
-                    t, b1, b2 = _hit_prim(prims[j], info[j, 0], ox, oy, oz, dx, dy, dz)
-                    if t_min < t < best_t:
-                        best_t, best_p, best_b1, best_b2 = t, j, b1, b2
-                        if any_hit:
-                            return best_t, best_p, best_b1, best_b2
+        c = int(nodes[node, NODE_COUNT])
+        first = int(nodes[node, NODE_FIRST])
+        if c < 0:
+            ta = _box_entry(nodes, first, ox, oy, oz, ix, iy, iz, best_t)
+            tb = _box_entry(nodes, first + 1, ox, oy, oz, ix, iy, iz, best_t)
+            if ta <= tb:
+                near, far, t_near, t_far = first, first + 1, ta, tb
             else:
-                left, right = ni[node, 0], -c - 1
-                if neg[ni[node, 2]]:
-                    stack[sp] = left
-                    node = right
-                else:
-                    stack[sp] = right
-                    node = left
-                sp += 1
+                near, far, t_near, t_far = first + 1, first, tb, ta
+            if t_near < np.inf:
+                if t_far < np.inf:
+                    stack[sp, 0] = far
+                    stack[sp, 1] = t_far
+                    sp += 1
+                node = near
                 continue
-        if sp == 0:
+        else:
+            for k in range(first, first + c):
+                t, b1, b2 = _hit_prim(leaf[k], leaf_info[k, LEAF_KIND], ox, oy, oz,
+                                      dx, dy, dz)
+                if t_min < t < best_t:
+                    best_t, best_k, best_b1, best_b2 = t, k, b1, b2
+                    if any_hit:
+                        return best_t, leaf_info[k, LEAF_PRIM], best_b1, best_b2
+        # pop the nearest stacked node still worth entering
+        found = False
+        while sp > 0:
+            sp -= 1
+            if stack[sp, 1] <= best_t * (1.0 + 4e-16):
+                found = True
+                break
+        if not found:
             break
-        sp -= 1
-        node = stack[sp]
-    return best_t, best_p, best_b1, best_b2
+        node = int(stack[sp, 0])
+    if best_k < 0:
+        return best_t, -1, best_b1, best_b2
+    return best_t, leaf_info[best_k, LEAF_PRIM], best_b1, best_b2
 
 
 @_inline
-def intersect(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
+def new_stack():
+    """Traversal scratch (node, entry distance) for ``intersect``/``occluded``; one per
+    thread, reused across rays."""
+    return np.empty((STACK, 2))
+
+
+@_inline
+def intersect(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Nearest hit in (t_min, t_max): (t, primitive, b1, b2); primitive -1 if none.
-    ``stack`` is int64 scratch of length ``STACK``, reused across rays."""
-    return _traverse(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
+    ``nodes, leaf, leaf_info`` are the scene's ``bvh_nodes, leaf_prims, leaf_info``;
+    ``stack`` is scratch from ``new_stack()``, reused across rays."""
+    return _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
                      False)
 
 
 @_inline
-def occluded(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
+def occluded(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Whether anything lies on the ray in (t_min, t_max)."""
-    return _traverse(nb, ni, order, prims, info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
+    return _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
                      True)[1] >= 0
 
 
@@ -345,7 +410,7 @@ def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
     Normals are the shape's own orientation (outward; ``flip_normals`` is applied by the
     caller)."""
     p = prims[j]
-    kind = info[j, 0]
+    kind = info[j, PRIM_KIND]
     if kind == TRIANGLE:
         b0 = 1.0 - b1 - b2
         px, py, pz, gx, gy, gz = triangle_point(p, b1, b2)

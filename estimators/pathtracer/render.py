@@ -25,9 +25,9 @@ import numpy as np
 from numba import get_num_threads
 
 from . import _kernel
-from .compile import CompiledScene, compile_scene
+from .prepare import PreparedScene, prepare_scene
 
-TILE = 16
+TILE = 8
 _MODULES: dict[str, object] = {}
 
 
@@ -98,10 +98,16 @@ def specialised_kernel(features: int):
     return module
 
 
-def _tiles(width: int, height: int) -> np.ndarray:
-    return np.array([(x, y, min(x + TILE, width), min(y + TILE, height))
+def _tiles(width: int, height: int, threads: int) -> np.ndarray:
+    """Rows (x0, y0, x1, y1) of the image's tiles, dealt to ``threads`` like cards:
+    numba's ``prange`` gives each thread one contiguous block of iterations, so the
+    block of thread i holds tiles i, i + threads, i + 2 threads... spread over the
+    whole image, and a costly region (a glass sphere, the mesh) is shared by all
+    threads instead of falling to one."""
+    rows = np.array([(x, y, min(x + TILE, width), min(y + TILE, height))
                      for y in range(0, height, TILE) for x in range(0, width, TILE)],
                     dtype=np.int64)
+    return np.concatenate([rows[i::threads] for i in range(threads)])
 
 
 def _integer(name: str, v, minimum: int, maximum: int | None = None) -> None:
@@ -129,7 +135,7 @@ def _render_iv(spp, seed, passes, pdf_scale, params) -> None:
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
            general: bool = False, pdf_scale: float = 1.0, params: dict | None = None,
            progress=None) -> RenderResult:
-    """Render a Mitsuba XML scene (path, ``SceneDescription`` or ``CompiledScene``) with
+    """Render a Mitsuba XML scene (path, ``SceneDescription`` or ``PreparedScene``) with
     ``spp`` samples per pixel (default: the scene's sampler). The same seed gives the same
     image bit for bit, whatever the number of threads. ``progress(done, total)`` is called
     as tiles finish.
@@ -141,7 +147,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     ``pdf_scale`` != 1 is a test hook: every BSDF sample's pdf is scaled by it, a planted
     bug the render gate must catch."""
     _render_iv(spp, seed, passes, pdf_scale, params)
-    cs: CompiledScene = compile_scene(scene, params=params)
+    cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
     if passes > 1:
         return _render_passes(cs, spp, seed, int(passes), general, pdf_scale, progress)
@@ -154,20 +160,27 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     m2 = np.zeros((h, w, 3))
     bad = np.zeros((h, w), dtype=np.int64)
     cam = cs.camera.params
-    tiles = _tiles(w, h)
+    threads = get_num_threads()
     t0 = time.perf_counter()
     pdf_scale = float(pdf_scale)
-    module.render_tiles(cs.arrays, cam, tiles[:0], w, h, spp, seed, pdf_scale, mean, m2, bad)
+    module.render_tiles(cs.arrays, cam, _tiles(1, 1, 1)[:0], w, h, spp, seed, pdf_scale, mean,
+                        m2, bad)
     compile_seconds = time.perf_counter() - t0
-    threads = get_num_threads()
-    n_chunks = max(1, min(20, len(tiles) // (4 * threads)))
-    bounds = np.linspace(0, len(tiles), n_chunks + 1).astype(int)
+    # one parallel call, or with a progress callback up to 20 (each call ends on its
+    # slowest thread, so chunks cost time)
+    n_chunks = max(1, min(20, (w * h) // (4 * threads * TILE * TILE))) if progress else 1
+    bounds = np.linspace(0, h, n_chunks + 1).astype(int)
+    bounds = np.unique(bounds - bounds % TILE)      # whole tile rows
+    bounds = np.append(bounds, h) if bounds[-1] != h else bounds
+    n_tiles = len(_tiles(w, h, 1))
     t0 = time.perf_counter()
     for a, b in zip(bounds[:-1], bounds[1:]):
-        module.render_tiles(cs.arrays, cam, tiles[a:b], w, h, spp, seed, pdf_scale, mean, m2,
-                            bad)
+        band = _tiles(w, b - a, threads)
+        band[:, 1] += a
+        band[:, 3] += a
+        module.render_tiles(cs.arrays, cam, band, w, h, spp, seed, pdf_scale, mean, m2, bad)
         if progress:
-            progress(int(b), len(tiles))
+            progress(n_tiles * int(b) // h, n_tiles)
     seconds = time.perf_counter() - t0
     variance = m2 / (spp - 1)
     stats = {"compile_seconds": compile_seconds, "threads": threads,

@@ -9,8 +9,8 @@ u = atan2(d.x, -d.z) / 2π, v = acos(d.y) / π and filters with x = u·w - ½ (p
 y = v·(h - 1) (clamped).
 
 Images are stored back to back in one float64 array; each texture is one float64 row of
-``tex_info`` with the columns named below (``TEX_OFFSET``, ``TEX_WIDTH``...; integers are
-stored exactly). Files are decoded with Mitsuba's image reader (file I/O only; 8-bit sRGB
+``tex_info`` with the columns named in ``layout`` (``TEX_OFFSET``, ``TEX_WIDTH``...;
+integers are stored exactly). Files are decoded with Mitsuba's image reader (file I/O only; 8-bit sRGB
 images are linearised unless ``raw``), imported lazily.
 """
 
@@ -21,18 +21,13 @@ import math
 import numpy as np
 from numba import njit
 
+from .layout import (BILINEAR, CLAMP, MIRROR, NEAREST, REPEAT, TEX_COLUMNS, TEX_FILTER,
+                     TEX_HEIGHT, TEX_OFFSET, TEX_UV, TEX_WIDTH, TEX_WRAP)
+
 _jit = njit(cache=True)
 _fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see emitters.py
 
 
-# texture table columns (one row per image)
-TEX_OFFSET, TEX_WIDTH, TEX_HEIGHT, TEX_FILTER, TEX_WRAP = range(5)
-TEX_UV = 5                      # 6 entries: the to_uv affine map, rows (a, b, c), (d, e, f)
-TEX_COLUMNS = TEX_UV + 6
-BILINEAR, NEAREST = 0, 1
-FILTERS = ("bilinear", "nearest")
-REPEAT, CLAMP, MIRROR = 0, 1, 2
-WRAPS = ("repeat", "clamp", "mirror")
 _IDENTITY_UV = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 
 

@@ -70,45 +70,41 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
 
 def _render_pairs(mi, spp: int):
     """The path tracer: the render gate's decision time on the Cornell box (no
-    counterpart); the Cornell box at 128 × 128, max_depth 8, ours against Mitsuba at the
-    same spp; and the specialised kernel against the general one on a diffuse-only scene
-    (the white furnace)."""
-    from estimators.pathtracer import compile_scene, render
+    counterpart); every reference scene at 128 × 128 (its own integrator settings), ours
+    against Mitsuba at the same spp; and the specialised kernel against the general one
+    on a diffuse-only scene (the white furnace)."""
+    from estimators.pathtracer import prepare_scene, render
 
-    from .reference import resolve_scene
-
-    cornell = resolve_scene("cornell-box")[1]
-    ours_scene = compile_scene(cornell, params={"res": 128})
-    their_scene = mi.load_file(cornell, res=128)
-    furnace = compile_scene(resolve_scene("white-furnace")[1], params={"res": 128})
-    bunny = resolve_scene("bunny")[1]
-    ours_bunny = compile_scene(bunny, params={"res": 128})
-    their_bunny = mi.load_file(bunny, res=128)
-    what = f"128 x 128, max_depth 8, {spp} spp"
+    from .reference import list_scenes, resolve_scene
 
     def gate():
         from .render_check import render_check
         return render_check("cornell-box")
 
-    return [
-        ("render-check:cornell-box", "the render gate at its defaults, 64 x 64, reference "
-         "cached (budget: 30 s)", gate, None, "-"),
-        ("render:cornell-box", what, lambda: render(ours_scene, spp=spp),
-         lambda: np.asarray(mi.render(their_scene, spp=spp)), "mitsuba"),
-        ("render:bunny", f"58,784-triangle scanned mesh, 128 x 128, max_depth 6, {spp} spp",
-         lambda: render(ours_bunny, spp=spp),
-         lambda: np.asarray(mi.render(their_bunny, spp=spp)), "mitsuba"),
-        ("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
-         lambda: render(furnace, spp=spp), lambda: render(furnace, spp=spp, general=True),
-         "general kernel"),
-    ]
+    out = [("render-check:cornell-box", "the render gate at its defaults, 64 x 64, reference "
+            "cached (budget: 30 s)", gate, None, "-")]
+    for name in list_scenes():
+        path = resolve_scene(name)[1]
+        ours = prepare_scene(path, params={"res": 128})
+        theirs = mi.load_file(path, res=128)
+        depth = ours.arrays.max_depth
+        what = (f"128 x 128, {ours.n_triangles:,} triangles, max_depth "
+                f"{depth if depth < 1 << 30 else 'unlimited'}, {spp} spp")
+        out.append((f"render:{name}", what,
+                    lambda ours=ours: render(ours, spp=spp),
+                    lambda theirs=theirs: np.asarray(mi.render(theirs, spp=spp)), "mitsuba"))
+    furnace = prepare_scene(resolve_scene("white-furnace")[1], params={"res": 128})
+    out.append(("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
+                lambda: render(furnace, spp=spp),
+                lambda: render(furnace, spp=spp, general=True), "general kernel"))
+    return out
 
 
 def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1) -> dict:
     """RMSE of ours and of Mitsuba against the scene's reference when both get the time
     Mitsuba needs for ``spp`` samples per pixel (JIT excluded on both sides; the
     reference's own noise, var / passes, is subtracted from both MSEs)."""
-    from estimators.pathtracer import compile_scene, render
+    from estimators.pathtracer import prepare_scene, render
 
     from . import mitsuba as mvm
     from .reference import load_reference, resolve_scene
@@ -117,7 +113,7 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1) ->
     path = resolve_scene(scene)[1]
     ref = load_reference(path)
     their_scene = mi.load_file(path)
-    ours_scene = compile_scene(path)
+    ours_scene = prepare_scene(path)
     np.asarray(mi.render(their_scene, spp=spp, seed=seed))
     render(ours_scene, spp=spp, seed=seed)                       # warm-ups
     t0 = time.perf_counter()
@@ -146,11 +142,14 @@ def _best(fn, repeats: int) -> float:
 def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = True,
               progress=None) -> list[dict]:
     """Time every pair (best of ``repeats`` after a warm-up) and, with ``renders``, the
-    equal-time RMSE of the path tracer. ``ratio`` is ours / theirs: time for timings,
-    RMSE for the equal-time row."""
+    equal-time RMSE of the path tracer on every reference scene. ``ratio`` is ours /
+    theirs: time for timings, RMSE for the equal-time rows."""
+    from .reference import list_scenes
+
     rows = []
     work = pairs(n, spp=spp, renders=renders)
-    total = len(work) + int(renders)
+    scenes = list_scenes() if renders else []
+    total = len(work) + len(scenes)
     for i, (group, what, ours, theirs, against) in enumerate(work):
         t_ours = _best(ours, repeats)
         t_theirs = _best(theirs, repeats) if theirs is not None else None
@@ -162,8 +161,8 @@ def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = Tr
                      "Mitsuba's vectorised llvm variant unavailable (no libLLVM >= 16)"})
         if progress:
             progress(i + 1, total, rows[-1])
-    if renders:
-        rows.append(equal_time_rmse(spp=max(2, spp // 4)))
+    for i, scene in enumerate(scenes):
+        rows.append(equal_time_rmse(scene, spp=max(2, spp // 4)))
         if progress:
-            progress(total, total, rows[-1])
+            progress(len(work) + i + 1, total, rows[-1])
     return rows

@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from .. import _validate as validate
 from ..checks.image import TESTS, compare_images
 from ..errors import InvalidArgument, MissingReference
 from ..result import CheckResult
@@ -43,10 +44,10 @@ Renderer = Callable[[str, int, int], object]
 
 @lru_cache(maxsize=4)
 def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
-    from estimators.pathtracer import SceneError, compile_scene
+    from estimators.pathtracer import SceneError, prepare_scene
 
     try:
-        subject = compile_scene(scene_path, params=dict(params) or None)
+        subject = prepare_scene(scene_path, params=dict(params) or None)
     except SceneError as e:
         raise InvalidArgument(str(e)) from None
     return subject.planted(**dict(plant)) if plant else subject
@@ -140,6 +141,13 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     from ..sequential import run_sequential
     from . import reference
 
+    seed = validate.seed("seed", seed)
+    if seed > 2 ** 63 - 1:
+        raise InvalidArgument(f"seed={seed}: must be at most 2**63 - 1 (renderers take a "
+                              "signed 64-bit seed)")
+    spp = validate.integer("spp", spp, minimum=1)
+    passes = validate.integer("passes", passes, minimum=1)
+    alpha = validate.probability("alpha", alpha)
     ours = renderer is None
     if ours:
         if passes < 2 or spp < MIN_SPP_PER_PASS * passes:

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from estimators.pathtracer import compile_scene, parse_scene
+from estimators.pathtracer import prepare_scene, parse_scene
 from estimators.pathtracer import bsdfs as B
 
 pytestmark = pytest.mark.mitsuba
@@ -56,8 +56,8 @@ def mi():
 
 
 def _ours(xml):
-    a = compile_scene(parse_scene(_SCENE.format(bsdf=xml))).arrays
-    return a[8], a[9], a[10], a[11], a[12]
+    a = prepare_scene(parse_scene(_SCENE.format(bsdf=xml))).arrays
+    return a.bsdf_f, a.bsdf_i, a.bsdf_tex, a.tex_data, a.tex_info
 
 
 def _directions(rng, n, lower=False):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import mcverify as mv
-from estimators.pathtracer import compile_scene, render
+from estimators.pathtracer import prepare_scene, render
 
 _HEAD = """<scene version="3.0.0">
   <integrator type="path"><integer name="max_depth" value="{depth}"/></integrator>
@@ -84,7 +84,7 @@ def _ratio_to_sphere_irradiance(path, R, L, rho, height, *, spp, seed):
     at (0, height, 0): ρ L (R / D)² cos θ (the sphere entirely above the horizon)."""
     from estimators.pathtracer import generate_rays
 
-    cs = compile_scene(path)
+    cs = prepare_scene(path)
     r = render(cs, spp=spp, seed=seed, general=True)
     n = cs.width
     uv = (np.stack(np.meshgrid(np.arange(n), np.arange(n)), -1).reshape(-1, 2) + 0.5) / n
@@ -97,7 +97,7 @@ def _ratio_to_sphere_irradiance(path, R, L, rho, height, *, spp, seed):
 
 
 def test_same_seed_same_image_whatever_the_thread_count():
-    scene = compile_scene("reference/scenes/cornell-box/scene.xml", params={"res": 24})
+    scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 24})
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
@@ -113,7 +113,7 @@ def test_same_seed_same_image_whatever_the_thread_count():
 
 def test_specialised_kernel_matches_the_general_one_bit_for_bit():
     """Specialisation removes code, never changes arithmetic."""
-    scene = compile_scene("reference/scenes/cornell-box/scene.xml", params={"res": 16})
+    scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 16})
     a = render(scene, spp=4, seed=5)
     b = render(scene, spp=4, seed=5, general=True)
     assert a.stats["kernel"].startswith("specialised") and b.stats["kernel"] == "general"
@@ -122,7 +122,7 @@ def test_specialised_kernel_matches_the_general_one_bit_for_bit():
 
 def test_render_reports_progress_and_rejects_bad_arguments():
     calls = []
-    scene = compile_scene("reference/scenes/cornell-box/scene.xml", params={"res": 40})
+    scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 40})
     render(scene, spp=2, progress=lambda d, t: calls.append((d, t)))
     assert calls and calls[-1][0] == calls[-1][1] == 9
     with pytest.raises(ValueError, match="spp"):

@@ -9,9 +9,9 @@ our texel value, with Mitsuba's ``si.uv`` and ``texture.eval(si)``."""
 import numpy as np
 import pytest
 
-from estimators.pathtracer import compile_scene, parse_scene
-from estimators.pathtracer import geometry as G
-from estimators.pathtracer import textures as T
+from estimators.pathtracer import prepare_scene, parse_scene
+from estimators.pathtracer import geometry
+from estimators.pathtracer import textures
 from estimators.pathtracer.scene import SceneError
 
 pytestmark = pytest.mark.mitsuba
@@ -69,12 +69,12 @@ def _compiled(mi, folder, texture_xml, shape="rectangle", defs="", shape_props="
     xml = _SCENE.format(defs=defs, shape=shape, shape_props=shape_props, texture=texture_xml)
     path = folder / f"scene-{abs(hash(xml))}.xml"
     path.write_text(xml)
-    return compile_scene(str(path)), mi.load_file(str(path))
+    return prepare_scene(str(path)), mi.load_file(str(path))
 
 
 def _lookups_agree(mi, cs, scene, uvs, rtol=1e-5):
     a = cs.arrays
-    tex_data, tex_info = a[11], a[12]
+    tex_data, tex_info = a.tex_data, a.tex_info
     bsdf = scene.shapes()[0].bsdf()
     si = mi.SurfaceInteraction3f()
     ctx = mi.BSDFContext()
@@ -86,7 +86,7 @@ def _lookups_agree(mi, cs, scene, uvs, rtol=1e-5):
         si.uv = mi.Point2f(u, v)
         # diffuse eval at normal incidence and exitance is reflectance / π
         theirs = np.array(bsdf.eval(ctx, si, mi.Vector3f(0, 0, 1))) * np.pi
-        ours = np.array(T.eval_texture(tex_data, tex_info, int(a[10][0, 0]), u, v))
+        ours = np.array(textures.eval_texture(tex_data, tex_info, int(a.bsdf_tex[0, 0]), u, v))
         worst = max(worst, float(np.max(np.abs(ours - theirs) / np.maximum(np.abs(theirs),
                                                                             1e-3))))
     assert worst < rtol, f"worst relative difference {worst:.3g}"
@@ -123,7 +123,7 @@ def test_a_referenced_texture_is_used_not_dropped(mi, images):
     defs = '<texture type="bitmap" id="chk"><string name="filename" value="t.exr"/>' \
            '<string name="filter_type" value="nearest"/></texture>'
     cs, scene = _compiled(mi, images, '<ref id="chk" name="reflectance"/>', defs=defs)
-    assert cs.arrays[10][0, 0] == 0
+    assert cs.arrays.bsdf_tex[0, 0] == 0
     _lookups_agree(mi, cs, scene, np.random.default_rng(8).random((100, 2)))
 
 
@@ -142,7 +142,7 @@ def test_unknown_filter_or_wrap_is_refused(images, bad):
     path = images / "bad.xml"
     path.write_text(xml)
     with pytest.raises(SceneError, match=bad[0]):
-        compile_scene(str(path))
+        prepare_scene(str(path))
 
 
 # ----------------------------------------------------------- uv at a hit, per shape
@@ -167,21 +167,22 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
     (images / "tri.obj").write_text(_TRI_NO_UV)
     cs, scene = _compiled(mi, images, "", shape=shape, shape_props=props)
     a = cs.arrays
-    nb, ni, order, prims, info = a[0], a[1], a[2], a[3], a[4]
-    stack = np.empty(G.STACK, dtype=np.int64)
+    nodes, leaf, leaf_info, prims, info = a.bvh_nodes, a.leaf_prims, a.leaf_info, a.prims, \
+        a.prim_info
+    stack = geometry.new_stack()
     rng = np.random.default_rng(9)
     hits = 0
     for _ in range(400):
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
         o = -3.0 * d + rng.uniform(-0.6, 0.6, 3)
-        t, j, b1, b2 = G.intersect(nb, ni, order, prims, info, stack, *o, *d, 0.0, np.inf)
+        t, j, b1, b2 = geometry.intersect(nodes, leaf, leaf_info, stack, *o, *d, 0.0, np.inf)
         si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*o), mi.Vector3f(*d)))
         assert (j >= 0) == bool(si.is_valid())
         if j < 0:
             continue
         hits += 1
-        uv = G.surface(prims, info, j, *o, *d, t, b1, b2)[9:11]
+        uv = geometry.surface(prims, info, j, *o, *d, t, b1, b2)[9:11]
         du = np.abs(np.array(uv) - np.array(si.uv))
         if shape == "sphere":
             du[0] = min(du[0], 1 - du[0])           # u wraps at the seam
@@ -191,7 +192,7 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
 
 def test_cube_layout_is_mitsubas(mi):
     """The cube's 24 vertices and uvs in Mitsuba's order (so face triangles match too)."""
-    from estimators.pathtracer.compile import _cube
+    from estimators.pathtracer.prepare import _cube
 
     verts, faces, uvs = _cube()
     theirs = mi.load_dict({"type": "cube"})
@@ -211,7 +212,7 @@ def test_an_obj_with_uv_on_some_faces_only_is_refused(images):
     path = images / "mixed.xml"
     path.write_text(xml)
     with pytest.raises(SceneError, match="texture coordinates"):
-        compile_scene(str(path))
+        prepare_scene(str(path))
 
 
 @pytest.mark.parametrize("axis", [(1, 0, 0), (0.3, -0.5, 0.81), (1, 1, 0), (0, 2, 0)])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mcverify as mv
-from estimators.pathtracer import compile_scene, render
+from estimators.pathtracer import prepare_scene, render
 from mcverify.gate import reference
 
 BUNNY = os.path.join(reference.REFERENCE_ROOT, "bunny")
@@ -16,7 +16,7 @@ BUNNY = os.path.join(reference.REFERENCE_ROOT, "bunny")
 def test_the_committed_mesh_is_what_the_script_makes():
     # make_bunny.py is the recipe; the committed OBJ must be its output (two levels of Loop
     # subdivision of the npm package's 3,674 triangles: 4**2 * 3674 triangles)
-    scene = compile_scene(os.path.join(BUNNY, "scene.xml"), params={"res": 16})
+    scene = prepare_scene(os.path.join(BUNNY, "scene.xml"), params={"res": 16})
     assert scene.n_triangles == 16 * 3674 + 2 * 2          # bunny + floor + light rectangles
     with open(os.path.join(BUNNY, "bunny.obj"), encoding="ascii") as f:
         assert "2 levels of Loop subdivision" in f.readline()

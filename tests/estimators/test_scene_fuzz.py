@@ -9,7 +9,7 @@ import numpy as np
 from hypothesis import event, given
 from hypothesis import strategies as st
 
-from estimators.pathtracer import SceneError, compile_scene, parse_scene, render
+from estimators.pathtracer import SceneError, prepare_scene, parse_scene, render
 
 ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
     __file__)))), "reference", "scenes")
@@ -78,7 +78,7 @@ def test_mutated_scene_raises_scene_error_or_renders(name, ops):
     path = os.path.join(ROOT, name, "fuzz.xml")      # never written: assets resolve here
     try:
         desc = parse_scene(text, path=path, params={"res": "8", "max_depth": "3"})
-        scene = compile_scene(desc)
+        scene = prepare_scene(desc)
     except SceneError as e:
         assert "fuzz.xml" in str(e), str(e)
         event("SceneError")

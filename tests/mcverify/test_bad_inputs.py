@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import mcverify as mv
-from estimators.pathtracer import SceneError, compile_scene, load_scene, render
+from estimators.pathtracer import SceneError, prepare_scene, load_scene, render
 from mcverify.errors import EnvironmentProblem, InvalidArgument, MissingReference
 from mcverify.gate import cli, reference
 from mcverify.gate.suites import Check
@@ -269,6 +269,15 @@ API = [
     ("render-pdf-scale", lambda: render(FURNACE, pdf_scale=-1.0), ValueError, "pdf_scale=-1"),
     ("render-unknown-param", lambda: render(FURNACE, params={"nosuch": 3}), SceneError,
      "nosuch"),
+    # render_check validates before it loads (or builds) a reference: a scene with no
+    # reference would otherwise raise MissingReference first
+    ("render-check-seed-2^63", lambda: mv.render_check("/nonexistent/scene.xml", seed=2 ** 63,
+                                                       build_missing=False),
+     InvalidArgument, "seed=9223372036854775808"),
+    ("render-check-spp-str", lambda: mv.render_check("/nonexistent/scene.xml", spp="64"),
+     InvalidArgument, "spp='64'"),
+    ("render-check-alpha", lambda: mv.render_check("/nonexistent/scene.xml", alpha=1.5),
+     InvalidArgument, "alpha=1.5"),
     ("scene-missing", lambda: load_scene("/nonexistent/scene.xml"), SceneError,
      "/nonexistent/scene.xml"),
     ("scene-dev-zero", lambda: load_scene("/dev/zero"), SceneError,
@@ -305,7 +314,7 @@ def test_scene_bad_input(sandbox, name, needle):
     path = os.path.join(sandbox, "scenes", name)
     before = snapshot(os.path.join(sandbox, "scenes"))
     with pytest.raises(SceneError) as info:
-        compile_scene(path)
+        prepare_scene(path)
     assert name in str(info.value) and needle in str(info.value), str(info.value)
     assert snapshot(os.path.join(sandbox, "scenes")) == before
 

@@ -15,7 +15,7 @@ SPPS = (4, 16, 64, 256)
 
 def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[list, dict]:
     """(JSON-able rows, {scene: image arrays for the panels})."""
-    from estimators.pathtracer import compile_scene, render
+    from estimators.pathtracer import prepare_scene, render
 
     from .. import mitsuba as mvm
     from ..render_check import render_check
@@ -27,7 +27,7 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
         _, path = resolve_scene(name)
         check = render_check(path, seed=seed)
         ref = load_reference(path)
-        ours_scene, their_scene = compile_scene(path), mi.load_file(path)
+        ours_scene, their_scene = prepare_scene(path), mi.load_file(path)
         render(ours_scene, spp=2, seed=seed)                     # warm-ups: JIT excluded
         np.asarray(mi.render(their_scene, spp=spps[0], seed=seed))
         curve = {"spp": list(spps), "ours_rmse": [], "ours_seconds": [], "mitsuba_rmse": [],

@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from mcverify.mitsuba import write_exr
+from mcverify.gate.mitsuba import write_exr
 
 
 def checker(n: int = 16) -> np.ndarray:

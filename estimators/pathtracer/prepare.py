@@ -1,11 +1,13 @@
-"""Scene description → the flat arrays the kernel reads (``CompiledScene``).
+"""Scene description → the named arrays the kernel reads (``PreparedScene``, whose
+``arrays`` is a ``layout.SceneArrays``). Nothing is compiled here: numba compiles the
+kernel in ``render``.
 
 Shapes become primitives (rectangles and cubes two triangles a face, OBJ meshes their
 triangles; spheres and disks stay analytic), BSDFs and emitters become rows of parameter
 tables, images become one texture store, and the whole is indexed by the SAH hierarchy.
 Mitsuba's defaults apply wherever the XML is silent (a shape without a BSDF is diffuse
-0.5, or black if it emits; roughconductor and roughplastic default to Beckmann α = 0.1; dielectric to BK7 in
-air; plastic to polypropylene in air; conductor to a perfect mirror).
+0.5, or black if it emits; roughconductor and roughplastic default to Beckmann α = 0.1;
+dielectric to BK7 in air; plastic to polypropylene in air; conductor to a perfect mirror).
 """
 
 from __future__ import annotations
@@ -19,16 +21,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..distributions import DiscreteDistribution, PiecewiseConstant2D
-from . import bsdfs as B
-from . import emitters as E
+from . import layout
+from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
-from .geometry import DISK, PRIM_WIDTH, SPHERE, TRIANGLE, build_bvh
+from .geometry import build_bvh, pack_bvh
+from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
 from .scene import (MAX_ASSET_BYTES, Plugin, SceneDescription, SceneError, file_problem,
                     load_scene)
-from .textures import (FILTERS, WRAPS, TextureStore, envmap_sampling_weights, read_image)
+from .textures import TextureStore, envmap_sampling_weights, read_image
 
 _MATERIALS = None
-INFINITE_DEPTH = 1 << 40
 
 
 def _materials() -> dict:
@@ -41,12 +43,13 @@ def _materials() -> dict:
 
 
 @dataclass
-class CompiledScene:
-    """Everything the kernel needs, as arrays, plus what a person needs to know."""
+class PreparedScene:
+    """Everything the kernel needs, as named arrays, plus what a person needs to know.
+    ``features`` is the mask of ``layout.FEATURE_BITS`` the scene uses."""
 
     desc: SceneDescription
     camera: Camera
-    arrays: tuple
+    arrays: layout.SceneArrays
     features: int
     spp: int
     n_triangles: int
@@ -58,24 +61,35 @@ class CompiledScene:
         return self.camera.width
 
     def planted(self, *, light_scale: float = 1.0, albedo_scale: float = 1.0,
-                bsdf: int | None = None) -> "CompiledScene":
+                bsdf: int | None = None, texture_filter: str | None = None
+                ) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
-        first textureless diffuse-like one) base colour scaled by ``albedo_scale``."""
-        a = list(self.arrays)
-        light_f = a[13].copy()
-        light_f[:, 0:3] *= light_scale
-        bf = a[8].copy()
+        first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
+        every bitmap looked up with ``texture_filter`` (``"bilinear"`` or ``"nearest"``)
+        whatever the scene says (the bug issue 12 found: ``filter_type`` ignored)."""
+        a = self.arrays
+        if texture_filter is not None:
+            if texture_filter not in layout.FILTERS:
+                raise ValueError(f"texture_filter={texture_filter!r}; one of "
+                                 f"{', '.join(layout.FILTERS)}")
+            tex_info = a.tex_info.copy()
+            tex_info[:, layout.TEX_FILTER] = layout.FILTERS.index(texture_filter)
+            a = a._replace(tex_info=tex_info)
+        rgb = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
+        light_f = a.light_f.copy()
+        light_f[:, rgb] *= light_scale
+        bf = a.bsdf_f.copy()
         if albedo_scale != 1.0:
+            base = slice(layout.COLOR0, layout.COLOR0 + 3)
             if bsdf is None:
-                bsdf = next((i for i, row in enumerate(a[9])
-                             if row[0] in (B.DIFFUSE, B.PLASTIC, B.ROUGHPLASTIC)
-                             and a[10][i, 0] < 0 and bf[i, 0:3].any()), None)
+                bsdf = next((i for i, row in enumerate(a.bsdf_i)
+                             if row[layout.BSDF_KIND] in _DIFFUSE_LIKE
+                             and a.bsdf_tex[i, 0] < 0 and bf[i, base].any()), None)
                 if bsdf is None:
                     raise ValueError("the scene has no untextured diffuse-like BSDF to plant in")
-            bf[bsdf, 0:3] *= albedo_scale
-        a[13], a[8] = light_f, bf
-        return dataclasses.replace(self, arrays=tuple(a))
+            bf[bsdf, base] *= albedo_scale
+        return dataclasses.replace(self, arrays=a._replace(light_f=light_f, bsdf_f=bf))
 
     @property
     def height(self) -> int:
@@ -119,8 +133,8 @@ class _Builder:
         """Store a ``bitmap`` texture with its filter, wrap mode and ``to_uv``."""
         img = self._image(tex, tex.get("filename", ""), raw=bool(tex.get("raw", False)))
         options = {}
-        for name, names, default in (("filter_type", FILTERS, "bilinear"),
-                                     ("wrap_mode", WRAPS, "repeat")):
+        for name, names, default in (("filter_type", layout.FILTERS, "bilinear"),
+                                     ("wrap_mode", layout.WRAPS, "repeat")):
             value = tex.get(name, default)
             if value not in names:
                 self.fail(tex, f"{name} {value!r}; supported: {', '.join(names)}")
@@ -140,7 +154,7 @@ class _Builder:
             key = id(v)
             if key not in self.texture_ids:
                 self.texture_ids[key] = self._bitmap(v)
-                self.features |= B.F_TEXTURES
+                self.features |= FEATURE_BITS["texture:bitmap"]
             return np.zeros(3), self.texture_ids[key], v._mean
         rgb = np.broadcast_to(np.asarray(v, dtype=np.float64), 3).astype(np.float64)
         return rgb, -1, float(rgb.mean())
@@ -163,7 +177,7 @@ class _Builder:
         alpha = float(plugin.get("alpha", 0.1))
         if not alpha > 0:
             self.fail(plugin, f"alpha must be > 0, got {alpha}")
-        return B.GGX if d == "ggx" else B.BECKMANN
+        return layout.GGX if d == "ggx" else layout.BECKMANN
 
     def bsdf(self, plugin: Plugin | None, emitter: bool = False) -> int:
         if plugin is None:
@@ -186,53 +200,56 @@ class _Builder:
                 self.fail(plugin, "a twosided dielectric is not supported (Mitsuba "
                                   "accepts only reflective BSDFs inside twosided)")
             twosided = 1
-            self.features |= B.F_TWOSIDED
-        f = np.zeros(B.BSDF_WIDTH)
-        i = np.zeros(4, dtype=np.int64)
+            self.features |= FEATURE_BITS["bsdf:twosided"]
+        f = np.zeros(layout.BSDF_WIDTH)
+        i = np.zeros(layout.BSDF_INTS, dtype=np.int64)
         tex = np.full(2, -1, dtype=np.int64)
-        kind = B.NAMES.index(inner.type)
-        i[0], i[1] = kind, twosided
-        self.features |= 1 << kind
-        if kind == B.DIFFUSE:
-            f[0:3], tex[0], _ = self._colour(inner, "reflectance", 0.5)
-        elif kind in (B.CONDUCTOR, B.ROUGHCONDUCTOR):
-            f[0:3], tex[0], _ = self._colour(inner, "specular_reflectance", 1.0)
+        kind = layout.BSDF_NAMES.index(inner.type)
+        i[layout.BSDF_KIND], i[layout.BSDF_TWOSIDED] = kind, twosided
+        self.features |= layout.BSDF_BITS[kind]
+        c0, c1 = slice(layout.COLOR0, layout.COLOR0 + 3), slice(layout.COLOR1, layout.COLOR1 + 3)
+        if kind == layout.DIFFUSE:
+            f[c0], tex[0], _ = self._colour(inner, "reflectance", 0.5)
+        elif kind in (layout.CONDUCTOR, layout.ROUGHCONDUCTOR):
+            f[c0], tex[0], _ = self._colour(inner, "specular_reflectance", 1.0)
+            eta = slice(layout.COND_ETA, layout.COND_ETA + 3)
+            k = slice(layout.COND_K, layout.COND_K + 3)
             if "eta" in inner.props or "k" in inner.props:
-                f[3:6] = np.broadcast_to(inner.get("eta", 0.0), 3)
-                f[6:9] = np.broadcast_to(inner.get("k", 1.0), 3)
+                f[eta] = np.broadcast_to(inner.get("eta", 0.0), 3)
+                f[k] = np.broadcast_to(inner.get("k", 1.0), 3)
             else:
                 name = inner.get("material", "none")
                 table = _materials()["conductors"]
                 if name not in table:
                     self.fail(inner, f"unknown material {name!r}; supported: "
                                      f"{', '.join(sorted(table))}")
-                f[3:6], f[6:9] = table[name]["eta"], table[name]["k"]
-            if kind == B.ROUGHCONDUCTOR:
-                i[2] = self._distribution(inner)
-                f[B.ALPHA] = float(inner.get("alpha", 0.1))
-        elif kind == B.DIELECTRIC:
-            f[0:3], tex[0], _ = self._colour(inner, "specular_reflectance", 1.0)
-            f[3:6], tex[1], _ = self._colour(inner, "specular_transmittance", 1.0)
-            f[B.ETA] = self._ior(inner, "int_ior", "bk7") / self._ior(inner, "ext_ior", "air")
+                f[eta], f[k] = table[name]["eta"], table[name]["k"]
+            if kind == layout.ROUGHCONDUCTOR:
+                i[layout.BSDF_DISTRIBUTION] = self._distribution(inner)
+                f[layout.ALPHA] = float(inner.get("alpha", 0.1))
+        elif kind == layout.DIELECTRIC:
+            f[c0], tex[0], _ = self._colour(inner, "specular_reflectance", 1.0)
+            f[c1], tex[1], _ = self._colour(inner, "specular_transmittance", 1.0)
+            f[layout.ETA] = self._ior(inner, "int_ior", "bk7") / self._ior(inner, "ext_ior", "air")
         else:  # plastic, roughplastic
-            f[0:3], tex[0], d_mean = self._colour(inner, "diffuse_reflectance", 0.5)
-            f[3:6], tex[1], s_mean = self._colour(inner, "specular_reflectance", 1.0)
+            f[c0], tex[0], d_mean = self._colour(inner, "diffuse_reflectance", 0.5)
+            f[c1], tex[1], s_mean = self._colour(inner, "specular_reflectance", 1.0)
             eta = self._ior(inner, "int_ior", "polypropylene") / self._ior(inner, "ext_ior",
                                                                             "air")
             if eta == 1.0:
                 self.fail(inner, "int_ior and ext_ior must differ")
-            f[B.ETA] = eta
-            f[B.EXTRA2] = s_mean / (d_mean + s_mean)
-            i[3] = int(bool(inner.get("nonlinear", False)))
-            if kind == B.PLASTIC:
-                f[B.EXTRA1] = B.fresnel_diffuse_reflectance(1.0 / eta)
+            f[layout.ETA] = eta
+            f[layout.SPECULAR_WEIGHT] = s_mean / (d_mean + s_mean)
+            i[layout.BSDF_NONLINEAR] = int(bool(inner.get("nonlinear", False)))
+            if kind == layout.PLASTIC:
+                f[layout.COAT_INTERNAL] = fresnel_diffuse_reflectance(1.0 / eta)
             else:
-                i[2] = self._distribution(inner)
+                i[layout.BSDF_DISTRIBUTION] = self._distribution(inner)
                 alpha = float(inner.get("alpha", 0.1))
-                f[B.ALPHA] = alpha
-                table, internal = B.rough_coat_tables(alpha, int(i[2]), eta)
-                f[B.TABLE:B.TABLE + B.TABLE_RES] = table
-                f[B.EXTRA1] = internal
+                f[layout.ALPHA] = alpha
+                table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
+                f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
+                f[layout.COAT_INTERNAL] = internal
         self.bsdf_rows.append((f, i, tex))
         self.bsdf_names.append(plugin.type if not twosided else f"twosided({inner.type})")
         self.bsdf_ids[key] = len(self.bsdf_rows) - 1
@@ -244,11 +261,14 @@ class _Builder:
         first = len(self.prims)
         for k, (a, b, c) in enumerate(faces):
             row = np.zeros(PRIM_WIDTH)
-            row[0:3], row[3:6], row[6:9] = verts[a], verts[b], verts[c]
+            for corner, col in zip((a, b, c), (layout.TRI_P0, layout.TRI_P1, layout.TRI_P2)):
+                row[col:col + 3] = verts[corner]
             if normals is not None:
-                row[9:12], row[12:15], row[15:18] = normals[a], normals[b], normals[c]
+                for corner, col in zip((a, b, c), (layout.TRI_N0, layout.TRI_N1, layout.TRI_N2)):
+                    row[col:col + 3] = normals[corner]
             if uvs is not None:
-                row[18:20], row[20:22], row[22:24] = uvs[a], uvs[b], uvs[c]
+                for corner, col in zip((a, b, c), (layout.TRI_UV0, layout.TRI_UV1, layout.TRI_UV2)):
+                    row[col:col + 2] = uvs[corner]
             self.prims.append(row)
         return first, len(self.prims) - first
 
@@ -276,16 +296,16 @@ class _Builder:
             if not r > 0:
                 self.fail(s, f"radius must be > 0, got {r}")
             row = np.zeros(PRIM_WIDTH)
-            row[0:3], row[3] = c[:3], r
-            row[4:13] = (lin / scales[0]).T.ravel()     # world-to-local rotation
+            row[layout.SPHERE_CENTER:layout.SPHERE_CENTER + 3], row[layout.SPHERE_RADIUS] = c[:3], r
+            row[layout.SPHERE_ROTATION:layout.SPHERE_ROTATION + 9] = (lin / scales[0]).T.ravel()
             self.prims.append(row)
         elif s.type == "disk":
             if abs(np.linalg.det(lin)) == 0:
                 self.fail(s, "to_world is singular")
             inv = np.linalg.inv(m)
             row = np.zeros(PRIM_WIDTH)
-            row[0:12] = m[:3, :4].ravel()
-            row[12:24] = inv[:3, :4].ravel()
+            row[layout.DISK_TO_WORLD:layout.DISK_TO_WORLD + 12] = m[:3, :4].ravel()
+            row[layout.DISK_TO_LOCAL:layout.DISK_TO_LOCAL + 12] = inv[:3, :4].ravel()
             self.prims.append(row)
         kind = {"sphere": SPHERE, "disk": DISK}.get(s.type, TRIANGLE)
         self.info += [(kind, index)] * (len(self.prims) - n_before)
@@ -364,74 +384,75 @@ class _Builder:
 
     # ---------------------------------------------------------------- emitters
     def area_light(self, emitter: Plugin, first: int, count: int, kind: int):
-        f = np.zeros(E.LIGHT_WIDTH)
-        i = np.zeros(4, dtype=np.int64)
-        f[0:3] = np.broadcast_to(emitter.get("radiance", 1.0), 3)
-        i[0], i[1] = E.AREA, first
+        f = np.zeros(layout.LIGHT_WIDTH)
+        i = np.zeros(layout.LIGHT_INTS, dtype=np.int64)
+        f[_RGB] = np.broadcast_to(emitter.get("radiance", 1.0), 3)
+        i[layout.LIGHT_KIND], i[layout.LIGHT_PRIM] = layout.AREA, first
         if kind == TRIANGLE:
             p = np.array(self.prims[first:first + count])
-            areas = 0.5 * np.linalg.norm(np.cross(p[:, 3:6] - p[:, 0:3], p[:, 6:9] - p[:, 0:3]),
-                                         axis=1)
+            p0, p1, p2 = (p[:, c:c + 3] for c in (layout.TRI_P0, layout.TRI_P1, layout.TRI_P2))
+            areas = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
             dist = DiscreteDistribution(areas)
-            i[2], i[3] = len(self.light_cdf), count
+            i[layout.LIGHT_CDF], i[layout.LIGHT_PRIM_COUNT] = len(self.light_cdf), count
             self.light_cdf += list(dist.cdf)
-            f[3] = areas.sum()
+            f[layout.LIGHT_AREA] = areas.sum()
         elif kind == DISK:
-            m = self.prims[first][0:12].reshape(3, 4)[:, :3]
-            f[3] = math.pi * np.linalg.norm(np.cross(m[:, 0], m[:, 1]))
+            to_world = self.prims[first][layout.DISK_TO_WORLD:layout.DISK_TO_WORLD + 12]
+            m = to_world.reshape(3, 4)[:, :3]
+            f[layout.LIGHT_AREA] = math.pi * np.linalg.norm(np.cross(m[:, 0], m[:, 1]))
         else:
-            f[3] = 4 * math.pi * self.prims[first][3] ** 2
+            f[layout.LIGHT_AREA] = 4 * math.pi * self.prims[first][layout.SPHERE_RADIUS] ** 2
         self.lights.append((f, i))
-        self.features |= E_FEATURES["area"]
+        self.features |= FEATURE_BITS["light:area"]
         return len(self.lights) - 1
 
     def emitter(self, e: Plugin):
-        f = np.zeros(E.LIGHT_WIDTH)
-        i = np.zeros(4, dtype=np.int64)
+        f = np.zeros(layout.LIGHT_WIDTH)
+        i = np.zeros(layout.LIGHT_INTS, dtype=np.int64)
         m = np.asarray(e.get("to_world", np.eye(4)), dtype=np.float64)
+        i[layout.LIGHT_KIND] = layout.LIGHT_NAMES.index(e.type)
         if e.type in ("point", "spot"):
-            f[0:3] = np.broadcast_to(e.get("intensity", 1.0), 3)
-            f[3:6] = e.get("position", m[:3, 3]) if e.type == "point" else m[:3, 3]
+            f[_RGB] = np.broadcast_to(e.get("intensity", 1.0), 3)
+            f[layout.LIGHT_POSITION:layout.LIGHT_POSITION + 3] = (e.get("position", m[:3, 3])
+                                                        if e.type == "point" else m[:3, 3])
             if e.type == "spot":
-                i[0] = E.SPOT
                 cutoff = math.radians(float(e.get("cutoff_angle", 20.0)))
                 beam = math.radians(float(e.get("beam_width", math.degrees(cutoff) * 0.75)))
                 axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
-                f[12:15] = axis
-                f[15], f[16], f[17] = math.cos(cutoff), math.cos(beam), cutoff
-                f[18] = 1.0 / (cutoff - beam) if cutoff > beam else 0.0
-            else:
-                i[0] = E.POINT
+                f[layout.SPOT_AXIS:layout.SPOT_AXIS + 3] = axis
+                f[layout.SPOT_COS_CUTOFF] = math.cos(cutoff)
+                f[layout.SPOT_COS_BEAM] = math.cos(beam)
+                f[layout.SPOT_CUTOFF] = cutoff
+                f[layout.SPOT_INV_FALLOFF] = 1.0 / (cutoff - beam) if cutoff > beam else 0.0
         elif e.type == "directional":
-            i[0] = E.DIRECTIONAL
-            f[0:3] = np.broadcast_to(e.get("irradiance", 1.0), 3)
+            f[_RGB] = np.broadcast_to(e.get("irradiance", 1.0), 3)
             d = np.asarray(e.get("direction", m[:3, :3] @ np.array([0.0, 0.0, 1.0])), float)
             if not np.linalg.norm(d) > 0:
                 self.fail(e, "direction must be non-zero")
-            f[3:6] = d / np.linalg.norm(d)
+            f[layout.LIGHT_DIRECTION:layout.LIGHT_DIRECTION + 3] = d / np.linalg.norm(d)
         else:  # constant, envmap
             if self.env >= 0:
                 self.fail(e, "only one environment emitter (constant or envmap) per scene")
             if e.type == "constant":
-                i[0] = E.CONSTANT
-                f[0:3] = np.broadcast_to(e.get("radiance", 1.0), 3)
+                f[_RGB] = np.broadcast_to(e.get("radiance", 1.0), 3)
             else:
-                i[0] = E.ENVMAP
                 img = self._image(e, e.get("filename", ""))
-                i[1] = self.textures.add(img)
-                f[0] = float(e.get("scale", 1.0))
-                f[1:10] = np.linalg.inv(m[:3, :3]).ravel()
+                i[layout.LIGHT_TEXTURE] = self.textures.add(img)
+                f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
+                f[layout.ENV_TO_LOCAL:layout.ENV_TO_LOCAL + 9] = np.linalg.inv(m[:3, :3]).ravel()
                 pc = PiecewiseConstant2D(envmap_sampling_weights(img))
                 self.env_marg, self.env_cond = pc.marginal_cdf, pc.conditional_cdf
             self.env = len(self.lights)
-            self.features |= E_FEATURES["env"]
-        if e.type in ("constant", "envmap"):
-            self.features |= E_FEATURES["nondelta"]
+            self.features |= FEATURE_BITS["light:environment"]
+            self.features |= FEATURE_BITS["light:nondelta"]
         self.lights.append((f, i))
 
     # -------------------------------------------------------------------- all
-    def build(self) -> CompiledScene:
+    def build(self) -> PreparedScene:
         d = self.desc
+        if d.film.get("pixel_format", "rgb") != "rgb":
+            self.fail(d.film, f"pixel_format {d.film.get('pixel_format')!r}: only rgb is "
+                              "supported (the tracer writes 3 channels)")
         shape_bsdf, shape_light, shape_flip = [], [], []
         for index, s in enumerate(d.shapes):
             bsdf = next((c for c in s.children if c.kind == "bsdf"), None)
@@ -442,18 +463,19 @@ class _Builder:
             shape_light.append(self.area_light(em, first, count, kind) if em else -1)
         for e in d.emitters:
             self.emitter(e)
-        if any(i[0] == E.AREA for _, i in self.lights):
-            self.features |= E_FEATURES["nondelta"]
+        if any(i[layout.LIGHT_KIND] == layout.AREA for _, i in self.lights):
+            self.features |= FEATURE_BITS["light:nondelta"]
         if len(self.lights) > 1:
-            self.features |= E_FEATURES["many"]
+            self.features |= FEATURE_BITS["light:many"]
         prims = np.array(self.prims, dtype=np.float64).reshape(-1, PRIM_WIDTH)
         info = np.array(self.info, dtype=np.int64).reshape(-1, 2)
         if len(prims) == 0:
+            # one empty leaf whose box (lo > hi) no ray hits
             nb, ni, order = np.array([[1.0, 1, 1, -1, -1, -1]]), \
                 np.array([[0, 0, 0]], dtype=np.int64), np.zeros(0, dtype=np.int64)
-            ni[0, 1] = 0
         else:
             nb, ni, order = build_bvh(prims, info)
+        bvh_nodes, leaf_prims, leaf_info = pack_bvh(prims, info, nb, ni, order)
         integ = d.integrator
         if integ.type == "direct":
             max_depth, rr_depth = 2, INFINITE_DEPTH
@@ -464,27 +486,33 @@ class _Builder:
                 max_depth = INFINITE_DEPTH
             if rr_depth < 1:
                 self.fail(integ, f"rr_depth must be >= 1, got {rr_depth}")
-        ints = np.array([max_depth, rr_depth, int(bool(integ.get("hide_emitters", False))),
-                         self.env], dtype=np.int64)
         tex_data, tex_info = self.textures.arrays()
-        bf = np.array([r[0] for r in self.bsdf_rows]).reshape(-1, B.BSDF_WIDTH)
-        bi = np.array([r[1] for r in self.bsdf_rows], dtype=np.int64).reshape(-1, 4)
-        btex = np.array([r[2] for r in self.bsdf_rows], dtype=np.int64).reshape(-1, 2)
-        light_f = np.array([x[0] for x in self.lights]).reshape(-1, E.LIGHT_WIDTH)
-        light_i = np.array([x[1] for x in self.lights], dtype=np.int64).reshape(-1, 4)
-        arrays = (nb, ni, order, prims, info, np.array(shape_bsdf, dtype=np.int64),
-                  np.array(shape_light, dtype=np.int64), np.array(shape_flip, dtype=np.bool_),
-                  bf, bi, btex, tex_data, tex_info, light_f, light_i,
-                  np.array(self.light_cdf, dtype=np.float64), self.env_marg, self.env_cond,
-                  ints)
+        arrays = layout.SceneArrays(
+            bvh_nodes=bvh_nodes, leaf_prims=leaf_prims, leaf_info=leaf_info, prims=prims,
+            prim_info=info,
+            shape_bsdf=np.array(shape_bsdf, dtype=np.int64),
+            shape_light=np.array(shape_light, dtype=np.int64),
+            shape_flip=np.array(shape_flip, dtype=np.bool_),
+            bsdf_f=np.array([r[0] for r in self.bsdf_rows]).reshape(-1, layout.BSDF_WIDTH),
+            bsdf_i=np.array([r[1] for r in self.bsdf_rows],
+                            dtype=np.int64).reshape(-1, layout.BSDF_INTS),
+            bsdf_tex=np.array([r[2] for r in self.bsdf_rows], dtype=np.int64).reshape(-1, 2),
+            tex_data=tex_data, tex_info=tex_info,
+            light_f=np.array([x[0] for x in self.lights]).reshape(-1, layout.LIGHT_WIDTH),
+            light_i=np.array([x[1] for x in self.lights],
+                             dtype=np.int64).reshape(-1, layout.LIGHT_INTS),
+            light_cdf=np.array(self.light_cdf, dtype=np.float64),
+            env_marginal=self.env_marg, env_conditional=self.env_cond,
+            max_depth=int(max_depth), rr_depth=int(rr_depth),
+            hide_emitters=bool(integ.get("hide_emitters", False)), env=int(self.env))
         spp = int(d.sampler.get("sample_count", 4))
-        n_tri = int(np.sum(info[:, 0] == TRIANGLE)) if len(info) else 0
-        return CompiledScene(d, camera_from_scene(d), arrays, self.features, spp, n_tri,
+        n_tri = int(np.sum(info[:, layout.PRIM_KIND] == TRIANGLE)) if len(info) else 0
+        return PreparedScene(d, camera_from_scene(d), arrays, self.features, spp, n_tri,
                              len(self.lights), self.bsdf_names)
 
 
-# feature bits of the lights (the kernel's numbering; see _kernel.py)
-E_FEATURES = {"env": 1 << 8, "area": 1 << 9, "nondelta": 1 << 10, "many": 1 << 11}
+_RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
+_DIFFUSE_LIKE = (layout.DIFFUSE, layout.PLASTIC, layout.ROUGHPLASTIC)
 
 
 _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
@@ -531,9 +559,9 @@ def _cube():
     return np.array(verts), faces, np.array(uvs, dtype=np.float64)
 
 
-def compile_scene(scene, *, params: dict | None = None) -> CompiledScene:
-    """A path, a ``SceneDescription`` or an already compiled scene → ``CompiledScene``."""
-    if isinstance(scene, CompiledScene):
+def prepare_scene(scene, *, params: dict | None = None) -> PreparedScene:
+    """A path, a ``SceneDescription`` or an already prepared scene → ``PreparedScene``."""
+    if isinstance(scene, PreparedScene):
         return scene
     desc = scene if isinstance(scene, SceneDescription) else load_scene(str(scene),
                                                                         params=params)
