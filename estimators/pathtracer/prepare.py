@@ -470,12 +470,11 @@ class _Builder:
         prims = np.array(self.prims, dtype=np.float64).reshape(-1, PRIM_WIDTH)
         info = np.array(self.info, dtype=np.int64).reshape(-1, 2)
         if len(prims) == 0:
-            # no shapes: one empty leaf whose box (lo > hi) no ray enters (the packed
-            # layout reads a count >= 0 as a leaf, so the root is not taken for an interior)
-            nb, ni, order = np.array([[1.0, 1, 1, -1, -1, -1]]), \
-                np.array([[0, 0, 0]], dtype=np.int64), np.zeros(0, dtype=np.int64)
-        else:
-            nb, ni, order = build_bvh(prims, info)
+            # no shapes: one degenerate triangle (no ray hits it) gives the hierarchy a
+            # leaf (a root of zero primitives read as an interior node and crashed)
+            prims = np.zeros((1, PRIM_WIDTH))
+            info = np.array([[TRIANGLE, -1]], dtype=np.int64)
+        nb, ni, order = build_bvh(prims, info)
         bvh_nodes, leaf_prims, leaf_info = pack_bvh(prims, info, nb, ni, order)
         integ = d.integrator
         if integ.type == "direct":

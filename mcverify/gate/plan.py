@@ -4,7 +4,8 @@ The scene's features (its BSDFs, emitters by the shape they sit on, textures and
 integrator, as the path tracer's loader reports them) are looked up in ``NEEDS``, one
 table of what each feature relies on, as ``(kind, subject)`` pairs that checks declare
 in ``Check.verifies``. Delta features have nothing to sample and are listed in
-``NOTHING_TO_SAMPLE`` with the reason.
+``NOTHING_TO_SAMPLE`` with the reason. On top of these, the scene's own BSDF and emitter
+instances, with their parameters, are χ²-checked (``tracer_checks``).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import dataclasses
 import os
 
 from .suites import Check, resolve_suite
+from .tracer_checks import tracer_checks
 
 __all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "plan"]
 
@@ -87,6 +89,9 @@ def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tup
     keep = [c for c in all_checks if c.name in wanted]
     skipped = [(c.name, "not needed by this scene") for c in all_checks if c.name not in wanted]
     skipped += [(f, why) for f, why in NOTHING_TO_SAMPLE.items() if f in desc.features]
+    instances, delta = tracer_checks(scene_path)
+    keep += instances
+    skipped += delta
     keep.append(_render_check(scene_path))
     return keep, skipped, desc.features
 

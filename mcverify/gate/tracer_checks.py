@@ -1,0 +1,134 @@
+"""χ² checks of the path tracer's own BSDF and emitter instances, as a scene uses them.
+
+For a scene, every BSDF row of the prepared scene that has a density (not a smooth
+conductor or dielectric) is checked at incident angles ``ANGLES`` (and from below for
+two-sided BSDFs, whose back side mirrors the front), and every emitter with a density
+(area lights, constant and envmap environments; not point, spot or directional lights)
+from ``reference_points``: the camera's position, the centre of the scene's bounds and
+the point half way between. The subject is ``estimators.pathtracer.sampling`` (the
+tracer's own kernels, with the parameters the scene gives: α, η, distribution, weights,
+coat tables). Draws can be rejected (zero pdf, a delta lobe, a light's back side), so the
+judge runs with ``rejection=True``: the pdf integrates to the acceptance probability.
+
+Each check ``verifies`` ``("bsdf", label)`` or ``("emitter", label)``, the label naming
+the instance (``rough-conductors/bsdf2:roughconductor(ggx,alpha=0.01)``).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .. import checks
+from .suites import Check
+
+__all__ = ["ANGLES", "TRACER_SAMPLES", "tracer_checks", "scene_instances"]
+
+#: Incident polar angles (degrees) of every BSDF instance; two-sided ones also at 180° - θ.
+ANGLES = (0.0, 45.0, 80.0)
+#: Samples per check in a scene's plan: 1e6, a few seconds per instance.
+TRACER_SAMPLES = 1_000_000
+
+
+def _direction(theta_deg: float) -> tuple[float, float, float]:
+    t = np.radians(theta_deg)
+    return (float(np.sin(t)), 0.0, float(np.cos(t)))
+
+
+def _bsdf_label(scene, tag: str, b: int) -> str:
+    from estimators.pathtracer import layout
+
+    f, i = scene.arrays.bsdf_f[b], scene.arrays.bsdf_i[b]
+    parts = []
+    if f[layout.ALPHA] > 0:
+        parts += [("ggx", "beckmann")[int(i[layout.BSDF_DISTRIBUTION])],
+                  f"alpha={f[layout.ALPHA]:g}"]
+    if f[layout.ETA] > 0:
+        parts.append(f"eta={f[layout.ETA]:.4g}")
+    params = f"({','.join(parts)})" if parts else ""
+    return f"{tag}/bsdf{b}:{scene.bsdf_names[b]}{params}"
+
+
+def _emitter_label(scene, tag: str, k: int) -> str:
+    from estimators.pathtracer import layout
+
+    a = scene.arrays
+    kind = int(a.light_i[k, layout.LIGHT_KIND])
+    name = layout.LIGHT_NAMES[kind]
+    if kind == layout.AREA:
+        prim = int(a.prim_info[a.light_i[k, layout.LIGHT_PRIM], layout.PRIM_KIND])
+        name += ":" + ("triangles", "sphere", "disk")[prim]
+    return f"{tag}/light{k}:{name}"
+
+
+def reference_points(scene) -> list[tuple[float, float, float]]:
+    """The camera's position, the centre of the scene's bounds, and half way between."""
+    from estimators.pathtracer import layout
+
+    cam = np.asarray(scene.camera.to_world, dtype=np.float64)[:3, 3]
+    node = scene.arrays.bvh_nodes[0]
+    centre = 0.5 * (node[layout.NODE_LO:layout.NODE_LO + 3]
+                    + node[layout.NODE_HI:layout.NODE_HI + 3])
+    return [tuple(float(c) for c in p) for p in (cam, centre, 0.5 * (cam + centre))]
+
+
+def _fmt(p) -> str:
+    return "(" + ",".join(f"{c:.3g}" for c in p) + ")"
+
+
+def scene_instances(scene_path: str):
+    """(entries, skipped): entries are (kind, label, where, make) with ``make()``
+    returning the (sample, pdf) pair; skipped are (label, why) for delta instances."""
+    from estimators.pathtracer import layout, prepare_scene
+    from estimators.pathtracer.sampling import (bsdf_has_density, bsdf_sampler,
+                                                emitter_has_density, emitter_sampler)
+
+    scene = prepare_scene(scene_path)
+    tag = os.path.basename(os.path.dirname(os.path.abspath(scene_path)))
+    entries, skipped = [], []
+    for b in range(len(scene.arrays.bsdf_i)):
+        label = _bsdf_label(scene, tag, b)
+        if not bsdf_has_density(scene, b):
+            skipped.append((f"bsdf {label}", "a delta BSDF (smooth), nothing to sample"))
+            continue
+        angles = list(ANGLES)
+        if scene.arrays.bsdf_i[b, layout.BSDF_TWOSIDED]:
+            angles += [180.0 - t for t in ANGLES]
+        for t in angles:
+            entries.append(("bsdf", label, f"wi={t:g}°",
+                            lambda b=b, t=t: bsdf_sampler(scene, b, _direction(t))))
+    for k in range(len(scene.arrays.light_i)):
+        label = _emitter_label(scene, tag, k)
+        if not emitter_has_density(scene, k):
+            skipped.append((f"emitter {label}", "a delta emitter, nothing to sample"))
+            continue
+        area = scene.arrays.light_i[k, layout.LIGHT_KIND] == layout.AREA
+        refs = reference_points(scene) if area else reference_points(scene)[:1]
+        for p in refs:
+            entries.append(("emitter", label, f"ref={_fmt(p)}",
+                            lambda k=k, p=p: emitter_sampler(scene, k, p)))
+    return entries, skipped
+
+
+def tracer_checks(scene_path: str, n_samples: int = TRACER_SAMPLES
+                  ) -> tuple[list[Check], list[tuple[str, str]]]:
+    """The χ² checks of the scene's BSDF and emitter instances, and the skipped ones
+    (delta instances) with the reason. Each check rebuilds in a worker from its source."""
+    entries, skipped = scene_instances(scene_path)
+    out = []
+    for kind, label, where, make in entries:
+        name = f"sampler:tracer.{kind}:{label}@{where}"
+
+        def run(seed, make=make, name=name):
+            sample, pdf = make()
+            return checks.check_sampler(sample, pdf, "sphere", n_samples=n_samples, seed=seed,
+                                        rejection=True, sample_dim=3, name=name)
+
+        out.append(Check(name, run, ("tracer", kind), frozenset({(kind, label)}),
+                         source=(_rebuild, (scene_path, n_samples))))
+    return out, skipped
+
+
+def _rebuild(scene_path: str, n_samples: int) -> list[Check]:
+    return tracer_checks(scene_path, n_samples)[0]
