@@ -11,13 +11,9 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib
-import importlib.util
 import math
 import numbers
 import os
-import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 
@@ -25,6 +21,7 @@ import numpy as np
 from numba import get_num_threads
 
 from . import _kernel
+from .._generated import load
 from .prepare import PreparedScene, prepare_scene
 
 TILE = 8
@@ -40,13 +37,6 @@ class RenderResult:
     n: int
     seconds: float
     stats: dict = field(default_factory=dict)
-
-
-def _cache_dir() -> str:
-    d = os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
-                                                         "mcverify", "kernels")
-    os.makedirs(d, exist_ok=True)
-    return d
 
 
 def _dependency_digest() -> str:
@@ -83,17 +73,7 @@ def specialised_kernel(features: int):
     name, source = _kernel_source(int(features))
     if name in _MODULES:
         return _MODULES[name]
-    folder = _cache_dir()
-    path = os.path.join(folder, name + ".py")
-    if not os.path.exists(path):
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(source)
-        os.replace(tmp, path)
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
+    module = load(name, source)
     _MODULES[name] = module
     return module
 
