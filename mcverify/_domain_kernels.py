@@ -26,8 +26,9 @@ _INV_TWO_PI = 1.0 / (2.0 * math.pi)
 
 
 # Cephes' atan (S. L. Moshier): a rational approximation on [0, 0.66] after one range
-# reduction, accurate to about one ulp; four times faster than libm's atan2 here, which
-# dominated the cost of binning a point on the sphere.
+# reduction, accurate to about one ulp (max error 2.2e-16 against atan2 over 2e5 points
+# and the axes), with no libm call; libm's atan2 was the largest single cost of binning
+# a point on the sphere.
 _ATAN_P = (-8.750608600031904122785e-1, -1.615753718733365076637e1,
            -7.500855792314704667340e1, -1.228866684490136173410e2,
            -6.485021904942025371773e1)

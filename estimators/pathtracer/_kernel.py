@@ -116,7 +116,13 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
             gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
         if MASK & F_AREA_LIGHTS:
             k = shape_light[shape]
-            if k >= 0 and not (depth == 0 and hide):
+            if k >= 0 and depth == 0 and hide:
+                # hidden emitters are transparent to camera rays (Mitsuba skips every
+                # area emitter along them, and the continued ray has no far clip)
+                ox, oy, oz = _offset(px, py, pz, gx, gy, gz, dx, dy, dz)
+                t_max = np.inf
+                continue
+            if k >= 0:
                 cos_y = -(sx * dx + sy * dy + sz * dz)
                 if cos_y > 0.0:
                     w = 1.0

@@ -470,11 +470,11 @@ class _Builder:
         prims = np.array(self.prims, dtype=np.float64).reshape(-1, PRIM_WIDTH)
         info = np.array(self.info, dtype=np.int64).reshape(-1, 2)
         if len(prims) == 0:
-            # one empty leaf whose box (lo > hi) no ray hits
-            nb, ni, order = np.array([[1.0, 1, 1, -1, -1, -1]]), \
-                np.array([[0, 0, 0]], dtype=np.int64), np.zeros(0, dtype=np.int64)
-        else:
-            nb, ni, order = build_bvh(prims, info)
+            # no shapes: one degenerate triangle (no ray hits it) gives the hierarchy a
+            # leaf (a root of zero primitives read as an interior node and crashed)
+            prims = np.zeros((1, PRIM_WIDTH))
+            info = np.array([[TRIANGLE, -1]], dtype=np.int64)
+        nb, ni, order = build_bvh(prims, info)
         bvh_nodes, leaf_prims, leaf_info = pack_bvh(prims, info, nb, ni, order)
         integ = d.integrator
         if integ.type == "direct":
@@ -506,7 +506,8 @@ class _Builder:
             max_depth=int(max_depth), rr_depth=int(rr_depth),
             hide_emitters=bool(integ.get("hide_emitters", False)), env=int(self.env))
         spp = int(d.sampler.get("sample_count", 4))
-        n_tri = int(np.sum(info[:, layout.PRIM_KIND] == TRIANGLE)) if len(info) else 0
+        n_tri = int(np.sum((info[:, layout.PRIM_KIND] == TRIANGLE)
+                           & (info[:, layout.PRIM_SHAPE] >= 0)))
         return PreparedScene(d, camera_from_scene(d), arrays, self.features, spp, n_tri,
                              len(self.lights), self.bsdf_names)
 

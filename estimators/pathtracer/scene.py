@@ -137,7 +137,10 @@ SUPPORTED = {
     "film": {"hdrfilm": {"width": ("integer",), "height": ("integer",),
                          "pixel_format": ("string",), "children": ("rfilter",)}},
     "rfilter": {"box": {}},
-    "sampler": {"independent": {"sample_count": ("integer",), "seed": ("integer",)}},
+    # any sampler has the same expectation: all are accepted and render as independent
+    "sampler": {t: {"sample_count": ("integer",), "seed": ("integer",), **extra}
+                for t, extra in {"independent": {}, "stratified": {"jitter": ("boolean",)},
+                                 "multijitter": {"jitter": ("boolean",)}}.items()},
     "shape": {t: {"to_world": ("transform",), "flip_normals": ("boolean",),
                   "children": ("bsdf", "emitter"), **extra}
               for t, extra in {"rectangle": {}, "cube": {}, "disk": {},

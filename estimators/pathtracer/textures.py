@@ -10,8 +10,8 @@ y = v·(h - 1) (clamped).
 
 Images are stored back to back in one float64 array; each texture is one float64 row of
 ``tex_info`` with the columns named in ``layout`` (``TEX_OFFSET``, ``TEX_WIDTH``...;
-integers are stored exactly). Files are decoded with Mitsuba's image reader (file I/O only; 8-bit sRGB
-images are linearised unless ``raw``), imported lazily.
+integers are stored exactly). Files are decoded with Mitsuba's image reader (file I/O
+only; 8-bit sRGB images are linearised unless ``raw``), imported lazily.
 """
 
 from __future__ import annotations

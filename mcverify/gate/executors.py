@@ -190,8 +190,10 @@ class Pool:
 
     def close(self) -> None:
         if self._executor is not None:
-            self._executor.shutdown(wait=True, cancel_futures=True) \
-                if self.kind == "processes" else self._executor.shutdown(wait=False)
+            if self.kind == "processes":
+                self._executor.shutdown(wait=True, cancel_futures=True)
+            else:                   # Dask's executor takes no cancel_futures
+                self._executor.shutdown(wait=False)
             self._executor = None
         if self._client is not None:
             self._client.close()
@@ -251,6 +253,10 @@ class Pool:
                     f = inflight[i]
                     if not f.done():
                         continue
+                    if f.cancelled():       # not by us: the cluster dropped it
+                        raise WorkerLost(f"unit {units[i].key}: cancelled by "
+                                         f"{self.describe()} (scheduler gone?); no partial "
+                                         "result is reported")
                     e = f.exception()
                     if e is None:
                         del inflight[i]

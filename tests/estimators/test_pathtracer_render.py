@@ -1,6 +1,7 @@
 """The path tracer renders what physics says (analytic scenes), what Mitsuba renders
 (pixelwise, through the render gate), and the same image for the same seed."""
 
+import importlib
 import numba
 import numpy as np
 import pytest
@@ -124,7 +125,11 @@ def test_render_reports_progress_and_rejects_bad_arguments():
     calls = []
     scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 40})
     render(scene, spp=2, progress=lambda d, t: calls.append((d, t)))
-    assert calls and calls[-1][0] == calls[-1][1] == 9
+    tile = importlib.import_module("estimators.pathtracer.render").TILE
+    n_tiles = ((40 + tile - 1) // tile) ** 2
+    # tiles done, rising to all of them
+    assert calls and calls[-1][0] == calls[-1][1] == n_tiles
+    assert all(a[0] < b[0] for a, b in zip(calls, calls[1:]))
     with pytest.raises(ValueError, match="spp"):
         render(scene, spp=1)
     with pytest.raises(ValueError, match="seed"):
@@ -157,3 +162,15 @@ def test_planted_bugs_fail_the_render_gate(plant):
 def test_render_check_refuses_too_few_samples_per_pass():
     with pytest.raises(mv.InvalidArgument, match="64 samples per pass"):
         mv.render_check("cornell-box", spp=256, passes=16)
+
+
+def test_a_scene_without_shapes_renders_its_environment(tmp_path):
+    """No shapes at all: every pixel sees the constant environment (this crashed the
+    process: an empty hierarchy's root was read as an interior node)."""
+    path = tmp_path / "empty.xml"
+    path.write_text('<scene version="3.0.0"><sensor type="perspective"><float name="fov" '
+                    'value="50"/><film type="hdrfilm"><integer name="width" value="8"/>'
+                    '<integer name="height" value="6"/><rfilter type="box"/></film>'
+                    '</sensor><emitter type="constant"/></scene>')
+    r = render(str(path), spp=4, seed=1, general=True)
+    np.testing.assert_array_equal(r.mean, 1.0)

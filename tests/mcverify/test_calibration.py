@@ -62,7 +62,10 @@ def _mixture(eps):
     return sample
 
 
-@pytest.mark.parametrize("eps,min_rate", [(0.01, 0.95), (0.005, 0.0)])
+# 1 % contamination: rejected in 40 of 40 seeds (1e6 samples), the README's claim of at
+# least 95 % power; 0.5 %: in 27 of 40, floored at 14 of 40, the binomial 99.9 % lower
+# bound of 60 % power: a judge that lost power fails here.
+@pytest.mark.parametrize("eps,min_rate", [(0.01, 0.95), (0.005, 0.35)])
 def test_power_against_contamination(eps, min_rate):
     seeds = 40
     rejected = sum(not mv.check_sampler(_mixture(eps), W.cosine_hemisphere_pdf, "hemisphere",

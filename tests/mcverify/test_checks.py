@@ -27,20 +27,33 @@ def test_correct_sampler_passes_and_is_deterministic():
     assert abs(a.details["pdf_integral"] - 1) < 1e-6
 
 
-@pytest.mark.parametrize("label,sample,pdf,domain", [
-    ("pdf*1.03", cosine, lambda x: 1.03 * W.cosine_hemisphere_pdf(x), "hemisphere"),
-    ("mixture 1%", mixture(0.01), W.cosine_hemisphere_pdf, "hemisphere"),
+# Each planted bug, and the sub-test that must catch it: a deterministic failure (its
+# message), or a statistical sub-test whose p-value falls below its Bonferroni share of
+# α = 0.01 (the check's p-value is the Bonferroni minimum over its sub-tests).
+@pytest.mark.parametrize("label,sample,pdf,domain,caught_by", [
+    ("pdf*1.03", cosine, lambda x: 1.03 * W.cosine_hemisphere_pdf(x), "hemisphere",
+     "failure:pdf integrates to 1.03"),
+    # 1 % uniform directions shift the polar angle: the θ marginal sees it first
+    ("mixture 1%", mixture(0.01), W.cosine_hemisphere_pdf, "hemisphere", "test:chi2_axis0"),
     ("ggx 0.30 vs 0.32", lambda u: W.sample_ggx(u, 0.30), lambda x: W.ggx_pdf(x, 0.32),
-     "hemisphere"),
+     "hemisphere", "test:chi2"),
     ("cone wrong angle", lambda u: W.sample_uniform_cone(u, 0.80),
-     lambda x: W.uniform_cone_pdf(x, 0.81), "sphere"),
+     lambda x: W.uniform_cone_pdf(x, 0.81), "sphere",
+     "failure:fell in cells where the pdf integrates to 0"),
     ("tent shifted", lambda u: W.sample_tent(u, 1.0) + 0.01,
-     lambda x: W.tent_pdf(x, 1.0), mv.Interval(-1.5, 1.5)),
-    ("uniform vs cosine", W.sample_uniform_hemisphere, W.cosine_hemisphere_pdf, "hemisphere"),
+     lambda x: W.tent_pdf(x, 1.0), mv.Interval(-1.5, 1.5), "test:ks"),
+    ("uniform vs cosine", W.sample_uniform_hemisphere, W.cosine_hemisphere_pdf, "hemisphere",
+     "test:chi2"),
 ])
-def test_planted_bugs_are_rejected(label, sample, pdf, domain):
+def test_planted_bugs_are_rejected(label, sample, pdf, domain, caught_by):
     r = mv.check_sampler(sample, pdf, domain, seed=1)
     assert not r.passed, (label, r.p_value, r.failures)
+    kind, what = caught_by.split(":", 1)
+    if kind == "failure":
+        assert any(what in f for f in r.failures), (label, r.failures)
+    else:
+        tests = r.details["tests"]
+        assert tests[what]["p_value"] < r.alpha / len(tests), (label, tests)
 
 
 def test_nan_outside_and_negative_pdf_are_failures_with_examples():

@@ -166,3 +166,16 @@ def test_canaries_are_rejected_on_at_most_a_quarter_of_their_samples():
         s = r.details["sequential"]
         assert not r.passed and s["batches"] == 16 and s["batch"] <= 4, (c.name, s)
         assert r.n_samples <= 1_000_000 // 4
+
+
+def test_false_alarm_rate_of_sequential_check_sampler():
+    """The whole sampler path with the sequential rule on: 60 seeded runs of a correct
+    sampler (cosine hemisphere, 16 batches of 2000 draws) at α = 0.05 stay within the
+    binomial 99.9 % bound."""
+    from estimators import warps as W
+
+    n, alpha = 60, 0.05
+    rejected = sum(not mv.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf,
+                                        "hemisphere", n_samples=32_000, seed=s, alpha=alpha,
+                                        batches=16).passed for s in range(n))
+    assert rejected <= stats.binomial_upper_bound(n, alpha, 0.999), rejected

@@ -1,0 +1,55 @@
+"""Path tracer vs Mitsuba (llvm_ad_rgb), samples per second on the reference scenes at 128².
+
+    python benchmarks/tracer_speed.py [SCENE ...] [--spp N] [--repeats K]
+
+Prints, per scene, the best of K timed renders of each (compilation and JIT excluded,
+renders interleaved so both see the same machine load) and ratio = time ours / time
+Mitsuba (below 1: we are faster).
+"""
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from estimators.pathtracer import prepare_scene, render
+from mcverify.gate import mitsuba as mvm
+from mcverify.gate.reference import resolve_scene
+
+SCENES = ("cornell-box", "bunny", "glass-sphere", "envmap")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("scenes", nargs="*", default=list(SCENES))
+    ap.add_argument("--spp", type=int, default=32)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--ours-only", action="store_true")
+    a = ap.parse_args()
+    mi = None if a.ours_only else mvm._mi()
+    for name in a.scenes:
+        path = resolve_scene(name)[1]
+        ours = prepare_scene(path, params={"res": a.res})
+        render(ours, spp=4)
+        if mi is not None:
+            theirs = mi.load_file(path, res=a.res)
+            np.asarray(mi.render(theirs, spp=4))
+        to, tt = [], []
+        for k in range(a.repeats):
+            t = time.perf_counter()
+            render(ours, spp=a.spp, seed=k)
+            to.append(time.perf_counter() - t)
+            if mi is not None:
+                t = time.perf_counter()
+                np.asarray(mi.render(theirs, spp=a.spp, seed=k))
+                tt.append(time.perf_counter() - t)
+        line = f"{name}: ours {min(to):.3f}s"
+        if tt:
+            line += f" mitsuba {min(tt):.3f}s ratio {min(to) / min(tt):.2f}"
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
