@@ -20,9 +20,8 @@ square" (1997); E. Heitz, "Sampling the GGX distribution of visible normals", JC
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-import numpy as np
 from numba import njit
 
 from ._vectorize import point_front_end, value_front_end
@@ -506,8 +505,6 @@ class Warp:
     defaults: tuple[float, ...] = ()
     ranges: tuple[tuple[float, float], ...] = ()
     log_scale: tuple[str, ...] = ()
-    notes: str = ""
-    same_pdf_as: str | None = field(default=None)
 
     def domain_spec(self, *params):
         """``(name, args)`` of the domain for these parameter values."""
@@ -602,9 +599,9 @@ WARPS: dict[str, Warp] = {w.name: w for w in [
          invert_uniform_disk_polar, "disk", 2, 2),
     Warp("uniform_disk_concentric", sample_uniform_disk_concentric, uniform_disk_pdf,
          invert_uniform_disk_concentric, "disk", 2, 2),
+    # pdf 2 on the lower-left triangle of the unit square: an edge inside cells
     Warp("uniform_triangle", sample_uniform_triangle, uniform_triangle_pdf,
-         invert_uniform_triangle, "square", 2, 2,
-         notes="pdf 2 on the lower-left triangle of the unit square: an edge inside cells"),
+         invert_uniform_triangle, "square", 2, 2),
     Warp("uniform_sphere", sample_uniform_sphere, uniform_sphere_pdf, invert_uniform_sphere,
          "sphere", 2, 3),
     Warp("uniform_hemisphere", sample_uniform_hemisphere, uniform_hemisphere_pdf,
@@ -619,10 +616,10 @@ WARPS: dict[str, Warp] = {w.name: w for w in [
          ((1e-3, 1.0),), ("alpha",)),
     Warp("beckmann", sample_beckmann, beckmann_pdf, invert_beckmann, "hemisphere", 2, 3,
          ("alpha",), (0.3,), ((1e-3, 1.0),), ("alpha",)),
+    # (wx, wy, wz) is normalised by the property tests; no closed-form inverse
     Warp("ggx_vndf", sample_ggx_vndf, ggx_vndf_pdf, None, "hemisphere", 2, 3,
          ("alpha", "wx", "wy", "wz"), (0.3, 0.6, 0.0, 0.8),
-         ((1e-2, 1.0), (-1.0, 1.0), (-1.0, 1.0), (0.05, 1.0)), ("alpha",),
-         notes="(wx, wy, wz) is normalised by the property tests; no closed-form inverse"),
+         ((1e-2, 1.0), (-1.0, 1.0), (-1.0, 1.0), (0.05, 1.0)), ("alpha",)),
     Warp("exponential", sample_exponential, exponential_pdf, invert_exponential,
          ("interval", 0.0, "t_max"), 1, 1, ("sigma", "t_max"), (2.0, 3.0),
          ((1e-2, 1e2), (1e-2, 1e2)), ("sigma", "t_max")),

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _domain_kernels as K
+from . import _domain_kernels as kernels
 from .errors import InvalidArgument
 
 __all__ = ["Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere", "as_domain"]
@@ -59,7 +59,7 @@ class Domain:
         x = self.points(x)
         s = np.empty((x.shape[0], 2))
         status = np.empty(x.shape[0], dtype=np.int8)
-        K.to_param_kernel(self.kind, self.args, self.tolerance, x, s, status, rejection)
+        kernels.to_param_kernel(self.kind, self.args, self.tolerance, x, s, status, rejection)
         return s[:, :self.param_dim], status
 
     def to_param(self, x) -> np.ndarray:
@@ -68,7 +68,7 @@ class Domain:
 
     def inside(self, x) -> np.ndarray:
         """(n, dim) -> (n,) bool: finite and inside (within ``tolerance``)."""
-        return self.classify(x)[1] == K.VALID
+        return self.classify(x)[1] == kernels.VALID
 
     def to_point(self, s: np.ndarray) -> np.ndarray:  # (n, m) -> (n, dim)
         raise NotImplementedError
@@ -97,7 +97,7 @@ class Interval(Domain):
     """The interval ``[a, b]``; points are shaped (n, 1) (or (n,))."""
 
     name = "interval"
-    kind = K.INTERVAL
+    kind = kernels.INTERVAL
 
     def __init__(self, a: float = 0.0, b: float = 1.0):
         a, b = float(a), float(b)
@@ -121,7 +121,7 @@ class Square(Domain):
     """The unit square ``[0, 1]²``; points (n, 2)."""
 
     name = "square"
-    kind = K.SQUARE
+    kind = kernels.SQUARE
     dim = 2
     param_dim = 2
     sample_dim = 2
@@ -139,7 +139,7 @@ class Disk(Domain):
     ``s1 = φ / 2π``; Jacobian π."""
 
     name = "disk"
-    kind = K.DISK
+    kind = kernels.DISK
     dim = 2
     param_dim = 2
     sample_dim = 2
@@ -160,7 +160,7 @@ class Sphere(Domain):
     bands, Archimedes), ``s1 = φ / 2π``; Jacobian 4π."""
 
     name = "sphere"
-    kind = K.SPHERE
+    kind = kernels.SPHERE
     dim = 3
     param_dim = 2
     sample_dim = 2
@@ -179,7 +179,7 @@ class Hemisphere(Sphere):
     """Unit vectors with z ≥ 0. Parameters ``s0 = 1 - z``, ``s1 = φ / 2π``; Jacobian 2π."""
 
     name = "hemisphere"
-    kind = K.HEMISPHERE
+    kind = kernels.HEMISPHERE
     jacobian = 2.0 * np.pi
     _z_span = 1.0
 

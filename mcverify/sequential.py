@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
-from . import _validate as v
+from . import _validate as validate
 from . import stats
 from .result import CheckResult
 
@@ -61,9 +61,9 @@ def run_sequential(look: Callable[[int], CheckResult], *, batches: int, alpha: f
         (k), ``batches`` (K), ``looks``, ``p_looks``, ``weights``, ``stopped_early``. A
         deterministic failure (NaN samples, a wrong normalisation) stops at once.
     """
-    k_total = v.integer("batches", batches, minimum=1)
-    alpha = v.probability("alpha", alpha)
-    stop = alpha if stop_alpha is None else v.probability("stop_alpha", stop_alpha)
+    k_total = validate.integer("batches", batches, minimum=1)
+    alpha = validate.probability("alpha", alpha)
+    stop = alpha if stop_alpha is None else validate.probability("stop_alpha", stop_alpha)
     at = [b for b in looks(k_total) if b >= min_batches] or [k_total]
     weights = stats.spending_weights([b / k_total for b in at], alpha)
     ps: list[float] = []

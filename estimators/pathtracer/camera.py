@@ -38,6 +38,13 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
     if "fov" not in s.props:
         raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: set "
                          "<float name=\"fov\" .../>; focal_length is not supported")
+    if not any(c.kind == "rfilter" for c in f.children):
+        # Mitsuba's default reconstruction filter is gaussian (radius 2 pixels), which
+        # this tracer does not implement: a scene silent about it would render blurred
+        # there and sharp here, so it is refused rather than rendered differently.
+        raise SceneError(f"{desc.path}:{f.line}: <film>: no <rfilter>: Mitsuba's default is "
+                         "gaussian, which this path tracer does not implement; add "
+                         "<rfilter type=\"box\"/> to the film (both renderers then agree)")
     w, h = int(f.get("width", 768)), int(f.get("height", 576))
     if w < 1 or h < 1:
         raise SceneError(f"{desc.path}:{f.line}: <film>: width and height must be >= 1")

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from .. import _validate as v
+from .. import _validate as validate
 from .. import stats
 from ..errors import InvalidArgument
 from ..result import CheckResult
@@ -68,14 +68,14 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
     if callable(samples):
         from ..sequential import run_sequential
 
-        k = v.integer("batches", 1 if batches is None else batches, minimum=1)
-        alpha = v.probability("alpha", alpha)
+        k = validate.integer("batches", 1 if batches is None else batches, minimum=1)
+        alpha = validate.probability("alpha", alpha)
         drawn: list[np.ndarray] = []
 
         def look(b):
             t0 = time.perf_counter()
             while len(drawn) < b:
-                drawn.append(v.samples_1d(f"samples({len(drawn)})", samples(len(drawn))))
+                drawn.append(validate.samples_1d(f"samples({len(drawn)})", samples(len(drawn))))
             r = check_unbiased(np.concatenate(drawn), expected, alpha=alpha, name=name)
             return dataclasses.replace(r, seconds=time.perf_counter() - t0)
 
@@ -86,9 +86,9 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         raise InvalidArgument(f"batches={batches}: only with samples given as a callable "
                               "draw(batch) -> estimates")
     t0 = time.perf_counter()
-    x = v.samples_1d("samples", samples)
-    expected = v.real("expected", expected)
-    alpha = v.probability("alpha", alpha)
+    x = validate.samples_1d("samples", samples)
+    expected = validate.real("expected", expected)
+    alpha = validate.probability("alpha", alpha)
     failures, messages = [], []
     finite = np.isfinite(x)
     if not finite.all():
@@ -170,11 +170,11 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
     True
     """
     t0 = time.perf_counter()
-    x = v.samples_1d("samples", samples)
-    ev = v.real("expected_variance", expected_variance)
+    x = validate.samples_1d("samples", samples)
+    ev = validate.real("expected_variance", expected_variance)
     if ev < 0:
         raise InvalidArgument(f"expected_variance={ev}: must be >= 0")
-    alpha = v.probability("alpha", alpha)
+    alpha = validate.probability("alpha", alpha)
     failures = []
     if not np.all(np.isfinite(x)):
         failures.append(f"{np.count_nonzero(~np.isfinite(x))} samples are NaN/Inf")
@@ -198,7 +198,7 @@ def _estimate(estimate, n: int, seed: int) -> float:
     except (TypeError, ValueError):
         value = None
     if value is None or value.size != 1 or isinstance(out, (str, bytes)):
-        raise InvalidArgument(f"estimate(n={n}, seed={seed}) returned {v._show(out)}: "
+        raise InvalidArgument(f"estimate(n={n}, seed={seed}) returned {validate._show(out)}: "
                               "expected one number")
     return float(value.reshape(()))
 
@@ -239,16 +239,16 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     True
     """
     t0 = time.perf_counter()
-    v.callable_("estimate", estimate)
-    expected = v.real("expected", expected)
-    ns = [v.integer("ns[i]", n, minimum=1) for n in ns]
+    validate.callable_("estimate", estimate)
+    expected = validate.real("expected", expected)
+    ns = [validate.integer("ns[i]", n, minimum=1) for n in ns]
     if len(ns) < 3 or len(set(ns)) != len(ns):
         raise InvalidArgument(f"ns={ns}: need at least 3 distinct sample counts")
-    r = v.integer("n_seeds", n_seeds, minimum=4)
-    alpha = v.probability("alpha", alpha)
+    r = validate.integer("n_seeds", n_seeds, minimum=4)
+    alpha = validate.probability("alpha", alpha)
     if alternative not in ("two-sided", "less"):
         raise InvalidArgument(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
-    seeds = np.random.SeedSequence(v.seed("seed", seed)).generate_state(r * len(ns))
+    seeds = np.random.SeedSequence(validate.seed("seed", seed)).generate_state(r * len(ns))
     e2 = np.empty((len(ns), r))
     for i, n in enumerate(ns):
         for j in range(r):

@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from .. import _validate as v
+from .. import _validate as validate
 from .. import stats
 from ..errors import InvalidArgument
 from ..result import CheckResult
@@ -146,10 +146,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     rv = _as_image("ref_var", ref_var, tm.shape)
     if np.any(tv < 0) or np.any(rv < 0):
         raise InvalidArgument("test_var/ref_var: variances must be >= 0")
-    nt = v.integer("test_n", test_n, minimum=2)
-    nr = v.integer("ref_n", ref_n, minimum=2)
-    alpha = v.probability("alpha", alpha)
-    block = v.integer("block", block, minimum=1)
+    nt = validate.integer("test_n", test_n, minimum=2)
+    nr = validate.integer("ref_n", ref_n, minimum=2)
+    alpha = validate.probability("alpha", alpha)
+    block = validate.integer("block", block, minimum=1)
     tests = tuple(tests)
     if not tests or len(set(tests)) != len(tests) or not set(tests) <= set(TESTS):
         raise InvalidArgument(f"tests={tests}: a non-empty selection of {TESTS}")

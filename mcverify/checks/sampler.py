@@ -14,8 +14,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .. import _domain_kernels as K
-from .. import _validate as v
+from .. import _domain_kernels as kernels
+from .. import _validate as validate
 from .. import stats
 from ..errors import InvalidArgument
 from ..domains import Domain, as_domain
@@ -88,10 +88,10 @@ def _draw(sample, seq, n, k, dim, name="sample"):
     u = np.empty((n, k))
     for start, c in _uniform_chunks(seq, n, k, DEFAULT_CHUNK):
         u[start:start + c.shape[0]] = c
-    return u, v.points(name, sample(u), n, dim)
+    return u, validate.points(name, sample(u), n, dim)
 
 
-_STATUS_TEXT = {K.NONFINITE: "are NaN/Inf", K.OUTSIDE: "lie outside the {} domain"}
+_STATUS_TEXT = {kernels.NONFINITE: "are NaN/Inf", kernels.OUTSIDE: "lie outside the {} domain"}
 
 
 def _status_failures(n_status, examples, domain: Domain, what="sample"):
@@ -110,13 +110,13 @@ def _status_failures(n_status, examples, domain: Domain, what="sample"):
 def _screen(x, u, domain: Domain, what="sample", rejection=False):
     """Valid points' parameters, and failure messages (NaN/Inf, outside domain)."""
     s, status = domain.classify(x, rejection=rejection)
-    codes = np.bincount(status, minlength=K.N_STATUS)
+    codes = np.bincount(status, minlength=kernels.N_STATUS)
     examples = {}
     for c in _STATUS_TEXT:
         if codes[c]:
             i = int(np.argmax(status == c))
             examples[c] = (u[i], np.asarray(x[i]))
-    return s[status == K.VALID], _status_failures(codes, examples, domain, what)
+    return s[status == kernels.VALID], _status_failures(codes, examples, domain, what)
 
 
 class _Histogram:
@@ -126,16 +126,16 @@ class _Histogram:
     def __init__(self, domain: Domain, edges, *, rejection=False):
         self.domain, self.edges, self.rejection = domain, edges, rejection
         self.e1 = edges[1] if len(edges) == 2 else np.array([0.0, 1.0])
-        self.lut0, self.lut1 = K.cell_lookup(edges[0]), K.cell_lookup(self.e1)
+        self.lut0, self.lut1 = kernels.cell_lookup(edges[0]), kernels.cell_lookup(self.e1)
         self.shape = tuple(e.size - 1 for e in edges)
         self.flat = np.zeros(int(np.prod(self.shape)), dtype=np.int64)
-        self.n_status = np.zeros(K.N_STATUS, dtype=np.int64)
+        self.n_status = np.zeros(kernels.N_STATUS, dtype=np.int64)
         self.examples = {}
 
     def add(self, x, u=None):
         d = self.domain
         x = d.points(x)
-        codes, first = K.histogram_kernel(d.kind, d.args, d.tolerance, x, self.edges[0],
+        codes, first = kernels.histogram_kernel(d.kind, d.args, d.tolerance, x, self.edges[0],
                                           self.lut0, self.e1, self.lut1, len(self.edges),
                                           self.rejection, self.flat)
         self.n_status += codes
@@ -164,7 +164,7 @@ def _stream_batches(sample, seq, n, k, dim, hist: _Histogram, chunk: int, bounds
         a = 0
         while a < u.shape[0]:
             b = min(u.shape[0], stop - start)
-            hist.add(v.points(name, sample(u[a:b]), b - a, dim), u[a:b])
+            hist.add(validate.points(name, sample(u[a:b]), b - a, dim), u[a:b])
             a = b
             if start + a == stop:
                 yield stop
@@ -221,7 +221,7 @@ class _Density:
 
     def __call__(self, s):
         x = self.domain.to_point(s)
-        p = v.values("pdf", self.pdf(x), x.shape[0])
+        p = validate.values("pdf", self.pdf(x), x.shape[0])
         bad_nan = ~np.isfinite(p)
         bad_neg = p < 0
         if bad_nan.any() or bad_neg.any():
@@ -302,17 +302,17 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
                        min_samples):
     """Validate the arguments shared by the histogram tests; returns them normalised."""
     dom = as_domain(domain)
-    n = v.integer("n_samples", n_samples, minimum=min_samples)
-    res = v.resolution("resolution", resolution, dom.param_dim)
-    k = dom.sample_dim if sample_dim is None else v.integer("sample_dim", sample_dim, minimum=1)
-    chunk = v.integer("chunk", chunk, minimum=STREAM_BLOCK)
+    n = validate.integer("n_samples", n_samples, minimum=min_samples)
+    res = validate.resolution("resolution", resolution, dom.param_dim)
+    k = dom.sample_dim if sample_dim is None else validate.integer("sample_dim", sample_dim, minimum=1)
+    chunk = validate.integer("chunk", chunk, minimum=STREAM_BLOCK)
     if chunk % STREAM_BLOCK:
         raise InvalidArgument(f"chunk={chunk}: must be a multiple of {STREAM_BLOCK} (the "
                               "rows of one seeded block of uniforms)")
     # Streamed: two chunks of uniforms and one of points in memory at a time, whatever n.
-    v.memory("chunk" if chunk <= n else "n_samples", min(n, chunk),
+    validate.memory("chunk" if chunk <= n else "n_samples", min(n, chunk),
              8 * (2 * k + 2 * dom.dim), "uniform numbers and points of one chunk")
-    return dom, n, res, v.probability("alpha", alpha), v.seed("seed", seed), k, chunk
+    return dom, n, res, validate.probability("alpha", alpha), validate.seed("seed", seed), k, chunk
 
 
 def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution=None,
@@ -412,8 +412,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     True
     """
     t0 = time.perf_counter()
-    v.callable_("sample", sample)
-    v.callable_("pdf", pdf)
+    validate.callable_("sample", sample)
+    validate.callable_("pdf", pdf)
     dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
         domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=1)
     name = name or f"sampler:{_name_of(sample, 'sample')}"
@@ -440,8 +440,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         n = n_drawn
         fine = hist.counts
         counts = fine.reshape(-1, KS_SPLIT).sum(axis=1) if m == 1 else fine
-        n_valid = int(hist.n_status[K.VALID])
-        n_rejected = int(hist.n_status[K.REJECTED])
+        n_valid = int(hist.n_status[kernels.VALID])
+        n_rejected = int(hist.n_status[kernels.REJECTED])
         failures = hist.failures()
 
         if not integrated:
@@ -487,7 +487,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
 
         full = stats.chi2_gof(counts, expected)
         sub["chi2"] = full
-        note = v.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
+        note = validate.few_bins_note("n_samples", n, full.n_bins) if n_valid else None
         if note:
             messages.append(note)
         if full.observed_in_empty:
@@ -542,7 +542,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         return evaluate(n)
     from ..sequential import looks, run_sequential
 
-    k_batches = v.integer("batches", batches, minimum=1)
+    k_batches = validate.integer("batches", batches, minimum=1)
     if k_batches > n_budget:
         raise InvalidArgument(f"batches={k_batches}: more batches than n_samples={n_budget}")
     # Rows end where a look is taken (the batches in between need no pause of their own:
@@ -589,7 +589,7 @@ def detectable_contamination(result: CheckResult, *, power: float = 0.95,
     if h is None or "expected" not in h:
         raise InvalidArgument(f"result {result.name!r}: no histogram artifact; pass the "
                               "CheckResult of check_sampler")
-    alpha = result.alpha if alpha is None else v.probability("alpha", alpha)
+    alpha = result.alpha if alpha is None else validate.probability("alpha", alpha)
     expected = np.asarray(h["expected"], dtype=np.float64)
     widths = [np.diff(np.asarray(e, dtype=np.float64)) for e in h["edges"]]
     volume = widths[0] if len(widths) == 1 else np.outer(widths[0], widths[1])
@@ -619,13 +619,13 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     (True, True)
     """
     t0 = time.perf_counter()
-    v.callable_("sample", sample)
-    v.callable_("inverse", inverse)
-    k = v.integer("sample_dim", sample_dim, minimum=1)
-    n = v.integer("n_samples", n_samples, minimum=1)
-    seed = v.seed("seed", seed)
-    atol = v.real("atol", atol, minimum=0.0)
-    v.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips")
+    validate.callable_("sample", sample)
+    validate.callable_("inverse", inverse)
+    k = validate.integer("sample_dim", sample_dim, minimum=1)
+    n = validate.integer("n_samples", n_samples, minimum=1)
+    seed = validate.seed("seed", seed)
+    atol = validate.real("atol", atol, minimum=0.0)
+    validate.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips")
     name = name or f"inverse:{_name_of(inverse, 'inverse')}"
     u = np.random.default_rng(seed).random((n, k))
     x = np.asarray(sample(u))
@@ -701,7 +701,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
         if x is None or x.ndim not in (1, 2) or x.shape[0] < 2:
             raise InvalidArgument(f"{label}: must be a sampler callable or an array "
                                   f"of points (n, {dom.dim})")
-        sides.append((label, v.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
+        sides.append((label, validate.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
     res = res or dom.default_resolution(min(size for *_, size in sides))
     edges = _edges(None, res)
     m = dom.param_dim
@@ -721,7 +721,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     sub = {}
     if rejection:
         # Equal acceptance probabilities: Fisher's exact test on the 2 × 2 table.
-        (na, ra), (nb, rb) = ((size, int(h.n_status[K.REJECTED]))
+        (na, ra), (nb, rb) = ((size, int(h.n_status[kernels.REJECTED]))
                               for (*_, size), h in zip(sides, hists))
         sub["acceptance"] = stats.fisher_exact_2x2(na - ra, ra, nb - rb, rb)
     sub["chi2"] = stats.chi2_homogeneity(ha, hb)
@@ -734,7 +734,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
                "tests": {key: _test_details(r) for key, r in sub.items()}}
     if rejection:
-        details["rejection"] = {label: {"rejected": int(h.n_status[K.REJECTED]), "n": size}
+        details["rejection"] = {label: {"rejected": int(h.n_status[kernels.REJECTED]), "n": size}
                                 for (label, *_, size), h in zip(sides, hists)}
     histogram = {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),

@@ -18,7 +18,7 @@ N = 1_000_000
 def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
     """Workloads: [(group, description, ours, theirs or None, against)]; ``against``
     names the other side (Mitsuba, or our general kernel for the specialisation row)."""
-    from estimators import warps as W
+    from estimators import warps
 
     from .. import checks
     from . import mitsuba as mvm
@@ -35,13 +35,13 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
         return run
 
     warp_pairs = [
-        ("cosine_hemisphere", W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, (),
+        ("cosine_hemisphere", warps.sample_cosine_hemisphere, warps.cosine_hemisphere_pdf, (),
          "square_to_cosine_hemisphere"),
-        ("uniform_sphere", W.sample_uniform_sphere, W.uniform_sphere_pdf, (),
+        ("uniform_sphere", warps.sample_uniform_sphere, warps.uniform_sphere_pdf, (),
          "square_to_uniform_sphere"),
-        ("uniform_cone", W.sample_uniform_cone, W.uniform_cone_pdf, (0.8,),
+        ("uniform_cone", warps.sample_uniform_cone, warps.uniform_cone_pdf, (0.8,),
          "square_to_uniform_cone"),
-        ("beckmann", W.sample_beckmann, W.beckmann_pdf, (0.3,), "square_to_beckmann"),
+        ("beckmann", warps.sample_beckmann, warps.beckmann_pdf, (0.3,), "square_to_beckmann"),
     ]
     for label, sample, pdf, params, mi_name in warp_pairs:
         theirs = (mi_warp(getattr(mi.warp, mi_name), getattr(mi.warp, mi_name + "_pdf"), *params)
@@ -51,13 +51,13 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
     # float32 in, as Mitsuba computes: our front ends read and write float32 directly.
     u32 = u.astype(np.float32)
     out.append(("warp:cosine_hemisphere(float32)", f"sample + pdf of {n:,} float32 points",
-                lambda: W.cosine_hemisphere_pdf(W.sample_cosine_hemisphere(u32)),
+                lambda: warps.cosine_hemisphere_pdf(warps.sample_cosine_hemisphere(u32)),
                 mi_warp(mi.warp.square_to_cosine_hemisphere,
                         mi.warp.square_to_cosine_hemisphere_pdf, u=u32) if vectorised else None,
                 "mitsuba"))
 
     def ours_chi2():
-        return checks.check_sampler(W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf,
+        return checks.check_sampler(warps.sample_cosine_hemisphere, warps.cosine_hemisphere_pdf,
                                     "hemisphere", n_samples=n, seed=0)
 
     theirs_chi2 = mvm.chi2_cosine_hemisphere(n) if vectorised else None

@@ -214,7 +214,7 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
 def _distribution_checks(profile: Profile) -> list[Check]:
     """The CDF-inversion distributions of ``estimators.distributions`` on fixed, awkward
     inputs: zero-weight pieces, a steep environment-map-like image, a pdf with a step."""
-    from estimators import distributions as D
+    from estimators import distributions
 
     img = np.random.default_rng(2024).random((16, 32)) ** 4 * 10.0
     img[3:5, 7:9] = 0.0
@@ -223,12 +223,12 @@ def _distribution_checks(profile: Profile) -> list[Check]:
     # pieces' 48 discontinuity lines (pilot-placed cells take ~10× longer).
     subjects = [   # (subject, label, distribution, domain, sample dimension)
         ("piecewise_constant_1d", "piecewise_constant_1d",
-         D.PiecewiseConstant1D([1.0, 0.0, 4.0, 2.5, 0.2], -1.0, 2.0), Interval(-1.0, 2.0), 1),
-        ("piecewise_constant_2d", "piecewise_constant_2d", D.PiecewiseConstant2D(img),
+         distributions.PiecewiseConstant1D([1.0, 0.0, 4.0, 2.5, 0.2], -1.0, 2.0), Interval(-1.0, 2.0), 1),
+        ("piecewise_constant_2d", "piecewise_constant_2d", distributions.PiecewiseConstant2D(img),
          "square", 2),
         ("inverted_cdf", "inverted_cdf(step)",
-         D.InvertedCDF(lambda t: np.where(t < 0.3, 1.0, 5.0), 0.0, 1.0), Interval(0.0, 1.0), 1),
-        ("inverted_cdf", "inverted_cdf(sin)", D.InvertedCDF(np.sin, 0.0, np.pi),
+         distributions.InvertedCDF(lambda t: np.where(t < 0.3, 1.0, 5.0), 0.0, 1.0), Interval(0.0, 1.0), 1),
+        ("inverted_cdf", "inverted_cdf(sin)", distributions.InvertedCDF(np.sin, 0.0, np.pi),
          Interval(0.0, np.pi), 1),
     ]
     out = []
@@ -258,7 +258,7 @@ def _estimator_checks(profile: Profile) -> list[Check]:
     """Each estimator of ``estimators.mc`` on integrals with known values (the seed's
     ∫₀^π sin = 2 and E[cos X] = 0 among them), plus the zero-variance estimate."""
     from estimators import mc
-    from estimators import warps as W
+    from estimators import warps
 
     n = 200_000 if not profile.sweep else 1_000_000
 
@@ -296,7 +296,7 @@ def _estimator_checks(profile: Profile) -> list[Check]:
         ("antithetic", "antithetic(exp)",
          lambda s, m: mc.antithetic(np.exp, 0.0, 1.0, m, seed=s), n, np.e - 1.0),
         ("importance", "importance(cos irradiance)", lambda s, m: mc.importance(
-            lambda x: x[:, 2], W.sample_cosine_hemisphere, W.cosine_hemisphere_pdf, m, seed=s,
+            lambda x: x[:, 2], warps.sample_cosine_hemisphere, warps.cosine_hemisphere_pdf, m, seed=s,
             sample_dim=2), n, np.pi),
     ]
     out = []
@@ -327,19 +327,19 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
     sampler by 2 % uniform directions, GGX sampled at α = 0.30 against the pdf of
     α = 0.32, and a cosine pdf scaled by 1.03.
     """
-    from estimators import warps as W
+    from estimators import warps
 
     def mixture(u):
-        x = W.sample_cosine_hemisphere(u)
+        x = warps.sample_cosine_hemisphere(u)
         flip = np.random.default_rng(7).random(u.shape[0]) < 0.02
-        x[flip] = W.sample_uniform_hemisphere(u[flip])
+        x[flip] = warps.sample_uniform_hemisphere(u[flip])
         return x
 
     subjects = [
-        ("cosine+2%uniform", mixture, W.cosine_hemisphere_pdf),
-        ("ggx(0.30)-vs-pdf(0.32)", lambda u: W.sample_ggx(u, 0.30), lambda x: W.ggx_pdf(x, 0.32)),
-        ("cosine-pdf*1.03", W.sample_cosine_hemisphere,
-         lambda x: 1.03 * W.cosine_hemisphere_pdf(x)),
+        ("cosine+2%uniform", mixture, warps.cosine_hemisphere_pdf),
+        ("ggx(0.30)-vs-pdf(0.32)", lambda u: warps.sample_ggx(u, 0.30), lambda x: warps.ggx_pdf(x, 0.32)),
+        ("cosine-pdf*1.03", warps.sample_cosine_hemisphere,
+         lambda x: 1.03 * warps.cosine_hemisphere_pdf(x)),
     ]
     out = []
     for label, smp, pdf in subjects:

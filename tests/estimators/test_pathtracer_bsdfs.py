@@ -14,7 +14,7 @@ pytestmark = pytest.mark.mitsuba
 _SCENE = """<scene version="3.0.0">
   <sensor type="perspective"><float name="fov" value="40"/>
     <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/>
-    </film></sensor>
+    <rfilter type="box"/></film></sensor>
   <shape type="rectangle">{bsdf}</shape>
 </scene>"""
 

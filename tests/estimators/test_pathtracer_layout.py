@@ -72,7 +72,7 @@ def test_geometry_reads_primitives_where_the_layout_puts_them(tmp_path):
     assert (layout.DISK_TO_WORLD, layout.DISK_TO_LOCAL) == (0, 12)
     path = tmp_path / "s.xml"
     path.write_text("""<scene version="3.0.0"><sensor type="perspective">
-      <float name="fov" value="40"/></sensor>
+      <float name="fov" value="40"/><film type="hdrfilm"><rfilter type="box"/></film></sensor>
       <shape type="rectangle"><transform name="to_world"><translate x="6" z="-5"/>
         </transform></shape>
       <shape type="sphere"><point name="center" x="3" y="0" z="-3"/>

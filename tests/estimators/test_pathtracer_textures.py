@@ -41,7 +41,7 @@ def images(mi, tmp_path_factory):
 _SCENE = """<scene version="3.0.0">
   <sensor type="perspective"><float name="fov" value="40"/>
     <film type="hdrfilm"><integer name="width" value="4"/>
-    <integer name="height" value="4"/></film></sensor>
+    <integer name="height" value="4"/><rfilter type="box"/></film></sensor>
   {defs}
   <shape type="{shape}">{shape_props}<bsdf type="diffuse">{texture}</bsdf></shape>
 </scene>"""

@@ -141,3 +141,15 @@ def test_unsupported_input_is_rejected_by_line(body, needles):
 def test_malformed_xml_and_missing_sensor():
     assert "not well-formed" in _error('<scene version="3.0.0"><shape></scene>')
     assert "no <sensor>" in _error('<scene version="3.0.0"></scene>')
+
+
+@pytest.mark.parametrize("film", ['<film type="hdrfilm"><integer name="width" value="8"/></film>',
+                                  ""], ids=["film-without-rfilter", "no-film"])
+def test_a_film_silent_about_its_filter_is_refused(film):
+    # Mitsuba's default reconstruction filter is gaussian; ours is box only, so a scene
+    # that relies on the default would render differently: refused, naming the fix
+    d = parse_scene(f'<scene version="3.0.0"><sensor type="perspective">'
+                    f'<float name="fov" value="45"/>{film}</sensor></scene>', path="s.xml")
+    with pytest.raises(SceneError) as e:
+        camera_from_scene(d)
+    assert "s.xml:1" in str(e.value) and '<rfilter type="box"/>' in str(e.value)

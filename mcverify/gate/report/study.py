@@ -32,17 +32,17 @@ class Integrand:
 def _proposals():
     """Importance-sampling proposals: roughly, not exactly, proportional to f (an exact
     one would give zero variance and nothing to plot)."""
-    from estimators import warps as W
+    from estimators import warps
 
     def linear_sample(u):                    # p(x) = 2x/π² on [0, π], close to sin near 0
         return np.pi * np.sqrt(u[:, 0])
 
     def exp_sample(u):                       # truncated exponential σ = 5 on [0, 1]
-        return W.sample_exponential(u, 5.0, 1.0)[:, 0]
+        return warps.sample_exponential(u, 5.0, 1.0)[:, 0]
 
     return {
         "sin": (linear_sample, lambda x: 2.0 * x / np.pi ** 2),
-        "peak": (exp_sample, lambda x: W.exponential_pdf(x, 5.0, 1.0)),
+        "peak": (exp_sample, lambda x: warps.exponential_pdf(x, 5.0, 1.0)),
     }
 
 
