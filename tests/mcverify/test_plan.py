@@ -41,9 +41,10 @@ def test_diffuse_scene_with_a_point_light(tmp_path):
     tracer = {n for n in _names(checks) if n.startswith("sampler:tracer.")}
     assert tracer == {f"sampler:tracer.bsdf:{tmp_path.name}/bsdf0:diffuse@wi={t}°"
                       for t in (0, 45, 80)}
-    assert _names(checks) - tracer == {"sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
-                              "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)",
-                              "unbiased:mis(power)", f"render:{tmp_path.name}"}
+    assert _names(checks) - tracer == {
+        "sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
+        "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)", "unbiased:mis(power)",
+        f"render:{tmp_path.name}"}
     assert "delta emitter" in dict(skipped)["emitter:point"]
     assert "delta emitter" in dict(skipped)[f"emitter {tmp_path.name}/light0:point"]
 
