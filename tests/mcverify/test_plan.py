@@ -12,7 +12,7 @@ CORNELL = os.path.join(REFERENCE_ROOT, "cornell-box", "scene.xml")
 CMD = [sys.executable, "-m", "mcverify"]
 
 DIFFUSE_POINT = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="45"/></sensor>
+  <sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm"><rfilter type="box"/></film></sensor>
   <emitter type="point"><point name="position" x="0" y="2" z="0"/></emitter>
   <shape type="sphere"><bsdf type="diffuse"/></shape>
 </scene>"""
