@@ -70,7 +70,13 @@ def _kernel_source(features: int) -> tuple[str, str]:
 
 def specialised_kernel(features: int):
     """The kernel module compiled for ``features`` (a bit mask; -1: all)."""
-    name, source = _kernel_source(int(features))
+    return load_cached(*_kernel_source(int(features)))
+
+
+def load_cached(name: str, source: str):
+    """The module ``name`` with ``source``, written once into the kernel cache folder (so
+    that numba's ``cache=True`` works for it) and imported once per process. ``name``
+    must carry a hash of ``source`` and of ``_dependency_digest()``."""
     if name in _MODULES:
         return _MODULES[name]
     module = load(name, source)

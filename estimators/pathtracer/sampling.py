@@ -2,7 +2,7 @@
 
 Each front end wraps the scalar kernels the path tracer calls (``bsdfs.bsdf_sample`` /
 ``bsdf_eval``, ``emitters.sample_emitter`` / ``area_pdf`` / ``environment_pdf``) in a
-numba ``prange`` loop over rows: no second implementation.
+numba ``prange`` loop over rows (``_sampling_loops``): no second implementation.
 
 - :func:`bsdf_sampler` (BSDF row ``b`` of a prepared scene, incident ``wi`` in the local
   shading frame, normal +z): ``sample(u (n, 3)) -> wo (n, 3)``, the first number choosing
@@ -24,78 +24,29 @@ never directions).
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import math
+import os
 
 import numpy as np
-from numba import njit, prange
 
-from .bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
-from .emitters import area_pdf, environment_pdf, is_delta, sample_emitter
-from .geometry import _hit_prim, surface
-from .layout import (AREA, LEAF_KIND, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT,
-                     PRIM_KIND, PRIM_SHAPE, TRIANGLE)
+from .bsdfs import bsdf_is_smooth
+from .emitters import is_delta
+from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
+from .render import _dependency_digest, load_cached
 
 __all__ = ["bsdf_sampler", "emitter_sampler", "bsdf_has_density", "emitter_has_density"]
 
-_UV = 0.5
 
-
-@njit(parallel=True, cache=True)
-def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, out):
-    wi = (wx, wy, wz)
-    for i in prange(u.shape[0]):
-        r = bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u[i, 0], u[i, 1],
-                        u[i, 2], _UV, _UV, 1.0)
-        if r[6] > 0.0 and not r[7]:
-            out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
-        else:
-            out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
-
-
-@njit(parallel=True, cache=True)
-def _bsdf_pdf_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, out):
-    wi = (wx, wy, wz)
-    for i in prange(wo.shape[0]):
-        out[i] = bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi,
-                           (wo[i, 0], wo[i, 1], wo[i, 2]), _UV, _UV)[3]
-
-
-@njit(parallel=True, cache=True)
-def _emitter_sample_rows(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data,
-                         tex_info, env_marg, env_cond, k, x, y, z, u, out):
-    for i in prange(u.shape[0]):
-        r = sample_emitter(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data,
-                           tex_info, env_marg, env_cond, k, x, y, z, u[i, 0], u[i, 1], u[i, 2])
-        if r[7] > 0.0:
-            out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
-        else:
-            out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
-
-
-@njit(parallel=True, cache=True)
-def _emitter_pdf_rows(light_f, light_i, prims, info, shape_flip, leaf, leaf_info, rows,
-                      env_marg, env_cond, k, x, y, z, d, out):
-    area = light_i[k, LIGHT_KIND] == AREA
-    for i in prange(d.shape[0]):
-        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-        if not area:
-            out[i] = environment_pdf(light_f, light_i, env_marg, env_cond, k, dx, dy, dz)
-            continue
-        best, hit, b1, b2 = np.inf, -1, 0.0, 0.0
-        for r in rows:
-            t, c1, c2 = _hit_prim(leaf[r], leaf_info[r, LEAF_KIND], x, y, z, dx, dy, dz)
-            if t < best:
-                best, hit, b1, b2 = t, r, c1, c2
-        if hit < 0:
-            out[i] = 0.0
-            continue
-        j = leaf_info[hit, LEAF_PRIM]
-        s = surface(prims, info, j, x, y, z, dx, dy, dz, best, b1, b2)
-        cos_y = -(s[6] * dx + s[7] * dy + s[8] * dz)
-        if shape_flip[info[j, PRIM_SHAPE]]:
-            cos_y = -cos_y
-        out[i] = area_pdf(light_f, light_i, prims, info, k, x, y, z, best, cos_y) \
-            if cos_y > 0.0 else 0.0
+@functools.lru_cache(maxsize=1)
+def _loops():
+    """The compiled loops (see ``_sampling_loops``)."""
+    with open(os.path.join(os.path.dirname(__file__), "_sampling_loops.py"),
+              encoding="utf-8") as f:
+        source = f.read()
+    key = hashlib.sha256((source + _dependency_digest()).encode()).hexdigest()[:16]
+    return load_cached(f"mcverify_sampling_{key}", source)
 
 
 def _rows(name: str, x) -> np.ndarray:
@@ -143,13 +94,13 @@ def bsdf_sampler(scene, b: int, wi):
     def sample(u):
         u = _rows("u", u)
         out = np.empty_like(u)
-        _bsdf_sample_rows(*tables, u, out)
+        _loops()._bsdf_sample_rows(*tables, u, out)
         return out
 
     def pdf(wo):
         wo = _rows("wo", wo)
         out = np.empty(wo.shape[0])
-        _bsdf_pdf_rows(*tables, wo, out)
+        _loops()._bsdf_pdf_rows(*tables, wo, out)
         return out
 
     return sample, pdf
@@ -177,7 +128,7 @@ def emitter_sampler(scene, k: int, ref):
     def sample(u):
         u = _rows("u", u)
         out = np.empty_like(u)
-        _emitter_sample_rows(a.light_f, a.light_i, a.light_cdf, a.prims, a.prim_info,
+        _loops()._emitter_sample_rows(a.light_f, a.light_i, a.light_cdf, a.prims, a.prim_info,
                              a.shape_flip, a.tex_data, a.tex_info, a.env_marginal,
                              a.env_conditional, k, x, y, z, u, out)
         return out
@@ -185,7 +136,7 @@ def emitter_sampler(scene, k: int, ref):
     def pdf(d):
         d = _rows("direction", d)
         out = np.empty(d.shape[0])
-        _emitter_pdf_rows(a.light_f, a.light_i, a.prims, a.prim_info, a.shape_flip,
+        _loops()._emitter_pdf_rows(a.light_f, a.light_i, a.prims, a.prim_info, a.shape_flip,
                           a.leaf_prims, a.leaf_info, rows, a.env_marginal,
                           a.env_conditional, k, x, y, z, d, out)
         return out

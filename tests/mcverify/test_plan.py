@@ -12,7 +12,7 @@ CORNELL = os.path.join(REFERENCE_ROOT, "cornell-box", "scene.xml")
 CMD = [sys.executable, "-m", "mcverify"]
 
 DIFFUSE_POINT = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="45"/></sensor>
+  <sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm"><rfilter type="box"/></film></sensor>
   <emitter type="point"><point name="position" x="0" y="2" z="0"/></emitter>
   <shape type="sphere"><bsdf type="diffuse"/></shape>
 </scene>"""
@@ -38,10 +38,15 @@ def test_diffuse_scene_with_a_point_light(tmp_path):
     path = tmp_path / "scene.xml"
     path.write_text(DIFFUSE_POINT)
     checks, skipped, _ = plan(str(path))
-    assert _names(checks) == {"sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
-                              "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)",
-                              "unbiased:mis(power)", f"render:{tmp_path.name}"}
+    tracer = {n for n in _names(checks) if n.startswith("sampler:tracer.")}
+    assert tracer == {f"sampler:tracer.bsdf:{tmp_path.name}/bsdf0:diffuse@wi={t}°"
+                      for t in (0, 45, 80)}
+    assert _names(checks) - tracer == {
+        "sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
+        "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)", "unbiased:mis(power)",
+        f"render:{tmp_path.name}"}
     assert "delta emitter" in dict(skipped)["emitter:point"]
+    assert "delta emitter" in dict(skipped)[f"emitter {tmp_path.name}/light0:point"]
 
 
 def test_cli_plan_and_check_scene(tmp_path):

@@ -1,0 +1,72 @@
+"""The parallel loops of ``sampling``: a template, never imported as it is. ``sampling``
+loads a copy from the kernel cache folder whose name carries a hash of every tracer
+source (``render.load_cached``): numba's cache checks only this file, not the kernels it
+calls, so an edited BSDF or emitter gets new loops, never stale ones."""
+
+import numpy as np
+from numba import njit, prange
+
+from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_sample
+from estimators.pathtracer.emitters import area_pdf, environment_pdf, sample_emitter
+from estimators.pathtracer.geometry import _hit_prim, surface
+from estimators.pathtracer.layout import AREA, LEAF_KIND, LEAF_PRIM, LIGHT_KIND, PRIM_SHAPE
+
+_UV = 0.5    # texture coordinates of textured BSDFs (textures change weights, not directions)
+
+
+@njit(parallel=True, cache=True)
+def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, out):
+    wi = (wx, wy, wz)
+    for i in prange(u.shape[0]):
+        r = bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u[i, 0], u[i, 1],
+                        u[i, 2], _UV, _UV, 1.0)
+        if r[6] > 0.0 and not r[7]:
+            out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
+        else:
+            out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
+
+
+@njit(parallel=True, cache=True)
+def _bsdf_pdf_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, out):
+    wi = (wx, wy, wz)
+    for i in prange(wo.shape[0]):
+        out[i] = bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi,
+                           (wo[i, 0], wo[i, 1], wo[i, 2]), _UV, _UV)[3]
+
+
+@njit(parallel=True, cache=True)
+def _emitter_sample_rows(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data,
+                         tex_info, env_marg, env_cond, k, x, y, z, u, out):
+    for i in prange(u.shape[0]):
+        r = sample_emitter(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data,
+                           tex_info, env_marg, env_cond, k, x, y, z, u[i, 0], u[i, 1], u[i, 2])
+        if r[7] > 0.0:
+            out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
+        else:
+            out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
+
+
+@njit(parallel=True, cache=True)
+def _emitter_pdf_rows(light_f, light_i, prims, info, shape_flip, leaf, leaf_info, rows,
+                      env_marg, env_cond, k, x, y, z, d, out):
+    area = light_i[k, LIGHT_KIND] == AREA
+    for i in prange(d.shape[0]):
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        if not area:
+            out[i] = environment_pdf(light_f, light_i, env_marg, env_cond, k, dx, dy, dz)
+            continue
+        best, hit, b1, b2 = np.inf, -1, 0.0, 0.0
+        for r in rows:
+            t, c1, c2 = _hit_prim(leaf[r], leaf_info[r, LEAF_KIND], x, y, z, dx, dy, dz)
+            if t < best:
+                best, hit, b1, b2 = t, r, c1, c2
+        if hit < 0:
+            out[i] = 0.0
+            continue
+        j = leaf_info[hit, LEAF_PRIM]
+        s = surface(prims, info, j, x, y, z, dx, dy, dz, best, b1, b2)
+        cos_y = -(s[6] * dx + s[7] * dy + s[8] * dz)
+        if shape_flip[info[j, PRIM_SHAPE]]:
+            cos_y = -cos_y
+        out[i] = area_pdf(light_f, light_i, prims, info, k, x, y, z, best, cos_y) \
+            if cos_y > 0.0 else 0.0

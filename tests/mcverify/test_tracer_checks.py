@@ -1,0 +1,128 @@
+"""The path tracer's own BSDF and emitter instances, χ²-checked as the reference scenes
+use them (``mcverify.gate.tracer_checks`` over ``estimators.pathtracer.sampling``).
+
+Significance: every instance check of a test is one family; the family-wise level is
+α = 0.01, Holm-corrected over the checks of the test. Seeds are fixed.
+"""
+
+import dataclasses
+import glob
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import mcverify
+from estimators.pathtracer import layout, prepare_scene
+from estimators.pathtracer.sampling import bsdf_sampler, emitter_sampler
+from mcverify.gate.reference import REFERENCE_ROOT
+from mcverify.gate.tracer_checks import tracer_checks
+from mcverify.stats import holm
+
+ALPHA = 0.01
+SCENES = sorted(glob.glob(os.path.join(REFERENCE_ROOT, "*", "scene.xml")))
+ROUGH = os.path.join(REFERENCE_ROOT, "rough-conductors", "scene.xml")
+
+
+def _family_passes(checks, seed, pick=lambda c: True):
+    chosen = [c for c in checks if pick(c)]
+    results = [c.run(seed) for c in chosen]
+    adjusted = holm([r.p_value for r in results])
+    bad = [(r.name, p) for r, p in zip(results, adjusted) if p <= ALPHA]
+    return len(chosen), bad
+
+
+def _one_per_instance(checks):
+    """The 45° BSDF check and the camera's emitter check of each instance."""
+    seen, out = set(), []
+    for c in checks:
+        (kind, label), = c.verifies
+        if (kind, label) in seen or (kind == "bsdf" and "@wi=45°" not in c.name):
+            continue
+        seen.add((kind, label))
+        out.append(c)
+    return out
+
+
+def test_every_reference_instance_passes_at_2_18():
+    checks = []
+    for path in SCENES:
+        checks += _one_per_instance(tracer_checks(path, 2 ** 18)[0])
+    kinds = {next(iter(c.verifies))[0] for c in checks}
+    assert kinds == {"bsdf", "emitter"}
+    n, bad = _family_passes(checks, seed=13)
+    assert n >= 15 and not bad, bad
+
+
+@pytest.mark.slow
+def test_every_planned_instance_passes_at_2_20():
+    checks = []
+    for path in SCENES:
+        checks += tracer_checks(path, 2 ** 20)[0]
+    n, bad = _family_passes(checks, seed=29)
+    assert not bad, bad
+
+
+def _alpha_changed(scene, b, factor):
+    bf = scene.arrays.bsdf_f.copy()
+    bf[b, layout.ALPHA] *= factor
+    return dataclasses.replace(scene, arrays=scene.arrays._replace(bsdf_f=bf))
+
+
+@pytest.mark.parametrize("b, factor", [(2, 1.3), (5, 0.9)])
+def test_alpha_changed_only_in_the_pdf_fails(b, factor):
+    """A planted bug: the sampler draws with the scene's α, the pdf reads another."""
+    scene = prepare_scene(ROUGH)
+    wi = (np.sin(np.radians(45.0)), 0.0, np.cos(np.radians(45.0)))
+    sample, _ = bsdf_sampler(scene, b, wi)
+    _, wrong_pdf = bsdf_sampler(_alpha_changed(scene, b, factor), b, wi)
+    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
+                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
+    assert not r.passed
+
+
+def test_emitter_pdf_of_another_reference_point_fails():
+    """A planted bug: an area light sampled from one point, its pdf taken at another."""
+    scene = prepare_scene(ROUGH)
+    sample, _ = emitter_sampler(scene, 0, (0.0, 1.0, 0.0))
+    _, wrong_pdf = emitter_sampler(scene, 0, (0.0, 0.8, 0.0))
+    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
+                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
+    assert not r.passed
+
+
+def test_delta_instances_are_skipped_with_a_reason():
+    checks, skipped = tracer_checks(os.path.join(REFERENCE_ROOT, "delta-lights", "scene.xml"))
+    reasons = dict(skipped)
+    assert any("point" in k and "delta emitter" in why for k, why in reasons.items())
+    assert not any("point" in c.name for c in checks)
+    _, skipped = tracer_checks(os.path.join(REFERENCE_ROOT, "cornell-box", "scene.xml"))
+    assert any("dielectric" in k and "delta BSDF" in why for k, why in skipped)
+
+
+def test_front_ends_refuse_bad_input():
+    scene = prepare_scene(ROUGH)
+    with pytest.raises(ValueError, match="b=99"):
+        bsdf_sampler(scene, 99, (0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="wi="):
+        bsdf_sampler(scene, 2, (0.0, 0.0, 2.0))
+    with pytest.raises(ValueError, match="ref="):
+        emitter_sampler(scene, 0, (0.0, np.nan, 0.0))
+    sample, _ = bsdf_sampler(scene, 2, (0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        sample(np.zeros((4, 2)))
+
+
+def test_cli_plan_lists_the_four_rough_conductors():
+    r = subprocess.run([sys.executable, "-m", "mcverify", "plan", ROUGH], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    labels = {line.strip().split("@")[0] for line in r.stdout.splitlines()
+              if line.strip().startswith("sampler:tracer.bsdf:") and "roughconductor" in line}
+    assert labels == {
+        "sampler:tracer.bsdf:rough-conductors/bsdf2:roughconductor(ggx,alpha=0.01)",
+        "sampler:tracer.bsdf:rough-conductors/bsdf3:roughconductor(ggx,alpha=0.1)",
+        "sampler:tracer.bsdf:rough-conductors/bsdf4:roughconductor(beckmann,alpha=0.3)",
+        "sampler:tracer.bsdf:rough-conductors/bsdf5:roughconductor(beckmann,alpha=0.5)"}
