@@ -149,14 +149,17 @@ def test_ours_matches_mitsuba_pixel_for_pixel(scene, depth):
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("plant", [{"light_scale": 1.02}, {"light_scale": 0.98},
-                                   {"albedo_scale": 1.1}, {"pdf_scale": 1.1}],
-                         ids=["light+2%", "light-2%", "albedo+10%", "wrong-pdf"])
-def test_planted_bugs_fail_the_render_gate(plant):
+@pytest.mark.parametrize("plant,caught_by", [
+    # a global change shows in the image mean; one wall's albedo in the blocks around it
+    ({"light_scale": 1.02}, "global"), ({"light_scale": 0.98}, "global"),
+    ({"albedo_scale": 1.1}, "blocks"), ({"pdf_scale": 1.1}, "global")],
+    ids=["light+2%", "light-2%", "albedo+10%", "wrong-pdf"])
+def test_planted_bugs_fail_the_render_gate(plant, caught_by):
     plant = dict(plant)
     pdf_scale = plant.pop("pdf_scale", 1.0)
     r = mv.render_check("cornell-box", seed=12, plant=plant or None, pdf_scale=pdf_scale)
     assert not r.passed, r.summary()
+    assert caught_by in r.details["found_by"], r.details["found_by"]
 
 
 def test_render_check_refuses_too_few_samples_per_pass():
