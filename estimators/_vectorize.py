@@ -130,6 +130,13 @@ def _loop(kernel, row: str, put: str):
         with open(path, "rb") as f:
             h.update(f.read())
     name = f"estimators_loop_{fn.__name__.strip('_')}_{h.hexdigest()[:16]}"
+    return load_generated(name, source).loop
+
+
+def load_generated(name: str, source: str):
+    """Import the module ``name`` with ``source`` from the kernel cache folder, writing it
+    there first if absent (atomically), so that numba's ``cache=True`` works for it.
+    ``name`` must carry a hash of ``source`` and of every file it compiles in."""
     folder = _cache_dir()
     path = os.path.join(folder, name + ".py")
     if not os.path.exists(path):
@@ -141,7 +148,7 @@ def _loop(kernel, row: str, put: str):
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)
-    return module.loop
+    return module
 
 
 def as_rows(name: str, x, n_in: int) -> np.ndarray:

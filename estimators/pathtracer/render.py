@@ -11,19 +11,16 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib
-import importlib.util
 import math
 import numbers
 import os
-import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import get_num_threads
 
+from .._vectorize import load_generated
 from . import _kernel
 from .prepare import PreparedScene, prepare_scene
 
@@ -40,13 +37,6 @@ class RenderResult:
     n: int
     seconds: float
     stats: dict = field(default_factory=dict)
-
-
-def _cache_dir() -> str:
-    d = os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
-                                                         "mcverify", "kernels")
-    os.makedirs(d, exist_ok=True)
-    return d
 
 
 def _dependency_digest() -> str:
@@ -84,24 +74,11 @@ def specialised_kernel(features: int):
 
 
 def load_cached(name: str, source: str):
-    """The module ``name`` with ``source``, written once into the kernel cache folder (so
-    that numba's ``cache=True`` works for it) and imported once per process. ``name``
-    must carry a hash of ``source`` and of ``_dependency_digest()``."""
-    if name in _MODULES:
-        return _MODULES[name]
-    folder = _cache_dir()
-    path = os.path.join(folder, name + ".py")
-    if not os.path.exists(path):
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(source)
-        os.replace(tmp, path)
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    _MODULES[name] = module
-    return module
+    """The module ``name`` with ``source`` (``_vectorize.load_generated``), imported once
+    per process. ``name`` must carry a hash of ``source`` and of ``_dependency_digest()``."""
+    if name not in _MODULES:
+        _MODULES[name] = load_generated(name, source)
+    return _MODULES[name]
 
 
 def _tiles(width: int, height: int, threads: int) -> np.ndarray:
