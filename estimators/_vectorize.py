@@ -32,14 +32,12 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib.util
 import inspect
-import os
-import sys
-import tempfile
 
 import numpy as np
 from numba import njit
+
+from ._generated import load
 
 #: Rows per block: scratch of up to 4 float64 columns stays in L1 (16 KB), and a block
 #: is large enough for the per-block overhead to vanish.
@@ -112,13 +110,6 @@ def loop(x, p, out):
 '''
 
 
-def _cache_dir() -> str:
-    d = os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
-                                                         "mcverify", "kernels")
-    os.makedirs(d, exist_ok=True)
-    return d
-
-
 @functools.lru_cache(maxsize=None)
 def _loop(kernel, row: str, put: str):
     """The compiled block loop ``loop(x, p, out)``: ``out[i] = kernel(row(x, i), p)``
@@ -130,25 +121,8 @@ def _loop(kernel, row: str, put: str):
         with open(path, "rb") as f:
             h.update(f.read())
     name = f"estimators_loop_{fn.__name__.strip('_')}_{h.hexdigest()[:16]}"
-    return load_generated(name, source).loop
-
-
-def load_generated(name: str, source: str):
-    """Import the module ``name`` with ``source`` from the kernel cache folder, writing it
-    there first if absent (atomically), so that numba's ``cache=True`` works for it.
-    ``name`` must carry a hash of ``source`` and of every file it compiles in."""
-    folder = _cache_dir()
-    path = os.path.join(folder, name + ".py")
-    if not os.path.exists(path):
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(source)
-        os.replace(tmp, path)
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
+    module = load(name, source)
+    return module.loop
 
 
 def as_rows(name: str, x, n_in: int) -> np.ndarray:

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import get_num_threads
 
-from .._vectorize import load_generated
 from . import _kernel
+from .._generated import load
 from .prepare import PreparedScene, prepare_scene
 
 TILE = 8
@@ -74,11 +74,14 @@ def specialised_kernel(features: int):
 
 
 def load_cached(name: str, source: str):
-    """The module ``name`` with ``source`` (``_vectorize.load_generated``), imported once
-    per process. ``name`` must carry a hash of ``source`` and of ``_dependency_digest()``."""
-    if name not in _MODULES:
-        _MODULES[name] = load_generated(name, source)
-    return _MODULES[name]
+    """The module ``name`` with ``source``, written once into the kernel cache folder (so
+    that numba's ``cache=True`` works for it) and imported once per process. ``name``
+    must carry a hash of ``source`` and of ``_dependency_digest()``."""
+    if name in _MODULES:
+        return _MODULES[name]
+    module = load(name, source)
+    _MODULES[name] = module
+    return module
 
 
 def _tiles(width: int, height: int, threads: int) -> np.ndarray:

@@ -1,0 +1,40 @@
+"""Generated numba modules, written once into the kernel cache and imported from there.
+
+numba's on-disk cache keys a compiled function by its own file, not by the callees it
+inlines, so code that is generated per specialisation (the path tracer's kernel per
+feature set, the warps' parallel block loops per kernel) is written to a file whose name
+carries a hash of every source it compiles in, then imported as a module: an edit makes a
+new file, never a stale kernel, and a second process starts warm.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import tempfile
+
+
+def cache_dir() -> str:
+    """``$MCVERIFY_CACHE``, else ``~/.cache/mcverify/kernels`` (made if missing)."""
+    d = os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
+                                                         "mcverify", "kernels")
+    os.makedirs(d, exist_ok=True)
+    return d
+
+
+def load(name: str, source: str):
+    """The module ``name`` with ``source``: written atomically into the cache (once),
+    imported, and registered in ``sys.modules`` (numba's cache finds it there)."""
+    folder = cache_dir()
+    path = os.path.join(folder, name + ".py")
+    if not os.path.exists(path):
+        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(source)
+        os.replace(tmp, path)
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
