@@ -7,8 +7,9 @@
 - ``InvertedCDF``: any user pdf on [a, b]: the CDF is tabulated by adaptive quadrature
   with error control, and inverted by Newton's method safeguarded by bisection.
 
-The piecewise-constant kernels are numba scalar functions (``_sample_pc1d_kernel``...)
-that the path tracer calls directly; the classes are their numpy front ends.
+The piecewise-constant kernels are numba scalar functions; the ones the path tracer
+calls directly are public (``sample_discrete_kernel``, ``sample_pc2d_kernel``,
+``pc2d_pdf_kernel``); the classes are their numpy front ends.
 
 References: M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed.,
 §A.4 (sampling 1-D functions, piecewise-constant 2-D distributions).
@@ -57,7 +58,7 @@ def _find_interval_kernel(cdf, u):
 
 
 @njit(cache=True)
-def _sample_discrete_kernel(cdf, u):
+def sample_discrete_kernel(cdf, u):
     """(index, probability, remapped u in [0, 1))."""
     i = _find_interval_kernel(cdf, u)
     p = cdf[i + 1] - cdf[i]
@@ -69,7 +70,7 @@ def _sample_discrete_kernel(cdf, u):
 def _sample_pc1d_kernel(cdf, u):
     """Piecewise-constant density on [0, 1] with n pieces: (x, pdf, piece)."""
     n = cdf.shape[0] - 1
-    i, p, r = _sample_discrete_kernel(cdf, u)
+    i, p, r = sample_discrete_kernel(cdf, u)
     return min((i + r) / n, ONE_MINUS_EPSILON), p * n, i
 
 
@@ -91,7 +92,7 @@ def _invert_pc1d_kernel(cdf, x):
 
 
 @njit(cache=True)
-def _sample_pc2d_kernel(marginal_cdf, conditional_cdf, u0, u1):
+def sample_pc2d_kernel(marginal_cdf, conditional_cdf, u0, u1):
     """Piecewise-constant density on [0, 1]² ((ny, nx) pieces): pick the row y from the
     marginal with u1, then x within the row with u0. Returns (x, y, pdf)."""
     y, py, row = _sample_pc1d_kernel(marginal_cdf, u1)
@@ -100,7 +101,7 @@ def _sample_pc2d_kernel(marginal_cdf, conditional_cdf, u0, u1):
 
 
 @njit(cache=True)
-def _pc2d_pdf_kernel(marginal_cdf, conditional_cdf, x, y):
+def pc2d_pdf_kernel(marginal_cdf, conditional_cdf, x, y):
     if x < 0.0 or x > 1.0 or y < 0.0 or y > 1.0:
         return 0.0
     ny = marginal_cdf.shape[0] - 1
@@ -137,9 +138,9 @@ def _pc2d_batch_kernel(mcdf, ccdf, pts, mode):
     for i in range(pts.shape[0]):
         a, b = pts[i, 0], pts[i, 1]
         if mode == 0:
-            out[i, 0], out[i, 1], out[i, 2] = _sample_pc2d_kernel(mcdf, ccdf, a, b)
+            out[i, 0], out[i, 1], out[i, 2] = sample_pc2d_kernel(mcdf, ccdf, a, b)
         elif mode == 1:
-            out[i, 0] = _pc2d_pdf_kernel(mcdf, ccdf, a, b)
+            out[i, 0] = pc2d_pdf_kernel(mcdf, ccdf, a, b)
         else:
             out[i, 0], out[i, 1] = _invert_pc2d_kernel(mcdf, ccdf, a, b)
     return out

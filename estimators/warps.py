@@ -2,7 +2,10 @@
 
 pbrt's triple for every warp: ``sample_X(u, *params)``, ``X_pdf(x, *params)``,
 ``invert_X(x, *params)``, ``u`` first. Each is a numpy front end over one numba scalar
-kernel (``_sample_X_kernel`` etc.), which the path tracer calls directly on tuples.
+kernel (``_sample_X_kernel`` etc.). The kernels that compiled code elsewhere calls
+directly on tuples (the path tracer's BSDFs and emitters) are public, without the
+underscore (``sample_cosine_hemisphere_kernel``, ``ggx_d``...): the one implementation
+both the array front ends and the tracer use.
 
 Numerical habits (pbrt-v4): ``u`` is clamped below ``1 - 2^-53``; square roots take
 ``max(0, ·)``; densities are 0 outside the support; quantities that cancel near a pole
@@ -123,7 +126,7 @@ def _sincos_quarter(t):
 
 
 @_jit
-def _sample_uniform_disk_concentric_kernel(u, p):
+def sample_uniform_disk_concentric_kernel(u, p):
     # Shirley–Chiu in pbrt's form: the wedge |a| > |b| maps to r·(cos φ, sin φ), the
     # other to r·(sin φ, cos φ) (= r·(cos, sin)(π/2 - φ)), with φ = (π/4)·q/r in
     # [-π/4, π/4] either way; (a, b) = (0, 0) gives r = 0, the centre.
@@ -156,7 +159,7 @@ def _invert_uniform_disk_concentric_kernel(x, p):
 
 # ----------------------------------------------------------------------- triangle
 @_jit
-def _sample_uniform_triangle_kernel(u, p):
+def sample_uniform_triangle_kernel(u, p):
     """Barycentrics (b0, b1) of the triangle (0,0), (1,0), (0,1): Heitz's
     low-distortion map, which keeps strata compact."""
     if u[0] < u[1]:
@@ -182,7 +185,7 @@ def _invert_uniform_triangle_kernel(x, p):
 
 # ------------------------------------------------------------ sphere & hemisphere
 @_jit
-def _sample_uniform_sphere_kernel(u, p):
+def sample_uniform_sphere_kernel(u, p):
     z = 1.0 - 2.0 * u[0]
     return _direction(_safe_sqrt(1.0 - z * z), z, _TWO_PI * u[1])
 
@@ -214,13 +217,13 @@ def _invert_uniform_hemisphere_kernel(x, p):
 
 
 @_jit
-def _sample_cosine_hemisphere_kernel(u, p):
-    d = _sample_uniform_disk_concentric_kernel(u, p)
+def sample_cosine_hemisphere_kernel(u, p):
+    d = sample_uniform_disk_concentric_kernel(u, p)
     return (d[0], d[1], _safe_sqrt(1.0 - d[0] * d[0] - d[1] * d[1]))
 
 
 @_jit
-def _cosine_hemisphere_pdf_kernel(x, p):
+def cosine_hemisphere_pdf_kernel(x, p):
     return x[2] * _INV_PI if x[2] >= 0.0 else 0.0
 
 
@@ -231,7 +234,7 @@ def _invert_cosine_hemisphere_kernel(x, p):
 
 # ---------------------------------------------------------------------------- cone
 @_jit
-def _sample_uniform_cone_kernel(u, p):
+def sample_uniform_cone_kernel(u, p):
     """Uniform directions within θ_max of +z; ``p[0] = cos θ_max``."""
     one_minus_cos = u[0] * (1.0 - p[0])
     cos_t = 1.0 - one_minus_cos
@@ -273,7 +276,7 @@ def _invert_power_cosine_kernel(x, p):
 
 # ------------------------------------------------------------- microfacet normals
 @_jit
-def _ggx_d(x, alpha):
+def ggx_d(x, alpha):
     """GGX / Trowbridge–Reitz D(h) for a unit h; the denominator uses x² + y² instead
     of 1 - z² so that it keeps its precision for tiny α."""
     if x[2] <= 0.0:
@@ -295,7 +298,7 @@ def _sample_ggx_kernel(u, p):
 
 @_jit
 def _ggx_pdf_kernel(x, p):
-    return _ggx_d(x, p[0]) * max(x[2], 0.0)
+    return ggx_d(x, p[0]) * max(x[2], 0.0)
 
 
 @_jit
@@ -305,7 +308,7 @@ def _invert_ggx_kernel(x, p):
 
 
 @_jit
-def _sample_beckmann_kernel(u, p):
+def sample_beckmann_kernel(u, p):
     """Normals h distributed as D(h) cos θ_h for Beckmann of roughness ``p[0] = α``."""
     tan2 = -p[0] * p[0] * math.log1p(-u[0])
     cos_t = 1.0 / math.sqrt(1.0 + tan2)
@@ -313,7 +316,7 @@ def _sample_beckmann_kernel(u, p):
 
 
 @_jit
-def _beckmann_pdf_kernel(x, p):
+def beckmann_pdf_kernel(x, p):
     if x[2] <= 0.0:
         return 0.0
     a2 = p[0] * p[0]
@@ -338,7 +341,7 @@ def _ggx_lambda(w, alpha):
 
 
 @_jit
-def _sample_ggx_vndf_kernel(u, p):
+def sample_ggx_vndf_kernel(u, p):
     """Visible normals of GGX (Heitz 2018) for the outgoing direction
     ``w = (p[1], p[2], p[3])`` (unit, z > 0) and roughness ``p[0] = α``."""
     alpha = p[0]
@@ -374,7 +377,7 @@ def _ggx_vndf_pdf_kernel(x, p):
     if cos_wh <= 0.0:
         return 0.0
     g1 = 1.0 / (1.0 + _ggx_lambda(w, p[0]))
-    return g1 * cos_wh * _ggx_d(x, p[0]) / w[2]
+    return g1 * cos_wh * ggx_d(x, p[0]) / w[2]
 
 
 # ------------------------------------------------------------------- 1-D densities
@@ -540,26 +543,26 @@ sample_uniform_disk_polar, uniform_disk_pdf, invert_uniform_disk_polar = _triple
     "uniform_disk_polar", 2, 2, _sample_uniform_disk_polar_kernel, _uniform_disk_pdf_kernel,
     _invert_uniform_disk_polar_kernel, "Uniform on the unit disk, polar map r = √u₀.")
 sample_uniform_disk_concentric, _, invert_uniform_disk_concentric = _triple(
-    "uniform_disk_concentric", 2, 2, _sample_uniform_disk_concentric_kernel,
+    "uniform_disk_concentric", 2, 2, sample_uniform_disk_concentric_kernel,
     _uniform_disk_pdf_kernel, _invert_uniform_disk_concentric_kernel,
     "Uniform on the unit disk, Shirley–Chiu concentric map (low distortion).")
 sample_uniform_triangle, uniform_triangle_pdf, invert_uniform_triangle = _triple(
-    "uniform_triangle", 2, 2, _sample_uniform_triangle_kernel, _uniform_triangle_pdf_kernel,
+    "uniform_triangle", 2, 2, sample_uniform_triangle_kernel, _uniform_triangle_pdf_kernel,
     _invert_uniform_triangle_kernel,
     "Uniform barycentrics (b0, b1) on the triangle (0,0), (1,0), (0,1) (Heitz 2019).")
 sample_uniform_sphere, uniform_sphere_pdf, invert_uniform_sphere = _triple(
-    "uniform_sphere", 2, 3, _sample_uniform_sphere_kernel, _uniform_sphere_pdf_kernel,
+    "uniform_sphere", 2, 3, sample_uniform_sphere_kernel, _uniform_sphere_pdf_kernel,
     _invert_uniform_sphere_kernel, "Uniform directions on the unit sphere.")
 sample_uniform_hemisphere, uniform_hemisphere_pdf, invert_uniform_hemisphere = _triple(
     "uniform_hemisphere", 2, 3, _sample_uniform_hemisphere_kernel,
     _uniform_hemisphere_pdf_kernel, _invert_uniform_hemisphere_kernel,
     "Uniform directions on the hemisphere z >= 0.")
 sample_cosine_hemisphere, cosine_hemisphere_pdf, invert_cosine_hemisphere = _triple(
-    "cosine_hemisphere", 2, 3, _sample_cosine_hemisphere_kernel, _cosine_hemisphere_pdf_kernel,
+    "cosine_hemisphere", 2, 3, sample_cosine_hemisphere_kernel, cosine_hemisphere_pdf_kernel,
     _invert_cosine_hemisphere_kernel,
     "Cosine-weighted hemisphere (Malley's method on the concentric disk): pdf cos θ / π.")
 sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone = _triple(
-    "uniform_cone", 2, 3, _sample_uniform_cone_kernel, _uniform_cone_pdf_kernel,
+    "uniform_cone", 2, 3, sample_uniform_cone_kernel, _uniform_cone_pdf_kernel,
     _invert_uniform_cone_kernel,
     "Uniform on the spherical cap θ <= θ_max: ``sample_uniform_cone(u, cos_theta_max)``.")
 sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
@@ -570,10 +573,10 @@ sample_ggx, ggx_pdf, invert_ggx = _triple(
     "ggx", 2, 3, _sample_ggx_kernel, _ggx_pdf_kernel, _invert_ggx_kernel,
     "GGX (Trowbridge–Reitz) normals, pdf D(h) cos θ_h: ``sample_ggx(u, alpha)``.")
 sample_beckmann, beckmann_pdf, invert_beckmann = _triple(
-    "beckmann", 2, 3, _sample_beckmann_kernel, _beckmann_pdf_kernel, _invert_beckmann_kernel,
+    "beckmann", 2, 3, sample_beckmann_kernel, beckmann_pdf_kernel, _invert_beckmann_kernel,
     "Beckmann normals, pdf D(h) cos θ_h: ``sample_beckmann(u, alpha)``.")
 sample_ggx_vndf, ggx_vndf_pdf, _ = _triple(
-    "ggx_vndf", 2, 3, _sample_ggx_vndf_kernel, _ggx_vndf_pdf_kernel, None,
+    "ggx_vndf", 2, 3, sample_ggx_vndf_kernel, _ggx_vndf_pdf_kernel, None,
     "GGX visible normals (Heitz 2018): ``sample_ggx_vndf(u, alpha, wx, wy, wz)``, "
     "pdf G1(w) max(0, w·h) D(h) / w_z.")
 sample_exponential, exponential_pdf, invert_exponential = _triple(

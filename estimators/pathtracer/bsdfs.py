@@ -23,9 +23,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..warps import (_beckmann_pdf_kernel, _cosine_hemisphere_pdf_kernel, _ggx_d,
-                     _sample_beckmann_kernel, _sample_cosine_hemisphere_kernel,
-                     _sample_ggx_vndf_kernel)
+from ..warps import (beckmann_pdf_kernel, cosine_hemisphere_pdf_kernel, ggx_d,
+                     sample_beckmann_kernel, sample_cosine_hemisphere_kernel,
+                     sample_ggx_vndf_kernel)
 from .layout import (ALPHA, BSDF_DISTRIBUTION, BSDF_KIND, BSDF_NONLINEAR, BSDF_TWOSIDED,
                      COAT_INTERNAL, COAT_TABLE, COAT_TABLE_RES, COLOR0, COLOR1, COND_ETA,
                      COND_K, CONDUCTOR, DIELECTRIC, DIFFUSE, ETA, F_CONDUCTOR, F_DIELECTRIC,
@@ -104,10 +104,10 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
 @_jit
 def microfacet_d(m, alpha, dist):
     if dist == GGX:
-        return _ggx_d(m, alpha)
+        return ggx_d(m, alpha)
     if m[2] <= 0.0:
         return 0.0
-    return _beckmann_pdf_kernel(m, (alpha,)) / m[2]
+    return beckmann_pdf_kernel(m, (alpha,)) / m[2]
 
 
 @_jit
@@ -146,8 +146,8 @@ def _reflect(w, m):
 @_jit
 def sample_microfacet(wi, alpha, dist, u0, u1):
     if dist == GGX:
-        return _sample_ggx_vndf_kernel((u0, u1), (alpha, wi[0], wi[1], wi[2]))
-    return _sample_beckmann_kernel((u0, u1), (alpha,))
+        return sample_ggx_vndf_kernel((u0, u1), (alpha, wi[0], wi[1], wi[2]))
+    return sample_beckmann_kernel((u0, u1), (alpha,))
 
 
 @_jit
@@ -268,7 +268,7 @@ def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
         val *= fresnel_dielectric(cos_h, eta)[0]
         r, g, bl = r + sr * val, g + sg * val, bl + sb * val
     pdf = (ps * microfacet_reflect_pdf(wi, wo, alpha, dist)
-           + (1.0 - ps) * _cosine_hemisphere_pdf_kernel(wo, (0.0,)))
+           + (1.0 - ps) * cosine_hemisphere_pdf_kernel(wo, (0.0,)))
     return r, g, bl, pdf
 
 
@@ -313,9 +313,9 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
             w = f_i / (ps * pdf_scale)
             zs = -ci if flip else ci
             return -wi[0], -wi[1], zs, c0 * w, c1 * w, c2 * w, ps * pdf_scale, True, 1.0
-        wo = _sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
+        wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     elif mask & F_DIFFUSE and kind == DIFFUSE:
-        wo = _sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
+        wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     elif mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
         m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
         wo = _reflect(wi, m)
@@ -325,7 +325,7 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
             m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
             wo = _reflect(wi, m)
         else:
-            wo = _sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
+            wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     else:
         return zero
     if wo[2] <= 0.0:

@@ -19,9 +19,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..distributions import _pc2d_pdf_kernel, _sample_discrete_kernel, _sample_pc2d_kernel
-from ..warps import (_sample_uniform_cone_kernel, _sample_uniform_disk_concentric_kernel,
-                     _sample_uniform_sphere_kernel, _sample_uniform_triangle_kernel)
+from ..distributions import pc2d_pdf_kernel, sample_discrete_kernel, sample_pc2d_kernel
+from ..warps import (sample_uniform_cone_kernel, sample_uniform_disk_concentric_kernel,
+                     sample_uniform_sphere_kernel, sample_uniform_triangle_kernel)
 from .geometry import coordinate_system, to_world, triangle_point
 from .layout import (AREA, CONSTANT, DIRECTIONAL, DISK_TO_LOCAL, DISK_TO_WORLD, ENV_SCALE,
                      ENV_TO_LOCAL, LIGHT_AREA, LIGHT_CDF, LIGHT_DIRECTION, LIGHT_KIND,
@@ -75,7 +75,7 @@ def _sample_area(light_f, light_i, light_cdf, prims, info, k, x, y, z, u0, u1, u
             c0, c1, c2 = _xyz(p, SPHERE_CENTER)
             cx, cy, cz = (c0 - x) / dc, (c1 - y) / dc, (c2 - z) / dc
             s, t = coordinate_system(cx, cy, cz)
-            lw = _sample_uniform_cone_kernel((u1, u2), (cos_max,))
+            lw = sample_uniform_cone_kernel((u1, u2), (cos_max,))
             wx, wy, wz = to_world(s, t, (cx, cy, cz), lw[0], lw[1], lw[2])
             # near intersection with the sphere along w
             b = dc * lw[2]
@@ -93,21 +93,21 @@ def _sample_area(light_f, light_i, light_cdf, prims, info, k, x, y, z, u0, u1, u
             one_minus = (1.0 - cos_max * cos_max) / (1.0 + cos_max)
             return wx, wy, wz, dist, 1.0 / (2.0 * math.pi * one_minus)
         # inside the sphere: uniform over its area
-        sw = _sample_uniform_sphere_kernel((u1, u2), (0.0,))
+        sw = sample_uniform_sphere_kernel((u1, u2), (0.0,))
         c0, c1, c2 = _xyz(p, SPHERE_CENTER)
         r = p[SPHERE_RADIUS]
         px, py, pz = c0 + r * sw[0], c1 + r * sw[1], c2 + r * sw[2]
         nx, ny, nz = sw[0], sw[1], sw[2]
         area = 4.0 * math.pi * p[SPHERE_RADIUS] * p[SPHERE_RADIUS]
     elif kind == TRIANGLE:
-        i, _, _ = _sample_discrete_kernel(light_cdf[off:off + count + 1], u0)
+        i, _, _ = sample_discrete_kernel(light_cdf[off:off + count + 1], u0)
         p = prims[first + i]
-        bary = _sample_uniform_triangle_kernel((u1, u2), (0.0,))
+        bary = sample_uniform_triangle_kernel((u1, u2), (0.0,))
         px, py, pz, nx, ny, nz = triangle_point(p, bary[0], bary[1])
         area = light_f[k, LIGHT_AREA]
     else:  # disk
         p = prims[first]
-        dpt = _sample_uniform_disk_concentric_kernel((u1, u2), (0.0,))
+        dpt = sample_uniform_disk_concentric_kernel((u1, u2), (0.0,))
         px = p[DISK_TO_WORLD + 0] * dpt[0] + p[DISK_TO_WORLD + 1] * dpt[1] + p[DISK_TO_WORLD + 3]
         py = p[DISK_TO_WORLD + 4] * dpt[0] + p[DISK_TO_WORLD + 5] * dpt[1] + p[DISK_TO_WORLD + 7]
         pz = p[DISK_TO_WORLD + 8] * dpt[0] + p[DISK_TO_WORLD + 9] * dpt[1] + p[DISK_TO_WORLD + 11]
@@ -171,7 +171,7 @@ def environment_pdf(light_f, light_i, env_marg, env_cond, k, dx, dy, dz):
     s = math.sqrt(max(0.0, 1.0 - ly * ly))
     if s == 0.0:
         return 0.0
-    return _pc2d_pdf_kernel(env_marg, env_cond, u, v) / (2.0 * math.pi * math.pi * s)
+    return pc2d_pdf_kernel(env_marg, env_cond, u, v) / (2.0 * math.pi * math.pi * s)
 
 
 @_fast
@@ -208,11 +208,11 @@ def sample_emitter(light_f, light_i, light_cdf, prims, info, shape_flip, tex_dat
         lr, lg, lb = _xyz(f, LIGHT_RADIANCE)
         return -dx, -dy, -dz, np.inf, lr, lg, lb, 1.0
     if kind == CONSTANT:
-        w = _sample_uniform_sphere_kernel((u1, u2), (0.0,))
+        w = sample_uniform_sphere_kernel((u1, u2), (0.0,))
         lr, lg, lb = _xyz(f, LIGHT_RADIANCE)
         return w[0], w[1], w[2], np.inf, lr, lg, lb, _INV_FOUR_PI
     # ENVMAP
-    u, v, pdf_uv = _sample_pc2d_kernel(env_marg, env_cond, u1, u2)
+    u, v, pdf_uv = sample_pc2d_kernel(env_marg, env_cond, u1, u2)
     lx, ly, lz = envmap_direction(u, v)
     s = math.sqrt(max(0.0, 1.0 - ly * ly))
     if s == 0.0 or pdf_uv == 0.0:
