@@ -43,18 +43,6 @@ BSDFS = {
 }
 
 
-@pytest.fixture(scope="module")
-def mi():
-    """Mitsuba's scalar variant (pointwise calls), the previous variant restored after."""
-    import mitsuba
-
-    before = mitsuba.variant()
-    mitsuba.set_variant("scalar_rgb")
-    yield mitsuba
-    if before:
-        mitsuba.set_variant(before)
-
-
 def _ours(xml):
     a = prepare_scene(parse_scene(_SCENE.format(bsdf=xml))).arrays
     return a.bsdf_f, a.bsdf_i, a.bsdf_tex, a.tex_data, a.tex_info

@@ -18,17 +18,6 @@ pytestmark = pytest.mark.mitsuba
 
 
 @pytest.fixture(scope="module")
-def mi():
-    import mitsuba
-
-    before = mitsuba.variant()
-    mitsuba.set_variant("scalar_rgb")
-    yield mitsuba
-    if before:
-        mitsuba.set_variant(before)
-
-
-@pytest.fixture(scope="module")
 def images(mi, tmp_path_factory):
     """A random float EXR (6 × 10, distinct texels) and an 8-bit sRGB PNG (5 × 7)."""
     d = tmp_path_factory.mktemp("tex")
