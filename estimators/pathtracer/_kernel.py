@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit, prange
 
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
-from estimators.pathtracer.camera import _generate_ray_kernel
+from estimators.pathtracer.camera import SPLAT_CHANNELS, _generate_ray_kernel, splat_kernel
 from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_environment,
                                             is_delta, sample_emitter)
 from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
@@ -236,3 +236,50 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, 
                 mean[y, x, 0], mean[y, x, 1], mean[y, x, 2] = mr, mg, mb
                 m2[y, x, 0], m2[y, x, 1], m2[y, x, 2] = sr, sg, sb
                 bad[y, x] = nbad
+
+
+@njit(cache=True, parallel=True)
+def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, pdf_scale, acc, bad):
+    """Render the listed tiles with a splatting reconstruction filter (Mitsuba's
+    ``ImageBlock::put``): sample s of pixel (x, y) sits at (x + ξ, y + ξ') and
+    ``camera.splat_kernel`` adds it to the pixels within the filter's radius. The random
+    numbers are those of ``render_tiles``. Each tile splats into a private buffer (the tile
+    and ``reach`` pixels around it); after the parallel loop the buffers are added into
+    ``acc`` (H, W, SPLAT_CHANNELS) in tile order, so the image is the same whatever the
+    number of threads. ``bad`` counts non-finite samples (set to zero) per pixel."""
+    n = tiles.shape[0]
+    side = 2 * reach
+    for ti in range(n):
+        side = max(side, tiles[ti, 2] - tiles[ti, 0] + 2 * reach,
+                   tiles[ti, 3] - tiles[ti, 1] + 2 * reach)
+    buf = np.zeros((n, side, side, SPLAT_CHANNELS))
+    for ti in prange(n):
+        stack = new_stack()
+        x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
+        bx, by = x0 - reach, y0 - reach
+        tile_buf = buf[ti]
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                pixel = y * width + x
+                base = _mix(_mix(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
+                nbad = 0
+                for s in range(spp):
+                    state = _mix(base ^ (np.uint64(s) * _M2))
+                    fx, state = _next(state)
+                    fy, state = _next(state)
+                    ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(
+                        cam, (x + fx) / width, (y + fy) / height)
+                    r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state,
+                                           pdf_scale)
+                    if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)):
+                        r, g, b = 0.0, 0.0, 0.0
+                        nbad += 1
+                    splat_kernel(cam, tile_buf, bx, by, width, height, x + fx, y + fy,
+                                 r, g, b)
+                bad[y, x] = nbad
+    for ti in range(n):
+        bx, by = tiles[ti, 0] - reach, tiles[ti, 1] - reach
+        for j in range(max(0, -by), min(side, height - by)):
+            for i in range(max(0, -bx), min(side, width - bx)):
+                for k in range(SPLAT_CHANNELS):
+                    acc[by + j, bx + i, k] += buf[ti, j, i, k]

@@ -21,6 +21,7 @@ import numpy as np
 from numba import get_num_threads
 
 from . import _kernel
+from .camera import SPLAT_CHANNELS
 from .._generated import load
 from .prepare import PreparedScene, prepare_scene
 
@@ -30,13 +31,16 @@ _MODULES: dict[str, object] = {}
 
 @dataclass(frozen=True)
 class RenderResult:
-    """Per-pixel mean and sample variance of ``n`` samples, (H, W, 3) float32."""
+    """Per-pixel mean and sample variance of ``n`` samples, (H, W, 3) float32; with
+    passes, ``passes`` holds the ``n`` pass images (n, H, W, 3) float32 (the render gate
+    needs them where a splatting filter correlates neighbouring pixels)."""
 
     mean: np.ndarray
     variance: np.ndarray
     n: int
     seconds: float
     stats: dict = field(default_factory=dict)
+    passes: np.ndarray | None = None
 
 
 def _dependency_digest() -> str:
@@ -142,19 +146,21 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     features = -1 if general else cs.features
     module = specialised_kernel(features)
     w, h = cs.width, cs.height
-    mean = np.zeros((h, w, 3))
-    m2 = np.zeros((h, w, 3))
-    bad = np.zeros((h, w), dtype=np.int64)
     cam = cs.camera.params
     threads = get_num_threads()
-    t0 = time.perf_counter()
     pdf_scale = float(pdf_scale)
-    module.render_tiles(cs.arrays, cam, _tiles(1, 1, 1)[:0], w, h, spp, seed, pdf_scale, mean,
-                        m2, bad)
+    bad = np.zeros((h, w), dtype=np.int64)
+    if cs.camera.splats:
+        film = _SplatFilm(cs.camera, module, h, w)
+    else:
+        film = _BoxFilm(module, h, w)
+    t0 = time.perf_counter()
+    film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
     compile_seconds = time.perf_counter() - t0
     # one parallel call, or with a progress callback up to 20 (each call ends on its
-    # slowest thread, so chunks cost time)
+    # slowest thread, so chunks cost time); a splatting film also bounds its tile buffers
     n_chunks = max(1, min(20, (w * h) // (4 * threads * TILE * TILE))) if progress else 1
+    n_chunks = max(n_chunks, film.min_chunks(w, h))
     bounds = np.linspace(0, h, n_chunks + 1).astype(int)
     bounds = np.unique(bounds - bounds % TILE)      # whole tile rows
     bounds = np.append(bounds, h) if bounds[-1] != h else bounds
@@ -164,18 +170,74 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         band = _tiles(w, b - a, threads)
         band[:, 1] += a
         band[:, 3] += a
-        module.render_tiles(cs.arrays, cam, band, w, h, spp, seed, pdf_scale, mean, m2, bad)
+        film.render(cs.arrays, cam, band, spp, seed, pdf_scale, bad)
         if progress:
             progress(n_tiles * int(b) // h, n_tiles)
     seconds = time.perf_counter() - t0
-    variance = m2 / (spp - 1)
+    mean, variance = film.develop(spp)
     stats = {"compile_seconds": compile_seconds, "threads": threads,
              "samples_per_second": w * h * spp / seconds if seconds > 0 else float("inf"),
              "kernel": "general" if features == -1 else f"specialised({cs.features:#x})",
              "nonfinite_samples": int(bad.sum()), "triangles": cs.n_triangles,
-             "lights": cs.n_lights, "bsdfs": list(cs.bsdf_names)}
+             "lights": cs.n_lights, "bsdfs": list(cs.bsdf_names),
+             "rfilter": cs.camera.rfilter}
     return RenderResult(mean.astype(np.float32), variance.astype(np.float32), spp, seconds,
                         stats)
+
+
+class _BoxFilm:
+    """Box filter: each sample counts in its own pixel; per pixel the mean and the sum of
+    squared deviations of its samples (``render_tiles``)."""
+
+    def __init__(self, module, h, w):
+        self.module, self.width, self.height = module, w, h
+        self.mean = np.zeros((h, w, 3))
+        self.m2 = np.zeros((h, w, 3))
+
+    def min_chunks(self, w, h) -> int:
+        return 1
+
+    def render(self, arrays, cam, tiles, spp, seed, pdf_scale, bad):
+        self.module.render_tiles(arrays, cam, tiles, self.width, self.height, spp, seed,
+                                 pdf_scale, self.mean, self.m2, bad)
+
+    def develop(self, spp):
+        return self.mean, self.m2 / (spp - 1)
+
+
+class _SplatFilm:
+    """A splatting reconstruction filter (``camera`` says which; ``splat_tiles``): per
+    pixel Σw, Σw·L, Σw², Σw²·L, Σw²·L². The value is the ratio Σ w L / Σ w (0 where no
+    sample reached the pixel, as in Mitsuba); its variance is the delta method's
+    Σ w² (L - value)² / (Σ w)², reported times spp (``RenderResult``: variance / n is
+    the variance of the pixel's value). Neighbouring pixels share samples, so their
+    values correlate; the render gate compares pass images for that reason."""
+
+    #: Bytes of tile buffers one ``splat_tiles`` call may allocate.
+    BUFFER_BYTES = 1 << 26
+
+    def __init__(self, camera, module, h, w):
+        self.module, self.width, self.height = module, w, h
+        self.reach = int(math.ceil(camera.filter_radius + 0.5))
+        self.acc = np.zeros((h, w, SPLAT_CHANNELS))
+
+    def min_chunks(self, w, h) -> int:
+        side = TILE + 2 * self.reach
+        per_tile = side * side * self.SPLAT_CHANNELS * 8
+        n_tiles = -(-w // TILE) * -(-h // TILE)
+        return max(1, min(-(-h // TILE), -(-n_tiles * per_tile // self.BUFFER_BYTES)))
+
+    def render(self, arrays, cam, tiles, spp, seed, pdf_scale, bad):
+        self.module.splat_tiles(arrays, cam, tiles, self.reach, self.width, self.height,
+                                spp, seed, pdf_scale, self.acc, bad)
+
+    def develop(self, spp):
+        a = self.acc
+        wsum = a[:, :, 0:1]
+        safe = np.where(wsum > 0, wsum, 1.0)
+        mean = np.where(wsum > 0, a[:, :, 1:4] / safe, 0.0)
+        var = (a[:, :, 8:11] - 2 * mean * a[:, :, 5:8] + mean ** 2 * a[:, :, 4:5]) / safe ** 2
+        return mean, np.maximum(var, 0.0) * spp
 
 
 def pass_seed(seed: int, k: int) -> int:
@@ -203,4 +265,5 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
     stats = dict(stats, passes=passes, spp_per_pass=max(per, 2),
                  samples_per_second=cs.width * cs.height * max(per, 2) * passes / seconds)
     return RenderResult(m.mean(axis=0).astype(np.float32),
-                        m.var(axis=0, ddof=1).astype(np.float32), passes, seconds, stats)
+                        m.var(axis=0, ddof=1).astype(np.float32), passes, seconds, stats,
+                        m.astype(np.float32))

@@ -7,7 +7,8 @@ what is supported: never silently ignored or approximated.
 Supported: ``scene``, ``default`` and ``$param`` substitution, ``ref``/``id``,
 ``transform`` (``lookat``, ``translate``, ``rotate``, ``scale``, ``matrix``),
 integrators ``path`` and ``direct``, sensor ``perspective`` with film ``hdrfilm``,
-``rfilter`` ``box`` and sampler ``independent``; shapes ``rectangle``, ``cube``,
+``rfilter`` ``box``, ``gaussian`` (the default) and ``tent``, samplers ``independent``,
+``stratified``, ``multijitter``; shapes ``rectangle``, ``cube``,
 ``disk``, ``sphere``, ``obj``; BSDFs ``diffuse``, ``conductor``, ``roughconductor``,
 ``dielectric``, ``plastic``, ``roughplastic``, ``twosided``; emitters ``area``,
 ``point``, ``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values and
@@ -136,7 +137,7 @@ SUPPORTED = {
                                "to_world": ("transform",), "children": ("film", "sampler")}},
     "film": {"hdrfilm": {"width": ("integer",), "height": ("integer",),
                          "pixel_format": ("string",), "children": ("rfilter",)}},
-    "rfilter": {"box": {}},
+    "rfilter": {"box": {}, "gaussian": {"stddev": ("float",)}, "tent": {"radius": ("float",)}},
     # any sampler has the same expectation: all are accepted and render as independent
     "sampler": {t: {"sample_count": ("integer",), "seed": ("integer",), **extra}
                 for t, extra in {"independent": {}, "stratified": {"jitter": ("boolean",)},
@@ -374,6 +375,9 @@ class _Loader:
         integrator = integrator or Plugin("integrator", "path", {}, root.line)
         film = next((c for c in sensor.children if c.kind == "film"), None) or \
             Plugin("film", "hdrfilm", {}, sensor.line)
+        if not any(c.kind == "rfilter" for c in film.children):
+            # Mitsuba's default reconstruction filter
+            film.children.append(Plugin("rfilter", "gaussian", {}, film.line))
         sampler = next((c for c in sensor.children if c.kind == "sampler"), None) or \
             Plugin("sampler", "independent", {}, sensor.line)
         desc = SceneDescription(integrator, sensor, film, sampler, shapes, emitters, self.path)

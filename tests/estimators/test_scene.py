@@ -145,11 +145,44 @@ def test_malformed_xml_and_missing_sensor():
 
 @pytest.mark.parametrize("film", ['<film type="hdrfilm"><integer name="width" value="8"/></film>',
                                   ""], ids=["film-without-rfilter", "no-film"])
-def test_a_film_silent_about_its_filter_is_refused(film):
-    # Mitsuba's default reconstruction filter is gaussian; ours is box only, so a scene
-    # that relies on the default would render differently: refused, naming the fix
+def test_a_film_silent_about_its_filter_gets_mitsubas_default_gaussian(film):
     d = parse_scene(f'<scene version="3.0.0"><sensor type="perspective">'
                     f'<float name="fov" value="45"/>{film}</sensor></scene>', path="s.xml")
-    with pytest.raises(SceneError) as e:
+    cam = camera_from_scene(d)
+    assert (cam.rfilter, cam.filter_stddev, cam.filter_radius) == ("gaussian", 0.5, 2.0)
+    assert cam.splats
+
+
+@pytest.mark.parametrize("rfilter, expected", [
+    ('<rfilter type="box"/>', ("box", 0.5, 0.0)),
+    ('<rfilter type="gaussian"><float name="stddev" value="0.3"/></rfilter>',
+     ("gaussian", 1.2, 0.3)),
+    ('<rfilter type="tent"/>', ("tent", 1.0, 0.0)),
+    ('<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>', ("tent", 1.5, 0.0)),
+    # a radius of exactly 1/2 is a box in Mitsuba's ImageBlock
+    ('<rfilter type="tent"><float name="radius" value="0.5"/></rfilter>', ("box", 0.5, 0.0)),
+    ('<rfilter type="gaussian"><float name="stddev" value="0.125"/></rfilter>',
+     ("box", 0.5, 0.0)),
+], ids=["box", "gaussian-0.3", "tent-default", "tent-1.5", "tent-0.5-is-box",
+        "gaussian-0.125-is-box"])
+def test_reconstruction_filters_and_their_parameters(rfilter, expected):
+    d = parse_scene(f'<scene version="3.0.0"><sensor type="perspective"><float name="fov" '
+                    f'value="45"/><film type="hdrfilm">{rfilter}</film></sensor></scene>',
+                    path="s.xml")
+    cam = camera_from_scene(d)
+    name, radius, stddev = expected
+    assert cam.rfilter == name and cam.splats == (name != "box")
+    assert cam.filter_radius == pytest.approx(radius)
+    assert cam.filter_stddev == pytest.approx(stddev)
+
+
+@pytest.mark.parametrize("rfilter", [
+    '<rfilter type="gaussian"><float name="stddev" value="0"/></rfilter>',
+    '<rfilter type="tent"><float name="radius" value="-1"/></rfilter>'],
+    ids=["stddev-0", "radius-negative"])
+def test_a_filter_without_a_positive_radius_is_refused(rfilter):
+    d = parse_scene(f'<scene version="3.0.0"><sensor type="perspective"><float name="fov" '
+                    f'value="45"/><film type="hdrfilm">{rfilter}</film></sensor></scene>',
+                    path="s.xml")
+    with pytest.raises(SceneError, match=r"s\.xml:1: <rfilter type=.*must be finite and > 0"):
         camera_from_scene(d)
-    assert "s.xml:1" in str(e.value) and '<rfilter type="box"/>' in str(e.value)
