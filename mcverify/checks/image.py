@@ -12,6 +12,14 @@ every pixel"), each at α/3 (Bonferroni):
 3. **pixels**: per-pixel Welch t-tests under Benjamini–Hochberg. Under the global null
    BH's FDR control is family-wise control, and the adjusted p-values form the p-map.
 
+Tests 1 and 2 sum per-pixel variances, which is right only if pixels are independent. A
+splatting reconstruction filter (Mitsuba's default gaussian, tent) makes neighbouring
+pixels of one render share samples, and their sum's variance is then larger than the
+sum of theirs. Given the pass images behind each mean (``test_passes``/``ref_passes``),
+the image and block means are compared by Welch t-tests on the K pass-level means
+instead: those are i.i.d. across independent passes however the pixels of a pass
+correlate. A pixel's K pass values are i.i.d. too, so test 3 is unchanged.
+
 A pixel with zero variance on both sides (e.g. black background) is equal (p = 1) or
 different (p = 0) by its values alone, to float32 resolution at the image's scale.
 """
@@ -88,9 +96,35 @@ def delta_e_itp(test, ref) -> np.ndarray:
     return np.asarray(colour.difference.delta_E_ITP(ictcp[0], ictcp[1]))
 
 
+def _as_passes(name, a, n, shape):
+    """Pass images (K, H, W[, C]) as float64 (K, H, W, C) with K == n, or None."""
+    if a is None:
+        return None
+    raw = np.asarray(a)
+    if raw.ndim == len(shape):             # (K, H, W) for single-channel means
+        raw = raw[..., None]
+    if raw.ndim != 4 or raw.shape[1:] != shape or raw.shape[0] != n:
+        raise InvalidArgument(f"{name}: expected {n} pass images of shape {shape} "
+                              f"(an array ({n}, H, W[, C])), got shape {raw.shape}")
+    return _as_image(name, raw.reshape(n * shape[0], *shape[1:])).reshape(n, *shape)
+
+
+def _block_means(img, block):
+    """Means of ``block × block`` pixel blocks (edge blocks may be smaller) over the two
+    axes before the last of ``img`` (..., H, W, C): (..., by, bx, C)."""
+    h, w = img.shape[-3:-1]
+    by, bx = -(-h // block), -(-w // block)
+    out = np.zeros(img.shape[:-3] + (by, bx, img.shape[-1]))
+    for i in range(by):
+        for j in range(bx):
+            out[..., i, j, :] = img[..., i * block:(i + 1) * block,
+                                    j * block:(j + 1) * block, :].mean(axis=(-3, -2))
+    return out
+
+
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                    alpha: float = 0.01, block: int = 8, name: str = "image",
-                   tests=TESTS) -> CheckResult:
+                   tests=TESTS, test_passes=None, ref_passes=None) -> CheckResult:
     """Test that two renders have the same expected value in every pixel.
 
     Parameters
@@ -111,6 +145,12 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         gate's early looks, on a few passes, leave out the pixel t-tests: a pixel's
         variance from 4 passes is too uncertain on caustic pixels, while image and block
         means pool many pixels.
+    test_passes, ref_passes : arrays (K, H, W[, C]), optional
+        The i.i.d. pass images averaged into ``test_mean``/``ref_mean`` (K = ``test_n`` /
+        ``ref_n``). Given both, the global and block tests estimate the variance of
+        image and block means from the pass-level means (Welch t, K - 1 degrees of
+        freedom a side): valid when pixels within a pass are correlated, as a splatting
+        reconstruction filter makes them. ``details["pixels_correlated"]`` says which.
 
     Returns
     -------
@@ -128,7 +168,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     Pixel means of independent renders are independent across pixels (not across the
     channels of a pixel), so a channel's image mean has variance
     :math:`\\sum_p (s_{t,p}^2/n_t + s_{r,p}^2/n_r) / P^2`, and a block mean likewise.
-    Welch's test per pixel uses the Welch–Satterthwaite degrees of freedom.
+    Welch's test per pixel uses the Welch–Satterthwaite degrees of freedom. With pass
+    images, the image (block) mean of pass k, :math:`g_k`, is i.i.d. over k on each
+    side, and the difference of the two sides' averages of :math:`g_k` is Welch-t
+    tested with the sample variances of the :math:`g_k`.
 
     Examples
     --------
@@ -153,6 +196,12 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     tests = tuple(tests)
     if not tests or len(set(tests)) != len(tests) or not set(tests) <= set(TESTS):
         raise InvalidArgument(f"tests={tests}: a non-empty selection of {TESTS}")
+    if (test_passes is None) != (ref_passes is None):
+        raise InvalidArgument("test_passes/ref_passes: give both sides' pass images or "
+                              "neither (a correlated-pixel variance needs both)")
+    tp = _as_passes("test_passes", test_passes, nt, tm.shape)
+    rp = _as_passes("ref_passes", ref_passes, nr, tm.shape)
+    correlated = tp is not None
     h, w, c = tm.shape
     se2 = tv / nt + rv / nr                       # variance of each pixel's difference
     diff = tm - rm
@@ -170,23 +219,30 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     #    (identical on grey scenes), so they cannot be pooled as independent values;
     #    pixels within a channel are independent. Bonferroni across channels.
     n_px = h * w
-    p_channels = stats.z_test_beyond(diff.mean(axis=(0, 1)), se2.sum(axis=(0, 1)) / n_px ** 2,
-                                     tol(tm.mean(axis=(0, 1)), rm.mean(axis=(0, 1))))
+    gtol = tol(tm.mean(axis=(0, 1)), rm.mean(axis=(0, 1)))
+    if correlated:
+        gt, gr = tp.mean(axis=(1, 2)), rp.mean(axis=(1, 2))          # (K, C) pass means
+        p_channels = stats.welch_t_beyond(gt.mean(0) - gr.mean(0), gt.var(0, ddof=1), nt,
+                                          gr.var(0, ddof=1), nr, gtol)
+    else:
+        p_channels = stats.z_test_beyond(diff.mean(axis=(0, 1)),
+                                         se2.sum(axis=(0, 1)) / n_px ** 2, gtol)
     p_global = stats.bonferroni_min(p_channels)
 
     # 2. blocks (edge blocks may be smaller)
-    by, bx = -(-h // block), -(-w // block)
-    bdiff = np.zeros((by, bx, c))
-    bvar = np.zeros((by, bx, c))
-    bref = np.zeros((by, bx, c))
-    for i in range(by):
-        for j in range(bx):
-            sl = (slice(i * block, (i + 1) * block), slice(j * block, (j + 1) * block))
-            k = diff[sl].shape[0] * diff[sl].shape[1]
-            bdiff[i, j] = diff[sl].mean(axis=(0, 1))
-            bvar[i, j] = se2[sl].sum(axis=(0, 1)) / k ** 2
-            bref[i, j] = rm[sl].mean(axis=(0, 1))
-    p_blocks = stats.z_test_beyond(bdiff, bvar, tol(bref + bdiff, bref))
+    bref = _block_means(rm, block)
+    if correlated:
+        bt, br = _block_means(tp, block), _block_means(rp, block)   # (K, by, bx, C)
+        bdiff = bt.mean(0) - br.mean(0)
+        p_blocks = stats.welch_t_beyond(bdiff, bt.var(0, ddof=1), nt, br.var(0, ddof=1), nr,
+                                        tol(bref + bdiff, bref))
+    else:
+        bdiff = _block_means(diff, block)
+        # Var(mean of k independent pixels) = Σ se² / k² = (mean se²) / k
+        sizes = np.minimum(block, h - np.arange(0, h, block))[:, None, None] * \
+            np.minimum(block, w - np.arange(0, w, block))[None, :, None]
+        bvar = _block_means(se2, block) / sizes
+        p_blocks = stats.z_test_beyond(bdiff, bvar, tol(bref + bdiff, bref))
     p_blocks_adj = stats.holm(p_blocks.ravel()).reshape(p_blocks.shape)
 
     # 3. pixels: Welch t with Welch–Satterthwaite dof
@@ -228,6 +284,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         maps["delta_e_itp"] = delta_e_itp(tm, rm)
     details = {
         "found_by": found, "tests": list(tests), "alpha_per_test": level, "block": block,
+        "pixels_correlated": correlated,
         "global": {"difference": float(diff.mean()),
                    "relative": float(diff.mean() / max(abs(rm.mean()), 1e-300)),
                    "p_value": p_global, "p_channels": [float(x) for x in p_channels]},

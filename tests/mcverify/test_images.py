@@ -63,6 +63,51 @@ def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
     assert {tuple(b["block"]) for b in r.details["blocks"]["rejected"]} == {(2, 1)}
 
 
+def _splatted_passes(rng, passes, size=32, sigma=1.2, offset=0.0):
+    """Pass images whose pixels correlate as a splatting filter makes them: i.i.d.
+    skewed noise per pass, blurred by a gaussian of ``sigma`` pixels (wrapping)."""
+    from scipy.ndimage import gaussian_filter
+
+    noise = rng.gamma(0.5, 2.0, (passes, size, size, 3)) + offset
+    return gaussian_filter(noise, sigma=(0, sigma, sigma, 0), mode="wrap")
+
+
+def _passes_pair(a, b, with_passes):
+    kw = dict(test_mean=a.mean(0), ref_mean=b.mean(0), test_var=a.var(0, ddof=1),
+              ref_var=b.var(0, ddof=1), test_n=len(a), ref_n=len(b))
+    return dict(kw, test_passes=a, ref_passes=b) if with_passes else kw
+
+
+def test_correlated_pixels_need_the_pass_images():
+    """A/A on pass images whose pixels correlate (blurred noise, as a gaussian filter
+    splats it): given the passes, the image and block tests are calibrated (false alarms
+    within the binomial 99.9 % bound of α = 0.01 over 200 seeded runs); summing per-pixel
+    variances as if pixels were independent raises alarms far more often (what the render
+    gate did before it compared pass images)."""
+    def alarms(with_passes):
+        out = 0
+        for s in range(RUNS):
+            rng = np.random.default_rng(1000 + s)
+            r = mv.compare_images(**_passes_pair(_splatted_passes(rng, 16),
+                                                 _splatted_passes(rng, 16), with_passes),
+                                  alpha=ALPHA)
+            out += not r.passed
+            assert r.details["pixels_correlated"] == with_passes
+        return out
+
+    assert alarms(True) <= BOUND
+    assert alarms(False) > 4 * BOUND
+
+
+def test_with_pass_images_a_local_bias_is_still_found_by_the_blocks():
+    rng = np.random.default_rng(3)
+    a, b = _splatted_passes(rng, 16, offset=5.0), _splatted_passes(rng, 16, offset=5.0)
+    b[:, 8:16, 16:24] *= 1.10
+    r = mv.compare_images(**_passes_pair(a, b, True))
+    assert not r.passed and "blocks" in r.details["found_by"]
+    assert [1, 2] in [blk["block"] for blk in r.details["blocks"]["rejected"]]
+
+
 def test_zero_variance_pixels_compare_exactly():
     z = np.zeros((8, 8))
     ok = mv.compare_images(z, z, test_var=z, ref_var=z, test_n=4, ref_n=4)
@@ -81,7 +126,13 @@ def test_zero_variance_pixels_compare_exactly():
     (dict(test_mean=np.full((4, 4), np.nan)), "NaN"),
     (dict(test_n=1), "test_n=1"),
     (dict(block=0), "block=0"),
-], ids=["shape", "negative-var", "nan", "n", "block"])
+    (dict(test_passes=np.zeros((4, 4, 4))), "test_passes/ref_passes: give both"),
+    (dict(test_passes=np.zeros((3, 4, 4)), ref_passes=np.zeros((4, 4, 4))),
+     r"test_passes: expected 4 pass images"),
+    (dict(test_passes=np.zeros((4, 4, 4)), ref_passes=np.full((4, 4, 4), np.inf)),
+     "ref_passes: contains NaN/Inf"),
+], ids=["shape", "negative-var", "nan", "n", "block", "one-side-passes", "passes-count",
+        "passes-inf"])
 def test_bad_input(kwargs, match):
     base = dict(test_mean=np.zeros((4, 4)), ref_mean=np.zeros((4, 4)),
                 test_var=np.ones((4, 4)), ref_var=np.ones((4, 4)), test_n=4, ref_n=4)
