@@ -255,6 +255,15 @@ def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = N
     return np.asarray(_mi().render(scene, spp=spp, seed=int(seed)), dtype=np.float64)
 
 
+def filter_radius(scene_path: str, params: dict | None = None) -> float:
+    """The radius (pixels) of the reconstruction filter of the scene's first sensor's
+    film, as Mitsuba loads it; 0.5 is a box filter (each sample in its own pixel), a
+    larger one splats samples into neighbouring pixels."""
+    scene = _loaded(scene_path, tuple(sorted((params or {}).items())),
+                    os.stat(scene_path).st_mtime_ns)
+    return float(scene.sensors()[0].film().rfilter().radius())
+
+
 def render_passes(scene_path: str, *, spp: int, seeds, params: dict | None = None,
                   progress=None) -> np.ndarray:
     """Render ``scene_path`` once per seed (independent passes): (K, H, W, C) float64."""

@@ -2,9 +2,13 @@
 variance across passes and a manifest, so a stale or corrupt reference is never used.
 
 Layout: ``reference/scenes/<name>/scene.xml`` and, built from it,
-``reference/scenes/<name>/ref/{mean.exr, var.exr, manifest.json}``. The manifest records
-Mitsuba's version and variant, spp, passes, seeds, UTC time and the SHA-256 of the scene,
-``mean.exr`` and ``var.exr``: a changed scene or a swapped image is refused as stale.
+``reference/scenes/<name>/ref/{mean.exr, var.exr, passes.exr, manifest.json}``. The
+manifest records Mitsuba's version and variant, spp, passes, seeds, UTC time, the film's
+filter radius (``rfilter_radius``: above 1/2 the filter splats, and pixels of one pass
+correlate) and the SHA-256 of the scene and of each image: a changed scene or a swapped
+image is refused as stale. ``passes.exr`` holds the K pass images stacked vertically
+((K·H, W, C)): the render gate needs them where pixels correlate. References built
+before it was written have none and stay valid for box-filtered scenes.
 Images are read only as float OpenEXR (``read_float_exr``): an 8-bit PNG renamed ``.exr``
 would otherwise be read as radiance.
 """
@@ -60,6 +64,13 @@ class Reference:
     var: np.ndarray
     n: int
     manifest: dict
+    passes: np.ndarray | None = None    # (K, H, W, C), K = n; None in older references
+
+    @property
+    def pixels_correlated(self) -> bool:
+        """True if the film's filter splats samples into neighbouring pixels (radius
+        above 1/2), so that pixels of one pass are correlated."""
+        return float(self.manifest.get("rfilter_radius", 0.5)) != 0.5
 
     def rmse(self, image) -> float:
         """RMSE of ``image`` against this reference's mean, with the reference's own noise
@@ -70,6 +81,8 @@ class Reference:
 
 #: Reference files whose SHA-256 the manifest records (besides the scene).
 IMAGES = ("mean.exr", "var.exr")
+#: The pass images, stacked vertically; recorded as ``passes_sha256`` where present.
+PASSES = "passes.exr"
 #: OpenEXR pixel types (the ``chlist`` attribute of the header).
 _EXR_TYPES = {0: "uint", 1: "half", 2: "float"}
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
@@ -236,6 +249,14 @@ def _pass_seeds(seed: int, passes: int) -> list[int]:
     return [int(s) for s in np.random.SeedSequence([seed, 7]).generate_state(passes)]
 
 
+def _filter_radius_unit(fingerprint, path, params, variant) -> float:
+    """The film's filter radius as Mitsuba loads the scene (a unit of work)."""
+    from . import mitsuba as mvm
+
+    same_source(fingerprint)
+    return mvm.filter_radius(path, params)
+
+
 def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarray:
     """One Mitsuba pass as a unit of work (in this process or a worker)."""
     from . import mitsuba as mvm
@@ -267,18 +288,20 @@ class _Job:
         k = len(self.seeds)
         return [Unit(f"{self.name} pass {i + 1}/{k}", _render_pass_unit,
                      (fingerprint, self.path, self.spp, s, self.params, variant))
-                for i, s in enumerate(self.seeds)]
+                for i, s in enumerate(self.seeds)] + \
+            [Unit(f"{self.name} filter", _filter_radius_unit,
+                  (fingerprint, self.path, self.params, variant))]
 
-    def assemble(self, imgs: np.ndarray, variant: str) -> Reference:
+    def assemble(self, imgs: np.ndarray, radius: float, variant: str) -> Reference:
         from . import mitsuba as mvm
 
         manifest = provenance(scene=self.name, scene_sha256=scene_hash(self.path),
                               spp=self.spp, passes=len(self.seeds), seeds=self.seeds,
                               mitsuba_version=mvm.mitsuba_version(), mitsuba_variant=variant,
-                              shape=list(imgs.shape[1:]),
+                              shape=list(imgs.shape[1:]), rfilter_radius=radius,
                               params={k: str(v) for k, v in (self.params or {}).items()})
         return Reference(self.name, imgs.mean(axis=0), imgs.var(axis=0, ddof=1),
-                         len(self.seeds), manifest)
+                         len(self.seeds), manifest, imgs)
 
 
 def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _Job:
@@ -309,8 +332,9 @@ def _render_jobs(jobs: list[_Job], pool: Pool | None, progress) -> list[tuple[Re
     out, at = [], 0
     for job in jobs:
         stack = np.stack(imgs[at:at + len(job.seeds)])
-        at += len(job.seeds)
-        out.append((job.assemble(stack, variant), stack))
+        radius = imgs[at + len(job.seeds)]
+        at += len(job.seeds) + 1
+        out.append((job.assemble(stack, radius, variant), stack))
     return out
 
 
@@ -356,7 +380,10 @@ def _write(path: str, ref: Reference) -> str:
     old = None
     try:
         manifest = {k: v for k, v in ref.manifest.items() if k != "params"}
-        for label, img in zip(IMAGES, (ref.mean, ref.var)):
+        images = [(IMAGES[0], ref.mean), (IMAGES[1], ref.var)]
+        if ref.passes is not None:
+            images.append((PASSES, ref.passes.reshape(-1, *ref.passes.shape[2:])))
+        for label, img in images:
             mvm.write_exr(os.path.join(tmp, label), img)
             manifest[label.replace(".exr", "_sha256")] = file_hash(os.path.join(tmp, label))
         with open(os.path.join(tmp, "manifest.json"), "w", encoding="utf-8") as f:
@@ -382,7 +409,7 @@ def reference_files(spec: str) -> list[str]:
     write an output over one of them."""
     _, path = resolve_scene(spec)
     folder = os.path.join(os.path.dirname(path), "ref")
-    return [path] + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES]
+    return [path] + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES + (PASSES,)]
 
 
 def load_reference(spec: str) -> Reference:
@@ -407,7 +434,8 @@ def load_reference(spec: str) -> Reference:
     if digest != scene_hash(path):
         raise EnvironmentProblem(f"{mpath}: stale: {path} changed since the reference was "
                                  f"built; {rebuild}")
-    for label in IMAGES:
+    labels = IMAGES + ((PASSES,) if "passes_sha256" in manifest else ())
+    for label in labels:
         key = label.replace(".exr", "_sha256")
         file = os.path.join(folder, label)
         if key not in manifest:
@@ -427,4 +455,15 @@ def load_reference(spec: str) -> Reference:
         if img.shape != shape or not np.all(np.isfinite(img)):
             raise EnvironmentProblem(f"{os.path.join(folder, label)}: corrupt (shape "
                                      f"{img.shape}, expected {shape}, or NaN/Inf); {rebuild}")
-    return Reference(name, mean, var, n, manifest)
+    passes = None
+    if PASSES in labels:
+        file = os.path.join(folder, PASSES)
+        try:
+            stacked = read_float_exr(file)
+        except InvalidArgument as e:
+            raise EnvironmentProblem(f"{e}; {rebuild}") from None
+        if stacked.shape != (n * shape[0],) + shape[1:]:
+            raise EnvironmentProblem(f"{file}: corrupt (shape {stacked.shape}, expected "
+                                     f"{n} passes of {shape} stacked); {rebuild}")
+        passes = stacked.reshape(n, *shape)
+    return Reference(name, mean, var, n, manifest, passes)

@@ -4,6 +4,11 @@ pixel by pixel (``compare_images``).
 Both sides are independent passes (ours: ``passes`` passes of spp / passes samples), so
 each pixel's value is a pass mean, far less skewed than a single path sample; that keeps
 the pixelwise t-test calibrated on heavy-tailed pixels (caustics, a small sun).
+
+Where the film's reconstruction filter splats (gaussian, tent: the reference's manifest
+says ``rfilter_radius`` > 1/2), pixels of one pass share samples and correlate; the image
+and block tests then take the variance of their means from the pass images of both sides
+(``compare_images(test_passes=, ref_passes=)``), which the reference stores.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import numpy as np
 
 from .. import _validate as validate
 from ..checks.image import TESTS, compare_images
-from ..errors import InvalidArgument, MissingReference
+from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
 from ..result import CheckResult
 from .executors import Pool, Unit, same_source, source_fingerprint
 
@@ -38,7 +43,9 @@ RENDER_BATCHES = 4
 #: A renderer under test: ``render(scene_path, spp, seed)`` returning ``(mean, var, n)``:
 #: the per-pixel mean (H, W) or (H, W, C), the per-pixel variance of the ``n`` i.i.d.
 #: values averaged into it (samples or independent passes), and ``n``. An object with
-#: ``mean``, ``variance`` and ``n`` attributes (our ``RenderResult``) is accepted too.
+#: ``mean``, ``variance`` and ``n`` attributes (our ``RenderResult``) is accepted too; on
+#: a scene whose filter splats it must also have ``passes``, the n pass images
+#: (n, H, W[, C]) averaged into ``mean``.
 Renderer = Callable[[str, int, int], object]
 
 
@@ -70,18 +77,19 @@ def _rendered(out, who: str):
     or a ``(mean, var, n)`` tuple."""
     if hasattr(out, "mean") and hasattr(out, "variance") and hasattr(out, "n"):
         return (out.mean, out.variance, out.n, getattr(out, "seconds", None),
-                getattr(out, "stats", {}) or {})
+                getattr(out, "stats", {}) or {}, getattr(out, "passes", None))
     try:
         mean, var, n = out
     except (TypeError, ValueError):
         raise InvalidArgument(f"renderer={who}: returned {type(out).__name__}; expected "
                               "(mean, var, n) or an object with mean, variance, n") from None
-    return mean, var, n, None, {}
+    return mean, var, n, None, {}, None
 
 
 class _OurPasses:
     """Our path tracer's passes, rendered batch by batch on a pool as a sequential look
-    asks for them; ``image(b)`` is (mean, var, n, seconds, stats) of the first b batches,
+    asks for them; ``image(b)`` is (mean, var, n, seconds, stats, passes) of the first b
+    batches,
     computed as ``render(passes=...)`` computes it (float32 mean and variance of the pass
     means), so the final look sees the very image a one-shot render would."""
 
@@ -110,7 +118,7 @@ class _OurPasses:
         stats["samples_per_second"] = h * w * stats["spp_per_pass"] * len(self.done) / seconds \
             if seconds > 0 else float("inf")
         return (m.mean(axis=0).astype(np.float32), m.var(axis=0, ddof=1).astype(np.float32),
-                len(self.done), seconds, stats)
+                len(self.done), seconds, stats, m)
 
     def close(self):
         self.stream.close()
@@ -185,20 +193,39 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         else:
             t1 = time.perf_counter()
             out = _rendered(renderer(path, spp, seed), getattr(renderer, "__name__", "renderer"))
-            out = out[:3] + (time.perf_counter() - t1 if out[3] is None else out[3], out[4])
+            out = out[:3] + (time.perf_counter() - t1 if out[3] is None else out[3],) + out[4:]
+            if ref.pixels_correlated and out[5] is None:
+                raise InvalidArgument(f"renderer={getattr(renderer, '__name__', 'renderer')}: "
+                                      f"{path}'s filter splats (radius "
+                                      f"{ref.manifest['rfilter_radius']}), so pixels "
+                                      "correlate; return an object with passes (the n pass "
+                                      "images) besides mean, variance and n")
             batches, image, source = 1, (lambda b: out), None
+        if ours and not ref.pixels_correlated and _compiled(
+                path, tuple(sorted((params or {}).items())), (),
+                os.stat(path).st_mtime_ns).camera.splats:
+            raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
+                                     "does not say so (built before filters were recorded)"
+                                     f"; run `mcverify reference build {name}`")
+        if ref.pixels_correlated and ref.passes is None:
+            raise EnvironmentProblem(f"{path}: its reference has no pass images (built "
+                                     "before passes.exr was stored), which a splatting "
+                                     f"filter needs; run `mcverify reference build {name}`")
         shown = {}
 
         def look(b):
-            mean, var, n, seconds, stats = image(b)
+            mean, var, n, seconds, stats, passes = image(b)
             if getattr(mean, "shape", None) != ref.mean.shape:
                 raise InvalidArgument(f"{path}: the rendered image is "
                                       f"{getattr(mean, 'shape', None)}, the reference "
                                       f"{ref.mean.shape}; rebuild the reference")
             shown.update(mean=mean, n=n, seconds=seconds, stats=stats)
+            pairs = dict(test_passes=passes, ref_passes=ref.passes) \
+                if ref.pixels_correlated else {}
             return compare_images(mean, ref.mean, test_var=var, ref_var=ref.var, test_n=n,
                                   ref_n=ref.n, alpha=alpha, name=f"render:{label}",
-                                  tests=TESTS if b == batches else ("global", "blocks"))
+                                  tests=TESTS if b == batches else ("global", "blocks"),
+                                  **pairs)
 
         try:
             result = run_sequential(look, batches=batches, alpha=alpha, stop_alpha=stop_alpha)

@@ -36,6 +36,10 @@ def test_build_load_stale_and_corrupt(scene_copy):
     assert ref.n == 4 and ref.mean.shape == (64, 64, 3)
     assert ref.manifest["scene_sha256"] == reference.scene_hash(str(scene_copy / "scene.xml"))
     assert not [p for p in os.listdir(scene_copy) if p.startswith(".ref-")]
+    # the pass images are stored (hashed like the mean and variance), and the filter
+    assert ref.passes.shape == (4, 64, 64, 3)
+    np.testing.assert_allclose(ref.passes.mean(0), ref.mean, rtol=1e-5, atol=1e-6)
+    assert ref.manifest["rfilter_radius"] == 0.5 and not ref.pixels_correlated
     (scene_copy / "scene.xml").write_text((scene_copy / "scene.xml").read_text()
                                           .replace('value="17, 12, 4"', 'value="18, 12, 4"'))
     with pytest.raises(EnvironmentProblem, match="stale"):
@@ -45,6 +49,29 @@ def test_build_load_stale_and_corrupt(scene_copy):
         f.truncate(100)
     with pytest.raises(EnvironmentProblem, match="mean.exr"):
         reference.load_reference(str(scene_copy))
+    reference.build_reference(str(scene_copy), spp=16, passes=4)
+    with open(os.path.join(out, "passes.exr"), "r+b") as f:
+        f.truncate(1000)
+    with pytest.raises(EnvironmentProblem, match="passes.exr: stale"):
+        reference.load_reference(str(scene_copy))
+
+
+def test_a_reference_without_pass_images_still_loads(scene_copy):
+    """References built before passes.exr was stored (no ``passes_sha256``) stay valid
+    for box-filtered scenes: they load, without passes."""
+    import json
+
+    out = reference.build_reference(str(scene_copy), spp=16, passes=4)
+    mpath = os.path.join(out, "manifest.json")
+    with open(mpath) as f:
+        manifest = json.load(f)
+    for key in ("passes_sha256", "rfilter_radius"):
+        del manifest[key]
+    with open(mpath, "w") as f:
+        json.dump(manifest, f)
+    os.remove(os.path.join(out, "passes.exr"))
+    ref = reference.load_reference(str(scene_copy))
+    assert ref.passes is None and not ref.pixels_correlated and ref.n == 4
 
 
 def test_compare_cli_passes_a_to_a_and_fails_a_brighter_render(scene_copy, tmp_path):
