@@ -16,7 +16,7 @@ SCENES = os.path.join(ROOT, "reference", "scenes")
 # below, cornell-box, rough-conductors and glass-sphere at two depths in
 # tests/estimators/test_pathtracer_render.py, and bunny in tests/estimators/test_real_mesh.py
 GATE_SCENES = ["delta-lights", "veach-mis", "textures", "vocabulary-materials",
-               "vocabulary-lights"]
+               "vocabulary-lights", "filters", "filters-tent", "filters-gaussian"]
 GATED = set(GATE_SCENES) | {"cornell-box", "rough-conductors", "glass-sphere", "bunny"}
 
 
