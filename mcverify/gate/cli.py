@@ -464,7 +464,7 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
                 raise InvalidArgument(f"{o}: not with {opt}-passes (the passes give the "
                                       "variance and n)")
         files = pass_files(passes, option=f"{opt}-passes")
-        return (lambda: pass_stats(passes, option=f"{opt}-passes")), files
+        return (lambda keep=False: pass_stats(passes, option=f"{opt}-passes", keep=keep)), files
     if reference_ok and not os.path.isfile(image):
         return None, reference.reference_files(image)
     if var is None or n is None:
@@ -476,7 +476,7 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
     for path in (image, var):
         reference.exr_channel_types(path)
 
-    def load():
+    def load(keep=False):
         from .passes import ImageStats, read_radiance
 
         (m, a), (v, b) = read_radiance(image), read_radiance(var)
@@ -505,20 +505,35 @@ def _cmd_compare(args) -> int:
     ref_load, ref_files = _compare_side("ref", ref_image, args.ref_var, args.ref_n,
                                         args.ref_passes, reference_ok=True)
     _writable("--json", args.json, test_files + ref_files)
-    test = test_load()
+    correlated = args.correlated
     if ref_load is None:
         r = reference.load_reference(ref_image)
-        ref_mean, ref_var, ref_n = r.mean, r.var, r.n
-    else:
-        ref = ref_load()
-        ref_mean, ref_var, ref_n = ref.mean, ref.var, ref.n
+        ref_mean, ref_var, ref_n, ref_passes = r.mean, r.var, r.n, r.passes
+        correlated |= r.pixels_correlated
+        if correlated and ref_passes is None:
+            raise EnvironmentProblem(f"{ref_image}: the reference has no pass images (built "
+                                     "before passes.exr was stored), which correlated pixels "
+                                     f"need; run `mcverify reference build {ref_image}`")
+    elif correlated and args.ref_passes is None:
+        raise InvalidArgument("--correlated: give the reference side's pass images "
+                              "(--ref-passes GLOB) or a reference name")
+    if correlated and args.test_passes is None:
+        raise InvalidArgument(f"{test_image}: pixels of a pass correlate (--correlated, or "
+                              "the reference's filter splats); give the test side's pass "
+                              "images (--test-passes GLOB) instead of one image")
+    test = test_load(keep=correlated)
+    if ref_load is not None:
+        ref = ref_load(keep=correlated)
+        ref_mean, ref_var, ref_n, ref_passes = ref.mean, ref.var, ref.n, ref.passes
     label = test_image or args.test_passes
     if test.mean.shape != ref_mean.shape:
         raise InvalidArgument(f"{label}: shape {test.mean.shape} differs from the "
                               f"reference's {ref_mean.shape}")
     result = compare_images(test.mean, ref_mean, test_var=test.var, ref_var=ref_var,
                             test_n=test.n, ref_n=ref_n, alpha=args.alpha,
-                            name=f"compare:{label}")
+                            name=f"compare:{label}",
+                            **(dict(test_passes=test.passes, ref_passes=ref_passes)
+                               if correlated else {}))
     if args.json:
         write_json(result, args.json)
     for note in test.notes + (() if ref_load is None else ref.notes):
@@ -708,6 +723,12 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--ref-passes", metavar="GLOB",
                     help="instead of REF: K >= 2 independently seeded pass images of the "
                          "reference renderer")
+    cp.add_argument("--correlated", action="store_true",
+                    help="pixels of one pass correlate (a splatting reconstruction filter "
+                         "such as Mitsuba's default gaussian): the image and block tests "
+                         "use the pass images of both sides (--test-passes, and "
+                         "--ref-passes or a reference); implied by a reference whose "
+                         "filter splats")
     cp.add_argument("--alpha", type=float, default=0.01,
                     help="family-wise significance level of the whole comparison")
     cp.add_argument("--json", metavar="PATH",

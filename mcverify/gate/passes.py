@@ -32,6 +32,7 @@ class ImageStats:
     n: int
     files: tuple[str, ...]
     notes: tuple[str, ...] = ()
+    passes: np.ndarray | None = None    # (K, H, W, C) if kept (``pass_stats(keep=True)``)
 
 
 def read_radiance(path: str) -> tuple[np.ndarray, str | None]:
@@ -57,18 +58,21 @@ def pass_files(pattern: str, *, option: str = "--test-passes") -> list[str]:
     return files
 
 
-def pass_stats(pattern: str, *, option: str = "--test-passes") -> ImageStats:
+def pass_stats(pattern: str, *, option: str = "--test-passes", keep: bool = False) -> ImageStats:
     """Mean, variance (ddof = 1) and n = K of the K pass images matching ``pattern``.
 
     The passes must be independent renders (different seeds): two identical files mean
     the renderer reused its seed, and are refused, as are fewer than two passes and
     passes of different sizes. Pixels are accumulated one pass at a time (Welford), so
-    K large images need the memory of three.
+    K large images need the memory of three; ``keep=True`` keeps the K images too
+    (``passes``: what ``compare_images`` needs where a splatting filter correlates
+    pixels).
     """
     files = pass_files(pattern, option=option)     # every input readable before any work
     mean = m2 = None
     seen: dict[str, str] = {}
     notes = set()
+    kept = []
     for k, f in enumerate(files, start=1):
         img, note = read_radiance(f)
         if note:
@@ -83,8 +87,10 @@ def pass_stats(pattern: str, *, option: str = "--test-passes") -> ImageStats:
         elif img.shape != mean.shape:
             raise InvalidArgument(f"{option}: {f} has shape {img.shape}, {files[0]} has "
                                   f"{mean.shape}; all passes must have one size")
+        if keep:
+            kept.append(img)
         delta = img - mean
         mean += delta / k
         m2 += delta * (img - mean)
     return ImageStats(mean=mean, var=m2 / (len(files) - 1), n=len(files), files=tuple(files),
-                      notes=tuple(sorted(notes)))
+                      notes=tuple(sorted(notes)), passes=np.stack(kept) if keep else None)

@@ -8,7 +8,10 @@ the pixelwise t-test calibrated on heavy-tailed pixels (caustics, a small sun).
 Where the film's reconstruction filter splats (gaussian, tent: the reference's manifest
 says ``rfilter_radius`` > 1/2), pixels of one pass share samples and correlate; the image
 and block tests then take the variance of their means from the pass images of both sides
-(``compare_images(test_passes=, ref_passes=)``), which the reference stores.
+(``compare_images(test_passes=, ref_passes=)``), which the reference stores. The pixel
+value Σ w L / Σ w of a pass is a ratio whose expectation depends on the samples per pass
+(bias of order 1/N), so both sides' passes must have the same spp: the filter scenes'
+references are built with 64 spp per pass, the gate's default (1024 spp in 16 passes).
 """
 
 from __future__ import annotations
@@ -58,6 +61,17 @@ def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
     except SceneError as e:
         raise InvalidArgument(str(e)) from None
     return subject.planted(**dict(plant)) if plant else subject
+
+
+def _splats(scene_path: str, params: dict | None) -> bool:
+    """True if our loader gives the scene's film a splatting filter (XML only, no BVH)."""
+    from estimators.pathtracer import SceneError, load_scene
+    from estimators.pathtracer.camera import camera_from_scene
+
+    try:
+        return camera_from_scene(load_scene(scene_path, params=params)).splats
+    except SceneError as e:
+        raise InvalidArgument(str(e)) from None
 
 
 def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_scale: float,
@@ -186,6 +200,24 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         label = name + "".join(f",{k}={v}" for k, v in sorted(
             {**(params or {}), **(plant or {}),
              **({"pdf_scale": pdf_scale} if pdf_scale != 1 else {})}.items()))
+        if ours and not ref.pixels_correlated and _splats(path, params):
+            raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
+                                     "does not say so (built before filters were recorded)"
+                                     f"; run `mcverify reference build {name}`")
+        if ours and ref.pixels_correlated and spp // passes != int(ref.manifest["spp"]):
+            # E[Σ w L / Σ w] over N samples differs from its limit by O(1/N): passes
+            # compare only at equal samples per pass (measured: Mitsuba's own 16-spp passes
+            # against its 256-spp reference failed the block test)
+            ref_per = int(ref.manifest["spp"])
+            raise InvalidArgument(f"spp={spp}, passes={passes}: {path}'s filter splats, and "
+                                  "a pixel's weighted mean Σ w L / Σ w has a bias of order "
+                                  "1/(samples per pass), so our passes need the "
+                                  f"reference's {ref_per} samples per pass: spp="
+                                  f"{ref_per * passes} with passes={passes}")
+        if ref.pixels_correlated and ref.passes is None:
+            raise EnvironmentProblem(f"{path}: its reference has no pass images (built "
+                                     "before passes.exr was stored), which a splatting "
+                                     f"filter needs; run `mcverify reference build {name}`")
         if ours:
             source = _OurPasses(path, spp, passes, seed, params, plant, pdf_scale, pool,
                                 progress)
@@ -201,16 +233,6 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                                       "correlate; return an object with passes (the n pass "
                                       "images) besides mean, variance and n")
             batches, image, source = 1, (lambda b: out), None
-        if ours and not ref.pixels_correlated and _compiled(
-                path, tuple(sorted((params or {}).items())), (),
-                os.stat(path).st_mtime_ns).camera.splats:
-            raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
-                                     "does not say so (built before filters were recorded)"
-                                     f"; run `mcverify reference build {name}`")
-        if ref.pixels_correlated and ref.passes is None:
-            raise EnvironmentProblem(f"{path}: its reference has no pass images (built "
-                                     "before passes.exr was stored), which a splatting "
-                                     f"filter needs; run `mcverify reference build {name}`")
         shown = {}
 
         def look(b):

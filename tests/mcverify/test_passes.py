@@ -93,3 +93,30 @@ def test_compare_two_renderers_pass_folders_end_to_end(tmp_path):
 def test_compare_bad_input_exit_2(tmp_path, args, needle):
     r = subprocess.run(CMD + args, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_compare_against_a_splatting_reference_uses_the_pass_images(tmp_path):
+    """The ``filters`` reference (Mitsuba's default gaussian) says its pixels correlate:
+    Mitsuba's own passes compare on pass images and pass; one image with a variance is
+    refused (its block and image tests would assume independent pixels), and so is
+    --correlated without the reference side's passes."""
+    _, path = reference.resolve_scene("filters")
+    imgs = mvm.render_passes(path, spp=64, seeds=range(500, 508))   # the reference's spp
+    passes = _write(tmp_path / "mine", imgs)
+    out = tmp_path / "r.json"
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "filters", "--json",
+                              str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    import json
+
+    assert json.loads(out.read_text())["details"]["pixels_correlated"] is True
+    mvm.write_exr(str(tmp_path / "m.exr"), imgs.mean(0))
+    mvm.write_exr(str(tmp_path / "v.exr"), imgs.var(0, ddof=1))
+    r = subprocess.run(CMD + ["compare", str(tmp_path / "m.exr"), "filters", "--test-var",
+                              str(tmp_path / "v.exr"), "--test-n", "8"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "pixels of a pass correlate" in r.stderr, r.stderr
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, str(tmp_path / "m.exr"),
+                              "--ref-var", str(tmp_path / "v.exr"), "--ref-n", "8",
+                              "--correlated"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "--ref-passes" in r.stderr, r.stderr
