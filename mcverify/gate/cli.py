@@ -526,6 +526,7 @@ def _cmd_compare(args) -> int:
     print(result.summary())
     for m in result.messages:
         print(f"    {m}")
+    _print_visibility(result.details)
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
@@ -581,7 +582,17 @@ def _cmd_render_check(args) -> int:
     print(f"    ours: {d['ours_spp']} spp in {d['ours_passes']} passes, {d['ours_seconds']:.2f}s "
           f"({d['ours_samples_per_second'] / 1e6:.2f} M samples/s, {d['ours_kernel']}); "
           f"relMSE {d['relmse']:.3g}; found by: {', '.join(d['found_by']) or 'nothing'}")
+    _print_visibility(d)
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _print_visibility(d: dict) -> None:
+    """How visible the difference is (decides nothing): ΔE2000, ΔE ITP, HDR-FLIP."""
+    if d.get("flip_mean") is not None:
+        print(f"    how visible: mean ΔE2000 {d['delta_e2000_mean']:.3g}, mean ΔE ITP "
+              f"{d['delta_e_itp_mean']:.3g}, mean HDR-FLIP {d['flip_mean']:.3g} "
+              f"(99th percentiles {d['delta_e2000_p99']:.3g}, {d['delta_e_itp_p99']:.3g}, "
+              f"{d['flip_p99']:.3g})")
 
 
 def build_parser() -> argparse.ArgumentParser:

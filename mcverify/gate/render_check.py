@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from .. import _validate as validate
-from ..checks.image import TESTS, compare_images
+from ..checks.image import TESTS, compare_images, perceptual_metrics
 from ..errors import InvalidArgument, MissingReference
 from ..result import CheckResult
 from .executors import Pool, Unit, same_source, source_fingerprint
@@ -206,7 +206,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             shown.update(mean=mean, n=n, seconds=seconds, stats=stats)
             return compare_images(mean, ref.mean, test_var=var, ref_var=ref.var, test_n=n,
                                   ref_n=ref.n, alpha=alpha, name=f"render:{label}",
-                                  tests=TESTS if b == batches else ("global", "blocks"))
+                                  tests=TESTS if b == batches else ("global", "blocks"),
+                                  perceptual=False)
 
         try:
             result = run_sequential(look, batches=batches, alpha=alpha, stop_alpha=stop_alpha,
@@ -224,7 +225,9 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                    ours_samples_per_second=stats.get("samples_per_second"),
                    compile_seconds=stats.get("compile_seconds"),
                    reference=ref.manifest, reference_seconds=ref_seconds)
-    artifacts = dict(result.artifacts, ours=mean, mitsuba=ref.mean)
+    seen, seen_maps = perceptual_metrics(mean, ref.mean)    # once, on the deciding image
+    details.update(seen)
+    artifacts = dict(result.artifacts, **seen_maps, ours=mean, mitsuba=ref.mean)
     return dataclasses.replace(result, details=details, artifacts=artifacts,
                                seconds=result.seconds + seconds + ref_seconds,
                                n_samples=details["ours_spp"] * mean.shape[0] * mean.shape[1])

@@ -2,6 +2,7 @@
 
 import os
 import shutil
+import json
 import subprocess
 import sys
 
@@ -49,6 +50,7 @@ def test_build_load_stale_and_corrupt(scene_copy):
 
 def test_compare_cli_passes_a_to_a_and_fails_a_brighter_render(scene_copy, tmp_path):
     reference.build_reference(str(scene_copy), spp=64, passes=16, seed=3)
+    flips = {}
     for label, scale, expected in (("same", 1.0, 0), ("brighter", 1.05, 1)):
         mean, var = _render_pair(scene_copy / "scene.xml", 500, scale)
         mvm.write_exr(str(tmp_path / f"{label}.exr"), mean)
@@ -58,7 +60,10 @@ def test_compare_cli_passes_a_to_a_and_fails_a_brighter_render(scene_copy, tmp_p
                                   "--test-n", "16", "--json", str(tmp_path / f"{label}.json")],
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == expected, (label, r.stdout, r.stderr)
-        assert (tmp_path / f"{label}.json").exists()
+        d = json.loads((tmp_path / f"{label}.json").read_text())["details"]
+        assert "how visible: mean ΔE2000" in r.stdout and "HDR-FLIP" in r.stdout
+        flips[label] = d["flip_mean"]
+    assert 0 <= flips["same"] < flips["brighter"] <= 1, flips
 
 
 @pytest.mark.parametrize("args,needle", [

@@ -43,3 +43,6 @@ def test_a_correct_render_runs_every_pass_and_ends_with_the_pixel_tests():
     assert r.details["tests"] == ["global", "blocks", "pixels"]
     assert r.details["ours_passes"] == 16 and not seq["stopped_early"]
     assert r.p_value >= min(seq["p_looks"])     # the sequential p-value is conservative
+    # how visible the remaining noise is, measured once on the deciding image
+    assert 0 < r.details["flip_mean"] < 0.2 and r.artifacts["flip"].shape == (64, 64)
+    assert r.details["delta_e2000_mean"] is not None
