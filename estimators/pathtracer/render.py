@@ -223,7 +223,7 @@ class _SplatFilm:
 
     def min_chunks(self, w, h) -> int:
         side = TILE + 2 * self.reach
-        per_tile = side * side * self.SPLAT_CHANNELS * 8
+        per_tile = side * side * SPLAT_CHANNELS * 8
         n_tiles = -(-w // TILE) * -(-h // TILE)
         return max(1, min(-(-h // TILE), -(-n_tiles * per_tile // self.BUFFER_BYTES)))
 
