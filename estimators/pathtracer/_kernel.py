@@ -199,6 +199,21 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     return rr, rg, rb, state
 
 
+@njit(cache=True, inline="always")
+def _pixel_sample(sc, stack, cam, base, s, x, y, width, height, pdf_scale):
+    """Sample ``s`` of pixel (x, y) (``base``: the pixel's hashed seed): its jitter (ξ, ξ')
+    in the pixel, the radiance along the camera ray through (x + ξ, y + ξ'), and whether
+    that radiance was finite (a non-finite one is returned as 0)."""
+    state = _mix(base ^ (np.uint64(s) * _M2))
+    fx, state = _next(state)
+    fy, state = _next(state)
+    ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(cam, (x + fx) / width, (y + fy) / height)
+    r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state, pdf_scale)
+    if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)):
+        return fx, fy, 0.0, 0.0, 0.0, False
+    return fx, fy, r, g, b, True
+
+
 @njit(cache=True, parallel=True)
 def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, bad):
     """Render the listed tiles (rows of x0, y0, x1, y1) on all threads: per pixel, the
@@ -215,15 +230,9 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, 
                 sr, sg, sb = 0.0, 0.0, 0.0
                 nbad = 0
                 for s in range(spp):
-                    state = _mix(base ^ (np.uint64(s) * _M2))
-                    fx, state = _next(state)
-                    fy, state = _next(state)
-                    ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(
-                        cam, (x + fx) / width, (y + fy) / height)
-                    r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state,
-                                           pdf_scale)
-                    if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)):
-                        r, g, b = 0.0, 0.0, 0.0
+                    fx, fy, r, g, b, ok = _pixel_sample(sc, stack, cam, base, s, x, y, width,
+                                                        height, pdf_scale)
+                    if not ok:
                         nbad += 1
                     n = s + 1.0
                     d0, d1, d2 = r - mr, g - mg, b - mb
@@ -264,15 +273,9 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, pdf_scale, acc,
                 base = _mix(_mix(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
                 nbad = 0
                 for s in range(spp):
-                    state = _mix(base ^ (np.uint64(s) * _M2))
-                    fx, state = _next(state)
-                    fy, state = _next(state)
-                    ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(
-                        cam, (x + fx) / width, (y + fy) / height)
-                    r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state,
-                                           pdf_scale)
-                    if not (math.isfinite(r) and math.isfinite(g) and math.isfinite(b)):
-                        r, g, b = 0.0, 0.0, 0.0
+                    fx, fy, r, g, b, ok = _pixel_sample(sc, stack, cam, base, s, x, y, width,
+                                                        height, pdf_scale)
+                    if not ok:
                         nbad += 1
                     splat_kernel(cam, tile_buf, bx, by, width, height, x + fx, y + fy,
                                  r, g, b)

@@ -31,6 +31,9 @@ RFILTERS = ("box", "gaussian", "tent")
 #: Mitsuba's defaults: gaussian stddev 0.5 (radius 4σ), tent radius 1.
 GAUSSIAN_STDDEV = 0.5
 TENT_RADIUS = 1.0
+#: Widest filter accepted (pixels): each tile splats into a buffer reaching this far
+#: around it, so memory grows with the radius squared.
+MAX_FILTER_RADIUS = 32.0
 
 
 @dataclass(frozen=True)
@@ -74,9 +77,10 @@ class Camera:
             stddev, radius = 0.0, TENT_RADIUS if radius is None else float(radius)
         else:
             stddev, radius = 0.0, 0.5
-        if not (math.isfinite(radius) and radius > 0):
+        if not (math.isfinite(radius) and 0 < radius <= MAX_FILTER_RADIUS):
             raise ValueError(f"{rfilter} filter: radius {radius} (stddev {stddev}) must be "
-                             "finite and > 0")
+                             f"finite and > 0 (and at most {MAX_FILTER_RADIUS:g} pixels: "
+                             "wider filters are not supported)")
         if np.float32(radius) == np.float32(0.5):
             rfilter, stddev = "box", 0.0      # Mitsuba's ImageBlock treats it as a box
         return dataclasses.replace(self, rfilter=rfilter, filter_radius=radius,

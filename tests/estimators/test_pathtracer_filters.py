@@ -3,6 +3,8 @@ sample puts into each pixel, pointwise against Mitsuba's own ``rfilter`` and
 ``ImageBlock``; the ratio Σ w L / Σ w; planted wrong filter widths fail the render gate
 on the filter scenes (their passing gate runs in test_pathtracer_coverage.py)."""
 
+import importlib
+
 import numpy as np
 import pytest
 
@@ -98,3 +100,53 @@ def test_a_wrong_filter_width_fails_the_render_gate(scene, plant):
     assert not r.passed, r.summary()
     assert {"blocks", "pixels"} & set(r.details["found_by"]), r.details["found_by"]
     assert r.details["pixels_correlated"]
+
+
+@pytest.mark.parametrize("rfilter", ["", '<rfilter type="tent"><float name="radius" '
+                                         'value="1.5"/></rfilter>'], ids=["gaussian", "tent"])
+def test_a_constant_sky_renders_its_radiance_in_every_pixel(tmp_path, rfilter):
+    """Σ w L / Σ w of samples that all carry L is L, to rounding, in every pixel: the
+    border pixels too (they get weight from inside the image only), and with zero
+    delta-method variance."""
+    from estimators.pathtracer import render
+
+    path = tmp_path / "scene.xml"
+    path.write_text(f"""<scene version="3.0.0"><integrator type="path"/>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <film type="hdrfilm"><integer name="width" value="13"/><integer name="height" value="9"/>
+      {rfilter}</film></sensor>
+  <emitter type="constant"><rgb name="radiance" value="0.7, 0.2, 1.5"/></emitter>
+</scene>""")
+    r = render(str(path), spp=4, seed=3, general=True)
+    assert r.stats["rfilter"] == ("tent" if rfilter else "gaussian")
+    np.testing.assert_allclose(r.mean, np.broadcast_to([0.7, 0.2, 1.5], r.mean.shape),
+                               rtol=1e-6)
+    assert np.all(r.variance < 1e-10)
+
+
+def test_same_seed_same_splatted_image_whatever_the_thread_count_and_banding(monkeypatch):
+    """Tiles splat into private buffers added in tile order: one thread, all threads, and
+    a render cut into bands (tile buffers capped at 64 KiB a call) give the same bits."""
+    import numba
+
+    from estimators.pathtracer import prepare_scene, render
+
+    # the module (the package's ``render`` attribute is the function)
+    render_module = importlib.import_module("estimators.pathtracer.render")
+
+    scene = prepare_scene("reference/scenes/filters/scene.xml", params={"res": 32})
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        a = render(scene, spp=2, seed=7)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        b = render(scene, spp=2, seed=7)
+        monkeypatch.setattr(render_module._SplatFilm, "BUFFER_BYTES", 1 << 16)
+        c = render(scene, spp=2, seed=7)
+    finally:
+        numba.set_num_threads(before)
+    assert a.stats["rfilter"] == "gaussian"
+    for other in (b, c):
+        assert np.array_equal(a.mean, other.mean)
+        assert np.array_equal(a.variance, other.variance)
+    assert not np.array_equal(a.mean, render(scene, spp=2, seed=8).mean)

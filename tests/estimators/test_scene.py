@@ -178,8 +178,9 @@ def test_reconstruction_filters_and_their_parameters(rfilter, expected):
 
 @pytest.mark.parametrize("rfilter", [
     '<rfilter type="gaussian"><float name="stddev" value="0"/></rfilter>',
-    '<rfilter type="tent"><float name="radius" value="-1"/></rfilter>'],
-    ids=["stddev-0", "radius-negative"])
+    '<rfilter type="tent"><float name="radius" value="-1"/></rfilter>',
+    '<rfilter type="gaussian"><float name="stddev" value="1e6"/></rfilter>'],
+    ids=["stddev-0", "radius-negative", "radius-huge"])
 def test_a_filter_without_a_positive_radius_is_refused(rfilter):
     d = parse_scene(f'<scene version="3.0.0"><sensor type="perspective"><float name="fov" '
                     f'value="45"/><film type="hdrfilm">{rfilter}</film></sensor></scene>',
