@@ -51,7 +51,7 @@ def mitsuba_aa_alarms(name: str, pairs: int = 20) -> int:
         a = mvm.render_passes(path, spp=16, seeds=range(100_000 * k, 100_000 * k + 8))
         b = mvm.render_passes(path, spp=16, seeds=range(100_000 * k + 50, 100_000 * k + 58))
         r = mv.compare_images(a.mean(0), b.mean(0), test_var=a.var(0, ddof=1),
-                              ref_var=b.var(0, ddof=1), test_n=8, ref_n=8,
+                              ref_var=b.var(0, ddof=1), test_n=8, ref_n=8, perceptual=False,
                               **(dict(test_passes=a, ref_passes=b) if splats else {}))
         alarms += not r.passed
     return alarms
@@ -71,7 +71,7 @@ def ours_aa_alarms(name: str, pairs: int = 20) -> int:
         ref, _ = reference.render_reference(path, spp=spp, passes=passes, seed=1000 + k)
         ours = render(path, spp=1024, passes=16, seed=2000 + k)
         r = mv.compare_images(ours.mean, ref.mean, test_var=ours.variance, ref_var=ref.var,
-                              test_n=ours.n, ref_n=ref.n,
+                              test_n=ours.n, ref_n=ref.n, perceptual=False,
                               **(dict(test_passes=ours.passes, ref_passes=ref.passes)
                                  if ref.pixels_correlated else {}))
         alarms += not r.passed
