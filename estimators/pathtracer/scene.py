@@ -6,8 +6,8 @@ what is supported: never silently ignored or approximated.
 
 Supported: ``scene``, ``default`` and ``$param`` substitution, ``ref``/``id``,
 ``transform`` (``lookat``, ``translate``, ``rotate``, ``scale``, ``matrix``),
-integrators ``path`` and ``direct``, sensor ``perspective`` with film ``hdrfilm``,
-``rfilter`` ``box`` and sampler ``independent``; shapes ``rectangle``, ``cube``,
+integrators ``path`` and ``direct``, sensors ``perspective`` and ``orthographic`` with
+film ``hdrfilm``, ``rfilter`` ``box`` and sampler ``independent``; shapes ``rectangle``, ``cube``,
 ``disk``, ``sphere``, ``obj``; BSDFs ``diffuse``, ``conductor``, ``roughconductor``,
 ``dielectric``, ``plastic``, ``roughplastic``, ``twosided``; emitters ``area``,
 ``point``, ``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values and
@@ -133,7 +133,9 @@ SUPPORTED = {
     },
     "sensor": {"perspective": {"fov": ("float",), "fov_axis": ("string",),
                                "near_clip": ("float",), "far_clip": ("float",),
-                               "to_world": ("transform",), "children": ("film", "sampler")}},
+                               "to_world": ("transform",), "children": ("film", "sampler")},
+               "orthographic": {"near_clip": ("float",), "far_clip": ("float",),
+                                "to_world": ("transform",), "children": ("film", "sampler")}},
     "film": {"hdrfilm": {"width": ("integer",), "height": ("integer",),
                          "pixel_format": ("string",), "children": ("rfilter",)}},
     "rfilter": {"box": {}},
