@@ -2,8 +2,8 @@
 ``arrays`` is a ``layout.SceneArrays``). Nothing is compiled here: numba compiles the
 kernel in ``render``.
 
-Shapes become primitives (rectangles and cubes two triangles a face, OBJ meshes their
-triangles; spheres and disks stay analytic), BSDFs and emitters become rows of parameter
+Shapes become primitives (rectangles and cubes two triangles a face, OBJ and PLY meshes
+their triangles; spheres and disks stay analytic), BSDFs and emitters become rows of parameter
 tables, images become one texture store, and the whole is indexed by the SAH hierarchy.
 Mitsuba's defaults apply wherever the XML is silent (a shape without a BSDF is diffuse
 0.5, or black if it emits; roughconductor and roughplastic default to Beckmann α = 0.1;
@@ -26,6 +26,7 @@ from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
 from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
+from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, Plugin, SceneDescription, SceneError, file_problem,
                     load_scene)
 from .textures import TextureStore, envmap_sampling_weights, read_image
@@ -281,11 +282,22 @@ class _Builder:
             if np.linalg.det(lin) < 0:          # keep the normal Mitsuba's transform gives
                 faces = [(a, c, b) for a, b, c in faces]
             self._triangles(verts @ lin.T + off, faces, None, uvs)
-        elif s.type == "obj":
-            verts, faces, normals, uvs = self._obj(s)
+        elif s.type in ("obj", "ply"):
+            verts, faces, normals, uvs, pidx = (self._obj(s) if s.type == "obj"
+                                                else self._ply(s))
             wverts = verts @ lin.T + off
-            if normals is not None:
+            if s.get("face_normals", False):
+                normals = None
+            elif normals is None:   # smooth normals, computed in world space as Mitsuba does
+                faces = np.asarray(faces).reshape(-1, 3)
+                normals = _vertex_normals(wverts, faces, pidx, int(pidx.max()) + 1)
+            else:
+                # world-space unit normals, as Mitsuba stores them (a non-unit normal in
+                # the file would otherwise weigh more in the interpolation)
                 normals = normals @ np.linalg.inv(lin)
+                length = np.linalg.norm(normals, axis=1, keepdims=True)
+                normals = np.divide(normals, length, out=np.zeros_like(normals),
+                                    where=length > 0)
             self._triangles(wverts, faces, normals, uvs)
         elif s.type == "sphere":
             c = m @ np.append(np.asarray(s.get("center", np.zeros(3)), float), 1.0)
@@ -311,7 +323,8 @@ class _Builder:
         self.info += [(kind, index)] * (len(self.prims) - n_before)
         return n_before, len(self.prims) - n_before, kind
 
-    def _obj(self, s: Plugin):
+    def _mesh_path(self, s: Plugin) -> str:
+        """The mesh file a shape names, checked to be a regular file within the cap."""
         name = s.get("filename")
         if not name:
             self.fail(s, "set <string name=\"filename\" .../>")
@@ -319,6 +332,30 @@ class _Builder:
         problem = file_problem(path, MAX_ASSET_BYTES)
         if problem:
             self.fail(s, problem)
+        return path
+
+    def _ply(self, s: Plugin):
+        """A PLY mesh as (vertices, faces, the file's normals or None, uvs, the position
+        index of each vertex): per vertex when the file has uv, else one vertex per face
+        corner with Mitsuba's barycentric uv."""
+        try:
+            mesh = read_ply(self._mesh_path(s))
+        except SceneError as e:
+            self.fail(s, str(e))
+        verts, faces, normals, uvs = mesh.vertices, mesh.faces, mesh.normals, mesh.uvs
+        pidx = np.arange(len(verts))
+        if uvs is None:
+            pidx = faces.ravel()
+            verts = verts[pidx]
+            normals = None if normals is None else normals[pidx]
+            uvs = np.tile(np.array(_BARYCENTRIC_UV), (len(faces), 1))
+            faces = np.arange(len(pidx)).reshape(-1, 3)
+        return verts, faces, normals, uvs, pidx
+
+    def _obj(self, s: Plugin):
+        """An OBJ mesh as (vertices, faces, the file's normals or None, uvs, the position
+        index of each vertex), one vertex per face corner."""
+        path = self._mesh_path(s)
         try:
             with open(path, encoding="utf-8") as fh:
                 lines = fh.readlines()
@@ -374,13 +411,8 @@ class _Builder:
                 faces.append(tuple(f))
         except IndexError:
             self.fail(s, f"{path}: a face refers to a vertex that does not exist")
-        verts = np.array(verts)
-        normals = np.array(normals, float)
-        if s.get("face_normals", False):
-            normals = None
-        elif not use_vn:
-            normals = _vertex_normals(verts, np.array(faces), np.array(pidx), len(v))
-        return verts, faces, normals, np.array(uvs)
+        normals = np.array(normals, float) if use_vn else None
+        return np.array(verts), faces, normals, np.array(uvs), np.array(pidx)
 
     # ---------------------------------------------------------------- emitters
     def area_light(self, emitter: Plugin, first: int, count: int, kind: int):

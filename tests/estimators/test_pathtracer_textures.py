@@ -140,6 +140,28 @@ _QUAD = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\
 _TRI_NO_UV = "v -1 -1 0\nv 1 -1 0\nv 0 1 0.2\nf 1 2 3\n"
 
 
+def _write_plys(folder):
+    """PLY meshes in each format: a quad with tilted vertex normals and uv named
+    texture_u/v (big endian), a triangle with neither (ASCII: Mitsuba's uv is then the
+    barycentric (b1, b2)), and a bent 4 × 4 grid with uv named s/t and no normals
+    (little endian, double: smooth normals computed as Mitsuba does)."""
+    from estimators.pathtracer.meshes import write_ply
+
+    quad_n = [[0.3, 0, 1], [0, 0.2, 1], [-0.3, 0.1, 1], [0.1, -0.4, 1]]
+    write_ply(str(folder / "quad.ply"), [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+              [[0, 1, 2], [0, 2, 3]], normals=quad_n, uvs=[[0, 0], [1, 0], [1, 1], [0, 1]],
+              uv_names=("texture_u", "texture_v"), fmt="binary_big_endian")
+    write_ply(str(folder / "tri.ply"), [[-1, -1, 0], [1, -1, 0], [0, 1, 0.2]], [[0, 1, 2]],
+              fmt="ascii")
+    g = np.linspace(-1, 1, 4)
+    x, y = np.meshgrid(g, g)
+    verts = np.stack([x.ravel(), y.ravel(), 0.4 * np.sin(2 * x.ravel()) * y.ravel()], 1)
+    faces = [[r * 4 + c, r * 4 + c + 1, r * 4 + c + 5] for r in range(3) for c in range(3)]
+    faces += [[r * 4 + c, r * 4 + c + 5, r * 4 + c + 4] for r in range(3) for c in range(3)]
+    write_ply(str(folder / "grid.ply"), verts, faces, uvs=(verts[:, :2] + 1) / 2,
+              uv_names=("s", "t"), fmt="binary_little_endian", vertex_type="double")
+
+
 @pytest.mark.parametrize("shape,props", [
     ("rectangle", '<transform name="to_world"><rotate x="1" angle="20"/></transform>'),
     ("cube", '<transform name="to_world"><rotate x="1" y="1" angle="25"/></transform>'),
@@ -148,12 +170,21 @@ _TRI_NO_UV = "v -1 -1 0\nv 1 -1 0\nv 0 1 0.2\nf 1 2 3\n"
     ("sphere", '<transform name="to_world"><rotate x="1" angle="70"/></transform>'),
     ("obj", '<string name="filename" value="quad.obj"/>'),
     ("obj", '<string name="filename" value="tri.obj"/>'),
+    ("ply", '<string name="filename" value="quad.ply"/>'),
+    ("ply", '<string name="filename" value="tri.ply"/>'),
+    ("ply", '<string name="filename" value="grid.ply"/><transform name="to_world">'
+            '<scale x="1.5" y="0.7"/><rotate x="1" y="0.3" angle="30"/></transform>'),
+    ("ply", '<string name="filename" value="grid.ply"/>'
+            '<boolean name="face_normals" value="true"/>'),
 ])
 def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
     """Rays from all around hit the shape: our (u, v) at the hit is Mitsuba's ``si.uv``
-    (the texture layout of a cube face, an OBJ with and without vt)."""
+    (the texture layout of a cube face, an OBJ with and without vt, a PLY in each format
+    with each of Mitsuba's uv names or none); on meshes the shading normal is Mitsuba's
+    ``si.sh_frame.n`` too (given, computed smooth, or the face's)."""
     (images / "quad.obj").write_text(_QUAD)
     (images / "tri.obj").write_text(_TRI_NO_UV)
+    _write_plys(images)
     cs, scene = _compiled(mi, images, "", shape=shape, shape_props=props)
     a = cs.arrays
     nodes, leaf, leaf_info, prims, info = a.bvh_nodes, a.leaf_prims, a.leaf_info, a.prims, \
@@ -176,6 +207,10 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
         if shape == "sphere":
             du[0] = min(du[0], 1 - du[0])           # u wraps at the seam
         assert du.max() < 2e-5, f"ray {o} {d}: ours {uv}, Mitsuba {si.uv}"
+        if shape in ("obj", "ply"):
+            n = geometry.surface(prims, info, j, *o, *d, t, b1, b2)[6:9]
+            assert np.abs(np.array(n) - np.array(si.sh_frame.n)).max() < 2e-5, \
+                f"ray {o} {d}: shading normal ours {n}, Mitsuba {si.sh_frame.n}"
     assert hits > 100
 
 
