@@ -19,11 +19,17 @@ pytestmark = pytest.mark.mitsuba
 
 @pytest.fixture(scope="module")
 def images(mi, tmp_path_factory):
-    """A random float EXR (6 × 10, distinct texels) and an 8-bit sRGB PNG (5 × 7)."""
+    """A random float EXR (6 × 10, distinct texels), 8-bit sRGB PNG (5 × 7) and JPEGs
+    (9 × 11 colour, 8 × 6 grey; written at quality 100 by Mitsuba, texels still distinct
+    after compression)."""
     d = tmp_path_factory.mktemp("tex")
     rng = np.random.default_rng(3)
     mi.Bitmap(rng.random((6, 10, 3)).astype(np.float32) * 4).write(str(d / "t.exr"))
     mi.Bitmap(rng.integers(0, 256, (5, 7, 3)).astype(np.uint8)).write(str(d / "t.png"))
+    mi.Bitmap(rng.integers(0, 256, (9, 11, 3)).astype(np.uint8)).write(str(d / "t.jpg"),
+                                                                        quality=100)
+    mi.Bitmap(rng.integers(0, 256, (8, 6, 1)).astype(np.uint8),
+              mi.Bitmap.PixelFormat.Y).write(str(d / "grey.jpg"), quality=100)
     return d
 
 
@@ -99,11 +105,28 @@ def test_to_uv_matches_mitsuba(mi, images):
 
 
 @pytest.mark.parametrize("raw", [False, True])
-def test_srgb_png_decoding_and_raw_match_mitsuba(mi, images, raw):
-    """An 8-bit sRGB PNG is decoded to linear before filtering unless ``raw``."""
+@pytest.mark.parametrize("image", ["t.png", "t.jpg", "grey.jpg"])
+def test_srgb_png_and_jpeg_decoding_and_raw_match_mitsuba(mi, images, image, raw):
+    """An 8-bit sRGB PNG or JPEG (colour or grey) is decoded to linear before filtering
+    unless ``raw``, which keeps the 8-bit values / 255."""
     cs, scene = _compiled(mi, images, _texture_xml(
-        "t.png", [("boolean", "raw", str(raw).lower())]))
+        image, [("boolean", "raw", str(raw).lower())]))
     _lookups_agree(mi, cs, scene, np.random.default_rng(7).random((300, 2)), rtol=2e-5)
+
+
+def test_jpeg_is_read_as_8_bit_srgb(mi, images):
+    """The decoded texels are the sRGB curve of the file's 8-bit values (read back
+    independently of Mitsuba, with Pillow, which matplotlib requires), and ``raw`` gives
+    the values / 255."""
+    from PIL import Image
+
+    values = np.asarray(Image.open(images / "t.jpg").convert("RGB"), dtype=np.float64) / 255
+    srgb = np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4)
+    assert len(np.unique(values)) > 50          # not a constant image
+    np.testing.assert_allclose(textures.read_image(str(images / "t.jpg")), srgb,
+                               rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(textures.read_image(str(images / "t.jpg"), raw=True), values,
+                               rtol=1e-6, atol=1e-7)
 
 
 def test_a_referenced_texture_is_used_not_dropped(mi, images):
