@@ -12,6 +12,7 @@ dielectric to BK7 in air; plastic to polypropylene in air; conductor to a perfec
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -62,13 +63,27 @@ class PreparedScene:
         return self.camera.width
 
     def planted(self, *, light_scale: float = 1.0, albedo_scale: float = 1.0,
-                bsdf: int | None = None, texture_filter: str | None = None
+                bsdf: int | None = None, texture_filter: str | None = None,
+                texture_raw: bool = False, camera_extent: float = 1.0
                 ) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
         every bitmap looked up with ``texture_filter`` (``"bilinear"`` or ``"nearest"``)
-        whatever the scene says (the bug issue 12 found: ``filter_type`` ignored)."""
+        whatever the scene says (the bug issue 12 found: ``filter_type`` ignored);
+        ``texture_raw``: every bitmap read as ``raw`` (an 8-bit sRGB image's gamma
+        ignored); the camera's extent (orthographic) or tangent of the half field of
+        view (perspective) scaled by ``camera_extent``."""
+        if texture_raw:
+            desc = copy.deepcopy(self.desc)
+            for shape in desc.shapes:
+                for tex in _textures(shape):
+                    tex.props["raw"] = True
+            return _Builder(desc).build().planted(
+                light_scale=light_scale, albedo_scale=albedo_scale, bsdf=bsdf,
+                texture_filter=texture_filter, camera_extent=camera_extent)
+        camera = dataclasses.replace(self.camera, tan_x=self.camera.tan_x * camera_extent,
+                                     tan_y=self.camera.tan_y * camera_extent)
         a = self.arrays
         if texture_filter is not None:
             if texture_filter not in layout.FILTERS:
@@ -90,7 +105,8 @@ class PreparedScene:
                 if bsdf is None:
                     raise ValueError("the scene has no untextured diffuse-like BSDF to plant in")
             bf[bsdf, base] *= albedo_scale
-        return dataclasses.replace(self, arrays=a._replace(light_f=light_f, bsdf_f=bf))
+        return dataclasses.replace(self, camera=camera,
+                                   arrays=a._replace(light_f=light_f, bsdf_f=bf))
 
     @property
     def height(self) -> int:
@@ -545,6 +561,15 @@ class _Builder:
 
 
 _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
+
+
+def _textures(p: Plugin):
+    """The texture plugins under a plugin (its properties and nested plugins)."""
+    for v in p.props.values():
+        if isinstance(v, Plugin):
+            yield v
+    for child in p.children:
+        yield from _textures(child)
 _DIFFUSE_LIKE = (layout.DIFFUSE, layout.PLASTIC, layout.ROUGHPLASTIC)
 
 
