@@ -71,18 +71,21 @@ def _header(data: bytes, path: str) -> tuple[str | None, list, int]:
     def fail(msg):
         raise SceneError(f"{path}: not a PLY file Mitsuba reads: {msg}")
 
-    if not data.startswith(b"ply"):
-        fail("it does not start with 'ply'")
-    end = data.find(b"end_header")
-    if end < 0:
-        fail("no end_header")
-    nl = data.find(b"\n", end)
-    if nl < 0 or data[end + len(b"end_header"):nl].strip():
-        fail("end_header must end its line")
+    lines, pos = [], 0
+    while True:                         # header lines up to the one that says end_header
+        nl = data.find(b"\n", pos)
+        if nl < 0:
+            fail("no end_header line")
+        lines.append(data[pos:nl])
+        pos = nl + 1
+        if lines[-1].strip() == b"end_header":
+            break
     try:
-        lines = data[:end].decode("ascii").splitlines()
+        lines = [line.decode("ascii") for line in lines[:-1]]
     except UnicodeDecodeError:
         fail("the header is not ASCII text")
+    if lines[0].strip() != "ply":
+        fail("the first line must be 'ply'")
     order = "missing"
     elements: list[_Element] = []
     for number, line in enumerate(lines[1:], 2):
@@ -123,7 +126,7 @@ def _header(data: bytes, path: str) -> tuple[str | None, list, int]:
             fail(f"{where}: unknown keyword {tokens[0]!r}")
     if order == "missing":
         fail("no 'format' line")
-    return order, elements, nl + 1
+    return order, elements, pos
 
 
 def _dtype(el: _Element, order: str) -> np.dtype:
@@ -153,7 +156,7 @@ def _read_binary(data, offset, elements, order, path):
     for el in elements:
         dt = _dtype(el, order)
         need = dt.itemsize * el.count
-        full = min(el.count, (len(data) - offset) // dt.itemsize)
+        full = min(el.count, (len(data) - offset) // max(dt.itemsize, 1))
         records[el.name] = np.frombuffer(data, dt, full, offset)
         _lists_are_triangles(el, records[el.name], path)
         if full < el.count:
@@ -174,7 +177,7 @@ def _read_ascii(data, offset, elements, path):
     for el in elements:
         dt = _dtype(el, "=")
         width = len(dt.names)
-        full = min(el.count, (len(tokens) - pos) // width)
+        full = min(el.count, (len(tokens) - pos) // max(width, 1))
         block = tokens[pos:pos + width * full]
         try:
             values = np.array(block, dtype=np.float64).reshape(full, width)

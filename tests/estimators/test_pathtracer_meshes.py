@@ -43,6 +43,23 @@ def test_every_format_reads_the_mesh_written(tmp_path, vertex_type):
     assert bare.normals is None and bare.uvs is None
 
 
+@pytest.mark.parametrize("newline", [b"\n", b"\r\n"])
+def test_header_comments_empty_elements_and_line_ends(tmp_path, newline):
+    """A comment that mentions end_header, an element without properties and one with
+    properties the tracer ignores (read past), CRLF line ends."""
+    text = (b"ply\nformat ascii 1.0\ncomment end_header is the last line\n"
+            b"element vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            b"property uchar red\nelement empty 2\nelement face 1\n"
+            b"property list uchar int vertex_indices\nproperty float quality\n"
+            b"element edge 1\nproperty int a\nproperty int b\nend_header\n"
+            b"0 0 0 255\n1 0 0 0\n0 1 0.5 7\n3 0 1 2 0.25\n0 1\n")
+    path = tmp_path / "m.ply"
+    path.write_bytes(text.replace(b"\n", newline))
+    m = read_ply(str(path))
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0.5]])
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
+
+
 @pytest.mark.mitsuba
 def test_a_ply_that_mitsuba_wrote_reads_as_mitsuba_holds_it(mi, tmp_path):
     """An independent writer: Mitsuba's ``Mesh.write_ply`` (binary, with its own header
