@@ -3,8 +3,9 @@
 kernel in ``render``.
 
 Shapes become primitives (rectangles and cubes two triangles a face, OBJ and PLY meshes
-their triangles; spheres and disks stay analytic), BSDFs and emitters become rows of parameter
-tables, images become one texture store, and the whole is indexed by the SAH hierarchy.
+their triangles; spheres and disks stay analytic), BSDFs and emitters become rows of
+parameter tables, images become one texture store, and the whole is indexed by the SAH
+hierarchy.
 Mitsuba's defaults apply wherever the XML is silent (a shape without a BSDF is diffuse
 0.5, or black if it emits; roughconductor and roughplastic default to Beckmann α = 0.1;
 dielectric to BK7 in air; plastic to polypropylene in air; conductor to a perfect mirror).

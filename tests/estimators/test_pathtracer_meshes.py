@@ -155,13 +155,14 @@ def test_a_ply_shape_names_the_scene_line_and_the_file(tmp_path):
                                         f'value="{path.name}"/></shape>'))
     with pytest.raises(SceneError) as e:
         prepare_scene(str(scene))
-    assert f"{scene}:7" in str(e.value) and '<shape type="ply">' in str(e.value)
+    assert f"{scene}:8" in str(e.value) and '<shape type="ply">' in str(e.value)
 
 
 _SCENE = """<scene version="3.0.0">
   <integrator type="path"><integer name="max_depth" value="3"/></integrator>
   <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0.5, -2, 2.5" target="0, 0, 0" up="0, 0, 1"/></transform>
+    <transform name="to_world">
+      <lookat origin="0.5, -2, 2.5" target="0, 0, 0" up="0, 0, 1"/></transform>
     <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="12"/>
     <rfilter type="box"/></film></sensor>
   {mesh}
