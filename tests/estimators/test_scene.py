@@ -144,6 +144,19 @@ def test_orthographic_rays_match_mitsuba_pixel_for_pixel(mi, width, height, to_w
     _assert_rays_match_mitsuba(mi, text)
 
 
+@pytest.mark.parametrize("body,needle", [
+    ('<float name="fov" value="45"/>', "orthographic' has no property 'fov'"),
+    ('<transform name="to_world"><scale z="0"/></transform>',
+     "maps the view direction (0, 0, 1) to zero"),
+], ids=["fov", "flat-to-world"])
+def test_orthographic_sensor_refuses_what_it_cannot_render(body, needle):
+    film = '<film type="hdrfilm"><rfilter type="box"/></film>'
+    with pytest.raises(SceneError) as e:
+        camera_from_scene(parse_scene(f'<scene version="3.0.0"><sensor type="orthographic">'
+                                      f'{body}{film}</sensor></scene>', path="s.xml"))
+    assert "s.xml:1" in str(e.value) and needle in str(e.value), str(e.value)
+
+
 def _error(text, **kw):
     with pytest.raises(SceneError) as e:
         parse_scene(text, path="s.xml", **kw)
