@@ -14,14 +14,13 @@ A primitive is one row of ``prims`` and one row of ``prim_info`` (``PRIM_KIND``,
 The intersection arithmetic below reads these rows element by element (the offsets are
 those of the layout's columns; ``tests/estimators/test_scene.py`` checks they agree).
 
-The hierarchy is binned SAH (16 bins; a node becomes a leaf of up to 8 primitives when
-the SAH says testing them costs less than splitting, a traversal step costing two
-primitive tests), built by a numba kernel (``build_bvh``); ``pack_bvh`` lays it out for
-traversal as ``layout``'s ``bvh_nodes`` (a node's box in float32, rounded outward, the
-two children of a node adjacent) and ``bvh_links`` (int32), and ``leaf_prims`` (what the
-ray tests read, copied in leaf order, so a leaf is one contiguous run of rows and
-triangle edges are not recomputed per test). Box tests widen the float32 corners to
-float64 and compute in float64; the primitive tests are float64.
+The hierarchy is binned SAH (16 bins, leaves of at most 4 primitives), built by a numba
+kernel (``build_bvh``); ``pack_bvh`` lays it out for traversal as ``layout``'s
+``bvh_nodes`` (a node's box in float32, rounded outward, the two children of a node
+adjacent) and ``bvh_links`` (int32), and ``leaf_prims`` (what the ray tests read, copied
+in leaf order, so a leaf is one contiguous run of rows and triangle edges are not
+recomputed per test). Box tests widen the float32 corners to float64 and compute in
+float64; the primitive tests are float64.
 """
 
 from __future__ import annotations
@@ -37,8 +36,7 @@ from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_KI
                      SPHERE_CENTER, SPHERE_RADIUS, TRI_P0, TRI_P1, TRI_P2, TRIANGLE)
 
 _BINS = 16
-_LEAF = 8              # the largest leaf the SAH may choose
-_TRAVERSAL = 2.0       # cost of a traversal step in primitive tests (measured)
+_LEAF = 4
 _MAX_DEPTH = 60        # deeper subtrees become leaves, so traversal's stack suffices
 STACK = 64
 
@@ -119,7 +117,7 @@ def build_bvh(prims, info):
         nb[node, 3:6] = bhi
         count = end - start
         best_cost, best_axis, best_split = np.inf, -1, 0
-        if count > 1:
+        if count > _LEAF:
             for a in range(3):
                 ext = chi[a] - clo[a]
                 if ext <= 0.0:
@@ -161,14 +159,7 @@ def build_bvh(prims, info):
                     cost = nl * _area(llo, lhi) + nr * _area(rlo, rhi)
                     if cost < best_cost:
                         best_cost, best_axis, best_split = cost, a, s
-        if count <= 1 or depth >= _MAX_DEPTH:
-            ni[node, 0], ni[node, 1] = start, count
-            continue
-        # SAH termination: a leaf when testing its primitives costs no more than one
-        # traversal step (two box tests, _TRAVERSAL primitive tests' worth) plus the
-        # split's expected primitive tests
-        if best_axis >= 0 and count <= _LEAF and \
-                count * _area(blo, bhi) <= _TRAVERSAL * _area(blo, bhi) + best_cost:
+        if count <= _LEAF or depth >= _MAX_DEPTH:
             ni[node, 0], ni[node, 1] = start, count
             continue
         if best_axis < 0:
