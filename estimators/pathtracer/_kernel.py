@@ -77,8 +77,7 @@ def _offset(px, py, pz, gx, gy, gz, dx, dy, dz):
 def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     """Radiance along one camera ray: (r, g, b, rng state). ``sc`` is the scene's
     ``layout.SceneArrays``; ``pdf_scale`` is the wrong-pdf test hook (1: correct)."""
-    nodes, links, leaf, leaf_info = sc.bvh_nodes, sc.bvh_links, sc.leaf_prims, \
-        sc.leaf_info
+    nodes, leaf, leaf_info = sc.bvh_nodes, sc.leaf_prims, sc.leaf_info
     prims, info = sc.prims, sc.prim_info
     bf, bi, btex, tex_data, tex_info = sc.bsdf_f, sc.bsdf_i, sc.bsdf_tex, sc.tex_data, \
         sc.tex_info
@@ -96,8 +95,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     depth = 0
     t_min = 0.0
     while True:
-        t, j, b1, b2 = intersect(nodes, links, leaf, leaf_info, stack, ox, oy, oz, dx, dy,
-                                 dz, t_min, t_max)
+        t, j, b1, b2 = intersect(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz,
+                                 t_min, t_max)
         if j < 0:
             if MASK & F_ENV and env >= 0 and not (depth == 0 and hide):
                 lr, lg, lb = eval_environment(light_f, light_i, tex_data, tex_info, env,
@@ -167,7 +166,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                         sdz = pz + dist * wz - soz
                         ln = math.sqrt(sdx * sdx + sdy * sdy + sdz * sdz)
                         sdx, sdy, sdz, smax = sdx / ln, sdy / ln, sdz / ln, ln * (1.0 - 1e-6)
-                    if not occluded(nodes, links, leaf, leaf_info, stack, sox, soy, soz,
+                    if not occluded(nodes, leaf, leaf_info, stack, sox, soy, soz,
                                     sdx, sdy, sdz, 0.0, smax):
                         delta = (MASK & F_NONDELTA_LIGHTS) == 0 or is_delta(light_i[k, LIGHT_KIND])
                         w = 1.0 if delta else _mis(lpdf * sel_pdf, bpdf)

@@ -1,6 +1,5 @@
 """Primitives (triangles, spheres, disks), the SAH bounding volume hierarchy over them,
-and ray intersection: numba kernels, float64 arithmetic (the hierarchy's boxes are stored
-float32).
+and ray intersection: numba kernels, float64 throughout.
 
 A primitive is one row of ``prims`` and one row of ``prim_info`` (``PRIM_KIND``,
 ``PRIM_SHAPE``), laid out as ``layout`` names them (``TRI_P0``, ``SPHERE_CENTER``,
@@ -16,11 +15,9 @@ those of the layout's columns; ``tests/estimators/test_scene.py`` checks they ag
 
 The hierarchy is binned SAH (16 bins, leaves of at most 4 primitives), built by a numba
 kernel (``build_bvh``); ``pack_bvh`` lays it out for traversal as ``layout``'s
-``bvh_nodes`` (a node's box in float32, rounded outward, the two children of a node
-adjacent) and ``bvh_links`` (int32), and ``leaf_prims`` (what the ray tests read, copied
-in leaf order, so a leaf is one contiguous run of rows and triangle edges are not
-recomputed per test). Box tests widen the float32 corners to float64 and compute in
-float64; the primitive tests are float64.
+``bvh_nodes`` (box and links of a node in one 64-byte row, the two children of a node
+adjacent) and ``leaf_prims`` (what the ray tests read, copied in leaf order, so a leaf is
+one contiguous run of rows and triangle edges are not recomputed per test).
 """
 
 from __future__ import annotations
@@ -31,8 +28,8 @@ import numpy as np
 from numba import njit
 
 from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_KIND, LEAF_P0,
-                     LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, LINK_COUNT,
-                     LINK_FIRST, LINK_WIDTH, NODE_HI, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
+                     LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_COUNT,
+                     NODE_FIRST, NODE_HI, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
                      SPHERE_CENTER, SPHERE_RADIUS, TRI_P0, TRI_P1, TRI_P2, TRIANGLE)
 
 _BINS = 16
@@ -194,36 +191,22 @@ def build_bvh(prims, info):
     return nb[:n_nodes].copy(), ni[:n_nodes].copy(), order
 
 
-def _outward_float32(x: np.ndarray, down: bool) -> np.ndarray:
-    """``x`` as float32, rounded down (``down``) or up: the float32 box contains the
-    float64 one."""
-    f = x.astype(np.float32)
-    if down:
-        return np.where(f.astype(np.float64) > x, np.nextafter(f, np.float32(-np.inf)), f)
-    return np.where(f.astype(np.float64) < x, np.nextafter(f, np.float32(np.inf)), f)
-
-
 def pack_bvh(prims, info, node_bounds, node_info, order):
-    """The hierarchy as the kernel reads it: ``(bvh_nodes, bvh_links, leaf_prims,
-    leaf_info)`` of ``layout`` (float32 boxes rounded outward, int32 links, the two
-    children of a node adjacent; the ray-test data of every primitive copied in leaf
-    order, triangle edges precomputed), from ``build_bvh``'s output. The edges are the
-    same float64 differences the test computed from the vertices, so hits are the same
-    to the bit."""
+    """The hierarchy as the kernel reads it: ``(bvh_nodes, leaf_prims, leaf_info)`` of
+    ``layout`` (one 64-byte row per node; the ray-test data of every primitive copied in
+    leaf order, triangle edges precomputed), from ``build_bvh``'s output. The edges are
+    the same float64 differences the test computed from the vertices, so hits are the
+    same to the bit."""
+    nodes = np.empty((len(node_bounds), NODE_WIDTH))
+    nodes[:, NODE_LO:NODE_LO + 3] = node_bounds[:, 0:3]
+    nodes[:, NODE_HI:NODE_HI + 3] = node_bounds[:, 3:6]
     leaf = node_info[:, 1] >= 0
     interior = ~leaf
     # build_bvh allocates an interior node's two children next to each other
     if not np.array_equal(-node_info[interior, 1] - 1, node_info[interior, 0] + 1):
         raise AssertionError("build_bvh: children of a node are not adjacent")
-    if len(node_bounds) >= 2 ** 31 or len(order) >= 2 ** 31:
-        raise ValueError(f"{len(order)} primitives: the hierarchy's int32 links hold "
-                         "fewer than 2**31 nodes and primitives")
-    nodes = np.empty((len(node_bounds), NODE_WIDTH), dtype=np.float32)
-    nodes[:, NODE_LO:NODE_LO + 3] = _outward_float32(node_bounds[:, 0:3], True)
-    nodes[:, NODE_HI:NODE_HI + 3] = _outward_float32(node_bounds[:, 3:6], False)
-    links = np.empty((len(node_bounds), LINK_WIDTH), dtype=np.int32)
-    links[:, LINK_FIRST] = node_info[:, 0]
-    links[:, LINK_COUNT] = np.where(leaf, node_info[:, 1], -(node_info[:, 2] + 1))
+    nodes[:, NODE_FIRST] = node_info[:, 0]
+    nodes[:, NODE_COUNT] = np.where(leaf, node_info[:, 1], -(node_info[:, 2] + 1))
     p = prims[order]
     kind = info[order, PRIM_KIND]
     rows = np.zeros((len(order), LEAF_WIDTH))
@@ -237,33 +220,25 @@ def pack_bvh(prims, info, node_bounds, node_info, order):
     leaf_info = np.empty((len(order), 2), dtype=np.int64)
     leaf_info[:, LEAF_KIND] = kind
     leaf_info[:, LEAF_PRIM] = order
-    return nodes, links, rows, leaf_info
-
-
-def bvh_bounds(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) of the whole hierarchy (the root's box), float64."""
-    root = nodes[0].astype(np.float64)
-    return root[NODE_LO:NODE_LO + 3], root[NODE_HI:NODE_HI + 3]
+    return nodes, rows, leaf_info
 
 
 # --------------------------------------------------------------------- intersection
 @_inline
 def _box_entry(nodes, node, ox, oy, oz, ix, iy, iz, t_max):
-    """Where the ray enters the node's box within [0, t_max], or inf if it misses. The
-    float32 corners are widened to float64 exactly and the arithmetic is float64, as
-    robust as with float64 boxes."""
+    """Where the ray enters the node's box within [0, t_max], or inf if it misses."""
     t0 = 0.0
     t1 = t_max
-    a = (np.float64(nodes[node, NODE_LO]) - ox) * ix
-    b = (np.float64(nodes[node, NODE_HI]) - ox) * ix
+    a = (nodes[node, NODE_LO] - ox) * ix
+    b = (nodes[node, NODE_HI] - ox) * ix
     t0 = max(t0, min(a, b))
     t1 = min(t1, max(a, b))
-    a = (np.float64(nodes[node, NODE_LO + 1]) - oy) * iy
-    b = (np.float64(nodes[node, NODE_HI + 1]) - oy) * iy
+    a = (nodes[node, NODE_LO + 1] - oy) * iy
+    b = (nodes[node, NODE_HI + 1] - oy) * iy
     t0 = max(t0, min(a, b))
     t1 = min(t1, max(a, b))
-    a = (np.float64(nodes[node, NODE_LO + 2]) - oz) * iz
-    b = (np.float64(nodes[node, NODE_HI + 2]) - oz) * iz
+    a = (nodes[node, NODE_LO + 2] - oz) * iz
+    b = (nodes[node, NODE_HI + 2] - oz) * iz
     t0 = max(t0, min(a, b))
     t1 = min(t1, max(a, b))
     return t0 if t0 <= t1 * (1.0 + 4e-16) else np.inf
@@ -336,8 +311,7 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 
 @_inline
-def _traverse(nodes, links, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
-              any_hit):
+def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max, any_hit):
     """Walk the hierarchy: at an interior node both children's boxes are tested, the
     nearer entered first and the other stacked with its entry distance (skipped when a
     hit closer than that is found meanwhile). The nearest hit in (t_min, t_max), or with
@@ -351,8 +325,8 @@ def _traverse(nodes, links, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_mi
     if _box_entry(nodes, 0, ox, oy, oz, ix, iy, iz, best_t) == np.inf:
         return best_t, -1, best_b1, best_b2
     while True:
-        c = links[node, LINK_COUNT]
-        first = links[node, LINK_FIRST]
+        c = int(nodes[node, NODE_COUNT])
+        first = int(nodes[node, NODE_FIRST])
         if c < 0:
             ta = _box_entry(nodes, first, ox, oy, oz, ix, iy, iz, best_t)
             tb = _box_entry(nodes, first + 1, ox, oy, oz, ix, iy, iz, best_t)
@@ -398,19 +372,19 @@ def new_stack():
 
 
 @_inline
-def intersect(nodes, links, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
+def intersect(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Nearest hit in (t_min, t_max): (t, primitive, b1, b2); primitive -1 if none.
-    ``nodes, links, leaf, leaf_info`` are the scene's ``bvh_nodes, bvh_links, leaf_prims,
-    leaf_info``; ``stack`` is scratch from ``new_stack()``, reused across rays."""
-    return _traverse(nodes, links, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min,
-                     t_max, False)
+    ``nodes, leaf, leaf_info`` are the scene's ``bvh_nodes, leaf_prims, leaf_info``;
+    ``stack`` is scratch from ``new_stack()``, reused across rays."""
+    return _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
+                     False)
 
 
 @_inline
-def occluded(nodes, links, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
+def occluded(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Whether anything lies on the ray in (t_min, t_max)."""
-    return _traverse(nodes, links, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min,
-                     t_max, True)[1] >= 0
+    return _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max,
+                     True)[1] >= 0
 
 
 # ---------------------------------------------------------------- surface details

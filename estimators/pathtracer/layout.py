@@ -17,8 +17,7 @@ import numpy as np
 class SceneArrays(NamedTuple):
     """Everything the kernel reads, by name. Tables are one row per item."""
 
-    bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float32: see the NODE_ columns
-    bvh_links: np.ndarray       # (nodes, LINK_WIDTH) int32: see the LINK_ columns
+    bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float: see the NODE_ columns
     leaf_prims: np.ndarray      # (prims, LEAF_WIDTH) float: intersection data in leaf order
     leaf_info: np.ndarray       # (prims, 2) int: LEAF_KIND, LEAF_PRIM (row of prims)
     prims: np.ndarray           # (prims, PRIM_WIDTH) float: see the PRIM_ columns
@@ -88,15 +87,13 @@ SPHERE_CENTER, SPHERE_RADIUS, SPHERE_ROTATION = 0, 3, 4
 DISK_TO_WORLD, DISK_TO_LOCAL = 0, 12
 
 # -------------------------------------------------------------------------- BVH
-# bvh_nodes: one float32 row per node, its box, rounded outward from the float64 box (no
-# hit is lost); the two children of a node are adjacent rows (48 bytes together).
+# bvh_nodes: one 64-byte row per node, the box and the links together (one cache line).
+# Integers are stored as float64 values (exact below 2**53).
 NODE_LO, NODE_HI = 0, 3         # box corners (xyz each)
-NODE_WIDTH = 6
-# bvh_links: one int32 row per node
-LINK_FIRST = 0                  # interior: first child (the second is first + 1);
+NODE_FIRST = 6                  # interior: first child (the second is first + 1);
                                 # leaf: first slot in leaf_prims
-LINK_COUNT = 1                  # leaf: number of primitives (>= 0); interior: -(axis + 1)
-LINK_WIDTH = 2
+NODE_COUNT = 7                  # leaf: number of primitives (>= 0); interior: -(axis + 1)
+NODE_WIDTH = 8
 # leaf_prims: what the ray test reads, copied in leaf order (no indirection): a triangle's
 # first vertex and its two edges (p1 - p0, p2 - p0, as the test would compute them), a
 # sphere's centre and radius, a disk's world-to-local 3 × 4

@@ -475,7 +475,7 @@ class _Builder:
             prims = np.zeros((1, PRIM_WIDTH))
             info = np.array([[TRIANGLE, -1]], dtype=np.int64)
         nb, ni, order = build_bvh(prims, info)
-        bvh_nodes, bvh_links, leaf_prims, leaf_info = pack_bvh(prims, info, nb, ni, order)
+        bvh_nodes, leaf_prims, leaf_info = pack_bvh(prims, info, nb, ni, order)
         integ = d.integrator
         if integ.type == "direct":
             max_depth, rr_depth = 2, INFINITE_DEPTH
@@ -488,8 +488,8 @@ class _Builder:
                 self.fail(integ, f"rr_depth must be >= 1, got {rr_depth}")
         tex_data, tex_info = self.textures.arrays()
         arrays = layout.SceneArrays(
-            bvh_nodes=bvh_nodes, bvh_links=bvh_links, leaf_prims=leaf_prims,
-            leaf_info=leaf_info, prims=prims, prim_info=info,
+            bvh_nodes=bvh_nodes, leaf_prims=leaf_prims, leaf_info=leaf_info, prims=prims,
+            prim_info=info,
             shape_bsdf=np.array(shape_bsdf, dtype=np.int64),
             shape_light=np.array(shape_light, dtype=np.int64),
             shape_flip=np.array(shape_flip, dtype=np.bool_),

@@ -64,11 +64,12 @@ def _emitter_label(scene, tag: str, k: int) -> str:
 
 def reference_points(scene) -> list[tuple[float, float, float]]:
     """The camera's position, the centre of the scene's bounds, and half way between."""
-    from estimators.pathtracer.geometry import bvh_bounds
+    from estimators.pathtracer import layout
 
     cam = np.asarray(scene.camera.to_world, dtype=np.float64)[:3, 3]
-    lo, hi = bvh_bounds(scene.arrays.bvh_nodes)
-    centre = 0.5 * (lo + hi)
+    node = scene.arrays.bvh_nodes[0]
+    centre = 0.5 * (node[layout.NODE_LO:layout.NODE_LO + 3]
+                    + node[layout.NODE_HI:layout.NODE_HI + 3])
     return [tuple(float(c) for c in p) for p in (cam, centre, 0.5 * (cam + centre))]
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from estimators.pathtracer import geometry, layout
-from estimators.pathtracer.layout import (LEAF_KIND, LEAF_PRIM, LINK_COUNT, LINK_FIRST,
+from estimators.pathtracer.layout import (LEAF_KIND, LEAF_PRIM, NODE_COUNT, NODE_FIRST,
                                           NODE_HI, NODE_LO, PRIM_WIDTH, SPHERE, TRIANGLE)
 
 
@@ -69,11 +69,9 @@ def packed(request):
 
 
 def test_packed_hierarchy_is_valid(packed):
-    """Every primitive sits in exactly one leaf; leaves hold their primitives' float64
-    boxes, interior nodes their children's boxes; leaf rows are the primitives' own
-    data."""
-    prims, info, (nodes, links, leaf, leaf_info) = packed
-    assert nodes.dtype == np.float32 and links.dtype == np.int32
+    """Every primitive sits in exactly one leaf; leaves hold their primitives' boxes,
+    interior nodes their children's boxes; leaf rows are the primitives' own data."""
+    prims, info, (nodes, leaf, leaf_info) = packed
     lo, hi = geometry._prim_bounds(prims, info)
     assert sorted(leaf_info[:, LEAF_PRIM]) == list(range(len(prims)))
     np.testing.assert_array_equal(leaf_info[:, LEAF_KIND],
@@ -82,9 +80,8 @@ def test_packed_hierarchy_is_valid(packed):
     stack = [0]
     while stack:
         i = stack.pop()
-        box_lo = nodes[i, NODE_LO:NODE_LO + 3].astype(np.float64)
-        box_hi = nodes[i, NODE_HI:NODE_HI + 3].astype(np.float64)
-        first, count = int(links[i, LINK_FIRST]), int(links[i, LINK_COUNT])
+        box_lo, box_hi = nodes[i, NODE_LO:NODE_LO + 3], nodes[i, NODE_HI:NODE_HI + 3]
+        first, count = int(nodes[i, NODE_FIRST]), int(nodes[i, NODE_COUNT])
         if count >= 0:
             for k in range(first, first + count):
                 seen[k] += 1
@@ -105,33 +102,11 @@ def test_packed_hierarchy_is_valid(packed):
                                   - prims[j, layout.TRI_P0:layout.TRI_P0 + 3])
 
 
-def test_float32_boxes_are_rounded_outward():
-    """Corners that float32 cannot hold exactly are rounded away from the box: a
-    primitive whose coordinates fall between float32 values stays inside its box."""
-    prims = np.zeros((1, PRIM_WIDTH))
-    info = np.array([[TRIANGLE, 0]], dtype=np.int64)
-    third = 1.0 / 3.0                       # not a float32: rounds to either side
-    prims[0, layout.TRI_P0:layout.TRI_P2 + 3] = [third, -third, 0.1, 2 * third, third, -0.7,
-                                                 third, 0.9, 1e-9]
-    nb, ni, order = geometry.build_bvh(prims, info)
-    nodes, links, _, _ = geometry.pack_bvh(prims, info, nb, ni, order)
-    lo = nodes[0, NODE_LO:NODE_LO + 3].astype(np.float64)
-    hi = nodes[0, NODE_HI:NODE_HI + 3].astype(np.float64)
-    plo, phi = geometry._prim_bounds(prims, info)
-    assert np.all(lo <= plo[0]) and np.all(phi[0] <= hi)
-    assert np.all(lo < plo[0]) and np.all(phi[0] < hi)      # none of them is a float32
-    np.testing.assert_allclose(lo, plo[0], rtol=2.0 ** -22, atol=0.0)
-    np.testing.assert_allclose(hi, phi[0], rtol=2.0 ** -22, atol=0.0)
-    blo, bhi = geometry.bvh_bounds(nodes)
-    np.testing.assert_array_equal(blo, lo)
-    np.testing.assert_array_equal(bhi, hi)
-
-
 def test_traversal_finds_the_brute_force_nearest_hit(packed):
     """Rays from outside and inside the soup, in every direction: the nearest hit, its
     primitive and whether anything lies before a limit agree with testing every
     primitive (rays whose two nearest hits are within 1e-9 are ties, not compared)."""
-    prims, info, (nodes, links, leaf, leaf_info) = packed
+    prims, info, (nodes, leaf, leaf_info) = packed
     rng = np.random.default_rng(5)
     stack = geometry.new_stack()
     hits = 0
@@ -152,8 +127,7 @@ def test_traversal_finds_the_brute_force_nearest_hit(packed):
         d /= np.linalg.norm(d)
         ts = _brute(prims, info, o, d)
         order = np.argsort(ts)
-        t, j, _, _ = geometry.intersect(nodes, links, leaf, leaf_info, stack, *o, *d, 0.0,
-                                         np.inf)
+        t, j, _, _ = geometry.intersect(nodes, leaf, leaf_info, stack, *o, *d, 0.0, np.inf)
         if not np.isfinite(ts[order[0]]):
             assert j < 0, (o, d)
             continue
@@ -163,7 +137,6 @@ def test_traversal_finds_the_brute_force_nearest_hit(packed):
         assert j == order[0], (o, d, t, ts[order[0]])
         assert abs(t - ts[j]) <= 1e-9 * (1 + t)
         limit = ts[j] * rng.choice([0.5, 2.0])
-        blocked = geometry.occluded(nodes, links, leaf, leaf_info, stack, *o, *d, 0.0,
-                                    limit)
+        blocked = geometry.occluded(nodes, leaf, leaf_info, stack, *o, *d, 0.0, limit)
         assert blocked == (limit > ts[j])
     assert hits > 50

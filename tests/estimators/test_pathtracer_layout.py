@@ -84,8 +84,8 @@ def test_geometry_reads_primitives_where_the_layout_puts_them(tmp_path):
     # rays along -z from z = 0: the disk (radius 1) at 2, the sphere's front at 2.5, the
     # rectangle at 5, and nothing at x = 9
     for ox, expect in ((0.0, 2.0), (3.0, 2.5), (6.5, 5.0), (9.0, None)):
-        t, j, _, _ = geometry.intersect(a.bvh_nodes, a.bvh_links, a.leaf_prims, a.leaf_info,
-                                        stack, ox, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, np.inf)
+        t, j, _, _ = geometry.intersect(a.bvh_nodes, a.leaf_prims, a.leaf_info, stack,
+                                        ox, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, np.inf)
         if expect is None:
             assert j < 0
         else:

@@ -156,8 +156,8 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
     (images / "tri.obj").write_text(_TRI_NO_UV)
     cs, scene = _compiled(mi, images, "", shape=shape, shape_props=props)
     a = cs.arrays
-    nodes, links, leaf, leaf_info = a.bvh_nodes, a.bvh_links, a.leaf_prims, a.leaf_info
-    prims, info = a.prims, a.prim_info
+    nodes, leaf, leaf_info, prims, info = a.bvh_nodes, a.leaf_prims, a.leaf_info, a.prims, \
+        a.prim_info
     stack = geometry.new_stack()
     rng = np.random.default_rng(9)
     hits = 0
@@ -165,8 +165,7 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
         o = -3.0 * d + rng.uniform(-0.6, 0.6, 3)
-        t, j, b1, b2 = geometry.intersect(nodes, links, leaf, leaf_info, stack, *o, *d, 0.0,
-                                         np.inf)
+        t, j, b1, b2 = geometry.intersect(nodes, leaf, leaf_info, stack, *o, *d, 0.0, np.inf)
         si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*o), mi.Vector3f(*d)))
         assert (j >= 0) == bool(si.is_valid())
         if j < 0:
