@@ -35,6 +35,8 @@ class Domain:
     tolerance = 1e-5
     #: Kernel identity (``_domain_kernels``) and its float parameters.
     kind = -1
+    #: Whether parameter axis 1 is the azimuth φ / 2π.
+    _azimuth_axis = False
 
     @property
     def args(self) -> np.ndarray:
@@ -72,6 +74,15 @@ class Domain:
 
     def to_point(self, s: np.ndarray) -> np.ndarray:  # (n, m) -> (n, dim)
         raise NotImplementedError
+
+    def binning_edges(self, edges):
+        """Cell edges in the coordinates the histogram kernel bins in: the parameters
+        themselves, except that an azimuth axis is binned by a monotone stand-in for
+        φ / 2π that needs no arc tangent (``_domain_kernels.pseudo_azimuth_edges``)."""
+        edges = [np.asarray(e, dtype=np.float64) for e in edges]
+        if self._azimuth_axis and len(edges) == 2:
+            edges[1] = kernels.pseudo_azimuth_edges(edges[1])
+        return edges
 
     def default_resolution(self, n_samples: int) -> tuple[int, ...]:
         """Histogram resolution: about 100 expected samples per cell on average (enough
@@ -140,6 +151,7 @@ class Disk(Domain):
 
     name = "disk"
     kind = kernels.DISK
+    _azimuth_axis = True
     dim = 2
     param_dim = 2
     sample_dim = 2
@@ -157,10 +169,12 @@ class Disk(Domain):
 
 class Sphere(Domain):
     """Unit vectors; solid-angle measure. Parameters: ``s0 = (1 - z) / 2`` (equal-area
-    bands, Archimedes), ``s1 = φ / 2π``; Jacobian 4π."""
+    bands, Archimedes; computed as ``(x² + y²) / (1 + z) / 2`` for z > 0, which keeps
+    float32 points' precision near the pole), ``s1 = φ / 2π``; Jacobian 4π."""
 
     name = "sphere"
     kind = kernels.SPHERE
+    _azimuth_axis = True
     dim = 3
     param_dim = 2
     sample_dim = 2
@@ -168,8 +182,9 @@ class Sphere(Domain):
     _z_span = 2.0
 
     def to_point(self, s):
-        z = 1.0 - self._z_span * s[:, 0]
-        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        w = self._z_span * s[:, 0]                      # 1 - z
+        z = 1.0 - w
+        r = np.sqrt(np.maximum(0.0, w * (2.0 - w)))      # 1 - z², no cancellation at the pole
         phi = _TWO_PI * s[:, 1]
         return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
 

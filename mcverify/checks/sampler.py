@@ -125,8 +125,10 @@ class _Histogram:
 
     def __init__(self, domain: Domain, edges, *, rejection=False):
         self.domain, self.edges, self.rejection = domain, edges, rejection
-        self.e1 = edges[1] if len(edges) == 2 else np.array([0.0, 1.0])
-        self.lut0, self.lut1 = kernels.cell_lookup(edges[0]), kernels.cell_lookup(self.e1)
+        b = domain.binning_edges(edges)
+        self.e0 = b[0]
+        self.e1 = b[1] if len(b) == 2 else np.array([0.0, 1.0])
+        self.lut0, self.lut1 = kernels.cell_lookup(self.e0), kernels.cell_lookup(self.e1)
         self.shape = tuple(e.size - 1 for e in edges)
         self.flat = np.zeros(int(np.prod(self.shape)), dtype=np.int64)
         self.n_status = np.zeros(kernels.N_STATUS, dtype=np.int64)
@@ -135,7 +137,7 @@ class _Histogram:
     def add(self, x, u=None):
         d = self.domain
         x = d.points(x)
-        codes, first = kernels.histogram_kernel(d.kind, d.args, d.tolerance, x, self.edges[0],
+        codes, first = kernels.histogram_kernel(d.kind, d.args, d.tolerance, x, self.e0,
                                           self.lut0, self.e1, self.lut1, len(self.edges),
                                           self.rejection, self.flat)
         self.n_status += codes
