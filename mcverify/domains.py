@@ -17,14 +17,14 @@ from .errors import InvalidArgument
 
 __all__ = ["Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere", "as_domain"]
 
-_TWO_PI = 2.0 * np.pi
 
 
 class Domain:
     """Base class. Subclasses set ``name``, ``dim`` (coordinates of a point),
     ``param_dim`` (m), ``sample_dim`` (uniform numbers a typical sampler takes),
-    ``jacobian`` (measure per unit parameter volume), and implement ``to_param``,
-    ``to_point`` and ``inside``."""
+    ``jacobian`` (measure per unit parameter volume) and ``kind``, the domain's
+    branch in ``_domain_kernels`` (``to_param``, ``to_point`` and ``inside`` are numba
+    passes there)."""
 
     name = "domain"
     dim = 1
@@ -72,8 +72,13 @@ class Domain:
         """(n, dim) -> (n,) bool: finite and inside (within ``tolerance``)."""
         return self.classify(x)[1] == kernels.VALID
 
-    def to_point(self, s: np.ndarray) -> np.ndarray:  # (n, m) -> (n, dim)
-        raise NotImplementedError
+    def to_point(self, s: np.ndarray) -> np.ndarray:
+        """(n, m) parameters -> (n, dim) points, in one numba pass
+        (``_domain_kernels.to_point_kernel``)."""
+        s = np.ascontiguousarray(np.asarray(s, dtype=np.float64).reshape(-1, self.param_dim))
+        out = np.empty((s.shape[0], self.dim))
+        kernels.to_point_kernel(self.kind, self.args, s, out)
+        return out
 
     def binning_edges(self, edges):
         """Cell edges in the coordinates the histogram kernel bins in: the parameters
@@ -121,9 +126,6 @@ class Interval(Domain):
     def args(self):
         return np.array([self.a, self.b])
 
-    def to_point(self, s):
-        return self.a + self.jacobian * np.asarray(s).reshape(-1, 1)
-
     def __repr__(self):
         return f"Interval({self.a!r}, {self.b!r})"
 
@@ -136,9 +138,6 @@ class Square(Domain):
     dim = 2
     param_dim = 2
     sample_dim = 2
-
-    def to_point(self, s):
-        return np.asarray(s)
 
     def default_resolution(self, n_samples):
         rows = int(np.clip(np.sqrt(max(n_samples // 100, 16)), 4, 90))
@@ -157,11 +156,6 @@ class Disk(Domain):
     sample_dim = 2
     jacobian = np.pi
 
-    def to_point(self, s):
-        r = np.sqrt(s[:, 0])
-        phi = _TWO_PI * s[:, 1]
-        return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
-
     def default_resolution(self, n_samples):
         rows = int(np.clip(np.sqrt(max(n_samples // 100, 16) / 2.0), 4, 64))
         return (rows, 2 * rows)
@@ -179,14 +173,6 @@ class Sphere(Domain):
     param_dim = 2
     sample_dim = 2
     jacobian = 4.0 * np.pi
-    _z_span = 2.0
-
-    def to_point(self, s):
-        w = self._z_span * s[:, 0]                      # 1 - z
-        z = 1.0 - w
-        r = np.sqrt(np.maximum(0.0, w * (2.0 - w)))      # 1 - z², no cancellation at the pole
-        phi = _TWO_PI * s[:, 1]
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
 
 
 
@@ -196,7 +182,6 @@ class Hemisphere(Sphere):
     name = "hemisphere"
     kind = kernels.HEMISPHERE
     jacobian = 2.0 * np.pi
-    _z_span = 1.0
 
 
 _BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}
