@@ -206,9 +206,14 @@ def _edges(pilot_s, resolution):
         if pilot_s is None or pilot_s.shape[0] == 0:
             edges.append(q)
             continue
+        # g(c) = 0.5·F_pilot(c) + 0.5·c at the sorted pilot values and at 4r + 1 uniform
+        # points, merged in order (no second sort), then inverted at the r + 1 levels q.
         ps = np.sort(pilot_s[:, j])
-        cand = np.union1d(ps, np.linspace(0.0, 1.0, 4 * r + 1))
-        g = 0.5 * np.searchsorted(ps, cand, side="right") / ps.size + 0.5 * cand
+        lin = np.linspace(0.0, 1.0, 4 * r + 1)
+        at = np.searchsorted(ps, lin, side="right")
+        cand = np.insert(ps, at, lin)
+        g = np.insert(0.5 * np.arange(1, ps.size + 1) / ps.size + 0.5 * ps, at,
+                      0.5 * at / ps.size + 0.5 * lin)
         e = np.interp(q, g, cand)
         e[0], e[-1] = 0.0, 1.0
         e = np.unique(e)
@@ -254,8 +259,8 @@ class _CubatureCache:
     NaN pdf values the integration met are part of the entry, so a cached check reports
     the same failures."""
 
-    def __init__(self, size: int = 16):
-        self.size = size
+    def __init__(self, size: int = 16, max_bytes: int = 64 << 20):
+        self.size, self.max_bytes = size, max_bytes
         self.entries: OrderedDict = OrderedDict()
         self.lock = threading.Lock()
         self.hits = 0
@@ -289,7 +294,18 @@ class _CubatureCache:
             self.hits += 1
         return entry[2], entry[3]
 
+    @staticmethod
+    def _nbytes(integrated: list) -> int:
+        r = integrated[0]
+        return r.mass.nbytes + r.error.nbytes + sum(a.nbytes for a in r.leaves or ())
+
     def put(self, pdf, dom, key, integrated: list, counters) -> None:
+        """Keep ``integrated`` (the check's list: the CellIntegral, and later the 1-D
+        CDF the check appends) for ``key``; the least recently used entries go when there
+        are more than ``size`` or they hold more than ``max_bytes`` (a 1-D integral with
+        millions of leaves is not kept at all)."""
+        if self._nbytes(integrated) > self.max_bytes // 4:
+            return
         try:
             ref = weakref.ref(pdf)
         except TypeError:       # not weakly referenceable (a builtin): not cached
@@ -300,7 +316,8 @@ class _CubatureCache:
         with self.lock:
             self.entries[key] = (ref, probes, integrated, counters)
             self.entries.move_to_end(key)
-            while len(self.entries) > self.size:
+            while (len(self.entries) > self.size or sum(
+                    self._nbytes(e[2]) for e in self.entries.values()) > self.max_bytes):
                 self.entries.popitem(last=False)
 
     def clear(self) -> None:
