@@ -3,7 +3,7 @@ time), cold and repeated (expected counts cached), and the warp front ends again
 Mitsuba's ``mi.warp``, in one run (best of ``--repeats``; JIT warm-up excluded). Prints
 the Markdown table the README quotes.
 
-    python benchmarks/profile_judge.py [--n 4000000] [--repeats 5]
+    python benchmarks/profile_judge.py [--n 4000000] [--repeats 5] [--threads N]
 """
 
 from __future__ import annotations
@@ -37,7 +37,12 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=float, default=4e6)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=None,
+                    help="numba threads (default: all); 1 gives per-stage costs that a "
+                         "shared machine's load disturbs least")
     a = ap.parse_args()
+    if a.threads:
+        numba.set_num_threads(a.threads)
     n, reps = int(a.n), a.repeats
     dom = Hemisphere()
     seq = np.random.SeedSequence(0)
