@@ -263,11 +263,11 @@ class _CubatureCache:
         self.size, self.max_bytes = size, max_bytes
         self.entries: OrderedDict = OrderedDict()
         self.lock = threading.Lock()
-        self.hits = 0
 
     @staticmethod
     def _probes(pdf, dom: Domain):
-        # 13 fixed points per parameter axis pair (a Fibonacci lattice), inside the cube.
+        # 13 fixed parameter points: a Fibonacci lattice in the unit square (its first
+        # coordinate in 1-D).
         i = np.arange(13)
         s = np.stack([(i + 0.5) / 13, ((i * 8) % 13 + 0.5) / 13], -1)[:, :dom.param_dim]
         try:
@@ -291,7 +291,6 @@ class _CubatureCache:
             return None
         with self.lock:
             self.entries.move_to_end(key)
-            self.hits += 1
         return entry[2], entry[3]
 
     @staticmethod
@@ -323,7 +322,6 @@ class _CubatureCache:
     def clear(self) -> None:
         with self.lock:
             self.entries.clear()
-            self.hits = 0
 
 
 _CUBATURE = _CubatureCache()
