@@ -625,10 +625,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
                            metavar="COMMAND")
-    suite_help = ("suite: 'default' (the CI gate, 4e6 samples) or 'full' (parameter sweeps, "
-                  "8e6 samples)")
-    any_suite_help = ("suite: 'default' (the CI gate, 4e6 samples), 'full' (parameter sweeps, "
-                      "8e6 samples), 'mitsuba' (Mitsuba's own plugins over sweeps) or "
+    suite_help = ("suite: 'default' (the CI gate, 1e7 samples) or 'full' (parameter sweeps, "
+                  "2e7 samples)")
+    any_suite_help = ("suite: 'default' (the CI gate, 1e7 samples), 'full' (parameter sweeps, "
+                      "2e7 samples), 'mitsuba' (Mitsuba's own plugins over sweeps) or "
                       "MODULE:ATTR (your list of mcverify.gate.suites.Check, or a callable "
                       "returning one); default: the [tool.mcverify] suite of the nearest "
                       "pyproject.toml, else 'default'")
