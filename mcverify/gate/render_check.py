@@ -192,8 +192,13 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     pool = Pool() if own_pool else pool
     try:
         t0 = time.perf_counter()
+        # a splatting filter compares only at equal samples per pass (below): a reference
+        # made here for such a scene gets ours, over 64 passes (as the committed ones)
+        splats = ours and _splats(path, params)
+        made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:
-            ref, _ = reference.render_reference(path, params=params, seed=seed + 1, pool=pool)
+            ref, _ = reference.render_reference(path, params=params, seed=seed + 1, pool=pool,
+                                                **made)
         else:
             try:
                 ref = reference.load_reference(path)
@@ -202,13 +207,13 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                     raise
                 if notice:
                     notice(f"{name}: no reference yet; building it with Mitsuba (once)")
-                reference.build_reference(path, pool=pool)
+                reference.build_reference(path, pool=pool, **made)
                 ref = reference.load_reference(path)
         ref_seconds = time.perf_counter() - t0
         label = name + "".join(f",{k}={v}" for k, v in sorted(
             {**(params or {}), **(plant or {}),
              **({"pdf_scale": pdf_scale} if pdf_scale != 1 else {})}.items()))
-        if ours and not ref.pixels_correlated and _splats(path, params):
+        if splats and not ref.pixels_correlated:
             raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
                                      "does not say so (built before filters were recorded)"
                                      f"; run `mcverify reference build {name}`")

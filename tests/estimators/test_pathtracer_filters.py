@@ -150,3 +150,14 @@ def test_same_seed_same_splatted_image_whatever_the_thread_count_and_banding(mon
         assert np.array_equal(a.mean, other.mean)
         assert np.array_equal(a.variance, other.variance)
     assert not np.array_equal(a.mean, render(scene, spp=2, seed=8).mean)
+
+
+def test_a_reference_made_by_the_gate_for_a_splatting_scene_has_the_gates_spp_per_pass():
+    """Splatting filters compare only at equal samples per pass; a reference the gate
+    renders itself (here on the fly, for a parameter override) takes ours, so the gate
+    runs instead of refusing its own reference."""
+    import mcverify as mv
+
+    r = mv.render_check("filters-tent", seed=3, params={"res": 24})   # 1024 spp, 16 passes
+    assert r.details["reference"]["spp"] == 64 and r.details["reference"]["passes"] == 64
+    assert r.passed, r.messages
