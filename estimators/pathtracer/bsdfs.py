@@ -26,7 +26,7 @@ from numba import njit
 from ..warps import (beckmann_pdf_kernel, cosine_hemisphere_pdf_kernel, ggx_d,
                      sample_beckmann_kernel, sample_cosine_hemisphere_kernel,
                      sample_ggx_vndf_kernel)
-from .layout import (ALPHA, ALPHA_V, BLEND, BSDF_CHILD0, BSDF_CHILD1, BSDF_DISTRIBUTION,
+from .layout import (ALPHA, BLEND, BSDF_CHILD0, BSDF_CHILD1, BSDF_DISTRIBUTION,
                      BSDF_KIND, BSDF_NONLINEAR, BSDF_TWOSIDED, COAT_INTERNAL, COAT_TABLE,
                      COAT_TABLE_RES, COLOR0, COLOR1, COND_ETA, COND_K, CONDUCTOR, DIELECTRIC,
                      DIFFUSE, ETA, F_BLEND, F_CONDUCTOR, F_DIELECTRIC, F_DIFFUSE, F_MASK,
@@ -104,27 +104,18 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
 
 
 # ------------------------------------------------------------------------ microfacets
-# Roughness (α_u, α_v): isotropic when equal (the estimators' warps directly), otherwise
-# by stretching: the slopes of an anisotropic distribution are those of α = 1 scaled by
-# (α_u, α_v), for D cos θ_m sampling and for visible normals alike (Heitz 2018, §2).
 @_jit
-def microfacet_d(m, au, av, dist):
+def microfacet_d(m, alpha, dist):
+    if dist == GGX:
+        return ggx_d(m, alpha)
     if m[2] <= 0.0:
         return 0.0
-    if au == av:
-        if dist == GGX:
-            return ggx_d(m, au)
-        return beckmann_pdf_kernel(m, (au,)) / m[2]
-    x, y, z2 = m[0] / au, m[1] / av, m[2] * m[2]
-    if dist == GGX:
-        t = x * x + y * y + z2
-        return 1.0 / (math.pi * au * av * t * t)
-    return math.exp(-(x * x + y * y) / z2) / (math.pi * au * av * z2 * z2)
+    return beckmann_pdf_kernel(m, (alpha,)) / m[2]
 
 
 @_jit
-def smith_g1(v, m, au, av, dist):
-    xy2 = au * au * v[0] * v[0] + av * av * v[1] * v[1]
+def smith_g1(v, m, alpha, dist):
+    xy2 = alpha * alpha * (v[0] * v[0] + v[1] * v[1])
     if (v[0] * m[0] + v[1] * m[1] + v[2] * m[2]) * v[2] <= 0.0:
         return 0.0
     if xy2 == 0.0:
@@ -156,48 +147,41 @@ def _reflect(w, m):
 
 
 @_jit
-def sample_microfacet(wi, au, av, dist, u0, u1):
+def sample_microfacet(wi, alpha, dist, u0, u1):
     """A microfacet normal for ``wi`` (z > 0): visible normals for GGX, D cos θ_m for
     Beckmann; its density is ``microfacet_pdf``."""
-    if au == av:
-        if dist == GGX:
-            return sample_ggx_vndf_kernel((u0, u1), (au, wi[0], wi[1], wi[2]))
-        return sample_beckmann_kernel((u0, u1), (au,))
     if dist == GGX:
-        w = _normalize(au * wi[0], av * wi[1], wi[2])
-        h = sample_ggx_vndf_kernel((u0, u1), (1.0, w[0], w[1], w[2]))
-    else:
-        h = sample_beckmann_kernel((u0, u1), (1.0,))
-    return _normalize(au * h[0], av * h[1], h[2])
+        return sample_ggx_vndf_kernel((u0, u1), (alpha, wi[0], wi[1], wi[2]))
+    return sample_beckmann_kernel((u0, u1), (alpha,))
 
 
 @_jit
-def microfacet_pdf(wi, m, au, av, dist):
+def microfacet_pdf(wi, m, alpha, dist):
     """Density (solid angle of m) of ``sample_microfacet(wi, ...)``."""
-    d = microfacet_d(m, au, av, dist)
+    d = microfacet_d(m, alpha, dist)
     if dist == GGX:
-        return d * smith_g1(wi, m, au, av, dist) * max(_dot(wi, m), 0.0) / wi[2]
+        return d * smith_g1(wi, m, alpha, dist) * max(_dot(wi, m), 0.0) / wi[2]
     return d * m[2]
 
 
 @_jit
-def microfacet_reflect_pdf(wi, wo, au, av, dist):
+def microfacet_reflect_pdf(wi, wo, alpha, dist):
     """pdf of wo = reflect(wi, m) with m from ``sample_microfacet``."""
     m = _normalize(wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2])
     wom = _dot(wo, m)
     if _dot(wi, m) <= 0.0 or wom <= 0.0:
         return 0.0
-    return microfacet_pdf(wi, m, au, av, dist) / (4.0 * wom)
+    return microfacet_pdf(wi, m, alpha, dist) / (4.0 * wom)
 
 
 @_jit
-def _microfacet_value(wi, wo, au, av, dist):
+def _microfacet_value(wi, wo, alpha, dist):
     """(D G / (4 cos θ_i), wi · h) for the half vector h of wi and wo."""
     m = _normalize(wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2])
-    d = microfacet_d(m, au, av, dist)
+    d = microfacet_d(m, alpha, dist)
     if d == 0.0:
         return 0.0, 0.0
-    g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
+    g = smith_g1(wi, m, alpha, dist) * smith_g1(wo, m, alpha, dist)
     return d * g / (4.0 * wi[2]), _dot(wi, m)
 
 
@@ -266,12 +250,12 @@ def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u,
     wim, wom = _dot(wi, m), _dot(wo, m)
     if wim * ci <= 0.0 or wom * co <= 0.0:
         return 0.0, 0.0, 0.0, 0.0
-    au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
-    d = microfacet_d(m, au, av, dist)
+    alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
+    d = microfacet_d(m, alpha, dist)
     f = fresnel_dielectric(wim, bf[b, ETA])[0]
-    g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
+    g = smith_g1(wi, m, alpha, dist) * smith_g1(wo, m, alpha, dist)
     wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
-    pdf = microfacet_pdf(wp, m, au, av, dist)
+    pdf = microfacet_pdf(wp, m, alpha, dist)
     if reflect:
         val = f * d * g / (4.0 * abs(ci))
         pdf *= f / (4.0 * abs(wom))
@@ -305,12 +289,12 @@ def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
         s = co * _INV_PI
         return r * s, g * s, bl * s, s
     if mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
-        au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
-        val, cos_h = _microfacet_value(wi, wo, au, av, dist)
+        alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
+        val, cos_h = _microfacet_value(wi, wo, alpha, dist)
         if val == 0.0:
             return 0.0, 0.0, 0.0, 0.0
         r, g, bl = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
-        pdf = microfacet_reflect_pdf(wi, wo, au, av, dist)
+        pdf = microfacet_reflect_pdf(wi, wo, alpha, dist)
         f0, f1, f2 = _conductor_fresnel(bf, b, cos_h)
         return r * val * f0, g * val * f1, bl * val * f2, pdf
     eta = bf[b, ETA]
@@ -324,18 +308,18 @@ def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
         return dr * s, dg * s, db * s, pdf
     if not (mask & F_ROUGHPLASTIC) or kind != ROUGHPLASTIC:
         return 0.0, 0.0, 0.0, 0.0
-    au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
+    alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
     ps, t_i = _rough_plastic_probs(bf, b, ci)
     t_o = _lerp_table(bf, b, co)
     dr, dg, db = _coat_base(dr, dg, db, bf[b, COAT_INTERNAL], bi[b, BSDF_NONLINEAR])
     s = _INV_PI / (eta * eta) * co * t_i * t_o
     r, g, bl = dr * s, dg * s, db * s
-    val, cos_h = _microfacet_value(wi, wo, au, av, dist)
+    val, cos_h = _microfacet_value(wi, wo, alpha, dist)
     if val != 0.0:
         sr, sg, sb = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
         val *= fresnel_dielectric(cos_h, eta)[0]
         r, g, bl = r + sr * val, g + sg * val, bl + sb * val
-    pdf = (ps * microfacet_reflect_pdf(wi, wo, au, av, dist)
+    pdf = (ps * microfacet_reflect_pdf(wi, wo, alpha, dist)
            + (1.0 - ps) * cosine_hemisphere_pdf_kernel(wo, (0.0,)))
     return r, g, bl, pdf
 
@@ -354,56 +338,57 @@ def _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v):
 
 
 @njit(cache=True, inline="always")
-def _eval_blend(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
-    w = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
-    r0, g0, b0, p0 = _eval_basic(mask, bf, bi, btex, tex_data, tex_info, bi[b, BSDF_CHILD0],
-                                 wi, wo, u, v)
-    r1, g1, b1, p1 = _eval_basic(mask, bf, bi, btex, tex_data, tex_info, bi[b, BSDF_CHILD1],
-                                 wi, wo, u, v)
-    w0 = 1.0 - w
-    return r0 * w0 + r1 * w, g0 * w0 + g1 * w, b0 * w0 + b1 * w, p0 * w0 + p1 * w
+def _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
+    """``_eval_basic`` of row b, or of a ``blendbsdf``'s two rows mixed by its weight
+    (one call site in a loop: the kernel is compiled with one copy of the BSDFs)."""
+    c0 = c1 = b
+    w, n = 0.0, 1
+    if mask & F_BLEND and bi[b, BSDF_KIND] == BLEND:
+        w, n = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v), 2
+        c0, c1 = bi[b, BSDF_CHILD0], bi[b, BSDF_CHILD1]
+    r = g = bl = pdf = 0.0
+    for k in range(n):
+        row, wk = (c0, 1.0 - w) if k == 0 else (c1, w)
+        x = _eval_basic(mask, bf, bi, btex, tex_data, tex_info, row, wi, wo, u, v)
+        r, g, bl, pdf = r + wk * x[0], g + wk * x[1], bl + wk * x[2], pdf + wk * x[3]
+    return r, g, bl, pdf
 
 
 @njit(cache=True, inline="always")
 def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     """(f · |cos θ_o| as r, g, b, pdf) of the non-delta components. A ``mask`` scales its
     BSDF's value and pdf by the opacity; a ``blendbsdf`` mixes its two by the weight."""
-    kind = bi[b, BSDF_KIND]
     scale = 1.0
-    if mask & F_MASK and kind == MASK:
+    if mask & F_MASK and bi[b, BSDF_KIND] == MASK:
         scale = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
         b = bi[b, BSDF_CHILD0]
-        kind = bi[b, BSDF_KIND]
-    if mask & F_BLEND and kind == BLEND:
-        r, g, bl, pdf = _eval_blend(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
-    else:
-        r, g, bl, pdf = _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
+    r, g, bl, pdf = _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
     return r * scale, g * scale, bl * scale, pdf * scale
 
 
 @njit(cache=True, inline="always")
 def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale):
-    """``bsdf_sample`` of a row that is not composite."""
+    """A direction from a row that is not composite: (wo x, y, z, ok, delta, weight r, g,
+    b and pdf of a delta lobe, η, null). The weight of a non-delta direction is the
+    caller's: f / pdf of the whole BSDF (a blend's mixture)."""
     kind = bi[b, BSDF_KIND]
     flip = bool(mask & F_TWOSIDED) and bool(bi[b, BSDF_TWOSIDED]) and wi[2] < 0.0
     if flip:
         wi = (wi[0], wi[1], -wi[2])
-    zero = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0, False)
+    fail = (0.0, 0.0, 1.0, False, False, 0.0, 0.0, 0.0, 0.0, 1.0, False)
     ci = wi[2]
     if mask & F_DIELECTRIC and kind == DIELECTRIC:
         eta = bf[b, ETA]
         r, cos_t, eta_it, eta_ti = fresnel_dielectric(ci, eta)
         if u0 <= r:
-            wo = (-wi[0], -wi[1], wi[2])
             c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
             w = 1.0 / pdf_scale
-            return (wo[0], wo[1], wo[2], c0 * w, c1 * w, c2 * w, r * pdf_scale, True, 1.0,
-                    False)
-        wo = (-eta_ti * wi[0], -eta_ti * wi[1], cos_t)
+            return (-wi[0], -wi[1], wi[2], True, True, c0 * w, c1 * w, c2 * w, r * pdf_scale,
+                    1.0, False)
         c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
         w = eta_ti * eta_ti / pdf_scale
-        return (wo[0], wo[1], wo[2], c0 * w, c1 * w, c2 * w, (1.0 - r) * pdf_scale, True,
-                eta_it, False)
+        return (-eta_ti * wi[0], -eta_ti * wi[1], cos_t, True, True, c0 * w, c1 * w, c2 * w,
+                (1.0 - r) * pdf_scale, eta_it, False)
     if mask & F_THINDIELECTRIC and kind == THINDIELECTRIC:
         # a thin slab: reflections between its two faces summed (R' = 2R / (1 + R)), the
         # rest goes straight through, unrefracted (Mitsuba's null component)
@@ -412,81 +397,62 @@ def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, 
         w = 1.0 / pdf_scale
         if u0 <= r:
             c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
-            return (-wi[0], -wi[1], wi[2], c0 * w, c1 * w, c2 * w, r * pdf_scale, True, 1.0,
-                    False)
+            return (-wi[0], -wi[1], wi[2], True, True, c0 * w, c1 * w, c2 * w, r * pdf_scale,
+                    1.0, False)
         c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
-        return (-wi[0], -wi[1], -wi[2], c0 * w, c1 * w, c2 * w, (1.0 - r) * pdf_scale, True,
-                1.0, True)
+        return (-wi[0], -wi[1], -wi[2], True, True, c0 * w, c1 * w, c2 * w,
+                (1.0 - r) * pdf_scale, 1.0, True)
     if mask & F_ROUGHDIELECTRIC and kind == ROUGHDIELECTRIC:
         if ci == 0.0:
-            return zero
+            return fail
         wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
-        m = sample_microfacet(wp, bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION], u1,
-                              u2)
+        m = sample_microfacet(wp, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
         wim = _dot(wi, m)
         f, cos_t, eta_it, eta_ti = fresnel_dielectric(wim, bf[b, ETA])
         if u0 <= f:
             wo = _reflect(wi, m)
             if wo[2] * ci <= 0.0:       # reflected through the surface: G1 = 0
-                return zero
-            eta_k = 1.0
-        else:
-            c = wim * eta_ti + cos_t
-            wo = (c * m[0] - eta_ti * wi[0], c * m[1] - eta_ti * wi[1],
-                  c * m[2] - eta_ti * wi[2])
-            if wo[2] * ci >= 0.0:       # refracted back to the side it came from: G1 = 0
-                return zero
-            eta_k = eta_it
-        r, g, bl, pdf = _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi,
-                                               wo, u, v)
-        if pdf <= 0.0:
-            return zero
-        pdf *= pdf_scale
-        return wo[0], wo[1], wo[2], r / pdf, g / pdf, bl / pdf, pdf, False, eta_k, False
+                return fail
+            return wo[0], wo[1], wo[2], True, False, 0.0, 0.0, 0.0, 0.0, 1.0, False
+        c = wim * eta_ti + cos_t
+        wo = (c * m[0] - eta_ti * wi[0], c * m[1] - eta_ti * wi[1], c * m[2] - eta_ti * wi[2])
+        if wo[2] * ci >= 0.0:           # refracted back to the side it came from: G1 = 0
+            return fail
+        return wo[0], wo[1], wo[2], True, False, 0.0, 0.0, 0.0, 0.0, eta_it, False
     if ci <= 0.0:
-        return zero
+        return fail
     if mask & F_CONDUCTOR and kind == CONDUCTOR:
         c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
         w = 1.0 / pdf_scale
-        wo = (-wi[0], -wi[1], ci) if not flip else (-wi[0], -wi[1], -ci)
         f0, f1, f2 = _conductor_fresnel(bf, b, ci)
-        return (wo[0], wo[1], wo[2], c0 * f0 * w, c1 * f1 * w, c2 * f2 * w, pdf_scale, True,
-                1.0, False)
+        return (-wi[0], -wi[1], -ci if flip else ci, True, True, c0 * f0 * w, c1 * f1 * w,
+                c2 * f2 * w, pdf_scale, 1.0, False)
     if mask & F_PLASTIC and kind == PLASTIC:
         f_i = fresnel_dielectric(ci, bf[b, ETA])[0]
         ps = _plastic_probs(bf, b, f_i)
         if u0 < ps:
             c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
             w = f_i / (ps * pdf_scale)
-            zs = -ci if flip else ci
-            return (-wi[0], -wi[1], zs, c0 * w, c1 * w, c2 * w, ps * pdf_scale, True, 1.0,
-                    False)
+            return (-wi[0], -wi[1], -ci if flip else ci, True, True, c0 * w, c1 * w, c2 * w,
+                    ps * pdf_scale, 1.0, False)
         wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     elif mask & F_DIFFUSE and kind == DIFFUSE:
         wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     elif mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
-        m = sample_microfacet(wi, bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION], u1,
-                              u2)
+        m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
         wo = _reflect(wi, m)
     elif mask & F_ROUGHPLASTIC and kind == ROUGHPLASTIC:
         ps = _rough_plastic_probs(bf, b, ci)[0]
         if u0 < ps:
-            m = sample_microfacet(wi, bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION],
-                                  u1, u2)
+            m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
             wo = _reflect(wi, m)
         else:
             wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     else:
-        return zero
+        return fail
     if wo[2] <= 0.0:
-        return zero
-    r, g, bl, pdf = _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
-    if pdf <= 0.0:
-        return zero
-    pdf *= pdf_scale
-    if flip:
-        wo = (wo[0], wo[1], -wo[2])
-    return wo[0], wo[1], wo[2], r / pdf, g / pdf, bl / pdf, pdf, False, 1.0, False
+        return fail
+    return wo[0], wo[1], -wo[2] if flip else wo[2], True, False, 0.0, 0.0, 0.0, 0.0, 1.0, False
 
 
 @njit(cache=True, inline="always")
@@ -500,9 +466,9 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
     A ``mask`` passes the ray through with probability 1 - opacity and otherwise samples
     its BSDF (pdf × opacity, weight unchanged); a ``blendbsdf`` picks one of its two by
     the weight and weighs the direction by the mixture (f / pdf of the blend)."""
-    kind = bi[b, BSDF_KIND]
+    zero = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0, False)
     opacity = 1.0
-    if mask & F_MASK and kind == MASK:
+    if mask & F_MASK and bi[b, BSDF_KIND] == MASK:
         opacity = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
         if not u0 < opacity:
             w = 1.0 / pdf_scale
@@ -510,29 +476,24 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
                     True)
         u0 = u0 / opacity
         b = bi[b, BSDF_CHILD0]
-        kind = bi[b, BSDF_KIND]
-    if mask & F_BLEND and kind == BLEND:
+    row = b
+    if mask & F_BLEND and bi[b, BSDF_KIND] == BLEND:
         w = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
         if u0 > w:
-            child, u0 = bi[b, BSDF_CHILD0], (u0 - w) / (1.0 - w)
+            row, u0 = bi[b, BSDF_CHILD0], (u0 - w) / (1.0 - w)
         else:
-            child, u0 = bi[b, BSDF_CHILD1], u0 / w
-        s = _sample_basic(mask, bf, bi, btex, tex_data, tex_info, child, wi, u0, u1, u2, u, v,
-                          1.0)
-        if s[6] <= 0.0:
-            return s
-        wo = (s[0], s[1], s[2])
-        r, g, bl, pdf = _eval_blend(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
-        if pdf <= 0.0:
-            return (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0, False)
-        pdf *= pdf_scale
-        return wo[0], wo[1], wo[2], r / pdf, g / pdf, bl / pdf, pdf * opacity, False, s[8], \
-            False
-    s = _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
-                      pdf_scale)
-    if opacity == 1.0:
-        return s
-    return s[0], s[1], s[2], s[3], s[4], s[5], s[6] * opacity, s[7], s[8], s[9]
+            row, u0 = bi[b, BSDF_CHILD1], u0 / w
+    (wx, wy, wz, ok, delta, dr, dg, db, dpdf, eta, null) = _sample_basic(
+        mask, bf, bi, btex, tex_data, tex_info, row, wi, u0, u1, u2, u, v, pdf_scale)
+    if not ok:
+        return zero
+    if delta:
+        return wx, wy, wz, dr, dg, db, dpdf * opacity, True, eta, null
+    r, g, bl, pdf = _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, (wx, wy, wz), u, v)
+    if pdf <= 0.0:
+        return zero
+    pdf *= pdf_scale
+    return wx, wy, wz, r / pdf, g / pdf, bl / pdf, pdf * opacity, False, eta, False
 
 
 @_fast
@@ -580,11 +541,11 @@ def _coat_average(mu, alpha, dist, eta, ua, ub, w2, transmit):
     wi = (math.sqrt(max(0.0, 1.0 - mu * mu)), 0.0, mu)
     acc = 0.0
     for j in range(ua.shape[0]):
-        m = sample_microfacet(wi, alpha, alpha, dist, ua[j], ub[j])
+        m = sample_microfacet(wi, alpha, dist, ua[j], ub[j])
         wim = _dot(wi, m)
         if wim <= 0.0:
             continue
-        d = microfacet_d(m, alpha, alpha, dist)
+        d = microfacet_d(m, alpha, dist)
         if dist == GGX:
             ratio = 1.0          # the warp samples visible normals already
         else:
@@ -598,10 +559,10 @@ def _coat_average(mu, alpha, dist, eta, ua, ub, w2, transmit):
                   c * m[2] - wi[2] * eta_ti)
             if wo[2] * wi[2] >= 0.0:
                 continue
-            acc += w2[j] * ratio * smith_g1(wo, m, alpha, alpha, dist) * (1.0 - f)
+            acc += w2[j] * ratio * smith_g1(wo, m, alpha, dist) * (1.0 - f)
         else:
             wo = _reflect(wi, m)
             if wo[2] <= 0.0:
                 continue
-            acc += w2[j] * ratio * smith_g1(wo, m, alpha, alpha, dist) * f
+            acc += w2[j] * ratio * smith_g1(wo, m, alpha, dist) * f
     return acc

@@ -134,8 +134,7 @@ COND_ETA, COND_K = 3, 6         # conductors: complex index per channel
 ETA = 9                         # dielectrics, plastics: interior / exterior index
 COAT_INTERNAL = 10              # plastics: diffuse light the coat reflects back down
 SPECULAR_WEIGHT = 11            # plastics: probability weight of the specular lobe
-ALPHA = 12                      # microfacet roughness (along u when anisotropic)
-ALPHA_V = 13                    # microfacet roughness along v (= ALPHA when isotropic)
+ALPHA = 12                      # microfacet roughness
 MIX = 14                        # blendbsdf: weight of the second BSDF; mask: opacity.
                                 # A texture in bsdf_tex slot 0 replaces it (luminance)
 COAT_TABLE = 16                 # roughplastic: coat transmittance at cos θ = linspace(0, 1)

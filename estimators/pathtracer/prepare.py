@@ -180,16 +180,22 @@ class _Builder:
                 self.fail(plugin, f"{name} must be > 0, got {alpha}")
         return layout.GGX if d == "ggx" else layout.BECKMANN
 
-    def _alphas(self, plugin: Plugin) -> tuple[float, float]:
-        """(α_u, α_v): ``alpha`` for both, or ``alpha_u`` and ``alpha_v`` (both, and no
-        ``alpha``: Mitsuba refuses the rest)."""
+    def _alpha(self, plugin: Plugin) -> float:
+        """The roughness: ``alpha``, or ``alpha_u`` and ``alpha_v`` when they are equal
+        (both, and no ``alpha``: Mitsuba refuses the rest). Anisotropic roughness is
+        refused: Mitsuba orients it along the surface's dp/du, and the tracer's shading
+        frame is another tangent frame, so the image would differ."""
         given = {n for n in ("alpha_u", "alpha_v") if n in plugin.props}
         if not given:
-            a = float(plugin.get("alpha", 0.1))
-            return a, a
+            return float(plugin.get("alpha", 0.1))
         if len(given) == 1 or "alpha" in plugin.props:
             self.fail(plugin, "give alpha, or both alpha_u and alpha_v")
-        return float(plugin.get("alpha_u")), float(plugin.get("alpha_v"))
+        au, av = float(plugin.get("alpha_u")), float(plugin.get("alpha_v"))
+        if au != av:
+            self.fail(plugin, f"alpha_u={au:g} and alpha_v={av:g} differ: anisotropic "
+                              "roughness is not supported (Mitsuba orients it along the "
+                              "surface's dp/du, which the tracer's shading frame is not)")
+        return au
 
     def bsdf(self, plugin: Plugin | None, emitter: bool = False) -> int:
         if plugin is None:
@@ -266,7 +272,7 @@ class _Builder:
                 f[eta], f[k] = table[name]["eta"], table[name]["k"]
             if kind == layout.ROUGHCONDUCTOR:
                 i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
-                f[layout.ALPHA] = f[layout.ALPHA_V] = float(plugin.get("alpha", 0.1))
+                f[layout.ALPHA] = float(plugin.get("alpha", 0.1))
         elif kind in (layout.DIELECTRIC, layout.ROUGHDIELECTRIC, layout.THINDIELECTRIC):
             f[c0], tex[0], _ = self._colour(plugin, "specular_reflectance", 1.0)
             f[c1], tex[1], _ = self._colour(plugin, "specular_transmittance", 1.0)
@@ -276,7 +282,7 @@ class _Builder:
             f[layout.ETA] = eta
             if kind == layout.ROUGHDIELECTRIC:
                 i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
-                f[layout.ALPHA], f[layout.ALPHA_V] = self._alphas(plugin)
+                f[layout.ALPHA] = self._alpha(plugin)
         else:  # plastic, roughplastic
             f[c0], tex[0], d_mean = self._colour(plugin, "diffuse_reflectance", 0.5)
             f[c1], tex[1], s_mean = self._colour(plugin, "specular_reflectance", 1.0)
@@ -292,7 +298,7 @@ class _Builder:
             else:
                 i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
                 alpha = float(plugin.get("alpha", 0.1))
-                f[layout.ALPHA] = f[layout.ALPHA_V] = alpha
+                f[layout.ALPHA] = alpha
                 table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
                 f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
                 f[layout.COAT_INTERNAL] = internal

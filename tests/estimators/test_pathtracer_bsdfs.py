@@ -178,14 +178,11 @@ COMPOSITE = {
                                         '<rgb name="specular_reflectance" value="0.9, 0.7, 0.5"/>'
                                         '<rgb name="specular_transmittance" value="0.3, 0.6, 0.9"/>'
                                         '</bsdf>',
-    "roughdielectric-anisotropic-ggx": '<bsdf type="roughdielectric"><float name="alpha_u" '
-                                       'value="0.05"/><float name="alpha_v" value="0.4"/>'
-                                       '<string name="distribution" value="ggx"/>'
-                                       '<float name="int_ior" value="1.33"/>'
-                                       '<float name="ext_ior" value="1.6"/></bsdf>',
-    "roughdielectric-anisotropic-beckmann": '<bsdf type="roughdielectric"><float name="alpha_u" '
-                                            'value="0.3"/><float name="alpha_v" value="0.1"/>'
-                                            '</bsdf>',
+    "roughdielectric-alpha-uv-ggx": '<bsdf type="roughdielectric"><float name="alpha_u" '
+                                    'value="0.25"/><float name="alpha_v" value="0.25"/>'
+                                    '<string name="distribution" value="ggx"/>'
+                                    '<float name="int_ior" value="1.33"/>'
+                                    '<float name="ext_ior" value="1.6"/></bsdf>',
     "mask-twosided-diffuse": '<bsdf type="mask"><float name="opacity" value="0.3"/>'
                              '<bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" '
                              'value="0.2, 0.7, 0.4"/></bsdf></bsdf></bsdf>',
@@ -211,7 +208,7 @@ COMPOSITE = {
 }
 #: where our pdf must equal Mitsuba's: the same sampling strategy (GGX visible normals,
 #: cosine-weighted diffuse); Beckmann we sample by D cos θ_m, Mitsuba by visible normals
-SAME_PDF = ("roughdielectric-ggx", "roughdielectric-anisotropic-ggx", "mask-twosided-diffuse",
+SAME_PDF = ("roughdielectric-ggx", "roughdielectric-alpha-uv-ggx", "mask-twosided-diffuse",
             "mask-roughdielectric", "blend-diffuse-roughconductor")
 
 
@@ -326,6 +323,8 @@ def test_null_and_delta_sampling_matches_mitsuba(mi, tmp_path, name, xml):
      "both alpha_u and alpha_v"),
     ('<bsdf type="roughdielectric"><float name="alpha_v" value="-1"/>'
      '<float name="alpha_u" value="0.1"/></bsdf>', "alpha_v must be > 0"),
+    ('<bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/>'
+     '<float name="alpha_v" value="0.3"/></bsdf>', "anisotropic roughness is not supported"),
     ('<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/>'
      '<float name="ext_ior" value="1.2"/></bsdf>', "must differ"),
 ])
