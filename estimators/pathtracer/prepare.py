@@ -61,14 +61,19 @@ class PreparedScene:
         return self.camera.width
 
     def planted(self, *, light_scale: float = 1.0, albedo_scale: float = 1.0,
-                bsdf: int | None = None, texture_filter: str | None = None
-                ) -> "PreparedScene":
+                bsdf: int | None = None, texture_filter: str | None = None,
+                bsdf_scale: tuple | None = None) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
         every bitmap looked up with ``texture_filter`` (``"bilinear"`` or ``"nearest"``)
-        whatever the scene says (the bug issue 12 found: ``filter_type`` ignored)."""
+        whatever the scene says (the bug issue 12 found: ``filter_type`` ignored);
+        ``bsdf_scale=(type, parameter, factor)``: that parameter (``"alpha"``, ``"eta"``,
+        or ``"mix"``: a blend's weight or a mask's opacity, when a float) of every BSDF of
+        that type (``"roughdielectric"``...) multiplied by ``factor``."""
         a = self.arrays
+        if bsdf_scale is not None:
+            a = a._replace(bsdf_f=self._bsdf_scaled(*bsdf_scale))
         if texture_filter is not None:
             if texture_filter not in layout.FILTERS:
                 raise ValueError(f"texture_filter={texture_filter!r}; one of "
@@ -90,6 +95,21 @@ class PreparedScene:
                     raise ValueError("the scene has no untextured diffuse-like BSDF to plant in")
             bf[bsdf, base] *= albedo_scale
         return dataclasses.replace(self, arrays=a._replace(light_f=light_f, bsdf_f=bf))
+
+    def _bsdf_scaled(self, kind: str, param: str, factor: float) -> np.ndarray:
+        columns = {"alpha": layout.ALPHA, "eta": layout.ETA, "mix": layout.MIX}
+        if kind not in layout.BSDF_NAMES or param not in columns:
+            raise ValueError(f"bsdf_scale=({kind!r}, {param!r}, ...): a BSDF type "
+                             f"({', '.join(layout.BSDF_NAMES)}) and one of "
+                             f"{', '.join(columns)}")
+        rows = np.flatnonzero(self.arrays.bsdf_i[:, layout.BSDF_KIND]
+                              == layout.BSDF_NAMES.index(kind))
+        rows = rows[self.arrays.bsdf_f[rows, columns[param]] != 0]
+        if len(rows) == 0:
+            raise ValueError(f"the scene has no {kind} with a {param} to plant in")
+        bf = self.arrays.bsdf_f.copy()
+        bf[rows, columns[param]] *= factor
+        return bf
 
     @property
     def height(self) -> int:
