@@ -62,8 +62,41 @@ def _azimuth_u(x, y):
 
 
 @_jit
-def _direction(sin_theta, cos_theta, phi):
-    return (sin_theta * math.cos(phi), sin_theta * math.sin(phi), cos_theta)
+def _sincos_quarter(t):
+    """(sin t, cos t) for |t| <= π/4 by their Taylor polynomials to degree 15 and 16
+    (truncation error below 5e-17): no libm call and no branch, so a loop over points
+    vectorises (numba has no vector sin/cos without Intel's SVML)."""
+    t2 = t * t
+    s = t * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 * (
+        1.0 / 362880.0 + t2 * (-1.0 / 39916800.0 + t2 * (1.0 / 6227020800.0 + t2 * (
+            -1.0 / 1307674368000.0))))))))
+    c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 * (1.0 / 40320.0 + t2 * (
+        -1.0 / 3628800.0 + t2 * (1.0 / 479001600.0 + t2 * (-1.0 / 87178291200.0 + t2 * (
+            1.0 / 20922789888000.0))))))))
+    return s, c
+
+
+@_jit
+def _sincos_two_pi(u):
+    """(sin 2πu, cos 2πu) for 0 <= u <= 1 without libm: the quadrant q = round(4u), the
+    remainder t = 2π(u - q/4) in [-π/4, π/4] (the subtraction is exact, Sterbenz), the
+    polynomials of ``_sincos_quarter`` at t, rotated by q·π/2 with selects. Error about
+    one ulp, as libm's sin/cos of the rounded 2πu; branch-free, so a loop vectorises."""
+    q = math.floor(4.0 * u + 0.5)
+    s, c = _sincos_quarter(_TWO_PI * (u - 0.25 * q))
+    odd = (q == 1.0) | (q == 3.0)
+    sin = c if odd else s
+    cos = s if odd else c
+    flip_sin = (q == 2.0) | (q == 3.0)            # sin < 0 in quadrants 2 and 3
+    flip_cos = (q == 1.0) | (q == 2.0)            # cos < 0 in quadrants 1 and 2
+    return (-sin if flip_sin else sin), (-cos if flip_cos else cos)
+
+
+@_jit
+def _direction(sin_theta, cos_theta, u1):
+    """The unit vector at polar angle θ and azimuth φ = 2π·u1."""
+    s, c = _sincos_two_pi(u1)
+    return (sin_theta * c, sin_theta * s, cos_theta)
 
 
 # ----------------------------------------------------------------- interval & square
@@ -96,8 +129,8 @@ def _uniform_square_pdf_kernel(x, p):
 @_jit
 def _sample_uniform_disk_polar_kernel(u, p):
     r = math.sqrt(u[0])
-    phi = _TWO_PI * u[1]
-    return (r * math.cos(phi), r * math.sin(phi))
+    s, c = _sincos_two_pi(u[1])
+    return (r * c, r * s)
 
 
 @_jit
@@ -108,21 +141,6 @@ def _uniform_disk_pdf_kernel(x, p):
 @_jit
 def _invert_uniform_disk_polar_kernel(x, p):
     return (min(x[0] * x[0] + x[1] * x[1], ONE_MINUS_EPSILON), _azimuth_u(x[0], x[1]))
-
-
-@_jit
-def _sincos_quarter(t):
-    """(sin t, cos t) for |t| <= π/4 by their Taylor polynomials to degree 15 and 16
-    (truncation error below 5e-17): no libm call and no branch, so a loop over points
-    vectorises (numba has no vector sin/cos without Intel's SVML)."""
-    t2 = t * t
-    s = t * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 * (
-        1.0 / 362880.0 + t2 * (-1.0 / 39916800.0 + t2 * (1.0 / 6227020800.0 + t2 * (
-            -1.0 / 1307674368000.0))))))))
-    c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 * (1.0 / 40320.0 + t2 * (
-        -1.0 / 3628800.0 + t2 * (1.0 / 479001600.0 + t2 * (-1.0 / 87178291200.0 + t2 * (
-            1.0 / 20922789888000.0))))))))
-    return s, c
 
 
 @_jit
@@ -186,8 +204,8 @@ def _invert_uniform_triangle_kernel(x, p):
 # ------------------------------------------------------------ sphere & hemisphere
 @_jit
 def sample_uniform_sphere_kernel(u, p):
-    z = 1.0 - 2.0 * u[0]
-    return _direction(_safe_sqrt(1.0 - z * z), z, _TWO_PI * u[1])
+    # 1 - z² = 4 u0 (1 - u0): no cancellation at the poles
+    return _direction(2.0 * _safe_sqrt(u[0] * (1.0 - u[0])), 1.0 - 2.0 * u[0], u[1])
 
 
 @_jit
@@ -203,7 +221,7 @@ def _invert_uniform_sphere_kernel(x, p):
 @_jit
 def _sample_uniform_hemisphere_kernel(u, p):
     z = u[0]
-    return _direction(_safe_sqrt(1.0 - z * z), z, _TWO_PI * u[1])
+    return _direction(_safe_sqrt((1.0 - z) * (1.0 + z)), z, u[1])
 
 
 @_jit
@@ -239,7 +257,7 @@ def sample_uniform_cone_kernel(u, p):
     one_minus_cos = u[0] * (1.0 - p[0])
     cos_t = 1.0 - one_minus_cos
     sin_t = _safe_sqrt(one_minus_cos * (2.0 - one_minus_cos))
-    return _direction(sin_t, cos_t, _TWO_PI * u[1])
+    return _direction(sin_t, cos_t, u[1])
 
 
 @_jit
@@ -259,7 +277,7 @@ def _invert_uniform_cone_kernel(x, p):
 def _sample_power_cosine_kernel(u, p):
     """Phong lobe around +z: pdf (n + 1)/(2π) cos^n θ; ``p[0] = n >= 0``."""
     cos_t = (1.0 - u[0]) ** (1.0 / (p[0] + 1.0))
-    return _direction(_safe_sqrt(1.0 - cos_t * cos_t), cos_t, _TWO_PI * u[1])
+    return _direction(_safe_sqrt(1.0 - cos_t * cos_t), cos_t, u[1])
 
 
 @_jit
@@ -293,7 +311,7 @@ def _sample_ggx_kernel(u, p):
     den = 1.0 - u[0] + a2 * u[0]
     cos2 = (1.0 - u[0]) / den
     sin2 = a2 * u[0] / den
-    return _direction(_safe_sqrt(sin2), _safe_sqrt(cos2), _TWO_PI * u[1])
+    return _direction(_safe_sqrt(sin2), _safe_sqrt(cos2), u[1])
 
 
 @_jit
@@ -312,7 +330,7 @@ def sample_beckmann_kernel(u, p):
     """Normals h distributed as D(h) cos θ_h for Beckmann of roughness ``p[0] = α``."""
     tan2 = -p[0] * p[0] * math.log1p(-u[0])
     cos_t = 1.0 / math.sqrt(1.0 + tan2)
-    return _direction(_safe_sqrt(tan2) * cos_t, cos_t, _TWO_PI * u[1])
+    return _direction(_safe_sqrt(tan2) * cos_t, cos_t, u[1])
 
 
 @_jit
@@ -356,9 +374,9 @@ def sample_ggx_vndf_kernel(u, p):
         t1x, t1y, t1z = 1.0, 0.0, 0.0
     t2x, t2y, t2z = vy * t1z - vz * t1y, vz * t1x - vx * t1z, vx * t1y - vy * t1x
     r = math.sqrt(u[0])
-    phi = _TWO_PI * u[1]
-    a = r * math.cos(phi)
-    b = r * math.sin(phi)
+    sin_phi, cos_phi = _sincos_two_pi(u[1])
+    a = r * cos_phi
+    b = r * sin_phi
     s = 0.5 * (1.0 + vz)
     b = (1.0 - s) * _safe_sqrt(1.0 - a * a) + s * b
     c = _safe_sqrt(1.0 - a * a - b * b)

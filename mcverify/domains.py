@@ -17,14 +17,14 @@ from .errors import InvalidArgument
 
 __all__ = ["Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere", "as_domain"]
 
-_TWO_PI = 2.0 * np.pi
 
 
 class Domain:
     """Base class. Subclasses set ``name``, ``dim`` (coordinates of a point),
     ``param_dim`` (m), ``sample_dim`` (uniform numbers a typical sampler takes),
-    ``jacobian`` (measure per unit parameter volume), and implement ``to_param``,
-    ``to_point`` and ``inside``."""
+    ``jacobian`` (measure per unit parameter volume) and ``kind``, the domain's
+    branch in ``_domain_kernels`` (``to_param``, ``to_point`` and ``inside`` are numba
+    passes there)."""
 
     name = "domain"
     dim = 1
@@ -35,6 +35,8 @@ class Domain:
     tolerance = 1e-5
     #: Kernel identity (``_domain_kernels``) and its float parameters.
     kind = -1
+    #: Whether parameter axis 1 is the azimuth φ / 2π.
+    _azimuth_axis = False
 
     @property
     def args(self) -> np.ndarray:
@@ -70,8 +72,22 @@ class Domain:
         """(n, dim) -> (n,) bool: finite and inside (within ``tolerance``)."""
         return self.classify(x)[1] == kernels.VALID
 
-    def to_point(self, s: np.ndarray) -> np.ndarray:  # (n, m) -> (n, dim)
-        raise NotImplementedError
+    def to_point(self, s: np.ndarray) -> np.ndarray:
+        """(n, m) parameters -> (n, dim) points, in one numba pass
+        (``_domain_kernels.to_point_kernel``)."""
+        s = np.ascontiguousarray(np.asarray(s, dtype=np.float64).reshape(-1, self.param_dim))
+        out = np.empty((s.shape[0], self.dim))
+        kernels.to_point_kernel(self.kind, self.args, s, out)
+        return out
+
+    def binning_edges(self, edges):
+        """Cell edges in the coordinates the histogram kernel bins in: the parameters
+        themselves, except that an azimuth axis is binned by a monotone stand-in for
+        φ / 2π that needs no arc tangent (``_domain_kernels.pseudo_azimuth_edges``)."""
+        edges = [np.asarray(e, dtype=np.float64) for e in edges]
+        if self._azimuth_axis and len(edges) == 2:
+            edges[1] = kernels.pseudo_azimuth_edges(edges[1])
+        return edges
 
     def default_resolution(self, n_samples: int) -> tuple[int, ...]:
         """Histogram resolution: about 100 expected samples per cell on average (enough
@@ -110,9 +126,6 @@ class Interval(Domain):
     def args(self):
         return np.array([self.a, self.b])
 
-    def to_point(self, s):
-        return self.a + self.jacobian * np.asarray(s).reshape(-1, 1)
-
     def __repr__(self):
         return f"Interval({self.a!r}, {self.b!r})"
 
@@ -126,9 +139,6 @@ class Square(Domain):
     param_dim = 2
     sample_dim = 2
 
-    def to_point(self, s):
-        return np.asarray(s)
-
     def default_resolution(self, n_samples):
         rows = int(np.clip(np.sqrt(max(n_samples // 100, 16)), 4, 90))
         return (rows, rows)
@@ -140,15 +150,11 @@ class Disk(Domain):
 
     name = "disk"
     kind = kernels.DISK
+    _azimuth_axis = True
     dim = 2
     param_dim = 2
     sample_dim = 2
     jacobian = np.pi
-
-    def to_point(self, s):
-        r = np.sqrt(s[:, 0])
-        phi = _TWO_PI * s[:, 1]
-        return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
 
     def default_resolution(self, n_samples):
         rows = int(np.clip(np.sqrt(max(n_samples // 100, 16) / 2.0), 4, 64))
@@ -157,21 +163,16 @@ class Disk(Domain):
 
 class Sphere(Domain):
     """Unit vectors; solid-angle measure. Parameters: ``s0 = (1 - z) / 2`` (equal-area
-    bands, Archimedes), ``s1 = φ / 2π``; Jacobian 4π."""
+    bands, Archimedes; computed as ``(x² + y²) / (1 + z) / 2`` for z > 0, which keeps
+    float32 points' precision near the pole), ``s1 = φ / 2π``; Jacobian 4π."""
 
     name = "sphere"
     kind = kernels.SPHERE
+    _azimuth_axis = True
     dim = 3
     param_dim = 2
     sample_dim = 2
     jacobian = 4.0 * np.pi
-    _z_span = 2.0
-
-    def to_point(self, s):
-        z = 1.0 - self._z_span * s[:, 0]
-        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-        phi = _TWO_PI * s[:, 1]
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
 
 
 
@@ -181,7 +182,6 @@ class Hemisphere(Sphere):
     name = "hemisphere"
     kind = kernels.HEMISPHERE
     jacobian = 2.0 * np.pi
-    _z_span = 1.0
 
 
 _BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}

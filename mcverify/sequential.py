@@ -18,6 +18,7 @@ from typing import Callable
 
 from . import _validate as validate
 from . import stats
+from .errors import InvalidArgument
 from .result import CheckResult
 
 __all__ = ["looks", "run_sequential"]
@@ -34,7 +35,8 @@ def looks(batches: int) -> list[int]:
 
 
 def run_sequential(look: Callable[[int], CheckResult], *, batches: int, alpha: float,
-                   stop_alpha: float | None = None, min_batches: int = 1) -> CheckResult:
+                   stop_alpha: float | None = None, min_batches: int = 1,
+                   spending: str = "obrien-fleming") -> CheckResult:
     """Run a check as a group-sequential test.
 
     Parameters
@@ -52,6 +54,9 @@ def run_sequential(look: Callable[[int], CheckResult], *, batches: int, alpha: f
     min_batches : int
         First look after this many batches (a test that needs several batches, such as
         a variance across passes).
+    spending : str
+        The α-spending function (``stats.spending_function``): ``"obrien-fleming"``
+        (default: keeps nearly all of α for the final look) or ``"power:RHO"``.
 
     Returns
     -------
@@ -65,7 +70,10 @@ def run_sequential(look: Callable[[int], CheckResult], *, batches: int, alpha: f
     alpha = validate.probability("alpha", alpha)
     stop = alpha if stop_alpha is None else validate.probability("stop_alpha", stop_alpha)
     at = [b for b in looks(k_total) if b >= min_batches] or [k_total]
-    weights = stats.spending_weights([b / k_total for b in at], alpha)
+    try:
+        weights = stats.spending_weights([b / k_total for b in at], alpha, spending)
+    except ValueError as e:
+        raise InvalidArgument(str(e)) from None
     ps: list[float] = []
     for j, b in enumerate(at):
         r = look(b)
@@ -75,7 +83,7 @@ def run_sequential(look: Callable[[int], CheckResult], *, batches: int, alpha: f
             break
     early = b < k_total
     info = {"batch": b, "batches": k_total, "looks": at[:j + 1], "p_looks": ps,
-            "weights": weights.tolist(), "design_alpha": alpha, "stop_alpha": stop,
+            "weights": weights.tolist(), "spending": spending, "design_alpha": alpha, "stop_alpha": stop,
             "stopped_early": early}
     note = f"decided at batch {b} of {k_total}" + (" (stopped early)" if early else "")
     p = None if r.p_value is None else p_seq

@@ -2,9 +2,10 @@
 ``arrays`` is a ``layout.SceneArrays``). Nothing is compiled here: numba compiles the
 kernel in ``render``.
 
-Shapes become primitives (rectangles and cubes two triangles a face, OBJ meshes their
-triangles; spheres and disks stay analytic), BSDFs and emitters become rows of parameter
-tables, images become one texture store, and the whole is indexed by the SAH hierarchy.
+Shapes become primitives (rectangles and cubes two triangles a face, OBJ and PLY meshes
+their triangles; spheres and disks stay analytic), BSDFs and emitters become rows of
+parameter tables, images become one texture store, and the whole is indexed by the SAH
+hierarchy.
 Mitsuba's defaults apply wherever the XML is silent (a shape without a BSDF is diffuse
 0.5, or black if it emits; roughconductor and roughplastic default to Beckmann α = 0.1;
 dielectric to BK7 in air; plastic to polypropylene in air; conductor to a perfect mirror).
@@ -12,6 +13,7 @@ dielectric to BK7 in air; plastic to polypropylene in air; conductor to a perfec
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -26,6 +28,7 @@ from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
 from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
+from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
 from .textures import TextureStore, envmap_sampling_weights, read_image
@@ -62,15 +65,30 @@ class PreparedScene:
 
     def planted(self, *, light_scale: float = 1.0, albedo_scale: float = 1.0,
                 bsdf: int | None = None, texture_filter: str | None = None,
+                texture_raw: bool = False, camera_extent: float = 1.0,
                 bsdf_scale: tuple | None = None) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
         every bitmap looked up with ``texture_filter`` (``"bilinear"`` or ``"nearest"``)
         whatever the scene says (the bug issue 12 found: ``filter_type`` ignored);
-        ``bsdf_scale=(type, parameter, factor)``: that parameter (``"alpha"``, ``"eta"``,
-        or ``"mix"``: a blend's weight or a mask's opacity, when a float) of every BSDF of
-        that type (``"roughdielectric"``...) multiplied by ``factor``."""
+        ``texture_raw``: every bitmap read as ``raw`` (an 8-bit sRGB image's gamma
+        ignored); the camera's extent (orthographic) or tangent of the half field of
+        view (perspective) scaled by ``camera_extent``; ``bsdf_scale=(type, parameter,
+        factor)``: that parameter (``"alpha"``, ``"eta"``, or ``"mix"``: a blend's weight
+        or a mask's opacity, when a float) of every BSDF of that type
+        (``"roughdielectric"``...) multiplied by ``factor``."""
+        if texture_raw:
+            desc = copy.deepcopy(self.desc)
+            for shape in desc.shapes:
+                for tex in _textures(shape):
+                    tex.props["raw"] = True
+            return _Builder(desc).build().planted(
+                light_scale=light_scale, albedo_scale=albedo_scale, bsdf=bsdf,
+                texture_filter=texture_filter, camera_extent=camera_extent,
+                bsdf_scale=bsdf_scale)
+        camera = dataclasses.replace(self.camera, tan_x=self.camera.tan_x * camera_extent,
+                                     tan_y=self.camera.tan_y * camera_extent)
         a = self.arrays
         if bsdf_scale is not None:
             a = a._replace(bsdf_f=self._bsdf_scaled(*bsdf_scale))
@@ -94,7 +112,8 @@ class PreparedScene:
                 if bsdf is None:
                     raise ValueError("the scene has no untextured diffuse-like BSDF to plant in")
             bf[bsdf, base] *= albedo_scale
-        return dataclasses.replace(self, arrays=a._replace(light_f=light_f, bsdf_f=bf))
+        return dataclasses.replace(self, camera=camera,
+                                   arrays=a._replace(light_f=light_f, bsdf_f=bf))
 
     def _bsdf_scaled(self, kind: str, param: str, factor: float) -> np.ndarray:
         columns = {"alpha": layout.ALPHA, "eta": layout.ETA, "mix": layout.MIX}
@@ -352,11 +371,22 @@ class _Builder:
             if np.linalg.det(lin) < 0:          # keep the normal Mitsuba's transform gives
                 faces = [(a, c, b) for a, b, c in faces]
             self._triangles(verts @ lin.T + off, faces, None, uvs)
-        elif s.type == "obj":
-            verts, faces, normals, uvs = self._obj(s)
+        elif s.type in ("obj", "ply"):
+            verts, faces, normals, uvs, pidx = (self._obj(s) if s.type == "obj"
+                                                else self._ply(s))
             wverts = verts @ lin.T + off
-            if normals is not None:
+            if s.get("face_normals", False):
+                normals = None
+            elif normals is None:   # smooth normals, computed in world space as Mitsuba does
+                faces = np.asarray(faces).reshape(-1, 3)
+                normals = _vertex_normals(wverts, faces, pidx, int(pidx.max()) + 1)
+            else:
+                # world-space unit normals, as Mitsuba stores them (a non-unit normal in
+                # the file would otherwise weigh more in the interpolation)
                 normals = normals @ np.linalg.inv(lin)
+                length = np.linalg.norm(normals, axis=1, keepdims=True)
+                normals = np.divide(normals, length, out=np.zeros_like(normals),
+                                    where=length > 0)
             self._triangles(wverts, faces, normals, uvs)
         elif s.type == "sphere":
             c = m @ np.append(np.asarray(s.get("center", np.zeros(3)), float), 1.0)
@@ -382,7 +412,8 @@ class _Builder:
         self.info += [(kind, index)] * (len(self.prims) - n_before)
         return n_before, len(self.prims) - n_before, kind
 
-    def _obj(self, s: Plugin):
+    def _mesh_path(self, s: Plugin) -> str:
+        """The mesh file a shape names, checked to be a regular file within the cap."""
         name = s.get("filename")
         if not name:
             self.fail(s, "set <string name=\"filename\" .../>")
@@ -390,6 +421,30 @@ class _Builder:
         problem = file_problem(path, MAX_ASSET_BYTES)
         if problem:
             self.fail(s, problem)
+        return path
+
+    def _ply(self, s: Plugin):
+        """A PLY mesh as (vertices, faces, the file's normals or None, uvs, the position
+        index of each vertex): per vertex when the file has uv, else one vertex per face
+        corner with Mitsuba's barycentric uv."""
+        try:
+            mesh = read_ply(self._mesh_path(s))
+        except SceneError as e:
+            self.fail(s, str(e))
+        verts, faces, normals, uvs = mesh.vertices, mesh.faces, mesh.normals, mesh.uvs
+        pidx = np.arange(len(verts))
+        if uvs is None:
+            pidx = faces.ravel()
+            verts = verts[pidx]
+            normals = None if normals is None else normals[pidx]
+            uvs = np.tile(np.array(_BARYCENTRIC_UV), (len(faces), 1))
+            faces = np.arange(len(pidx)).reshape(-1, 3)
+        return verts, faces, normals, uvs, pidx
+
+    def _obj(self, s: Plugin):
+        """An OBJ mesh as (vertices, faces, the file's normals or None, uvs, the position
+        index of each vertex), one vertex per face corner."""
+        path = self._mesh_path(s)
         try:
             with open(path, encoding="utf-8") as fh:
                 lines = fh.readlines()
@@ -445,13 +500,8 @@ class _Builder:
                 faces.append(tuple(f))
         except IndexError:
             self.fail(s, f"{path}: a face refers to a vertex that does not exist")
-        verts = np.array(verts)
-        normals = np.array(normals, float)
-        if s.get("face_normals", False):
-            normals = None
-        elif not use_vn:
-            normals = _vertex_normals(verts, np.array(faces), np.array(pidx), len(v))
-        return verts, faces, normals, np.array(uvs)
+        normals = np.array(normals, float) if use_vn else None
+        return np.array(verts), faces, normals, np.array(uvs), np.array(pidx)
 
     # ---------------------------------------------------------------- emitters
     def area_light(self, emitter: Plugin, first: int, count: int, kind: int):
@@ -586,6 +636,15 @@ class _Builder:
 _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
 #: what a blendbsdf may hold: BSDFs with a density and no delta lobe
 _BLENDABLE = ("diffuse", "roughconductor", "roughplastic", "roughdielectric", "twosided")
+
+
+def _textures(p: Plugin):
+    """The texture plugins under a plugin (its properties and nested plugins)."""
+    for v in p.props.values():
+        if isinstance(v, Plugin):
+            yield v
+    for child in p.children:
+        yield from _textures(child)
 _DIFFUSE_LIKE = (layout.DIFFUSE, layout.PLASTIC, layout.ROUGHPLASTIC)
 
 

@@ -6,13 +6,13 @@ what is supported: never silently ignored or approximated.
 
 Supported: ``scene``, ``default`` and ``$param`` substitution, ``ref``/``id``,
 ``transform`` (``lookat``, ``translate``, ``rotate``, ``scale``, ``matrix``),
-integrators ``path`` and ``direct``, sensor ``perspective`` with film ``hdrfilm``,
-``rfilter`` ``box`` and sampler ``independent``; shapes ``rectangle``, ``cube``,
-``disk``, ``sphere``, ``obj``; BSDFs ``diffuse``, ``conductor``, ``roughconductor``,
-``dielectric``, ``roughdielectric``, ``thindielectric``, ``plastic``, ``roughplastic``,
-``twosided``, ``blendbsdf``, ``mask``; emitters ``area``,
-``point``, ``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values and
-``bitmap`` textures.
+integrators ``path`` and ``direct``, sensors ``perspective`` and ``orthographic`` with
+film ``hdrfilm``, ``rfilter`` ``box`` and sampler ``independent``; shapes ``rectangle``,
+``cube``, ``disk``, ``sphere``, ``obj``, ``ply``; BSDFs ``diffuse``, ``conductor``,
+``roughconductor``, ``dielectric``, ``roughdielectric``, ``thindielectric``, ``plastic``,
+``roughplastic``, ``twosided``, ``blendbsdf``, ``mask``; emitters ``area``, ``point``,
+``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values and ``bitmap``
+textures.
 """
 
 from __future__ import annotations
@@ -134,7 +134,9 @@ SUPPORTED = {
     },
     "sensor": {"perspective": {"fov": ("float",), "fov_axis": ("string",),
                                "near_clip": ("float",), "far_clip": ("float",),
-                               "to_world": ("transform",), "children": ("film", "sampler")}},
+                               "to_world": ("transform",), "children": ("film", "sampler")},
+               "orthographic": {"near_clip": ("float",), "far_clip": ("float",),
+                                "to_world": ("transform",), "children": ("film", "sampler")}},
     "film": {"hdrfilm": {"width": ("integer",), "height": ("integer",),
                          "pixel_format": ("string",), "children": ("rfilter",)}},
     "rfilter": {"box": {}},
@@ -146,8 +148,9 @@ SUPPORTED = {
                   "children": ("bsdf", "emitter"), **extra}
               for t, extra in {"rectangle": {}, "cube": {}, "disk": {},
                                "sphere": {"radius": ("float",), "center": ("point",)},
-                               "obj": {"filename": ("string",),
-                                       "face_normals": ("boolean",)}}.items()},
+                               **{mesh: {"filename": ("string",),
+                                         "face_normals": ("boolean",)}
+                                  for mesh in ("obj", "ply")}}.items()},
     "bsdf": {
         "diffuse": {"reflectance": _TEX},
         "conductor": {"material": ("string",), "eta": ("rgb", "float"), "k": ("rgb", "float"),

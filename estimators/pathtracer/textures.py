@@ -11,7 +11,8 @@ y = v·(h - 1) (clamped).
 Images are stored back to back in one float64 array; each texture is one float64 row of
 ``tex_info`` with the columns named in ``layout`` (``TEX_OFFSET``, ``TEX_WIDTH``...;
 integers are stored exactly). Files are decoded with Mitsuba's image reader (file I/O
-only; 8-bit sRGB images are linearised unless ``raw``), imported lazily.
+only; 8-bit sRGB images, PNG and JPEG, are linearised unless ``raw``; a grey image
+is repeated into R, G and B), imported lazily.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from .. import stats
 from ..errors import InvalidArgument
 from ..result import CheckResult
 
-__all__ = ["compare_images"]
+__all__ = ["compare_images", "perceptual_metrics"]
 
 #: The three tests of ``compare_images``.
 TESTS = ("global", "blocks", "pixels")
@@ -88,9 +88,47 @@ def delta_e_itp(test, ref) -> np.ndarray:
     return np.asarray(colour.difference.delta_E_ITP(ictcp[0], ictcp[1]))
 
 
+def flip_error(test, ref) -> np.ndarray:
+    """Per-pixel HDR-FLIP error (Andersson et al. 2021, NVIDIA's ``flip-evaluator``) of two
+    linear-sRGB HDR images (H, W, 3): 0 identical, 1 the largest difference. FLIP models
+    what a viewer sees when alternating the two images at 67 pixels per degree, over the
+    exposures of the reference's range (ACES tone mapping); negative values count as 0."""
+    import flip_evaluator
+
+    def prepared(img):
+        return np.ascontiguousarray(np.maximum(img, 0.0), dtype=np.float32)
+
+    err, _, _ = flip_evaluator.evaluate(prepared(ref), prepared(test), "HDR",
+                                        applyMagma=False, computeMeanError=False)
+    return np.asarray(err, dtype=np.float64).reshape(ref.shape[:2])
+
+
+#: The detail keys :func:`perceptual_metrics` fills (None where not measured).
+PERCEPTUAL_KEYS = tuple(f"{k}_{s}" for k in ("delta_e2000", "delta_e_itp", "flip")
+                        for s in ("mean", "p99"))
+
+
+def perceptual_metrics(test, ref) -> tuple[dict, dict]:
+    """What a viewer would see of the difference between two 3-channel linear-sRGB
+    images: ``(details, maps)``, details the means and 99th percentiles of ΔE2000, ΔE ITP
+    and HDR-FLIP, maps the per-pixel ``delta_e2000``, ``delta_e_itp`` and ``flip``. Not
+    evidence of a bias (that is the tests' job); a size for it."""
+    test = _as_image("test", test)
+    ref = _as_image("ref", ref, test.shape)
+    if test.shape[2] != 3:
+        return dict.fromkeys(PERCEPTUAL_KEYS), {}
+    maps = {"delta_e2000": delta_e2000(test, ref), "delta_e_itp": delta_e_itp(test, ref),
+            "flip": flip_error(test, ref)}
+    details = {}
+    for k, m in maps.items():
+        details[f"{k}_mean"] = float(m.mean())
+        details[f"{k}_p99"] = float(np.percentile(m, 99))
+    return details, maps
+
+
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                    alpha: float = 0.01, block: int = 8, name: str = "image",
-                   tests=TESTS) -> CheckResult:
+                   tests=TESTS, perceptual: bool = True) -> CheckResult:
     """Test that two renders have the same expected value in every pixel.
 
     Parameters
@@ -111,6 +149,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         gate's early looks, on a few passes, leave out the pixel t-tests: a pixel's
         variance from 4 passes is too uncertain on caustic pixels, while image and block
         means pool many pixels.
+    perceptual : bool
+        Also measure how visible the difference is (:func:`perceptual_metrics`: ΔE2000,
+        ΔE ITP, HDR-FLIP; 3-channel images). They decide nothing; the render gate computes
+        them once, on its last look's image.
 
     Returns
     -------
@@ -118,10 +160,11 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         ``details``: ``found_by`` (which tests rejected), ``global``, ``blocks``
         (rejected blocks with their position and relative difference),
         ``rejected_fraction`` of pixels, ``relmse``, ``smape``, ``delta_e2000_mean`` and
-        ``_p99``, ``delta_e_itp_mean`` and ``_p99`` (CIEDE2000 and ITU-R BT.2124 ΔE ITP,
-        3-channel images). ``artifacts``: ``p_map`` (per-pixel BH-adjusted p-values, the
-        minimum over channels), ``delta_e2000`` and ``delta_e_itp`` maps (3 channels);
-        left out of JSON by default.
+        ``_p99``, ``delta_e_itp_mean`` and ``_p99``, ``flip_mean`` and ``_p99`` (CIEDE2000,
+        ITU-R BT.2124 ΔE ITP and HDR-FLIP; 3-channel images with ``perceptual``, else
+        None). ``artifacts``: ``p_map`` (per-pixel BH-adjusted p-values, the minimum over
+        channels), ``delta_e2000``, ``delta_e_itp`` and ``flip`` maps; left out of JSON by
+        default.
 
     Notes
     -----
@@ -222,10 +265,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                         f"{diff.mean():+.4g} ({diff.mean() / max(abs(rm.mean()), 1e-300):+.2%})"
                         f"; {len(rejected_blocks)} blocks and "
                         f"{rejected_px.any(axis=2).mean():.2%} of pixels rejected")
-    maps = {"p_map": p_map}
-    if c == 3:
-        maps["delta_e2000"] = delta_e2000(tm, rm)
-        maps["delta_e_itp"] = delta_e_itp(tm, rm)
+    seen, seen_maps = perceptual_metrics(tm, rm) if perceptual else \
+        (dict.fromkeys(PERCEPTUAL_KEYS), {})
+    maps = {"p_map": p_map, **seen_maps}
     details = {
         "found_by": found, "tests": list(tests), "alpha_per_test": level, "block": block,
         "global": {"difference": float(diff.mean()),
@@ -239,10 +281,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         "smape": float(np.mean(np.where(np.abs(tm) + np.abs(rm) > 0,
                                         2 * np.abs(diff) / (np.abs(tm) + np.abs(rm) + 1e-300),
                                         0.0))),
-        "delta_e2000_mean": float(maps["delta_e2000"].mean()) if c == 3 else None,
-        "delta_e2000_p99": float(np.percentile(maps["delta_e2000"], 99)) if c == 3 else None,
-        "delta_e_itp_mean": float(maps["delta_e_itp"].mean()) if c == 3 else None,
-        "delta_e_itp_p99": float(np.percentile(maps["delta_e_itp"], 99)) if c == 3 else None,
+        **seen,
     }
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, ()),
                        p_value=p_value, statistic=float(diff.mean()), alpha=alpha,

@@ -8,8 +8,12 @@ uniform numbers ``u`` of shape (n, k) to points (n, d); ``pdf(x)`` maps (n, d) p
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
+import threading
 import time
+import weakref
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -125,8 +129,10 @@ class _Histogram:
 
     def __init__(self, domain: Domain, edges, *, rejection=False):
         self.domain, self.edges, self.rejection = domain, edges, rejection
-        self.e1 = edges[1] if len(edges) == 2 else np.array([0.0, 1.0])
-        self.lut0, self.lut1 = kernels.cell_lookup(edges[0]), kernels.cell_lookup(self.e1)
+        b = domain.binning_edges(edges)
+        self.e0 = b[0]
+        self.e1 = b[1] if len(b) == 2 else np.array([0.0, 1.0])
+        self.lut0, self.lut1 = kernels.cell_lookup(self.e0), kernels.cell_lookup(self.e1)
         self.shape = tuple(e.size - 1 for e in edges)
         self.flat = np.zeros(int(np.prod(self.shape)), dtype=np.int64)
         self.n_status = np.zeros(kernels.N_STATUS, dtype=np.int64)
@@ -135,7 +141,7 @@ class _Histogram:
     def add(self, x, u=None):
         d = self.domain
         x = d.points(x)
-        codes, first = kernels.histogram_kernel(d.kind, d.args, d.tolerance, x, self.edges[0],
+        codes, first = kernels.histogram_kernel(d.kind, d.args, d.tolerance, x, self.e0,
                                           self.lut0, self.e1, self.lut1, len(self.edges),
                                           self.rejection, self.flat)
         self.n_status += codes
@@ -200,9 +206,14 @@ def _edges(pilot_s, resolution):
         if pilot_s is None or pilot_s.shape[0] == 0:
             edges.append(q)
             continue
+        # g(c) = 0.5·F_pilot(c) + 0.5·c at the sorted pilot values and at 4r + 1 uniform
+        # points, merged in order (no second sort), then inverted at the r + 1 levels q.
         ps = np.sort(pilot_s[:, j])
-        cand = np.union1d(ps, np.linspace(0.0, 1.0, 4 * r + 1))
-        g = 0.5 * np.searchsorted(ps, cand, side="right") / ps.size + 0.5 * cand
+        lin = np.linspace(0.0, 1.0, 4 * r + 1)
+        at = np.searchsorted(ps, lin, side="right")
+        cand = np.insert(ps, at, lin)
+        g = np.insert(0.5 * np.arange(1, ps.size + 1) / ps.size + 0.5 * ps, at,
+                      0.5 * at / ps.size + 0.5 * lin)
         e = np.interp(q, g, cand)
         e[0], e[-1] = 0.0, 1.0
         e = np.unique(e)
@@ -232,6 +243,88 @@ class _Density:
                 self.example = (x[i].tolist(), float(p[i]))
             p = np.where(bad_nan | bad_neg, 0.0, p)
         return p * self.domain.jacobian
+
+
+class _CubatureCache:
+    """The expected counts of recent checks, so that cubature is not paid twice for the
+    same question: a repeated check (a benchmark's repeats, a test run again in one
+    process, ``mcverify check`` calling a check twice) integrates once.
+
+    Safe by construction of the key: the *same* pdf object (held weakly, so a freed
+    function's id cannot alias a new one), the same domain, the same cell edges (their
+    bytes: the pilot, hence the seed and n, decides them) and the same target sample count
+    (the quadrature's tolerance). A pdf is assumed to be a function of its argument only;
+    as a guard against one with hidden state, each entry keeps the pdf's values at fixed
+    probe points, and a lookup whose probes differ integrates afresh. The negative and
+    NaN pdf values the integration met are part of the entry, so a cached check reports
+    the same failures."""
+
+    def __init__(self, size: int = 16, max_bytes: int = 64 << 20):
+        self.size, self.max_bytes = size, max_bytes
+        self.entries: OrderedDict = OrderedDict()
+        self.lock = threading.Lock()
+
+    @staticmethod
+    def _probes(pdf, dom: Domain):
+        # 13 fixed parameter points: a Fibonacci lattice in the unit square (its first
+        # coordinate in 1-D).
+        i = np.arange(13)
+        s = np.stack([(i + 0.5) / 13, ((i * 8) % 13 + 0.5) / 13], -1)[:, :dom.param_dim]
+        try:
+            return np.array(pdf(dom.to_point(s)), dtype=np.float64).ravel()
+        except Exception:      # the check's own validation reports a broken pdf
+            return None
+
+    def key(self, pdf, dom: Domain, edges, n_target: int):
+        h = hashlib.sha256(repr(dom).encode())
+        for e in edges:
+            h.update(np.ascontiguousarray(e, dtype=np.float64).tobytes())
+        return (id(pdf), h.hexdigest(), int(n_target))
+
+    def get(self, pdf, dom, key):
+        with self.lock:
+            entry = self.entries.get(key)
+        if entry is None or entry[0]() is not pdf:
+            return None
+        probes = self._probes(pdf, dom)
+        if probes is None or not np.array_equal(probes, entry[1], equal_nan=True):
+            return None
+        with self.lock:
+            self.entries.move_to_end(key)
+        return entry[2], entry[3]
+
+    @staticmethod
+    def _nbytes(integrated: list) -> int:
+        r = integrated[0]
+        return r.mass.nbytes + r.error.nbytes + sum(a.nbytes for a in r.leaves or ())
+
+    def put(self, pdf, dom, key, integrated: list, counters) -> None:
+        """Keep ``integrated`` (the check's list: the CellIntegral, and later the 1-D
+        CDF the check appends) for ``key``; the least recently used entries go when there
+        are more than ``size`` or they hold more than ``max_bytes`` (a 1-D integral with
+        millions of leaves is not kept at all)."""
+        if self._nbytes(integrated) > self.max_bytes // 4:
+            return
+        try:
+            ref = weakref.ref(pdf)
+        except TypeError:       # not weakly referenceable (a builtin): not cached
+            return
+        probes = self._probes(pdf, dom)
+        if probes is None:
+            return
+        with self.lock:
+            self.entries[key] = (ref, probes, integrated, counters)
+            self.entries.move_to_end(key)
+            while (len(self.entries) > self.size or sum(
+                    self._nbytes(e[2]) for e in self.entries.values()) > self.max_bytes):
+                self.entries.popitem(last=False)
+
+    def clear(self) -> None:
+        with self.lock:
+            self.entries.clear()
+
+
+_CUBATURE = _CubatureCache()
 
 
 #: Density evaluations allowed per round of re-integrating suspicious cells.
@@ -434,6 +527,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     density = _Density(pdf, dom)
     n_budget = n
     integrated: list = []
+    cached = [False]
 
     def evaluate(n_drawn: int) -> CheckResult:
         """The tests on the first ``n_drawn`` draws (everything binned so far)."""
@@ -444,12 +538,21 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         n_rejected = int(hist.n_status[kernels.REJECTED])
         failures = hist.failures()
 
+        nonlocal integrated
         if not integrated:
             # Integrated once, to the tolerance the whole budget needs (the valid share of
-            # the draws so far, projected to the budget).
-            integrated.append(integrate_cells(
-                density, edges, n_samples=max(round(n_valid * n_budget / n_drawn), 1),
-                keep_leaves=(m == 1)))
+            # the draws so far, projected to the budget), or found in the cache.
+            n_target = max(round(n_valid * n_budget / n_drawn), 1)
+            key = _CUBATURE.key(pdf, dom, edges, n_target)
+            hit = _CUBATURE.get(pdf, dom, key)
+            if hit is not None:
+                integrated, (density.negative, density.nonfinite, density.example) = hit
+                cached[0] = True
+            else:
+                integrated.append(integrate_cells(density, edges, n_samples=n_target,
+                                                  keep_leaves=(m == 1)))
+                _CUBATURE.put(pdf, dom, key, integrated,
+                              (density.negative, density.nonfinite, density.example))
         integral = integrated[0]
         mass, error, n_evals, unconverged, leaves = _refine_suspicious(
             density, edges, counts, integral, max(n_valid, 1), m)
@@ -522,6 +625,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
             "domain": repr(dom), "resolution": list(res), "sample_dim": k,
             "tests": {key: _test_details(r) for key, r in sub.items()},
             "pdf_integral": total, "quadrature_error": err_bound, "pdf_evaluations": n_evals,
+            "cubature_cached": cached[0],
             "n_valid": n_valid, "worst_cells": worst, "seed": seed,
         }
         if rejection:

@@ -29,9 +29,12 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
     out = []
 
     def mi_warp(sample, pdf, *params, u=u):
+        # Both outputs are evaluated and brought back to numpy, as ours returns both:
+        # where the pdf is a constant (uniform sphere, cone), asking for the pdf alone
+        # would let Dr.Jit skip computing the points at all.
         def run():
             d = sample(mi.Point2f(u[:, 0], u[:, 1]), *params)
-            return np.asarray(pdf(d, *params))
+            return mvm.to_numpy(d, pdf(d, *params))
         return run
 
     warp_pairs = [

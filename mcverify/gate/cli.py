@@ -158,6 +158,14 @@ def _add_pool_options(parser) -> None:
                         help="run the units on the Dask cluster this scheduler file names")
 
 
+def _add_refs_option(parser) -> None:
+    parser.add_argument("--refs", metavar="DIR",
+                        help="folder of reference scenes (NAME/scene.xml, NAME/ref/) that "
+                             "scene names resolve in; default: $MCVERIFY_REFS, else this "
+                             "checkout's reference/scenes, else the copy installed with "
+                             "mcverify (<prefix>/share/mcverify/scenes)")
+
+
 def _mitsuba_provenance(selected) -> dict:
     """Mitsuba's version and variant for the provenance of a run that checks Mitsuba's
     warps, printing the fallback notice once; {} when no selected check uses Mitsuba."""
@@ -526,6 +534,7 @@ def _cmd_compare(args) -> int:
     print(result.summary())
     for m in result.messages:
         print(f"    {m}")
+    _print_visibility(result.details)
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
@@ -581,7 +590,17 @@ def _cmd_render_check(args) -> int:
     print(f"    ours: {d['ours_spp']} spp in {d['ours_passes']} passes, {d['ours_seconds']:.2f}s "
           f"({d['ours_samples_per_second'] / 1e6:.2f} M samples/s, {d['ours_kernel']}); "
           f"relMSE {d['relmse']:.3g}; found by: {', '.join(d['found_by']) or 'nothing'}")
+    _print_visibility(d)
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _print_visibility(d: dict) -> None:
+    """How visible the difference is (decides nothing): ΔE2000, ΔE ITP, HDR-FLIP."""
+    if d.get("flip_mean") is not None:
+        print(f"    how visible: mean ΔE2000 {d['delta_e2000_mean']:.3g}, mean ΔE ITP "
+              f"{d['delta_e_itp_mean']:.3g}, mean HDR-FLIP {d['flip_mean']:.3g} "
+              f"(99th percentiles {d['delta_e2000_p99']:.3g}, {d['delta_e_itp_p99']:.3g}, "
+              f"{d['flip_p99']:.3g})")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -591,10 +610,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
                            metavar="COMMAND")
-    suite_help = ("suite: 'default' (the CI gate, 4e6 samples) or 'full' (parameter sweeps, "
-                  "8e6 samples)")
-    any_suite_help = ("suite: 'default' (the CI gate, 4e6 samples), 'full' (parameter sweeps, "
-                      "8e6 samples), 'mitsuba' (Mitsuba's own plugins over sweeps) or "
+    suite_help = ("suite: 'default' (the CI gate, 1e7 samples) or 'full' (parameter sweeps, "
+                  "2e7 samples)")
+    any_suite_help = ("suite: 'default' (the CI gate, 1e7 samples), 'full' (parameter sweeps, "
+                      "2e7 samples), 'mitsuba' (Mitsuba's own plugins over sweeps) or "
                       "MODULE:ATTR (your list of mcverify.gate.suites.Check, or a callable "
                       "returning one); default: the [tool.mcverify] suite of the nearest "
                       "pyproject.toml, else 'default'")
@@ -623,6 +642,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "suite's fixed n")
     c.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(c)
+    _add_refs_option(c)
     c.set_defaults(func=_cmd_check)
 
     ls = sub.add_parser("list", help="list the checks of a suite")
@@ -652,6 +672,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--seed", type=int, default=0, help=seed_help)
     rp.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(rp)
+    _add_refs_option(rp)
     rp.set_defaults(func=_cmd_report)
 
     b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios")
@@ -663,6 +684,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="samples per pixel of the renders (in all, one pass)")
     b.add_argument("--no-render", action="store_true", help="skip the path-tracer rows")
     b.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
+    _add_refs_option(b)
     b.set_defaults(func=_cmd_bench)
 
     ref = sub.add_parser("reference", help="Mitsuba reference renders")
@@ -680,6 +702,7 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--seed", type=int, default=0, help=seed_help)
     rb.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(rb)
+    _add_refs_option(rb)
     rb.set_defaults(func=_cmd_reference_build)
 
     cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference",
@@ -712,6 +735,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="family-wise significance level of the whole comparison")
     cp.add_argument("--json", metavar="PATH",
                     help="write the result as JSON (not one of the inputs); default: none")
+    _add_refs_option(cp)
     cp.set_defaults(func=_cmd_compare)
 
     rc = sub.add_parser("render-check", help="our path tracer against the scene's Mitsuba "
@@ -730,6 +754,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--json", metavar="PATH", help="write the result as JSON; default: none")
     rc.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(rc)
+    _add_refs_option(rc)
     rc.set_defaults(func=_cmd_render_check)
     return p
 
@@ -741,6 +766,10 @@ def _validate_common(args) -> None:
         raise InvalidArgument(f"--seed {seed}: must be in [0, 2^63 - 1]")
     if getattr(args, "alpha", None) is not None and not 0.0 < args.alpha < 1.0:
         raise InvalidArgument(f"--alpha {args.alpha}: must be strictly between 0 and 1")
+    if getattr(args, "refs", None) is not None:
+        from . import reference
+
+        reference.set_reference_root(args.refs)
 
 
 def main(argv=None) -> int:

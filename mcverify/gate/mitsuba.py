@@ -130,6 +130,15 @@ def chi2_cosine_hemisphere(n: int):
 
 
 
+def to_numpy(*values):
+    """Mitsuba/Dr.Jit values evaluated together (one kernel launch for all of them) and
+    returned as numpy arrays."""
+    import drjit as dr
+
+    dr.eval(*values)
+    return tuple(np.asarray(v) for v in values)
+
+
 def _from_mitsuba(v, n):
     a = np.asarray(v, dtype=np.float64)
     if a.size == 1 and n != 1:  # a constant (e.g. the uniform sphere's pdf)

@@ -53,6 +53,19 @@ def _reference_root() -> str:
 REFERENCE_ROOT = _reference_root()
 
 
+def set_reference_root(path: str) -> str:
+    """Make scene names resolve in ``path`` (``--refs DIR``): a folder of
+    ``NAME/scene.xml`` (+ ``NAME/ref/``). Also exported as ``$MCVERIFY_REFS``, so worker
+    processes started from here resolve names the same way."""
+    global REFERENCE_ROOT
+    if not os.path.isdir(path):
+        what = "does not exist" if not os.path.exists(path) else "is not a directory"
+        raise InvalidArgument(f"--refs {path}: {what} (a folder of NAME/scene.xml)")
+    REFERENCE_ROOT = os.path.abspath(path)
+    os.environ["MCVERIFY_REFS"] = REFERENCE_ROOT
+    return REFERENCE_ROOT
+
+
 @dataclass(frozen=True)
 class Reference:
     name: str
@@ -200,8 +213,10 @@ def precheck_scene(path: str) -> None:
                                       "\">)")
 
 
-def resolve_scene(spec: str, root: str = REFERENCE_ROOT) -> tuple[str, str]:
-    """(name, scene.xml path) from a reference name or a path to a scene file/folder."""
+def resolve_scene(spec: str, root: str | None = None) -> tuple[str, str]:
+    """(name, scene.xml path) from a reference name (in ``root``, default
+    ``REFERENCE_ROOT``) or a path to a scene file/folder."""
+    root = REFERENCE_ROOT if root is None else root
     if os.path.isfile(spec):
         path = os.path.abspath(spec)
     elif os.path.isdir(spec) and os.path.isfile(os.path.join(spec, "scene.xml")):
@@ -215,7 +230,8 @@ def resolve_scene(spec: str, root: str = REFERENCE_ROOT) -> tuple[str, str]:
     return os.path.basename(os.path.dirname(path)), path
 
 
-def list_scenes(root: str = REFERENCE_ROOT) -> list[str]:
+def list_scenes(root: str | None = None) -> list[str]:
+    root = REFERENCE_ROOT if root is None else root
     if not os.path.isdir(root):
         return []
     return sorted(d for d in os.listdir(root) if os.path.isfile(os.path.join(root, d, "scene.xml")))

@@ -16,7 +16,7 @@ SCENES = os.path.join(ROOT, "reference", "scenes")
 # below, cornell-box, rough-conductors and glass-sphere at two depths in
 # tests/estimators/test_pathtracer_render.py, and bunny in tests/estimators/test_real_mesh.py
 GATE_SCENES = ["delta-lights", "veach-mis", "textures", "vocabulary-materials",
-               "vocabulary-lights", "vocabulary-glass"]
+               "vocabulary-lights", "vocabulary-geometry", "vocabulary-glass"]
 GATED = set(GATE_SCENES) | {"cornell-box", "rough-conductors", "glass-sphere", "bunny"}
 
 
@@ -87,6 +87,22 @@ def test_an_ignored_filter_type_fails_the_gate_on_the_textures_scene():
     r = mv.render_check("textures", seed=22, plant={"texture_filter": "bilinear"})
     assert not r.passed
     assert {"blocks", "pixels"} & set(r.details["found_by"]), r.details["found_by"]
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("plant,what", [
+    ({"camera_extent": 1.005}, "the orthographic view 0.5 % too wide"),
+    ({"camera_extent": 0.995}, "the orthographic view 0.5 % too narrow"),
+    ({"texture_raw": True}, "the JPEG's sRGB gamma ignored"),
+])
+def test_a_planted_geometry_bug_fails_the_gate(plant, what):
+    """On the vocabulary-geometry scene (orthographic camera, PLY meshes, a JPEG texture):
+    the view's extent off by 0.5 % (at most a sixth of a pixel at the film's edge) and
+    the JPEG read without its sRGB decoding must both fail the default gate."""
+    import mcverify as mv
+
+    r = mv.render_check("vocabulary-geometry", seed=24, plant=plant)
+    assert not r.passed, (what, r.summary())
 
 
 @pytest.mark.mitsuba

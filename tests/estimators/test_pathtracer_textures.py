@@ -19,11 +19,17 @@ pytestmark = pytest.mark.mitsuba
 
 @pytest.fixture(scope="module")
 def images(mi, tmp_path_factory):
-    """A random float EXR (6 × 10, distinct texels) and an 8-bit sRGB PNG (5 × 7)."""
+    """A random float EXR (6 × 10, distinct texels), 8-bit sRGB PNG (5 × 7) and JPEGs
+    (9 × 11 colour, 8 × 6 grey; written at quality 100 by Mitsuba, texels still distinct
+    after compression)."""
     d = tmp_path_factory.mktemp("tex")
     rng = np.random.default_rng(3)
     mi.Bitmap(rng.random((6, 10, 3)).astype(np.float32) * 4).write(str(d / "t.exr"))
     mi.Bitmap(rng.integers(0, 256, (5, 7, 3)).astype(np.uint8)).write(str(d / "t.png"))
+    mi.Bitmap(rng.integers(0, 256, (9, 11, 3)).astype(np.uint8)).write(str(d / "t.jpg"),
+                                                                        quality=100)
+    mi.Bitmap(rng.integers(0, 256, (8, 6, 1)).astype(np.uint8),
+              mi.Bitmap.PixelFormat.Y).write(str(d / "grey.jpg"), quality=100)
     return d
 
 
@@ -99,11 +105,28 @@ def test_to_uv_matches_mitsuba(mi, images):
 
 
 @pytest.mark.parametrize("raw", [False, True])
-def test_srgb_png_decoding_and_raw_match_mitsuba(mi, images, raw):
-    """An 8-bit sRGB PNG is decoded to linear before filtering unless ``raw``."""
+@pytest.mark.parametrize("image", ["t.png", "t.jpg", "grey.jpg"])
+def test_srgb_png_and_jpeg_decoding_and_raw_match_mitsuba(mi, images, image, raw):
+    """An 8-bit sRGB PNG or JPEG (colour or grey) is decoded to linear before filtering
+    unless ``raw``, which keeps the 8-bit values / 255."""
     cs, scene = _compiled(mi, images, _texture_xml(
-        "t.png", [("boolean", "raw", str(raw).lower())]))
+        image, [("boolean", "raw", str(raw).lower())]))
     _lookups_agree(mi, cs, scene, np.random.default_rng(7).random((300, 2)), rtol=2e-5)
+
+
+def test_jpeg_is_read_as_8_bit_srgb(mi, images):
+    """The decoded texels are the sRGB curve of the file's 8-bit values (read back
+    independently of Mitsuba, with Pillow, which matplotlib requires), and ``raw`` gives
+    the values / 255."""
+    from PIL import Image
+
+    values = np.asarray(Image.open(images / "t.jpg").convert("RGB"), dtype=np.float64) / 255
+    srgb = np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4)
+    assert len(np.unique(values)) > 50          # not a constant image
+    np.testing.assert_allclose(textures.read_image(str(images / "t.jpg")), srgb,
+                               rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(textures.read_image(str(images / "t.jpg"), raw=True), values,
+                               rtol=1e-6, atol=1e-7)
 
 
 def test_a_referenced_texture_is_used_not_dropped(mi, images):
@@ -140,6 +163,28 @@ _QUAD = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\
 _TRI_NO_UV = "v -1 -1 0\nv 1 -1 0\nv 0 1 0.2\nf 1 2 3\n"
 
 
+def _write_plys(folder):
+    """PLY meshes in each format: a quad with tilted vertex normals and uv named
+    texture_u/v (big endian), a triangle with neither (ASCII: Mitsuba's uv is then the
+    barycentric (b1, b2)), and a bent 4 × 4 grid with uv named s/t and no normals
+    (little endian, double: smooth normals computed as Mitsuba does)."""
+    from estimators.pathtracer.meshes import write_ply
+
+    quad_n = [[0.3, 0, 1], [0, 0.2, 1], [-0.3, 0.1, 1], [0.1, -0.4, 1]]
+    write_ply(str(folder / "quad.ply"), [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+              [[0, 1, 2], [0, 2, 3]], normals=quad_n, uvs=[[0, 0], [1, 0], [1, 1], [0, 1]],
+              uv_names=("texture_u", "texture_v"), fmt="binary_big_endian")
+    write_ply(str(folder / "tri.ply"), [[-1, -1, 0], [1, -1, 0], [0, 1, 0.2]], [[0, 1, 2]],
+              fmt="ascii")
+    g = np.linspace(-1, 1, 4)
+    x, y = np.meshgrid(g, g)
+    verts = np.stack([x.ravel(), y.ravel(), 0.4 * np.sin(2 * x.ravel()) * y.ravel()], 1)
+    faces = [[r * 4 + c, r * 4 + c + 1, r * 4 + c + 5] for r in range(3) for c in range(3)]
+    faces += [[r * 4 + c, r * 4 + c + 5, r * 4 + c + 4] for r in range(3) for c in range(3)]
+    write_ply(str(folder / "grid.ply"), verts, faces, uvs=(verts[:, :2] + 1) / 2,
+              uv_names=("s", "t"), fmt="binary_little_endian", vertex_type="double")
+
+
 @pytest.mark.parametrize("shape,props", [
     ("rectangle", '<transform name="to_world"><rotate x="1" angle="20"/></transform>'),
     ("cube", '<transform name="to_world"><rotate x="1" y="1" angle="25"/></transform>'),
@@ -148,12 +193,21 @@ _TRI_NO_UV = "v -1 -1 0\nv 1 -1 0\nv 0 1 0.2\nf 1 2 3\n"
     ("sphere", '<transform name="to_world"><rotate x="1" angle="70"/></transform>'),
     ("obj", '<string name="filename" value="quad.obj"/>'),
     ("obj", '<string name="filename" value="tri.obj"/>'),
+    ("ply", '<string name="filename" value="quad.ply"/>'),
+    ("ply", '<string name="filename" value="tri.ply"/>'),
+    ("ply", '<string name="filename" value="grid.ply"/><transform name="to_world">'
+            '<scale x="1.5" y="0.7"/><rotate x="1" y="0.3" angle="30"/></transform>'),
+    ("ply", '<string name="filename" value="grid.ply"/>'
+            '<boolean name="face_normals" value="true"/>'),
 ])
 def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
     """Rays from all around hit the shape: our (u, v) at the hit is Mitsuba's ``si.uv``
-    (the texture layout of a cube face, an OBJ with and without vt)."""
+    (the texture layout of a cube face, an OBJ with and without vt, a PLY in each format
+    with each of Mitsuba's uv names or none); on meshes the shading normal is Mitsuba's
+    ``si.sh_frame.n`` too (given, computed smooth, or the face's)."""
     (images / "quad.obj").write_text(_QUAD)
     (images / "tri.obj").write_text(_TRI_NO_UV)
+    _write_plys(images)
     cs, scene = _compiled(mi, images, "", shape=shape, shape_props=props)
     a = cs.arrays
     nodes, leaf, leaf_info, prims, info = a.bvh_nodes, a.leaf_prims, a.leaf_info, a.prims, \
@@ -176,6 +230,10 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
         if shape == "sphere":
             du[0] = min(du[0], 1 - du[0])           # u wraps at the seam
         assert du.max() < 2e-5, f"ray {o} {d}: ours {uv}, Mitsuba {si.uv}"
+        if shape in ("obj", "ply"):
+            n = geometry.surface(prims, info, j, *o, *d, t, b1, b2)[6:9]
+            assert np.abs(np.array(n) - np.array(si.sh_frame.n)).max() < 2e-5, \
+                f"ray {o} {d}: shading normal ours {n}, Mitsuba {si.sh_frame.n}"
     assert hits > 100
 
 

@@ -91,11 +91,19 @@ def test_rays_match_mitsuba_pixel_for_pixel(mi, fov_axis, width, height):
     text = (CORNELL.replace('value="x"', f'value="{fov_axis}"')
             .replace('value="$res"', f'value="{width}"').replace('value="48"', f'value="{height}"')
             .replace('origin="0, 0, 3.9"', 'origin="0.7, 0.4, 3.9"'))
-    d = parse_scene(text)
-    cam = camera_from_scene(d)
+    _assert_rays_match_mitsuba(mi, text)
+
+
+def _assert_rays_match_mitsuba(mi, text, *, origin_atol=2e-5):
+    """Our camera rays (origin, unit direction, length) at 64 film positions, the
+    corners and the centre among them, are Mitsuba's ``sensor.sample_ray``."""
+    from estimators.pathtracer.camera import _generate_ray_kernel
+
+    cam = camera_from_scene(parse_scene(text))
     uv = np.random.default_rng(0).random((64, 2))
     uv[:4] = [[0, 0], [1, 1], [0.5, 0.5], [1, 0]]
     o, dirs = generate_rays(cam, uv)
+    t_max = np.array([_generate_ray_kernel(cam.params, a, b)[6] for a, b in uv])
     sensor = mi.load_string(text).sensors()[0]
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(uv[:, 0], uv[:, 1]), mi.Point2f(0.5, 0.5))
     mo = np.asarray(ray.o)
@@ -103,7 +111,50 @@ def test_rays_match_mitsuba_pixel_for_pixel(mi, fov_axis, width, height):
     mo = mo.T if mo.shape[0] == 3 else mo
     md = md.T if md.shape[0] == 3 else md
     assert np.max(np.abs(dirs - md)) < 2e-6      # Mitsuba is float32
-    assert np.max(np.abs(o - mo)) < 2e-5
+    assert np.max(np.abs(o - mo)) < origin_atol
+    np.testing.assert_allclose(t_max, np.broadcast_to(np.asarray(ray.maxt), t_max.shape),
+                               rtol=1e-6)
+
+
+_ORTHO_SENSOR = """<sensor type="perspective">
+    <float name="fov" value="39.3077"/>
+    <string name="fov_axis" value="x"/>
+    <transform name="to_world">
+      <lookat origin="0, 0, 3.9" target="0, 0, 0" up="0, 1, 0"/>
+    </transform>"""
+
+
+@pytest.mark.parametrize("width,height,to_world,clip", [
+    (64, 48, '<scale x="1.2" y="1.2"/><lookat origin="0.7, 0.4, 3.9" target="0, 0, 0" '
+             'up="0, 1, 0"/>', ""),
+    (48, 64, '<scale x="2" y="0.5" z="3"/><rotate z="1" angle="15"/>'
+             '<lookat origin="-1, 2, 3" target="0.2, 0, 0" up="0, 0, 1"/>',
+     '<float name="near_clip" value="0.5"/><float name="far_clip" value="20"/>'),
+    (32, 32, "", '<float name="near_clip" value="0.25"/>'),
+], ids=["landscape-lookat", "portrait-anisotropic-scale-clip", "identity"])
+def test_orthographic_rays_match_mitsuba_pixel_for_pixel(mi, width, height, to_world, clip):
+    """Mitsuba's orthographic sensor: the film spans [-1, 1] × [-1/aspect, 1/aspect] on
+    the near plane, scaled by ``to_world`` (a scale in z moves the near plane too);
+    rays are parallel and end at far_clip - near_clip."""
+    sensor = (f'<sensor type="orthographic">{clip}<transform name="to_world">{to_world}'
+              f'</transform>')
+    text = (CORNELL.replace(_ORTHO_SENSOR, sensor)
+            .replace('value="$res"', f'value="{width}"').replace('value="48"', f'value="{height}"'))
+    assert 'type="orthographic"' in text
+    _assert_rays_match_mitsuba(mi, text)
+
+
+@pytest.mark.parametrize("body,needle", [
+    ('<float name="fov" value="45"/>', "orthographic' has no property 'fov'"),
+    ('<transform name="to_world"><scale z="0"/></transform>',
+     "maps the view direction (0, 0, 1) to zero"),
+], ids=["fov", "flat-to-world"])
+def test_orthographic_sensor_refuses_what_it_cannot_render(body, needle):
+    film = '<film type="hdrfilm"><rfilter type="box"/></film>'
+    with pytest.raises(SceneError) as e:
+        camera_from_scene(parse_scene(f'<scene version="3.0.0"><sensor type="orthographic">'
+                                      f'{body}{film}</sensor></scene>', path="s.xml"))
+    assert "s.xml:1" in str(e.value) and needle in str(e.value), str(e.value)
 
 
 def _error(text, **kw):
@@ -116,8 +167,8 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/></sensor>')
 
 
 @pytest.mark.parametrize("body,needles", [
-    ('<shape type="ply"><string name="filename" value="a.ply"/></shape>',
-     ["s.xml:3", "unsupported shape type 'ply'", "rectangle"]),
+    ('<shape type="serialized"><string name="filename" value="a.serialized"/></shape>',
+     ["s.xml:3", "unsupported shape type 'serialized'", "rectangle"]),
     ('<shape type="sphere"><float name="radiuss" value="1"/></shape>',
      ["s.xml:3", "no property 'radiuss'", "radius"]),
     ('<emitter type="area"><rgb name="radiance" value="1"/></emitter>',

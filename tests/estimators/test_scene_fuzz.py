@@ -22,12 +22,13 @@ VALUES = ["", "0", "-1", "nan", "inf", "-inf", "1e400", "1e-320", "abc", "$nosuc
 TYPES = ["diffuse", "conductor", "roughconductor", "dielectric", "plastic", "roughplastic",
          "twosided", "area", "point", "spot", "directional", "constant", "envmap", "sphere",
          "rectangle", "cube", "disk", "obj", "path", "direct", "perspective", "hdrfilm", "box",
-         "independent", "bitmap", "rgb", "hair", "", "ply", "volpath"]
+         "independent", "bitmap", "rgb", "hair", "", "ply", "volpath", "orthographic"]
 TAGS = ["float", "integer", "rgb", "string", "boolean", "point", "vector", "transform",
         "bsdf", "emitter", "shape", "texture", "ref", "lookat", "scale", "rotate", "matrix",
         "default", "sensor", "film", "sampler", "rfilter", "spectrum", "nosuch"]
 SNIPPETS = ['<float name="radius" value="-2"/>', '<ref id="nosuch"/>', '<!DOCTYPE scene>',
             '<shape type="obj"><string name="filename" value="/dev/zero"/></shape>',
+            '<shape type="ply"><string name="filename" value="/dev/zero"/></shape>',
             '<rgb name="reflectance" value="nan, 0, 1"/>', '<integer name="width" value="0"/>',
             '<transform name="to_world"><scale value="0"/></transform>',
             '<emitter type="area"><rgb name="radiance" value="1"/></emitter>',

@@ -246,3 +246,38 @@ def test_same_distribution_with_rejected_draws():
     plain = mv.check_same_distribution(_rejecting, other_rejecting, "hemisphere",
                                        sample_dim=3, n_samples=20_000)
     assert not plain.passed and any("NaN/Inf" in f for f in plain.failures)
+
+
+def test_cubature_is_cached_by_pdf_identity_and_grid():
+    """A repeated check integrates once and decides the same; another seed (other cell
+    edges) or a pdf whose values changed since (hidden state) integrates afresh; the
+    pdf's bad values met by the cached integration are still reported."""
+    from mcverify.checks.sampler import _CUBATURE
+
+    _CUBATURE.clear()
+    run = lambda pdf, seed=6: mv.check_sampler(cosine, pdf, "hemisphere", n_samples=100_000,
+                                               seed=seed)
+    a, b = run(W.cosine_hemisphere_pdf), run(W.cosine_hemisphere_pdf)
+    assert not a.details["cubature_cached"] and b.details["cubature_cached"]
+    assert (a.p_value, a.statistic, a.details["pdf_integral"]) == \
+        (b.p_value, b.statistic, b.details["pdf_integral"])
+    assert np.array_equal(a.artifacts["histogram"]["expected"],
+                          b.artifacts["histogram"]["expected"])
+    assert not run(W.cosine_hemisphere_pdf, seed=7).details["cubature_cached"]
+
+    scale = [1.0]
+
+    def stateful(x):
+        return scale[0] * W.cosine_hemisphere_pdf(x)
+    assert run(stateful).passed
+    scale[0] = 1.03
+    r = run(stateful)
+    assert not r.details["cubature_cached"] and not r.passed
+    assert any("integrates to 1.03" in f for f in r.failures)
+
+    def negative(x):
+        return W.cosine_hemisphere_pdf(x) - 0.01
+    first, again = run(negative), run(negative)
+    assert again.details["cubature_cached"]
+    assert [f for f in first.failures if "negative" in f] == \
+        [f for f in again.failures if "negative" in f] != []

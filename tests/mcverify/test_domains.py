@@ -58,3 +58,50 @@ def test_azimuth_matches_atan2_to_an_ulp():
         ref = math.atan2(y, x)
         ref = (ref + 2 * math.pi if ref < 0 else ref) / (2 * math.pi)
         assert abs(K._azimuth(x, y) - ref) <= 4e-16, (x, y)
+
+
+@pytest.mark.parametrize("dom", [mv.Disk(), mv.Sphere(), mv.Hemisphere()], ids=repr)
+def test_binning_without_arc_tangent_matches_the_exact_parameters(dom):
+    """The histogram kernel bins the azimuth by a monotone stand-in (the diamond angle)
+    against converted edges: every point lands in the cell its exact parameters
+    (φ / 2π by atan2) give, also on the axes and on the cells' own edges."""
+    from mcverify.checks.sampler import _Histogram, _edges
+
+    rng = np.random.default_rng(1)
+    s = rng.random((200_000, 2))
+    edges = _edges(s[:20_000] ** 2, (16, 32))            # non-uniform cells
+    # Points at the edges themselves (within rounding), and on the axes.
+    grid = np.stack(np.meshgrid(edges[0][:-1], edges[1][:-1], indexing="ij"), -1)
+    axes = np.array([[0.3, 0.0], [0.3, 0.25], [0.3, 0.5], [0.3, 0.75]])
+    x = dom.to_point(np.concatenate([s, grid.reshape(-1, 2), axes]))
+    h = _Histogram(dom, edges)
+    h.add(x)
+    exact = dom.to_param(x)
+    idx = [np.searchsorted(e, exact[:, j], side="right") - 1 for j, e in enumerate(edges)]
+    ref = np.zeros(h.shape, dtype=np.int64)
+    np.add.at(ref, tuple(idx), 1)
+    # A point within rounding of an edge may fall either side of it: allow those only.
+    on_edge = np.zeros(len(x), bool)
+    for j, e in enumerate(edges):
+        k = idx[j]
+        on_edge |= np.minimum(np.abs(exact[:, j] - e[k]), np.abs(e[k + 1] - exact[:, j])) < 1e-12
+    moved = np.abs(ref - h.flat.reshape(h.shape)).sum()
+    assert moved <= 2 * np.count_nonzero(on_edge)
+    assert h.flat.sum() == len(x)
+    # Off the edges, the same cell for every random point.
+    ref_r = np.zeros(h.shape, dtype=np.int64)
+    np.add.at(ref_r, tuple(i[:len(s)] for i in idx), 1)
+    h_r = _Histogram(dom, edges)
+    h_r.add(x[:len(s)])
+    assert np.array_equal(ref_r, h_r.flat.reshape(h.shape))
+
+
+@pytest.mark.parametrize("dom", [mv.Sphere(), mv.Hemisphere()], ids=repr)
+def test_float32_points_near_the_pole_keep_their_polar_parameter(dom):
+    """1 - z of a float32 point within 1e-4 of the pole is 0 or a multiple of 6e-8; the
+    domain takes it from the tangential components instead, to float32 precision."""
+    s0 = np.geomspace(1e-12, 1e-4, 50) / (2.0 if dom.name == "sphere" else 1.0)
+    s = np.stack([s0, np.full_like(s0, 0.3)], -1)
+    x32 = dom.to_point(s).astype(np.float32)
+    back = dom.to_param(x32)[:, 0]
+    assert np.all(np.abs(back - s0) <= 1e-6 * s0)

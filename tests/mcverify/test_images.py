@@ -43,16 +43,27 @@ def test_colour_differences_are_zero_for_identical_images_and_grow_with_a_shift(
     same = mv.compare_images(img, img, test_var=np.full_like(img, 0.01),
                              ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
     assert same.details["delta_e2000_mean"] == 0.0 and same.details["delta_e_itp_mean"] == 0.0
+    assert same.details["flip_mean"] == 0.0 and same.artifacts["flip"].shape == (16, 16)
     shifted = img * np.array([1.0, 1.0, 1.3])
     r = mv.compare_images(shifted, img, test_var=np.full_like(img, 0.01),
                           ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
     assert r.details["delta_e2000_mean"] > 1.0 and r.details["delta_e_itp_mean"] > 1.0
+    assert 0.0 < r.details["flip_mean"] <= r.details["flip_p99"] <= 1.0
     assert r.artifacts["delta_e2000"].shape == r.artifacts["delta_e_itp"].shape \
         == (16, 16)
     # a 1 % grey change is below a just-noticeable ΔE ITP; a 30 % blue shift far above
     grey = mv.compare_images(img * 1.01, img, test_var=np.full_like(img, 0.01),
                              ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4)
     assert grey.details["delta_e_itp_mean"] < 1.0 < r.details["delta_e_itp_mean"]
+    assert 0.0 < grey.details["flip_mean"] < r.details["flip_mean"]      # FLIP ranks them too
+    # one channel, or perceptual=False: measured not at all (None), maps absent
+    for one in (mv.compare_images(img[..., 0], img[..., 0], test_var=np.full((16, 16), .01),
+                                  ref_var=np.full((16, 16), .01), test_n=4, ref_n=4),
+                mv.compare_images(shifted, img, test_var=np.full_like(img, 0.01),
+                                  ref_var=np.full_like(img, 0.01), test_n=4, ref_n=4,
+                                  perceptual=False)):
+        assert one.details["flip_mean"] is None and one.details["delta_e2000_mean"] is None
+        assert "flip" not in one.artifacts and "delta_e_itp" not in one.artifacts
     assert "artifacts" not in r.to_dict() and "delta_e2000" not in r.to_dict()["details"]
 
 

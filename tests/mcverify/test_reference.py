@@ -2,6 +2,7 @@
 
 import os
 import shutil
+import json
 import subprocess
 import sys
 
@@ -49,6 +50,7 @@ def test_build_load_stale_and_corrupt(scene_copy):
 
 def test_compare_cli_passes_a_to_a_and_fails_a_brighter_render(scene_copy, tmp_path):
     reference.build_reference(str(scene_copy), spp=64, passes=16, seed=3)
+    flips = {}
     for label, scale, expected in (("same", 1.0, 0), ("brighter", 1.05, 1)):
         mean, var = _render_pair(scene_copy / "scene.xml", 500, scale)
         mvm.write_exr(str(tmp_path / f"{label}.exr"), mean)
@@ -58,7 +60,10 @@ def test_compare_cli_passes_a_to_a_and_fails_a_brighter_render(scene_copy, tmp_p
                                   "--test-n", "16", "--json", str(tmp_path / f"{label}.json")],
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == expected, (label, r.stdout, r.stderr)
-        assert (tmp_path / f"{label}.json").exists()
+        d = json.loads((tmp_path / f"{label}.json").read_text())["details"]
+        assert "how visible: mean ΔE2000" in r.stdout and "HDR-FLIP" in r.stdout
+        flips[label] = d["flip_mean"]
+    assert 0 <= flips["same"] < flips["brighter"] <= 1, flips
 
 
 @pytest.mark.parametrize("args,needle", [
@@ -69,3 +74,27 @@ def test_compare_cli_passes_a_to_a_and_fails_a_brighter_render(scene_copy, tmp_p
 def test_bad_input_exit_2(args, needle, tmp_path):
     r = subprocess.run(CMD + args, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr
+
+
+def test_refs_dir_names_where_scene_names_resolve(tmp_path):
+    """``--refs DIR``: scene names resolve in DIR (here a copy of white-furnace under
+    another name, with its reference), from any working directory; the checkout's names
+    are then unknown, and a missing DIR is bad input."""
+    refs = tmp_path / "my-refs"
+    shutil.copytree(os.path.join(SCENES, "white-furnace"), refs / "furnace")
+    env = {k: v for k, v in os.environ.items() if k != "MCVERIFY_REFS"}
+    env["PYTHONPATH"] = os.path.dirname(os.path.dirname(os.path.dirname(
+        os.path.abspath(__file__))))
+    run = lambda *a: subprocess.run(CMD + list(a), capture_output=True, text=True,  # noqa: E731
+                                    timeout=600, cwd=tmp_path, env=env)
+    r = run("render-check", "furnace", "--refs", str(refs), "--spp", "256", "--passes", "4",
+            "--json", str(tmp_path / "rc.json"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "rc.json").read_text())["details"]["scene"] == \
+        str(refs / "furnace" / "scene.xml")
+    r = run("render-check", "cornell-box", "--refs", str(refs))
+    assert r.returncode == 2 and "scene 'cornell-box'" in r.stderr and "known: furnace" in r.stderr
+    r = run("compare", "a.exr", "furnace", "--refs", str(tmp_path / "nowhere"),
+            "--test-var", "v.exr", "--test-n", "4")
+    assert r.returncode == 2 and "--refs" in r.stderr and "does not exist" in r.stderr
+    assert not (tmp_path / "nowhere").exists()

@@ -27,6 +27,22 @@ def test_obrien_fleming_spending_values():
         stats.obrien_fleming_spending(0.0, a)
 
 
+def test_power_spending_values_and_named_spending_functions():
+    a = 0.01
+    assert stats.power_spending(0.25, a, 2.0) == pytest.approx(a / 16)
+    assert stats.power_spending(1.0, a, 1.5) == pytest.approx(a)
+    w = stats.spending_weights([1 / 4, 1 / 2, 1], a, "power:2")
+    assert w == pytest.approx([1 / 16, 3 / 16, 3 / 4])
+    assert stats.spending_weights([1 / 4, 1], a, "obrien-fleming") == pytest.approx(
+        stats.spending_weights([1 / 4, 1], a))
+    for bad in ["pocock", "power", "power:0", "power:-1", "power:x", ""]:
+        with pytest.raises(ValueError, match="spending="):
+            stats.spending_function(bad)
+    with pytest.raises(mv.InvalidArgument, match="spending="):
+        run_sequential(lambda b: pytest.fail("looked before checking its arguments"),
+                       batches=4, alpha=0.01, spending="power:0")
+
+
 def test_looks_double_up_to_the_budget():
     assert looks(16) == [1, 2, 4, 8, 16]
     assert looks(12) == [1, 2, 4, 8, 12]
@@ -47,21 +63,24 @@ def _z_streams(rng, n_streams, batches, drift=0.0):
     return np.cumsum(inc, axis=1) / np.sqrt(b)
 
 
+@pytest.mark.parametrize("spending", ["obrien-fleming", "power:2"])
 @pytest.mark.parametrize("alpha", [0.05, 0.01])
-def test_false_alarm_rate_of_null_z_streams_is_within_binomial_bounds(alpha):
+def test_false_alarm_rate_of_null_z_streams_is_within_binomial_bounds(alpha, spending):
     """20 000 seeded null streams, K = 16 batches, looks after 1, 2, 4, 8, 16: the
     rejection rate must not exceed α (one-sided 99.9 % binomial bound), and not fall
     below the final look's own level α − α(1/2) either (the rule is not over-cautious).
+    Both spending functions the project uses (checks: O'Brien–Fleming; the render
+    gate: power family ρ = 2).
     """
     n, k = 20_000, 16
     at = looks(k)
     z = _z_streams(np.random.default_rng(2026), n, k)[:, np.array(at) - 1]
     p = 2 * sps.norm.sf(np.abs(z))
-    w = stats.spending_weights([b / k for b in at], alpha)
+    w = stats.spending_weights([b / k for b in at], alpha, spending)
     p_seq = np.array([stats.sequential_p_value(row, w) for row in p])
     rejected = int(np.count_nonzero(p_seq <= alpha))
     assert rejected <= stats.binomial_upper_bound(n, alpha, 0.999), rejected
-    floor = alpha - stats.obrien_fleming_spending(0.5, alpha)
+    floor = alpha - stats.spending_function(spending)(0.5, alpha)
     assert rejected >= sps.binom.ppf(0.001, n, floor), (rejected, n * floor)
 
 

@@ -8,20 +8,32 @@ import mcverify as mv
 pytestmark = pytest.mark.mitsuba
 
 
-@pytest.mark.parametrize("plant,pdf_scale,decided_by", [
-    ({"albedo_scale": 1.1}, 1.0, 1), (None, 1.1, 1), ({"light_scale": 0.98}, 1.0, 1),
-    # +2 % light: z ≈ 8.7 on all 16 passes; O'Brien–Fleming spending stops at 1/4 only
-    # from z ≈ 4 · 2.58 = 10.3, so this one is decided at half the passes.
-    ({"light_scale": 1.02}, 1.0, 2),
-], ids=["albedo+10%", "wrong-pdf", "light-2%", "light+2%"])
-def test_planted_bugs_are_decided_early(plant, pdf_scale, decided_by):
+@pytest.mark.parametrize("plant,pdf_scale", [
+    ({"albedo_scale": 1.1}, 1.0), (None, 1.1), ({"light_scale": 0.98}, 1.0),
+], ids=["albedo+10%", "wrong-pdf", "light-2%"])
+def test_planted_bugs_are_decided_early(plant, pdf_scale):
     r = mv.render_check("cornell-box", seed=12, plant=plant, pdf_scale=pdf_scale)
     seq = r.details["sequential"]
-    assert not r.passed and seq["batches"] == 4 and seq["batch"] <= decided_by, seq
+    assert not r.passed and seq["batches"] == 4 and seq["batch"] == 1, seq
+    assert seq["spending"] == "power:2"
     assert r.details["ours_passes"] == 4 * seq["batch"]
     assert r.n_samples == 1024 * seq["batch"] // 4 * 64 * 64
     assert r.details["tests"] == ["global", "blocks"]          # early looks: pooled tests
     assert f"decided at batch {seq['batch']} of 4 (stopped early)" in r.messages
+
+
+def test_a_subtle_planted_bug_is_decided_on_a_quarter_of_the_passes_on_most_seeds():
+    """Light +2 %: z ≈ 8.7 on all 16 passes, about 4.4 on the first quarter, but image
+    means are heavy-tailed (caustics), so the first look's evidence scatters between
+    seeds. The claim is about the typical run: decided at batch 1 on at least half of 8
+    seeds (the median run stops at a quarter of the samples), never later than batch 2,
+    and never passed."""
+    batches = []
+    for seed in range(20, 28):
+        r = mv.render_check("cornell-box", seed=seed, plant={"light_scale": 1.02})
+        assert not r.passed, seed
+        batches.append(r.details["sequential"]["batch"])
+    assert batches.count(1) >= 4 and max(batches) <= 2, batches
 
 
 def test_a_correct_render_runs_every_pass_and_ends_with_the_pixel_tests():
@@ -31,3 +43,6 @@ def test_a_correct_render_runs_every_pass_and_ends_with_the_pixel_tests():
     assert r.details["tests"] == ["global", "blocks", "pixels"]
     assert r.details["ours_passes"] == 16 and not seq["stopped_early"]
     assert r.p_value >= min(seq["p_looks"])     # the sequential p-value is conservative
+    # how visible the remaining noise is, measured once on the deciding image
+    assert 0 < r.details["flip_mean"] < 0.2 and r.artifacts["flip"].shape == (64, 64)
+    assert r.details["delta_e2000_mean"] is not None

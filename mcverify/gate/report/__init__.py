@@ -139,11 +139,12 @@ def render_html(doc: dict, images: dict[str, bytes]) -> str:
         parts.append("<p>No render comparisons were run.</p>")
     else:
         parts.append("<p>Our path tracer against Mitsuba's reference, pixel by pixel "
-                     "(global, block and pixel tests at α/3 each). FLIP is not shown: the "
-                     "<code>flip-evaluator</code> package is not among the project's "
-                     "dependencies; ΔE2000 and ΔE ITP (colour-science) are.</p>")
+                     "(global, block and pixel tests at α/3 each). ΔE2000, ΔE ITP "
+                     "(colour-science) and HDR-FLIP (NVIDIA's <code>flip-evaluator</code>) "
+                     "size how visible a difference is; they decide nothing.</p>")
         parts.append("<table><tr><th>scene</th><th>verdict</th><th>p</th><th>found by</th>"
-                     "<th>relMSE</th><th>mean ΔE2000</th><th>mean ΔE ITP</th><th>ours</th><th>kernel</th>"
+                     "<th>relMSE</th><th>mean ΔE2000</th><th>mean ΔE ITP</th><th>mean FLIP</th>"
+                     "<th>ours</th><th>kernel</th>"
                      "<th>reference</th></tr>")
         for r in rrows:
             ref = r["reference"]
@@ -152,6 +153,7 @@ def render_html(doc: dict, images: dict[str, bytes]) -> str:
                 f"<td>{'pass' if r['passed'] else 'FAIL'}</td><td>{_fmt(r['p_value'])}</td>"
                 f"<td>{_e(', '.join(r['found_by']) or '-')}</td><td>{_fmt(r['relmse'])}</td>"
                 f"<td>{_fmt(r['delta_e2000_mean'])}</td><td>{_fmt(r['delta_e_itp_mean'])}</td>"
+                f"<td>{_fmt(r.get('flip_mean'))}</td>"
                 f"<td>{r['ours_passes']} passes, "
                 f"{r['ours_spp']} spp, {r['ours_seconds']:.2f} s</td><td>{_e(r['kernel'])}"
                 f"</td><td>Mitsuba {_e(ref['mitsuba_version'])} {_e(ref['mitsuba_variant'])},"

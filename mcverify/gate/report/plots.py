@@ -98,12 +98,12 @@ def _tonemap(img: np.ndarray, scale: float) -> np.ndarray:
 
 def render_panels(scene: str, a: dict) -> bytes:
     """Ours, Mitsuba (one exposure for both), |ours − Mitsuba| (max over channels), the
-    pixel test's BH-adjusted p-map (−log10 p), the ΔE2000 and ΔE ITP maps, each with its
+    pixel test's BH-adjusted p-map (−log10 p), the ΔE2000, ΔE ITP and HDR-FLIP maps, each with its
     colour bar."""
     plt = _plt()
     ours, theirs = np.asarray(a["ours"], float), np.asarray(a["mitsuba"], float)
     scale = max(float(np.percentile(theirs, 99)), 1e-12)
-    fig, axes = plt.subplots(1, 6, figsize=(20, 3.4))
+    fig, axes = plt.subplots(1, 7, figsize=(23, 3.4))
     for ax, img, t in ((axes[0], ours, "ours"), (axes[1], theirs, "Mitsuba")):
         ax.imshow(_tonemap(img, scale), interpolation="nearest")
         ax.set_title(t, fontsize=9)
@@ -112,7 +112,8 @@ def render_panels(scene: str, a: dict) -> bytes:
             (axes[3], -np.log10(np.clip(np.asarray(a["p_map"], float), 1e-12, 1.0)),
              "pixel test: −log10 p (BH-adjusted)", "viridis", (0, 6)),
             (axes[4], a.get("delta_e"), "ΔE2000", "inferno", None),
-            (axes[5], a.get("delta_itp"), "ΔE ITP (100 cd/m² white)", "inferno", None))
+            (axes[5], a.get("delta_itp"), "ΔE ITP (100 cd/m² white)", "inferno", None),
+            (axes[6], a.get("flip"), "HDR-FLIP", "magma", (0, 1)))
     for ax, img, t, cmap, lim in maps:
         if img is None:
             ax.set_axis_off()

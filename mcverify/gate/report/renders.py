@@ -1,5 +1,5 @@
 """The render part of a report: per reference scene, the render gate's verdict with its
-images (ours, Mitsuba, difference, p-map, ΔE2000, ΔE ITP), and error against spp and against
+images (ours, Mitsuba, difference, p-map, ΔE2000, ΔE ITP, FLIP), and error against spp and against
 seconds for both renderers (RMSE against the reference, the reference's own noise
 subtracted).
 """
@@ -46,6 +46,7 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
                      "found_by": d["found_by"], "relmse": d["relmse"],
                      "delta_e2000_mean": d.get("delta_e2000_mean"),
                      "delta_e_itp_mean": d.get("delta_e_itp_mean"),
+                     "flip_mean": d.get("flip_mean"),
                      "ours_spp": d["ours_spp"], "ours_passes": d["ours_passes"],
                      "ours_seconds": d["ours_seconds"], "kernel": d["ours_kernel"],
                      "reference": {k: d["reference"].get(k) for k in
@@ -53,7 +54,8 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
                      "curve": curve})
         a = check.artifacts
         arrays[name] = {"ours": a["ours"], "mitsuba": a["mitsuba"], "p_map": a["p_map"],
-                        "delta_e": a.get("delta_e2000"), "delta_itp": a.get("delta_e_itp")}
+                        "delta_e": a.get("delta_e2000"), "delta_itp": a.get("delta_e_itp"),
+                        "flip": a.get("flip")}
         if progress:
             progress(i + 1, len(scenes), check)
     return rows, arrays

@@ -1,0 +1,329 @@
+"""PLY triangle meshes, read as Mitsuba 3's ``ply`` shape reads them.
+
+Formats ``ascii``, ``binary_little_endian`` and ``binary_big_endian`` (version 1.0), the
+scalar types of the PLY standard and Mitsuba's aliases (``uint8`` ... ``float64``,
+``half``). What a render uses:
+
+- ``vertex``: ``x, y, z``; vertex normals ``nx, ny, nz`` when all three are present;
+  texture coordinates ``texture_u, texture_v``, ``s, t`` or ``u, v`` (Mitsuba's names),
+  taken as they are (a PLY's v is not flipped, unlike an OBJ's).
+- ``face``: the list ``vertex_indices`` (or ``vertex_index``), triangles only: Mitsuba
+  declares the list with a fixed count of 3 and refuses any other, so a polygon is
+  refused here too (triangulate the mesh first).
+- Other vertex and face properties (colours, custom attributes) and other elements are
+  read past and ignored: they change no image unless a texture reads them, which the
+  tracer does not support.
+
+Refused, with ``SceneError`` naming the file and what is wrong: a malformed header, a
+truncated body, trailing content after the last element (Mitsuba refuses it too),
+non-triangle faces, vertex indices out of range, non-finite positions, positions,
+normals or uv stored as integers (Mitsuba would read them normalised to [0, 1] through
+an sRGB curve), a list property other than the face's indices, and two sets of uv names
+in one file. The file's size is capped by the caller (``scene.MAX_ASSET_BYTES``).
+
+A reader of our own rather than ``plyfile``: the rules above are Mitsuba's, not the PLY
+standard's (which allows polygons and integer coordinates), so they would have to be
+checked on top of any general reader; with fixed three-index faces every element is a
+fixed-size record, which numpy's structured dtypes read in one call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import SceneError
+
+__all__ = ["PlyMesh", "read_ply", "write_ply"]
+
+# PLY type names (standard and Mitsuba's aliases) -> numpy type codes
+_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+          "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+          "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+          "long": "i8", "ulong": "u8", "half": "f2", "float16": "f2",
+          "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
+_UV_NAMES = (("texture_u", "texture_v"), ("s", "t"), ("u", "v"))   # Mitsuba's order
+_INDEX_LISTS = ("vertex_indices", "vertex_index")
+
+
+@dataclass
+class PlyMesh:
+    """Vertices (n, 3), triangles (m, 3) as vertex indices, and the optional per-vertex
+    normals (n, 3) and texture coordinates (n, 2), all float64 / int64."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None
+    uvs: np.ndarray | None
+
+
+@dataclass
+class _Element:
+    name: str
+    count: int
+    props: list          # (name, type code, is_list, count type code)
+
+
+def _header(data: bytes, path: str) -> tuple[str | None, list, int]:
+    """(byte order or None for ascii, elements, offset of the body)."""
+    def fail(msg):
+        raise SceneError(f"{path}: not a PLY file Mitsuba reads: {msg}")
+
+    lines, pos = [], 0
+    while True:                         # header lines up to the one that says end_header
+        nl = data.find(b"\n", pos)
+        if nl < 0:
+            fail("no end_header line")
+        lines.append(data[pos:nl])
+        pos = nl + 1
+        if lines[-1].strip() == b"end_header":
+            break
+    try:
+        lines = [line.decode("ascii") for line in lines[:-1]]
+    except UnicodeDecodeError:
+        fail("the header is not ASCII text")
+    if lines[0].strip() != "ply":
+        fail("the first line must be 'ply'")
+    order = "missing"
+    elements: list[_Element] = []
+    for number, line in enumerate(lines[1:], 2):
+        tokens = line.split()
+        if not tokens or tokens[0] == "comment":
+            continue
+        where = f"header line {number} ({line.strip()!r})"
+        if tokens[0] == "format":
+            if order != "missing" or len(tokens) != 3 or tokens[1] not in _FORMATS:
+                fail(f"{where}: expected one 'format <{'|'.join(_FORMATS)}> 1.0'")
+            if tokens[2] != "1.0":
+                fail(f"{where}: version {tokens[2]!r}; only 1.0 exists")
+            order = _FORMATS[tokens[1]]
+        elif tokens[0] == "element":
+            if len(tokens) != 3 or not tokens[2].isdigit():
+                fail(f"{where}: expected 'element <name> <count>'")
+            elements.append(_Element(tokens[1], int(tokens[2]), []))
+        elif tokens[0] == "property":
+            if order == "missing" or not elements:
+                fail(f"{where}: a property before 'format' or 'element'")
+            if tokens[1:2] == ["list"]:
+                if len(tokens) != 5:
+                    fail(f"{where}: expected 'property list <count type> <type> <name>'")
+                count_type, item_type, name = tokens[2:]
+                is_list = True
+            else:
+                if len(tokens) != 3:
+                    fail(f"{where}: expected 'property <type> <name>'")
+                count_type, (item_type, name), is_list = None, tokens[1:], False
+            for t in (count_type, item_type):
+                if t is not None and t not in _TYPES:
+                    fail(f"{where}: unknown type {t!r}; supported: {', '.join(_TYPES)}")
+            if name in {p[0] for p in elements[-1].props}:
+                fail(f"{where}: property {name!r} twice")
+            elements[-1].props.append((name, _TYPES[item_type], is_list,
+                                       count_type and _TYPES[count_type]))
+        else:
+            fail(f"{where}: unknown keyword {tokens[0]!r}")
+    if order == "missing":
+        fail("no 'format' line")
+    return order, elements, pos
+
+
+def _dtype(el: _Element, order: str) -> np.dtype:
+    """One record of ``el``: a list property is its count and three items."""
+    fields = []
+    for name, code, is_list, count_code in el.props:
+        if is_list:
+            fields.append((f"{name}.count", order + count_code))
+            fields += [(f"{name}.{k}", order + code) for k in range(3)]
+        else:
+            fields.append((name, order + code))
+    return np.dtype(fields)
+
+
+def _lists_are_triangles(el: _Element, records: np.ndarray, path: str):
+    """Mitsuba declares every list with a fixed count of 3 and refuses other counts."""
+    for name, _, is_list, _ in el.props:
+        counts = records[f"{name}.count"] if is_list else None
+        if counts is not None and np.any(counts != 3):
+            k = int(np.argmax(counts != 3))
+            raise SceneError(f"{path}: {el.name} {k} has {int(counts[k])} vertices; Mitsuba "
+                             "reads triangles only (triangulate the mesh)")
+
+
+def _read_binary(data, offset, elements, order, path):
+    records = {}
+    for el in elements:
+        dt = _dtype(el, order)
+        need = dt.itemsize * el.count
+        full = min(el.count, (len(data) - offset) // max(dt.itemsize, 1))
+        records[el.name] = np.frombuffer(data, dt, full, offset)
+        _lists_are_triangles(el, records[el.name], path)
+        if full < el.count:
+            raise SceneError(f"{path}: truncated: element {el.name!r} needs {need} bytes "
+                             f"({el.count} records of {dt.itemsize}), {len(data) - offset} "
+                             "are left")
+        offset += need
+    if offset != len(data):
+        raise SceneError(f"{path}: {len(data) - offset} bytes of trailing content after "
+                         "the last element (Mitsuba refuses such a file)")
+    return records
+
+
+def _read_ascii(data, offset, elements, path):
+    tokens = data[offset:].split()
+    records = {}
+    pos = 0
+    for el in elements:
+        dt = _dtype(el, "=")
+        width = len(dt.names)
+        full = min(el.count, (len(tokens) - pos) // max(width, 1))
+        block = tokens[pos:pos + width * full]
+        try:
+            values = np.array(block, dtype=np.float64).reshape(full, width)
+        except ValueError:
+            bad = next(t for t in block if not _is_number(t))
+            raise SceneError(f"{path}: element {el.name!r}: {bad[:40]!r} is not a number"
+                             ) from None
+        out = np.zeros(full, dt)
+        for k, name in enumerate(dt.names):
+            column = values[:, k]
+            if dt[name].kind in "iu":
+                info = np.iinfo(dt[name])
+                wrong = ~((column == np.round(column)) & (column >= info.min)
+                          & (column <= info.max))
+                if wrong.any():
+                    j = int(np.argmax(wrong))
+                    raise SceneError(f"{path}: element {el.name!r}, record {j}: {name} = "
+                                     f"{column[j]!r} is not a {dt[name]}")
+            out[name] = column
+        _lists_are_triangles(el, out, path)
+        if full < el.count:
+            raise SceneError(f"{path}: truncated: element {el.name!r} needs "
+                             f"{width * el.count} numbers ({el.count} records of {width}), "
+                             f"{len(tokens) - pos} are left")
+        records[el.name] = out
+        pos += width * el.count
+    if pos != len(tokens):
+        raise SceneError(f"{path}: {len(tokens) - pos} numbers of trailing content after "
+                         "the last element (Mitsuba refuses such a file)")
+    return records
+
+
+def _is_number(token: bytes) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def read_ply(path: str) -> PlyMesh:
+    """Read a PLY triangle mesh; ``SceneError`` naming the file and the problem."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        raise SceneError(f"cannot read {path} ({e.strerror})") from None
+    order, elements, offset = _header(data, path)
+    byname = {el.name: el for el in elements}
+    for need in ("vertex", "face"):
+        if need not in byname:
+            raise SceneError(f"{path}: no {need!r} element")
+    for el in elements:
+        lists = [p[0] for p in el.props if p[2]]
+        if lists and not (el.name == "face" and lists in ([n] for n in _INDEX_LISTS)):
+            raise SceneError(f"{path}: element {el.name!r} has the list property "
+                             f"{lists[-1]!r}; the only list Mitsuba reads is the face's "
+                             f"{' or '.join(_INDEX_LISTS)}")
+    if not any(p[2] for p in byname["face"].props):
+        raise SceneError(f"{path}: the face element has no vertex_indices list")
+    records = (_read_ascii(data, offset, elements, path) if order is None
+               else _read_binary(data, offset, elements, order, path))
+    return _mesh(records["vertex"], records["face"], path)
+
+
+def _floats(vertex, names, path):
+    for n in names:
+        if vertex.dtype[n].kind != "f":
+            raise SceneError(f"{path}: vertex property {n!r} is {vertex.dtype[n]} (integer); "
+                             "Mitsuba reads integer vertex data normalised to [0, 1] through "
+                             "an sRGB curve: store float, double or half")
+    return np.stack([vertex[n].astype(np.float64) for n in names], axis=1)
+
+
+def _mesh(vertex, face, path) -> PlyMesh:
+    names = set(vertex.dtype.names)
+    if not {"x", "y", "z"} <= names:
+        raise SceneError(f"{path}: the vertex element needs properties x, y and z")
+    verts = _floats(vertex, "xyz", path)
+    if not np.all(np.isfinite(verts)):
+        raise SceneError(f"{path}: vertex {int(np.argmax(~np.isfinite(verts).all(1)))} "
+                         "has a non-finite position")
+    normals = (_floats(vertex, ("nx", "ny", "nz"), path)
+               if {"nx", "ny", "nz"} <= names else None)
+    uv_sets = [pair for pair in _UV_NAMES if set(pair) <= names]
+    if len(uv_sets) > 1:
+        raise SceneError(f"{path}: texture coordinates named both {uv_sets[0]} and "
+                         f"{uv_sets[1]}; Mitsuba's choice between them is undefined: keep one")
+    uvs = _floats(vertex, uv_sets[0], path) if uv_sets else None
+    key = next(n for n in _INDEX_LISTS if f"{n}.count" in face.dtype.names)
+    faces = np.stack([face[f"{key}.{k}"].astype(np.int64) for k in range(3)], axis=1)
+    if len(faces) == 0:
+        raise SceneError(f"{path}: no faces")
+    bad = (faces < 0) | (faces >= len(verts))
+    if bad.any():
+        k = int(np.argmax(bad.any(axis=1)))
+        raise SceneError(f"{path}: face {k} refers to vertex {int(faces[k][bad[k]][0])}; "
+                         f"the file has {len(verts)} vertices")
+    return PlyMesh(verts, faces, normals, uvs)
+
+
+def write_ply(path: str, vertices, faces, *, normals=None, uvs=None, uv_names=("u", "v"),
+              fmt: str = "binary_little_endian", vertex_type: str = "float",
+              index_type: str = "int", count_type: str = "uchar") -> None:
+    """Write a triangle mesh as PLY (``fmt`` ascii, binary_little_endian or
+    binary_big_endian; ``vertex_type`` float or double for positions, normals and uv).
+    ASCII numbers are written with 17 significant digits: read back, they are the
+    values written, rounded once to ``vertex_type``."""
+    if fmt not in _FORMATS:
+        raise ValueError(f"fmt={fmt!r}; one of {', '.join(_FORMATS)}")
+    for name, t in (("vertex_type", vertex_type), ("index_type", index_type),
+                    ("count_type", count_type)):
+        if t not in _TYPES:
+            raise ValueError(f"{name}={t!r}; one of {', '.join(_TYPES)}")
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    columns = [("x", v[:, 0]), ("y", v[:, 1]), ("z", v[:, 2])]
+    if normals is not None:
+        n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+        columns += [("nx", n[:, 0]), ("ny", n[:, 1]), ("nz", n[:, 2])]
+    if uvs is not None:
+        t = np.asarray(uvs, dtype=np.float64).reshape(-1, 2)
+        columns += [(uv_names[0], t[:, 0]), (uv_names[1], t[:, 1])]
+    header = [b"ply", f"format {fmt} 1.0".encode(), f"element vertex {len(v)}".encode()]
+    header += [f"property {vertex_type} {name}".encode() for name, _ in columns]
+    header += [f"element face {len(f)}".encode(),
+               f"property list {count_type} {index_type} vertex_indices".encode(),
+               b"end_header"]
+    order = _FORMATS[fmt] or "="
+    vertex = _dtype(_Element("vertex", len(v),
+                             [(name, _TYPES[vertex_type], False, None) for name, _ in columns]),
+                    order)
+    face = _dtype(_Element("face", len(f), [("vertex_indices", _TYPES[index_type], True,
+                                             _TYPES[count_type])]), order)
+    vrec, frec = np.zeros(len(v), vertex), np.zeros(len(f), face)
+    for name, values in columns:
+        vrec[name] = values
+    frec["vertex_indices.count"] = 3
+    for k in range(3):
+        frec[f"vertex_indices.{k}"] = f[:, k]
+    with open(path, "wb") as out:
+        out.write(b"\n".join(header) + b"\n")
+        if fmt != "ascii":
+            out.write(vrec.tobytes() + frec.tobytes())
+            return
+        for rec in (vrec, frec):
+            for row in rec.tolist():
+                out.write(" ".join(repr(x) if isinstance(x, float) else str(x)
+                                   for x in row).encode() + b"\n")

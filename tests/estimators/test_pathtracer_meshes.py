@@ -1,0 +1,208 @@
+"""PLY meshes: every format reads the same mesh, a PLY that Mitsuba wrote reads as Mitsuba
+holds it, bad files are refused naming the file and the problem (and Mitsuba refuses
+them too), and the same mesh as OBJ and as PLY renders bit-identically in our tracer.
+The (u, v) and shading normals at hits are compared with Mitsuba in
+``test_pathtracer_textures.py::test_uv_at_a_hit_matches_mitsuba``."""
+
+import numpy as np
+import pytest
+
+from estimators.pathtracer import prepare_scene, render
+from estimators.pathtracer.meshes import read_ply, write_ply
+from estimators.pathtracer.scene import SceneError
+
+FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
+
+# a bent 3 × 3 grid: distinct dyadic positions, normals and uv (exact in float32 and in
+# decimal, so OBJ, whose v is flipped on reading, and PLY hold the very same numbers)
+_G = np.array([-1.0, 0.0, 1.0])
+_VERTS = np.array([[x, y, 0.25 * x * y + 0.125 * y] for y in _G for x in _G])
+_NORMALS = np.array([[-0.25 * y, -0.25 * x - 0.125, 1.0] for y in _G for x in _G])
+_UVS = (_VERTS[:, :2] + 1) / 2
+_FACES = np.array([[r * 3 + c, r * 3 + c + 1, r * 3 + c + 4] for r in range(2) for c in range(2)]
+                  + [[r * 3 + c, r * 3 + c + 4, r * 3 + c + 3] for r in range(2) for c in range(2)])
+
+
+@pytest.mark.parametrize("vertex_type", ["float", "double"])
+def test_every_format_reads_the_mesh_written(tmp_path, vertex_type):
+    rng = np.random.default_rng(1)
+    v, n, uv = rng.normal(size=(7, 3)), rng.normal(size=(7, 3)), rng.random((7, 2))
+    f = rng.integers(0, 7, (5, 3))
+    cast = np.float32 if vertex_type == "float" else np.float64
+    for fmt in FORMATS:
+        for names in (("u", "v"), ("s", "t"), ("texture_u", "texture_v")):
+            path = tmp_path / f"{fmt}-{names[0]}.ply"
+            write_ply(str(path), v, f, normals=n, uvs=uv, uv_names=names, fmt=fmt,
+                      vertex_type=vertex_type)
+            m = read_ply(str(path))
+            np.testing.assert_array_equal(m.vertices, v.astype(cast))
+            np.testing.assert_array_equal(m.normals, n.astype(cast))
+            np.testing.assert_array_equal(m.uvs, uv.astype(cast))
+            np.testing.assert_array_equal(m.faces, f)
+    bare = read_ply(str(_written(tmp_path, "bare.ply", "ascii", normals=False, uvs=False)))
+    assert bare.normals is None and bare.uvs is None
+
+
+@pytest.mark.parametrize("newline", [b"\n", b"\r\n"])
+def test_header_comments_empty_elements_and_line_ends(tmp_path, newline):
+    """A comment that mentions end_header, an element without properties and one with
+    properties the tracer ignores (read past), CRLF line ends."""
+    text = (b"ply\nformat ascii 1.0\ncomment end_header is the last line\n"
+            b"element vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            b"property uchar red\nelement empty 2\nelement face 1\n"
+            b"property list uchar int vertex_indices\nproperty float quality\n"
+            b"element edge 1\nproperty int a\nproperty int b\nend_header\n"
+            b"0 0 0 255\n1 0 0 0\n0 1 0.5 7\n3 0 1 2 0.25\n0 1\n")
+    path = tmp_path / "m.ply"
+    path.write_bytes(text.replace(b"\n", newline))
+    m = read_ply(str(path))
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0.5]])
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2]])
+
+
+@pytest.mark.mitsuba
+def test_a_ply_that_mitsuba_wrote_reads_as_mitsuba_holds_it(mi, tmp_path):
+    """An independent writer: Mitsuba's ``Mesh.write_ply`` (binary, with its own header
+    layout) of a mesh with normals and uv."""
+    path = tmp_path / "grid.obj"
+    path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in _VERTS)
+                    + "".join(f"vn {x} {y} {z}\n" for x, y, z in _NORMALS)
+                    + "".join(f"vt {u} {v}\n" for u, v in _UVS)
+                    + "".join("f " + " ".join(f"{i + 1}/{i + 1}/{i + 1}" for i in face) + "\n"
+                              for face in _FACES))
+    mesh = mi.load_dict({"type": "obj", "filename": str(path)})
+    mesh.write_ply(str(tmp_path / "mitsuba.ply"))
+    ours = read_ply(str(tmp_path / "mitsuba.ply"))
+    np.testing.assert_array_equal(ours.vertices.ravel(), np.array(mesh.vertex_positions_buffer()))
+    np.testing.assert_array_equal(ours.normals.ravel(), np.array(mesh.vertex_normals_buffer()))
+    np.testing.assert_array_equal(ours.uvs.ravel(), np.array(mesh.vertex_texcoords_buffer()))
+    np.testing.assert_array_equal(ours.faces.ravel(), np.array(mesh.faces_buffer()))
+
+
+def _written(folder, name, fmt, *, normals=True, uvs=True, **kw):
+    path = folder / name
+    write_ply(str(path), _VERTS, _FACES, normals=_NORMALS if normals else None,
+              uvs=_UVS if uvs else None, fmt=fmt, **kw)
+    return path
+
+
+def _quad_face(text: bytes) -> bytes:
+    """The last face made a quad (ASCII)."""
+    head, last = text.rstrip(b"\n").rsplit(b"\n", 1)
+    return head + b"\n" + last.replace(b"3 ", b"4 ", 1) + b" 0\n"
+
+
+def _bad(fmt, edit):
+    def make(folder):
+        path = _written(folder, f"bad-{fmt}.ply", fmt)
+        path.write_bytes(edit(path.read_bytes()))
+        return path
+    return make
+
+
+BAD = {
+    "truncated-binary": (_bad("binary_little_endian", lambda b: b[:-7]), "truncated", True),
+    "truncated-ascii": (_bad("ascii", lambda b: b.rsplit(b" ", 2)[0]), "truncated", True),
+    "quad-ascii": (_bad("ascii", _quad_face), "has 4 vertices", True),
+    "quad-binary": (_bad("binary_big_endian",
+                         lambda b: b[:-13] + b"\x04" + b[-12:] + b"\x00\x00\x00\x00"),
+                    "has 4 vertices", True),
+    "trailing-content": (_bad("binary_little_endian", lambda b: b + b"\x00" * 8),
+                         "trailing content", True),
+    "integer-positions": (lambda folder: _written(folder, "int.ply", "ascii", normals=False,
+                                                  uvs=False, vertex_type="int"),
+                          "'x' is int32 (integer)", False),
+    "unknown-type": (_bad("ascii", lambda b: b.replace(b"property float x",
+                                                       b"property float128 x")),
+                     "unknown type 'float128'", True),
+    "index-out-of-range": (_bad("ascii", lambda b: b.rstrip(b"\n")[:-1] + b"9\n"),
+                           "refers to vertex 9", False),
+    "no-end-header": (_bad("ascii", lambda b: b.replace(b"end_header", b"end")),
+                      "no end_header", True),
+    "extra-list": (_bad("ascii", lambda b: b.replace(
+        b"property float x", b"property list uchar int x")), "list property 'x'", False),
+    "two-uv-names": (_bad("ascii", lambda b: b.replace(b"property float nx",
+                                                       b"property float s").replace(
+        b"property float ny", b"property float t")), "texture coordinates named", False),
+    "non-finite": (_bad("ascii", lambda b: b.replace(b"end_header\n-1.0", b"end_header\nnan")),
+                   "non-finite position", True),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_files_are_refused_naming_the_file(tmp_path, case):
+    make, needle, _ = BAD[case]
+    path = make(tmp_path)
+    with pytest.raises(SceneError) as e:
+        read_ply(str(path))
+    assert str(path) in str(e.value) and needle in str(e.value), str(e.value)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("case", sorted(c for c in BAD if BAD[c][2]))
+def test_mitsuba_refuses_them_too(mi, tmp_path, case):
+    """What we refuse as Mitsuba's rule (triangles only, no trailing content...), Mitsuba
+    refuses as well; the others are files Mitsuba reads differently or not reliably."""
+    path = BAD[case][0](tmp_path)
+    with pytest.raises(Exception):
+        mi.load_dict({"type": "ply", "filename": str(path)})
+
+
+def test_a_ply_shape_names_the_scene_line_and_the_file(tmp_path):
+    path = BAD["quad-ascii"][0](tmp_path)
+    scene = tmp_path / "s.xml"
+    scene.write_text(_SCENE.format(mesh=f'<shape type="ply"><string name="filename" '
+                                        f'value="{path.name}"/></shape>'))
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(scene))
+    assert f"{scene}:8" in str(e.value) and '<shape type="ply">' in str(e.value)
+
+
+_SCENE = """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective"><float name="fov" value="50"/>
+    <transform name="to_world">
+      <lookat origin="0.5, -2, 2.5" target="0, 0, 0" up="0, 0, 1"/></transform>
+    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="12"/>
+    <rfilter type="box"/></film></sensor>
+  {mesh}
+  <emitter type="point"><point name="position" x="1" y="-1" z="3"/>
+    <rgb name="intensity" value="8, 6, 4"/></emitter>
+</scene>"""
+
+
+def _obj_text(normals, uvs):
+    """The grid as OBJ: v flipped (Mitsuba reads an OBJ's v as 1 - v, a PLY's as is)."""
+    lines = ["v %r %r %r" % tuple(map(float, p)) for p in _VERTS]
+    lines += ["vn %r %r %r" % tuple(map(float, n)) for n in _NORMALS] if normals else []
+    lines += ["vt %r %r" % (float(u), float(1 - v)) for u, v in _UVS] if uvs else []
+    ref = "{0}/{0}/{0}" if normals and uvs else "{0}"
+    lines += ["f " + " ".join(ref.format(i + 1) for i in face) for face in _FACES]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("with_attributes", [True, False], ids=["normals-uv", "bare"])
+def test_the_same_mesh_as_obj_and_as_ply_renders_identically(tmp_path, with_attributes):
+    """The grid, transformed, with given normals and uv or with neither (smooth normals
+    and barycentric uv computed): OBJ and each PLY format give the same triangles, bit
+    for bit, and so the same image."""
+    (tmp_path / "grid.obj").write_text(_obj_text(with_attributes, with_attributes))
+    transform = ('<transform name="to_world"><scale x="1.3" y="0.8"/>'
+                 '<rotate z="1" angle="20"/></transform>')
+    bsdf = ('<bsdf type="roughplastic"><float name="alpha" value="0.3"/>'
+               '<rgb name="diffuse_reflectance" value="0.6, 0.4, 0.2"/></bsdf>')
+    images, prims = {}, {}
+    for name in ("grid.obj", *(_written(tmp_path, f"grid-{fmt}.ply", fmt,
+                                        normals=with_attributes, uvs=with_attributes).name
+                               for fmt in FORMATS)):
+        kind = name.rsplit(".", 1)[1]
+        scene = tmp_path / f"{name}.xml"
+        scene.write_text(_SCENE.format(mesh=f'<shape type="{kind}"><string name="filename" '
+                                            f'value="{name}"/>{transform}{bsdf}</shape>'))
+        cs = prepare_scene(str(scene))
+        prims[name] = cs.arrays.prims
+        images[name] = render(cs, spp=4, seed=3).mean
+    assert images["grid.obj"].max() > 0
+    for name in prims:
+        np.testing.assert_array_equal(prims[name], prims["grid.obj"], err_msg=name)
+        np.testing.assert_array_equal(images[name], images["grid.obj"], err_msg=name)
