@@ -7,6 +7,12 @@
 - ``depth 1`` / ``depth 2`` / ``full``: the render with ``max_depth`` cut to 1 (camera
   rays and what they see), 2 (plus one bounce: next-event estimation, one BSDF sample,
   one more ray) and the scene's own, best of 3, compilation excluded.
+
+With ``--variance`` it answers instead whether a scene's equal-time error is a speed or a
+variance matter: our per-sample variance against Mitsuba's (the reference's), per pixel
+block, at the reference's resolution and number of passes (``--spp`` per pass):
+
+    python benchmarks/profile_tracer.py veach-mis --variance
 """
 
 import argparse
@@ -18,7 +24,7 @@ from numba import njit, prange
 
 from estimators.pathtracer import geometry, prepare_scene, render
 from estimators.pathtracer.camera import _generate_ray_kernel
-from mcverify.gate.reference import resolve_scene
+from mcverify.gate.reference import load_reference, resolve_scene
 
 SCENES = ("cornell-box", "bunny", "glass-sphere", "envmap")
 
@@ -38,11 +44,41 @@ def _cast_kernel(nodes, leaf, leaf_info, cam, width, height, repeats):
     return hits
 
 
+def variance_ratio(name: str, spp: int, block: int = 8) -> str:
+    """Per-sample variance ours / reference (Mitsuba's): a pass mean of n samples has the
+    per-sample variance / n, so each side's variance across passes times its samples per
+    pass. Reported per block of pixels (blocks where the reference has no variance are
+    left out, as is any pixel row or column beyond the last whole block): the median and quartiles of the block ratios (heavy-tailed pixels, a
+    firefly, move one block, not the summary), and the ratio of whole-image sums."""
+    path = resolve_scene(name)[1]
+    ref = load_reference(path)
+    ref_spp = int(ref.manifest["spp"])
+    ours = render(path, spp=spp * ref.n, passes=ref.n, seed=11)
+    v_ours = ours.variance.astype(np.float64).mean(axis=-1) * spp
+    v_ref = np.asarray(ref.var, dtype=np.float64).mean(axis=-1) * ref_spp
+    h, w = (s - s % block for s in v_ref.shape)
+    blocks = [v[:h, :w].reshape(h // block, block, w // block, block).sum(axis=(1, 3))
+              for v in (v_ours, v_ref)]
+    keep = blocks[1] > 0.0
+    r = blocks[0][keep] / blocks[1][keep]
+    q1, med, q3 = np.percentile(r, [25, 50, 75])
+    mean_ratio = ours.mean.astype(np.float64).sum() / np.asarray(ref.mean, np.float64).sum()
+    return (f"{name}: per-sample variance ours / Mitsuba, {keep.sum()} blocks of {block}x"
+            f"{block} px: median {med:.2f} (quartiles {q1:.2f}-{q3:.2f}), whole image "
+            f"{v_ours.sum() / v_ref.sum():.2f}; mean ours / reference {mean_ratio:.4f} "
+            f"({ref.n} passes: ours {spp} spp each, Mitsuba {ref_spp})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("scenes", nargs="*", default=list(SCENES))
     ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--variance", action="store_true")
     a = ap.parse_args()
+    if a.variance:
+        for name in a.scenes:
+            print(variance_ratio(name, a.spp), flush=True)
+        return
     for name in a.scenes:
         cs = prepare_scene(resolve_scene(name)[1], params={"res": 128})
         sa, cam = cs.arrays, cs.camera.params
