@@ -26,8 +26,9 @@ from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_envi
 from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
                                             surface, to_local, to_world)
 from estimators.pathtracer.layout import (ALL_BSDF_FEATURES, ALL_FEATURES, F_AREA_LIGHTS,
-                                          F_ENV, F_MANY_LIGHTS, F_NONDELTA_LIGHTS, LIGHT_KIND,
-                                          LIGHT_RADIANCE, PRIM_SHAPE)
+                                          F_ENV, F_MANY_LIGHTS, F_NONDELTA_LIGHTS,
+                                          F_NULL_BSDFS, LIGHT_KIND, LIGHT_RADIANCE,
+                                          PRIM_SHAPE)
 
 # --- features (rewritten by render.specialised_kernel) ---
 FEATURES = -1
@@ -94,6 +95,10 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     ppx, ppy, ppz = ox, oy, oz
     depth = 0
     t_min = 0.0
+    # Mitsuba's valid_ray: a path that only passed through null BSDF components (a mask's
+    # transparent part, a thin dielectric's transmission) counts only if the environment
+    # is visible to camera rays, or it ends on an emitter (at max_depth) that is not hidden
+    valid = not (MASK & F_NULL_BSDFS) or (env >= 0 and not hide)
     while True:
         t, j, b1, b2 = intersect(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz,
                                  t_min, t_max)
@@ -134,6 +139,9 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                     rg += tg * light_f[k, LIGHT_RADIANCE + 1] * w
                     rb += tb * light_f[k, LIGHT_RADIANCE + 2] * w
         if depth + 1 >= max_depth:
+            if MASK & F_NULL_BSDFS and MASK & F_AREA_LIGHTS and shape_light[shape] >= 0 \
+                    and not hide:
+                valid = True
             break
         b = shape_bsdf[shape]
         fs, ft = coordinate_system(sx, sy, sz)
@@ -178,8 +186,10 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
         u0, state = _next(state)
         u1, state = _next(state)
         u2, state = _next(state)
-        (wx, wy, wz, wr, wg, wb, pdf, delta, eta_k) = bsdf_sample(
+        (wx, wy, wz, wr, wg, wb, pdf, delta, eta_k, null) = bsdf_sample(
             BSDF_MASK, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale)
+        if not null:
+            valid = True
         if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
             break
         tr, tg, tb = tr * wr, tg * wg, tb * wb
@@ -196,6 +206,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
             if ur >= q:
                 break
             tr, tg, tb = tr / q, tg / q, tb / q
+    if not valid:
+        return 0.0, 0.0, 0.0, state
     return rr, rg, rb, state
 
 

@@ -26,11 +26,14 @@ from numba import njit
 from ..warps import (beckmann_pdf_kernel, cosine_hemisphere_pdf_kernel, ggx_d,
                      sample_beckmann_kernel, sample_cosine_hemisphere_kernel,
                      sample_ggx_vndf_kernel)
-from .layout import (ALPHA, BSDF_DISTRIBUTION, BSDF_KIND, BSDF_NONLINEAR, BSDF_TWOSIDED,
-                     COAT_INTERNAL, COAT_TABLE, COAT_TABLE_RES, COLOR0, COLOR1, COND_ETA,
-                     COND_K, CONDUCTOR, DIELECTRIC, DIFFUSE, ETA, F_CONDUCTOR, F_DIELECTRIC,
-                     F_DIFFUSE, F_PLASTIC, F_ROUGHCONDUCTOR, F_ROUGHPLASTIC, F_TEXTURES,
-                     F_TWOSIDED, GGX, PLASTIC, ROUGHCONDUCTOR, ROUGHPLASTIC, SPECULAR_WEIGHT)
+from .layout import (ALPHA, BLEND, BSDF_CHILD0, BSDF_CHILD1, BSDF_DISTRIBUTION,
+                     BSDF_KIND, BSDF_NONLINEAR, BSDF_TWOSIDED, COAT_INTERNAL, COAT_TABLE,
+                     COAT_TABLE_RES, COLOR0, COLOR1, COND_ETA, COND_K, CONDUCTOR, DIELECTRIC,
+                     DIFFUSE, ETA, F_BLEND, F_CONDUCTOR, F_DIELECTRIC, F_DIFFUSE, F_MASK,
+                     F_PLASTIC, F_ROUGHCONDUCTOR, F_ROUGHDIELECTRIC, F_ROUGHPLASTIC,
+                     F_TEXTURES, F_THINDIELECTRIC, F_TWOSIDED, GGX, MASK, MIX, PLASTIC,
+                     ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPECULAR_WEIGHT,
+                     THINDIELECTRIC)
 from .textures import eval_texture
 
 __all__ = ["bsdf_eval", "bsdf_sample", "bsdf_is_smooth", "rough_coat_tables",
@@ -145,9 +148,20 @@ def _reflect(w, m):
 
 @_jit
 def sample_microfacet(wi, alpha, dist, u0, u1):
+    """A microfacet normal for ``wi`` (z > 0): visible normals for GGX, D cos θ_m for
+    Beckmann; its density is ``microfacet_pdf``."""
     if dist == GGX:
         return sample_ggx_vndf_kernel((u0, u1), (alpha, wi[0], wi[1], wi[2]))
     return sample_beckmann_kernel((u0, u1), (alpha,))
+
+
+@_jit
+def microfacet_pdf(wi, m, alpha, dist):
+    """Density (solid angle of m) of ``sample_microfacet(wi, ...)``."""
+    d = microfacet_d(m, alpha, dist)
+    if dist == GGX:
+        return d * smith_g1(wi, m, alpha, dist) * max(_dot(wi, m), 0.0) / wi[2]
+    return d * m[2]
 
 
 @_jit
@@ -157,10 +171,7 @@ def microfacet_reflect_pdf(wi, wo, alpha, dist):
     wom = _dot(wo, m)
     if _dot(wi, m) <= 0.0 or wom <= 0.0:
         return 0.0
-    d = microfacet_d(m, alpha, dist)
-    if dist == GGX:
-        return d * smith_g1(wi, m, alpha, dist) / (4.0 * wi[2])
-    return d * m[2] / (4.0 * wom)
+    return microfacet_pdf(wi, m, alpha, dist) / (4.0 * wom)
 
 
 @_jit
@@ -223,14 +234,55 @@ def _coat_base(r, g, b, internal, nonlinear):
 
 # ------------------------------------------------------------------ eval and sample
 @njit(cache=True, inline="always")
-def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
-    """(f · cos θ_o as r, g, b, pdf) of the non-delta components."""
+def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
+    """Mitsuba's ``roughdielectric`` (Walter et al. 2007), either side: (f · |cos θ_o| as
+    r, g, b, pdf). In radiance mode the η² of the transmission term and the 1/η² of the
+    solid-angle compression cancel."""
+    ci, co = wi[2], wo[2]
+    if ci == 0.0 or co == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    reflect = ci * co > 0.0
+    eta = bf[b, ETA] if ci > 0.0 else 1.0 / bf[b, ETA]
+    s = 1.0 if reflect else eta
+    m = _normalize(wi[0] + wo[0] * s, wi[1] + wo[1] * s, wi[2] + wo[2] * s)
+    if m[2] < 0.0:
+        m = (-m[0], -m[1], -m[2])
+    wim, wom = _dot(wi, m), _dot(wo, m)
+    if wim * ci <= 0.0 or wom * co <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
+    d = microfacet_d(m, alpha, dist)
+    f = fresnel_dielectric(wim, bf[b, ETA])[0]
+    g = smith_g1(wi, m, alpha, dist) * smith_g1(wo, m, alpha, dist)
+    wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
+    pdf = microfacet_pdf(wp, m, alpha, dist)
+    if reflect:
+        val = f * d * g / (4.0 * abs(ci))
+        pdf *= f / (4.0 * abs(wom))
+        c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
+    else:
+        den = wim + eta * wom
+        if den == 0.0:
+            return 0.0, 0.0, 0.0, 0.0
+        den *= den
+        val = abs((1.0 - f) * d * g * wim * wom / (ci * den))
+        pdf *= (1.0 - f) * abs(eta * eta * wom / den)
+        c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
+    return c0 * val, c1 * val, c2 * val, pdf
+
+
+@njit(cache=True, inline="always")
+def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
+    """``bsdf_eval`` of a row that is not composite."""
     kind = bi[b, BSDF_KIND]
+    if mask & F_ROUGHDIELECTRIC and kind == ROUGHDIELECTRIC:
+        return _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
     if mask & F_TWOSIDED and bi[b, BSDF_TWOSIDED] and wi[2] < 0.0:
         wi = (wi[0], wi[1], -wi[2])
         wo = (wo[0], wo[1], -wo[2])
     ci, co = wi[2], wo[2]
-    if ci <= 0.0 or co <= 0.0 or kind == CONDUCTOR or kind == DIELECTRIC:
+    if (ci <= 0.0 or co <= 0.0 or kind == CONDUCTOR or kind == DIELECTRIC
+            or kind == THINDIELECTRIC):
         return 0.0, 0.0, 0.0, 0.0
     if mask & F_DIFFUSE and kind == DIFFUSE:
         r, g, bl = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
@@ -254,7 +306,7 @@ def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
         s = co * _INV_PI / (eta * eta) * (1.0 - f_i) * (1.0 - f_o)
         pdf = co * _INV_PI * (1.0 - _plastic_probs(bf, b, f_i))
         return dr * s, dg * s, db * s, pdf
-    if not (mask & F_ROUGHPLASTIC):
+    if not (mask & F_ROUGHPLASTIC) or kind != ROUGHPLASTIC:
         return 0.0, 0.0, 0.0, 0.0
     alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
     ps, t_i = _rough_plastic_probs(bf, b, ci)
@@ -273,46 +325,116 @@ def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
 
 
 @njit(cache=True, inline="always")
-def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale):
-    """(wo x, y, z, weight r, g, b, pdf, delta, η) with weight = f cos θ_o / pdf.
-    A zero weight ends the path. ``pdf_scale`` is a test hook: a wrong pdf (not 1)
-    must make the renderer biased, and the render gate must notice."""
+def _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v):
+    """A composite row's scalar (blend weight, mask opacity), clipped to [0, 1]; a texture
+    gives its luminance, as Mitsuba's ``eval_1`` of an RGB bitmap."""
+    t = btex[b, 0] if mask & F_TEXTURES else -1
+    if t < 0:
+        x = bf[b, MIX]
+    else:
+        r, g, bl = eval_texture(tex_data, tex_info, t, u, v)
+        x = 0.212671 * r + 0.715160 * g + 0.072169 * bl
+    return min(max(x, 0.0), 1.0)
+
+
+@njit(cache=True, inline="always")
+def _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
+    """``_eval_basic`` of row b, or of a ``blendbsdf``'s two rows mixed by its weight
+    (one call site in a loop: the kernel is compiled with one copy of the BSDFs)."""
+    c0 = c1 = b
+    w, n = 0.0, 1
+    if mask & F_BLEND and bi[b, BSDF_KIND] == BLEND:
+        w, n = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v), 2
+        c0, c1 = bi[b, BSDF_CHILD0], bi[b, BSDF_CHILD1]
+    r = g = bl = pdf = 0.0
+    for k in range(n):
+        row, wk = (c0, 1.0 - w) if k == 0 else (c1, w)
+        x = _eval_basic(mask, bf, bi, btex, tex_data, tex_info, row, wi, wo, u, v)
+        r, g, bl, pdf = r + wk * x[0], g + wk * x[1], bl + wk * x[2], pdf + wk * x[3]
+    return r, g, bl, pdf
+
+
+@njit(cache=True, inline="always")
+def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
+    """(f · |cos θ_o| as r, g, b, pdf) of the non-delta components. A ``mask`` scales its
+    BSDF's value and pdf by the opacity; a ``blendbsdf`` mixes its two by the weight."""
+    scale = 1.0
+    if mask & F_MASK and bi[b, BSDF_KIND] == MASK:
+        scale = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
+        b = bi[b, BSDF_CHILD0]
+    r, g, bl, pdf = _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
+    return r * scale, g * scale, bl * scale, pdf * scale
+
+
+@njit(cache=True, inline="always")
+def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale):
+    """A direction from a row that is not composite: (wo x, y, z, ok, delta, weight r, g,
+    b and pdf of a delta lobe, η, null). The weight of a non-delta direction is the
+    caller's: f / pdf of the whole BSDF (a blend's mixture)."""
     kind = bi[b, BSDF_KIND]
     flip = bool(mask & F_TWOSIDED) and bool(bi[b, BSDF_TWOSIDED]) and wi[2] < 0.0
     if flip:
         wi = (wi[0], wi[1], -wi[2])
-    zero = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0)
+    fail = (0.0, 0.0, 1.0, False, False, 0.0, 0.0, 0.0, 0.0, 1.0, False)
     ci = wi[2]
     if mask & F_DIELECTRIC and kind == DIELECTRIC:
         eta = bf[b, ETA]
         r, cos_t, eta_it, eta_ti = fresnel_dielectric(ci, eta)
         if u0 <= r:
-            wo = (-wi[0], -wi[1], wi[2])
             c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
             w = 1.0 / pdf_scale
-            return wo[0], wo[1], wo[2], c0 * w, c1 * w, c2 * w, r * pdf_scale, True, 1.0
-        wo = (-eta_ti * wi[0], -eta_ti * wi[1], cos_t)
+            return (-wi[0], -wi[1], wi[2], True, True, c0 * w, c1 * w, c2 * w, r * pdf_scale,
+                    1.0, False)
         c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
         w = eta_ti * eta_ti / pdf_scale
-        return (wo[0], wo[1], wo[2], c0 * w, c1 * w, c2 * w, (1.0 - r) * pdf_scale, True,
-                eta_it)
+        return (-eta_ti * wi[0], -eta_ti * wi[1], cos_t, True, True, c0 * w, c1 * w, c2 * w,
+                (1.0 - r) * pdf_scale, eta_it, False)
+    if mask & F_THINDIELECTRIC and kind == THINDIELECTRIC:
+        # a thin slab: reflections between its two faces summed (R' = 2R / (1 + R)), the
+        # rest goes straight through, unrefracted (Mitsuba's null component)
+        r = fresnel_dielectric(abs(ci), bf[b, ETA])[0]
+        r *= 2.0 / (1.0 + r)
+        w = 1.0 / pdf_scale
+        if u0 <= r:
+            c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
+            return (-wi[0], -wi[1], wi[2], True, True, c0 * w, c1 * w, c2 * w, r * pdf_scale,
+                    1.0, False)
+        c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
+        return (-wi[0], -wi[1], -wi[2], True, True, c0 * w, c1 * w, c2 * w,
+                (1.0 - r) * pdf_scale, 1.0, True)
+    if mask & F_ROUGHDIELECTRIC and kind == ROUGHDIELECTRIC:
+        if ci == 0.0:
+            return fail
+        wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
+        m = sample_microfacet(wp, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
+        wim = _dot(wi, m)
+        f, cos_t, eta_it, eta_ti = fresnel_dielectric(wim, bf[b, ETA])
+        if u0 <= f:
+            wo = _reflect(wi, m)
+            if wo[2] * ci <= 0.0:       # reflected through the surface: G1 = 0
+                return fail
+            return wo[0], wo[1], wo[2], True, False, 0.0, 0.0, 0.0, 0.0, 1.0, False
+        c = wim * eta_ti + cos_t
+        wo = (c * m[0] - eta_ti * wi[0], c * m[1] - eta_ti * wi[1], c * m[2] - eta_ti * wi[2])
+        if wo[2] * ci >= 0.0:           # refracted back to the side it came from: G1 = 0
+            return fail
+        return wo[0], wo[1], wo[2], True, False, 0.0, 0.0, 0.0, 0.0, eta_it, False
     if ci <= 0.0:
-        return zero
+        return fail
     if mask & F_CONDUCTOR and kind == CONDUCTOR:
         c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
         w = 1.0 / pdf_scale
-        wo = (-wi[0], -wi[1], ci) if not flip else (-wi[0], -wi[1], -ci)
         f0, f1, f2 = _conductor_fresnel(bf, b, ci)
-        return (wo[0], wo[1], wo[2], c0 * f0 * w, c1 * f1 * w, c2 * f2 * w, pdf_scale, True,
-                1.0)
+        return (-wi[0], -wi[1], -ci if flip else ci, True, True, c0 * f0 * w, c1 * f1 * w,
+                c2 * f2 * w, pdf_scale, 1.0, False)
     if mask & F_PLASTIC and kind == PLASTIC:
         f_i = fresnel_dielectric(ci, bf[b, ETA])[0]
         ps = _plastic_probs(bf, b, f_i)
         if u0 < ps:
             c0, c1, c2 = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
             w = f_i / (ps * pdf_scale)
-            zs = -ci if flip else ci
-            return -wi[0], -wi[1], zs, c0 * w, c1 * w, c2 * w, ps * pdf_scale, True, 1.0
+            return (-wi[0], -wi[1], -ci if flip else ci, True, True, c0 * w, c1 * w, c2 * w,
+                    ps * pdf_scale, 1.0, False)
         wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     elif mask & F_DIFFUSE and kind == DIFFUSE:
         wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
@@ -327,23 +449,60 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
         else:
             wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     else:
-        return zero
+        return fail
     if wo[2] <= 0.0:
+        return fail
+    return wo[0], wo[1], -wo[2] if flip else wo[2], True, False, 0.0, 0.0, 0.0, 0.0, 1.0, False
+
+
+@njit(cache=True, inline="always")
+def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale):
+    """(wo x, y, z, weight r, g, b, pdf, delta, η, null) with weight = f cos θ_o / pdf.
+    A zero weight ends the path; ``null``: the ray goes on unchanged (a ``mask``'s
+    transparent part, a ``thindielectric``'s transmission), a delta event that Mitsuba
+    counts as a bounce. ``pdf_scale`` is a test hook: a wrong pdf (not 1) must make the
+    renderer biased, and the render gate must notice.
+
+    A ``mask`` passes the ray through with probability 1 - opacity and otherwise samples
+    its BSDF (pdf × opacity, weight unchanged); a ``blendbsdf`` picks one of its two by
+    the weight and weighs the direction by the mixture (f / pdf of the blend)."""
+    zero = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0, False)
+    opacity = 1.0
+    if mask & F_MASK and bi[b, BSDF_KIND] == MASK:
+        opacity = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
+        if not u0 < opacity:
+            w = 1.0 / pdf_scale
+            return (-wi[0], -wi[1], -wi[2], w, w, w, (1.0 - opacity) * pdf_scale, True, 1.0,
+                    True)
+        u0 = u0 / opacity
+        b = bi[b, BSDF_CHILD0]
+    row = b
+    if mask & F_BLEND and bi[b, BSDF_KIND] == BLEND:
+        w = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
+        if u0 > w:
+            row, u0 = bi[b, BSDF_CHILD0], (u0 - w) / (1.0 - w)
+        else:
+            row, u0 = bi[b, BSDF_CHILD1], u0 / w
+    (wx, wy, wz, ok, delta, dr, dg, db, dpdf, eta, null) = _sample_basic(
+        mask, bf, bi, btex, tex_data, tex_info, row, wi, u0, u1, u2, u, v, pdf_scale)
+    if not ok:
         return zero
-    r, g, bl, pdf = bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
+    if delta:
+        return wx, wy, wz, dr, dg, db, dpdf * opacity, True, eta, null
+    r, g, bl, pdf = _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, (wx, wy, wz), u, v)
     if pdf <= 0.0:
         return zero
     pdf *= pdf_scale
-    if flip:
-        wo = (wo[0], wo[1], -wo[2])
-    return wo[0], wo[1], wo[2], r / pdf, g / pdf, bl / pdf, pdf, False, 1.0
+    return wx, wy, wz, r / pdf, g / pdf, bl / pdf, pdf * opacity, False, eta, False
 
 
 @_fast
 def bsdf_is_smooth(bi, b):
     """Whether the BSDF has a non-delta component (so light sampling can help)."""
     k = bi[b, BSDF_KIND]
-    return k != CONDUCTOR and k != DIELECTRIC
+    if k == MASK:
+        k = bi[bi[b, BSDF_CHILD0], BSDF_KIND]
+    return k != CONDUCTOR and k != DIELECTRIC and k != THINDIELECTRIC
 
 
 # ------------------------------------------------------- rough plastic precomputation

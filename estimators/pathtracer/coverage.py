@@ -16,7 +16,7 @@ import os
 import sys
 
 from .layout import FILTERS, WRAPS
-from .scene import SUPPORTED, Plugin, SceneDescription, load_scene
+from .scene import SUPPORTED, TRANSMISSIVE, Plugin, SceneDescription, load_scene
 
 #: (kind, type, property) -> why it cannot change the expected image
 NO_IMAGE_EFFECT = {
@@ -27,6 +27,7 @@ NO_IMAGE_EFFECT = {
     ("integrator", "direct", "bsdf_samples"): "samples per hit: noise only",
     ("bsdf", "roughconductor", "sample_visible"): "a sampling strategy: noise only",
     ("bsdf", "roughplastic", "sample_visible"): "a sampling strategy: noise only",
+    ("bsdf", "roughdielectric", "sample_visible"): "a sampling strategy: noise only",
     ("film", "hdrfilm", "pixel_format"): "only rgb is accepted (the image has 3 channels)",
 }
 
@@ -56,7 +57,7 @@ def accepted_features() -> set[str]:
                 if prop != "children" and (kind, ptype, prop) not in NO_IMAGE_EFFECT:
                     out.update(_value_features(kind, ptype, prop))
     out |= {f"bsdf:twosided({inner})" for inner in SUPPORTED["bsdf"]
-            if inner not in ("twosided", "dielectric")}
+            if inner not in ("twosided", *TRANSMISSIVE)}
     out |= {f"emitter:area:{shape}" for shape in SUPPORTED["shape"]}
     return out
 

@@ -58,11 +58,19 @@ FEATURE_BITS = {
     "light:area": 1 << 9,           # emitting shapes exist (hits add emission with MIS)
     "light:nondelta": 1 << 10,      # some light can be hit or has a density (MIS)
     "light:many": 1 << 11,          # more than one light (light selection)
+    "bsdf:roughdielectric": 1 << 12, "bsdf:thindielectric": 1 << 13,
+    "bsdf:blendbsdf": 1 << 14, "bsdf:mask": 1 << 15,
 }
 ALL_FEATURES = sum(FEATURE_BITS.values())
 F_DIFFUSE, F_CONDUCTOR, F_ROUGHCONDUCTOR, F_DIELECTRIC, F_PLASTIC, F_ROUGHPLASTIC = (
     FEATURE_BITS[f"bsdf:{name}"] for name in ("diffuse", "conductor", "roughconductor",
                                               "dielectric", "plastic", "roughplastic"))
+F_ROUGHDIELECTRIC, F_THINDIELECTRIC, F_BLEND, F_MASK = (
+    FEATURE_BITS[f"bsdf:{name}"] for name in ("roughdielectric", "thindielectric",
+                                              "blendbsdf", "mask"))
+#: BSDFs with a null component (the ray goes on unchanged: Mitsuba's ``Null`` flag); a
+#: path that only passed through them keeps Mitsuba's ``valid_ray`` false
+F_NULL_BSDFS = F_THINDIELECTRIC | F_MASK
 F_TEXTURES = FEATURE_BITS["texture:bitmap"]
 F_TWOSIDED = FEATURE_BITS["bsdf:twosided"]
 F_ENV = FEATURE_BITS["light:environment"]
@@ -105,21 +113,30 @@ LEAF_KIND, LEAF_PRIM = 0, 1     # leaf_info columns: primitive kind, row of prim
 
 # ------------------------------------------------------------------------ BSDFs
 BSDF_NAMES = ("diffuse", "conductor", "roughconductor", "dielectric", "plastic",
-              "roughplastic")           # type codes are indices into this
-DIFFUSE, CONDUCTOR, ROUGHCONDUCTOR, DIELECTRIC, PLASTIC, ROUGHPLASTIC = range(6)
+              "roughplastic", "roughdielectric", "thindielectric", "blendbsdf",
+              "mask")                   # type codes are indices into this
+(DIFFUSE, CONDUCTOR, ROUGHCONDUCTOR, DIELECTRIC, PLASTIC, ROUGHPLASTIC, ROUGHDIELECTRIC,
+ THINDIELECTRIC, BLEND, MASK) = range(10)
+#: the composite BSDFs: rows that point at other rows (``BSDF_CHILD0/1``) and have no
+#: lobe of their own. A ``mask`` holds a basic BSDF or a ``blendbsdf``; a ``blendbsdf``
+#: holds two basic BSDFs with a density (no delta lobe), so that nothing nests deeper.
+COMPOSITE = (BLEND, MASK)
 #: feature bit of each BSDF type code
 BSDF_BITS = tuple(FEATURE_BITS[f"bsdf:{name}"] for name in BSDF_NAMES)
 GGX, BECKMANN = 0, 1
 # bsdf_i columns
 BSDF_KIND, BSDF_TWOSIDED, BSDF_DISTRIBUTION, BSDF_NONLINEAR = range(4)
-BSDF_INTS = 4
+BSDF_CHILD0, BSDF_CHILD1 = 4, 5     # blendbsdf: its two rows; mask: its one row (CHILD0)
+BSDF_INTS = 6
 # bsdf_f columns. Colour slots 0 and 1 (a texture in bsdf_tex may replace either):
 COLOR0, COLOR1 = 0, 3           # diffuse/specular reflectance, specular transmittance
 COND_ETA, COND_K = 3, 6         # conductors: complex index per channel
-ETA = 9                         # dielectric, plastics: interior / exterior index
+ETA = 9                         # dielectrics, plastics: interior / exterior index
 COAT_INTERNAL = 10              # plastics: diffuse light the coat reflects back down
 SPECULAR_WEIGHT = 11            # plastics: probability weight of the specular lobe
 ALPHA = 12                      # microfacet roughness
+MIX = 14                        # blendbsdf: weight of the second BSDF; mask: opacity.
+                                # A texture in bsdf_tex slot 0 replaces it (luminance)
 COAT_TABLE = 16                 # roughplastic: coat transmittance at cos θ = linspace(0, 1)
 COAT_TABLE_RES = 64
 BSDF_WIDTH = COAT_TABLE + COAT_TABLE_RES

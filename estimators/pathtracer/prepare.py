@@ -29,8 +29,8 @@ from .camera import Camera, camera_from_scene
 from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
 from .meshes import read_ply
-from .scene import (MAX_ASSET_BYTES, Plugin, SceneDescription, SceneError, file_problem,
-                    load_scene)
+from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
+                    file_problem, load_scene)
 from .textures import TextureStore, envmap_sampling_weights, read_image
 
 _MATERIALS = None
@@ -66,7 +66,8 @@ class PreparedScene:
     def planted(self, *, light_scale: float = 1.0, albedo_scale: float = 1.0,
                 bsdf: int | None = None, texture_filter: str | None = None,
                 texture_raw: bool = False, camera_extent: float = 1.0,
-                filter_scale: float = 1.0) -> "PreparedScene":
+                filter_scale: float = 1.0,
+                bsdf_scale: tuple | None = None) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
@@ -76,7 +77,10 @@ class PreparedScene:
         ignored); the camera's extent (orthographic) or tangent of the half field of
         view (perspective) scaled by ``camera_extent``; the film's reconstruction filter
         widened by ``filter_scale`` (a gaussian's stddev, a tent's radius: 1.2 turns
-        Mitsuba's default σ = 0.5 into 0.6)."""
+        Mitsuba's default σ = 0.5 into 0.6); ``bsdf_scale=(type, parameter, factor)``:
+        that parameter (``"alpha"``, ``"eta"``, or ``"mix"``: a blend's weight or a mask's
+        opacity, when a float) of every BSDF of that type (``"roughdielectric"``...)
+        multiplied by ``factor``."""
         if texture_raw:
             desc = copy.deepcopy(self.desc)
             for shape in desc.shapes:
@@ -85,7 +89,7 @@ class PreparedScene:
             return _Builder(desc).build().planted(
                 light_scale=light_scale, albedo_scale=albedo_scale, bsdf=bsdf,
                 texture_filter=texture_filter, camera_extent=camera_extent,
-                filter_scale=filter_scale)
+                filter_scale=filter_scale, bsdf_scale=bsdf_scale)
         camera = dataclasses.replace(self.camera, tan_x=self.camera.tan_x * camera_extent,
                                      tan_y=self.camera.tan_y * camera_extent)
         a = self.arrays
@@ -95,6 +99,8 @@ class PreparedScene:
             camera = camera.with_filter(camera.rfilter,
                                         radius=camera.filter_radius * filter_scale,
                                         stddev=camera.filter_stddev * filter_scale)
+        if bsdf_scale is not None:
+            a = a._replace(bsdf_f=self._bsdf_scaled(*bsdf_scale))
         if texture_filter is not None:
             if texture_filter not in layout.FILTERS:
                 raise ValueError(f"texture_filter={texture_filter!r}; one of "
@@ -117,6 +123,21 @@ class PreparedScene:
             bf[bsdf, base] *= albedo_scale
         return dataclasses.replace(self, camera=camera,
                                    arrays=a._replace(light_f=light_f, bsdf_f=bf))
+
+    def _bsdf_scaled(self, kind: str, param: str, factor: float) -> np.ndarray:
+        columns = {"alpha": layout.ALPHA, "eta": layout.ETA, "mix": layout.MIX}
+        if kind not in layout.BSDF_NAMES or param not in columns:
+            raise ValueError(f"bsdf_scale=({kind!r}, {param!r}, ...): a BSDF type "
+                             f"({', '.join(layout.BSDF_NAMES)}) and one of "
+                             f"{', '.join(columns)}")
+        rows = np.flatnonzero(self.arrays.bsdf_i[:, layout.BSDF_KIND]
+                              == layout.BSDF_NAMES.index(kind))
+        rows = rows[self.arrays.bsdf_f[rows, columns[param]] != 0]
+        if len(rows) == 0:
+            raise ValueError(f"the scene has no {kind} with a {param} to plant in")
+        bf = self.arrays.bsdf_f.copy()
+        bf[rows, columns[param]] *= factor
+        return bf
 
     @property
     def height(self) -> int:
@@ -201,10 +222,28 @@ class _Builder:
         d = plugin.get("distribution", "beckmann")
         if d not in ("ggx", "beckmann"):
             self.fail(plugin, f"distribution {d!r}; supported: ggx, beckmann")
-        alpha = float(plugin.get("alpha", 0.1))
-        if not alpha > 0:
-            self.fail(plugin, f"alpha must be > 0, got {alpha}")
+        for name in ("alpha", "alpha_u", "alpha_v"):
+            alpha = float(plugin.get(name, 0.1))
+            if not alpha > 0:
+                self.fail(plugin, f"{name} must be > 0, got {alpha}")
         return layout.GGX if d == "ggx" else layout.BECKMANN
+
+    def _alpha(self, plugin: Plugin) -> float:
+        """The roughness: ``alpha``, or ``alpha_u`` and ``alpha_v`` when they are equal
+        (both, and no ``alpha``: Mitsuba refuses the rest). Anisotropic roughness is
+        refused: Mitsuba orients it along the surface's dp/du, and the tracer's shading
+        frame is another tangent frame, so the image would differ."""
+        given = {n for n in ("alpha_u", "alpha_v") if n in plugin.props}
+        if not given:
+            return float(plugin.get("alpha", 0.1))
+        if len(given) == 1 or "alpha" in plugin.props:
+            self.fail(plugin, "give alpha, or both alpha_u and alpha_v")
+        au, av = float(plugin.get("alpha_u")), float(plugin.get("alpha_v"))
+        if au != av:
+            self.fail(plugin, f"alpha_u={au:g} and alpha_v={av:g} differ: anisotropic "
+                              "roughness is not supported (Mitsuba orients it along the "
+                              "surface's dp/du, which the tracer's shading frame is not)")
+        return au
 
     def bsdf(self, plugin: Plugin | None, emitter: bool = False) -> int:
         if plugin is None:
@@ -213,74 +252,107 @@ class _Builder:
             key = -2 if emitter else -1
         else:
             key = id(plugin)
-        if key in self.bsdf_ids:
-            return self.bsdf_ids[key]
-        twosided = 0
-        inner = plugin
+        if key not in self.bsdf_ids:
+            self.bsdf_ids[key] = self._bsdf_row(plugin, 0, None)
+        return self.bsdf_ids[key]
+
+    def _nested(self, plugin: Plugin) -> list[Plugin]:
+        return [c for c in plugin.children if c.kind == "bsdf"]
+
+    def _bsdf_row(self, plugin: Plugin, twosided: int, parent: str | None) -> int:
+        """Append the row(s) of ``plugin`` (children first) and return its row. ``parent``:
+        the composite it is nested in, which limits what it may be."""
         if plugin.type == "twosided":
-            nested = [c for c in plugin.children if c.kind == "bsdf"]
+            nested = self._nested(plugin)
             if len(nested) != 1:
                 self.fail(plugin, "exactly one nested <bsdf> is supported (the same on "
                                   "both sides)")
             inner = nested[0]
-            if inner.type == "dielectric":
-                self.fail(plugin, "a twosided dielectric is not supported (Mitsuba "
+            grand = self._nested(inner) if inner.type == "blendbsdf" else []
+            if inner.type in TRANSMISSIVE or any(g.type in TRANSMISSIVE for g in grand):
+                self.fail(plugin, f"a twosided {inner.type} is not supported (Mitsuba "
                                   "accepts only reflective BSDFs inside twosided)")
-            twosided = 1
+            if twosided:
+                self.fail(plugin, "a twosided inside a twosided")
             self.features |= FEATURE_BITS["bsdf:twosided"]
+            return self._bsdf_row(inner, 1, parent)
+        if parent == "blendbsdf" and plugin.type not in _BLENDABLE:
+            self.fail(plugin, f"a {plugin.type} inside a blendbsdf is not supported: "
+                              f"supported: {', '.join(_BLENDABLE)} (BSDFs with a density; "
+                              "Mitsuba mixes a delta lobe's probability with the other "
+                              "BSDF's density)")
+        if parent == "mask" and plugin.type == "mask":
+            self.fail(plugin, "a mask inside a mask")
         f = np.zeros(layout.BSDF_WIDTH)
         i = np.zeros(layout.BSDF_INTS, dtype=np.int64)
         tex = np.full(2, -1, dtype=np.int64)
-        kind = layout.BSDF_NAMES.index(inner.type)
+        kind = layout.BSDF_NAMES.index(plugin.type)
         i[layout.BSDF_KIND], i[layout.BSDF_TWOSIDED] = kind, twosided
         self.features |= layout.BSDF_BITS[kind]
         c0, c1 = slice(layout.COLOR0, layout.COLOR0 + 3), slice(layout.COLOR1, layout.COLOR1 + 3)
-        if kind == layout.DIFFUSE:
-            f[c0], tex[0], _ = self._colour(inner, "reflectance", 0.5)
+        if kind in layout.COMPOSITE:
+            nested = self._nested(plugin)
+            want = 2 if kind == layout.BLEND else 1
+            if len(nested) != want:
+                self.fail(plugin, f"needs exactly {want} nested <bsdf>, has {len(nested)}")
+            name = "weight" if kind == layout.BLEND else "opacity"
+            if kind == layout.BLEND and name not in plugin.props:
+                self.fail(plugin, "set its weight (Mitsuba has no default)")
+            rgb, tex[0], _ = self._colour(plugin, name, 0.5)
+            f[layout.MIX] = rgb[0]
+            for col, child in zip((layout.BSDF_CHILD0, layout.BSDF_CHILD1), nested):
+                i[col] = self._bsdf_row(child, twosided, plugin.type)
+        elif kind == layout.DIFFUSE:
+            f[c0], tex[0], _ = self._colour(plugin, "reflectance", 0.5)
         elif kind in (layout.CONDUCTOR, layout.ROUGHCONDUCTOR):
-            f[c0], tex[0], _ = self._colour(inner, "specular_reflectance", 1.0)
+            f[c0], tex[0], _ = self._colour(plugin, "specular_reflectance", 1.0)
             eta = slice(layout.COND_ETA, layout.COND_ETA + 3)
             k = slice(layout.COND_K, layout.COND_K + 3)
-            if "eta" in inner.props or "k" in inner.props:
-                f[eta] = np.broadcast_to(inner.get("eta", 0.0), 3)
-                f[k] = np.broadcast_to(inner.get("k", 1.0), 3)
+            if "eta" in plugin.props or "k" in plugin.props:
+                f[eta] = np.broadcast_to(plugin.get("eta", 0.0), 3)
+                f[k] = np.broadcast_to(plugin.get("k", 1.0), 3)
             else:
-                name = inner.get("material", "none")
+                name = plugin.get("material", "none")
                 table = _materials()["conductors"]
                 if name not in table:
-                    self.fail(inner, f"unknown material {name!r}; supported: "
-                                     f"{', '.join(sorted(table))}")
+                    self.fail(plugin, f"unknown material {name!r}; supported: "
+                                      f"{', '.join(sorted(table))}")
                 f[eta], f[k] = table[name]["eta"], table[name]["k"]
             if kind == layout.ROUGHCONDUCTOR:
-                i[layout.BSDF_DISTRIBUTION] = self._distribution(inner)
-                f[layout.ALPHA] = float(inner.get("alpha", 0.1))
-        elif kind == layout.DIELECTRIC:
-            f[c0], tex[0], _ = self._colour(inner, "specular_reflectance", 1.0)
-            f[c1], tex[1], _ = self._colour(inner, "specular_transmittance", 1.0)
-            f[layout.ETA] = self._ior(inner, "int_ior", "bk7") / self._ior(inner, "ext_ior", "air")
+                i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
+                f[layout.ALPHA] = float(plugin.get("alpha", 0.1))
+        elif kind in (layout.DIELECTRIC, layout.ROUGHDIELECTRIC, layout.THINDIELECTRIC):
+            f[c0], tex[0], _ = self._colour(plugin, "specular_reflectance", 1.0)
+            f[c1], tex[1], _ = self._colour(plugin, "specular_transmittance", 1.0)
+            eta = self._ior(plugin, "int_ior", "bk7") / self._ior(plugin, "ext_ior", "air")
+            if kind == layout.ROUGHDIELECTRIC and eta == 1.0:
+                self.fail(plugin, "int_ior and ext_ior must differ")
+            f[layout.ETA] = eta
+            if kind == layout.ROUGHDIELECTRIC:
+                i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
+                f[layout.ALPHA] = self._alpha(plugin)
         else:  # plastic, roughplastic
-            f[c0], tex[0], d_mean = self._colour(inner, "diffuse_reflectance", 0.5)
-            f[c1], tex[1], s_mean = self._colour(inner, "specular_reflectance", 1.0)
-            eta = self._ior(inner, "int_ior", "polypropylene") / self._ior(inner, "ext_ior",
-                                                                            "air")
+            f[c0], tex[0], d_mean = self._colour(plugin, "diffuse_reflectance", 0.5)
+            f[c1], tex[1], s_mean = self._colour(plugin, "specular_reflectance", 1.0)
+            eta = self._ior(plugin, "int_ior", "polypropylene") / self._ior(plugin, "ext_ior",
+                                                                             "air")
             if eta == 1.0:
-                self.fail(inner, "int_ior and ext_ior must differ")
+                self.fail(plugin, "int_ior and ext_ior must differ")
             f[layout.ETA] = eta
             f[layout.SPECULAR_WEIGHT] = s_mean / (d_mean + s_mean)
-            i[layout.BSDF_NONLINEAR] = int(bool(inner.get("nonlinear", False)))
+            i[layout.BSDF_NONLINEAR] = int(bool(plugin.get("nonlinear", False)))
             if kind == layout.PLASTIC:
                 f[layout.COAT_INTERNAL] = fresnel_diffuse_reflectance(1.0 / eta)
             else:
-                i[layout.BSDF_DISTRIBUTION] = self._distribution(inner)
-                alpha = float(inner.get("alpha", 0.1))
+                i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
+                alpha = float(plugin.get("alpha", 0.1))
                 f[layout.ALPHA] = alpha
                 table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
                 f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
                 f[layout.COAT_INTERNAL] = internal
         self.bsdf_rows.append((f, i, tex))
-        self.bsdf_names.append(plugin.type if not twosided else f"twosided({inner.type})")
-        self.bsdf_ids[key] = len(self.bsdf_rows) - 1
-        return self.bsdf_ids[key]
+        self.bsdf_names.append(plugin.type if not twosided else f"twosided({plugin.type})")
+        return len(self.bsdf_rows) - 1
 
     # ------------------------------------------------------------------ shapes
     def _triangles(self, verts, faces, normals=None, uvs=None):
@@ -571,6 +643,8 @@ class _Builder:
 
 
 _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
+#: what a blendbsdf may hold: BSDFs with a density and no delta lobe
+_BLENDABLE = ("diffuse", "roughconductor", "roughplastic", "roughdielectric", "twosided")
 
 
 def _textures(p: Plugin):

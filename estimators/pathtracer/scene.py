@@ -10,9 +10,10 @@ integrators ``path`` and ``direct``, sensors ``perspective`` and ``orthographic`
 film ``hdrfilm``, ``rfilter`` ``box``, ``gaussian`` (the default) and ``tent``, samplers
 ``independent``, ``stratified``, ``multijitter``; shapes ``rectangle``, ``cube``,
 ``disk``, ``sphere``, ``obj``, ``ply``; BSDFs ``diffuse``, ``conductor``,
-``roughconductor``, ``dielectric``, ``plastic``, ``roughplastic``, ``twosided``; emitters
-``area``, ``point``, ``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values and
-``bitmap`` textures.
+``roughconductor``, ``dielectric``, ``roughdielectric``, ``thindielectric``, ``plastic``,
+``roughplastic``, ``twosided``, ``blendbsdf``, ``mask``; emitters ``area``, ``point``,
+``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values and ``bitmap``
+textures.
 """
 
 from __future__ import annotations
@@ -168,7 +169,16 @@ SUPPORTED = {
                          "diffuse_reflectance": _TEX, "specular_reflectance": _TEX,
                          "distribution": ("string",), "alpha": ("float",),
                          "nonlinear": ("boolean",), "sample_visible": ("boolean",)},
+        "roughdielectric": {"int_ior": ("float", "string"), "ext_ior": ("float", "string"),
+                            "specular_reflectance": _TEX, "specular_transmittance": _TEX,
+                            "distribution": ("string",), "alpha": ("float",),
+                            "alpha_u": ("float",), "alpha_v": ("float",),
+                            "sample_visible": ("boolean",)},
+        "thindielectric": {"int_ior": ("float", "string"), "ext_ior": ("float", "string"),
+                           "specular_reflectance": _TEX, "specular_transmittance": _TEX},
         "twosided": {"children": ("bsdf",)},
+        "blendbsdf": {"weight": ("float", "texture"), "children": ("bsdf",)},
+        "mask": {"opacity": ("float", "texture"), "children": ("bsdf",)},
     },
     "emitter": {
         "area": {"radiance": ("rgb", "float")},
@@ -185,6 +195,8 @@ SUPPORTED = {
                            "wrap_mode": ("string",), "raw": ("boolean",),
                            "to_uv": ("transform",)}},
 }
+#: BSDFs with a transmission (or null) component: Mitsuba refuses them inside twosided
+TRANSMISSIVE = ("dielectric", "roughdielectric", "thindielectric", "mask")
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")

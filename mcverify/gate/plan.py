@@ -36,6 +36,10 @@ NEEDS: dict[str, tuple[set[tuple[str, str]], str]] = {
     "bsdf:roughconductor": (_pairs("sampler", "beckmann", "ggx", "ggx_vndf")
                             | _pairs("inverse", "beckmann", "ggx", "ggx_vndf"),
                             "rough conductor: microfacet normal sampling"),
+    "bsdf:roughdielectric": (_pairs("sampler", "beckmann", "ggx", "ggx_vndf")
+                             | _pairs("inverse", "beckmann", "ggx", "ggx_vndf"),
+                             "rough dielectric: microfacet normal sampling, then reflection "
+                             "or refraction"),
     "emitter:area:rectangle": _MESH_LIGHT,
     "emitter:area:cube": _MESH_LIGHT,
     "emitter:area:obj": _MESH_LIGHT,
@@ -64,6 +68,12 @@ NOTHING_TO_SAMPLE = {
     "emitter:directional": "directional light: a delta emitter, nothing to sample",
     "emitter:spot": "spot light: a delta emitter, nothing to sample",
     "bsdf:twosided": "two-sided adapter: nothing of its own to sample",
+    "bsdf:thindielectric": "thin dielectric: delta reflection and a null transmission, "
+                           "nothing to sample",
+    "bsdf:blendbsdf": "blend: a mixture of its two BSDFs, nothing of its own (its "
+                      "instances are χ²-checked)",
+    "bsdf:mask": "mask: a null component and its BSDF, nothing of its own (its instances "
+                 "are χ²-checked)",
 }
 
 

@@ -1,13 +1,16 @@
 """χ² checks of the path tracer's own BSDF and emitter instances, as a scene uses them.
 
 For a scene, every BSDF row of the prepared scene that has a density (not a smooth
-conductor or dielectric) is checked at incident angles ``ANGLES`` (and from below for
-two-sided BSDFs, whose back side mirrors the front), and every emitter with a density
+conductor or dielectric, nor a thin dielectric) is checked at incident angles ``ANGLES``
+(and from below for two-sided BSDFs, whose back side mirrors the front, and for rough
+dielectrics and the blends and masks that hold them); a ``blendbsdf`` or ``mask`` is
+checked as a whole (the mixture; the mask's null part is a rejected draw) and each BSDF
+nested in it as its own row; and every emitter with a density
 (area lights, constant and envmap environments; not point, spot or directional lights)
 from ``reference_points``: the camera's position, the centre of the scene's bounds and
 the point half way between. The subject is ``estimators.pathtracer.sampling`` (the
-tracer's own kernels, with the parameters the scene gives: α, η, distribution, weights,
-coat tables). Draws can be rejected (zero pdf, a delta lobe, a light's back side), so the
+tracer's own kernels, with the parameters the scene gives: α (or α_u, α_v), η,
+distribution, weights, coat tables, blend weights and opacities). Draws can be rejected (zero pdf, a delta lobe, a light's back side), so the
 judge runs with ``rejection=True``: the pdf integrates to the acceptance probability.
 
 Each check ``verifies`` ``("bsdf", label)`` or ``("emitter", label)``, the label naming
@@ -39,9 +42,16 @@ def _direction(theta_deg: float) -> tuple[float, float, float]:
 def _bsdf_label(scene, tag: str, b: int) -> str:
     from estimators.pathtracer import layout
 
-    f, i = scene.arrays.bsdf_f[b], scene.arrays.bsdf_i[b]
+    a = scene.arrays
+    f, i = a.bsdf_f[b], a.bsdf_i[b]
     parts = []
-    if f[layout.ALPHA] > 0:
+    if int(i[layout.BSDF_KIND]) in layout.COMPOSITE:
+        name = "weight" if i[layout.BSDF_KIND] == layout.BLEND else "opacity"
+        parts.append(f"{name}=texture" if a.bsdf_tex[b, 0] >= 0 else
+                     f"{name}={f[layout.MIX]:g}")
+        children = (layout.BSDF_CHILD0, layout.BSDF_CHILD1)[:2 if name == "weight" else 1]
+        parts.append("+".join(f"bsdf{i[c]}" for c in children))
+    elif f[layout.ALPHA] > 0:
         parts += [("ggx", "beckmann")[int(i[layout.BSDF_DISTRIBUTION])],
                   f"alpha={f[layout.ALPHA]:g}"]
     if f[layout.ETA] > 0:
@@ -73,6 +83,18 @@ def reference_points(scene) -> list[tuple[float, float, float]]:
     return [tuple(float(c) for c in p) for p in (cam, centre, 0.5 * (cam + centre))]
 
 
+def _both_sides(bi, b: int) -> bool:
+    """Whether BSDF row ``b`` scatters light arriving from below: two-sided, a rough
+    dielectric, or a blend or mask holding one of those."""
+    from estimators.pathtracer import layout
+
+    kind = int(bi[b, layout.BSDF_KIND])
+    if kind in layout.COMPOSITE:
+        children = (layout.BSDF_CHILD0, layout.BSDF_CHILD1)[:2 if kind == layout.BLEND else 1]
+        return any(_both_sides(bi, int(bi[b, c])) for c in children)
+    return bool(bi[b, layout.BSDF_TWOSIDED]) or kind == layout.ROUGHDIELECTRIC
+
+
 def _fmt(p) -> str:
     return "(" + ",".join(f"{c:.3g}" for c in p) + ")"
 
@@ -93,7 +115,7 @@ def scene_instances(scene_path: str):
             skipped.append((f"bsdf {label}", "a delta BSDF (smooth), nothing to sample"))
             continue
         angles = list(ANGLES)
-        if scene.arrays.bsdf_i[b, layout.BSDF_TWOSIDED]:
+        if _both_sides(scene.arrays.bsdf_i, b):
             angles += [180.0 - t for t in ANGLES]
         for t in angles:
             entries.append(("bsdf", label, f"wi={t:g}°",

@@ -16,8 +16,8 @@ SCENES = os.path.join(ROOT, "reference", "scenes")
 # below, cornell-box, rough-conductors and glass-sphere at two depths in
 # tests/estimators/test_pathtracer_render.py, and bunny in tests/estimators/test_real_mesh.py
 GATE_SCENES = ["delta-lights", "veach-mis", "textures", "vocabulary-materials",
-               "vocabulary-lights", "vocabulary-geometry", "filters", "filters-tent",
-               "filters-gaussian"]
+               "vocabulary-lights", "vocabulary-geometry", "vocabulary-glass", "filters",
+               "filters-tent", "filters-gaussian"]
 GATED = set(GATE_SCENES) | {"cornell-box", "rough-conductors", "glass-sphere", "bunny"}
 
 
@@ -104,3 +104,17 @@ def test_a_planted_geometry_bug_fails_the_gate(plant, what):
 
     r = mv.render_check("vocabulary-geometry", seed=24, plant=plant)
     assert not r.passed, (what, r.summary())
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("plant", [("roughdielectric", "alpha", 1.5),
+                                   ("thindielectric", "eta", 1.15),
+                                   ("mask", "mix", 0.75)],
+                         ids=["rough-glass-alpha", "thin-window-eta", "mask-opacity"])
+def test_a_wrong_glass_parameter_fails_the_gate_on_the_glass_scene(plant):
+    """Planted bugs in the new BSDFs: every rough dielectric's α × 1.5, the thin window's
+    η × 1.15, the float mask's opacity × 0.75; each must fail the default gate."""
+    import mcverify as mv
+
+    r = mv.render_check("vocabulary-glass", seed=23, plant={"bsdf_scale": plant})
+    assert not r.passed, r.summary()

@@ -22,7 +22,8 @@ def test_at_least_six_scenes_covering_the_features():
                              for n in SCENES))
     assert {"emitter:envmap", "emitter:constant", "emitter:point", "emitter:spot",
             "emitter:directional", "emitter:area:sphere", "bsdf:dielectric",
-            "bsdf:roughconductor", "bsdf:roughplastic", "bsdf:plastic"} <= features
+            "bsdf:roughconductor", "bsdf:roughplastic", "bsdf:plastic", "bsdf:roughdielectric",
+            "bsdf:thindielectric", "bsdf:blendbsdf", "bsdf:mask"} <= features
 
 
 @pytest.mark.parametrize("name", SCENES)

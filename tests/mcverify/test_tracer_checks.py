@@ -126,3 +126,52 @@ def test_cli_plan_lists_the_four_rough_conductors():
         "sampler:tracer.bsdf:rough-conductors/bsdf3:roughconductor(ggx,alpha=0.1)",
         "sampler:tracer.bsdf:rough-conductors/bsdf4:roughconductor(beckmann,alpha=0.3)",
         "sampler:tracer.bsdf:rough-conductors/bsdf5:roughconductor(beckmann,alpha=0.5)"}
+
+
+GLASS = os.path.join(REFERENCE_ROOT, "vocabulary-glass", "scene.xml")
+
+
+def _rows_of(scene, kind):
+    return [b for b, name in enumerate(scene.bsdf_names) if name == kind]
+
+
+def test_glass_instances_are_planned_from_both_sides():
+    """Rough dielectrics, and the blend and mask that hold BSDFs, are checked as a whole
+    and from below where light arrives from below; the thin window has no density."""
+    checks, skipped = tracer_checks(GLASS)
+    names = [c.name for c in checks]
+    assert any("roughdielectric(ggx,alpha=0.15,eta=1.505)@wi=100°" in n for n in names)
+    assert any("blendbsdf(weight=0.4," in n and "@wi=135°" in n for n in names)
+    assert any(":mask(opacity=texture,bsdf" in n and "@wi=180°" in n for n in names)
+    assert any(":mask(opacity=0.35," in n for n in names)
+    assert not any(":mask(opacity=0.35," in n and "@wi=180°" in n for n in names)
+    assert any("thindielectric" in k and "delta BSDF" in why for k, why in skipped)
+
+
+def test_every_glass_instance_passes_at_2_16():
+    checks = tracer_checks(GLASS, 2 ** 16)[0]
+    n, bad = _family_passes(checks, seed=17)
+    assert n >= 30 and not bad, bad
+
+
+@pytest.mark.parametrize("kind, column, factor, wi_deg", [
+    ("roughdielectric", layout.ALPHA, 1.3, 45.0),     # the rough glass sphere
+    ("roughdielectric", layout.ETA, 1.05, 135.0),     # ... seen from inside
+    ("blendbsdf", layout.MIX, 1.25, 45.0),            # the plastic/glass blend's weight
+    ("mask", layout.MIX, 0.8, 45.0),                  # the copper disk's opacity
+])
+def test_a_parameter_changed_only_in_the_pdf_fails(kind, column, factor, wi_deg):
+    """Planted bugs in the new BSDFs: the sampler draws with the scene's parameter, the
+    pdf reads another."""
+    scene = prepare_scene(GLASS)
+    b = next(r for r in _rows_of(scene, kind) if scene.arrays.bsdf_f[r, column] != 0)
+    bf = scene.arrays.bsdf_f.copy()
+    bf[b, column] *= factor
+    wrong = dataclasses.replace(scene, arrays=scene.arrays._replace(bsdf_f=bf))
+    t = np.radians(wi_deg)
+    wi = (np.sin(t), 0.0, np.cos(t))
+    sample, _ = bsdf_sampler(scene, b, wi)
+    _, wrong_pdf = bsdf_sampler(wrong, b, wi)
+    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
+                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
+    assert not r.passed
