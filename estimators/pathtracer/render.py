@@ -123,7 +123,7 @@ def _render_iv(spp, seed, passes, pdf_scale, params) -> None:
 
 
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
-           general: bool = False, pdf_scale: float = 1.0, params: dict | None = None,
+           general: bool | None = None, pdf_scale: float = 1.0, params: dict | None = None,
            progress=None) -> RenderResult:
     """Render a Mitsuba XML scene (path, ``SceneDescription`` or ``PreparedScene``) with
     ``spp`` samples per pixel (default: the scene's sampler). The same seed gives the same
@@ -135,7 +135,14 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     less skewed than single path samples, which keeps a pixelwise t-test calibrated.
 
     ``pdf_scale`` != 1 is a test hook: every BSDF sample's pdf is scaled by it, a planted
-    bug the render gate must catch."""
+    bug the render gate must catch.
+
+    ``general``: run the kernel compiled for every feature instead of the scene's
+    specialised one (bit-identical images, ~10 % slower, one compilation for all scenes).
+    Default: ``$MCVERIFY_GENERAL_KERNEL`` = 1 means general (the default test run sets it:
+    a new machine compiles one kernel instead of one per scene), else specialised."""
+    if general is None:
+        general = os.environ.get("MCVERIFY_GENERAL_KERNEL", "") == "1"
     _render_iv(spp, seed, passes, pdf_scale, params)
     cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)

@@ -98,7 +98,7 @@ def _render_pairs(mi, spp: int):
                     lambda theirs=theirs: np.asarray(mi.render(theirs, spp=spp)), "mitsuba"))
     furnace = prepare_scene(resolve_scene("white-furnace")[1], params={"res": 128})
     out.append(("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
-                lambda: render(furnace, spp=spp),
+                lambda: render(furnace, spp=spp, general=False),
                 lambda: render(furnace, spp=spp, general=True), "general kernel"))
     return out
 

@@ -2,6 +2,7 @@
 (pixelwise, through the render gate), and the same image for the same seed."""
 
 import importlib
+import os
 import numba
 import numpy as np
 import pytest
@@ -115,10 +116,32 @@ def test_same_seed_same_image_whatever_the_thread_count():
 def test_specialised_kernel_matches_the_general_one_bit_for_bit():
     """Specialisation removes code, never changes arithmetic."""
     scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 16})
-    a = render(scene, spp=4, seed=5)
+    a = render(scene, spp=4, seed=5, general=False)
     b = render(scene, spp=4, seed=5, general=True)
     assert a.stats["kernel"].startswith("specialised") and b.stats["kernel"] == "general"
     assert np.array_equal(a.mean, b.mean)
+
+
+def test_the_test_run_renders_with_the_general_kernel_unless_told(monkeypatch):
+    """tests/conftest.py sets MCVERIFY_GENERAL_KERNEL=1 (one compilation for every scene
+    on a new machine); unset, render() specialises."""
+    scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 8})
+    assert render(scene, spp=2).stats["kernel"] == "general"
+    monkeypatch.delenv("MCVERIFY_GENERAL_KERNEL")
+    assert render(scene, spp=2).stats["kernel"].startswith("specialised")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(os.listdir("reference/scenes")))
+def test_every_scenes_specialised_kernel_matches_the_general_one(name):
+    """The default test run renders with the general kernel; this compiles each reference
+    scene's specialised kernel (about a minute each on a new machine) and holds it to the
+    general one bit for bit."""
+    scene = prepare_scene(f"reference/scenes/{name}/scene.xml", params={"res": 12})
+    a = render(scene, spp=4, seed=3, general=False)
+    b = render(scene, spp=4, seed=3, general=True)
+    assert a.stats["kernel"].startswith("specialised")
+    assert np.array_equal(a.mean, b.mean) and np.array_equal(a.variance, b.variance)
 
 
 def test_render_reports_progress_and_rejects_bad_arguments():
