@@ -111,9 +111,8 @@ def _rendered(out, who: str):
 class _OurPasses:
     """Our path tracer's passes, rendered batch by batch on a pool as a sequential look
     asks for them; ``image(b)`` is (mean, var, n, seconds, stats, passes) of the first b
-    batches,
-    computed as ``render(passes=...)`` computes it (float32 mean and variance of the pass
-    means), so the final look sees the very image a one-shot render would."""
+    batches, computed as ``render(passes=...)`` computes it (float32 mean and variance of
+    the pass means), so the final look sees the very image a one-shot render would."""
 
     def __init__(self, path, spp, passes, seed, params, plant, pdf_scale, pool, progress):
         from estimators.pathtracer.render import pass_seed
