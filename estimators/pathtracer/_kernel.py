@@ -24,11 +24,11 @@ from estimators.pathtracer.camera import SPLAT_CHANNELS, _generate_ray_kernel, s
 from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_environment,
                                             is_delta, sample_emitter)
 from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
-                                            surface, to_local, to_world)
-from estimators.pathtracer.layout import (ALL_BSDF_FEATURES, ALL_FEATURES, F_AREA_LIGHTS,
-                                          F_ENV, F_MANY_LIGHTS, F_NONDELTA_LIGHTS,
-                                          F_NULL_BSDFS, LIGHT_KIND, LIGHT_RADIANCE,
-                                          PRIM_SHAPE)
+                                            shading_frame, surface, to_local, to_world)
+from estimators.pathtracer.layout import (ALL_BSDF_FEATURES, ALL_FEATURES, BSDF_FRAME,
+                                          F_AREA_LIGHTS, F_ENV, F_FRAME, F_MANY_LIGHTS,
+                                          F_NONDELTA_LIGHTS, F_NULL_BSDFS, LIGHT_KIND,
+                                          LIGHT_RADIANCE, PRIM_SHAPE)
 
 # --- features (rewritten by render.specialised_kernel) ---
 FEATURES = -1
@@ -144,7 +144,10 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                 valid = True
             break
         b = shape_bsdf[shape]
-        fs, ft = coordinate_system(sx, sy, sz)
+        if MASK & F_FRAME and bi[b, BSDF_FRAME]:
+            fs, ft = shading_frame(prims, info, j, px, py, pz, sx, sy, sz, b1, b2)
+        else:
+            fs, ft = coordinate_system(sx, sy, sz)
         fn = (sx, sy, sz)
         wi = to_local(fs, ft, fn, -dx, -dy, -dz)
         # ---- emitter sampling

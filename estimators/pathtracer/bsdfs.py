@@ -26,7 +26,7 @@ from numba import njit
 from ..warps import (beckmann_pdf_kernel, cosine_hemisphere_pdf_kernel, ggx_d,
                      sample_beckmann_kernel, sample_cosine_hemisphere_kernel,
                      sample_ggx_vndf_kernel)
-from .layout import (ALPHA, BLEND, BSDF_CHILD0, BSDF_CHILD1, BSDF_DISTRIBUTION,
+from .layout import (ALPHA, ALPHA_V, BLEND, BSDF_CHILD0, BSDF_CHILD1, BSDF_DISTRIBUTION,
                      BSDF_KIND, BSDF_NONLINEAR, BSDF_TWOSIDED, COAT_INTERNAL, COAT_TABLE,
                      COAT_TABLE_RES, COLOR0, COLOR1, COND_ETA, COND_K, CONDUCTOR, DIELECTRIC,
                      DIFFUSE, ETA, F_BLEND, F_CONDUCTOR, F_DIELECTRIC, F_DIFFUSE, F_MASK,
@@ -104,8 +104,12 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
 
 
 # ------------------------------------------------------------------------ microfacets
+# Roughness is (alpha_u, alpha_v) along the local x (the shading frame's s) and y. The
+# isotropic case (equal) runs the warps' code as it always did; the anisotropic one is
+# the isotropic α = 1 distribution stretched by (alpha_u, alpha_v) in slope space, which
+# is exact for GGX and Beckmann (their slope densities scale, Heitz 2014, sec. 5.4).
 @_jit
-def microfacet_d(m, alpha, dist):
+def _d_isotropic(m, alpha, dist):
     if dist == GGX:
         return ggx_d(m, alpha)
     if m[2] <= 0.0:
@@ -114,8 +118,25 @@ def microfacet_d(m, alpha, dist):
 
 
 @_jit
-def smith_g1(v, m, alpha, dist):
-    xy2 = alpha * alpha * (v[0] * v[0] + v[1] * v[1])
+def microfacet_d(m, au, av, dist):
+    """D(m) of roughness (alpha_u, alpha_v). Anisotropic: D(m) = D₁(m̃) / (αu αv L⁴)
+    with m̃ = (mx/αu, my/αv, mz) / L, D₁ the distribution at α = 1."""
+    if au == av:
+        return _d_isotropic(m, au, dist)
+    if m[2] <= 0.0:
+        return 0.0
+    sx, sy = m[0] / au, m[1] / av
+    l2 = sx * sx + sy * sy + m[2] * m[2]
+    inv = 1.0 / math.sqrt(l2)
+    return _d_isotropic((sx * inv, sy * inv, m[2] * inv), 1.0, dist) / (au * av * l2 * l2)
+
+
+@_jit
+def smith_g1(v, m, au, av, dist):
+    if au == av:
+        xy2 = au * au * (v[0] * v[0] + v[1] * v[1])
+    else:
+        xy2 = au * au * v[0] * v[0] + av * av * v[1] * v[1]
     if (v[0] * m[0] + v[1] * m[1] + v[2] * m[2]) * v[2] <= 0.0:
         return 0.0
     if xy2 == 0.0:
@@ -147,41 +168,51 @@ def _reflect(w, m):
 
 
 @_jit
-def sample_microfacet(wi, alpha, dist, u0, u1):
-    """A microfacet normal for ``wi`` (z > 0): visible normals for GGX, D cos θ_m for
-    Beckmann; its density is ``microfacet_pdf``."""
+def _sample_isotropic(wi, alpha, dist, u0, u1):
     if dist == GGX:
         return sample_ggx_vndf_kernel((u0, u1), (alpha, wi[0], wi[1], wi[2]))
     return sample_beckmann_kernel((u0, u1), (alpha,))
 
 
 @_jit
-def microfacet_pdf(wi, m, alpha, dist):
+def sample_microfacet(wi, au, av, dist, u0, u1):
+    """A microfacet normal for ``wi`` (z > 0): visible normals for GGX, D cos θ_m for
+    Beckmann; its density is ``microfacet_pdf``. Anisotropic: ``wi`` stretched by
+    (αu, αv), a normal of the α = 1 distribution drawn, and unstretched."""
+    if au == av:
+        return _sample_isotropic(wi, au, dist, u0, u1)
+    ws = _normalize(au * wi[0], av * wi[1], wi[2])
+    m = _sample_isotropic(ws, 1.0, dist, u0, u1)
+    return _normalize(au * m[0], av * m[1], m[2])
+
+
+@_jit
+def microfacet_pdf(wi, m, au, av, dist):
     """Density (solid angle of m) of ``sample_microfacet(wi, ...)``."""
-    d = microfacet_d(m, alpha, dist)
+    d = microfacet_d(m, au, av, dist)
     if dist == GGX:
-        return d * smith_g1(wi, m, alpha, dist) * max(_dot(wi, m), 0.0) / wi[2]
+        return d * smith_g1(wi, m, au, av, dist) * max(_dot(wi, m), 0.0) / wi[2]
     return d * m[2]
 
 
 @_jit
-def microfacet_reflect_pdf(wi, wo, alpha, dist):
+def microfacet_reflect_pdf(wi, wo, au, av, dist):
     """pdf of wo = reflect(wi, m) with m from ``sample_microfacet``."""
     m = _normalize(wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2])
     wom = _dot(wo, m)
     if _dot(wi, m) <= 0.0 or wom <= 0.0:
         return 0.0
-    return microfacet_pdf(wi, m, alpha, dist) / (4.0 * wom)
+    return microfacet_pdf(wi, m, au, av, dist) / (4.0 * wom)
 
 
 @_jit
-def _microfacet_value(wi, wo, alpha, dist):
+def _microfacet_value(wi, wo, au, av, dist):
     """(D G / (4 cos θ_i), wi · h) for the half vector h of wi and wo."""
     m = _normalize(wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2])
-    d = microfacet_d(m, alpha, dist)
+    d = microfacet_d(m, au, av, dist)
     if d == 0.0:
         return 0.0, 0.0
-    g = smith_g1(wi, m, alpha, dist) * smith_g1(wo, m, alpha, dist)
+    g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
     return d * g / (4.0 * wi[2]), _dot(wi, m)
 
 
@@ -250,12 +281,12 @@ def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u,
     wim, wom = _dot(wi, m), _dot(wo, m)
     if wim * ci <= 0.0 or wom * co <= 0.0:
         return 0.0, 0.0, 0.0, 0.0
-    alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
-    d = microfacet_d(m, alpha, dist)
+    au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
+    d = microfacet_d(m, au, av, dist)
     f = fresnel_dielectric(wim, bf[b, ETA])[0]
-    g = smith_g1(wi, m, alpha, dist) * smith_g1(wo, m, alpha, dist)
+    g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
     wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
-    pdf = microfacet_pdf(wp, m, alpha, dist)
+    pdf = microfacet_pdf(wp, m, au, av, dist)
     if reflect:
         val = f * d * g / (4.0 * abs(ci))
         pdf *= f / (4.0 * abs(wom))
@@ -289,12 +320,12 @@ def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
         s = co * _INV_PI
         return r * s, g * s, bl * s, s
     if mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
-        alpha, dist = bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION]
-        val, cos_h = _microfacet_value(wi, wo, alpha, dist)
+        au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
+        val, cos_h = _microfacet_value(wi, wo, au, av, dist)
         if val == 0.0:
             return 0.0, 0.0, 0.0, 0.0
         r, g, bl = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
-        pdf = microfacet_reflect_pdf(wi, wo, alpha, dist)
+        pdf = microfacet_reflect_pdf(wi, wo, au, av, dist)
         f0, f1, f2 = _conductor_fresnel(bf, b, cos_h)
         return r * val * f0, g * val * f1, bl * val * f2, pdf
     eta = bf[b, ETA]
@@ -314,12 +345,12 @@ def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     dr, dg, db = _coat_base(dr, dg, db, bf[b, COAT_INTERNAL], bi[b, BSDF_NONLINEAR])
     s = _INV_PI / (eta * eta) * co * t_i * t_o
     r, g, bl = dr * s, dg * s, db * s
-    val, cos_h = _microfacet_value(wi, wo, alpha, dist)
+    val, cos_h = _microfacet_value(wi, wo, alpha, alpha, dist)
     if val != 0.0:
         sr, sg, sb = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
         val *= fresnel_dielectric(cos_h, eta)[0]
         r, g, bl = r + sr * val, g + sg * val, bl + sb * val
-    pdf = (ps * microfacet_reflect_pdf(wi, wo, alpha, dist)
+    pdf = (ps * microfacet_reflect_pdf(wi, wo, alpha, alpha, dist)
            + (1.0 - ps) * cosine_hemisphere_pdf_kernel(wo, (0.0,)))
     return r, g, bl, pdf
 
@@ -406,7 +437,8 @@ def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, 
         if ci == 0.0:
             return fail
         wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
-        m = sample_microfacet(wp, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
+        m = sample_microfacet(wp, bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION],
+                              u1, u2)
         wim = _dot(wi, m)
         f, cos_t, eta_it, eta_ti = fresnel_dielectric(wim, bf[b, ETA])
         if u0 <= f:
@@ -439,12 +471,14 @@ def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, 
     elif mask & F_DIFFUSE and kind == DIFFUSE:
         wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
     elif mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
-        m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
+        m = sample_microfacet(wi, bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION],
+                              u1, u2)
         wo = _reflect(wi, m)
     elif mask & F_ROUGHPLASTIC and kind == ROUGHPLASTIC:
         ps = _rough_plastic_probs(bf, b, ci)[0]
         if u0 < ps:
-            m = sample_microfacet(wi, bf[b, ALPHA], bi[b, BSDF_DISTRIBUTION], u1, u2)
+            alpha = bf[b, ALPHA]
+            m = sample_microfacet(wi, alpha, alpha, bi[b, BSDF_DISTRIBUTION], u1, u2)
             wo = _reflect(wi, m)
         else:
             wo = sample_cosine_hemisphere_kernel((u1, u2), (0.0,))
@@ -541,11 +575,11 @@ def _coat_average(mu, alpha, dist, eta, ua, ub, w2, transmit):
     wi = (math.sqrt(max(0.0, 1.0 - mu * mu)), 0.0, mu)
     acc = 0.0
     for j in range(ua.shape[0]):
-        m = sample_microfacet(wi, alpha, dist, ua[j], ub[j])
+        m = sample_microfacet(wi, alpha, alpha, dist, ua[j], ub[j])
         wim = _dot(wi, m)
         if wim <= 0.0:
             continue
-        d = microfacet_d(m, alpha, dist)
+        d = microfacet_d(m, alpha, alpha, dist)
         if dist == GGX:
             ratio = 1.0          # the warp samples visible normals already
         else:
@@ -559,10 +593,10 @@ def _coat_average(mu, alpha, dist, eta, ua, ub, w2, transmit):
                   c * m[2] - wi[2] * eta_ti)
             if wo[2] * wi[2] >= 0.0:
                 continue
-            acc += w2[j] * ratio * smith_g1(wo, m, alpha, dist) * (1.0 - f)
+            acc += w2[j] * ratio * smith_g1(wo, m, alpha, alpha, dist) * (1.0 - f)
         else:
             wo = _reflect(wi, m)
             if wo[2] <= 0.0:
                 continue
-            acc += w2[j] * ratio * smith_g1(wo, m, alpha, dist) * f
+            acc += w2[j] * ratio * smith_g1(wo, m, alpha, alpha, dist) * f
     return acc

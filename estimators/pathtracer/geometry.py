@@ -30,7 +30,8 @@ from numba import njit
 from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_KIND, LEAF_P0,
                      LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_COUNT,
                      NODE_FIRST, NODE_HI, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
-                     SPHERE_CENTER, SPHERE_RADIUS, TRI_P0, TRI_P1, TRI_P2, TRIANGLE)
+                     SPHERE_CENTER, SPHERE_RADIUS, SPHERE_ROTATION, TRI_P0, TRI_P1, TRI_P2,
+                     TRI_UV0, TRI_UV1, TRI_UV2, TRIANGLE)
 
 _BINS = 16
 _LEAF = 4
@@ -455,6 +456,61 @@ def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
 
 
 # ------------------------------------------------------------------------- frames
+@_inline
+def dp_du(prims, info, j, b1, b2):
+    """Mitsuba's dp/du at the hit (j, b1, b2) of ``intersect``, up to a positive factor
+    (only its direction is used): a triangle's from its texture coordinates (a mesh
+    without uv stores the barycentric ones, which give the edge p1 - p0, as Mitsuba's
+    barycentric parameterisation does; a degenerate uv map gives the first tangent of
+    ``coordinate_system`` of the face normal); a sphere's ∂/∂φ of its local spherical
+    coordinates, rotated to the world; a disk's radial direction (the disk's own u is
+    the radius). Zero where the parameterisation is singular (a pole, a disk's centre)."""
+    p = prims[j]
+    kind = info[j, PRIM_KIND]
+    if kind == TRIANGLE:
+        e1x, e1y, e1z = p[3] - p[0], p[4] - p[1], p[5] - p[2]
+        e2x, e2y, e2z = p[6] - p[0], p[7] - p[1], p[8] - p[2]
+        du0, dv0 = p[TRI_UV1] - p[TRI_UV0], p[TRI_UV1 + 1] - p[TRI_UV0 + 1]
+        du1, dv1 = p[TRI_UV2] - p[TRI_UV0], p[TRI_UV2 + 1] - p[TRI_UV0 + 1]
+        det = du0 * dv1 - dv0 * du1
+        if det == 0.0:
+            nx, ny, nz = triangle_point(p, b1, b2)[3:]
+            return coordinate_system(nx, ny, nz)[0]
+        inv = 1.0 / det
+        return ((dv1 * e1x - dv0 * e2x) * inv, (dv1 * e1y - dv0 * e2y) * inv,
+                (dv1 * e1z - dv0 * e2z) * inv)
+    if kind == SPHERE:
+        # b1, b2: the local x, y of the hit relative to the centre (``shading_frame``
+        # computes them): R (-y, x, 0), R the rotation whose transpose the row holds
+        r = SPHERE_ROTATION
+        return (-b2 * p[r] + b1 * p[r + 3], -b2 * p[r + 1] + b1 * p[r + 4],
+                -b2 * p[r + 2] + b1 * p[r + 5])
+    # disk: to_world · (x, y, 0), the local hit's radial direction (length r)
+    return (b1 * p[0] + b2 * p[1], b1 * p[4] + b2 * p[5], b1 * p[8] + b2 * p[9])
+
+
+@_inline
+def shading_frame(prims, info, j, px, py, pz, nx, ny, nz, b1, b2):
+    """Mitsuba's shading frame (``SurfaceInteraction::initialize_sh_frame``) around the
+    unit shading normal n (flipped already where ``flip_normals`` says so; dp/du is not):
+    s = normalize(dp/du - n (n · dp/du)), or ``coordinate_system(n)``'s first tangent
+    where dp/du is zero; t = n × s. Returns (s, t)."""
+    if info[j, PRIM_KIND] == SPHERE:
+        p = prims[j]
+        r = SPHERE_ROTATION
+        cx, cy, cz = px - p[SPHERE_CENTER], py - p[SPHERE_CENTER + 1], pz - p[SPHERE_CENTER + 2]
+        b1 = p[r] * cx + p[r + 1] * cy + p[r + 2] * cz
+        b2 = p[r + 3] * cx + p[r + 4] * cy + p[r + 5] * cz
+    dx, dy, dz = dp_du(prims, info, j, b1, b2)
+    if dx == 0.0 and dy == 0.0 and dz == 0.0:
+        return coordinate_system(nx, ny, nz)
+    c = nx * dx + ny * dy + nz * dz
+    sx, sy, sz = dx - c * nx, dy - c * ny, dz - c * nz
+    inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
+    sx, sy, sz = sx * inv, sy * inv, sz * inv
+    return (sx, sy, sz), (ny * sz - nz * sy, nz * sx - nx * sz, nx * sy - ny * sx)
+
+
 @_jit
 def coordinate_system(nx, ny, nz):
     """Two unit tangents completing the unit normal n to a right-handed frame

@@ -60,6 +60,9 @@ FEATURE_BITS = {
     "light:many": 1 << 11,          # more than one light (light selection)
     "bsdf:roughdielectric": 1 << 12, "bsdf:thindielectric": 1 << 13,
     "bsdf:blendbsdf": 1 << 14, "bsdf:mask": 1 << 15,
+    # a BSDF reads Mitsuba's shading frame (tangent s along dp/du: anisotropic roughness);
+    # without it the kernel keeps any frame around the normal (isotropic BSDFs)
+    "shading:frame": 1 << 16,
 }
 ALL_FEATURES = sum(FEATURE_BITS.values())
 F_DIFFUSE, F_CONDUCTOR, F_ROUGHCONDUCTOR, F_DIELECTRIC, F_PLASTIC, F_ROUGHPLASTIC = (
@@ -77,6 +80,7 @@ F_ENV = FEATURE_BITS["light:environment"]
 F_AREA_LIGHTS = FEATURE_BITS["light:area"]
 F_NONDELTA_LIGHTS = FEATURE_BITS["light:nondelta"]
 F_MANY_LIGHTS = FEATURE_BITS["light:many"]
+F_FRAME = FEATURE_BITS["shading:frame"]
 #: the bits the BSDF code reads (BSDF types, textures, two-sided)
 ALL_BSDF_FEATURES = sum(bit for name, bit in FEATURE_BITS.items()
                         if name.startswith(("bsdf:", "texture:")))
@@ -127,14 +131,16 @@ GGX, BECKMANN = 0, 1
 # bsdf_i columns
 BSDF_KIND, BSDF_TWOSIDED, BSDF_DISTRIBUTION, BSDF_NONLINEAR = range(4)
 BSDF_CHILD0, BSDF_CHILD1 = 4, 5     # blendbsdf: its two rows; mask: its one row (CHILD0)
-BSDF_INTS = 6
+BSDF_FRAME = 6                  # 1: the row or one it holds needs Mitsuba's shading frame
+BSDF_INTS = 7
 # bsdf_f columns. Colour slots 0 and 1 (a texture in bsdf_tex may replace either):
 COLOR0, COLOR1 = 0, 3           # diffuse/specular reflectance, specular transmittance
 COND_ETA, COND_K = 3, 6         # conductors: complex index per channel
 ETA = 9                         # dielectrics, plastics: interior / exterior index
 COAT_INTERNAL = 10              # plastics: diffuse light the coat reflects back down
 SPECULAR_WEIGHT = 11            # plastics: probability weight of the specular lobe
-ALPHA = 12                      # microfacet roughness
+ALPHA = 12                      # microfacet roughness (alpha_u: along the tangent s)
+ALPHA_V = 13                    # roughness along t = n × s (alpha_v; = ALPHA if isotropic)
 MIX = 14                        # blendbsdf: weight of the second BSDF; mask: opacity.
                                 # A texture in bsdf_tex slot 0 replaces it (luminance)
 COAT_TABLE = 16                 # roughplastic: coat transmittance at cos θ = linspace(0, 1)

@@ -66,8 +66,8 @@ class PreparedScene:
     def planted(self, *, light_scale: float = 1.0, albedo_scale: float = 1.0,
                 bsdf: int | None = None, texture_filter: str | None = None,
                 texture_raw: bool = False, camera_extent: float = 1.0,
-                filter_scale: float = 1.0,
-                bsdf_scale: tuple | None = None) -> "PreparedScene":
+                filter_scale: float = 1.0, bsdf_scale: tuple | None = None,
+                swap_alpha_uv: bool = False, frame_ignored: bool = False) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
@@ -78,9 +78,12 @@ class PreparedScene:
         view (perspective) scaled by ``camera_extent``; the film's reconstruction filter
         widened by ``filter_scale`` (a gaussian's stddev, a tent's radius: 1.2 turns
         Mitsuba's default σ = 0.5 into 0.6); ``bsdf_scale=(type, parameter, factor)``:
-        that parameter (``"alpha"``, ``"eta"``, or ``"mix"``: a blend's weight or a mask's
-        opacity, when a float) of every BSDF of that type (``"roughdielectric"``...)
-        multiplied by ``factor``."""
+        that parameter (``"alpha"`` (both roughnesses), ``"alpha_u"``, ``"alpha_v"``,
+        ``"eta"``, or ``"mix"``: a blend's weight or a mask's opacity, when a float) of
+        every BSDF of that type (``"roughdielectric"``...) multiplied by ``factor``;
+        ``swap_alpha_uv``: every BSDF's alpha_u and alpha_v exchanged (anisotropy along
+        the wrong tangent); ``frame_ignored``: every BSDF shaded in ``coordinate_system``'s
+        frame around the normal instead of Mitsuba's (s along dp/du)."""
         if texture_raw:
             desc = copy.deepcopy(self.desc)
             for shape in desc.shapes:
@@ -89,7 +92,8 @@ class PreparedScene:
             return _Builder(desc).build().planted(
                 light_scale=light_scale, albedo_scale=albedo_scale, bsdf=bsdf,
                 texture_filter=texture_filter, camera_extent=camera_extent,
-                filter_scale=filter_scale, bsdf_scale=bsdf_scale)
+                filter_scale=filter_scale, bsdf_scale=bsdf_scale,
+                swap_alpha_uv=swap_alpha_uv, frame_ignored=frame_ignored)
         camera = dataclasses.replace(self.camera, tan_x=self.camera.tan_x * camera_extent,
                                      tan_y=self.camera.tan_y * camera_extent)
         a = self.arrays
@@ -101,6 +105,10 @@ class PreparedScene:
                                         stddev=camera.filter_stddev * filter_scale)
         if bsdf_scale is not None:
             a = a._replace(bsdf_f=self._bsdf_scaled(*bsdf_scale))
+        if frame_ignored:
+            bsdf_i = a.bsdf_i.copy()
+            bsdf_i[:, layout.BSDF_FRAME] = 0
+            a = a._replace(bsdf_i=bsdf_i)
         if texture_filter is not None:
             if texture_filter not in layout.FILTERS:
                 raise ValueError(f"texture_filter={texture_filter!r}; one of "
@@ -112,6 +120,8 @@ class PreparedScene:
         light_f = a.light_f.copy()
         light_f[:, rgb] *= light_scale
         bf = a.bsdf_f.copy()
+        if swap_alpha_uv:
+            bf[:, [layout.ALPHA, layout.ALPHA_V]] = bf[:, [layout.ALPHA_V, layout.ALPHA]]
         if albedo_scale != 1.0:
             base = slice(layout.COLOR0, layout.COLOR0 + 3)
             if bsdf is None:
@@ -125,18 +135,20 @@ class PreparedScene:
                                    arrays=a._replace(light_f=light_f, bsdf_f=bf))
 
     def _bsdf_scaled(self, kind: str, param: str, factor: float) -> np.ndarray:
-        columns = {"alpha": layout.ALPHA, "eta": layout.ETA, "mix": layout.MIX}
+        columns = {"alpha": [layout.ALPHA, layout.ALPHA_V], "alpha_u": [layout.ALPHA],
+                   "alpha_v": [layout.ALPHA_V], "eta": [layout.ETA], "mix": [layout.MIX]}
         if kind not in layout.BSDF_NAMES or param not in columns:
             raise ValueError(f"bsdf_scale=({kind!r}, {param!r}, ...): a BSDF type "
                              f"({', '.join(layout.BSDF_NAMES)}) and one of "
                              f"{', '.join(columns)}")
         rows = np.flatnonzero(self.arrays.bsdf_i[:, layout.BSDF_KIND]
                               == layout.BSDF_NAMES.index(kind))
-        rows = rows[self.arrays.bsdf_f[rows, columns[param]] != 0]
+        rows = rows[self.arrays.bsdf_f[rows, columns[param][0]] != 0]
         if len(rows) == 0:
             raise ValueError(f"the scene has no {kind} with a {param} to plant in")
         bf = self.arrays.bsdf_f.copy()
-        bf[rows, columns[param]] *= factor
+        for col in columns[param]:
+            bf[rows, col] *= factor
         return bf
 
     @property
@@ -228,22 +240,27 @@ class _Builder:
                 self.fail(plugin, f"{name} must be > 0, got {alpha}")
         return layout.GGX if d == "ggx" else layout.BECKMANN
 
-    def _alpha(self, plugin: Plugin) -> float:
-        """The roughness: ``alpha``, or ``alpha_u`` and ``alpha_v`` when they are equal
-        (both, and no ``alpha``: Mitsuba refuses the rest). Anisotropic roughness is
-        refused: Mitsuba orients it along the surface's dp/du, and the tracer's shading
-        frame is another tangent frame, so the image would differ."""
+    def _alpha(self, plugin: Plugin) -> tuple[float, float]:
+        """The roughness (alpha_u, alpha_v): ``alpha`` for both, or ``alpha_u`` and
+        ``alpha_v`` (both, and no ``alpha``: Mitsuba refuses the rest). Mitsuba orients
+        alpha_u along the shading frame's tangent s, which follows dp/du; a BSDF whose
+        two differ asks the kernel for that frame (``BSDF_FRAME``)."""
         given = {n for n in ("alpha_u", "alpha_v") if n in plugin.props}
         if not given:
-            return float(plugin.get("alpha", 0.1))
+            alpha = float(plugin.get("alpha", 0.1))
+            return alpha, alpha
         if len(given) == 1 or "alpha" in plugin.props:
             self.fail(plugin, "give alpha, or both alpha_u and alpha_v")
-        au, av = float(plugin.get("alpha_u")), float(plugin.get("alpha_v"))
-        if au != av:
-            self.fail(plugin, f"alpha_u={au:g} and alpha_v={av:g} differ: anisotropic "
-                              "roughness is not supported (Mitsuba orients it along the "
-                              "surface's dp/du, which the tracer's shading frame is not)")
-        return au
+        return float(plugin.get("alpha_u")), float(plugin.get("alpha_v"))
+
+    def _roughness(self, plugin: Plugin, f: np.ndarray, i: np.ndarray):
+        """Store the distribution and (alpha_u, alpha_v) of a microfacet BSDF; an
+        anisotropic one needs Mitsuba's shading frame."""
+        i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
+        f[layout.ALPHA], f[layout.ALPHA_V] = self._alpha(plugin)
+        if f[layout.ALPHA] != f[layout.ALPHA_V]:
+            i[layout.BSDF_FRAME] = 1
+            self.features |= FEATURE_BITS["shading:frame"]
 
     def bsdf(self, plugin: Plugin | None, emitter: bool = False) -> int:
         if plugin is None:
@@ -302,6 +319,7 @@ class _Builder:
             f[layout.MIX] = rgb[0]
             for col, child in zip((layout.BSDF_CHILD0, layout.BSDF_CHILD1), nested):
                 i[col] = self._bsdf_row(child, twosided, plugin.type)
+                i[layout.BSDF_FRAME] |= self.bsdf_rows[i[col]][1][layout.BSDF_FRAME]
         elif kind == layout.DIFFUSE:
             f[c0], tex[0], _ = self._colour(plugin, "reflectance", 0.5)
         elif kind in (layout.CONDUCTOR, layout.ROUGHCONDUCTOR):
@@ -319,8 +337,7 @@ class _Builder:
                                       f"{', '.join(sorted(table))}")
                 f[eta], f[k] = table[name]["eta"], table[name]["k"]
             if kind == layout.ROUGHCONDUCTOR:
-                i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
-                f[layout.ALPHA] = float(plugin.get("alpha", 0.1))
+                self._roughness(plugin, f, i)
         elif kind in (layout.DIELECTRIC, layout.ROUGHDIELECTRIC, layout.THINDIELECTRIC):
             f[c0], tex[0], _ = self._colour(plugin, "specular_reflectance", 1.0)
             f[c1], tex[1], _ = self._colour(plugin, "specular_transmittance", 1.0)
@@ -329,8 +346,7 @@ class _Builder:
                 self.fail(plugin, "int_ior and ext_ior must differ")
             f[layout.ETA] = eta
             if kind == layout.ROUGHDIELECTRIC:
-                i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
-                f[layout.ALPHA] = self._alpha(plugin)
+                self._roughness(plugin, f, i)
         else:  # plastic, roughplastic
             f[c0], tex[0], d_mean = self._colour(plugin, "diffuse_reflectance", 0.5)
             f[c1], tex[1], s_mean = self._colour(plugin, "specular_reflectance", 1.0)
@@ -346,7 +362,7 @@ class _Builder:
             else:
                 i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
                 alpha = float(plugin.get("alpha", 0.1))
-                f[layout.ALPHA] = alpha
+                f[layout.ALPHA] = f[layout.ALPHA_V] = alpha
                 table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
                 f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
                 f[layout.COAT_INTERNAL] = internal

@@ -34,9 +34,14 @@ ANGLES = (0.0, 45.0, 80.0)
 TRACER_SAMPLES = 1_000_000
 
 
-def _direction(theta_deg: float) -> tuple[float, float, float]:
-    t = np.radians(theta_deg)
-    return (float(np.sin(t)), 0.0, float(np.cos(t)))
+#: Azimuth (degrees) of the incident direction for anisotropic BSDFs, off both axes of
+#: the roughness so that neither alpha_u nor alpha_v alone decides the lobe.
+ANISOTROPIC_PHI = 30.0
+
+
+def _direction(theta_deg: float, phi_deg: float = 0.0) -> tuple[float, float, float]:
+    t, p = np.radians(theta_deg), np.radians(phi_deg)
+    return (float(np.sin(t) * np.cos(p)), float(np.sin(t) * np.sin(p)), float(np.cos(t)))
 
 
 def _bsdf_label(scene, tag: str, b: int) -> str:
@@ -52,8 +57,11 @@ def _bsdf_label(scene, tag: str, b: int) -> str:
         children = (layout.BSDF_CHILD0, layout.BSDF_CHILD1)[:2 if name == "weight" else 1]
         parts.append("+".join(f"bsdf{i[c]}" for c in children))
     elif f[layout.ALPHA] > 0:
-        parts += [("ggx", "beckmann")[int(i[layout.BSDF_DISTRIBUTION])],
-                  f"alpha={f[layout.ALPHA]:g}"]
+        parts.append(("ggx", "beckmann")[int(i[layout.BSDF_DISTRIBUTION])])
+        if f[layout.ALPHA_V] != f[layout.ALPHA]:
+            parts.append(f"alpha_u={f[layout.ALPHA]:g},alpha_v={f[layout.ALPHA_V]:g}")
+        else:
+            parts.append(f"alpha={f[layout.ALPHA]:g}")
     if f[layout.ETA] > 0:
         parts.append(f"eta={f[layout.ETA]:.4g}")
     params = f"({','.join(parts)})" if parts else ""
@@ -117,9 +125,11 @@ def scene_instances(scene_path: str):
         angles = list(ANGLES)
         if _both_sides(scene.arrays.bsdf_i, b):
             angles += [180.0 - t for t in ANGLES]
+        phi = ANISOTROPIC_PHI if scene.arrays.bsdf_i[b, layout.BSDF_FRAME] else 0.0
+        where = "" if phi == 0.0 else f",phi={phi:g}°"
         for t in angles:
-            entries.append(("bsdf", label, f"wi={t:g}°",
-                            lambda b=b, t=t: bsdf_sampler(scene, b, _direction(t))))
+            entries.append(("bsdf", label, f"wi={t:g}°{where}",
+                            lambda b=b, t=t: bsdf_sampler(scene, b, _direction(t, phi))))
     for k in range(len(scene.arrays.light_i)):
         label = _emitter_label(scene, tag, k)
         if not emitter_has_density(scene, k):

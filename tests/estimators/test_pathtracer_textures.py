@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from estimators.pathtracer import prepare_scene, parse_scene
-from estimators.pathtracer import geometry
+from estimators.pathtracer import geometry, layout
 from estimators.pathtracer import textures
 from estimators.pathtracer.scene import SceneError
 
@@ -185,9 +185,15 @@ def _write_plys(folder):
               uv_names=("s", "t"), fmt="binary_little_endian", vertex_type="double")
 
 
+#: Mitsuba's rotation about an axis that is not unit is not orthogonal, yet it inverts
+#: it by transposing: its cube's shading normals lean off its faces (by up to 0.007 in
+#: this case), where ours are the faces' normals. Only the uv is compared there.
+_NON_UNIT_AXIS = '<transform name="to_world"><rotate x="1" y="1" angle="25"/></transform>'
+
+
 @pytest.mark.parametrize("shape,props", [
     ("rectangle", '<transform name="to_world"><rotate x="1" angle="20"/></transform>'),
-    ("cube", '<transform name="to_world"><rotate x="1" y="1" angle="25"/></transform>'),
+    ("cube", _NON_UNIT_AXIS),
     ("cube", '<transform name="to_world"><scale x="-1"/><rotate y="1" angle="35"/>'
              '</transform>'),
     ("sphere", '<transform name="to_world"><rotate x="1" angle="70"/></transform>'),
@@ -199,12 +205,33 @@ def _write_plys(folder):
             '<scale x="1.5" y="0.7"/><rotate x="1" y="0.3" angle="30"/></transform>'),
     ("ply", '<string name="filename" value="grid.ply"/>'
             '<boolean name="face_normals" value="true"/>'),
+    ("ply", '<string name="filename" value="grid.ply"/><boolean name="flip_normals" '
+            'value="true"/>'),
+    ("obj", '<string name="filename" value="quad.obj"/><transform name="to_world">'
+            '<scale x="2" y="0.5"/><rotate z="1" angle="40"/><rotate x="1" angle="30"/>'
+            '</transform>'),
+    ("obj", '<string name="filename" value="tri.obj"/><transform name="to_world">'
+            '<rotate y="1" angle="-50"/></transform>'),
+    ("rectangle", '<transform name="to_world"><scale x="1.7" y="0.6"/><rotate z="1" '
+                  'angle="30"/><rotate x="0.6" y="0.8" angle="50"/></transform>'),
+    ("rectangle", '<boolean name="flip_normals" value="true"/><transform name="to_world">'
+                  '<rotate y="1" angle="20"/></transform>'),
+    ("sphere", '<float name="radius" value="0.8"/><transform name="to_world"><rotate x="0.6" '
+               'z="0.8" angle="65"/><scale value="1.3"/></transform>'),
+    ("sphere", '<boolean name="flip_normals" value="true"/>'),
+    ("disk", '<transform name="to_world"><scale x="1.4" y="0.8"/><rotate x="0.8" z="0.6" '
+             'angle="60"/></transform>'),
+    ("disk", '<boolean name="flip_normals" value="true"/><transform name="to_world">'
+             '<rotate y="1" angle="-30"/></transform>'),
 ])
-def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
+def test_uv_and_shading_frame_at_a_hit_match_mitsuba(mi, images, shape, props):
     """Rays from all around hit the shape: our (u, v) at the hit is Mitsuba's ``si.uv``
     (the texture layout of a cube face, an OBJ with and without vt, a PLY in each format
     with each of Mitsuba's uv names or none); on meshes the shading normal is Mitsuba's
-    ``si.sh_frame.n`` too (given, computed smooth, or the face's)."""
+    ``si.sh_frame.n`` too (given, computed smooth, or the face's). The shading frame that
+    anisotropic BSDFs read (``geometry.shading_frame``, s along dp/du) is Mitsuba's
+    ``si.sh_frame`` on every shape: meshes with uv, without (barycentric dp/du), with
+    vertex normals, rotated and scaled, with ``flip_normals``."""
     (images / "quad.obj").write_text(_QUAD)
     (images / "tri.obj").write_text(_TRI_NO_UV)
     _write_plys(images)
@@ -230,10 +257,18 @@ def test_uv_at_a_hit_matches_mitsuba(mi, images, shape, props):
         if shape == "sphere":
             du[0] = min(du[0], 1 - du[0])           # u wraps at the seam
         assert du.max() < 2e-5, f"ray {o} {d}: ours {uv}, Mitsuba {si.uv}"
+        hit = geometry.surface(prims, info, j, *o, *d, t, b1, b2)
+        n = np.array(hit[6:9]) * (-1.0 if a.shape_flip[info[j, layout.PRIM_SHAPE]] else 1.0)
         if shape in ("obj", "ply"):
-            n = geometry.surface(prims, info, j, *o, *d, t, b1, b2)[6:9]
-            assert np.abs(np.array(n) - np.array(si.sh_frame.n)).max() < 2e-5, \
+            assert np.abs(n - np.array(si.sh_frame.n)).max() < 2e-5, \
                 f"ray {o} {d}: shading normal ours {n}, Mitsuba {si.sh_frame.n}"
+        if props == _NON_UNIT_AXIS:
+            continue
+        fs, ft = geometry.shading_frame(prims, info, j, *hit[:3], *n, b1, b2)
+        ours = np.array([fs, ft, n])
+        theirs = np.array([si.sh_frame.s, si.sh_frame.t, si.sh_frame.n])
+        assert np.abs(ours - theirs).max() < 1e-4, \
+            f"ray {o} {d}: frame (s, t, n) ours {ours}, Mitsuba {theirs}"
     assert hits > 100
 
 

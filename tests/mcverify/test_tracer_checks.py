@@ -67,7 +67,7 @@ def test_every_planned_instance_passes_at_2_20():
 
 def _alpha_changed(scene, b, factor):
     bf = scene.arrays.bsdf_f.copy()
-    bf[b, layout.ALPHA] *= factor
+    bf[b, [layout.ALPHA, layout.ALPHA_V]] *= factor
     return dataclasses.replace(scene, arrays=scene.arrays._replace(bsdf_f=bf))
 
 
@@ -166,10 +166,41 @@ def test_a_parameter_changed_only_in_the_pdf_fails(kind, column, factor, wi_deg)
     scene = prepare_scene(GLASS)
     b = next(r for r in _rows_of(scene, kind) if scene.arrays.bsdf_f[r, column] != 0)
     bf = scene.arrays.bsdf_f.copy()
-    bf[b, column] *= factor
+    bf[b, [column, layout.ALPHA_V] if column == layout.ALPHA else column] *= factor
     wrong = dataclasses.replace(scene, arrays=scene.arrays._replace(bsdf_f=bf))
     t = np.radians(wi_deg)
     wi = (np.sin(t), 0.0, np.cos(t))
+    sample, _ = bsdf_sampler(scene, b, wi)
+    _, wrong_pdf = bsdf_sampler(wrong, b, wi)
+    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
+                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
+    assert not r.passed
+
+
+FRAME = os.path.join(REFERENCE_ROOT, "vocabulary-frame", "scene.xml")
+
+
+def test_anisotropic_instances_pass_and_are_checked_off_axis():
+    """Every anisotropic BSDF of the frame scene, χ²-checked with wi at φ = 30° (off both
+    roughness axes) from above, and from below for the glass."""
+    checks = tracer_checks(FRAME, 2 ** 16)[0]
+    aniso = [c for c in checks if "alpha_u=" in c.name]
+    assert len(aniso) == 3 * 3 + 2 * 6
+    assert all("phi=30°" in c.name for c in aniso)
+    n, bad = _family_passes(aniso, seed=19)
+    assert not bad, bad
+
+
+@pytest.mark.parametrize("kind", ["roughconductor", "roughdielectric"])
+def test_alpha_u_and_v_swapped_only_in_the_pdf_fails(kind):
+    """A planted bug: the sampler draws with (alpha_u, alpha_v), the pdf reads them
+    exchanged."""
+    scene = prepare_scene(FRAME)
+    b = next(r for r in _rows_of(scene, kind)
+             if scene.arrays.bsdf_f[r, layout.ALPHA] != scene.arrays.bsdf_f[r, layout.ALPHA_V])
+    wrong = scene.planted(swap_alpha_uv=True)
+    t, p = np.radians(45.0), np.radians(30.0)
+    wi = (np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t))
     sample, _ = bsdf_sampler(scene, b, wi)
     _, wrong_pdf = bsdf_sampler(wrong, b, wi)
     r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
