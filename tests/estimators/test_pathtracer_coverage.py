@@ -16,8 +16,8 @@ SCENES = os.path.join(ROOT, "reference", "scenes")
 # below, cornell-box, rough-conductors and glass-sphere at two depths in
 # tests/estimators/test_pathtracer_render.py, and bunny in tests/estimators/test_real_mesh.py
 GATE_SCENES = ["delta-lights", "veach-mis", "textures", "vocabulary-materials",
-               "vocabulary-lights", "vocabulary-geometry", "vocabulary-glass", "filters",
-               "filters-tent", "filters-gaussian"]
+               "vocabulary-lights", "vocabulary-geometry", "vocabulary-glass",
+               "vocabulary-frame", "filters", "filters-tent", "filters-gaussian"]
 GATED = set(GATE_SCENES) | {"cornell-box", "rough-conductors", "glass-sphere", "bunny"}
 
 
@@ -54,12 +54,13 @@ def test_no_image_effect_entries_name_real_properties():
 
 
 def test_the_kernel_bits_and_the_planner_speak_the_loaders_vocabulary():
-    """One vocabulary: the feature bits (apart from the lights-as-a-whole bits) and every
+    """One vocabulary: the feature bits (apart from the lights-as-a-whole bits and the
+    shading frame, which the preparation sets from what the BSDFs need) and every
     feature the scene planner maps to checks are features the loader accepts."""
     from mcverify.gate import plan
 
     accepted = coverage.accepted_features()
-    bits = {n for n in layout.FEATURE_BITS if not n.startswith("light:")}
+    bits = {n for n in layout.FEATURE_BITS if not n.startswith(("light:", "shading:"))}
     assert bits <= accepted
     assert set(plan.NEEDS) | set(plan.NOTHING_TO_SAMPLE) <= accepted
 
@@ -117,4 +118,19 @@ def test_a_wrong_glass_parameter_fails_the_gate_on_the_glass_scene(plant):
     import mcverify as mv
 
     r = mv.render_check("vocabulary-glass", seed=23, plant={"bsdf_scale": plant})
+    assert not r.passed, r.summary()
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("plant", [{"swap_alpha_uv": True}, {"frame_ignored": True},
+                                   {"bsdf_scale": ("roughconductor", "alpha_v", 0.7)}],
+                         ids=["alpha-uv-swapped", "frame-ignored", "roughconductor-alpha_v"])
+def test_wrong_anisotropy_fails_the_gate_on_the_frame_scene(plant):
+    """Planted bugs in anisotropic roughness: every BSDF's alpha_u and alpha_v exchanged
+    (the streaks turn by 90°), the BSDFs shaded in a tangent frame of our own instead of
+    Mitsuba's (the tracer before this scene), and every rough conductor's alpha_v × 0.7;
+    each must fail the default gate."""
+    import mcverify as mv
+
+    r = mv.render_check("vocabulary-frame", seed=25, plant=plant)
     assert not r.passed, r.summary()
