@@ -30,8 +30,9 @@ from .layout import (ALPHA, ALPHA_V, BLEND, BSDF_CHILD0, BSDF_CHILD1, BSDF_DISTR
                      BSDF_KIND, BSDF_NONLINEAR, BSDF_TWOSIDED, COAT_INTERNAL, COAT_TABLE,
                      COAT_TABLE_RES, COLOR0, COLOR1, COND_ETA, COND_K, CONDUCTOR, DIELECTRIC,
                      DIFFUSE, ETA, F_BLEND, F_CONDUCTOR, F_DIELECTRIC, F_DIFFUSE, F_MASK,
-                     F_PLASTIC, F_ROUGHCONDUCTOR, F_ROUGHDIELECTRIC, F_ROUGHPLASTIC,
-                     F_TEXTURES, F_THINDIELECTRIC, F_TWOSIDED, GGX, MASK, MIX, PLASTIC,
+                     F_NORMALMAP, F_PLASTIC, F_ROUGHCONDUCTOR, F_ROUGHDIELECTRIC, F_ROUGHPLASTIC,
+                     F_TEXTURES, F_THINDIELECTRIC, F_TWOSIDED, GGX, MASK, MIX,
+                     NORMALMAP, NORMALMAP_FLIP_INVALID, NORMALMAP_SHADOWING, PLASTIC,
                      ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPECULAR_WEIGHT,
                      THINDIELECTRIC)
 from .textures import eval_texture
@@ -385,15 +386,62 @@ def _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     return r, g, bl, pdf
 
 
+# ------------------------------------------------------------------- normal maps
+@njit(cache=True, inline="always")
+def _normalmap_frame(bi, btex, tex_data, tex_info, b, wi, u, v):
+    """Mitsuba's ``normalmap`` frame (s, t, n), in the local shading frame: n is the
+    texel v mapped to 2 v - 1, turned by π about the local z where it faces away from
+    ``wi`` (``flip_invalid_normals``), normalised; s is (1, 0, 0) made orthogonal to n;
+    t = n × s."""
+    r, g, bl = eval_texture(tex_data, tex_info, btex[b, 0], u, v)
+    nx, ny, nz = 2.0 * r - 1.0, 2.0 * g - 1.0, 2.0 * bl - 1.0
+    if bi[b, NORMALMAP_FLIP_INVALID] and wi[2] * (wi[0] * nx + wi[1] * ny + wi[2] * nz) <= 0.0:
+        nx, ny = -nx, -ny
+    n = _normalize(nx, ny, nz)
+    s = _normalize(1.0 - n[0] * n[0], -n[0] * n[1], -n[0] * n[2])
+    return s, (n[1] * s[2] - n[2] * s[1], n[2] * s[0] - n[0] * s[2],
+               n[0] * s[1] - n[1] * s[0]), n
+
+
+@_jit
+def _tan2(w):
+    return max(0.0, 1.0 - w[2] * w[2]) / (w[2] * w[2])
+
+
+@_jit
+def shadow_terminator(n, wo):
+    """Mitsuba's ``eval_shadow_terminator`` (Estévez et al., Ray Tracing Gems 2019): the
+    GGX-like masking of ``wo`` (local frame) with α² = min(tan² θ_n / 8, 1) set by how far
+    the mapped normal n leans."""
+    a2 = min(0.125 * _tan2(n), 1.0)
+    return 2.0 / (1.0 + math.sqrt(1.0 + a2 * _tan2(wo)))
+
+
 @njit(cache=True, inline="always")
 def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     """(f · |cos θ_o| as r, g, b, pdf) of the non-delta components. A ``mask`` scales its
-    BSDF's value and pdf by the opacity; a ``blendbsdf`` mixes its two by the weight."""
+    BSDF's value and pdf by the opacity; a ``blendbsdf`` mixes its two by the weight; a
+    ``normalmap`` evaluates its BSDF in the perturbed frame (nothing where wo lies on
+    opposite sides of the two frames) and scales the value by ``shadow_terminator``."""
+    shadow = 1.0
+    if mask & F_NORMALMAP and bi[b, BSDF_KIND] == NORMALMAP:
+        if bi[b, BSDF_TWOSIDED] and wi[2] < 0.0:
+            wi, wo = (wi[0], wi[1], -wi[2]), (wo[0], wo[1], -wo[2])
+        fs, ft, fn = _normalmap_frame(bi, btex, tex_data, tex_info, b, wi, u, v)
+        po = (_dot(fs, wo), _dot(ft, wo), _dot(fn, wo))
+        if wo[2] * po[2] <= 0.0:
+            return 0.0, 0.0, 0.0, 0.0
+        if bi[b, NORMALMAP_SHADOWING]:
+            shadow = shadow_terminator(fn, wo)
+        wi, wo = (_dot(fs, wi), _dot(ft, wi), _dot(fn, wi)), po
+        b = bi[b, BSDF_CHILD0]
     scale = 1.0
     if mask & F_MASK and bi[b, BSDF_KIND] == MASK:
         scale = _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v)
         b = bi[b, BSDF_CHILD0]
     r, g, bl, pdf = _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v)
+    if mask & F_NORMALMAP:
+        return r * scale * shadow, g * scale * shadow, bl * scale * shadow, pdf * scale
     return r * scale, g * scale, bl * scale, pdf * scale
 
 
@@ -492,7 +540,42 @@ def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, 
 @njit(cache=True, inline="always")
 def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale):
     """(wo x, y, z, weight r, g, b, pdf, delta, η, null) with weight = f cos θ_o / pdf.
-    A zero weight ends the path; ``null``: the ray goes on unchanged (a ``mask``'s
+    A ``normalmap`` samples its BSDF in the perturbed frame; a direction on opposite
+    sides of the two frames is dropped; the weight is scaled by ``shadow_terminator``
+    (see ``_sample_unmapped`` for the rest)."""
+    # the frame as nine floats: numba's parfor analysis rejects a tuple of tuples
+    # that is rebound in a branch
+    sx, sy, sz, tx, ty, tz, nx, ny, nz = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    mapped, flip, shadowing = False, False, False
+    if mask & F_NORMALMAP and bi[b, BSDF_KIND] == NORMALMAP:
+        mapped = True
+        flip = bool(bi[b, BSDF_TWOSIDED]) and wi[2] < 0.0
+        if flip:
+            wi = (wi[0], wi[1], -wi[2])
+        (sx, sy, sz), (tx, ty, tz), (nx, ny, nz) = _normalmap_frame(
+            bi, btex, tex_data, tex_info, b, wi, u, v)
+        wi = (sx * wi[0] + sy * wi[1] + sz * wi[2], tx * wi[0] + ty * wi[1] + tz * wi[2],
+              nx * wi[0] + ny * wi[1] + nz * wi[2])
+        shadowing = bool(bi[b, NORMALMAP_SHADOWING])
+        b = bi[b, BSDF_CHILD0]
+    res = _sample_unmapped(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
+                           pdf_scale)
+    if not mapped:
+        return res
+    (px, py, pz, wr, wg, wb, pdf, delta, eta, null) = res
+    wx = sx * px + tx * py + nx * pz
+    wy = sy * px + ty * py + ny * pz
+    wz = sz * px + tz * py + nz * pz
+    if pdf <= 0.0 or pz * wz <= 0.0:
+        return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0, False
+    g = shadow_terminator((nx, ny, nz), (wx, wy, wz)) if shadowing else 1.0
+    return wx, wy, -wz if flip else wz, wr * g, wg * g, wb * g, pdf, delta, eta, null
+
+
+@njit(cache=True, inline="always")
+def _sample_unmapped(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
+                     pdf_scale):
+    """``bsdf_sample`` of a row that is not a ``normalmap``. A zero weight ends the path; ``null``: the ray goes on unchanged (a ``mask``'s
     transparent part, a ``thindielectric``'s transmission), a delta event that Mitsuba
     counts as a bounce. ``pdf_scale`` is a test hook: a wrong pdf (not 1) must make the
     renderer biased, and the render gate must notice.
@@ -534,6 +617,9 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
 def bsdf_is_smooth(bi, b):
     """Whether the BSDF has a non-delta component (so light sampling can help)."""
     k = bi[b, BSDF_KIND]
+    if k == NORMALMAP:
+        b = bi[b, BSDF_CHILD0]
+        k = bi[b, BSDF_KIND]
     if k == MASK:
         k = bi[bi[b, BSDF_CHILD0], BSDF_KIND]
     return k != CONDUCTOR and k != DIELECTRIC and k != THINDIELECTRIC

@@ -63,6 +63,7 @@ FEATURE_BITS = {
     # a BSDF reads Mitsuba's shading frame (tangent s along dp/du: anisotropic roughness);
     # without it the kernel keeps any frame around the normal (isotropic BSDFs)
     "shading:frame": 1 << 16,
+    "bsdf:normalmap": 1 << 17,
 }
 ALL_FEATURES = sum(FEATURE_BITS.values())
 F_DIFFUSE, F_CONDUCTOR, F_ROUGHCONDUCTOR, F_DIELECTRIC, F_PLASTIC, F_ROUGHPLASTIC = (
@@ -81,6 +82,7 @@ F_AREA_LIGHTS = FEATURE_BITS["light:area"]
 F_NONDELTA_LIGHTS = FEATURE_BITS["light:nondelta"]
 F_MANY_LIGHTS = FEATURE_BITS["light:many"]
 F_FRAME = FEATURE_BITS["shading:frame"]
+F_NORMALMAP = FEATURE_BITS["bsdf:normalmap"]
 #: the bits the BSDF code reads (BSDF types, textures, two-sided)
 ALL_BSDF_FEATURES = sum(bit for name, bit in FEATURE_BITS.items()
                         if name.startswith(("bsdf:", "texture:")))
@@ -118,9 +120,9 @@ LEAF_KIND, LEAF_PRIM = 0, 1     # leaf_info columns: primitive kind, row of prim
 # ------------------------------------------------------------------------ BSDFs
 BSDF_NAMES = ("diffuse", "conductor", "roughconductor", "dielectric", "plastic",
               "roughplastic", "roughdielectric", "thindielectric", "blendbsdf",
-              "mask")                   # type codes are indices into this
+              "mask", "normalmap")      # type codes are indices into this
 (DIFFUSE, CONDUCTOR, ROUGHCONDUCTOR, DIELECTRIC, PLASTIC, ROUGHPLASTIC, ROUGHDIELECTRIC,
- THINDIELECTRIC, BLEND, MASK) = range(10)
+ THINDIELECTRIC, BLEND, MASK, NORMALMAP) = range(11)
 #: the composite BSDFs: rows that point at other rows (``BSDF_CHILD0/1``) and have no
 #: lobe of their own. A ``mask`` holds a basic BSDF or a ``blendbsdf``; a ``blendbsdf``
 #: holds two basic BSDFs with a density (no delta lobe), so that nothing nests deeper.
@@ -130,7 +132,10 @@ BSDF_BITS = tuple(FEATURE_BITS[f"bsdf:{name}"] for name in BSDF_NAMES)
 GGX, BECKMANN = 0, 1
 # bsdf_i columns
 BSDF_KIND, BSDF_TWOSIDED, BSDF_DISTRIBUTION, BSDF_NONLINEAR = range(4)
-BSDF_CHILD0, BSDF_CHILD1 = 4, 5     # blendbsdf: its two rows; mask: its one row (CHILD0)
+BSDF_CHILD0, BSDF_CHILD1 = 4, 5     # blendbsdf: its two rows; mask, normalmap: its one row
+# normalmap (a wrapper at the top of a shape's BSDF, holding one basic BSDF; its image in
+# bsdf_tex slot 0): Mitsuba's two switches, in columns no other use of the row has
+NORMALMAP_FLIP_INVALID, NORMALMAP_SHADOWING = BSDF_DISTRIBUTION, BSDF_NONLINEAR
 BSDF_FRAME = 6                  # 1: the row or one it holds needs Mitsuba's shading frame
 BSDF_INTS = 7
 # bsdf_f columns. Colour slots 0 and 1 (a texture in bsdf_tex may replace either):

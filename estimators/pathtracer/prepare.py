@@ -67,7 +67,8 @@ class PreparedScene:
                 bsdf: int | None = None, texture_filter: str | None = None,
                 texture_raw: bool = False, camera_extent: float = 1.0,
                 filter_scale: float = 1.0, bsdf_scale: tuple | None = None,
-                swap_alpha_uv: bool = False, frame_ignored: bool = False) -> "PreparedScene":
+                swap_alpha_uv: bool = False, frame_ignored: bool = False,
+                normalmap_ignored: bool = False) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
@@ -83,7 +84,8 @@ class PreparedScene:
         every BSDF of that type (``"roughdielectric"``...) multiplied by ``factor``;
         ``swap_alpha_uv``: every BSDF's alpha_u and alpha_v exchanged (anisotropy along
         the wrong tangent); ``frame_ignored``: every BSDF shaded in ``coordinate_system``'s
-        frame around the normal instead of Mitsuba's (s along dp/du)."""
+        frame around the normal instead of Mitsuba's (s along dp/du);
+        ``normalmap_ignored``: every ``normalmap`` replaced by the BSDF it holds."""
         if texture_raw:
             desc = copy.deepcopy(self.desc)
             for shape in desc.shapes:
@@ -93,7 +95,8 @@ class PreparedScene:
                 light_scale=light_scale, albedo_scale=albedo_scale, bsdf=bsdf,
                 texture_filter=texture_filter, camera_extent=camera_extent,
                 filter_scale=filter_scale, bsdf_scale=bsdf_scale,
-                swap_alpha_uv=swap_alpha_uv, frame_ignored=frame_ignored)
+                swap_alpha_uv=swap_alpha_uv, frame_ignored=frame_ignored,
+                normalmap_ignored=normalmap_ignored)
         camera = dataclasses.replace(self.camera, tan_x=self.camera.tan_x * camera_extent,
                                      tan_y=self.camera.tan_y * camera_extent)
         a = self.arrays
@@ -105,6 +108,15 @@ class PreparedScene:
                                         stddev=camera.filter_stddev * filter_scale)
         if bsdf_scale is not None:
             a = a._replace(bsdf_f=self._bsdf_scaled(*bsdf_scale))
+        if normalmap_ignored:
+            # each shape shades with the held BSDF (two-sided if the normalmap was)
+            bsdf_i = a.bsdf_i.copy()
+            rows = np.flatnonzero(bsdf_i[:, layout.BSDF_KIND] == layout.NORMALMAP)
+            held = bsdf_i[rows, layout.BSDF_CHILD0]
+            bsdf_i[held, layout.BSDF_TWOSIDED] |= bsdf_i[rows, layout.BSDF_TWOSIDED]
+            lookup = np.arange(len(bsdf_i))
+            lookup[rows] = held
+            a = a._replace(bsdf_i=bsdf_i, shape_bsdf=lookup[a.shape_bsdf])
         if frame_ignored:
             bsdf_i = a.bsdf_i.copy()
             bsdf_i[:, layout.BSDF_FRAME] = 0
@@ -285,7 +297,7 @@ class _Builder:
                 self.fail(plugin, "exactly one nested <bsdf> is supported (the same on "
                                   "both sides)")
             inner = nested[0]
-            grand = self._nested(inner) if inner.type == "blendbsdf" else []
+            grand = self._nested(inner) if inner.type in ("blendbsdf", "normalmap") else []
             if inner.type in TRANSMISSIVE or any(g.type in TRANSMISSIVE for g in grand):
                 self.fail(plugin, f"a twosided {inner.type} is not supported (Mitsuba "
                                   "accepts only reflective BSDFs inside twosided)")
@@ -300,6 +312,9 @@ class _Builder:
                               "BSDF's density)")
         if parent == "mask" and plugin.type == "mask":
             self.fail(plugin, "a mask inside a mask")
+        if plugin.type == "normalmap" and parent is not None:
+            self.fail(plugin, f"a normalmap inside a {parent} is not supported: make it the "
+                              "shape's BSDF (a twosided around it is fine)")
         f = np.zeros(layout.BSDF_WIDTH)
         i = np.zeros(layout.BSDF_INTS, dtype=np.int64)
         tex = np.full(2, -1, dtype=np.int64)
@@ -307,7 +322,9 @@ class _Builder:
         i[layout.BSDF_KIND], i[layout.BSDF_TWOSIDED] = kind, twosided
         self.features |= layout.BSDF_BITS[kind]
         c0, c1 = slice(layout.COLOR0, layout.COLOR0 + 3), slice(layout.COLOR1, layout.COLOR1 + 3)
-        if kind in layout.COMPOSITE:
+        if kind == layout.NORMALMAP:
+            self._normalmap(plugin, f, i, tex)
+        elif kind in layout.COMPOSITE:
             nested = self._nested(plugin)
             want = 2 if kind == layout.BLEND else 1
             if len(nested) != want:
@@ -369,6 +386,29 @@ class _Builder:
         self.bsdf_rows.append((f, i, tex))
         self.bsdf_names.append(plugin.type if not twosided else f"twosided({plugin.type})")
         return len(self.bsdf_rows) - 1
+
+    def _normalmap(self, plugin: Plugin, f: np.ndarray, i: np.ndarray, tex: np.ndarray):
+        """A ``normalmap`` row: its image (slot 0; Mitsuba maps a texel v to the normal
+        2 v - 1 in the shading frame, so the image is usually ``raw``), Mitsuba's two
+        switches, and its one BSDF (basic, or a twosided basic one), which it shades in
+        the perturbed frame. It needs Mitsuba's shading frame."""
+        nested = self._nested(plugin)
+        if len(nested) != 1:
+            self.fail(plugin, f"needs exactly 1 nested <bsdf>, has {len(nested)}")
+        core = nested[0]
+        if core.type == "twosided" and len(self._nested(core)) == 1:
+            core = self._nested(core)[0]
+        if core.type in ("blendbsdf", "mask", "normalmap"):
+            self.fail(plugin, f"a {core.type} inside a normalmap is not supported: it holds "
+                              "one basic BSDF (twosided or not)")
+        if not isinstance(plugin.get("normalmap"), Plugin):
+            self.fail(plugin, "normalmap must be a bitmap texture")
+        _, tex[0], _ = self._colour(plugin, "normalmap", 0.5)
+        i[layout.NORMALMAP_FLIP_INVALID] = int(bool(plugin.get("flip_invalid_normals", True)))
+        i[layout.NORMALMAP_SHADOWING] = int(bool(plugin.get("use_shadowing_function", True)))
+        i[layout.BSDF_CHILD0] = self._bsdf_row(nested[0], 0, "normalmap")
+        i[layout.BSDF_FRAME] = 1
+        self.features |= FEATURE_BITS["shading:frame"]
 
     # ------------------------------------------------------------------ shapes
     def _triangles(self, verts, faces, normals=None, uvs=None):

@@ -179,6 +179,8 @@ SUPPORTED = {
         "twosided": {"children": ("bsdf",)},
         "blendbsdf": {"weight": ("float", "texture"), "children": ("bsdf",)},
         "mask": {"opacity": ("float", "texture"), "children": ("bsdf",)},
+        "normalmap": {"normalmap": ("texture",), "flip_invalid_normals": ("boolean",),
+                      "use_shadowing_function": ("boolean",), "children": ("bsdf",)},
     },
     "emitter": {
         "area": {"radiance": ("rgb", "float")},

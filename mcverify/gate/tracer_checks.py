@@ -50,7 +50,9 @@ def _bsdf_label(scene, tag: str, b: int) -> str:
     a = scene.arrays
     f, i = a.bsdf_f[b], a.bsdf_i[b]
     parts = []
-    if int(i[layout.BSDF_KIND]) in layout.COMPOSITE:
+    if int(i[layout.BSDF_KIND]) == layout.NORMALMAP:
+        parts.append(f"bsdf{i[layout.BSDF_CHILD0]}")
+    elif int(i[layout.BSDF_KIND]) in layout.COMPOSITE:
         name = "weight" if i[layout.BSDF_KIND] == layout.BLEND else "opacity"
         parts.append(f"{name}=texture" if a.bsdf_tex[b, 0] >= 0 else
                      f"{name}={f[layout.MIX]:g}")
@@ -97,6 +99,8 @@ def _both_sides(bi, b: int) -> bool:
     from estimators.pathtracer import layout
 
     kind = int(bi[b, layout.BSDF_KIND])
+    if kind == layout.NORMALMAP:
+        return bool(bi[b, layout.BSDF_TWOSIDED]) or _both_sides(bi, int(bi[b, layout.BSDF_CHILD0]))
     if kind in layout.COMPOSITE:
         children = (layout.BSDF_CHILD0, layout.BSDF_CHILD1)[:2 if kind == layout.BLEND else 1]
         return any(_both_sides(bi, int(bi[b, c])) for c in children)

@@ -123,13 +123,15 @@ def test_a_wrong_glass_parameter_fails_the_gate_on_the_glass_scene(plant):
 
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("plant", [{"swap_alpha_uv": True}, {"frame_ignored": True},
-                                   {"bsdf_scale": ("roughconductor", "alpha_v", 0.7)}],
-                         ids=["alpha-uv-swapped", "frame-ignored", "roughconductor-alpha_v"])
-def test_wrong_anisotropy_fails_the_gate_on_the_frame_scene(plant):
-    """Planted bugs in anisotropic roughness: every BSDF's alpha_u and alpha_v exchanged
-    (the streaks turn by 90°), the BSDFs shaded in a tangent frame of our own instead of
-    Mitsuba's (the tracer before this scene), and every rough conductor's alpha_v × 0.7;
-    each must fail the default gate."""
+                                   {"bsdf_scale": ("roughconductor", "alpha_v", 0.7)},
+                                   {"normalmap_ignored": True}],
+                         ids=["alpha-uv-swapped", "frame-ignored", "roughconductor-alpha_v",
+                              "normalmap-ignored"])
+def test_wrong_frame_or_anisotropy_fails_the_gate_on_the_frame_scene(plant):
+    """Planted bugs: every BSDF's alpha_u and alpha_v exchanged (the streaks turn by
+    90°), the BSDFs shaded in a tangent frame of our own instead of Mitsuba's (the
+    tracer before this scene: the streaks and the bumps turn), every rough conductor's
+    alpha_v × 0.7, and the normal maps ignored; each must fail the default gate."""
     import mcverify as mv
 
     r = mv.render_check("vocabulary-frame", seed=25, plant=plant)

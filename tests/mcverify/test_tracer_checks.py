@@ -206,3 +206,18 @@ def test_alpha_u_and_v_swapped_only_in_the_pdf_fails(kind):
     r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
                                n_samples=2 ** 18, seed=3, alpha=ALPHA)
     assert not r.passed
+
+
+def test_a_normal_map_ignored_only_in_the_pdf_fails():
+    """A planted bug: the sampler draws in the normal map's perturbed frame, the pdf is
+    the held BSDF's in the unperturbed one."""
+    scene = prepare_scene(FRAME)
+    b = _rows_of(scene, "normalmap")[0]
+    held = int(scene.arrays.bsdf_i[b, layout.BSDF_CHILD0])
+    t, p = np.radians(45.0), np.radians(30.0)
+    wi = (np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t))
+    sample, _ = bsdf_sampler(scene, b, wi)
+    _, wrong_pdf = bsdf_sampler(scene, held, wi)
+    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
+                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
+    assert not r.passed
