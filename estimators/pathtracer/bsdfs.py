@@ -575,9 +575,9 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
 @njit(cache=True, inline="always")
 def _sample_unmapped(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
                      pdf_scale):
-    """``bsdf_sample`` of a row that is not a ``normalmap``. A zero weight ends the path; ``null``: the ray goes on unchanged (a ``mask``'s
-    transparent part, a ``thindielectric``'s transmission), a delta event that Mitsuba
-    counts as a bounce. ``pdf_scale`` is a test hook: a wrong pdf (not 1) must make the
+    """``bsdf_sample`` of a row that is not a ``normalmap``. A zero weight ends the path;
+    ``null``: the ray goes on unchanged (a ``mask``'s transparent part, a
+    ``thindielectric``'s transmission), a delta event that Mitsuba counts as a bounce. ``pdf_scale`` is a test hook: a wrong pdf (not 1) must make the
     renderer biased, and the render gate must notice.
 
     A ``mask`` passes the ray through with probability 1 - opacity and otherwise samples

@@ -191,6 +191,18 @@ def test_anisotropic_instances_pass_and_are_checked_off_axis():
     assert not bad, bad
 
 
+def _wrong_pdf_is_rejected(scene, b, wrong_scene, wrong_b):
+    """χ² of BSDF ``b``'s sampler against row ``wrong_b``'s pdf in ``wrong_scene``, with
+    wi at 45° and φ = 30° (off both roughness axes): whether the check rejects it."""
+    t, p = np.radians(45.0), np.radians(30.0)
+    wi = (np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t))
+    sample, _ = bsdf_sampler(scene, b, wi)
+    _, wrong_pdf = bsdf_sampler(wrong_scene, wrong_b, wi)
+    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
+                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
+    return not r.passed
+
+
 @pytest.mark.parametrize("kind", ["roughconductor", "roughdielectric"])
 def test_alpha_u_and_v_swapped_only_in_the_pdf_fails(kind):
     """A planted bug: the sampler draws with (alpha_u, alpha_v), the pdf reads them
@@ -198,14 +210,7 @@ def test_alpha_u_and_v_swapped_only_in_the_pdf_fails(kind):
     scene = prepare_scene(FRAME)
     b = next(r for r in _rows_of(scene, kind)
              if scene.arrays.bsdf_f[r, layout.ALPHA] != scene.arrays.bsdf_f[r, layout.ALPHA_V])
-    wrong = scene.planted(swap_alpha_uv=True)
-    t, p = np.radians(45.0), np.radians(30.0)
-    wi = (np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t))
-    sample, _ = bsdf_sampler(scene, b, wi)
-    _, wrong_pdf = bsdf_sampler(wrong, b, wi)
-    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
-                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
-    assert not r.passed
+    assert _wrong_pdf_is_rejected(scene, b, scene.planted(swap_alpha_uv=True), b)
 
 
 def test_a_normal_map_ignored_only_in_the_pdf_fails():
@@ -214,10 +219,4 @@ def test_a_normal_map_ignored_only_in_the_pdf_fails():
     scene = prepare_scene(FRAME)
     b = _rows_of(scene, "normalmap")[0]
     held = int(scene.arrays.bsdf_i[b, layout.BSDF_CHILD0])
-    t, p = np.radians(45.0), np.radians(30.0)
-    wi = (np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t))
-    sample, _ = bsdf_sampler(scene, b, wi)
-    _, wrong_pdf = bsdf_sampler(scene, held, wi)
-    r = mcverify.check_sampler(sample, wrong_pdf, "sphere", rejection=True, sample_dim=3,
-                               n_samples=2 ** 18, seed=3, alpha=ALPHA)
-    assert not r.passed
+    assert _wrong_pdf_is_rejected(scene, b, scene, held)
