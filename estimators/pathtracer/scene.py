@@ -277,7 +277,7 @@ class _Loader:
                     t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
                                 self.numbers(op, self.attr(op, "target"), 3),
                                 self.numbers(op, self.attr(op, "up"), 3)
-                                if "up" in op.attrib else np.array([0.0, 1.0, 0.0]))
+                                if "up" in op.attrib else None)
                 elif op.tag == "translate":
                     t = translate(self._xyz(op, 0.0))
                 elif op.tag == "scale":
