@@ -116,6 +116,50 @@ def _assert_rays_match_mitsuba(mi, text, *, origin_atol=2e-5):
                                rtol=1e-6)
 
 
+@pytest.mark.parametrize("origin,up", [
+    ("0.7, 0.4, 3.9", None), ("0.7, 0.4, -3.9", None), ("3, 0.4, 0", None),
+    ("-0.2, 3, 0.1", None), ("0, 0, 3.9", "0, 0, 0")],
+    ids=["forward-z", "backward-z", "horizontal-z0", "from-above", "zero-up"])
+def test_lookat_without_up_is_mitsubas(mi, origin, up):
+    """Mitsuba 3 gives a lookat without ``up`` (or with a zero one) the first vector of
+    ``coordinate_system(direction)`` as its up, not (0, 1, 0): the image is rolled
+    about the view axis. Found on a scene not in the repository (a camera whose lookat
+    had no up rendered upright in ours, rolled in Mitsuba)."""
+    text = CORNELL.replace('origin="0, 0, 3.9"', f'origin="{origin}"').replace(
+        ' up="0, 1, 0"', "" if up is None else f' up="{up}"')
+    _assert_rays_match_mitsuba(mi, text)
+
+
+@pytest.mark.parametrize("ops", ['<scale x="-1"/>{lookat}', '{lookat}<scale y="-1"/>',
+                                 '<rotate y="1" angle="30"/>{lookat}'],
+                         ids=["mirror-before", "mirror-after", "rotated"])
+def test_a_mirrored_perspective_camera_is_mitsubas(mi, ops):
+    lookat = '<lookat origin="0.7, 0.4, 3.9" target="0, 0, 0" up="0, 1, 0"/>'
+    text = CORNELL.replace('<lookat origin="0, 0, 3.9" target="0, 0, 0" up="0, 1, 0"/>',
+                           ops.format(lookat=lookat))
+    _assert_rays_match_mitsuba(mi, text)
+
+
+@pytest.mark.parametrize("body,needle", [
+    ('<transform name="to_world"><scale value="2"/></transform>', "to_world scales"),
+    ('<transform name="to_world"><scale x="1.01"/></transform>', "to_world scales"),
+    ('<float name="fov" value="180"/>', "fov=180.0: must be in (0, 180)"),
+    ('<float name="fov" value="200"/>', "fov=200.0: must be in (0, 180)"),
+    ('<float name="fov" value="0"/>', "fov=0.0: must be in (0, 180)"),
+], ids=["scale-2", "scale-1.01", "fov-180", "fov-200", "fov-0"])
+def test_perspective_sensor_refuses_what_mitsuba_refuses(mi, body, needle):
+    """Mitsuba throws on a scaled camera-to-world and on a field of view outside
+    (0, 180); ours rendered them (a zoomed or upside-down view)."""
+    fov = "" if "fov" in body else '<float name="fov" value="45"/>'
+    text = (f'<scene version="3.0.0"><sensor type="perspective">{fov}{body}'
+            f'<film type="hdrfilm"><rfilter type="box"/></film></sensor></scene>')
+    with pytest.raises(SceneError) as e:
+        camera_from_scene(parse_scene(text, path="s.xml"))
+    assert "s.xml:1" in str(e.value) and needle in str(e.value), str(e.value)
+    with pytest.raises(RuntimeError):
+        mi.load_string(text)
+
+
 _ORTHO_SENSOR = """<sensor type="perspective">
     <float name="fov" value="39.3077"/>
     <string name="fov_axis" value="x"/>
