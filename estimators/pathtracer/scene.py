@@ -197,6 +197,11 @@ SUPPORTED = {
 }
 #: BSDFs with a transmission (or null) component: Mitsuba refuses them inside twosided
 TRANSMISSIVE = ("dielectric", "roughdielectric", "thindielectric", "mask")
+#: the attributes of each transform operation (Mitsuba's parser allows these only)
+_TRANSFORM_ATTRIBUTES = {"translate": ("value", "x", "y", "z"),
+                         "scale": ("value", "x", "y", "z"),
+                         "rotate": ("value", "x", "y", "z", "angle"),
+                         "lookat": ("origin", "target", "up"), "matrix": ("value",)}
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")
@@ -272,6 +277,13 @@ class _Loader:
     def transform(self, node):
         m = np.eye(4)
         for op in node.children:
+            allowed = _TRANSFORM_ATTRIBUTES.get(op.tag, ())
+            for a in op.attrib:
+                if a not in allowed:     # Mitsuba refuses these too (a typo, not a default)
+                    self.fail(op, f"unexpected attribute {a!r}; <{op.tag}> takes "
+                                  f"{', '.join(allowed)}")
+            if "value" in op.attrib and any(k in op.attrib for k in "xyz"):
+                self.fail(op, "give either value or x/y/z, not both")
             try:
                 if op.tag == "lookat":
                     t = look_at(self.numbers(op, self.attr(op, "origin"), 3),

@@ -225,8 +225,15 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/></sensor>')
     ('<shape type="sphere"><bsdf type="hair"/></shape>', ["unsupported bsdf type 'hair'"]),
     ('<shape type="sphere"><transform name="to_world"><shear/></transform></shape>',
      ["unsupported transform operation"]),
+    ('<shape type="sphere"><transform name="to_world"><translate x="1" w="2"/></transform>'
+     '</shape>', ["s.xml:3", "<translate>", "unexpected attribute 'w'", "value, x, y, z"]),
+    ('<shape type="sphere"><transform name="to_world"><lookat origin="0,0,1" target="0,0,0" '
+     'upp="0,1,0"/></transform></shape>', ["s.xml:3", "unexpected attribute 'upp'"]),
+    ('<shape type="sphere"><transform name="to_world"><scale value="2" x="3"/></transform>'
+     '</shape>', ["s.xml:3", "either value or x/y/z"]),
 ], ids=["shape-type", "property", "area-top-level", "ref", "param", "kind", "medium",
-        "bsdf-type", "transform-op"])
+        "bsdf-type", "transform-op", "transform-attribute", "lookat-attribute",
+        "value-and-xyz"])
 def test_unsupported_input_is_rejected_by_line(body, needles):
     msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>')
     for n in needles:
