@@ -216,6 +216,8 @@ class _Builder:
                 self.fail(plugin, f"unknown {name} {v!r}; named indices: "
                                   f"{', '.join(sorted(table))}")
             return float(table[v.lower()])
+        if not v > 0:       # Mitsuba refuses a negative index; 0 would divide by zero
+            self.fail(plugin, f"{name} must be > 0, got {v}")
         return float(v)
 
     def _distribution(self, plugin: Plugin) -> int:
@@ -612,6 +614,8 @@ class _Builder:
         else:
             max_depth = int(integ.get("max_depth", -1))
             rr_depth = int(integ.get("rr_depth", 5))
+            if max_depth < -1:
+                self.fail(integ, f"max_depth must be -1 (infinite) or >= 0, got {max_depth}")
             if max_depth < 0:
                 max_depth = INFINITE_DEPTH
             if rr_depth < 1:

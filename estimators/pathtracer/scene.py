@@ -377,9 +377,14 @@ class _Loader:
                 self.declared.add(name)
                 self.params.setdefault(name, node.attrib.get("value", ""))
             elif node.tag == "integrator":
+                if integrator is not None:
+                    self.fail(node, "a second <integrator>; a scene has one (Mitsuba refuses "
+                                    "a second too)")
                 integrator = self.plugin(node)
             elif node.tag == "sensor":
-                sensor = self.plugin(node)
+                # Mitsuba renders the first sensor unless told otherwise
+                first = self.plugin(node)
+                sensor = sensor or first
             elif node.tag == "shape":
                 shapes.append(self.plugin(node))
             elif node.tag == "emitter":

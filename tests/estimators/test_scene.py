@@ -289,3 +289,39 @@ def test_a_filter_without_a_positive_radius_is_refused(rfilter):
                     path="s.xml")
     with pytest.raises(SceneError, match=r"s\.xml:1: <rfilter type=.*must be finite and > 0"):
         camera_from_scene(d)
+
+
+@pytest.mark.parametrize("body,needle", [
+    ('<integrator type="path"><integer name="max_depth" value="-2"/></integrator>',
+     'path">: max_depth must be -1 (infinite) or >= 0, got -2'),
+    ('<integrator type="path"/><integrator type="direct"/>', "a second <integrator>"),
+    ('<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="-1.5"/>'
+     '</bsdf></shape>', 'dielectric">: int_ior must be > 0, got -1.5'),
+    ('<shape type="sphere"><bsdf type="plastic"><float name="ext_ior" value="-1"/>'
+     '</bsdf></shape>', 'plastic">: ext_ior must be > 0, got -1.0'),
+    ('<shape type="sphere"><bsdf type="thindielectric"><float name="int_ior" value="0"/>'
+     '</bsdf></shape>', 'thindielectric">: int_ior must be > 0, got 0.0'),
+], ids=["max-depth", "two-integrators", "negative-ior", "negative-ext-ior", "zero-ior"])
+def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
+    """Each of these rendered in ours (a negative index of refraction, max_depth -2 as
+    infinite, the last of two integrators) where Mitsuba refuses the scene."""
+    from estimators.pathtracer import prepare_scene
+
+    text = f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>'
+    path = tmp_path / "s.xml"
+    path.write_text(text)
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
+    if 'value="0"' not in body:     # Mitsuba takes an index of 0
+        with pytest.raises(RuntimeError):
+            mi.load_string(text)
+
+
+def test_of_two_sensors_the_first_is_rendered_as_in_mitsuba(mi):
+    """Mitsuba's render() takes sensor 0, the first in the file; ours took the last."""
+    second = CORNELL.split("<sensor", 1)[1].split("</sensor>", 1)[0].replace(
+        'origin="0, 0, 3.9"', 'origin="2, 1, 3"')
+    text = CORNELL.replace("</sensor>", "</sensor>\n<sensor" + second + "</sensor>", 1)
+    assert text.count("<sensor") == 2
+    _assert_rays_match_mitsuba(mi, text)
