@@ -543,6 +543,9 @@ class _Builder:
         i = np.zeros(layout.LIGHT_INTS, dtype=np.int64)
         m = np.asarray(e.get("to_world", np.eye(4)), dtype=np.float64)
         i[layout.LIGHT_KIND] = layout.LIGHT_NAMES.index(e.type)
+        placed = {"point": "position", "directional": "direction"}.get(e.type)
+        if placed in e.props and "to_world" in e.props:
+            self.fail(e, f"give either {placed} or to_world, not both (Mitsuba refuses both)")
         if e.type in ("point", "spot"):
             f[_RGB] = np.broadcast_to(e.get("intensity", 1.0), 3)
             f[layout.LIGHT_POSITION:layout.LIGHT_POSITION + 3] = (e.get("position", m[:3, 3])
@@ -611,6 +614,13 @@ class _Builder:
         integ = d.integrator
         if integ.type == "direct":
             max_depth, rr_depth = 2, INFINITE_DEPTH
+            for name in ("emitter_samples", "bsdf_samples"):
+                if int(integ.get(name, 1)) < 1:
+                    # Mitsuba then drops a technique (and with it delta lights or delta
+                    # BSDFs); the tracer always uses both, weighted by MIS
+                    self.fail(integ, f"{name}={integ.get(name)}: must be >= 1 (with 0 "
+                                     "Mitsuba drops that technique and the light only it "
+                                     "finds; not matched)")
         else:
             max_depth = int(integ.get("max_depth", -1))
             rr_depth = int(integ.get("rr_depth", 5))
