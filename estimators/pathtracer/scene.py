@@ -369,6 +369,13 @@ class _Loader:
         return p
 
     def load(self, root) -> SceneDescription:
+        version = self.attr(root, "version")    # Mitsuba requires it too
+        if not re.fullmatch(r"\d+\.\d+\.\d+", version.strip()):
+            self.fail(root, f"version {version!r}: expected major.minor.patch, e.g. 3.0.0")
+        if int(version.split(".")[0]) < 2:
+            self.fail(root, f"version {version!r}: Mitsuba rewrites scenes older than 2.0.0 "
+                            "(camelCase names, diffuse_reflectance, uoffset/uscale); not "
+                            "supported here: write it for Mitsuba 3 (version=\"3.0.0\")")
         integrator = sensor = None
         shapes, emitters = [], []
         for node in root.children:

@@ -350,3 +350,20 @@ def test_a_direct_integrator_without_one_technique_is_refused(tmp_path, prop):
         prepare_scene(str(path))
     path.write_text(path.read_text().replace('value="0"', 'value="3"'))
     prepare_scene(str(path))
+
+
+@pytest.mark.parametrize("root,needle", [
+    ("<scene>", "missing attribute 'version'"),
+    ('<scene version="3.0">', "version '3.0': expected major.minor.patch"),
+    ('<scene version="0.6.0">', "Mitsuba rewrites scenes older than 2.0.0"),
+], ids=["missing", "malformed", "mitsuba-0.6"])
+def test_the_scene_version_is_checked_as_mitsuba_does(mi, root, needle):
+    """Mitsuba refuses a missing or malformed version and silently rewrites a scene older
+    than 2.0.0 (camelCase names, a diffuse's diffuse_reflectance, uoffset/uscale): ours
+    accepted all three."""
+    text = f"{root}{SENSOR}</scene>"
+    assert needle in _error(text)
+    assert "s.xml:1: <scene>" in _error(text)
+    if "0.6.0" not in root:
+        with pytest.raises(RuntimeError):
+            mi.load_string(text)
