@@ -571,6 +571,13 @@ class _Builder:
             if e.type == "constant":
                 f[_RGB] = np.broadcast_to(e.get("radiance", 1.0), 3)
             else:
+                m3 = m[:3, :3]
+                if np.max(np.abs(m3 @ m3.T - np.eye(3))) > 1e-3:
+                    # Mitsuba looks up M⁻¹d unnormalised and samples M·d, unnormalised too
+                    self.fail(e, "to_world must be a rotation (no scale or shear; Mitsuba does "
+                                 "not normalise a <rotate> axis, so give a unit one): Mitsuba's "
+                                 "envmap then looks up and samples directions that are not "
+                                 "unit vectors, which cannot be matched")
                 img = self._image(e, e.get("filename", ""))
                 i[layout.LIGHT_TEXTURE] = self.textures.add(img)
                 f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
