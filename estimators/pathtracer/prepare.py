@@ -628,6 +628,13 @@ class _Builder:
                     self.fail(integ, f"{name}={integ.get(name)}: must be >= 1 (with 0 "
                                      "Mitsuba drops that technique and the light only it "
                                      "finds; not matched)")
+            delta = [e for e in d.emitters if e.type in ("point", "spot", "directional")]
+            if delta and int(integ.get("emitter_samples", 1)) != 1:
+                self.fail(integ, f"emitter_samples={integ.get('emitter_samples')} with a "
+                                 f"{delta[0].type} light (line {delta[0].line}): Mitsuba "
+                                 "3.9.1's direct integrator adds each sample of a delta light "
+                                 "without dividing by emitter_samples (mitsuba3 issue 1861), "
+                                 "so its image is too bright; not matched: use 1")
         else:
             max_depth = int(integ.get("max_depth", -1))
             rr_depth = int(integ.get("rr_depth", 5))

@@ -367,3 +367,30 @@ def test_the_scene_version_is_checked_as_mitsuba_does(mi, root, needle):
     if "0.6.0" not in root:
         with pytest.raises(RuntimeError):
             mi.load_string(text)
+
+
+@pytest.mark.parametrize("light", [
+    '<emitter type="point"><point name="position" x="0" y="2" z="0"/></emitter>',
+    '<emitter type="directional"><vector name="direction" x="0" y="-1" z="0"/></emitter>',
+    '<emitter type="spot"/>'], ids=["point", "directional", "spot"])
+def test_direct_with_several_emitter_samples_and_a_delta_light_is_refused(tmp_path, light):
+    """Mitsuba 3.9.1's direct integrator weights each emitter sample of a delta light by 1,
+    not 1/emitter_samples (mitsuba3 issue 1861, PR 1863): found by render-check on a scene
+    not in the repository (emitter_samples=3, a point light: image mean 7 % brighter in
+    Mitsuba). Without a delta light several emitter samples are matched (noise only)."""
+    from estimators.pathtracer import prepare_scene
+
+    integ = ('<integrator type="direct"><integer name="emitter_samples" value="3"/>'
+             '<integer name="bsdf_samples" value="2"/></integrator>')
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{integ}\n{light}</scene>')
+    with pytest.raises(SceneError, match=r's\.xml:3: <integrator type="direct">: '
+                                         r"emitter_samples=3 with a \w+ light \(line 4\).*"
+                                         r"issue 1861.*not matched"):
+        prepare_scene(str(path))
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{integ}\n'
+                    '<emitter type="constant"/></scene>')
+    prepare_scene(str(path))
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{integ.replace("3", "1")}\n{light}'
+                    '</scene>')
+    prepare_scene(str(path))
