@@ -551,6 +551,14 @@ class _Builder:
             f[layout.LIGHT_POSITION:layout.LIGHT_POSITION + 3] = (e.get("position", m[:3, 3])
                                                         if e.type == "point" else m[:3, 3])
             if e.type == "spot":
+                m3 = m[:3, :3]
+                g = m3 @ m3.T
+                if np.max(np.abs(g / (np.trace(g) / 3.0) - np.eye(3))) > 1e-3:
+                    # Mitsuba measures the cone in the light's own frame, M⁻¹(−d) normalised:
+                    # a non-uniform scale or a shear stretches it (-60 % measured)
+                    self.fail(e, "to_world must be a rotation and translation (a uniform scale "
+                                 "is allowed): Mitsuba measures the cone in the scaled frame, "
+                                 "which is not matched")
                 cutoff = math.radians(float(e.get("cutoff_angle", 20.0)))
                 beam = math.radians(float(e.get("beam_width", math.degrees(cutoff) * 0.75)))
                 axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
@@ -562,6 +570,12 @@ class _Builder:
         elif e.type == "directional":
             f[_RGB] = np.broadcast_to(e.get("irradiance", 1.0), 3)
             d = np.asarray(e.get("direction", m[:3, :3] @ np.array([0.0, 0.0, 1.0])), float)
+            if "direction" not in e.props and abs(np.linalg.norm(d) - 1.0) > 1e-3:
+                # Mitsuba shades with M·(0, 0, 1) as it is: a scale of 2 doubled the light
+                self.fail(e, f"to_world maps (0, 0, 1) to a vector of length "
+                             f"{np.linalg.norm(d):.4g}, not 1: Mitsuba uses it unnormalised "
+                             "(the light scales with it), which is not matched; remove the "
+                             "scale (or give a unit <rotate> axis)")
             if not np.linalg.norm(d) > 0:
                 self.fail(e, "direction must be non-zero")
             f[layout.LIGHT_DIRECTION:layout.LIGHT_DIRECTION + 3] = d / np.linalg.norm(d)

@@ -394,3 +394,31 @@ def test_direct_with_several_emitter_samples_and_a_delta_light_is_refused(tmp_pa
     path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{integ.replace("3", "1")}\n{light}'
                     '</scene>')
     prepare_scene(str(path))
+
+
+@pytest.mark.parametrize("light,needle", [
+    ('<emitter type="spot"><transform name="to_world"><scale x="2" y="1" z="0.5"/>'
+     '</transform></emitter>', "spot\">: to_world must be a rotation and translation"),
+    ('<emitter type="spot"><transform name="to_world"><rotate x="1" y="1" angle="40"/>'
+     '</transform></emitter>', "spot\">: to_world must be a rotation and translation"),
+    ('<emitter type="directional"><transform name="to_world"><scale value="2"/></transform>'
+     '</emitter>', "directional\">: to_world maps (0, 0, 1) to a vector of length 2, not 1"),
+], ids=["spot-stretched", "spot-non-unit-axis", "directional-scaled"])
+def test_delta_lights_whose_to_world_mitsuba_reads_unnormalised_are_refused(
+        tmp_path, light, needle):
+    """Found by render-check on scenes not in the repository: a spot whose to_world scales
+    non-uniformly (Mitsuba measures the cone in the scaled frame: image mean 60 % off) and
+    a directional light scaled by 2 (Mitsuba shades with the unnormalised direction: 2×
+    the light). A uniformly scaled spot matched (p = 1) and stays accepted."""
+    from estimators.pathtracer import prepare_scene
+
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{light}</scene>')
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert "s.xml:3" in str(e.value) and needle in str(e.value) \
+        and "not matched" in str(e.value), str(e.value)
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<emitter type="spot"><transform '
+                    'name="to_world"><scale value="2"/><rotate x="1" angle="30"/></transform>'
+                    '</emitter></scene>')
+    prepare_scene(str(path))
