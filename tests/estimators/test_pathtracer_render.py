@@ -200,3 +200,21 @@ def test_a_scene_without_shapes_renders_its_environment(tmp_path):
                     '</sensor><emitter type="constant"/></scene>')
     r = render(str(path), spp=4, seed=1, general=True)
     np.testing.assert_array_equal(r.mean, 1.0)
+
+
+def test_max_depth_zero_renders_black_as_in_mitsuba(tmp_path):
+    """Mitsuba's path integrator returns 0 at max_depth 0, even where the camera sees an
+    emitter or the environment; ours showed both (found on a scene not in the repository).
+    At max_depth 1 the same scene shows them."""
+    path = tmp_path / "s.xml"
+    text = ('<scene version="3.0.0"><default name="md" value="0"/><integrator type="path">'
+            '<integer name="max_depth" value="$md"/></integrator><sensor type="perspective">'
+            '<float name="fov" value="50"/><film type="hdrfilm"><integer name="width" '
+            'value="8"/><integer name="height" value="6"/><rfilter type="box"/></film>'
+            '</sensor><emitter type="constant"/><shape type="sphere"><point name="center" '
+            'x="0" y="0" z="4"/><emitter type="area"><rgb name="radiance" value="3"/>'
+            '</emitter></shape></scene>')
+    path.write_text(text)
+    np.testing.assert_array_equal(render(str(path), spp=4, seed=1, general=True).mean, 0.0)
+    one = render(str(path), spp=4, seed=1, general=True, params={"md": 1}).mean
+    assert one.max() == 3.0 and one.min() == 1.0
