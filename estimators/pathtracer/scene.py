@@ -363,7 +363,11 @@ class _Loader:
                     self.fail(child, f"a <{child.tag}> cannot go inside {kind} {ptype!r}")
                 p.children.append(self.plugin(child))
             else:
-                self.fail(child, f"unsupported element inside {kind} {ptype!r}")
+                hint = ("; give the colour as <rgb> (the tracer renders RGB; Mitsuba's RGB "
+                        "variants turn a spectrum into RGB)" if child.tag == "spectrum" else "")
+                self.fail(child, f"unsupported element inside {kind} {ptype!r}; supported: "
+                                 f"{', '.join(_VALUE_TAGS)}, ref, texture and nested "
+                                 f"plugins{hint}")
         if p.id:
             self.ids[p.id] = p
         return p

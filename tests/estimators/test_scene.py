@@ -231,9 +231,11 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/></sensor>')
      'upp="0,1,0"/></transform></shape>', ["s.xml:3", "unexpected attribute 'upp'"]),
     ('<shape type="sphere"><transform name="to_world"><scale value="2" x="3"/></transform>'
      '</shape>', ["s.xml:3", "either value or x/y/z"]),
+    ('<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" value="0.5"/>'
+     '</bsdf></shape>', ["s.xml:3", "<spectrum>", "supported: float, integer", "<rgb>"]),
 ], ids=["shape-type", "property", "area-top-level", "ref", "param", "kind", "medium",
         "bsdf-type", "transform-op", "transform-attribute", "lookat-attribute",
-        "value-and-xyz"])
+        "value-and-xyz", "spectrum"])
 def test_unsupported_input_is_rejected_by_line(body, needles):
     msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>')
     for n in needles:
