@@ -615,7 +615,11 @@ class _Builder:
             em = next((c for c in s.children if c.kind == "emitter"), None)
             shape_bsdf.append(self.bsdf(bsdf, emitter=em is not None))
             first, count, kind = self.shape(s, index)
-            shape_flip.append(bool(s.get("flip_normals", False)))
+            flip = bool(s.get("flip_normals", False))
+            if s.type == "sphere" and np.linalg.det(np.asarray(s.get("to_world", np.eye(4)),
+                                                               float)[:3, :3]) < 0:
+                flip = not flip     # Mitsuba's sphere turns its normals in under a mirror
+            shape_flip.append(flip)
             shape_light.append(self.area_light(em, first, count, kind) if em else -1)
         for e in d.emitters:
             self.emitter(e)
