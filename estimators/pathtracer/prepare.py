@@ -646,6 +646,14 @@ class _Builder:
                     self.fail(integ, f"{name}={integ.get(name)}: must be >= 1 (with 0 "
                                      "Mitsuba drops that technique and the light only it "
                                      "finds; not matched)")
+            null = sorted({"bsdf:mask", "bsdf:thindielectric"} & d.features)
+            if integ.get("hide_emitters", False) and null:
+                # Mitsuba's direct integrator keeps what is seen through a null component
+                # (its valid_ray is the camera hit); the tracer's depth-2 path drops it
+                self.fail(integ, f"hide_emitters with a {null[0][5:]} BSDF: Mitsuba's direct "
+                                 "integrator shows the hidden environment through its null "
+                                 "component, the tracer (a path of depth 2) does not; not "
+                                 "matched")
             delta = [e for e in d.emitters if e.type in ("point", "spot", "directional")]
             if delta and int(integ.get("emitter_samples", 1)) != 1:
                 self.fail(integ, f"emitter_samples={integ.get('emitter_samples')} with a "
