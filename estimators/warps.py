@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 from numba import njit
 
+from ._fastmath import fast_exp, fast_expm1, fast_log1p
 from ._vectorize import point_front_end, value_front_end
 
 ONE_MINUS_EPSILON = 1.0 - 2.0 ** -53
@@ -38,7 +39,10 @@ _INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 _PI_OVER_4 = math.pi / 4.0
 _PI_OVER_2 = math.pi / 2.0
 
-_jit = njit(cache=True)
+#: IEEE division (x/0 is ±inf or NaN, as in numpy): numba's default ZeroDivisionError
+#: check is a branch to an exception in every kernel that divides, and stops LLVM from
+#: vectorising the front ends' loops over it.
+_jit = njit(cache=True, error_model="numpy")
 
 
 # ----------------------------------------------------------------------- helpers
@@ -328,25 +332,26 @@ def _invert_ggx_kernel(x, p):
 @_jit
 def sample_beckmann_kernel(u, p):
     """Normals h distributed as D(h) cos θ_h for Beckmann of roughness ``p[0] = α``."""
-    tan2 = -p[0] * p[0] * math.log1p(-u[0])
+    tan2 = -p[0] * p[0] * fast_log1p(-u[0])
     cos_t = 1.0 / math.sqrt(1.0 + tan2)
     return _direction(_safe_sqrt(tan2) * cos_t, cos_t, u[1])
 
 
 @_jit
 def beckmann_pdf_kernel(x, p):
-    if x[2] <= 0.0:
-        return 0.0
+    # Computed everywhere, then selected: a branch around the exponential stays a
+    # branch (too costly for LLVM to speculate) and stops a loop over points vectorising.
     a2 = p[0] * p[0]
     c2 = x[2] * x[2]
     tan2 = (x[0] * x[0] + x[1] * x[1]) / c2
-    return math.exp(-tan2 / a2) / (_PI * a2 * c2 * x[2])
+    d = fast_exp(-tan2 / a2) / (_PI * a2 * c2 * x[2])
+    return d if x[2] > 0.0 else 0.0
 
 
 @_jit
 def _invert_beckmann_kernel(x, p):
     tan2 = (x[0] * x[0] + x[1] * x[1]) / (x[2] * x[2])
-    return (_clamp_u(-math.expm1(-tan2 / (p[0] * p[0]))), _azimuth_u(x[0], x[1]))
+    return (_clamp_u(-fast_expm1(-tan2 / (p[0] * p[0]))), _azimuth_u(x[0], x[1]))
 
 
 @_jit
@@ -403,20 +408,20 @@ def _ggx_vndf_pdf_kernel(x, p):
 def _sample_exponential_kernel(u, p):
     """Distance sampling: pdf σ e^{-σx} / (1 - e^{-σ t}) on [0, t]; ``p = (σ, t)``,
     t may be inf."""
-    c = -math.expm1(-p[0] * p[1])
-    return (min(-math.log1p(-u[0] * c) / p[0], p[1]),)
+    c = -fast_expm1(-p[0] * p[1])
+    return (min(-fast_log1p(-u[0] * c) / p[0], p[1]),)
 
 
 @_jit
 def _exponential_pdf_kernel(x, p):
     if x[0] < 0.0 or x[0] > p[1]:
         return 0.0
-    return p[0] * math.exp(-p[0] * x[0]) / -math.expm1(-p[0] * p[1])
+    return p[0] * fast_exp(-p[0] * x[0]) / -fast_expm1(-p[0] * p[1])
 
 
 @_jit
 def _invert_exponential_kernel(x, p):
-    return (_clamp_u(math.expm1(-p[0] * x[0]) / math.expm1(-p[0] * p[1])),)
+    return (_clamp_u(fast_expm1(-p[0] * x[0]) / fast_expm1(-p[0] * p[1])),)
 
 
 @_jit
