@@ -548,11 +548,15 @@ class Warp:
         return name, tuple(args)
 
 
-def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc):
-    s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc)
-    p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.")
+def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=False):
+    """The three front ends; ``inline`` for kernels that call ``_fastmath`` (too large
+    for LLVM to inline into the loop, they would not vectorise; ``_vectorize._loop``)."""
+    s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc, inline=inline)
+    p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.",
+                        inline=inline)
     i = None if invert_k is None else point_front_end(
-        invert_k, n_out, n_in, f"invert_{name}", f"Inverse of ``sample_{name}``: x -> u.")
+        invert_k, n_out, n_in, f"invert_{name}", f"Inverse of ``sample_{name}``: x -> u.",
+        inline=inline)
     return s, p, i
 
 
@@ -597,7 +601,7 @@ sample_ggx, ggx_pdf, invert_ggx = _triple(
     "GGX (Trowbridge–Reitz) normals, pdf D(h) cos θ_h: ``sample_ggx(u, alpha)``.")
 sample_beckmann, beckmann_pdf, invert_beckmann = _triple(
     "beckmann", 2, 3, sample_beckmann_kernel, beckmann_pdf_kernel, _invert_beckmann_kernel,
-    "Beckmann normals, pdf D(h) cos θ_h: ``sample_beckmann(u, alpha)``.")
+    "Beckmann normals, pdf D(h) cos θ_h: ``sample_beckmann(u, alpha)``.", inline=True)
 sample_ggx_vndf, ggx_vndf_pdf, _ = _triple(
     "ggx_vndf", 2, 3, sample_ggx_vndf_kernel, _ggx_vndf_pdf_kernel, None,
     "GGX visible normals (Heitz 2018): ``sample_ggx_vndf(u, alpha, wx, wy, wz)``, "
@@ -605,7 +609,8 @@ sample_ggx_vndf, ggx_vndf_pdf, _ = _triple(
 sample_exponential, exponential_pdf, invert_exponential = _triple(
     "exponential", 1, 1, _sample_exponential_kernel, _exponential_pdf_kernel,
     _invert_exponential_kernel,
-    "Truncated exponential (distance sampling): ``sample_exponential(u, sigma, t_max)``.")
+    "Truncated exponential (distance sampling): ``sample_exponential(u, sigma, t_max)``.",
+    inline=True)
 sample_tent, tent_pdf, invert_tent = _triple(
     "tent", 1, 1, _sample_tent_kernel, _tent_pdf_kernel, _invert_tent_kernel,
     "Tent on [-r, r]: ``sample_tent(u, r)``.")
