@@ -549,8 +549,10 @@ class Warp:
 
 
 def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=False):
-    """The three front ends; ``inline`` for kernels that call ``_fastmath`` (too large
-    for LLVM to inline into the loop, they would not vectorise; ``_vectorize._loop``)."""
+    """The three front ends. ``inline``: numba inlines the kernels into the loops
+    (``_vectorize._loop``), for kernels LLVM finds too large to inline and so does not
+    vectorise: those calling ``_fastmath``, and GGX's visible normals (measured, one
+    thread: 55 -> 19 ns a point to sample)."""
     s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc, inline=inline)
     p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.",
                         inline=inline)
@@ -605,7 +607,7 @@ sample_beckmann, beckmann_pdf, invert_beckmann = _triple(
 sample_ggx_vndf, ggx_vndf_pdf, _ = _triple(
     "ggx_vndf", 2, 3, sample_ggx_vndf_kernel, _ggx_vndf_pdf_kernel, None,
     "GGX visible normals (Heitz 2018): ``sample_ggx_vndf(u, alpha, wx, wy, wz)``, "
-    "pdf G1(w) max(0, w·h) D(h) / w_z.")
+    "pdf G1(w) max(0, w·h) D(h) / w_z.", inline=True)
 sample_exponential, exponential_pdf, invert_exponential = _triple(
     "exponential", 1, 1, _sample_exponential_kernel, _exponential_pdf_kernel,
     _invert_exponential_kernel,
