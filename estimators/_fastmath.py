@@ -58,28 +58,24 @@ _jit = njit(cache=True, error_model="numpy")
 _inline = njit(cache=True, error_model="numpy", inline="always")
 
 
-@intrinsic
-def _bits(typingctx, x):
-    """The IEEE-754 bits of a float64 as int64."""
-    if x != types.float64:
-        return None
+def _bitcast(src, dst, doc):
+    """An intrinsic reinterpreting a ``src`` value's bits as ``dst`` (an LLVM bitcast)."""
+    @intrinsic
+    def cast(typingctx, x):
+        if x != src:
+            return None
 
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int64))
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(dst))
 
-    return types.int64(types.float64), codegen
+        return dst(src), codegen
+
+    cast.__doc__ = doc
+    return cast
 
 
-@intrinsic
-def _from_bits(typingctx, i):
-    """The float64 whose IEEE-754 bits are the int64 ``i``."""
-    if i != types.int64:
-        return None
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
-
-    return types.float64(types.int64), codegen
+_bits = _bitcast(types.float64, types.int64, "The IEEE-754 bits of a float64 as int64.")
+_from_bits = _bitcast(types.int64, types.float64, "The float64 whose bits are the int64.")
 
 
 _INF = float("inf")

@@ -173,6 +173,7 @@ def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze:
     front.__name__ = front.__qualname__ = name
     front.__doc__ = doc
     front.kernel = kernel
+    front.loop = functools.partial(_loop, kernel, row, put, inline)   # the compiled loop
     return front
 
 

@@ -345,7 +345,7 @@ def beckmann_pdf_kernel(x, p):
     c2 = x[2] * x[2]
     tan2 = (x[0] * x[0] + x[1] * x[1]) / c2
     d = fast_exp(-tan2 / a2) / (_PI * a2 * c2 * x[2])
-    return d if x[2] > 0.0 else 0.0
+    return 0.0 if x[2] <= 0.0 else d
 
 
 @_jit
