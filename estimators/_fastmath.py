@@ -13,8 +13,8 @@ without branches:
 - ``exp``: x = k ln2 + r with k = round(x / ln2), ln2 in two parts (the high part has
   trailing zeros, so k·ln2_hi is exact) and |r| <= ln2/2; a degree-5 minimax polynomial
   R(r²) ≈ r (e^r + 1)/(e^r - 1) gives e^r = 1 + 2r/(R - r); the result is scaled by
-  2^k as 2^⌊k/2⌋ · 2^(k-⌊k/2⌋), two normal powers of two, so results near overflow and
-  subnormal results are each rounded once (at most one extra half ulp for subnormals).
+  2^k as 2^⌊k/2⌋ · 2^(k-⌊k/2⌋), two normal powers of two, so results near overflow need
+  no special case and a subnormal result is y rounded once more to its fewer bits.
 - ``expm1``: the same reduction with the rounding error of r kept (c); a degree-5
   polynomial in r²/2 for e^r - 1 - r - r²/2; the cases k = 0, -1, 1, 2..56 and the rest
   each compose the result their own way to avoid cancellation (fdlibm's), all computed
@@ -35,9 +35,11 @@ Integers are float64 bits reinterpreted as int64 (``_bits``/``_from_bits``, an L
 exponent field into a float whose mantissa holds it) because AVX2 has no vector
 int64 <-> double conversion and LLVM would not vectorise one.
 
-numba caches a compiled function by its own file only: after editing this module, the
-kernels that inline it (``warps.py``, the path tracer) need their cache cleared
-(``$MCVERIFY_CACHE`` and the ``__pycache__`` numba index files), or ``warps.py`` touched.
+numba caches a compiled function by its own file only: after editing this module alone,
+the cached kernels that inline it are stale (``warps.py``'s, and the path tracer's,
+whose generated kernels hash ``warps.py`` but not this file; the warps' front-end loops
+do hash it): clear ``$MCVERIFY_CACHE`` and the numba index files in ``__pycache__``, or
+edit ``warps.py`` with it.
 
 References: Sun Microsystems, fdlibm 5.3, ``e_exp.c``, ``s_expm1.c``, ``e_log.c``,
 ``s_log1p.c`` (1993); W. J. Cody, W. Waite, *Software Manual for the Elementary
