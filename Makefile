@@ -27,7 +27,7 @@ check: setup
 	$(BIN)/mcverify check
 
 test: setup
-	$(BIN)/python -m pytest -m "not slow" -q
+	$(BIN)/python -m pytest -m "not slow" -q -n 2
 
 test-slow: setup
 	$(BIN)/python -m pytest -m slow -q -s

@@ -18,8 +18,16 @@ The loop of each kernel is a small generated module in the kernel cache
 ``cache=True``: a loop taking the kernel as an argument, or a closure over it, cannot
 be cached by numba, and a parallel loop costs about 1 s to compile, which every fresh
 process (every ``mcverify check``) would pay again for each warp. The module's name
-carries a hash of the kernel's source file and of this one (numba's cache tracks only
-the file of the cached function, not its callees), so an edited kernel gets a new loop.
+carries a hash of the kernel's source file, of this one and of ``_fastmath`` (numba's
+cache tracks only the file of the cached function, not its callees), so an edited
+kernel gets a new loop.
+
+With ``inline=True`` the loop inlines its kernel (numba's ``inline="always"`` on the
+kernel's Python function, compiled with IEEE division): LLVM's inliner leaves a kernel
+above its size threshold (Beckmann's, with its ``fast_log1p``) as a call, and a call in
+the loop stops vectorisation. It is not the default because it slows kernels whose
+branches LLVM flattens only when it optimises them alone (measured, one thread: the
+concentric disk map 9 -> 19 ns a point, the triangle inverse 4 -> 11 ns).
 
 float32 input gives float32 output. Each coordinate is widened to float64 as it is read,
 the kernel computes in float64, and the result is rounded once as it is stored: float32
@@ -37,6 +45,7 @@ import inspect
 import numpy as np
 from numba import njit
 
+from . import _fastmath
 from ._generated import load
 
 #: Rows per block: scratch of up to 4 float64 columns stays in L1 (16 KB), and a block
@@ -92,6 +101,7 @@ from numba import njit, prange
 
 from {module} import {kernel} as kernel
 from estimators._vectorize import _BLOCK, {row} as row, {put} as put
+{inline}
 
 
 @njit(parallel=True, cache=True)
@@ -110,14 +120,23 @@ def loop(x, p, out):
 '''
 
 
+_INLINE = '''
+# The same Python function, inlined by numba into the loop: LLVM's inliner leaves a
+# kernel above its size threshold as a call, and a call stops vectorisation.
+kernel = njit(inline="always", error_model="numpy")(kernel.py_func)
+'''
+
+
 @functools.lru_cache(maxsize=None)
-def _loop(kernel, row: str, put: str):
+def _loop(kernel, row: str, put: str, inline: bool = False):
     """The compiled block loop ``loop(x, p, out)``: ``out[i] = kernel(row(x, i), p)``
-    for every row; ``out`` is (n, n_out) of the input's dtype (a density's is (n, 1))."""
+    for every row; ``out`` is (n, n_out) of the input's dtype (a density's is (n, 1)).
+    ``inline``: numba inlines the kernel's Python function into the loop."""
     fn = kernel.py_func
-    source = _LOOP_SOURCE.format(module=fn.__module__, kernel=fn.__name__, row=row, put=put)
+    source = _LOOP_SOURCE.format(module=fn.__module__, kernel=fn.__name__, row=row, put=put,
+                                 inline=_INLINE if inline else "")
     h = hashlib.sha256(source.encode())
-    for path in (inspect.getsourcefile(fn), __file__):
+    for path in (inspect.getsourcefile(fn), __file__, _fastmath.__file__):
         with open(path, "rb") as f:
             h.update(f.read())
     name = f"estimators_loop_{fn.__name__.strip('_')}_{h.hexdigest()[:16]}"
@@ -141,26 +160,30 @@ def params_array(params) -> np.ndarray:
     return np.asarray(params, dtype=np.float64).reshape(-1) if len(params) else np.zeros(1)
 
 
-def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze: bool):
+def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze: bool,
+               inline: bool):
     row = _ROWS[n_in]
 
     def front(x, *params):
         rows = as_rows(name, x, n_in)
         out = np.empty((rows.shape[0], n_out), dtype=rows.dtype)
-        _loop(kernel, row, put)(rows, params_array(params), out)
+        _loop(kernel, row, put, inline)(rows, params_array(params), out)
         return out[:, 0] if squeeze else out
 
     front.__name__ = front.__qualname__ = name
     front.__doc__ = doc
     front.kernel = kernel
+    front.loop = functools.partial(_loop, kernel, row, put, inline)   # the compiled loop
     return front
 
 
-def point_front_end(kernel, n_in: int, n_out: int, name: str, doc: str = ""):
-    """Array function ``f(x, *params) -> (n, n_out)`` around a point kernel."""
-    return _front_end(kernel, n_in, n_out, _PUTS[n_out], name, doc, squeeze=False)
+def point_front_end(kernel, n_in: int, n_out: int, name: str, doc: str = "", *,
+                    inline: bool = False):
+    """Array function ``f(x, *params) -> (n, n_out)`` around a point kernel;
+    ``inline``: see ``_loop``."""
+    return _front_end(kernel, n_in, n_out, _PUTS[n_out], name, doc, False, inline)
 
 
-def value_front_end(kernel, n_in: int, name: str, doc: str = ""):
+def value_front_end(kernel, n_in: int, name: str, doc: str = "", *, inline: bool = False):
     """Array function ``f(x, *params) -> (n,)`` around a density kernel."""
-    return _front_end(kernel, n_in, 1, "_put_value", name, doc, squeeze=True)
+    return _front_end(kernel, n_in, 1, "_put_value", name, doc, True, inline)

@@ -99,6 +99,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     # transparent part, a thin dielectric's transmission) counts only if the environment
     # is visible to camera rays, or it ends on an emitter (at max_depth) that is not hidden
     valid = not (MASK & F_NULL_BSDFS) or (env >= 0 and not hide)
+    if max_depth == 0:      # Mitsuba returns black, not even emitters seen directly
+        return 0.0, 0.0, 0.0, state
     while True:
         t, j, b1, b2 = intersect(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz,
                                  t_min, t_max)

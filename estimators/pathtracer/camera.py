@@ -111,6 +111,15 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
                              "to_world maps the view direction (0, 0, 1) to zero")
         return _with_film_filter(desc, Camera(to_world, 1.0, 1.0 / aspect, near, far, w, h,
                                               ORTHOGRAPHIC))
+    m3 = to_world[:3, :3]
+    if np.max(np.abs(m3 @ m3.T - np.eye(3))) > 1e-3:
+        # Mitsuba's has_scale (M Mᵀ ≠ I within 1e-3): a mirror passes, a scale does not
+        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: to_world "
+                         "scales (Mitsuba refuses scale factors in a perspective camera's "
+                         "to_world; a mirror such as <scale x=\"-1\"/> is allowed)")
+    if not 0.0 < s.props["fov"] < 180.0:
+        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: fov="
+                         f"{s.props['fov']!r}: must be in (0, 180) degrees, as in Mitsuba")
     fov = math.radians(s.props["fov"])
     axis = s.get("fov_axis", "x")
     if axis == "smaller":

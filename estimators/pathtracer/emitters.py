@@ -22,7 +22,7 @@ from numba import njit
 from ..distributions import pc2d_pdf_kernel, sample_discrete_kernel, sample_pc2d_kernel
 from ..warps import (sample_uniform_cone_kernel, sample_uniform_disk_concentric_kernel,
                      sample_uniform_sphere_kernel, sample_uniform_triangle_kernel)
-from .geometry import coordinate_system, to_world, triangle_point
+from .geometry import coordinate_system, to_world, triangle_point, triangle_shading_normal
 from .layout import (AREA, CONSTANT, DIRECTIONAL, DISK_TO_LOCAL, DISK_TO_WORLD, ENV_SCALE,
                      ENV_TO_LOCAL, LIGHT_AREA, LIGHT_CDF, LIGHT_DIRECTION, LIGHT_KIND,
                      LIGHT_POSITION, LIGHT_PRIM, LIGHT_PRIM_COUNT, LIGHT_RADIANCE,
@@ -103,7 +103,10 @@ def _sample_area(light_f, light_i, light_cdf, prims, info, k, x, y, z, u0, u1, u
         i, _, _ = sample_discrete_kernel(light_cdf[off:off + count + 1], u0)
         p = prims[first + i]
         bary = sample_uniform_triangle_kernel((u1, u2), (0.0,))
-        px, py, pz, nx, ny, nz = triangle_point(p, bary[0], bary[1])
+        px, py, pz, gx, gy, gz = triangle_point(p, bary[0], bary[1])
+        # Mitsuba's mesh position samples carry the interpolated vertex normal, which
+        # decides the emitting side and the pdf's cosine (as the hit's shading normal does)
+        nx, ny, nz = triangle_shading_normal(p, bary[0], bary[1], gx, gy, gz)
         area = light_f[k, LIGHT_AREA]
     else:  # disk
         p = prims[first]

@@ -405,6 +405,22 @@ def triangle_point(p, b1, b2):
 
 
 @_inline
+def triangle_shading_normal(p, b1, b2, gx, gy, gz):
+    """The unit shading normal of triangle row ``p`` at barycentrics (b1, b2): its vertex
+    normals interpolated (Mitsuba's ``sh_frame.n``, and the ``n`` of its area-light
+    position samples), or the geometric normal (gx, gy, gz) where they cancel."""
+    b0 = 1.0 - b1 - b2
+    sx = b0 * p[9] + b1 * p[12] + b2 * p[15]
+    sy = b0 * p[10] + b1 * p[13] + b2 * p[16]
+    sz = b0 * p[11] + b1 * p[14] + b2 * p[17]
+    ln = sx * sx + sy * sy + sz * sz
+    if ln > 0.0:
+        inv = 1.0 / math.sqrt(ln)
+        return sx * inv, sy * inv, sz * inv
+    return gx, gy, gz
+
+
+@_inline
 def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
     """At the hit (j, t, b1, b2): position, unit geometric normal, unit shading normal
     and texture coordinates, as a flat tuple (px, py, pz, gx, gy, gz, sx, sy, sz, u, v).
@@ -415,15 +431,7 @@ def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
     if kind == TRIANGLE:
         b0 = 1.0 - b1 - b2
         px, py, pz, gx, gy, gz = triangle_point(p, b1, b2)
-        sx = b0 * p[9] + b1 * p[12] + b2 * p[15]
-        sy = b0 * p[10] + b1 * p[13] + b2 * p[16]
-        sz = b0 * p[11] + b1 * p[14] + b2 * p[17]
-        ln = sx * sx + sy * sy + sz * sz
-        if ln > 0.0:
-            inv = 1.0 / math.sqrt(ln)
-            sx, sy, sz = sx * inv, sy * inv, sz * inv
-        else:
-            sx, sy, sz = gx, gy, gz
+        sx, sy, sz = triangle_shading_normal(p, b1, b2, gx, gy, gz)
         u = b0 * p[18] + b1 * p[20] + b2 * p[22]
         v = b0 * p[19] + b1 * p[21] + b2 * p[23]
         return px, py, pz, gx, gy, gz, sx, sy, sz, u, v

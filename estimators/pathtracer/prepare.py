@@ -240,6 +240,8 @@ class _Builder:
                 self.fail(plugin, f"unknown {name} {v!r}; named indices: "
                                   f"{', '.join(sorted(table))}")
             return float(table[v.lower()])
+        if not v > 0:       # Mitsuba refuses a negative index; 0 would divide by zero
+            self.fail(plugin, f"{name} must be > 0, got {v}")
         return float(v)
 
     def _distribution(self, plugin: Plugin) -> int:
@@ -597,11 +599,22 @@ class _Builder:
         i = np.zeros(layout.LIGHT_INTS, dtype=np.int64)
         m = np.asarray(e.get("to_world", np.eye(4)), dtype=np.float64)
         i[layout.LIGHT_KIND] = layout.LIGHT_NAMES.index(e.type)
+        placed = {"point": "position", "directional": "direction"}.get(e.type)
+        if placed in e.props and "to_world" in e.props:
+            self.fail(e, f"give either {placed} or to_world, not both (Mitsuba refuses both)")
         if e.type in ("point", "spot"):
             f[_RGB] = np.broadcast_to(e.get("intensity", 1.0), 3)
             f[layout.LIGHT_POSITION:layout.LIGHT_POSITION + 3] = (e.get("position", m[:3, 3])
                                                         if e.type == "point" else m[:3, 3])
             if e.type == "spot":
+                m3 = m[:3, :3]
+                g = m3 @ m3.T
+                if np.max(np.abs(g / (np.trace(g) / 3.0) - np.eye(3))) > 1e-3:
+                    # Mitsuba measures the cone in the light's own frame, M⁻¹(−d) normalised:
+                    # a non-uniform scale or a shear stretches it (-60 % measured)
+                    self.fail(e, "to_world must be a rotation and translation (a uniform scale "
+                                 "is allowed): Mitsuba measures the cone in the scaled frame, "
+                                 "which is not matched")
                 cutoff = math.radians(float(e.get("cutoff_angle", 20.0)))
                 beam = math.radians(float(e.get("beam_width", math.degrees(cutoff) * 0.75)))
                 axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
@@ -613,6 +626,12 @@ class _Builder:
         elif e.type == "directional":
             f[_RGB] = np.broadcast_to(e.get("irradiance", 1.0), 3)
             d = np.asarray(e.get("direction", m[:3, :3] @ np.array([0.0, 0.0, 1.0])), float)
+            if "direction" not in e.props and abs(np.linalg.norm(d) - 1.0) > 1e-3:
+                # Mitsuba shades with M·(0, 0, 1) as it is: a scale of 2 doubled the light
+                self.fail(e, f"to_world maps (0, 0, 1) to a vector of length "
+                             f"{np.linalg.norm(d):.4g}, not 1: Mitsuba uses it unnormalised "
+                             "(the light scales with it), which is not matched; remove the "
+                             "scale (or give a unit <rotate> axis)")
             if not np.linalg.norm(d) > 0:
                 self.fail(e, "direction must be non-zero")
             f[layout.LIGHT_DIRECTION:layout.LIGHT_DIRECTION + 3] = d / np.linalg.norm(d)
@@ -622,6 +641,13 @@ class _Builder:
             if e.type == "constant":
                 f[_RGB] = np.broadcast_to(e.get("radiance", 1.0), 3)
             else:
+                m3 = m[:3, :3]
+                if np.max(np.abs(m3 @ m3.T - np.eye(3))) > 1e-3:
+                    # Mitsuba looks up M⁻¹d unnormalised and samples M·d, unnormalised too
+                    self.fail(e, "to_world must be a rotation (no scale or shear; Mitsuba does "
+                                 "not normalise a <rotate> axis, so give a unit one): Mitsuba's "
+                                 "envmap then looks up and samples directions that are not "
+                                 "unit vectors, which cannot be matched")
                 img = self._image(e, e.get("filename", ""))
                 i[layout.LIGHT_TEXTURE] = self.textures.add(img)
                 f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
@@ -645,7 +671,11 @@ class _Builder:
             em = next((c for c in s.children if c.kind == "emitter"), None)
             shape_bsdf.append(self.bsdf(bsdf, emitter=em is not None))
             first, count, kind = self.shape(s, index)
-            shape_flip.append(bool(s.get("flip_normals", False)))
+            flip = bool(s.get("flip_normals", False))
+            if s.type == "sphere" and np.linalg.det(np.asarray(s.get("to_world", np.eye(4)),
+                                                               float)[:3, :3]) < 0:
+                flip = not flip     # Mitsuba's sphere turns its normals in under a mirror
+            shape_flip.append(flip)
             shape_light.append(self.area_light(em, first, count, kind) if em else -1)
         for e in d.emitters:
             self.emitter(e)
@@ -665,9 +695,33 @@ class _Builder:
         integ = d.integrator
         if integ.type == "direct":
             max_depth, rr_depth = 2, INFINITE_DEPTH
+            for name in ("emitter_samples", "bsdf_samples"):
+                if int(integ.get(name, 1)) < 1:
+                    # Mitsuba then drops a technique (and with it delta lights or delta
+                    # BSDFs); the tracer always uses both, weighted by MIS
+                    self.fail(integ, f"{name}={integ.get(name)}: must be >= 1 (with 0 "
+                                     "Mitsuba drops that technique and the light only it "
+                                     "finds; not matched)")
+            null = sorted({"bsdf:mask", "bsdf:thindielectric"} & d.features)
+            if integ.get("hide_emitters", False) and null:
+                # Mitsuba's direct integrator keeps what is seen through a null component
+                # (its valid_ray is the camera hit); the tracer's depth-2 path drops it
+                self.fail(integ, f"hide_emitters with a {null[0][5:]} BSDF: Mitsuba's direct "
+                                 "integrator shows the hidden environment through its null "
+                                 "component, the tracer (a path of depth 2) does not; not "
+                                 "matched")
+            delta = [e for e in d.emitters if e.type in ("point", "spot", "directional")]
+            if delta and int(integ.get("emitter_samples", 1)) != 1:
+                self.fail(integ, f"emitter_samples={integ.get('emitter_samples')} with a "
+                                 f"{delta[0].type} light (line {delta[0].line}): Mitsuba "
+                                 "3.9.1's direct integrator adds each sample of a delta light "
+                                 "without dividing by emitter_samples (mitsuba3 issue 1861), "
+                                 "so its image is too bright; not matched: use 1")
         else:
             max_depth = int(integ.get("max_depth", -1))
             rr_depth = int(integ.get("rr_depth", 5))
+            if max_depth < -1:
+                self.fail(integ, f"max_depth must be -1 (infinite) or >= 0, got {max_depth}")
             if max_depth < 0:
                 max_depth = INFINITE_DEPTH
             if rr_depth < 1:

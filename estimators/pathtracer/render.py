@@ -50,7 +50,7 @@ def _dependency_digest() -> str:
     here = os.path.dirname(__file__)
     parent = os.path.dirname(here)
     files = sorted(os.path.join(here, f) for f in os.listdir(here) if f.endswith(".py"))
-    files += [os.path.join(parent, f) for f in ("warps.py", "distributions.py")]
+    files += [os.path.join(parent, f) for f in ("warps.py", "distributions.py", "_fastmath.py")]
     h = hashlib.sha256()
     for path in files:
         with open(path, "rb") as f:

@@ -199,6 +199,11 @@ SUPPORTED = {
 }
 #: BSDFs with a transmission (or null) component: Mitsuba refuses them inside twosided
 TRANSMISSIVE = ("dielectric", "roughdielectric", "thindielectric", "mask")
+#: the attributes of each transform operation (Mitsuba's parser allows these only)
+_TRANSFORM_ATTRIBUTES = {"translate": ("value", "x", "y", "z"),
+                         "scale": ("value", "x", "y", "z"),
+                         "rotate": ("value", "x", "y", "z", "angle"),
+                         "lookat": ("origin", "target", "up"), "matrix": ("value",)}
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")
@@ -274,12 +279,19 @@ class _Loader:
     def transform(self, node):
         m = np.eye(4)
         for op in node.children:
+            allowed = _TRANSFORM_ATTRIBUTES.get(op.tag, ())
+            for a in op.attrib:
+                if a not in allowed:     # Mitsuba refuses these too (a typo, not a default)
+                    self.fail(op, f"unexpected attribute {a!r}; <{op.tag}> takes "
+                                  f"{', '.join(allowed)}")
+            if "value" in op.attrib and any(k in op.attrib for k in "xyz"):
+                self.fail(op, "give either value or x/y/z, not both")
             try:
                 if op.tag == "lookat":
                     t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
                                 self.numbers(op, self.attr(op, "target"), 3),
                                 self.numbers(op, self.attr(op, "up"), 3)
-                                if "up" in op.attrib else np.array([0.0, 1.0, 0.0]))
+                                if "up" in op.attrib else None)
                 elif op.tag == "translate":
                     t = translate(self._xyz(op, 0.0))
                 elif op.tag == "scale":
@@ -353,12 +365,23 @@ class _Loader:
                     self.fail(child, f"a <{child.tag}> cannot go inside {kind} {ptype!r}")
                 p.children.append(self.plugin(child))
             else:
-                self.fail(child, f"unsupported element inside {kind} {ptype!r}")
+                hint = ("; give the colour as <rgb> (the tracer renders RGB; Mitsuba's RGB "
+                        "variants turn a spectrum into RGB)" if child.tag == "spectrum" else "")
+                self.fail(child, f"unsupported element inside {kind} {ptype!r}; supported: "
+                                 f"{', '.join(_VALUE_TAGS)}, ref, texture and nested "
+                                 f"plugins{hint}")
         if p.id:
             self.ids[p.id] = p
         return p
 
     def load(self, root) -> SceneDescription:
+        version = self.attr(root, "version")    # Mitsuba requires it too
+        if not re.fullmatch(r"\d+\.\d+\.\d+", version.strip()):
+            self.fail(root, f"version {version!r}: expected major.minor.patch, e.g. 3.0.0")
+        if int(version.split(".")[0]) < 2:
+            self.fail(root, f"version {version!r}: Mitsuba rewrites scenes older than 2.0.0 "
+                            "(camelCase names, diffuse_reflectance, uoffset/uscale); not "
+                            "supported here: write it for Mitsuba 3 (version=\"3.0.0\")")
         integrator = sensor = None
         shapes, emitters = [], []
         for node in root.children:
@@ -367,9 +390,14 @@ class _Loader:
                 self.declared.add(name)
                 self.params.setdefault(name, node.attrib.get("value", ""))
             elif node.tag == "integrator":
+                if integrator is not None:
+                    self.fail(node, "a second <integrator>; a scene has one (Mitsuba refuses "
+                                    "a second too)")
                 integrator = self.plugin(node)
             elif node.tag == "sensor":
-                sensor = self.plugin(node)
+                # Mitsuba renders the first sensor unless told otherwise
+                first = self.plugin(node)
+                sensor = sensor or first
             elif node.tag == "shape":
                 shapes.append(self.plugin(node))
             elif node.tag == "emitter":

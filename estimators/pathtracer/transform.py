@@ -32,14 +32,31 @@ def rotate(axis, angle_deg: float) -> np.ndarray:
     return m
 
 
-def look_at(origin, target, up) -> np.ndarray:
+def coordinate_system(n) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing the unit vector ``n`` to an orthonormal basis, by
+    Mitsuba's ``coordinate_system`` (Duff et al., "Building an Orthonormal Basis,
+    Revisited", JCGT 6(1), 2017), so that the basis is Mitsuba's, not merely a basis."""
+    x, y, z = (float(c) for c in n)
+    sign = 1.0 if z >= 0 else -1.0
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    return (np.array([sign * x * x * a + 1.0, sign * b, -sign * x]),
+            np.array([b, y * y * a + sign, -y]))
+
+
+def look_at(origin, target, up=None) -> np.ndarray:
     """Camera-to-world of a camera at ``origin`` looking at ``target``: columns are
-    (left, up, forward, origin), so camera space looks along +z, +x is to the left."""
-    origin, target, up = (np.asarray(v, dtype=np.float64) for v in (origin, target, up))
+    (left, up, forward, origin), so camera space looks along +z, +x is to the left.
+    Without ``up`` (or with a zero one) Mitsuba 3 takes the first vector of
+    :func:`coordinate_system` of the viewing direction, not (0, 1, 0)."""
+    origin, target = (np.asarray(v, dtype=np.float64) for v in (origin, target))
     d = target - origin
     if np.linalg.norm(d) == 0:
         raise ValueError("lookat: origin and target coincide")
     d = d / np.linalg.norm(d)
+    up = np.zeros(3) if up is None else np.asarray(up, dtype=np.float64)
+    if not up.any():
+        up = coordinate_system(d)[0]
     left = np.cross(up, d)
     if np.linalg.norm(left) == 0:
         raise ValueError("lookat: 'up' is parallel to the viewing direction")

@@ -122,12 +122,25 @@ def _block_means(img, block):
     return out
 
 
-def flip_error(test, ref) -> np.ndarray:
+#: Below this maximum luminance of the reference, HDR-FLIP is not measured: its automatic
+#: exposure range runs from log2(k / Y_max) to log2(k / max(Y_median, ~1.2e-7)), reversed
+#: when Y_max < ~1.2e-7, and flip-evaluator then exits the whole process (an all-black
+#: reference, e.g. a scene whose only light is hidden at max_depth 1, killed render-check).
+FLIP_MIN_LUMINANCE = 1e-6
+
+
+def flip_error(test, ref) -> np.ndarray | None:
     """Per-pixel HDR-FLIP error (Andersson et al. 2021, NVIDIA's ``flip-evaluator``) of two
     linear-sRGB HDR images (H, W, 3): 0 identical, 1 the largest difference. FLIP models
     what a viewer sees when alternating the two images at 67 pixels per degree, over the
-    exposures of the reference's range (ACES tone mapping); negative values count as 0."""
+    exposures of the reference's range (ACES tone mapping); negative values count as 0.
+    None (not measured) for a reference darker than :data:`FLIP_MIN_LUMINANCE` everywhere,
+    where FLIP's exposure range is undefined."""
     import flip_evaluator
+
+    luminance = np.maximum(ref, 0.0) @ np.array([0.2126, 0.7152, 0.0722])
+    if not luminance.max() >= FLIP_MIN_LUMINANCE:
+        return None
 
     def prepared(img):
         return np.ascontiguousarray(np.maximum(img, 0.0), dtype=np.float32)
@@ -153,11 +166,12 @@ def perceptual_metrics(test, ref) -> tuple[dict, dict]:
         return dict.fromkeys(PERCEPTUAL_KEYS), {}
     maps = {"delta_e2000": delta_e2000(test, ref), "delta_e_itp": delta_e_itp(test, ref),
             "flip": flip_error(test, ref)}
-    details = {}
+    details = dict.fromkeys(PERCEPTUAL_KEYS)
     for k, m in maps.items():
-        details[f"{k}_mean"] = float(m.mean())
-        details[f"{k}_p99"] = float(np.percentile(m, 99))
-    return details, maps
+        if m is not None:
+            details[f"{k}_mean"] = float(m.mean())
+            details[f"{k}_p99"] = float(np.percentile(m, 99))
+    return details, {k: m for k, m in maps.items() if m is not None}
 
 
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,

@@ -616,6 +616,10 @@ def _print_visibility(d: dict) -> None:
               f"{d['delta_e_itp_mean']:.3g}, mean HDR-FLIP {d['flip_mean']:.3g} "
               f"(99th percentiles {d['delta_e2000_p99']:.3g}, {d['delta_e_itp_p99']:.3g}, "
               f"{d['flip_p99']:.3g})")
+    elif d.get("delta_e2000_mean") is not None:
+        print(f"    how visible: mean ΔE2000 {d['delta_e2000_mean']:.3g}, mean ΔE ITP "
+              f"{d['delta_e_itp_mean']:.3g} (99th percentiles {d['delta_e2000_p99']:.3g}, "
+              f"{d['delta_e_itp_p99']:.3g}); HDR-FLIP not measured: the reference is black")
 
 
 def build_parser() -> argparse.ArgumentParser:

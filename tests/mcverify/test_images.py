@@ -67,6 +67,29 @@ def test_colour_differences_are_zero_for_identical_images_and_grow_with_a_shift(
     assert "artifacts" not in r.to_dict() and "delta_e2000" not in r.to_dict()["details"]
 
 
+@pytest.mark.parametrize("level", [0.0, 1e-8], ids=["black", "near-black"])
+def test_a_black_reference_is_compared_without_hdr_flip(level):
+    """flip-evaluator exits the whole process on a reference whose maximum luminance is
+    below about 1.2e-7 (its exposure range is reversed): render-check died (exit 134) on
+    a scene not in the repository whose only light was hidden at max_depth 1. Run in a
+    subprocess so that a regression fails this test instead of killing pytest."""
+    import subprocess
+    import sys
+
+    code = (f"import numpy as np, mcverify as mv\n"
+            f"ref = np.full((8, 8, 3), {level}); test = ref + 0.01\n"
+            f"v = np.full_like(ref, 1e-4)\n"
+            f"r = mv.compare_images(test, ref, test_var=v, ref_var=v, test_n=4, ref_n=4)\n"
+            f"assert r.details['flip_mean'] is None and r.details['flip_p99'] is None\n"
+            f"assert 'flip' not in r.artifacts and r.details['delta_e2000_mean'] is not None\n"
+            f"assert r.artifacts['delta_e_itp'].shape == (8, 8)\n"
+            f"print('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", (out.returncode, out.stdout,
+                                                                out.stderr)
+
+
 def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
     local = (slice(16, 24), slice(8, 16), slice(None))
     r = mv.compare_images(**_pair(np.random.default_rng(2), 2.0, 64, local=local))
