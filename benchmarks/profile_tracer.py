@@ -8,6 +8,11 @@
   rays and what they see), 2 (plus one bounce: next-event estimation, one BSDF sample,
   one more ray) and the scene's own, best of 3, compilation excluded.
 
+With ``--cpu`` the times are CPU seconds of the process (``time.process_time``, best of
+5) instead of wall seconds: run it as ``NUMBA_NUM_THREADS=1 python
+benchmarks/profile_tracer.py --cpu`` to compare two versions on a loaded machine, where
+wall times move with the other processes and one thread's CPU time moves much less.
+
 With ``--variance`` it answers instead whether a scene's equal-time error is a speed or a
 variance matter: our per-sample variance against Mitsuba's (the reference's), per pixel
 block, at the reference's resolution and number of passes (``--spp`` per pass):
@@ -74,28 +79,39 @@ def main() -> None:
     ap.add_argument("scenes", nargs="*", default=list(SCENES))
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--variance", action="store_true")
+    ap.add_argument("--cpu", action="store_true",
+                    help="CPU seconds (time.process_time, best of 5), not wall seconds")
     a = ap.parse_args()
     if a.variance:
         for name in a.scenes:
             print(variance_ratio(name, a.spp), flush=True)
         return
+    clock, repeats = (time.process_time, 5) if a.cpu else (time.perf_counter, 3)
+
+    def timed(fn):
+        best = np.inf
+        for k in range(repeats):
+            t0 = clock()
+            fn(k)
+            best = min(best, clock() - t0)
+        return best
+
     for name in a.scenes:
         cs = prepare_scene(resolve_scene(name)[1], params={"res": 128})
         sa, cam = cs.arrays, cs.camera.params
         _cast_kernel(sa.bvh_nodes, sa.leaf_prims, sa.leaf_info, cam, 128, 128, 1)
-        best = np.inf
-        for _ in range(3):
-            t0 = time.perf_counter()
-            _cast_kernel(sa.bvh_nodes, sa.leaf_prims, sa.leaf_info, cam, 128, 128, 20)
-            best = min(best, time.perf_counter() - t0)
+        best = timed(lambda k: _cast_kernel(sa.bvh_nodes, sa.leaf_prims, sa.leaf_info, cam,
+                                            128, 128, 20))
         parts = [f"rays {128 * 128 * 20 / best / 1e6:.2f} M/s"]
         render(cs, spp=2)
         for depth in (1, 2, sa.max_depth):
             c = dataclasses.replace(cs, arrays=sa._replace(max_depth=depth))
-            t = min(render(c, spp=a.spp, seed=k).seconds for k in range(3))
+            # wall: the render's own kernel time (its set-up excluded); CPU: the call's
+            t = (timed(lambda k: render(c, spp=a.spp, seed=k)) if a.cpu
+                 else min(render(c, spp=a.spp, seed=k).seconds for k in range(repeats)))
             parts.append(f"{'full' if depth == sa.max_depth else f'depth {depth}'} {t:.3f}s")
         print(f"{name} ({cs.n_triangles:,} triangles, {len(sa.bvh_nodes):,} nodes): "
-              + ", ".join(parts), flush=True)
+              + ", ".join(parts) + (" (CPU seconds)" if a.cpu else ""), flush=True)
 
 
 if __name__ == "__main__":

@@ -13,11 +13,12 @@ A primitive is one row of ``prims`` and one row of ``prim_info`` (``PRIM_KIND``,
 The intersection arithmetic below reads these rows element by element (the offsets are
 those of the layout's columns; ``tests/estimators/test_scene.py`` checks they agree).
 
-The hierarchy is binned SAH (16 bins, leaves of at most 4 primitives), built by a numba
-kernel (``build_bvh``); ``pack_bvh`` lays it out for traversal as ``layout``'s
-``bvh_nodes`` (box and links of a node in one 64-byte row, the two children of a node
-adjacent) and ``leaf_prims`` (what the ray tests read, copied in leaf order, so a leaf is
-one contiguous run of rows and triangle edges are not recomputed per test).
+The hierarchy is binned SAH (16 bins, leaves of at most 4 primitives), built as a binary
+tree by a numba kernel (``build_bvh``); ``pack_bvh`` collapses it into a 4-wide tree
+(``collapse_bvh``) laid out for traversal as ``layout``'s ``bvh_nodes`` (the four child
+boxes of a node coordinate by coordinate, tested against a ray in one AVX2 pass by
+``_box4_entry``) and ``leaf_prims`` (what the ray tests read, copied in leaf order, so a
+leaf is one contiguous run of rows and triangle edges are not recomputed per test).
 """
 
 from __future__ import annotations
@@ -25,18 +26,23 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_KIND, LEAF_P0,
-                     LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_COUNT,
-                     NODE_FIRST, NODE_HI, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
+                     LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_ARITY,
+                     NODE_COUNT, NODE_HI, NODE_LINK, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
                      SPHERE_CENTER, SPHERE_RADIUS, SPHERE_ROTATION, TRI_P0, TRI_P1, TRI_P2,
                      TRI_UV0, TRI_UV1, TRI_UV2, TRIANGLE)
 
 _BINS = 16
 _LEAF = 4
 _MAX_DEPTH = 60        # deeper subtrees become leaves, so traversal's stack suffices
-STACK = 64
+#: traversal stack rows: a 4-wide node at depth k (at most the binary depth, <= 60) leaves
+#: at most 3 siblings stacked per level above it, and stacks 4 children itself
+STACK = (NODE_ARITY - 1) * _MAX_DEPTH + NODE_ARITY
 
 _jit = njit(cache=True)
 # the per-ray functions are inlined into the kernel: a call that passes arrays costs
@@ -192,22 +198,87 @@ def build_bvh(prims, info):
     return nb[:n_nodes].copy(), ni[:n_nodes].copy(), order
 
 
+@_jit
+def collapse_bvh(node_bounds, node_info):
+    """The binary tree of ``build_bvh`` as a 4-wide one, ``layout``'s ``bvh_nodes`` (one
+    32-value row per node, the root first). Each binary interior node that becomes a
+    4-wide node takes its two children, then repeatedly opens the interior child of the
+    largest surface area into its two children, until it has four or only leaves (the
+    usual greedy collapse). A child keeps its place when opened (its children take it and
+    the next), so the children of a node stay in the binary tree's left-to-right order;
+    leaves keep their ``first, count`` (rows of ``leaf_prims``). A binary root that is a
+    leaf becomes the root's one child."""
+    m = node_bounds.shape[0]
+    nodes = np.empty((m, NODE_WIDTH))
+    todo = np.empty(m, dtype=np.int64)       # binary node of each 4-wide row
+    kids = np.empty(NODE_ARITY, dtype=np.int64)
+    todo[0] = 0
+    n_wide = 1
+    row = 0
+    while row < n_wide:
+        b = todo[row]
+        if node_info[b, 1] >= 0:
+            kids[0] = b
+            nk = 1
+        else:
+            kids[0], kids[1] = node_info[b, 0], -node_info[b, 1] - 1
+            nk = 2
+            while nk < NODE_ARITY:
+                best, best_area = -1, -1.0
+                for i in range(nk):
+                    c = kids[i]
+                    if node_info[c, 1] < 0:
+                        a = _area(node_bounds[c, 0:3], node_bounds[c, 3:6])
+                        if a > best_area:
+                            best, best_area = i, a
+                if best < 0:
+                    break
+                c = kids[best]
+                for i in range(nk, best + 1, -1):
+                    kids[i] = kids[i - 1]
+                kids[best], kids[best + 1] = node_info[c, 0], -node_info[c, 1] - 1
+                nk += 1
+        for i in range(NODE_ARITY):
+            if i >= nk:
+                for a in range(3):
+                    nodes[row, NODE_LO + NODE_ARITY * a + i] = np.inf
+                    nodes[row, NODE_HI + NODE_ARITY * a + i] = np.inf
+                nodes[row, NODE_LINK + i] = 0.0
+                nodes[row, NODE_COUNT + i] = 0.0
+                continue
+            c = kids[i]
+            for a in range(3):
+                nodes[row, NODE_LO + NODE_ARITY * a + i] = node_bounds[c, a]
+                nodes[row, NODE_HI + NODE_ARITY * a + i] = node_bounds[c, 3 + a]
+            if node_info[c, 1] >= 0:
+                nodes[row, NODE_LINK + i] = node_info[c, 0]
+                nodes[row, NODE_COUNT + i] = node_info[c, 1]
+            else:
+                todo[n_wide] = c
+                nodes[row, NODE_LINK + i] = n_wide
+                nodes[row, NODE_COUNT + i] = -1.0
+                n_wide += 1
+        row += 1
+    return nodes[:n_wide]
+
+
+def _aligned_copy(a, alignment=32):
+    """A C-contiguous copy of ``a`` whose data starts at a multiple of ``alignment`` bytes
+    (numpy guarantees 16), so a node's 4-value rows never straddle a cache line."""
+    buf = np.empty(a.size + alignment // a.itemsize, dtype=a.dtype)
+    skip = (-buf.ctypes.data % alignment) // a.itemsize
+    out = buf[skip:skip + a.size].reshape(a.shape)
+    out[...] = a
+    return out
+
+
 def pack_bvh(prims, info, node_bounds, node_info, order):
     """The hierarchy as the kernel reads it: ``(bvh_nodes, leaf_prims, leaf_info)`` of
-    ``layout`` (one 64-byte row per node; the ray-test data of every primitive copied in
-    leaf order, triangle edges precomputed), from ``build_bvh``'s output. The edges are
-    the same float64 differences the test computed from the vertices, so hits are the
-    same to the bit."""
-    nodes = np.empty((len(node_bounds), NODE_WIDTH))
-    nodes[:, NODE_LO:NODE_LO + 3] = node_bounds[:, 0:3]
-    nodes[:, NODE_HI:NODE_HI + 3] = node_bounds[:, 3:6]
-    leaf = node_info[:, 1] >= 0
-    interior = ~leaf
-    # build_bvh allocates an interior node's two children next to each other
-    if not np.array_equal(-node_info[interior, 1] - 1, node_info[interior, 0] + 1):
-        raise AssertionError("build_bvh: children of a node are not adjacent")
-    nodes[:, NODE_FIRST] = node_info[:, 0]
-    nodes[:, NODE_COUNT] = np.where(leaf, node_info[:, 1], -(node_info[:, 2] + 1))
+    ``layout`` (the 4-wide nodes of ``collapse_bvh``, 32-byte aligned; the ray-test data
+    of every primitive copied in leaf order, triangle edges precomputed), from
+    ``build_bvh``'s output. The edges are the same float64 differences the test computed
+    from the vertices, so hits are the same to the bit."""
+    nodes = _aligned_copy(collapse_bvh(node_bounds, node_info))
     p = prims[order]
     kind = info[order, PRIM_KIND]
     rows = np.zeros((len(order), LEAF_WIDTH))
@@ -224,25 +295,80 @@ def pack_bvh(prims, info, node_bounds, node_info, order):
     return nodes, rows, leaf_info
 
 
+def bvh_bounds(nodes):
+    """The box (lo, hi) of everything in the hierarchy ``bvh_nodes``: the union of the
+    root's children's boxes (unused slots, whose corners are +inf, left out)."""
+    used = nodes[0, NODE_LO:NODE_LO + NODE_ARITY] < np.inf
+    box = nodes[0, NODE_LO:NODE_HI + 3 * NODE_ARITY].reshape(2, 3, NODE_ARITY)[:, :, used]
+    return box[0].min(axis=1), box[1].max(axis=1)
+
+
 # --------------------------------------------------------------------- intersection
-@_inline
-def _box_entry(nodes, node, ox, oy, oz, ix, iy, iz, t_max):
-    """Where the ray enters the node's box within [0, t_max], or inf if it misses."""
-    t0 = 0.0
-    t1 = t_max
-    a = (nodes[node, NODE_LO] - ox) * ix
-    b = (nodes[node, NODE_HI] - ox) * ix
-    t0 = max(t0, min(a, b))
-    t1 = min(t1, max(a, b))
-    a = (nodes[node, NODE_LO + 1] - oy) * iy
-    b = (nodes[node, NODE_HI + 1] - oy) * iy
-    t0 = max(t0, min(a, b))
-    t1 = min(t1, max(a, b))
-    a = (nodes[node, NODE_LO + 2] - oz) * iz
-    b = (nodes[node, NODE_HI + 2] - oz) * iz
-    t0 = max(t0, min(a, b))
-    t1 = min(t1, max(a, b))
-    return t0 if t0 <= t1 * (1.0 + 4e-16) else np.inf
+_V4 = ir.VectorType(ir.DoubleType(), NODE_ARITY)
+_ACCEPT = 1.0 + 4e-16     # a box is entered if t0 <= t1 · _ACCEPT: rounding slack
+
+
+@intrinsic
+def _box4_entry(typingctx, nodes, node, ox, oy, oz, ix, iy, iz, t_max):
+    """Where the ray (origin o, reciprocal direction i) enters each of the four child
+    boxes of row ``node`` of ``bvh_nodes`` within [0, t_max]: a 4-tuple, inf where it
+    misses. One pass of explicit ``<4 x double>`` LLVM IR (AVX2 on this machine: numba
+    leaves LLVM's SLP vectoriser off, so scalar code for four boxes stays scalar).
+
+    Per box it is the scalar slab test, operation for operation: per axis
+    a = (lo - o)·i, b = (hi - o)·i in float64, t0 = max(t0, min(a, b)),
+    t1 = min(t1, max(a, b)) from t0 = 0, t1 = t_max, entered if t0 <= t1·(1 + 4e-16).
+    min and max are numba's ``min(x, y)`` = (y if y < x else x) and
+    ``max(x, y)`` = (y if y > x else x) (ordered compares, then select), whose NaN
+    behaviour (0·inf when o lies on a slab plane of a ray parallel to it) is kept: a
+    NaN there leaves t0, t1 as they were. IEEE operations on each lane are those of the
+    scalar code, so every box decision, and with it every hit, is the one a scalar
+    float64 test gives (x86 ``vminpd/vmaxpd`` are exactly these selects)."""
+    if not (isinstance(nodes, types.Array) and nodes.ndim == 2 and nodes.layout == "C"
+            and nodes.dtype == types.float64 and isinstance(node, types.Integer)):
+        return None
+    f8 = types.float64
+    sig = types.UniTuple(f8, NODE_ARITY)(nodes, types.intp, f8, f8, f8, f8, f8, f8, f8)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        shape = cgutils.unpack_tuple(builder, ary.shape)
+        strides = cgutils.unpack_tuple(builder, ary.strides)
+        i32 = ir.IntType(32)
+        undef = ir.Constant(_V4, ir.Undefined)
+
+        def load(col):
+            ptr = cgutils.get_item_pointer2(context, builder, ary.data, shape, strides, "C",
+                                            [args[1], context.get_constant(types.intp, col)])
+            # align 8: correct whatever the array's alignment (pack_bvh aligns it to 32,
+            # where this unaligned load costs the same as an aligned one)
+            return builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
+
+        def splat(x):
+            v = builder.insert_element(undef, x, ir.Constant(i32, 0))
+            return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(i32, NODE_ARITY),
+                                                                [0] * NODE_ARITY))
+
+        def vmin(x, y):
+            return builder.select(builder.fcmp_ordered("<", y, x), y, x)
+
+        def vmax(x, y):
+            return builder.select(builder.fcmp_ordered(">", y, x), y, x)
+
+        t0 = ir.Constant(_V4, [0.0] * NODE_ARITY)
+        t1 = splat(args[8])
+        for axis in range(3):
+            o, inv = splat(args[2 + axis]), splat(args[5 + axis])
+            a = builder.fmul(builder.fsub(load(NODE_LO + NODE_ARITY * axis), o), inv)
+            b = builder.fmul(builder.fsub(load(NODE_HI + NODE_ARITY * axis), o), inv)
+            t0 = vmax(t0, vmin(a, b))
+            t1 = vmin(t1, vmax(a, b))
+        enter = builder.fcmp_ordered("<=", t0, builder.fmul(t1, ir.Constant(_V4, [_ACCEPT] * NODE_ARITY)))
+        t = builder.select(enter, t0, ir.Constant(_V4, [np.inf] * NODE_ARITY))
+        lanes = [builder.extract_element(t, ir.Constant(i32, k)) for k in range(NODE_ARITY)]
+        return context.make_tuple(builder, signature.return_type, lanes)
+
+    return sig, codegen
 
 
 @_inline
@@ -312,37 +438,55 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 
 @_inline
+def _push(stack, base, sp, t, link, count):
+    """Stack child (link, count) entered at distance t (none if inf) among those stacked
+    from row ``base`` on, kept sorted far to near (equal distances: the earlier child on
+    top, as the binary tree's nearer-or-left-first order). Returns the new top."""
+    if t == np.inf:
+        return sp
+    j = sp
+    while j > base and stack[j - 1, 0] <= t:
+        stack[j, 0], stack[j, 1], stack[j, 2] = stack[j - 1, 0], stack[j - 1, 1], \
+            stack[j - 1, 2]
+        j -= 1
+    stack[j, 0], stack[j, 1], stack[j, 2] = t, link, count
+    return sp + 1
+
+
+@_inline
 def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max, any_hit):
-    """Walk the hierarchy: at an interior node both children's boxes are tested, the
-    nearer entered first and the other stacked with its entry distance (skipped when a
-    hit closer than that is found meanwhile). The nearest hit in (t_min, t_max), or with
-    ``any_hit`` the first found: (t, primitive, b1, b2); primitive -1 if none."""
+    """Walk the 4-wide hierarchy: at a node the four children's boxes are tested at once
+    (``_box4_entry``) and the ones entered are stacked with their entry distance, the
+    nearest on top; a stacked child is skipped when a hit closer than its entry has been
+    found meanwhile. The nearest hit in (t_min, t_max), or with ``any_hit`` the first
+    found: (t, primitive, b1, b2); primitive -1 if none."""
     ix = 1.0 / dx if dx != 0.0 else np.inf
     iy = 1.0 / dy if dy != 0.0 else np.inf
     iz = 1.0 / dz if dz != 0.0 else np.inf
     best_t, best_k, best_b1, best_b2 = t_max, -1, 0.0, 0.0
     sp = 0
     node = 0
-    if _box_entry(nodes, 0, ox, oy, oz, ix, iy, iz, best_t) == np.inf:
-        return best_t, -1, best_b1, best_b2
-    while True:
-        c = int(nodes[node, NODE_COUNT])
-        first = int(nodes[node, NODE_FIRST])
-        if c < 0:
-            ta = _box_entry(nodes, first, ox, oy, oz, ix, iy, iz, best_t)
-            tb = _box_entry(nodes, first + 1, ox, oy, oz, ix, iy, iz, best_t)
-            if ta <= tb:
-                near, far, t_near, t_far = first, first + 1, ta, tb
-            else:
-                near, far, t_near, t_far = first + 1, first, tb, ta
-            if t_near < np.inf:
-                if t_far < np.inf:
-                    stack[sp, 0] = far
-                    stack[sp, 1] = t_far
-                    sp += 1
-                node = near
+    while node >= 0:
+        t0, t1, t2, t3 = _box4_entry(nodes, node, ox, oy, oz, ix, iy, iz, best_t)
+        base = sp
+        sp = _push(stack, base, sp, t0, nodes[node, NODE_LINK], nodes[node, NODE_COUNT])
+        sp = _push(stack, base, sp, t1, nodes[node, NODE_LINK + 1],
+                   nodes[node, NODE_COUNT + 1])
+        sp = _push(stack, base, sp, t2, nodes[node, NODE_LINK + 2],
+                   nodes[node, NODE_COUNT + 2])
+        sp = _push(stack, base, sp, t3, nodes[node, NODE_LINK + 3],
+                   nodes[node, NODE_COUNT + 3])
+        # pop the nearest stacked child still worth entering: test a leaf's primitives
+        # and go on popping, or descend into an interior child
+        node = -1
+        while sp > 0:
+            sp -= 1
+            if stack[sp, 0] > best_t * _ACCEPT:
                 continue
-        else:
+            first, c = int(stack[sp, 1]), int(stack[sp, 2])
+            if c < 0:
+                node = first
+                break
             for k in range(first, first + c):
                 t, b1, b2 = _hit_prim(leaf[k], leaf_info[k, LEAF_KIND], ox, oy, oz,
                                       dx, dy, dz)
@@ -350,16 +494,6 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
                     best_t, best_k, best_b1, best_b2 = t, k, b1, b2
                     if any_hit:
                         return best_t, leaf_info[k, LEAF_PRIM], best_b1, best_b2
-        # pop the nearest stacked node still worth entering
-        found = False
-        while sp > 0:
-            sp -= 1
-            if stack[sp, 1] <= best_t * (1.0 + 4e-16):
-                found = True
-                break
-        if not found:
-            break
-        node = int(stack[sp, 0])
     if best_k < 0:
         return best_t, -1, best_b1, best_b2
     return best_t, leaf_info[best_k, LEAF_PRIM], best_b1, best_b2
@@ -367,9 +501,9 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
 
 @_inline
 def new_stack():
-    """Traversal scratch (node, entry distance) for ``intersect``/``occluded``; one per
-    thread, reused across rays."""
-    return np.empty((STACK, 2))
+    """Traversal scratch (entry distance, link, count of a stacked child) for
+    ``intersect``/``occluded``; one per thread, reused across rays."""
+    return np.empty((STACK, 3))
 
 
 @_inline

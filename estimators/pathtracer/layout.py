@@ -17,7 +17,7 @@ import numpy as np
 class SceneArrays(NamedTuple):
     """Everything the kernel reads, by name. Tables are one row per item."""
 
-    bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float: see the NODE_ columns
+    bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float: 4-wide, see the NODE_ columns
     leaf_prims: np.ndarray      # (prims, LEAF_WIDTH) float: intersection data in leaf order
     leaf_info: np.ndarray       # (prims, 2) int: LEAF_KIND, LEAF_PRIM (row of prims)
     prims: np.ndarray           # (prims, PRIM_WIDTH) float: see the PRIM_ columns
@@ -101,13 +101,21 @@ SPHERE_CENTER, SPHERE_RADIUS, SPHERE_ROTATION = 0, 3, 4
 DISK_TO_WORLD, DISK_TO_LOCAL = 0, 12
 
 # -------------------------------------------------------------------------- BVH
-# bvh_nodes: one 64-byte row per node, the box and the links together (one cache line).
-# Integers are stored as float64 values (exact below 2**53).
-NODE_LO, NODE_HI = 0, 3         # box corners (xyz each)
-NODE_FIRST = 6                  # interior: first child (the second is first + 1);
-                                # leaf: first slot in leaf_prims
-NODE_COUNT = 7                  # leaf: number of primitives (>= 0); interior: -(axis + 1)
-NODE_WIDTH = 8
+# bvh_nodes: a 4-wide hierarchy, one 256-byte row (32 float64) per node, 32-byte aligned,
+# holding its (up to) four children: their boxes coordinate by coordinate (lo x of
+# children 0-3, lo y, lo z, hi x, hi y, hi z: one 4-lane SIMD load each, so a ray is
+# tested against all four boxes at once), then their links and counts. The root is row 0
+# (its own box is the union of its children's). Integers are stored as float64 values
+# (exact below 2**53).
+NODE_ARITY = 4                  # children per node
+NODE_LO, NODE_HI = 0, 12        # box corners: lo of axis a of child i at NODE_LO + 4 a + i
+NODE_LINK = 24                  # child i at NODE_LINK + i: an interior child's row of
+                                # bvh_nodes; a leaf's first slot in leaf_prims
+NODE_COUNT = 28                 # child i at NODE_COUNT + i: a leaf's number of primitives
+                                # (>= 0); -1: interior child; an unused slot is a leaf of 0
+                                # primitives with an empty box (every corner +inf: no ray
+                                # enters it)
+NODE_WIDTH = 32
 # leaf_prims: what the ray test reads, copied in leaf order (no indirection): a triangle's
 # first vertex and its two edges (p1 - p0, p2 - p0, as the test would compute them), a
 # sphere's centre and radius, a disk's world-to-local 3 × 4

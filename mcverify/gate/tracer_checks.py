@@ -84,12 +84,11 @@ def _emitter_label(scene, tag: str, k: int) -> str:
 
 def reference_points(scene) -> list[tuple[float, float, float]]:
     """The camera's position, the centre of the scene's bounds, and half way between."""
-    from estimators.pathtracer import layout
+    from estimators.pathtracer.geometry import bvh_bounds
 
     cam = np.asarray(scene.camera.to_world, dtype=np.float64)[:3, 3]
-    node = scene.arrays.bvh_nodes[0]
-    centre = 0.5 * (node[layout.NODE_LO:layout.NODE_LO + 3]
-                    + node[layout.NODE_HI:layout.NODE_HI + 3])
+    lo, hi = bvh_bounds(scene.arrays.bvh_nodes)
+    centre = 0.5 * (lo + hi)
     return [tuple(float(c) for c in p) for p in (cam, centre, 0.5 * (cam + centre))]
 
 

@@ -1,12 +1,22 @@
-"""The tracer's BVH: the packed layout (``geometry.pack_bvh``) is a valid hierarchy over
-every primitive, and traversal finds what a brute-force test of every primitive finds."""
+"""The tracer's BVH: the packed layout (``geometry.pack_bvh``, the binary SAH tree
+collapsed 4-wide) is a valid hierarchy over every primitive, traversal finds what a
+brute-force test of every primitive finds, and the four box tests of a node compile to
+AVX2 instructions."""
 
+import re
+
+import llvmlite.binding as llvm
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from numba import njit
 
 from estimators.pathtracer import geometry, layout
-from estimators.pathtracer.layout import (LEAF_KIND, LEAF_PRIM, NODE_COUNT, NODE_FIRST,
-                                          NODE_HI, NODE_LO, PRIM_WIDTH, SPHERE, TRIANGLE)
+from estimators.pathtracer.layout import (LEAF_KIND, LEAF_PRIM, NODE_ARITY, NODE_COUNT,
+                                          NODE_HI, NODE_LINK, NODE_LO, PRIM_WIDTH, SPHERE,
+                                          TRIANGLE)
 
 
 def _soup(n_tri, n_sphere, seed):
@@ -68,33 +78,58 @@ def packed(request):
     return prims, info, geometry.pack_bvh(prims, info, nb, ni, order)
 
 
+def _child_box(nodes, i, k):
+    """(lo, hi) of child slot k of 4-wide node i."""
+    axes = NODE_ARITY * np.arange(3) + k
+    return nodes[i, NODE_LO + axes], nodes[i, NODE_HI + axes]
+
+
 def test_packed_hierarchy_is_valid(packed):
     """Every primitive sits in exactly one leaf; leaves hold their primitives' boxes,
-    interior nodes their children's boxes; leaf rows are the primitives' own data."""
-    prims, info, (nodes, leaf, leaf_info) = packed
+    4-wide nodes their children's boxes; every node but the root is one child of one
+    node, stored after it; a node with an unused slot has only leaves (the collapse
+    opened every interior child it could); unused slots are empty boxes (+inf corners)
+    of no primitives; leaf rows are the primitives' own data; the rows are 32-byte
+    aligned."""
+    _check_hierarchy(*packed)
+
+
+def _check_hierarchy(prims, info, packed):
+    nodes, leaf, leaf_info = packed
     lo, hi = geometry._prim_bounds(prims, info)
+    assert nodes.flags.c_contiguous and nodes.ctypes.data % 32 == 0
     assert sorted(leaf_info[:, LEAF_PRIM]) == list(range(len(prims)))
     np.testing.assert_array_equal(leaf_info[:, LEAF_KIND],
                                   info[leaf_info[:, LEAF_PRIM], layout.PRIM_KIND])
     seen = np.zeros(len(prims), dtype=int)
-    stack = [0]
+    parents = np.zeros(len(nodes), dtype=int)
+    # (node, the box its parent gives it); the root's: everything
+    stack = [(0, np.full(3, -np.inf), np.full(3, np.inf))]
     while stack:
-        i = stack.pop()
-        box_lo, box_hi = nodes[i, NODE_LO:NODE_LO + 3], nodes[i, NODE_HI:NODE_HI + 3]
-        first, count = int(nodes[i, NODE_FIRST]), int(nodes[i, NODE_COUNT])
-        if count >= 0:
-            for k in range(first, first + count):
-                seen[k] += 1
-                j = leaf_info[k, LEAF_PRIM]
-                assert np.all(box_lo <= lo[j]) and np.all(hi[j] <= box_hi)
-        else:
-            assert -count - 1 in (0, 1, 2)
-            for child in (first, first + 1):
-                assert i < child < len(nodes)
-                assert np.all(box_lo <= nodes[child, NODE_LO:NODE_LO + 3])
-                assert np.all(nodes[child, NODE_HI:NODE_HI + 3] <= box_hi)
-                stack.append(child)
+        i, box_lo, box_hi = stack.pop()
+        counts = nodes[i, NODE_COUNT:NODE_COUNT + NODE_ARITY]
+        unused = nodes[i, NODE_LO:NODE_LO + NODE_ARITY] == np.inf
+        assert not unused.any() or np.all(counts >= 0), (i, counts)
+        for k in range(NODE_ARITY):
+            c_lo, c_hi = _child_box(nodes, i, k)
+            link, count = nodes[i, NODE_LINK + k], nodes[i, NODE_COUNT + k]
+            assert link == int(link) and count == int(count)
+            link, count = int(link), int(count)
+            if np.all(c_lo == np.inf):
+                assert np.all(c_hi == np.inf) and count == 0, (i, k)
+                continue
+            assert np.all(box_lo <= c_lo) and np.all(c_hi <= box_hi), (i, k)
+            if count >= 0:
+                assert count > 0, (i, k)
+                for j in leaf_info[link:link + count, LEAF_PRIM]:
+                    assert np.all(c_lo <= lo[j]) and np.all(hi[j] <= c_hi)
+                seen[link:link + count] += 1
+            else:
+                assert count == -1 and i < link < len(nodes), (i, k, link)
+                parents[link] += 1
+                stack.append((link, c_lo, c_hi))
     assert np.all(seen == 1)
+    assert parents[0] == 0 and np.all(parents[1:] == 1)
     tri = leaf_info[:, LEAF_KIND] == TRIANGLE
     j = leaf_info[tri, LEAF_PRIM]
     np.testing.assert_array_equal(leaf[tri, layout.LEAF_E2:layout.LEAF_E2 + 3],
@@ -140,3 +175,84 @@ def test_traversal_finds_the_brute_force_nearest_hit(packed):
         blocked = geometry.occluded(nodes, leaf, leaf_info, stack, *o, *d, 0.0, limit)
         assert blocked == (limit > ts[j])
     assert hits > 50
+
+
+# ------------------------------------------------------------------ property test
+# Coordinates from a coarse grid or anywhere in [-1, 1]: grid values make flat boxes
+# (axis-aligned triangles), shared vertices and edges, and ray origins exactly on slab
+# planes, where a ray parallel to the plane (d component 0: 1/d = inf) gives 0 · inf.
+_coord = st.one_of(st.sampled_from([-1.0, -0.5, 0.0, 0.25, 0.5, 1.0]),
+                   st.floats(-1.0, 1.0, allow_subnormal=False))
+_dir = st.one_of(st.sampled_from([-1.0, -0.0, 0.0, 0.5, 1.0]),
+                 st.floats(-1.0, 1.0, allow_subnormal=False))
+
+
+def _brute_hits(leaf, leaf_info, o, d):
+    """t of every leaf row by the tracer's own primitive test (no hierarchy), and its
+    (b1, b2)."""
+    out = [geometry._hit_prim(leaf[k], leaf_info[k, LEAF_KIND], *o, *d)
+           for k in range(len(leaf))]
+    return np.array([h[0] for h in out]), [h[1:] for h in out]
+
+
+@given(tris=st.integers(1, 48).flatmap(
+           lambda n: arrays(np.float64, (n, 9), elements=_coord)),
+       origins=arrays(np.float64, (12, 3), elements=_coord),
+       dirs=arrays(np.float64, (12, 3), elements=_dir),
+       t_min=st.sampled_from([0.0, 1e-4]))
+def test_four_wide_traversal_is_brute_force(tris, origins, dirs, t_min):
+    """Over random triangle soups (axis-aligned, shared vertices, degenerate ones among
+    them) and rays from inside and outside the boxes, axis-parallel rays included: the
+    4-wide hierarchy is valid and ``intersect`` returns the nearest hit in (t_min, inf)
+    that testing every primitive finds, t to the bit, with that primitive's own b1, b2
+    (on an exact tie of t, any of the tied primitives); ``occluded`` says whether some
+    primitive lies before a limit below, at and above the nearest hit."""
+    prims = np.zeros((len(tris), PRIM_WIDTH))
+    prims[:, layout.TRI_P0:layout.TRI_P0 + 9] = tris
+    info = np.zeros((len(tris), 2), dtype=np.int64)
+    info[:, layout.PRIM_KIND] = TRIANGLE
+    nb, ni, order = geometry.build_bvh(prims, info)
+    nodes, leaf, leaf_info = packed = geometry.pack_bvh(prims, info, nb, ni, order)
+    _check_hierarchy(prims, info, packed)
+    stack = geometry.new_stack()
+    for o, d in zip(origins, dirs):
+        if not np.any(d):
+            continue
+        ts, bs = _brute_hits(leaf, leaf_info, o, d)
+        ts = np.where(ts > t_min, ts, np.inf)
+        t, j, b1, b2 = geometry.intersect(nodes, leaf, leaf_info, stack, *o, *d, t_min,
+                                          np.inf)
+        best = ts.min()
+        if best == np.inf:
+            assert j < 0 and t == np.inf, (o, d, t, j)
+        else:
+            tied = np.flatnonzero(ts == best)
+            assert t == best and j in leaf_info[tied, LEAF_PRIM], (o, d, t, j, best)
+            k = tied[list(leaf_info[tied, LEAF_PRIM]).index(j)]
+            assert (b1, b2) == bs[k], (o, d)
+        for limit in (0.5 * best, best, np.nextafter(best, np.inf), 2.0 * best, np.inf):
+            if not limit > t_min:
+                continue
+            blocked = geometry.occluded(nodes, leaf, leaf_info, stack, *o, *d, t_min, limit)
+            assert blocked == bool(np.any(ts < limit)), (o, d, limit, best)
+
+
+# ----------------------------------------------------------------- the SIMD box test
+@pytest.mark.skipif("+avx2" not in llvm.get_host_cpu_features().flatten(),
+                    reason="the 4-wide box test compiles to ymm registers on AVX2 CPUs")
+def test_the_four_box_tests_compile_to_avx2():
+    """``intersect`` as the kernel inlines it tests the four child boxes of a node with
+    256-bit packed float64 instructions (subtract, multiply, min, max on ymm registers),
+    not four scalar slab tests."""
+    @njit
+    def cast(nodes, leaf, leaf_info, stack, o, d):
+        return geometry.intersect(nodes, leaf, leaf_info, stack, o[0], o[1], o[2],
+                                  d[0], d[1], d[2], 0.0, np.inf)
+
+    prims, info = _soup(5, 0, seed=1)
+    nb, ni, order = geometry.build_bvh(prims, info)
+    nodes, leaf, leaf_info = geometry.pack_bvh(prims, info, nb, ni, order)
+    cast(nodes, leaf, leaf_info, geometry.new_stack(), np.zeros(3), np.ones(3))
+    asm = cast.inspect_asm(cast.signatures[0])
+    packed = {op for op in re.findall(r"\b(v(?:sub|mul|min|max)pd)\s+[^\n]*ymm", asm)}
+    assert packed == {"vsubpd", "vmulpd", "vminpd", "vmaxpd"}, packed
