@@ -309,26 +309,31 @@ _ACCEPT = 1.0 + 4e-16     # a box is entered if t0 <= t1 · _ACCEPT: rounding sl
 
 
 @intrinsic
-def _box4_entry(typingctx, nodes, node, ox, oy, oz, ix, iy, iz, t_max):
+def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, iy, iz,
+                t_max):
     """Where the ray (origin o, reciprocal direction i) enters each of the four child
     boxes of row ``node`` of ``bvh_nodes`` within [0, t_max]: a 4-tuple, inf where it
-    misses. One pass of explicit ``<4 x double>`` LLVM IR (AVX2 on this machine: numba
-    leaves LLVM's SLP vectoriser off, so scalar code for four boxes stays scalar).
+    misses. ``near_x, near_y, near_z``: the column of each axis's near plane (``NODE_LO``
+    + 4 axis where i >= 0, else ``NODE_HI`` + 4 axis; ``_near_columns``). One pass of
+    explicit ``<4 x double>`` LLVM IR (AVX2 on this machine: numba leaves LLVM's SLP
+    vectoriser off, so scalar code for four boxes stays scalar).
 
-    Per box it is the scalar slab test, operation for operation: per axis
-    a = (lo - o)·i, b = (hi - o)·i in float64, t0 = max(t0, min(a, b)),
-    t1 = min(t1, max(a, b)) from t0 = 0, t1 = t_max, entered if t0 <= t1·(1 + 4e-16).
-    min and max are numba's ``min(x, y)`` = (y if y < x else x) and
-    ``max(x, y)`` = (y if y > x else x) (ordered compares, then select), whose NaN
-    behaviour (0·inf when o lies on a slab plane of a ray parallel to it) is kept: a
-    NaN there leaves t0, t1 as they were. IEEE operations on each lane are those of the
-    scalar code, so every box decision, and with it every hit, is the one a scalar
-    float64 test gives (x86 ``vminpd/vmaxpd`` are exactly these selects)."""
+    Per box and axis: near = (plane_near - o)·i, far = (plane_far - o)·i in float64,
+    t0 = max(t0, near), t1 = min(t1, far) from t0 = 0, t1 = t_max, where max(x, y) is
+    (y if y > x else x) and min(x, y) (y if y < x else x), ordered compares then select
+    (numba's ``max``/``min``, x86 ``vmaxpd/vminpd``); entered if t0 <= t1·(1 + 4e-16).
+    These are the values and decisions of the slab test with min(a, b), max(a, b) of
+    a = (lo - o)·i, b = (hi - o)·i (rounding is monotonic, so the sign of i orders a
+    and b), which the binary tree used, except where a plane product is 0·inf = NaN (a
+    ray parallel to the axis starting on that plane): a NaN leaves t0 or t1 as it was,
+    so a ray lying in a box's face plane is inside that slab (it enters the box if the
+    other axes let it). The min/max form dropped the box when the ray lay on its hi
+    face, so a triangle on that face was missed."""
     if not (isinstance(nodes, types.Array) and nodes.ndim == 2 and nodes.layout == "C"
             and nodes.dtype == types.float64 and isinstance(node, types.Integer)):
         return None
-    f8 = types.float64
-    sig = types.UniTuple(f8, NODE_ARITY)(nodes, types.intp, f8, f8, f8, f8, f8, f8, f8)
+    f8, i8 = types.float64, types.intp
+    sig = types.UniTuple(f8, NODE_ARITY)(nodes, i8, i8, i8, i8, f8, f8, f8, f8, f8, f8, f8)
 
     def codegen(context, builder, signature, args):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
@@ -339,7 +344,7 @@ def _box4_entry(typingctx, nodes, node, ox, oy, oz, ix, iy, iz, t_max):
 
         def load(col):
             ptr = cgutils.get_item_pointer2(context, builder, ary.data, shape, strides, "C",
-                                            [args[1], context.get_constant(types.intp, col)])
+                                            [args[1], col])
             # align 8: correct whatever the array's alignment (pack_bvh aligns it to 32,
             # where this unaligned load costs the same as an aligned one)
             return builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
@@ -349,26 +354,32 @@ def _box4_entry(typingctx, nodes, node, ox, oy, oz, ix, iy, iz, t_max):
             return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(i32, NODE_ARITY),
                                                                 [0] * NODE_ARITY))
 
-        def vmin(x, y):
-            return builder.select(builder.fcmp_ordered("<", y, x), y, x)
-
-        def vmax(x, y):
-            return builder.select(builder.fcmp_ordered(">", y, x), y, x)
-
         t0 = ir.Constant(_V4, [0.0] * NODE_ARITY)
-        t1 = splat(args[8])
+        t1 = splat(args[11])
         for axis in range(3):
-            o, inv = splat(args[2 + axis]), splat(args[5 + axis])
-            a = builder.fmul(builder.fsub(load(NODE_LO + NODE_ARITY * axis), o), inv)
-            b = builder.fmul(builder.fsub(load(NODE_HI + NODE_ARITY * axis), o), inv)
-            t0 = vmax(t0, vmin(a, b))
-            t1 = vmin(t1, vmax(a, b))
-        enter = builder.fcmp_ordered("<=", t0, builder.fmul(t1, ir.Constant(_V4, [_ACCEPT] * NODE_ARITY)))
+            near_col = args[2 + axis]
+            # the far plane's column: NODE_LO + NODE_HI + 2·4·axis - the near one's
+            far_col = builder.sub(context.get_constant(
+                types.intp, NODE_LO + NODE_HI + 2 * NODE_ARITY * axis), near_col)
+            o, inv = splat(args[5 + axis]), splat(args[8 + axis])
+            near = builder.fmul(builder.fsub(load(near_col), o), inv)
+            far = builder.fmul(builder.fsub(load(far_col), o), inv)
+            t0 = builder.select(builder.fcmp_ordered(">", near, t0), near, t0)
+            t1 = builder.select(builder.fcmp_ordered("<", far, t1), far, t1)
+        accept = ir.Constant(_V4, [_ACCEPT] * NODE_ARITY)
+        enter = builder.fcmp_ordered("<=", t0, builder.fmul(t1, accept))
         t = builder.select(enter, t0, ir.Constant(_V4, [np.inf] * NODE_ARITY))
         lanes = [builder.extract_element(t, ir.Constant(i32, k)) for k in range(NODE_ARITY)]
         return context.make_tuple(builder, signature.return_type, lanes)
 
     return sig, codegen
+
+
+@_inline
+def _near_column(inv, axis):
+    """The column of the near plane along ``axis`` of a ray whose 1/d there is ``inv``
+    (never -inf: a zero component gives +inf)."""
+    return NODE_LO + NODE_ARITY * axis if inv >= 0.0 else NODE_HI + NODE_ARITY * axis
 
 
 @_inline
@@ -463,11 +474,12 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
     ix = 1.0 / dx if dx != 0.0 else np.inf
     iy = 1.0 / dy if dy != 0.0 else np.inf
     iz = 1.0 / dz if dz != 0.0 else np.inf
+    nx, ny, nz = _near_column(ix, 0), _near_column(iy, 1), _near_column(iz, 2)
     best_t, best_k, best_b1, best_b2 = t_max, -1, 0.0, 0.0
     sp = 0
     node = 0
     while node >= 0:
-        t0, t1, t2, t3 = _box4_entry(nodes, node, ox, oy, oz, ix, iy, iz, best_t)
+        t0, t1, t2, t3 = _box4_entry(nodes, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, best_t)
         base = sp
         sp = _push(stack, base, sp, t0, nodes[node, NODE_LINK], nodes[node, NODE_COUNT])
         sp = _push(stack, base, sp, t1, nodes[node, NODE_LINK + 1],
