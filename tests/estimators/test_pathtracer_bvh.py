@@ -309,3 +309,13 @@ def test_the_four_box_tests_compile_to_avx2():
     asm = cast.inspect_asm(cast.signatures[0])
     packed = {op for op in re.findall(r"\b(v(?:sub|mul|min|max)pd)\s+[^\n]*ymm", asm)}
     assert packed == {"vsubpd", "vmulpd", "vminpd", "vmaxpd"}, packed
+
+
+def test_bvh_bounds_is_the_box_of_every_primitive(packed):
+    """``bvh_bounds`` (the scene's box, which the tracer checks' reference points are
+    placed in) is the union of the primitives' boxes, to the bit."""
+    prims, info, (nodes, _, _) = packed
+    lo, hi = geometry._prim_bounds(prims, info)
+    b_lo, b_hi = geometry.bvh_bounds(nodes)
+    np.testing.assert_array_equal(b_lo, lo.min(axis=0))
+    np.testing.assert_array_equal(b_hi, hi.max(axis=0))
