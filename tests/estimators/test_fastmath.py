@@ -259,17 +259,52 @@ for name in ("beckmann", "exponential"):
 '''
 
 
+def loop_rows(script, tmp_path):
+    """Run ``script`` in a subprocess with empty caches (numba does not show the IR of
+    cached code) and return its rows, ``name: [fields]``."""
+    env = dict(os.environ, MCVERIFY_CACHE=str(tmp_path / "k"), NUMBA_CACHE_DIR=str(tmp_path / "n"),
+               PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
+                         text=True, timeout=900)
+    assert run.returncode == 0, run.stderr
+    return {r.split()[0]: r.split()[1:] for r in run.stdout.splitlines() if r.strip()}
+
+
 def test_the_warp_front_end_loops_vectorise(tmp_path):
     """The Beckmann and exponential front ends' loops (compiled afresh in a subprocess,
     since numba does not show the IR of cached code) run the kernel in vector lanes."""
-    env = dict(os.environ, MCVERIFY_CACHE=str(tmp_path / "k"), NUMBA_CACHE_DIR=str(tmp_path / "n"),
-               PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
-    run = subprocess.run([sys.executable, "-c", _WARP_LOOPS], env=env, capture_output=True,
-                         text=True, timeout=600)
-    assert run.returncode == 0, run.stderr
-    rows = {r.split()[0]: r.split()[1:] for r in run.stdout.splitlines() if r.strip()}
+    rows = loop_rows(_WARP_LOOPS, tmp_path)
     assert rows == {k: ["True", "False"] for k in ("beckmann_sample", "beckmann_pdf",
                                                    "exponential_sample", "exponential_pdf")}, rows
+_AZIMUTH_LOOPS = r'''
+import re
+import numpy as np
+from estimators import warps as W
+for name, labels in [("uniform_sphere", ("sample", "invert")), ("uniform_cone", ("sample", "invert")),
+                     ("ggx", ("sample", "invert")), ("uniform_disk_polar", ("invert",)),
+                     ("uniform_disk_concentric", ("sample", "invert")),
+                     ("cosine_hemisphere", ("invert",))]:
+    w = W.WARPS[name]
+    u = np.full((8, w.sample_dim), 0.25)
+    x = w.sample(u, *w.defaults)
+    for label in labels:
+        f, arg = (w.sample, u) if label == "sample" else (w.invert, x)
+        f(arg, *w.defaults)
+        loop = f.loop()
+        ir = loop.inspect_llvm(loop.signatures[0])
+        print(name + "_" + label, bool(re.search(r"fmul <\d+ x double>", ir)),
+              bool(re.search(r"call [^\n]*@_ZN10estimators", ir)),
+              bool(re.search(r"call [^\n]*@(llvm\.)?(atan|atan2|sin|cos)(\.[a-z0-9]+)?\(", ir)))
+'''
+
+
+def test_the_azimuth_front_end_loops_vectorise(tmp_path):
+    """The loops of the warps whose sample or inverse takes an azimuth (sin/cos of 2πu,
+    atan2, the concentric inverse's atan) multiply in vector lanes, call no warp kernel
+    (inlined, so LLVM could vectorise) and no libm function; compiled afresh in a
+    subprocess, as above."""
+    rows = loop_rows(_AZIMUTH_LOOPS, tmp_path)
+    assert len(rows) == 10 and all(v == ["True", "False", "False"] for v in rows.values()), rows
 
 
 # --------------------------------------------------------------------------- atan2
@@ -451,39 +486,3 @@ def test_sincos_2pi_loop_vectorises_and_libms_does_not():
             s[i], c[i] = math.sin(2 * math.pi * u[i]), math.cos(2 * math.pi * u[i])
     libm(u, np.empty_like(u), np.empty_like(u))
     assert not vectorised(libm.inspect_llvm(libm.signatures[0]))
-
-
-_AZIMUTH_LOOPS = r'''
-import re
-import numpy as np
-from estimators import warps as W
-for name, labels in [("uniform_sphere", ("sample", "invert")), ("uniform_cone", ("sample", "invert")),
-                     ("ggx", ("sample", "invert")), ("uniform_disk_polar", ("invert",)),
-                     ("uniform_disk_concentric", ("sample", "invert")),
-                     ("cosine_hemisphere", ("invert",))]:
-    w = W.WARPS[name]
-    u = np.full((8, w.sample_dim), 0.25)
-    x = w.sample(u, *w.defaults)
-    for label in labels:
-        f, arg = (w.sample, u) if label == "sample" else (w.invert, x)
-        f(arg, *w.defaults)
-        loop = f.loop()
-        ir = loop.inspect_llvm(loop.signatures[0])
-        print(name + "_" + label, bool(re.search(r"fmul <\d+ x double>", ir)),
-              bool(re.search(r"call [^\n]*@_ZN10estimators", ir)),
-              bool(re.search(r"call [^\n]*@(llvm\.)?(atan|atan2|sin|cos)(\.[a-z0-9]+)?\(", ir)))
-'''
-
-
-def test_the_azimuth_front_end_loops_vectorise(tmp_path):
-    """The loops of the warps whose sample or inverse takes an azimuth (sin/cos of 2πu,
-    atan2, the concentric inverse's atan) multiply in vector lanes, call no warp kernel
-    (inlined, so LLVM could vectorise) and no libm function; compiled afresh in a
-    subprocess, as above."""
-    env = dict(os.environ, MCVERIFY_CACHE=str(tmp_path / "k"), NUMBA_CACHE_DIR=str(tmp_path / "n"),
-               PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
-    run = subprocess.run([sys.executable, "-c", _AZIMUTH_LOOPS], env=env, capture_output=True,
-                         text=True, timeout=900)
-    assert run.returncode == 0, run.stderr
-    rows = {r.split()[0]: r.split()[1:] for r in run.stdout.splitlines() if r.strip()}
-    assert len(rows) == 10 and all(v == ["True", "False", "False"] for v in rows.values()), rows
