@@ -537,9 +537,10 @@ def sincos_reduced(x, y):
 def fast_sincos_2pi(u):
     """(sin 2πu, cos 2πu) for |u| <= 2^50, branch-free, each within 1 ulp of the exact
     value (tested): the quadrant q = round(4u), the remainder d = u - q/4 in [-1/8, 1/8]
-    (exact, Sterbenz), the angle 2πd as a double-double x + y (2π in two parts, the
-    product's error by Dekker's two-product on Veltkamp halves), ``sincos_reduced`` at
-    it, rotated by q·π/2 with selects. The argument is a fraction of a turn, not an
+    (exact, Sterbenz), the angle 2πd as hi + lo (2π in two parts, the product's error
+    by Dekker's two-product on Veltkamp halves; not renormalised, |lo| stays near half
+    an ulp of hi, as fdlibm's kernels allow), ``sincos_reduced`` at it, rotated by
+    q·π/2 with selects. The argument is a fraction of a turn, not an
     angle: π·v is ``fast_sincos_2pi(0.5 * v)`` (exact halving), with no rounding of
     the angle, so sin π = 0 exactly and sin 2πu near its zeros keeps its relative
     precision, which libm's sin of a rounded 2πu does not."""
@@ -549,10 +550,9 @@ def fast_sincos_2pi(u):
     hi = _TWO_PI_HI * d
     dh, dl = _split(d)
     lo = ((dh * _TWO_PI_HEAD - hi) + dh * _TWO_PI_TAIL + dl * _TWO_PI_HEAD) + dl * _TWO_PI_TAIL
-    lo = lo + d * _TWO_PI_LO
-    dd = abs(d) > _TWO_M900                      # else lo's parts would be subnormal
-    x = hi + lo if dd else hi                     # (and hi alone keeps the sign of -0)
-    s, c = sincos_reduced(x, lo - (x - hi) if dd else 0.0)
+    lo = lo + d * _TWO_PI_LO                      # and 2π's own rounding error
+    lo = lo if abs(d) > _TWO_M900 else 0.0        # else its parts would be subnormal
+    s, c = sincos_reduced(hi, lo)
     odd = (q == 1.0) | (q == 3.0)
     sin = c if odd else s
     cos = s if odd else c
