@@ -9,10 +9,16 @@ new file, never a stale kernel, and a second process starts warm.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import os
 import sys
 import tempfile
+
+try:
+    import fcntl
+except ImportError:         # not on POSIX: no lock, each process compiles for itself
+    fcntl = None
 
 
 def cache_dir() -> str:
@@ -38,3 +44,20 @@ def load(name: str, source: str):
     sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
+
+
+@contextlib.contextmanager
+def compile_lock(name: str):
+    """Hold the kernel cache's lock ``name`` (an advisory ``flock`` on ``name.lock`` in
+    the cache folder). Around a kernel's first call it makes processes that start
+    together (``mcverify check -j N``, the test run's workers) compile a kernel once:
+    the first compiles and writes numba's cache, the others wait and load it."""
+    if fcntl is None:
+        yield
+        return
+    with open(os.path.join(cache_dir(), name + ".lock"), "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)

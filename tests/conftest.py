@@ -1,5 +1,6 @@
 import os
 
+import pytest
 from hypothesis import HealthCheck, settings
 
 # The path tracer renders with its general kernel in the tests (render(general=None)
@@ -16,3 +17,30 @@ settings.register_profile("ci", derandomize=True, max_examples=40, deadline=None
 settings.register_profile("thorough", max_examples=300, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+# Kernels each test worker would compile for itself (about a minute each on a new
+# machine): with two or more pytest-xdist workers, worker k compiles the k-th at the
+# start, while the others compile theirs; render() takes a lock around a kernel's first
+# call (estimators._generated.compile_lock), so a worker that needs a kernel another is
+# still compiling waits for it and then loads it from numba's cache instead of
+# compiling it again. Only when the run collected tests of the path tracer.
+_SHARED_KERNELS = ("white-furnace", "filters-gaussian")   # render_tiles, splat_tiles
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _compile_shared_kernels_once(request):
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers < 2 or not worker.startswith("gw") or \
+            os.environ.get("MCVERIFY_GENERAL_KERNEL") != "1":
+        return
+    k = int(worker[2:])
+    if k >= len(_SHARED_KERNELS) or not any(
+            "pathtracer" in item.nodeid or "reference" in item.nodeid
+            for item in request.session.items):
+        return
+    from estimators.pathtracer import render
+    scenes = os.path.join(os.path.dirname(__file__), os.pardir, "reference", "scenes")
+    render(os.path.join(scenes, _SHARED_KERNELS[k], "scene.xml"), spp=2, seed=0,
+           params={"res": 8, "spp": 2})

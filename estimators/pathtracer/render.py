@@ -22,11 +22,12 @@ from numba import get_num_threads
 
 from . import _kernel
 from .camera import SPLAT_CHANNELS
-from .._generated import load
+from .._generated import compile_lock, load
 from .prepare import PreparedScene, prepare_scene
 
 TILE = 8
 _MODULES: dict[str, object] = {}
+_WARM: set[tuple[str, str]] = set()
 
 
 @dataclass(frozen=True)
@@ -162,7 +163,15 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     else:
         film = _BoxFilm(module, h, w)
     t0 = time.perf_counter()
-    film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
+    key = (module.__name__, type(film).__name__)
+    if key in _WARM:
+        film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
+    else:
+        # the kernel's first call (no tiles: compile or load from numba's cache) holds a
+        # lock, so processes starting together compile it once
+        with compile_lock(f"{module.__name__}.{type(film).__name__}"):
+            film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
+        _WARM.add(key)
     compile_seconds = time.perf_counter() - t0
     # one parallel call, or with a progress callback up to 20 (each call ends on its
     # slowest thread, so chunks cost time); a splatting film also bounds its tile buffers

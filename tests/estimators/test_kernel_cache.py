@@ -1,0 +1,77 @@
+"""The kernel cache's compile lock: processes that start together compile a kernel once."""
+
+import importlib
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+
+from estimators import _generated
+
+render_module = importlib.import_module("estimators.pathtracer.render")
+
+_HOLDER = textwrap.dedent("""
+    import os, sys, time
+    from estimators._generated import compile_lock
+    log, name = sys.argv[1], sys.argv[2]
+    with compile_lock(name):
+        with open(log, "a") as f:
+            f.write(f"{os.getpid()} in\\n")
+        open(log + ".held", "w").close()
+        time.sleep(1.0)
+        with open(log, "a") as f:
+            f.write(f"{os.getpid()} out\\n")
+""")
+
+
+def test_compile_lock_excludes_a_second_process(tmp_path, monkeypatch):
+    """The second process enters only after the first has left: the log reads
+    in, out, in, out, never in, in."""
+    monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path / "cache"))
+    log = str(tmp_path / "log")
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    first = subprocess.Popen([sys.executable, "-c", _HOLDER, log, "k"], env=env)
+    while not os.path.exists(log + ".held"):
+        assert first.poll() is None, "the first process ended without taking the lock"
+    second = subprocess.Popen([sys.executable, "-c", _HOLDER, log, "k"], env=env)
+    assert first.wait(60) == 0 and second.wait(60) == 0
+    lines = [line.split() for line in open(log).read().splitlines()]
+    assert [w for _, w in lines] == ["in", "out", "in", "out"]
+    assert lines[0][0] == lines[1][0] == str(first.pid)
+    assert lines[2][0] == lines[3][0] == str(second.pid)
+
+
+def test_other_names_do_not_wait(tmp_path, monkeypatch):
+    """A lock of another name is free while one is held (kernels compile in parallel)."""
+    monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path))
+    import fcntl
+    with _generated.compile_lock("a"):
+        with open(tmp_path / "b.lock", "a") as f:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)    # raises if it were held
+            fcntl.flock(f, fcntl.LOCK_UN)
+        with open(tmp_path / "a.lock", "a") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                held = False
+            except BlockingIOError:
+                held = True
+        assert held
+
+
+def test_render_takes_the_lock_on_a_kernels_first_call_only(monkeypatch):
+    taken = []
+    real = render_module.compile_lock
+
+    def spy(name):
+        taken.append(name)
+        return real(name)
+
+    monkeypatch.setattr(render_module, "compile_lock", spy)
+    monkeypatch.setattr(render_module, "_WARM", set())
+    scene = "reference/scenes/white-furnace/scene.xml"
+    a = render_module.render(scene, spp=2, seed=1, general=True, params={"res": 8})
+    b = render_module.render(scene, spp=2, seed=1, general=True, params={"res": 8})
+    assert len(taken) == 1 and taken[0].endswith("._BoxFilm")
+    np.testing.assert_array_equal(a.mean, b.mean)
