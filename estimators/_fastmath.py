@@ -29,7 +29,8 @@ without branches:
 
 - ``atan`` and ``atan2``: fdlibm's ``s_atan.c`` reduction (around 0, ½, 1, 3/2, ∞) and
   polynomial, with the reduced argument formed from |y| and |x| themselves (numerator
-  exact) and the division's rounding error added back (Dekker's two-product), and
+  exact) and the division's rounding error added back (an exact two-product, one fused
+  multiply-add), and
   π - atan for x < 0 rounded once from double-double constants: measured 0.75 ulp,
   where fdlibm's atan of the rounded y/x, then π - z, gives 1.4 ulp. atan2's special
   values (signed zeros, infinities, NaN) are C99's.
@@ -62,7 +63,7 @@ and the numba index files in ``__pycache__``, or edit those files with it.
 References: Sun Microsystems, fdlibm 5.3, ``e_exp.c``, ``s_expm1.c``, ``e_log.c``,
 ``s_log1p.c``, ``s_atan.c``, ``e_atan2.c``, ``e_acos.c``, ``k_sin.c`` (1993); FreeBSD
 ``k_cos.c`` (Bruce Evans' coefficients); T. J. Dekker, "A floating-point technique for
-extending the available precision", Numer. Math. 18 (1971) (two-product, splitting); W. J. Cody, W. Waite, *Software Manual for the Elementary
+extending the available precision", Numer. Math. 18 (1971) (two-product); W. J. Cody, W. Waite, *Software Manual for the Elementary
 Functions* (1980), ch. 5–6 (the two-part ln 2 reduction).
 """
 
@@ -70,6 +71,7 @@ from __future__ import annotations
 
 import math
 
+from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
@@ -96,6 +98,21 @@ def _bitcast(src, dst, doc):
 
     cast.__doc__ = doc
     return cast
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """a·b + c rounded once (LLVM's ``llvm.fma.f64``: one instruction on x86-64 with
+    FMA; elsewhere LLVM calls the C library's ``fma``, as exact and slower)."""
+    if not (a == b == c == types.float64):
+        return None
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, args)
+
+    return types.float64(types.float64, types.float64, types.float64), codegen
 
 
 _bits = _bitcast(types.float64, types.int64, "The IEEE-754 bits of a float64 as int64.")
@@ -318,27 +335,13 @@ _PI_MINUS_THREE_HALVES_LO = 2.1958367134601997e-16
 _TWO_960 = 2.0 ** 960
 _TWO_M400 = 2.0 ** -400
 _TWO_M500 = 2.0 ** -500
-_SPLIT = 134217729.0                              # 2^27 + 1 (Veltkamp)
-
-
-@_jit
-def _split(v):
-    """v = hi + lo exactly, each with at most 26 significant bits (Veltkamp; |v| < 2^996)."""
-    c = _SPLIT * v
-    hi = c - (c - v)
-    return hi, v - hi
-
-
 @_jit
 def _residual(n, x, d):
-    """n - x·d with x = fl(n / d): the product x·d as hi + lo exactly (Dekker's
-    two-product on Veltkamp halves), n - hi exact (Sterbenz: hi is within an ulp or two
+    """n - x·d with x = fl(n / d): the product x·d as hi + lo exactly (lo by one fused
+    multiply-add), n - hi exact (Sterbenz: hi is within an ulp or two
     of n), one rounding in all."""
     hi = x * d
-    xh, xl = _split(x)
-    dh, dl = _split(d)
-    lo = ((xh * dh - hi) + xh * dl + xl * dh) + xl * dl
-    return (n - hi) - lo
+    return (n - hi) - _fma(x, d, -hi)
 
 
 @_inline
@@ -510,8 +513,6 @@ _C5 = 2.08757232129817482790e-09
 _C6 = -1.13596475577881948265e-11
 _TWO_PI_HI = 6.283185307179586                  # fl(2π)
 _TWO_PI_LO = 2.4492935982947064e-16             # 2π - fl(2π)
-_TWO_PI_HEAD = 6.283185362815857               # fl(2π)'s Veltkamp halves (_split)
-_TWO_PI_TAIL = -5.563627070159782e-08
 _TWO_M900 = 2.0 ** -900
 
 
@@ -538,7 +539,7 @@ def fast_sincos_2pi(u):
     """(sin 2πu, cos 2πu) for |u| <= 2^50, branch-free, each within 1 ulp of the exact
     value (tested): the quadrant q = round(4u), the remainder d = u - q/4 in [-1/8, 1/8]
     (exact, Sterbenz), the angle 2πd as hi + lo (2π in two parts, the product's error
-    by Dekker's two-product on Veltkamp halves; not renormalised, |lo| stays near half
+    by a fused multiply-add; not renormalised, |lo| stays near half
     an ulp of hi, as fdlibm's kernels allow), ``sincos_reduced`` at it, rotated by
     q·π/2 with selects. The argument is a fraction of a turn, not an
     angle: π·v is ``fast_sincos_2pi(0.5 * v)`` (exact halving), with no rounding of
@@ -548,9 +549,7 @@ def fast_sincos_2pi(u):
     d = u - 0.25 * q
     q = q - 4.0 * math.floor(0.25 * q)            # the quadrant mod 4 (u outside [0, 1))
     hi = _TWO_PI_HI * d
-    dh, dl = _split(d)
-    lo = ((dh * _TWO_PI_HEAD - hi) + dh * _TWO_PI_TAIL + dl * _TWO_PI_HEAD) + dl * _TWO_PI_TAIL
-    lo = lo + d * _TWO_PI_LO                      # and 2π's own rounding error
+    lo = _fma(_TWO_PI_HI, d, -hi) + d * _TWO_PI_LO   # the product's error, 2π's own
     lo = lo if abs(d) > _TWO_M900 else 0.0        # else its parts would be subnormal
     s, c = sincos_reduced(hi, lo)
     odd = (q == 1.0) | (q == 3.0)
