@@ -7,7 +7,9 @@ for a descheduled partner. Prints the Markdown table the README quotes.
     python benchmarks/warp_speed.py [--n 1000000] [--repeats 5] [--fastmath] [WARP ...]
 
 ``--fastmath`` times ``estimators._fastmath``'s functions against libm's (numba's
-``math.*``) instead, each in a plain loop over n points of (0.01, 5).
+``math.*``) instead, each in a plain loop over n points of (0.01, 5) (a second argument
+or acos's on (-1, 1)), which LLVM vectorises where it can, and in a loop summing the
+results, which stays scalar (the path tracer's case).
 """
 
 from __future__ import annotations
@@ -24,6 +26,13 @@ from numba import njit
 from estimators import _fastmath as F
 from estimators import warps as W
 
+_TWO_PI = 2.0 * math.pi
+
+
+@njit
+def _sum2(pair):
+    return pair[0] + pair[1]
+
 
 def cpu_ns_per_point(fn, arg, params, n, repeats):
     fn(arg, *params)
@@ -37,24 +46,55 @@ def cpu_ns_per_point(fn, arg, params, n, repeats):
 
 def _plain_loop(f):
     @njit(error_model="numpy")
-    def loop(x, out):
+    def loop(y, x, out):
         for i in range(x.size):
-            out[i] = f(x[i])
+            out[i] = f(y[i], x[i])
     return loop
 
 
+def _sum_loop(f):
+    """The same calls summed in order: a float sum LLVM may not reorder, so the loop
+    stays scalar, as the path tracer's calls are; default error model, as the tracer's."""
+    @njit
+    def loop(y, x, out):
+        acc = 0.0
+        for i in range(x.size):
+            acc += f(y[i], x[i])
+        out[0] = acc
+    return loop
+
+
+# name, ours, libm, each as f(y, x); y is uniform on (-1, 1), x on (0.01, 5)
+_FUNCTIONS = [
+    ("exp", lambda y, x: F.fast_exp(x), lambda y, x: math.exp(x)),
+    ("expm1", lambda y, x: F.fast_expm1(x), lambda y, x: math.expm1(x)),
+    ("log", lambda y, x: F.fast_log(x), lambda y, x: math.log(x)),
+    ("log1p", lambda y, x: F.fast_log1p(x), lambda y, x: math.log1p(x)),
+    ("atan", lambda y, x: F.fast_atan(x), lambda y, x: math.atan(x)),
+    ("atan2", lambda y, x: F.fast_atan2(y, x), lambda y, x: math.atan2(y, x)),
+    ("acos", lambda y, x: F.fast_acos(y), lambda y, x: math.acos(y)),
+    ("sin + cos of 2πu", lambda y, x: _sum2(F.fast_sincos_2pi(0.2 * x)),
+     lambda y, x: math.sin(_TWO_PI * (0.2 * x)) + math.cos(_TWO_PI * (0.2 * x))),
+]
+
+
 def fastmath_table(n, repeats):
-    x = np.random.default_rng(0).uniform(0.01, 5.0, n)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0.01, 5.0, n)
+    y = rng.uniform(-1.0, 1.0, n)
     out = np.empty_like(x)
-    print("| function (1 thread, ns CPU a point) | `_fastmath` | libm |")
-    print("|---|---|---|")
-    for name, ours, libm in [("exp", F.fast_exp, math.exp), ("expm1", F.fast_expm1, math.expm1),
-                             ("log", F.fast_log, math.log), ("log1p", F.fast_log1p, math.log1p)]:
+    print("| function (1 thread, ns CPU a point) | `_fastmath` | libm "
+          "| `_fastmath`, scalar loop | libm, scalar loop |")
+    print("|---|---|---|---|---|")
+    for name, ours, libm in _FUNCTIONS:
         cells = []
-        for f in (ours, njit(lambda v, g=libm: g(v))):
-            loop = _plain_loop(f)
-            cells.append(cpu_ns_per_point(lambda a, g=loop: g(a, out), x, (), n, repeats))
-        print(f"| {name} | {cells[0]:.1f} | {cells[1]:.1f} |", flush=True)
+        # each inlined into its loop (a call would stop vectorisation) and compiled with
+        # the loop's error model (numba's default adds a branch to every division)
+        for make, model in ((_plain_loop, "numpy"), (_sum_loop, "python")):
+            for f in (ours, libm):
+                loop = make(njit(error_model=model, inline="always")(f))
+                cells.append(cpu_ns_per_point(lambda a, g=loop: g(y, a, out), x, (), n, repeats))
+        print(f"| {name} | " + " | ".join(f"{c:.1f}" for c in cells) + " |", flush=True)
 
 
 def main():
@@ -63,7 +103,7 @@ def main():
     ap.add_argument("--n", type=float, default=1e6)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--fastmath", action="store_true",
-                    help="time _fastmath's exp, expm1, log, log1p against libm's instead")
+                    help="time _fastmath's functions against libm's instead")
     args = ap.parse_args()
     numba.set_num_threads(1)
     n = int(args.n)

@@ -1,4 +1,5 @@
-"""Branch-free float64 ``exp``, ``expm1``, ``log``, ``log1p`` as numba scalar functions.
+"""Branch-free float64 ``exp``, ``expm1``, ``log``, ``log1p``, ``atan``, ``atan2``,
+``acos`` and sin/cos of 2πu as numba scalar functions.
 
 numba's LLVM has no vector math library (no SVML), so ``math.exp`` and its kin stay
 scalar libm calls and a loop over points that calls one is not vectorised. These
@@ -26,6 +27,24 @@ without branches:
   (1 - (u - x)) / u), so log1p(x) is accurate for tiny x; where 1 + x lies in [√½, √2)
   it takes f = x directly.
 
+- ``atan`` and ``atan2``: fdlibm's ``s_atan.c`` reduction (around 0, ½, 1, 3/2, ∞) and
+  polynomial, with the reduced argument formed from |y| and |x| themselves (numerator
+  exact) and the division's rounding error added back (an exact two-product, one fused
+  multiply-add), and
+  π - atan for x < 0 rounded once from double-double constants: measured 0.75 ulp,
+  where fdlibm's atan of the rounded y/x, then π - z, gives 1.4 ulp. atan2's special
+  values (signed zeros, infinities, NaN) are C99's.
+- ``acos``: fdlibm's ``e_acos.c`` (and musl's form for x < -½), not 2·atan2(√(1-x),
+  √(1+x)): it needs one square root and a rational R(z) for asin √z where 2 atan2 needs
+  two roots and the atan reduction, and it is accurate near ±1 by construction
+  (z = (1 - |x|)/2 is exact there and acos = 2 asin √z has no cancellation).
+- ``fast_sincos_2pi(u)``: sin and cos of 2πu, an angle given as a fraction of a turn
+  (what every caller has: φ = 2πu of a sample, θ = πv of a texture coordinate); the
+  quadrant reduction is exact, the remaining angle 2πd is a double-double, and fdlibm's
+  ``k_sin.c`` / FreeBSD's ``k_cos.c`` kernels take its tail. No radian-argument sin/cos
+  is provided: nothing calls one, and reducing a radian argument needs π/2 in three
+  parts (fdlibm's ``__rem_pio2``) for what the turn form gets exactly.
+
 fdlibm states an error below 1 ulp for each; ``tests/estimators/test_fastmath.py``
 measures it against an extended-precision (80-bit ``np.longdouble``) reference over
 dense log-uniform samples of the whole domain and its edges, and asserts <= 1 ulp.
@@ -36,18 +55,23 @@ exponent field into a float whose mantissa holds it) because AVX2 has no vector
 int64 <-> double conversion and LLVM would not vectorise one.
 
 numba caches a compiled function by its own file only: after editing this module alone,
-the cached kernels that inline it are stale (``warps.py``'s, and the path tracer's,
-whose generated kernels hash ``warps.py`` but not this file; the warps' front-end loops
-do hash it): clear ``$MCVERIFY_CACHE`` and the numba index files in ``__pycache__``, or
-edit ``warps.py`` with it.
+the cached functions elsewhere that inline it are stale (``warps.py``'s, and the path
+tracer's ``geometry.py``, ``textures.py`` and ``emitters.py``; the tracer's generated
+kernels and the warps' front-end loops do hash this file): clear ``$MCVERIFY_CACHE``
+and the numba index files in ``__pycache__``, or edit those files with it.
 
 References: Sun Microsystems, fdlibm 5.3, ``e_exp.c``, ``s_expm1.c``, ``e_log.c``,
-``s_log1p.c`` (1993); W. J. Cody, W. Waite, *Software Manual for the Elementary
+``s_log1p.c``, ``s_atan.c``, ``e_atan2.c``, ``e_acos.c``, ``k_sin.c`` (1993); FreeBSD
+``k_cos.c`` (Bruce Evans' coefficients); T. J. Dekker, "A floating-point technique for
+extending the available precision", Numer. Math. 18 (1971) (two-product); W. J. Cody, W. Waite, *Software Manual for the Elementary
 Functions* (1980), ch. 5–6 (the two-part ln 2 reduction).
 """
 
 from __future__ import annotations
 
+import math
+
+from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
@@ -74,6 +98,21 @@ def _bitcast(src, dst, doc):
 
     cast.__doc__ = doc
     return cast
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """a·b + c rounded once (LLVM's ``llvm.fma.f64``: one instruction on x86-64 with
+    FMA; elsewhere LLVM calls the C library's ``fma``, as exact and slower)."""
+    if not (a == b == c == types.float64):
+        return None
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, args)
+
+    return types.float64(types.float64, types.float64, types.float64), codegen
 
 
 _bits = _bitcast(types.float64, types.int64, "The IEEE-754 bits of a float64 as int64.")
@@ -259,3 +298,263 @@ def fast_log1p(x):
     y = -_INF if x == -1.0 else y
     return x if (x != x) | (x == _INF) | (abs(x) < _TWO_M53) else y
 
+
+
+# ------------------------------------------------------------------ atan, atan2, acos
+# atan: the odd polynomial on |t| <= 7/16, atan(t) = t - t·(s1 + s2) with s1, s2 its even
+# and odd parts in t²; error < 2^-57 relative (fdlibm's s_atan.c)
+_AT0 = 3.33333333333329318027e-01
+_AT1 = -1.99999999998764832476e-01
+_AT2 = 1.42857142725034663711e-01
+_AT3 = -1.11111104054623557880e-01
+_AT4 = 9.09088713343650656196e-02
+_AT5 = -7.69187620504482999495e-02
+_AT6 = 6.66107313738753120669e-02
+_AT7 = -5.83357013379057348645e-02
+_AT8 = 4.97687799461593236017e-02
+_AT9 = -3.65315727442169155270e-02
+_AT10 = 1.62858201153657823623e-02
+# atan(1/2), atan(1), atan(3/2), atan(inf) = π/2, each as hi + lo (fdlibm's atanhi/atanlo)
+_ATAN_HALF_HI = 4.63647609000806093515e-01
+_ATAN_HALF_LO = 2.26987774529616870924e-17
+_ATAN_ONE_HI = 7.85398163397448278999e-01
+_ATAN_ONE_LO = 3.06161699786838301793e-17
+_ATAN_THREE_HALVES_HI = 9.82793723247329054082e-01
+_ATAN_THREE_HALVES_LO = 1.39033110312309984516e-17
+_PI_2_HI = 1.57079632679489655800e+00
+_PI_2_LO = 6.12323399573676603587e-17
+_PI_HI = 3.14159265358979311600e+00
+_PI_LO = 1.22464679914735317720e-16      # π - _PI_HI
+# π - atan(1/2), π - π/4, π - atan(3/2) as hi + lo: (_PI_HI + _PI_LO) - (hi + lo) above
+_PI_MINUS_HALF_HI = 2.677945044588987
+_PI_MINUS_HALF_LO = 1.5527705369303147e-16
+_PI_MINUS_ONE_HI = 2.356194490192345
+_PI_MINUS_ONE_LO = 9.184850993605148e-17
+_PI_MINUS_THREE_HALVES_HI = 2.158798930342464
+_PI_MINUS_THREE_HALVES_LO = 2.1958367134601997e-16
+_TWO_960 = 2.0 ** 960
+_TWO_M400 = 2.0 ** -400
+_TWO_M500 = 2.0 ** -500
+@_jit
+def _residual(n, x, d):
+    """n - x·d with x = fl(n / d): the product x·d as hi + lo exactly (lo by one fused
+    multiply-add), n - hi exact (Sterbenz: hi is within an ulp or two
+    of n), one rounding in all."""
+    hi = x * d
+    return (n - hi) - _fma(x, d, -hi)
+
+
+@_inline
+def _atan_ratio(a, b, reflect):
+    """atan(a / b) in [0, π/2], or π - atan(a / b) if ``reflect``, for a, b >= 0
+    (finite, scaled so that 3·max(a, b) does not overflow and a normal max(a, b) is far
+    above the subnormals): fdlibm's
+    reduction of t = a/b to |x| <= 7/16 around 0, 1/2, 1, 3/2 or ∞, but with x formed
+    from a and b, not from the rounded t, so that its numerator is exact (Sterbenz;
+    3b as the two-sum 2b + b):
+
+        t < 7/16:          x = a/b                      atan t = atan x
+        7/16 <= t < 11/16: x = (2a - b)/(2b + a)        atan t = atan ½ + atan x
+        11/16 <= t < 19/16: x = (a - b)/(a + b)         atan t = π/4 + atan x
+        19/16 <= t < 39/16: x = (2a - 3b)/(2b + 3a)     atan t = atan 3/2 + atan x
+        t >= 39/16:         x = -b/a                    atan t = π/2 + atan x
+
+    Each case's numerator and denominator are selected, then one division, whose
+    rounding error e = (num - x·den)/den (x·den exact as a two-product) is added back,
+    and one polynomial: atan(x + e) = atan x + e to the precision kept. Inlined by
+    numba (LLVM's inliner would keep it as a call, which stops vectorisation), so no
+    divisor may be 0: a caller compiled with numba's default error model would raise
+    ZeroDivisionError. The class boundaries are compared as a against b·c (b·11/16 and
+    b·19/16 may round: a boundary moved by an ulp leaves |x| within the polynomial's
+    range). The sum c + atan x is formed as fdlibm's hi - ((x·R - lo) - x), with
+    c = hi + lo; reflected, π - c (exactly rounded pairs) and -x: one rounding of a
+    small tail onto the head."""
+    id0 = a >= 0.4375 * b
+    id1 = a >= 0.6875 * b
+    id2 = a >= 1.1875 * b
+    id3 = a >= 2.4375 * b
+    three_b = 2.0 * b + b
+    three_b_lo = (2.0 * b - three_b) + b          # 3b = three_b + three_b_lo exactly
+    num = a
+    den = b
+    num = 2.0 * a - b if id0 else num
+    den = 2.0 * b + a if id0 else den
+    num = a - b if id1 else num
+    den = a + b if id1 else den
+    num = (2.0 * a - three_b) - three_b_lo if id2 else num
+    den = 2.0 * b + 3.0 * a if id2 else den
+    num = -b if id3 else num
+    den = a if id3 else den
+    den = max(den, _MIN_NORMAL)                   # a = b = 0 (selected away by atan2)
+    x = num / den
+    e = _residual(num, x, den) / den              # the division's rounding error
+    e = e if abs(x) > _TWO_M500 else 0.0          # (its low parts would be subnormal)
+    z = x * x
+    w = z * z
+    s1 = z * (_AT0 + w * (_AT2 + w * (_AT4 + w * (_AT6 + w * (_AT8 + w * _AT10)))))
+    s2 = w * (_AT1 + w * (_AT3 + w * (_AT5 + w * (_AT7 + w * _AT9))))
+    p = x * (s1 + s2) - e
+    # π - atan t = (π - c) - atan x: the same sum with x, p negated and c's pair replaced
+    hi = _ATAN_HALF_HI if id0 else 0.0
+    lo = _ATAN_HALF_LO if id0 else 0.0
+    hi = _ATAN_ONE_HI if id1 else hi
+    lo = _ATAN_ONE_LO if id1 else lo
+    hi = _ATAN_THREE_HALVES_HI if id2 else hi
+    lo = _ATAN_THREE_HALVES_LO if id2 else lo
+    hi = _PI_2_HI if id3 else hi
+    lo = _PI_2_LO if id3 else lo
+    nhi = _PI_MINUS_HALF_HI if id0 else _PI_HI
+    nlo = _PI_MINUS_HALF_LO if id0 else _PI_LO
+    nhi = _PI_MINUS_ONE_HI if id1 else nhi
+    nlo = _PI_MINUS_ONE_LO if id1 else nlo
+    nhi = _PI_MINUS_THREE_HALVES_HI if id2 else nhi
+    nlo = _PI_MINUS_THREE_HALVES_LO if id2 else nlo
+    nhi = _PI_2_HI if id3 else nhi
+    nlo = _PI_2_LO if id3 else nlo
+    hi = nhi if reflect else hi
+    lo = nlo if reflect else lo
+    x = -x if reflect else x
+    p = -p if reflect else p
+    return hi - ((p - lo) - x)
+
+
+@_inline
+def fast_atan2(y, x):
+    """The angle of the point (x, y) in [-π, π], branch-free; as C99's ``atan2`` on
+    every special value (the signs of zeros, infinities, NaN). atan(|y| / |x|) by
+    ``_atan_ratio`` on |x|, |y| scaled by a power of two (exact) when the larger is
+    above 2^960 or below 2^-400, placed in its quadrant: π - atan(|y| / |x|) where
+    x < 0 (-0 included), formed inside ``_atan_ratio`` so that it is rounded once,
+    negated where y < 0."""
+    ay = abs(y)
+    ax = abs(x)
+    m = max(ax, ay)
+    s = 2.0 ** -64 if m > _TWO_960 else 1.0
+    s = 2.0 ** 600 if m < _TWO_M400 else s
+    x_neg = _bits(x) < 0                          # the sign bit: -0 counts as negative
+    y_neg = _bits(y) < 0
+    r = _atan_ratio(ay * s, ax * s, x_neg)
+    both_zero = (ay == 0.0) & (ax == 0.0)
+    r = (_PI_HI if x_neg else 0.0) if both_zero else r
+    both_inf = (ay == _INF) & (ax == _INF)
+    r = (3.0 * 0.7853981633974483 if x_neg else 0.7853981633974483) if both_inf else r
+    r = -r if y_neg else r
+    return x + y if (x != x) | (y != y) else r
+
+
+@_inline
+def fast_atan(t):
+    """atan(t) in [-π/2, π/2], branch-free: ``_atan_ratio(|t|, 1)`` with t's sign
+    (fdlibm's ``s_atan.c``, whose reduction it is)."""
+    at = abs(t)
+    z = _atan_ratio(min(at, 1e300), 1.0, False)
+    z = _PI_2_HI if at == _INF else z
+    z = -z if _bits(t) < 0 else z
+    return t if t != t else z
+
+
+# acos: R(z) = p(z)/q(z) ≈ (asin(√z) - √z)/√z on z <= 1/4, error < 2^-58.75 (fdlibm)
+_PS0 = 1.66666666666666657415e-01
+_PS1 = -3.25565818622400915405e-01
+_PS2 = 2.01212532134862925881e-01
+_PS3 = -4.00555345006794114027e-02
+_PS4 = 7.91534994289814532176e-04
+_PS5 = 3.47933107596021167570e-05
+_QS1 = -2.40339491173441421878e+00
+_QS2 = 2.02094576023350569471e+00
+_QS3 = -6.88283971605453293030e-01
+_QS4 = 7.70381505559019352791e-02
+_HIGH_WORD = -4294967296                        # 0xFFFFFFFF00000000 as int64
+
+
+@_inline
+def fast_acos(x):
+    """arccos x in [0, π], branch-free; error < 1 ulp (fdlibm's ``e_acos.c``): for
+    |x| < ½, π/2 - (x + x·R(x²)); for |x| >= ½, z = (1 - |x|)/2 (exact: Sterbenz) and
+    s = √z, so acos|x| = 2 asin √z = 2(s + s·R(z)) with no cancellation near ±1;
+    for x > ½ s is split into a 32-bit head and a correction (z - head²)/(s + head),
+    for x < -½ the result is 2(π/2 - (s + s·R(z))) (musl's form). All three are computed, one selected.
+    ±1 give 0 and π exactly, |x| > 1 and NaN give NaN."""
+    ax = abs(x)
+    small = ax < 0.5
+    z = x * x if small else (1.0 - ax) * 0.5
+    p = z * (_PS0 + z * (_PS1 + z * (_PS2 + z * (_PS3 + z * (_PS4 + z * _PS5)))))
+    q = 1.0 + z * (_QS1 + z * (_QS2 + z * (_QS3 + z * _QS4)))
+    r = p / q
+    s = math.sqrt(z)
+    y_small = _PI_2_HI - (x - (_PI_2_LO - x * r))
+    y_neg = 2.0 * (_PI_2_HI - (s + (r * s - _PI_2_LO)))
+    df = _from_bits(_bits(s) & _HIGH_WORD)
+    c = (z - df * df) / max(s + df, _MIN_NORMAL)  # 0 at x = 1, not 0/0: callers compiled
+    #                                                   with numba's default error model
+    #                                                   would raise ZeroDivisionError
+    y_pos = 2.0 * (df + (r * s + c))
+    y = y_neg if x < 0.0 else y_pos
+    y = y_small if small else y
+    y = 0.0 if x == 1.0 else y
+    y = _PI_HI if x == -1.0 else y
+    return _NAN if (ax > 1.0) | (x != x) else y
+
+
+# ------------------------------------------------------------------------ sin, cos
+# sin x ≈ x + x³·(S1 + x²·R(x²)) and cos x ≈ 1 - x²/2 + x⁴·C(x²) on |x| <= π/4, error
+# < 2^-58 relative (fdlibm's k_sin.c; FreeBSD's k_cos.c, whose C is more accurate)
+_S1 = -1.66666666666666324348e-01
+_S2 = 8.33333333332248946124e-03
+_S3 = -1.98412698298579493134e-04
+_S4 = 2.75573137070700676789e-06
+_S5 = -2.50507602534068634195e-08
+_S6 = 1.58969099521155010221e-10
+_C1 = 4.16666666666666019037e-02
+_C2 = -1.38888888888741095749e-03
+_C3 = 2.48015872894767294178e-05
+_C4 = -2.75573143513906633035e-07
+_C5 = 2.08757232129817482790e-09
+_C6 = -1.13596475577881948265e-11
+_TWO_PI_HI = 6.283185307179586                  # fl(2π)
+_TWO_PI_LO = 2.4492935982947064e-16             # 2π - fl(2π)
+_TWO_M900 = 2.0 ** -900
+
+
+@_jit
+def sincos_reduced(x, y):
+    """(sin, cos) of x + y for |x + y| <= π/4, y a tail below half an ulp of x (0 when
+    x is exact): fdlibm's kernels ``__kernel_sin(x, y, 1)`` and ``__kernel_cos(x, y)``,
+    each < 1 ulp; cos as w + ((1 - w) - x²/2 + ...) with w = 1 - x²/2, so that its
+    rounding is kept."""
+    z = x * x
+    w = z * z
+    r = _S2 + z * (_S3 + z * _S4) + z * w * (_S5 + z * _S6)
+    v = z * x
+    sin = x - ((z * (0.5 * y - v * r) - y) - v * _S1)
+    rc = z * (_C1 + z * (_C2 + z * _C3)) + w * w * (_C4 + z * (_C5 + z * _C6))
+    hz = 0.5 * z
+    wc = 1.0 - hz
+    cos = wc + (((1.0 - wc) - hz) + (z * rc - x * y))
+    return sin, cos
+
+
+@_inline
+def fast_sincos_2pi(u):
+    """(sin 2πu, cos 2πu) for |u| <= 2^50, branch-free, each within 1 ulp of the exact
+    value (tested): the quadrant q = round(4u), the remainder d = u - q/4 in [-1/8, 1/8]
+    (exact, Sterbenz), the angle 2πd as hi + lo (2π in two parts, the product's error
+    by a fused multiply-add; not renormalised, |lo| stays near half
+    an ulp of hi, as fdlibm's kernels allow), ``sincos_reduced`` at it, rotated by
+    q·π/2 with selects. The argument is a fraction of a turn, not an
+    angle: π·v is ``fast_sincos_2pi(0.5 * v)`` (exact halving), with no rounding of
+    the angle, so sin π = 0 exactly and sin 2πu near its zeros keeps its relative
+    precision, which libm's sin of a rounded 2πu does not."""
+    q = math.floor(4.0 * u + 0.5)
+    d = u - 0.25 * q
+    q = q - 4.0 * math.floor(0.25 * q)            # the quadrant mod 4 (u outside [0, 1))
+    hi = _TWO_PI_HI * d
+    lo = _fma(_TWO_PI_HI, d, -hi) + d * _TWO_PI_LO   # the product's error, 2π's own
+    lo = lo if abs(d) > _TWO_M900 else 0.0        # else its parts would be subnormal
+    s, c = sincos_reduced(hi, lo)
+    odd = (q == 1.0) | (q == 3.0)
+    sin = c if odd else s
+    cos = s if odd else c
+    flip_sin = (q == 2.0) | (q == 3.0)            # sin < 0 in quadrants 2 and 3
+    flip_cos = (q == 1.0) | (q == 2.0)            # cos < 0 in quadrants 1 and 2
+    return (-sin if flip_sin else sin), (-cos if flip_cos else cos)

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 from numba import njit
 
-from ._fastmath import fast_exp, fast_expm1, fast_log1p
+from ._fastmath import (fast_atan, fast_atan2, fast_exp, fast_expm1, fast_log1p,
+                        fast_sincos_2pi, sincos_reduced)
 from ._vectorize import point_front_end, value_front_end
 
 ONE_MINUS_EPSILON = 1.0 - 2.0 ** -53
@@ -43,6 +44,10 @@ _PI_OVER_2 = math.pi / 2.0
 #: check is a branch to an exception in every kernel that divides, and stops LLVM from
 #: vectorising the front ends' loops over it.
 _jit = njit(cache=True, error_model="numpy")
+#: For helpers that call ``_fastmath``'s sin/cos or atan2 (an azimuth and its inverse):
+#: LLVM's inliner would keep them as calls, and a call stops a caller's loop from
+#: vectorising; numba inlines them into every caller.
+_inline = njit(cache=True, error_model="numpy", inline="always")
 
 
 # ----------------------------------------------------------------------- helpers
@@ -56,47 +61,19 @@ def _safe_sqrt(v):
     return math.sqrt(max(0.0, v))
 
 
-@_jit
+@_inline
 def _azimuth_u(x, y):
     """φ / 2π in [0, 1) of the direction (x, y)."""
-    phi = math.atan2(y, x)
-    if phi < 0.0:
-        phi += _TWO_PI
+    phi = fast_atan2(y, x)
+    phi = phi + _TWO_PI if phi < 0.0 else phi
     return min(phi * _INV_TWO_PI, ONE_MINUS_EPSILON)
 
 
-@_jit
-def _sincos_quarter(t):
-    """(sin t, cos t) for |t| <= π/4 by their Taylor polynomials to degree 15 and 16
-    (truncation error below 5e-17): no libm call and no branch, so a loop over points
-    vectorises (numba has no vector sin/cos without Intel's SVML)."""
-    t2 = t * t
-    s = t * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 + t2 * (-1.0 / 5040.0 + t2 * (
-        1.0 / 362880.0 + t2 * (-1.0 / 39916800.0 + t2 * (1.0 / 6227020800.0 + t2 * (
-            -1.0 / 1307674368000.0))))))))
-    c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24.0 + t2 * (-1.0 / 720.0 + t2 * (1.0 / 40320.0 + t2 * (
-        -1.0 / 3628800.0 + t2 * (1.0 / 479001600.0 + t2 * (-1.0 / 87178291200.0 + t2 * (
-            1.0 / 20922789888000.0))))))))
-    return s, c
+#: (sin 2πu, cos 2πu) without libm (``_fastmath.fast_sincos_2pi``, within 1 ulp).
+_sincos_two_pi = fast_sincos_2pi
 
 
-@_jit
-def _sincos_two_pi(u):
-    """(sin 2πu, cos 2πu) for 0 <= u <= 1 without libm: the quadrant q = round(4u), the
-    remainder t = 2π(u - q/4) in [-π/4, π/4] (the subtraction is exact, Sterbenz), the
-    polynomials of ``_sincos_quarter`` at t, rotated by q·π/2 with selects. Error about
-    one ulp, as libm's sin/cos of the rounded 2πu; branch-free, so a loop vectorises."""
-    q = math.floor(4.0 * u + 0.5)
-    s, c = _sincos_quarter(_TWO_PI * (u - 0.25 * q))
-    odd = (q == 1.0) | (q == 3.0)
-    sin = c if odd else s
-    cos = s if odd else c
-    flip_sin = (q == 2.0) | (q == 3.0)            # sin < 0 in quadrants 2 and 3
-    flip_cos = (q == 1.0) | (q == 2.0)            # cos < 0 in quadrants 1 and 2
-    return (-sin if flip_sin else sin), (-cos if flip_cos else cos)
-
-
-@_jit
+@_inline
 def _direction(sin_theta, cos_theta, u1):
     """The unit vector at polar angle θ and azimuth φ = 2π·u1."""
     s, c = _sincos_two_pi(u1)
@@ -158,24 +135,25 @@ def sample_uniform_disk_concentric_kernel(u, p):
     r = a if wide else b
     q = b if wide else a
     phi = _PI_OVER_4 * (q / r) if r != 0.0 else 0.0
-    s, c = _sincos_quarter(phi)
+    s, c = sincos_reduced(phi, 0.0)
     return (r * c, r * s) if wide else (r * s, r * c)
 
 
-@_jit
+@_inline
 def _invert_uniform_disk_concentric_kernel(x, p):
     # Derived from the forward map: in the wedge |x| >= |y| the point is a·(cos θ, sin θ)
     # with |θ| <= π/4, so a = sign(x)·ρ and θ = atan(y/x) = (π/4)(b/a); in the other
-    # wedge the point is b·(cos θ, sin θ) with π/2 - θ = atan(x/y) = (π/4)(a/b).
+    # wedge the point is b·(cos θ, sin θ) with π/2 - θ = atan(x/y) = (π/4)(a/b). Both
+    # computed, one selected (no branch); at the centre the divisor 0 is replaced by 1,
+    # so θ = 0 and (a, b) = (±0, ±0) -> (½, ½).
     rho = math.sqrt(x[0] * x[0] + x[1] * x[1])
-    if rho == 0.0:
-        return (0.5, 0.5)
-    if abs(x[0]) >= abs(x[1]):
-        a = math.copysign(rho, x[0])
-        b = a * math.atan(x[1] / x[0]) / _PI_OVER_4
-    else:
-        b = math.copysign(rho, x[1])
-        a = b * math.atan(x[0] / x[1]) / _PI_OVER_4
+    wide = abs(x[0]) >= abs(x[1])
+    num = x[1] if wide else x[0]
+    den = x[0] if wide else x[1]
+    t = fast_atan(num / (den if den != 0.0 else 1.0)) / _PI_OVER_4
+    r = math.copysign(rho, den)
+    a = r if wide else r * t
+    b = r * t if wide else r
     return (_clamp_u(0.5 * (a + 1.0)), _clamp_u(0.5 * (b + 1.0)))
 
 
@@ -548,18 +526,23 @@ class Warp:
         return name, tuple(args)
 
 
-def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=False):
-    """The three front ends. ``inline``: numba inlines the kernels into the loops
-    (``_vectorize._loop``), for kernels LLVM finds too large to inline and so does not
-    vectorise: those calling ``_fastmath``, and GGX's visible normals (measured, one
+def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
+    """The three front ends. ``inline`` names those ("sample", "pdf", "invert") whose
+    loops numba inlines the kernel into (``_vectorize._loop``), for kernels LLVM finds
+    too large to inline and so does not vectorise: those calling ``_fastmath`` (an
+    azimuth's sin/cos or atan2 is enough), and GGX's visible normals (measured, one
     thread: 55 -> 19 ns a point to sample)."""
-    s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc, inline=inline)
+    s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc,
+                        inline="sample" in inline)
     p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.",
-                        inline=inline)
+                        inline="pdf" in inline)
     i = None if invert_k is None else point_front_end(
         invert_k, n_out, n_in, f"invert_{name}", f"Inverse of ``sample_{name}``: x -> u.",
-        inline=inline)
+        inline="invert" in inline)
     return s, p, i
+
+
+_ALL = ("sample", "pdf", "invert")
 
 
 sample_uniform_interval, uniform_interval_pdf, invert_uniform_interval = _triple(
@@ -570,7 +553,8 @@ sample_uniform_square, uniform_square_pdf, _ = _triple(
     "Identity map of the unit square.")
 sample_uniform_disk_polar, uniform_disk_pdf, invert_uniform_disk_polar = _triple(
     "uniform_disk_polar", 2, 2, _sample_uniform_disk_polar_kernel, _uniform_disk_pdf_kernel,
-    _invert_uniform_disk_polar_kernel, "Uniform on the unit disk, polar map r = √u₀.")
+    _invert_uniform_disk_polar_kernel, "Uniform on the unit disk, polar map r = √u₀.",
+    inline=("invert",))
 sample_uniform_disk_concentric, _, invert_uniform_disk_concentric = _triple(
     "uniform_disk_concentric", 2, 2, sample_uniform_disk_concentric_kernel,
     _uniform_disk_pdf_kernel, _invert_uniform_disk_concentric_kernel,
@@ -581,38 +565,43 @@ sample_uniform_triangle, uniform_triangle_pdf, invert_uniform_triangle = _triple
     "Uniform barycentrics (b0, b1) on the triangle (0,0), (1,0), (0,1) (Heitz 2019).")
 sample_uniform_sphere, uniform_sphere_pdf, invert_uniform_sphere = _triple(
     "uniform_sphere", 2, 3, sample_uniform_sphere_kernel, _uniform_sphere_pdf_kernel,
-    _invert_uniform_sphere_kernel, "Uniform directions on the unit sphere.")
+    _invert_uniform_sphere_kernel, "Uniform directions on the unit sphere.",
+    inline=("sample", "invert"))
 sample_uniform_hemisphere, uniform_hemisphere_pdf, invert_uniform_hemisphere = _triple(
     "uniform_hemisphere", 2, 3, _sample_uniform_hemisphere_kernel,
     _uniform_hemisphere_pdf_kernel, _invert_uniform_hemisphere_kernel,
-    "Uniform directions on the hemisphere z >= 0.")
+    "Uniform directions on the hemisphere z >= 0.", inline=("sample", "invert"))
 sample_cosine_hemisphere, cosine_hemisphere_pdf, invert_cosine_hemisphere = _triple(
     "cosine_hemisphere", 2, 3, sample_cosine_hemisphere_kernel, cosine_hemisphere_pdf_kernel,
     _invert_cosine_hemisphere_kernel,
-    "Cosine-weighted hemisphere (Malley's method on the concentric disk): pdf cos θ / π.")
+    "Cosine-weighted hemisphere (Malley's method on the concentric disk): pdf cos θ / π.",
+    inline=("invert",))
 sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone = _triple(
     "uniform_cone", 2, 3, sample_uniform_cone_kernel, _uniform_cone_pdf_kernel,
     _invert_uniform_cone_kernel,
-    "Uniform on the spherical cap θ <= θ_max: ``sample_uniform_cone(u, cos_theta_max)``.")
+    "Uniform on the spherical cap θ <= θ_max: ``sample_uniform_cone(u, cos_theta_max)``.",
+    inline=("sample", "invert"))
 sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
     "power_cosine", 2, 3, _sample_power_cosine_kernel, _power_cosine_pdf_kernel,
     _invert_power_cosine_kernel,
-    "Phong / power-cosine lobe: pdf (n+1)/(2π) cos^n θ: ``sample_power_cosine(u, n)``.")
+    "Phong / power-cosine lobe: pdf (n+1)/(2π) cos^n θ: ``sample_power_cosine(u, n)``.",
+    inline=("sample", "invert"))
 sample_ggx, ggx_pdf, invert_ggx = _triple(
     "ggx", 2, 3, _sample_ggx_kernel, _ggx_pdf_kernel, _invert_ggx_kernel,
-    "GGX (Trowbridge–Reitz) normals, pdf D(h) cos θ_h: ``sample_ggx(u, alpha)``.")
+    "GGX (Trowbridge–Reitz) normals, pdf D(h) cos θ_h: ``sample_ggx(u, alpha)``.",
+    inline=("sample", "invert"))
 sample_beckmann, beckmann_pdf, invert_beckmann = _triple(
     "beckmann", 2, 3, sample_beckmann_kernel, beckmann_pdf_kernel, _invert_beckmann_kernel,
-    "Beckmann normals, pdf D(h) cos θ_h: ``sample_beckmann(u, alpha)``.", inline=True)
+    "Beckmann normals, pdf D(h) cos θ_h: ``sample_beckmann(u, alpha)``.", inline=_ALL)
 sample_ggx_vndf, ggx_vndf_pdf, _ = _triple(
     "ggx_vndf", 2, 3, sample_ggx_vndf_kernel, _ggx_vndf_pdf_kernel, None,
     "GGX visible normals (Heitz 2018): ``sample_ggx_vndf(u, alpha, wx, wy, wz)``, "
-    "pdf G1(w) max(0, w·h) D(h) / w_z.", inline=True)
+    "pdf G1(w) max(0, w·h) D(h) / w_z.", inline=_ALL)
 sample_exponential, exponential_pdf, invert_exponential = _triple(
     "exponential", 1, 1, _sample_exponential_kernel, _exponential_pdf_kernel,
     _invert_exponential_kernel,
     "Truncated exponential (distance sampling): ``sample_exponential(u, sigma, t_max)``.",
-    inline=True)
+    inline=_ALL)
 sample_tent, tent_pdf, invert_tent = _triple(
     "tent", 1, 1, _sample_tent_kernel, _tent_pdf_kernel, _invert_tent_kernel,
     "Tent on [-r, r]: ``sample_tent(u, r)``.")

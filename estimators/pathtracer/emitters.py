@@ -19,6 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .._fastmath import fast_acos
 from ..distributions import pc2d_pdf_kernel, sample_discrete_kernel, sample_pc2d_kernel
 from ..warps import (sample_uniform_cone_kernel, sample_uniform_disk_concentric_kernel,
                      sample_uniform_sphere_kernel, sample_uniform_triangle_kernel)
@@ -203,7 +204,7 @@ def sample_emitter(light_f, light_i, light_cdf, prims, info, shape_flip, tex_dat
             if cz <= f[SPOT_COS_CUTOFF]:
                 s = 0.0
             elif cz < f[SPOT_COS_BEAM]:
-                s *= (f[SPOT_CUTOFF] - math.acos(min(cz, 1.0))) * f[SPOT_INV_FALLOFF]
+                s *= (f[SPOT_CUTOFF] - fast_acos(min(cz, 1.0))) * f[SPOT_INV_FALLOFF]
         lr, lg, lb = _xyz(f, LIGHT_RADIANCE)
         return wx, wy, wz, dist, lr * s, lg * s, lb * s, 1.0
     if kind == DIRECTIONAL:

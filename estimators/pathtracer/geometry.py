@@ -31,6 +31,7 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from .._fastmath import fast_acos, fast_atan2
 from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_KIND, LEAF_P0,
                      LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_ARITY,
                      NODE_COUNT, NODE_HI, NODE_LINK, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
@@ -592,20 +593,19 @@ def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
         lx = p[4] * gx + p[5] * gy + p[6] * gz
         ly = p[7] * gx + p[8] * gy + p[9] * gz
         lz = p[10] * gx + p[11] * gy + p[12] * gz
-        phi = math.atan2(ly, lx)
-        if phi < 0.0:
-            phi += 2.0 * math.pi
+        # libm-free (a libm call is opaque: LLVM could not drop it where u, v are unused)
+        phi = fast_atan2(ly, lx)
+        phi = phi + 2.0 * math.pi if phi < 0.0 else phi
         u = phi / (2.0 * math.pi)
-        v = math.acos(min(max(lz, -1.0), 1.0)) / math.pi
+        v = fast_acos(min(max(lz, -1.0), 1.0)) / math.pi
         return px, py, pz, gx, gy, gz, gx, gy, gz, u, v
     # disk: normal = world-to-local's third row (the inverse transpose of +z)
     gx, gy, gz = p[20], p[21], p[22]
     inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
     gx, gy, gz = gx * inv, gy * inv, gz * inv
     r = math.sqrt(b1 * b1 + b2 * b2)
-    phi = math.atan2(b2, b1)
-    if phi < 0.0:
-        phi += 2.0 * math.pi
+    phi = fast_atan2(b2, b1)
+    phi = phi + 2.0 * math.pi if phi < 0.0 else phi
     return px, py, pz, gx, gy, gz, gx, gy, gz, r, phi / (2.0 * math.pi)
 
 

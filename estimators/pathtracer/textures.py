@@ -22,6 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .._fastmath import fast_acos, fast_atan2, fast_sincos_2pi
 from .layout import (BILINEAR, CLAMP, MIRROR, NEAREST, REPEAT, TEX_COLUMNS, TEX_FILTER,
                      TEX_HEIGHT, TEX_OFFSET, TEX_UV, TEX_WIDTH, TEX_WRAP)
 
@@ -141,19 +142,19 @@ def eval_texture(tex_data, tex_info, t, u, v):
 @_jit
 def envmap_uv(lx, ly, lz):
     """(u, v) of a local unit direction."""
-    u = math.atan2(lx, -lz) * (0.5 / math.pi)
+    u = fast_atan2(lx, -lz) * (0.5 / math.pi)
     u -= math.floor(u)
-    v = math.acos(min(max(ly, -1.0), 1.0)) / math.pi
+    v = fast_acos(min(max(ly, -1.0), 1.0)) / math.pi
     return u, v
 
 
 @_jit
 def envmap_direction(u, v):
-    """The local unit direction of (u, v); inverse of ``envmap_uv``."""
-    theta = v * math.pi
-    phi = u * 2.0 * math.pi
-    s = math.sin(theta)
-    return s * math.sin(phi), math.cos(theta), -s * math.cos(phi)
+    """The local unit direction of (u, v); inverse of ``envmap_uv``: θ = πv, φ = 2πu,
+    their sines and cosines from the fractions of a turn v/2 and u (exact, no libm)."""
+    s, cos_theta = fast_sincos_2pi(0.5 * v)
+    sin_phi, cos_phi = fast_sincos_2pi(u)
+    return s * sin_phi, cos_theta, -s * cos_phi
 
 
 @_fast

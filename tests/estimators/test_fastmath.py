@@ -1,6 +1,7 @@
-"""The branch-free exp, expm1, log, log1p of ``estimators._fastmath``: error in ulps
-against an extended-precision reference over the whole domain, the special values
-exactly, and that a loop over them vectorises (the reason they exist)."""
+"""The branch-free exp, expm1, log, log1p, atan, acos, atan2 and sin/cos of 2πu of
+``estimators._fastmath``: error in ulps against an extended-precision reference over
+the whole domain, the special values exactly, and that a loop over them vectorises (the
+reason they exist)."""
 
 import math
 import os
@@ -23,7 +24,8 @@ TINY = 5e-324                      # smallest subnormal
 MIN_NORMAL = 2.2250738585072014e-308
 MAX = 1.7976931348623157e308
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(F.__file__)))
-ULP_BOUND = 1.0                    # fdlibm's bound for each of the four (< 1 ulp)
+ULP_BOUND = 1.0                    # fdlibm's bound for each (< 1 ulp); measured: exp, log
+#                                    and the rest below 1, atan2 0.75, acos 0.89, sin/cos 2πu 0.85
 
 
 def up(x):
@@ -73,7 +75,8 @@ def log_uniform(rng, lo_exp, hi_exp, n):
 
 def samples(name):
     """Dense samples of each function's domain (1.2e6 to 1.6e6 points), seeded."""
-    rng = np.random.default_rng({"exp": 1, "expm1": 2, "log": 3, "log1p": 4}[name])
+    rng = np.random.default_rng({"exp": 1, "expm1": 2, "log": 3, "log1p": 4, "atan": 6,
+                                 "acos": 7}[name])
     n = 1_000_000
     small = np.concatenate([log_uniform(rng, -320, 0, 100_000), -log_uniform(rng, -320, 0, 100_000)])
     if name == "exp":
@@ -82,6 +85,13 @@ def samples(name):
     if name == "expm1":
         return np.concatenate([rng.uniform(-40.0, 709.8, n), small,
                                rng.uniform(-0.5, 0.5, 200_000)])        # k = 0, ±1
+    if name == "atan":
+        return np.concatenate([log_uniform(rng, -323.6, 308.25, n) * rng.choice([-1.0, 1.0], n),
+                               rng.uniform(-3.0, 3.0, 200_000)])        # every reduction
+    if name == "acos":
+        return np.concatenate([rng.uniform(-1.0, 1.0, n), small,
+                               1.0 - log_uniform(rng, -16, 0, 200_000),   # near 1 and -1
+                               -1.0 + log_uniform(rng, -16, 0, 200_000)])
     if name == "log":
         return np.concatenate([log_uniform(rng, -323.6, 308.25, n),    # subnormals included
                                rng.uniform(0.5, 2.0, 200_000)])         # near 1
@@ -96,6 +106,8 @@ FUNCTIONS = {  # name: (ours, the long double reference, the float64 reference)
     "expm1": (F.fast_expm1, np.expm1, math.expm1),
     "log": (F.fast_log, np.log, math.log),
     "log1p": (F.fast_log1p, np.log1p, math.log1p),
+    "atan": (F.fast_atan, np.arctan, math.atan),
+    "acos": (F.fast_acos, np.arccos, math.acos),
 }
 
 
@@ -130,8 +142,16 @@ EDGES = {
               math.sqrt(2) - 1, down(math.sqrt(2) - 1), up(math.sqrt(2) - 1),
               math.sqrt(0.5) - 1, down(math.sqrt(0.5) - 1), up(math.sqrt(0.5) - 1),
               up(-1.0), -0.999999, -0.5, 0.5, 1.0, 2.0 ** 53, 2.0 ** 54, 1e300, MAX],
+    # the reductions' class boundaries 7/16, 11/16, 19/16, 39/16 and their neighbours
+    "atan": [v * sign for sign in (1.0, -1.0) for b in (0.4375, 0.6875, 1.1875, 2.4375)
+             for v in (b, up(b), down(b))]
+            + [0.0, TINY, -TINY, MIN_NORMAL, 1e-300, 2.0 ** -27, 0.5, 1.0, 1.5, 1e17, 1e300, MAX,
+               -MAX],
+    "acos": [0.0, -0.0, TINY, -TINY, 0.5, down(0.5), up(0.5), -0.5, up(-0.5), down(-0.5),
+             1.0, down(1.0), down(down(1.0)), -1.0, up(-1.0), up(up(-1.0)), 2.0 ** -57,
+             -2.0 ** -57, math.sqrt(0.5), -math.sqrt(0.5), 0.9999999999, -0.9999999999],
 }
-SPECIAL = {  # inputs whose results are not finite-and-nonzero, and the exact result
+SPECIAL = {  # inputs whose result is known exactly (infinities, NaN, zeros, π/2, π), and it
     "exp": [(math.inf, math.inf), (-math.inf, 0.0), (math.nan, math.nan),
             (710.0, math.inf), (-746.0, 0.0)],
     "expm1": [(math.inf, math.inf), (-math.inf, -1.0), (math.nan, math.nan), (0.0, 0.0),
@@ -141,6 +161,11 @@ SPECIAL = {  # inputs whose results are not finite-and-nonzero, and the exact re
     "log1p": [(0.0, 0.0), (-0.0, -0.0), (-1.0, -math.inf), (down(-1.0), math.nan),
               (-2.0, math.nan), (math.inf, math.inf), (-math.inf, math.nan),
               (math.nan, math.nan)],
+    "atan": [(0.0, 0.0), (-0.0, -0.0), (math.inf, math.pi / 2), (-math.inf, -math.pi / 2),
+             (math.nan, math.nan)],
+    "acos": [(1.0, 0.0), (-1.0, math.pi), (0.0, math.pi / 2), (-0.0, math.pi / 2),
+             (up(1.0), math.nan), (down(-1.0), math.nan), (2.0, math.nan),
+             (math.inf, math.nan), (-math.inf, math.nan), (math.nan, math.nan)],
 }
 
 
@@ -187,10 +212,11 @@ def test_scalar_call_equals_loop(name):
 # --------------------------------------------------------------------- vectorisation
 def vectorised(ir: str) -> bool:
     """The loop in ``ir`` was vectorised and calls no libm function: LLVM's vectoriser
-    made a ``vector.body`` of double lanes and no ``exp``/``log`` call (scalar, or an
+    made a ``vector.body`` of double lanes and no libm call (``exp``, ``atan2``...: scalar, or an
     ``llvm.exp.v4f64`` that becomes one libm call per lane) is left."""
     has_vector_body = "vector.body" in ir and re.search(r"<\d+ x double>", ir) is not None
-    libm = re.search(r"call [^\n]*@(llvm\.)?(exp|expm1|log|log1p|pow)(\.[a-z0-9]+)?\(", ir)
+    libm = re.search(r"call [^\n]*@(llvm\.)?(exp|expm1|log|log1p|pow|atan|atan2|acos|sin|cos)"
+                     r"(\.[a-z0-9]+)?\(", ir)
     return has_vector_body and libm is None
 
 
@@ -233,14 +259,230 @@ for name in ("beckmann", "exponential"):
 '''
 
 
+def loop_rows(script, tmp_path):
+    """Run ``script`` in a subprocess with empty caches (numba does not show the IR of
+    cached code) and return its rows, ``name: [fields]``."""
+    env = dict(os.environ, MCVERIFY_CACHE=str(tmp_path / "k"), NUMBA_CACHE_DIR=str(tmp_path / "n"),
+               PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
+                         text=True, timeout=900)
+    assert run.returncode == 0, run.stderr
+    return {r.split()[0]: r.split()[1:] for r in run.stdout.splitlines() if r.strip()}
+
+
 def test_the_warp_front_end_loops_vectorise(tmp_path):
     """The Beckmann and exponential front ends' loops (compiled afresh in a subprocess,
     since numba does not show the IR of cached code) run the kernel in vector lanes."""
-    env = dict(os.environ, MCVERIFY_CACHE=str(tmp_path / "k"), NUMBA_CACHE_DIR=str(tmp_path / "n"),
-               PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
-    run = subprocess.run([sys.executable, "-c", _WARP_LOOPS], env=env, capture_output=True,
-                         text=True, timeout=600)
-    assert run.returncode == 0, run.stderr
-    rows = {r.split()[0]: r.split()[1:] for r in run.stdout.splitlines() if r.strip()}
+    rows = loop_rows(_WARP_LOOPS, tmp_path)
     assert rows == {k: ["True", "False"] for k in ("beckmann_sample", "beckmann_pdf",
                                                    "exponential_sample", "exponential_pdf")}, rows
+_AZIMUTH_LOOPS = r'''
+import re
+import numpy as np
+from estimators import warps as W
+for name, labels in [("uniform_sphere", ("sample", "invert")), ("uniform_cone", ("sample", "invert")),
+                     ("ggx", ("sample", "invert")), ("uniform_disk_polar", ("invert",)),
+                     ("uniform_disk_concentric", ("sample", "invert")),
+                     ("cosine_hemisphere", ("invert",))]:
+    w = W.WARPS[name]
+    u = np.full((8, w.sample_dim), 0.25)
+    x = w.sample(u, *w.defaults)
+    for label in labels:
+        f, arg = (w.sample, u) if label == "sample" else (w.invert, x)
+        f(arg, *w.defaults)
+        loop = f.loop()
+        ir = loop.inspect_llvm(loop.signatures[0])
+        print(name + "_" + label, bool(re.search(r"fmul <\d+ x double>", ir)),
+              bool(re.search(r"call [^\n]*@_ZN10estimators", ir)),
+              bool(re.search(r"call [^\n]*@(llvm\.)?(atan|atan2|sin|cos)(\.[a-z0-9]+)?\(", ir)))
+'''
+
+
+def test_the_azimuth_front_end_loops_vectorise(tmp_path):
+    """The loops of the warps whose sample or inverse takes an azimuth (sin/cos of 2πu,
+    atan2, the concentric inverse's atan) multiply in vector lanes, call no warp kernel
+    (inlined, so LLVM could vectorise) and no libm function; compiled afresh in a
+    subprocess, as above."""
+    rows = loop_rows(_AZIMUTH_LOOPS, tmp_path)
+    assert len(rows) == 10 and all(v == ["True", "False", "False"] for v in rows.values()), rows
+
+
+# --------------------------------------------------------------------------- atan2
+@njit(error_model="numpy")
+def _atan2_loop(y, x, out):
+    for i in range(x.size):
+        out[i] = F.fast_atan2(y[i], x[i])
+
+
+def evaluate_atan2(y, x):
+    y, x = np.broadcast_arrays(np.asarray(y, dtype=np.float64), np.asarray(x, dtype=np.float64))
+    out = np.empty(x.shape)
+    _atan2_loop(np.ascontiguousarray(y), np.ascontiguousarray(x), out)
+    return out
+
+
+def atan2_samples():
+    """1.8e6 seeded pairs: every quadrant and magnitude (subnormals to MAX, so y/x
+    overflows and underflows), the unit square, ratios near each reduction boundary of
+    |y/x| (7/16, 11/16, 19/16, 39/16) and near the diagonals and axes."""
+    rng = np.random.default_rng(9)
+    n = 300_000
+
+    def signed(lo, hi):
+        return log_uniform(rng, lo, hi, n) * rng.choice([-1.0, 1.0], n)
+
+    sign = rng.choice([-1.0, 1.0], (2, n))
+    x_unit = signed(-3, 3)
+    ratio = np.repeat([0.4375, 0.6875, 1.1875, 2.4375, 1.0], n // 5) * (1 + rng.uniform(-1e-3, 1e-3, n))
+    pairs = [(signed(-323.6, 308.25), signed(-323.6, 308.25)),
+             (rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)),
+             (sign[0] * ratio * np.abs(x_unit), x_unit),
+             (signed(-30, 0), sign[1]),                       # near the x axis
+             (sign[1], signed(-30, 0)),                       # near the y axis
+             (signed(-310, -300), signed(-310, -300))]        # both tiny (scaled up)
+    return np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs])
+
+
+def test_atan2_error_at_most_one_ulp():
+    y, x = atan2_samples()
+    err = ulp_errors(evaluate_atan2(y, x), np.arctan2(y.astype(L), x.astype(L)))
+    worst = int(np.argmax(err))
+    assert err[worst] <= ULP_BOUND, (y[worst], x[worst], err[worst])
+
+
+ATAN2_VALUES = [0.0, -0.0, TINY, -TINY, MIN_NORMAL, 1.0, -1.0, 0.5, 3.0, 1e-300, 1e300,
+                MAX, -MAX, math.inf, -math.inf, math.nan]
+
+
+def test_atan2_special_values_as_libm():
+    """Every pair of zeros, subnormals, huge values, infinities and NaN: numpy's (C99
+    Annex F) result exactly where it is exact (a zero, ±π/2, ±π/4, ±3π/4, ±π or NaN,
+    sign included), within one ulp elsewhere."""
+    y = np.repeat(ATAN2_VALUES, len(ATAN2_VALUES))
+    x = np.tile(ATAN2_VALUES, len(ATAN2_VALUES))
+    got = evaluate_atan2(y, x)
+    want = np.arctan2(y, x)
+    exact = (np.abs(y) == np.abs(x)) | np.isin(np.abs(y), [0.0, math.inf]) | np.isin(
+        np.abs(x), [0.0, math.inf]) | np.isnan(y) | np.isnan(x)
+    same = (got == want) & (np.signbit(got) == np.signbit(want)) | np.isnan(got) & np.isnan(want)
+    assert same[exact].all(), list(zip(y[exact & ~same], x[exact & ~same], got[exact & ~same]))
+    err = ulp_errors(got, np.arctan2(y.astype(L), x.astype(L)))
+    assert (err <= ULP_BOUND).all(), list(zip(y[err > ULP_BOUND], x[err > ULP_BOUND]))
+
+
+def test_atan2_scalar_call_equals_loop():
+    y, x = atan2_samples()
+    y, x = y[::2000], x[::2000]
+    scalar = np.array([F.fast_atan2(float(a), float(b)) for a, b in zip(y, x)])
+    assert np.array_equal(scalar, evaluate_atan2(y, x), equal_nan=True)
+
+
+def test_atan2_loop_vectorises_and_libms_does_not():
+    x = np.linspace(-2.0, 2.0, 64)
+    _atan2_loop(x[::-1].copy(), x, np.empty_like(x))
+    assert vectorised(_atan2_loop.inspect_llvm(_atan2_loop.signatures[0]))
+
+    @njit(error_model="numpy")
+    def libm(y, x, out):
+        for i in range(x.size):
+            out[i] = math.atan2(y[i], x[i])
+    libm(x[::-1].copy(), x, np.empty_like(x))
+    assert not vectorised(libm.inspect_llvm(libm.signatures[0]))
+
+
+# ------------------------------------------------------------------ sin, cos of 2πu
+_TWO_PI_L = L("6.283185307179586476925286766559005768")
+
+
+@njit(error_model="numpy")
+def _sincos_loop(u, s, c):
+    for i in range(u.size):
+        s[i], c[i] = F.fast_sincos_2pi(u[i])
+
+
+def evaluate_sincos(u):
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    s, c = np.empty_like(u), np.empty_like(u)
+    _sincos_loop(u, s, c)
+    return s, c
+
+
+def sincos_reference(u):
+    """sin 2πu, cos 2πu in long double: u's quadrant q and remainder r = u - q/4 are
+    exact in float64, so only the small angle 2πr is rounded (to 64 bits), then rotated."""
+    q = np.floor(4 * u + 0.5)
+    t = _TWO_PI_L * (u - 0.25 * q).astype(L)
+    s, c = np.sin(t), np.cos(t)
+    k = (q % 4).astype(int)
+    return np.choose(k, [s, c, -s, -c]), np.choose(k, [c, -s, -c, s])
+
+
+def sincos_samples():
+    """1.6e6 seeded u: uniform on [0, 1], log-uniform down to the subnormals, each
+    quadrant boundary k/8 and its neighbourhood, the envmap's θ/2π = v/2 on [0, ½], and
+    beyond [0, 1] (negative, and up to 2^40)."""
+    rng = np.random.default_rng(10)
+    n = 200_000
+    near = np.repeat(np.arange(9) / 8.0, n // 9 + 1)[:n] + rng.uniform(-1e-6, 1e-6, n)
+    return np.concatenate([rng.uniform(0.0, 1.0, 4 * n), log_uniform(rng, -323.6, 0, n),
+                           np.abs(near), 0.5 * rng.uniform(0.0, 1.0, n),
+                           rng.uniform(-1.0, 0.0, n // 2), log_uniform(rng, 0, 12, n // 2)])
+
+
+def test_sincos_2pi_error_at_most_one_ulp():
+    u = sincos_samples()
+    s, c = evaluate_sincos(u)
+    ref_s, ref_c = sincos_reference(u)
+    for name, got, ref in (("sin", s, ref_s), ("cos", c, ref_c)):
+        err = ulp_errors(got, ref)
+        worst = int(np.argmax(err))
+        assert err[worst] <= ULP_BOUND, (name, u[worst], err[worst])
+
+
+def test_sincos_2pi_special_values():
+    """Quarter turns exactly (0, ±1), ±0 gives (±0, 1), and ±inf and NaN give NaN."""
+    u = np.array([0.0, -0.0, 0.25, 0.5, 0.75, 1.0, -0.25, 2.5, math.inf, -math.inf, math.nan])
+    s, c = evaluate_sincos(u)
+    assert list(s[:8]) == [0.0, 0.0, 1.0, 0.0, -1.0, 0.0, -1.0, 0.0]
+    assert list(c[:8]) == [1.0, 1.0, 0.0, -1.0, 0.0, 1.0, 0.0, -1.0]
+    assert np.signbit(s[1]) and not np.signbit(s[0])
+    assert np.isnan(s[8:]).all() and np.isnan(c[8:]).all()
+
+
+def test_sincos_reduced_at_most_one_ulp():
+    """The kernel on its own, as the concentric disk map calls it (tail y = 0) on
+    [-π/4, π/4], and with a tail."""
+    rng = np.random.default_rng(11)
+    x = np.concatenate([rng.uniform(-math.pi / 4, math.pi / 4, 1_000_000),
+                        log_uniform(rng, -300, 0, 200_000) * (math.pi / 4)])
+
+    @njit(error_model="numpy")
+    def loop(x, y, s, c):
+        for i in range(x.size):
+            s[i], c[i] = F.sincos_reduced(x[i], y[i])
+    for y in (np.zeros_like(x), x * rng.uniform(-2.0 ** -54, 2.0 ** -54, x.size)):
+        s, c = np.empty_like(x), np.empty_like(x)
+        loop(x, y, s, c)
+        t = x.astype(L) + y.astype(L)
+        for name, got, ref in (("sin", s, np.sin(t)), ("cos", c, np.cos(t))):
+            err = ulp_errors(got, ref)
+            assert err.max() <= ULP_BOUND, (name, x[np.argmax(err)], err.max())
+
+
+def test_sincos_2pi_scalar_call_equals_loop():
+    u = sincos_samples()[::1000]
+    scalar = np.array([F.fast_sincos_2pi(float(v)) for v in u])
+    assert np.array_equal(scalar, np.stack(evaluate_sincos(u), axis=1), equal_nan=True)
+
+
+def test_sincos_2pi_loop_vectorises_and_libms_does_not():
+    u = np.linspace(0.0, 1.0, 64)
+    evaluate_sincos(u)
+    assert vectorised(_sincos_loop.inspect_llvm(_sincos_loop.signatures[0]))
+
+    @njit(error_model="numpy")
+    def libm(u, s, c):
+        for i in range(u.size):
+            s[i], c[i] = math.sin(2 * math.pi * u[i]), math.cos(2 * math.pi * u[i])
+    libm(u, np.empty_like(u), np.empty_like(u))
+    assert not vectorised(libm.inspect_llvm(libm.signatures[0]))
