@@ -44,3 +44,25 @@ def _compile_shared_kernels_once(request):
     scenes = os.path.join(os.path.dirname(__file__), os.pardir, "reference", "scenes")
     render(os.path.join(scenes, _SHARED_KERNELS[k], "scene.xml"), spp=2, seed=0,
            params={"res": 8, "spp": 2})
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _compile_warp_loops_once(request):
+    """The same for the warps' front-end loops (about two minutes for all of them, cold):
+    with n >= 2 workers, worker k compiles every n-th warp's sample/pdf/invert loops at the
+    start (estimators._vectorize takes the same lock), when the run collected the tests
+    that call every warp."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers < 2 or not worker.startswith("gw") or not any(
+            "test_warps.py" in item.nodeid for item in request.session.items):
+        return
+    import numpy as np
+
+    from estimators import warps
+    u = np.full((4, 3), 0.25)
+    for w in list(warps.WARPS.values())[int(worker[2:])::workers]:
+        x = w.sample(u[:, :w.sample_dim], *w.defaults)
+        w.pdf(x, *w.defaults)
+        if w.invert is not None:
+            w.invert(x, *w.defaults)

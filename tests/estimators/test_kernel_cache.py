@@ -75,3 +75,24 @@ def test_render_takes_the_lock_on_a_kernels_first_call_only(monkeypatch):
     b = render_module.render(scene, spp=2, seed=1, general=True, params={"res": 8})
     assert len(taken) == 1 and taken[0].endswith("._BoxFilm")
     np.testing.assert_array_equal(a.mean, b.mean)
+
+
+def test_a_warp_loop_takes_the_lock_once_per_dtype(monkeypatch):
+    vectorize = importlib.import_module("estimators._vectorize")
+    from estimators import warps
+    taken = []
+    real = vectorize.compile_lock
+
+    def spy(name):
+        taken.append(name)
+        return real(name)
+
+    monkeypatch.setattr(vectorize, "compile_lock", spy)
+    monkeypatch.setattr(vectorize, "_READY", set())
+    u = np.random.default_rng(3).random((100, 2))
+    a = warps.sample_cosine_hemisphere(u)
+    b = warps.sample_cosine_hemisphere(u)
+    c = warps.sample_cosine_hemisphere(u.astype(np.float32))
+    np.testing.assert_array_equal(a, b)
+    assert c.dtype == np.float32
+    assert len(taken) == 2 and taken[0].endswith(".float64") and taken[1].endswith(".float32")
