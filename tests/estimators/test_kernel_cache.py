@@ -60,16 +60,22 @@ def test_other_names_do_not_wait(tmp_path, monkeypatch):
         assert held
 
 
-def test_render_takes_the_lock_on_a_kernels_first_call_only(monkeypatch):
+def _spy_on_the_lock(monkeypatch, module, ready: str) -> list:
+    """Record the names ``module`` locks, with its set of compiled kernels emptied."""
     taken = []
-    real = render_module.compile_lock
+    real = module.compile_lock
 
     def spy(name):
         taken.append(name)
         return real(name)
 
-    monkeypatch.setattr(render_module, "compile_lock", spy)
-    monkeypatch.setattr(render_module, "_WARM", set())
+    monkeypatch.setattr(module, "compile_lock", spy)
+    monkeypatch.setattr(module, ready, set())
+    return taken
+
+
+def test_render_takes_the_lock_on_a_kernels_first_call_only(monkeypatch):
+    taken = _spy_on_the_lock(monkeypatch, render_module, "_WARM")
     scene = "reference/scenes/white-furnace/scene.xml"
     a = render_module.render(scene, spp=2, seed=1, general=True, params={"res": 8})
     b = render_module.render(scene, spp=2, seed=1, general=True, params={"res": 8})
@@ -80,15 +86,7 @@ def test_render_takes_the_lock_on_a_kernels_first_call_only(monkeypatch):
 def test_a_warp_loop_takes_the_lock_once_per_dtype(monkeypatch):
     vectorize = importlib.import_module("estimators._vectorize")
     from estimators import warps
-    taken = []
-    real = vectorize.compile_lock
-
-    def spy(name):
-        taken.append(name)
-        return real(name)
-
-    monkeypatch.setattr(vectorize, "compile_lock", spy)
-    monkeypatch.setattr(vectorize, "_READY", set())
+    taken = _spy_on_the_lock(monkeypatch, vectorize, "_READY")
     u = np.random.default_rng(3).random((100, 2))
     a = warps.sample_cosine_hemisphere(u)
     b = warps.sample_cosine_hemisphere(u)
