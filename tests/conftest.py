@@ -28,18 +28,24 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 _SHARED_KERNELS = ("white-furnace", "filters-gaussian")   # render_tiles, splat_tiles
 
 
+def _xdist_worker(request, *collected: str):
+    """(k, n): this process is pytest-xdist worker k of n >= 2, in a run that collected a
+    test whose id contains one of ``collected``; else None."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    n = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if n < 2 or not worker.startswith("gw") or not any(
+            c in item.nodeid for item in request.session.items for c in collected):
+        return None
+    return int(worker[2:]), n
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _compile_shared_kernels_once(request):
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
-    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    if workers < 2 or not worker.startswith("gw") or \
+    me = _xdist_worker(request, "pathtracer", "reference")
+    if me is None or me[0] >= len(_SHARED_KERNELS) or \
             os.environ.get("MCVERIFY_GENERAL_KERNEL") != "1":
         return
-    k = int(worker[2:])
-    if k >= len(_SHARED_KERNELS) or not any(
-            "pathtracer" in item.nodeid or "reference" in item.nodeid
-            for item in request.session.items):
-        return
+    k = me[0]
     from estimators.pathtracer import render
     scenes = os.path.join(os.path.dirname(__file__), os.pardir, "reference", "scenes")
     render(os.path.join(scenes, _SHARED_KERNELS[k], "scene.xml"), spp=2, seed=0,
@@ -52,16 +58,15 @@ def _compile_warp_loops_once(request):
     with n >= 2 workers, worker k compiles every n-th warp's sample/pdf/invert loops at the
     start (estimators._vectorize takes the same lock), when the run collected the tests
     that call every warp."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
-    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    if workers < 2 or not worker.startswith("gw") or not any(
-            "test_warps.py" in item.nodeid for item in request.session.items):
+    me = _xdist_worker(request, "test_warps.py")
+    if me is None:
         return
     import numpy as np
 
     from estimators import warps
+    k, n = me
     u = np.full((4, 3), 0.25)
-    for w in list(warps.WARPS.values())[int(worker[2:])::workers]:
+    for w in list(warps.WARPS.values())[k::n]:
         x = w.sample(u[:, :w.sample_dim], *w.defaults)
         w.pdf(x, *w.defaults)
         if w.invert is not None:

@@ -9,6 +9,7 @@ every feature on, for comparison.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import math
@@ -27,7 +28,7 @@ from .prepare import PreparedScene, prepare_scene
 
 TILE = 8
 _MODULES: dict[str, object] = {}
-_WARM: set[tuple[str, str]] = set()
+_WARM: set[str] = set()
 
 
 @dataclass(frozen=True)
@@ -163,15 +164,12 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     else:
         film = _BoxFilm(module, h, w)
     t0 = time.perf_counter()
-    key = (module.__name__, type(film).__name__)
-    if key in _WARM:
+    # the kernel's first call in this process (no tiles: compile, or load from numba's
+    # cache) holds a lock, so processes starting together compile it once
+    key = f"{module.__name__}.{type(film).__name__}"
+    with contextlib.nullcontext() if key in _WARM else compile_lock(key):
         film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
-    else:
-        # the kernel's first call (no tiles: compile or load from numba's cache) holds a
-        # lock, so processes starting together compile it once
-        with compile_lock(f"{module.__name__}.{type(film).__name__}"):
-            film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
-        _WARM.add(key)
+    _WARM.add(key)
     compile_seconds = time.perf_counter() - t0
     # one parallel call, or with a progress callback up to 20 (each call ends on its
     # slowest thread, so chunks cost time); a splatting film also bounds its tile buffers
