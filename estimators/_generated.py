@@ -15,6 +15,8 @@ import os
 import sys
 import tempfile
 
+from ._inline_copy import shared_scope_copies
+
 try:
     import fcntl
 except ImportError:         # not on POSIX: no lock, each process compiles for itself
@@ -51,13 +53,15 @@ def compile_lock(name: str):
     """Hold the kernel cache's lock ``name`` (an advisory ``flock`` on ``name.lock`` in
     the cache folder). Around a kernel's first call it makes processes that start
     together (``mcverify check -j N``, the test run's workers) compile a kernel once:
-    the first compiles and writes numba's cache, the others wait and load it."""
-    if fcntl is None:
-        yield
-        return
-    with open(os.path.join(cache_dir(), name + ".lock"), "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
+    the first compiles and writes numba's cache, the others wait and load it. Inside,
+    numba's inliner copies scopes once per copy (``_inline_copy``)."""
+    with shared_scope_copies():
+        if fcntl is None:
             yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+            return
+        with open(os.path.join(cache_dir(), name + ".lock"), "a") as f:
+            fcntl.flock(f, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(f, fcntl.LOCK_UN)

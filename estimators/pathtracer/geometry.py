@@ -118,8 +118,9 @@ def build_bvh(prims, info):
                 bhi[a] = max(bhi[a], hi[j, a])
                 clo[a] = min(clo[a], cen[j, a])
                 chi[a] = max(chi[a], cen[j, a])
-        nb[node, 0:3] = blo
-        nb[node, 3:6] = bhi
+        for a in range(3):      # element stores: a slice store's shape check costs
+            nb[node, a] = blo[a]    # ~30 s of compilation (its error message's formatting)
+            nb[node, 3 + a] = bhi[a]
         count = end - start
         best_cost, best_axis, best_split = np.inf, -1, 0
         if count > _LEAF:

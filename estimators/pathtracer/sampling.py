@@ -31,12 +31,16 @@ import os
 
 import numpy as np
 
+from .._generated import compile_lock
 from .bsdfs import bsdf_is_smooth
 from .emitters import is_delta
 from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
 from .render import _dependency_digest, load_cached
 
 __all__ = ["bsdf_sampler", "emitter_sampler", "bsdf_has_density", "emitter_has_density"]
+
+#: loops called once in this process (``_run``)
+_WARM: set = set()
 
 
 @functools.lru_cache(maxsize=1)
@@ -47,6 +51,18 @@ def _loops():
         source = f.read()
     key = hashlib.sha256((source + _dependency_digest()).encode()).hexdigest()[:16]
     return load_cached(f"mcverify_sampling_{key}", source)
+
+
+def _run(name: str, *args) -> None:
+    """Call the loop ``name``; its first call in this process holds the kernel cache's
+    lock (``_generated.compile_lock``): processes starting together compile it once."""
+    fn = getattr(_loops(), name)
+    if name in _WARM:
+        fn(*args)
+        return
+    with compile_lock(f"{fn.py_func.__module__}.{name}"):
+        fn(*args)
+    _WARM.add(name)
 
 
 def _rows(name: str, x) -> np.ndarray:
@@ -94,13 +110,13 @@ def bsdf_sampler(scene, b: int, wi):
     def sample(u):
         u = _rows("u", u)
         out = np.empty_like(u)
-        _loops()._bsdf_sample_rows(*tables, u, out)
+        _run("_bsdf_sample_rows", *tables, u, out)
         return out
 
     def pdf(wo):
         wo = _rows("wo", wo)
         out = np.empty(wo.shape[0])
-        _loops()._bsdf_pdf_rows(*tables, wo, out)
+        _run("_bsdf_pdf_rows", *tables, wo, out)
         return out
 
     return sample, pdf
@@ -128,17 +144,17 @@ def emitter_sampler(scene, k: int, ref):
     def sample(u):
         u = _rows("u", u)
         out = np.empty_like(u)
-        _loops()._emitter_sample_rows(a.light_f, a.light_i, a.light_cdf, a.prims, a.prim_info,
-                             a.shape_flip, a.tex_data, a.tex_info, a.env_marginal,
-                             a.env_conditional, k, x, y, z, u, out)
+        _run("_emitter_sample_rows", a.light_f, a.light_i, a.light_cdf, a.prims, a.prim_info,
+             a.shape_flip, a.tex_data, a.tex_info, a.env_marginal, a.env_conditional, k, x,
+             y, z, u, out)
         return out
 
     def pdf(d):
         d = _rows("direction", d)
         out = np.empty(d.shape[0])
-        _loops()._emitter_pdf_rows(a.light_f, a.light_i, a.prims, a.prim_info, a.shape_flip,
-                          a.leaf_prims, a.leaf_info, rows, a.env_marginal,
-                          a.env_conditional, k, x, y, z, d, out)
+        _run("_emitter_pdf_rows", a.light_f, a.light_i, a.prims, a.prim_info, a.shape_flip,
+             a.leaf_prims, a.leaf_info, rows, a.env_marginal, a.env_conditional, k, x, y, z,
+             d, out)
         return out
 
     return sample, pdf
