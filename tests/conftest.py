@@ -19,13 +19,15 @@ settings.register_profile("thorough", max_examples=300, deadline=None,
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
-# Kernels each test worker would compile for itself (about a minute each on a new
-# machine): with two or more pytest-xdist workers, worker k compiles the k-th at the
-# start, while the others compile theirs; render() takes a lock around a kernel's first
-# call (estimators._generated.compile_lock), so a worker that needs a kernel another is
-# still compiling waits for it and then loads it from numba's cache instead of
-# compiling it again. Only when the run collected tests of the path tracer.
-_SHARED_KERNELS = ("white-furnace", "filters-gaussian")   # render_tiles, splat_tiles
+# Kernels each test worker would compile for itself (a minute or more each on a new
+# machine): with two or more pytest-xdist workers, the big ones are dealt at the start,
+# worker k taking the k-th (the tracer's general kernel; the tracer's sampling loops)
+# and every n-th warp's front-end loops, while the others compile theirs. A kernel's
+# first call holds a lock in the kernel cache (estimators._generated.compile_lock), so a
+# worker that needs a kernel another is still compiling waits for it and then loads it
+# from numba's cache instead of compiling it again. Each only when the run collected the
+# tests that use it.
+_SCENES = os.path.join(os.path.dirname(__file__), os.pardir, "reference", "scenes")
 
 
 def _xdist_worker(request, *collected: str):
@@ -39,25 +41,45 @@ def _xdist_worker(request, *collected: str):
     return int(worker[2:]), n
 
 
+def _general_kernel():
+    """render_tiles and the trace it calls (the splatting film's kernel shares trace)."""
+    from estimators.pathtracer import render
+    render(os.path.join(_SCENES, "white-furnace", "scene.xml"), spp=2, seed=0,
+           params={"res": 8, "spp": 2})
+
+
+def _sampling_loops():
+    """The four loops of estimators.pathtracer.sampling (the tracer-instance checks)."""
+    import numpy as np
+
+    from estimators.pathtracer import prepare_scene
+    from estimators.pathtracer.sampling import bsdf_sampler, emitter_sampler
+    scene = prepare_scene(os.path.join(_SCENES, "cornell-box", "scene.xml"),
+                          params={"res": 8, "spp": 2})
+    u = np.full((4, 3), 0.3)
+    for sample, pdf in (bsdf_sampler(scene, 0, (0.0, 0.6, 0.8)),
+                        emitter_sampler(scene, 0, (0.0, 1.0, 0.0))):
+        pdf(sample(u))
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _compile_shared_kernels_once(request):
-    me = _xdist_worker(request, "pathtracer", "reference")
-    if me is None or me[0] >= len(_SHARED_KERNELS) or \
-            os.environ.get("MCVERIFY_GENERAL_KERNEL") != "1":
-        return
-    k = me[0]
-    from estimators.pathtracer import render
-    scenes = os.path.join(os.path.dirname(__file__), os.pardir, "reference", "scenes")
-    render(os.path.join(scenes, _SHARED_KERNELS[k], "scene.xml"), spp=2, seed=0,
-           params={"res": 8, "spp": 2})
+    jobs = []
+    if os.environ.get("MCVERIFY_GENERAL_KERNEL") == "1":
+        jobs.append((_general_kernel, ("pathtracer", "reference")))
+    jobs.append((_sampling_loops, ("test_tracer_checks.py",)))
+    for i, (job, collected) in enumerate(jobs):
+        me = _xdist_worker(request, *collected)
+        if me is not None and i % me[1] == me[0]:
+            job()
 
 
 @pytest.fixture(scope="session", autouse=True)
 def _compile_warp_loops_once(request):
-    """The same for the warps' front-end loops (about two minutes for all of them, cold):
-    with n >= 2 workers, worker k compiles every n-th warp's sample/pdf/invert loops at the
-    start (estimators._vectorize takes the same lock), when the run collected the tests
-    that call every warp."""
+    """The warps' front-end loops (about two minutes for all of them, cold): with n >= 2
+    workers, worker k compiles every n-th warp's sample/pdf/invert loops at the start
+    (estimators._vectorize takes the same lock), when the run collected the tests that
+    call every warp."""
     me = _xdist_worker(request, "test_warps.py")
     if me is None:
         return

@@ -165,9 +165,11 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         film = _BoxFilm(module, h, w)
     t0 = time.perf_counter()
     # the kernel's first call in this process (no tiles: compile, or load from numba's
-    # cache) holds a lock, so processes starting together compile it once
+    # cache) holds the module's lock, so processes starting together compile it once: the
+    # box and the splatting film's kernels share ``trace``, so one lock for both (a
+    # process that needs the other waits for ``trace`` and loads it from numba's cache)
     key = f"{module.__name__}.{type(film).__name__}"
-    with contextlib.nullcontext() if key in _WARM else compile_lock(key):
+    with contextlib.nullcontext() if key in _WARM else compile_lock(module.__name__):
         film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
     _WARM.add(key)
     compile_seconds = time.perf_counter() - t0
