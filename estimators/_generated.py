@@ -65,3 +65,23 @@ def compile_lock(name: str):
                 yield
             finally:
                 fcntl.flock(f, fcntl.LOCK_UN)
+
+
+#: keys of ``first_call`` already made in this process
+_CALLED: set = set()
+
+
+def first_call(key, lock: str):
+    """Context for a kernel's call: ``compile_lock(lock)`` the first time ``key`` comes in
+    this process (the call compiles, or loads numba's cache), nothing after. ``key`` is
+    marked only once the call has returned, so a failed first call is locked again."""
+    if key in _CALLED:
+        return contextlib.nullcontext()
+    return _first(key, lock)
+
+
+@contextlib.contextmanager
+def _first(key, lock: str):
+    with compile_lock(lock):
+        yield
+    _CALLED.add(key)

@@ -42,18 +42,15 @@ import functools
 import hashlib
 import inspect
 
-import numba
 import numpy as np
 from numba import njit
 
 from . import _fastmath
-from ._generated import compile_lock, load
+from ._generated import first_call, load
 
 #: Rows per block: scratch of up to 4 float64 columns stays in L1 (16 KB), and a block
 #: is large enough for the per-block overhead to vanish.
 _BLOCK = 512
-#: (loop, dtype) pairs compiled in this process (``_front_end``).
-_READY: set = set()
 
 
 @njit(inline="always")
@@ -171,14 +168,11 @@ def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze:
         rows = as_rows(name, x, n_in)
         out = np.empty((rows.shape[0], n_out), dtype=rows.dtype)
         loop = _loop(kernel, row, put, inline)
-        p = params_array(params)
-        if (loop, rows.dtype) not in _READY:
-            # compiled (or loaded from numba's cache) under the kernel cache's lock, so
-            # processes starting together compile each loop once
-            with compile_lock(f"{loop.__module__}.{rows.dtype}"):
-                loop.compile((numba.typeof(rows), numba.typeof(p), numba.typeof(out)))
-            _READY.add((loop, rows.dtype))
-        loop(rows, p, out)
+        # the first call per dtype compiles (or loads numba's cache) under the kernel
+        # cache's lock, so processes starting together compile each loop once
+        name_dtype = f"{loop.__module__}.{rows.dtype}"
+        with first_call(name_dtype, name_dtype):
+            loop(rows, params_array(params), out)
         return out[:, 0] if squeeze else out
 
     front.__name__ = front.__qualname__ = name

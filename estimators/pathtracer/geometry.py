@@ -316,7 +316,7 @@ def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, 
     """Where the ray (origin o, reciprocal direction i) enters each of the four child
     boxes of row ``node`` of ``bvh_nodes`` within [0, t_max]: a 4-tuple, inf where it
     misses. ``near_x, near_y, near_z``: the column of each axis's near plane (``NODE_LO``
-    + 4 axis where i >= 0, else ``NODE_HI`` + 4 axis; ``_near_columns``). One pass of
+    + 4 axis where i >= 0, else ``NODE_HI`` + 4 axis; ``_near_column``). One pass of
     explicit ``<4 x double>`` LLVM IR (AVX2 on this machine: numba leaves LLVM's SLP
     vectoriser off, so scalar code for four boxes stays scalar).
 

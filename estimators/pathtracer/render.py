@@ -9,7 +9,6 @@ every feature on, for comparison.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
 import math
@@ -23,12 +22,11 @@ from numba import get_num_threads
 
 from . import _kernel
 from .camera import SPLAT_CHANNELS
-from .._generated import compile_lock, load
+from .._generated import first_call, load
 from .prepare import PreparedScene, prepare_scene
 
 TILE = 8
 _MODULES: dict[str, object] = {}
-_WARM: set[str] = set()
 
 
 @dataclass(frozen=True)
@@ -168,10 +166,8 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     # cache) holds the module's lock, so processes starting together compile it once: the
     # box and the splatting film's kernels share ``trace``, so one lock for both (a
     # process that needs the other waits for ``trace`` and loads it from numba's cache)
-    key = f"{module.__name__}.{type(film).__name__}"
-    with contextlib.nullcontext() if key in _WARM else compile_lock(module.__name__):
+    with first_call(f"{module.__name__}.{type(film).__name__}", module.__name__):
         film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
-    _WARM.add(key)
     compile_seconds = time.perf_counter() - t0
     # one parallel call, or with a progress callback up to 20 (each call ends on its
     # slowest thread, so chunks cost time); a splatting film also bounds its tile buffers

@@ -31,16 +31,13 @@ import os
 
 import numpy as np
 
-from .._generated import compile_lock
+from .._generated import first_call
 from .bsdfs import bsdf_is_smooth
 from .emitters import is_delta
 from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
 from .render import _dependency_digest, load_cached
 
 __all__ = ["bsdf_sampler", "emitter_sampler", "bsdf_has_density", "emitter_has_density"]
-
-#: loops called once in this process (``_run``)
-_WARM: set = set()
 
 
 @functools.lru_cache(maxsize=1)
@@ -55,14 +52,11 @@ def _loops():
 
 def _run(name: str, *args) -> None:
     """Call the loop ``name``; its first call in this process holds the kernel cache's
-    lock (``_generated.compile_lock``): processes starting together compile it once."""
+    lock (``_generated.first_call``): processes starting together compile it once."""
     fn = getattr(_loops(), name)
-    if name in _WARM:
+    key = f"{fn.py_func.__module__}.{name}"
+    with first_call(key, key):
         fn(*args)
-        return
-    with compile_lock(f"{fn.py_func.__module__}.{name}"):
-        fn(*args)
-    _WARM.add(name)
 
 
 def _rows(name: str, x) -> np.ndarray:

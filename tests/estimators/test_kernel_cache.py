@@ -60,22 +60,23 @@ def test_other_names_do_not_wait(tmp_path, monkeypatch):
         assert held
 
 
-def _spy_on_the_lock(monkeypatch, module, ready: str) -> list:
-    """Record the names ``module`` locks, with its set of compiled kernels emptied."""
+def _spy_on_the_lock(monkeypatch) -> list:
+    """Record the names the kernels' first calls lock (``_generated.first_call``), with
+    the process's record of first calls emptied."""
     taken = []
-    real = module.compile_lock
+    real = _generated.compile_lock
 
     def spy(name):
         taken.append(name)
         return real(name)
 
-    monkeypatch.setattr(module, "compile_lock", spy)
-    monkeypatch.setattr(module, ready, set())
+    monkeypatch.setattr(_generated, "compile_lock", spy)
+    monkeypatch.setattr(_generated, "_CALLED", set())
     return taken
 
 
 def test_render_takes_the_lock_on_a_kernels_first_call_only(monkeypatch):
-    taken = _spy_on_the_lock(monkeypatch, render_module, "_WARM")
+    taken = _spy_on_the_lock(monkeypatch)
     scene = "reference/scenes/white-furnace/scene.xml"
     a = render_module.render(scene, spp=2, seed=1, general=True, params={"res": 8})
     b = render_module.render(scene, spp=2, seed=1, general=True, params={"res": 8})
@@ -84,9 +85,8 @@ def test_render_takes_the_lock_on_a_kernels_first_call_only(monkeypatch):
 
 
 def test_a_warp_loop_takes_the_lock_once_per_dtype(monkeypatch):
-    vectorize = importlib.import_module("estimators._vectorize")
     from estimators import warps
-    taken = _spy_on_the_lock(monkeypatch, vectorize, "_READY")
+    taken = _spy_on_the_lock(monkeypatch)
     u = np.random.default_rng(3).random((100, 2))
     a = warps.sample_cosine_hemisphere(u)
     b = warps.sample_cosine_hemisphere(u)
@@ -94,3 +94,17 @@ def test_a_warp_loop_takes_the_lock_once_per_dtype(monkeypatch):
     np.testing.assert_array_equal(a, b)
     assert c.dtype == np.float32
     assert len(taken) == 2 and taken[0].endswith(".float64") and taken[1].endswith(".float32")
+
+
+def test_a_sampling_loop_takes_the_lock_on_its_first_call_only(monkeypatch):
+    from estimators.pathtracer import prepare_scene
+    from estimators.pathtracer.sampling import bsdf_sampler
+    taken = _spy_on_the_lock(monkeypatch)
+    scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 8})
+    sample, pdf = bsdf_sampler(scene, 0, (0.0, 0.6, 0.8))
+    u = np.random.default_rng(4).random((64, 3))
+    a, b = sample(u), sample(u)
+    np.testing.assert_array_equal(a, b)
+    pdf(a)
+    assert len(taken) == 2 and taken[0].endswith("._bsdf_sample_rows") \
+        and taken[1].endswith("._bsdf_pdf_rows"), taken
