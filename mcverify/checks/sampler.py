@@ -66,10 +66,11 @@ def _fill_block(seq: np.random.SeedSequence, block: int, out: np.ndarray) -> Non
 
 
 def _uniform_chunks(seq: np.random.SeedSequence, n: int, k: int, chunk: int):
-    """Yield ``(start, u)`` chunks of the seeded stream of n × k uniforms: row r lies in
-    block ``r // STREAM_BLOCK``, drawn by that block's generator. Blocks are drawn on a
-    thread pool (numpy releases the GIL), the next chunk while the caller works on this
-    one. Memory: two chunks."""
+    """An iterator of ``(start, u)`` chunks of the seeded stream of n × k uniforms: row r
+    lies in block ``r // STREAM_BLOCK``, drawn by that block's generator. Blocks are
+    drawn on a thread pool (numpy releases the GIL), the next chunk while the caller
+    works on this one; the first chunk's blocks are submitted by this call, so a caller
+    can do other work (the pilot) while they are drawn. Memory: two chunks."""
     def submit(start):
         u = np.empty((min(chunk, n - start), k))
         jobs = [_pool().submit(_fill_block, seq, (start + a) // STREAM_BLOCK,
@@ -77,21 +78,29 @@ def _uniform_chunks(seq: np.random.SeedSequence, n: int, k: int, chunk: int):
                 for a in range(0, u.shape[0], STREAM_BLOCK)]
         return start, u, jobs
 
-    pending = submit(0) if n > 0 else None
-    while pending is not None:
-        start, u, jobs = pending
-        for j in jobs:
-            j.result()
-        nxt = start + u.shape[0]
-        pending = submit(nxt) if nxt < n else None
-        yield start, u
+    def chunks(pending):
+        while pending is not None:
+            start, u, jobs = pending
+            for j in jobs:
+                j.result()
+            nxt = start + u.shape[0]
+            pending = submit(nxt) if nxt < n else None
+            yield start, u
+
+    return chunks(submit(0) if n > 0 else None)
+
+
+def _uniforms(seq, n, k):
+    """All n × k uniforms of the stream at once (the pilot's)."""
+    u = np.empty((n, k))
+    for start, c in _uniform_chunks(seq, n, k, DEFAULT_CHUNK):
+        u[start:start + c.shape[0]] = c
+    return u
 
 
 def _draw(sample, seq, n, k, dim, name="sample"):
     """All n points at once (the pilot): uniforms (n, k) and points (n, dim)."""
-    u = np.empty((n, k))
-    for start, c in _uniform_chunks(seq, n, k, DEFAULT_CHUNK):
-        u[start:start + c.shape[0]] = c
+    u = _uniforms(seq, n, k)
     return u, validate.points(name, sample(u), n, dim)
 
 
@@ -120,7 +129,8 @@ def _screen(x, u, domain: Domain, what="sample", rejection=False):
         if codes[c]:
             i = int(np.argmax(status == c))
             examples[c] = (u[i], np.asarray(x[i]))
-    return s[status == kernels.VALID], _status_failures(codes, examples, domain, what)
+    valid = s if codes[kernels.VALID] == status.size else s[status == kernels.VALID]
+    return valid, _status_failures(codes, examples, domain, what)
 
 
 class _Histogram:
@@ -142,8 +152,8 @@ class _Histogram:
         d = self.domain
         x = d.points(x)
         codes, first = kernels.histogram_kernel(d.kind, d.args, d.tolerance, x, self.e0,
-                                          self.lut0, self.e1, self.lut1, len(self.edges),
-                                          self.rejection, self.flat)
+                                                *self.lut0, self.e1, *self.lut1,
+                                                len(self.edges), self.rejection, self.flat)
         self.n_status += codes
         for c in _STATUS_TEXT:
             if first[c] >= 0 and c not in self.examples:
@@ -158,15 +168,15 @@ class _Histogram:
         return _status_failures(self.n_status, self.examples, self.domain, what)
 
 
-def _stream_batches(sample, seq, n, k, dim, hist: _Histogram, chunk: int, bounds,
-                    name="sample"):
-    """Draw the stream's rows up to each of ``bounds`` (increasing row counts ending at n)
-    chunk by chunk and bin them; a generator that yields each bound once its rows are
-    binned, so a caller can look between batches. The rows are the same stream whatever
-    the bounds; a chunk straddling a bound is passed to ``sample`` in two parts."""
+def _stream_batches(sample, uniforms, dim, hist: _Histogram, bounds, name="sample"):
+    """Feed the stream's rows (``uniforms``, from ``_uniform_chunks``) to ``sample`` up to
+    each of ``bounds`` (increasing row counts ending at the stream's n) and bin them; a
+    generator that yields each bound once its rows are binned, so a caller can look
+    between batches. The rows are the same stream whatever the bounds; a chunk
+    straddling a bound is passed to ``sample`` in two parts."""
     stops = iter(bounds)
     stop = next(stops)
-    for start, u in _uniform_chunks(seq, n, k, chunk):
+    for start, u in uniforms:
         a = 0
         while a < u.shape[0]:
             b = min(u.shape[0], stop - start)
@@ -179,9 +189,9 @@ def _stream_batches(sample, seq, n, k, dim, hist: _Histogram, chunk: int, bounds
                     return
 
 
-def _stream(sample, seq, n, k, dim, hist: _Histogram, chunk: int, name="sample"):
+def _stream(sample, uniforms, n, dim, hist: _Histogram, name="sample"):
     """Draw n points chunk by chunk and bin them; nothing of size n is kept."""
-    for _ in _stream_batches(sample, seq, n, k, dim, hist, chunk, (n,), name):
+    for _ in _stream_batches(sample, uniforms, dim, hist, (n,), name):
         pass
 
 
@@ -515,17 +525,22 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
 
     main_seq, pilot_seq = np.random.SeedSequence(seed).spawn(2)
     pilot_s = None
+    n_budget = n
     if pilot:
         n_pilot = int(min(max(n // 10, 1000), 100_000))
-        pu, px = _draw(sample, pilot_seq, n_pilot, k, dom.dim)
+        pu = _uniforms(pilot_seq, n_pilot, k)
+        # the main stream's first chunk is drawn on the pool while the pilot is screened
+        uniforms = _uniform_chunks(main_seq, n_budget, k, chunk)
+        px = validate.points("sample", sample(pu), n_pilot, dom.dim)
         pilot_s, _ = _screen(px, pu, dom, rejection=rejection)
+    else:
+        uniforms = _uniform_chunks(main_seq, n_budget, k, chunk)
     edges = _edges(pilot_s, res)
     # 1-D: a fine histogram (each cell split in KS_SPLIT) serves the binned KS test; the
     # χ² counts are its sums.
     hist_edges = [_split_edges(edges[0], KS_SPLIT)] if m == 1 else edges
     hist = _Histogram(dom, hist_edges, rejection=rejection)
     density = _Density(pdf, dom)
-    n_budget = n
     integrated: list = []
     cached = [False]
 
@@ -642,7 +657,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
 
 
     if batches is None:
-        _stream(sample, main_seq, n, k, dom.dim, hist, chunk)
+        _stream(sample, uniforms, n, dom.dim, hist)
         return evaluate(n)
     from ..sequential import looks, run_sequential
 
@@ -652,8 +667,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     # Rows end where a look is taken (the batches in between need no pause of their own:
     # fewer, larger calls of sample and of the binning kernel).
     bounds = {b: n_budget * b // k_batches for b in looks(k_batches)}
-    feed = _stream_batches(sample, main_seq, n_budget, k, dom.dim, hist, chunk,
-                           list(bounds.values()))
+    feed = _stream_batches(sample, uniforms, dom.dim, hist, list(bounds.values()))
 
     def look(b: int) -> CheckResult:
         while hist_rows[0] < bounds[b]:
@@ -814,7 +828,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     for label, smp, seq, size in sides:
         h = _Histogram(dom, hist_edges, rejection=rejection)
         if seq is not None:
-            _stream(smp, seq, size, k, dom.dim, h, chunk, name=label)
+            _stream(smp, _uniform_chunks(seq, size, k, chunk), size, dom.dim, h, name=label)
         else:
             for a in range(0, size, chunk):
                 h.add(smp[a:a + chunk])

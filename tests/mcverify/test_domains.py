@@ -3,8 +3,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from numba import njit
 
 import mcverify as mv
+from mcverify import _domain_kernels as K
 from mcverify.domains import as_domain
 
 DOMAINS = [mv.Interval(-2.0, 3.0), mv.Square(), mv.Disk(), mv.Sphere(), mv.Hemisphere()]
@@ -105,3 +107,68 @@ def test_float32_points_near_the_pole_keep_their_polar_parameter(dom):
     x32 = dom.to_point(s).astype(np.float32)
     back = dom.to_param(x32)[:, 0]
     assert np.all(np.abs(back - s0) <= 1e-6 * s0)
+
+
+@njit
+def _cells_of(e, lut, cut, s, out):
+    for i in range(s.shape[0]):
+        out[i] = K._find_cell(e, lut, cut, s[i])
+
+
+def _edge_sets():
+    """Cell edges as the checks make them, and adversarial ones: on the look-up table's
+    slot boundaries (and an ulp off them), several edges in one slot, a single cell."""
+    rng = np.random.default_rng(4)
+    for r in (1, 2, 3, 16, 64, 129):
+        yield np.linspace(0.0, 1.0, r + 1)
+        yield np.unique(np.concatenate([[0.0, 1.0], rng.random(r - 1)]))
+        slots = 8 * r
+        on = (np.arange(1, r) * 8 + rng.integers(-3, 4, r - 1)).clip(1, slots - 1) / slots
+        yield np.unique(np.concatenate([[0.0, 1.0], on]))
+        yield np.unique(np.concatenate([[0.0, 1.0], np.nextafter(on, 0.0)]))
+        yield np.unique(np.concatenate([[0.0, 1.0], 0.5 + np.arange(r - 1) * 1e-9]))
+
+
+@pytest.mark.parametrize("e", list(_edge_sets()), ids=lambda e: f"{e.size - 1}cells")
+def test_cell_lookup_finds_the_cell_a_binary_search_finds(e):
+    """The histogram kernel's table look-up (a slot's cell, plus one if past the slot's
+    one inner edge; a scan where a slot holds several) gives searchsorted's cell for
+    random values, the edges themselves and an ulp either side, and the slot bounds."""
+    lut, cut = K.cell_lookup(e)
+    slots = np.arange(lut.size) / lut.size
+    s = np.concatenate([np.random.default_rng(5).random(20_000), e[:-1],
+                        np.nextafter(e[1:], 0.0), np.nextafter(e[:-1], 1.0), slots,
+                        np.nextafter(slots[1:], 0.0), np.nextafter(slots, 1.0)])
+    s = np.clip(s, 0.0, K._S_MAX)
+    out = np.empty(s.size, dtype=np.int64)
+    _cells_of(e, lut, cut, s, out)
+    assert np.array_equal(out, np.searchsorted(e, s, side="right") - 1)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("dom", DOMAINS, ids=repr)
+def test_every_status_is_counted_with_its_first_example(dom, dtype):
+    """NaN and ±Inf in any coordinate are NONFINITE, a row of NaN is REJECTED when draws
+    may be rejected, points outside are OUTSIDE; the valid points are binned."""
+    from mcverify.checks.sampler import _Histogram
+
+    good = dom.to_point(np.random.default_rng(6).random((50, dom.param_dim)))
+    bad = []
+    for j in range(dom.dim):
+        for v in (np.nan, np.inf, -np.inf):
+            row = good[0].copy()
+            row[j] = v
+            bad.append(row)
+    far = good[0] * 3.0 + 2.0
+    x = np.concatenate([good, np.array(bad), far[None], np.full((2, dom.dim), np.nan)])
+    x = x.astype(dtype)
+    one_nan = 1 if dom.dim == 1 else 0         # a 1-D NaN point is a row of NaN
+    for rejection, want in ((False, [50, 3 * dom.dim + 2, 1, 0]),
+                            (True, [50, 3 * dom.dim - one_nan, 1, 2 + one_nan])):
+        h = _Histogram(dom, [np.linspace(0, 1, 5)] * dom.param_dim, rejection=rejection)
+        h.add(x)
+        assert h.n_status.tolist() == want
+        assert h.flat.sum() == 50
+        first = 50 + (one_nan if rejection else 0)
+        assert np.array_equal(h.examples[K.NONFINITE][1], x[first], equal_nan=True)
+        assert np.array_equal(h.examples[K.OUTSIDE][1], x[50 + 3 * dom.dim])
