@@ -31,6 +31,10 @@ from ..errors import EnvironmentProblem, InvalidArgument
 __all__ = ["Unit", "Pool", "WorkerLost", "InProcessExecutor", "source_fingerprint",
            "same_source"]
 
+#: How long ``--dask`` keeps trying to reach the scheduler (Dask retries a refused
+#: connection until then) before the run stops with an environment problem.
+DASK_CONNECT_TIMEOUT = "20s"
+
 
 class WorkerLost(EnvironmentProblem):
     """A unit's worker died and the unit could not be finished elsewhere."""
@@ -177,10 +181,10 @@ class Pool:
             where = self.dask or self.dask_scheduler_file
             try:
                 if self.dask:
-                    self._client = Client(self.dask, timeout="20s")
+                    self._client = Client(self.dask, timeout=DASK_CONNECT_TIMEOUT)
                 else:
                     self._client = Client(scheduler_file=self.dask_scheduler_file,
-                                          timeout="20s")
+                                          timeout=DASK_CONNECT_TIMEOUT)
             except (OSError, TimeoutError, ValueError) as e:
                 raise EnvironmentProblem(f"--dask {where}: cannot connect to the scheduler "
                                          f"({e})") from None

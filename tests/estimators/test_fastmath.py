@@ -274,6 +274,7 @@ def loop_rows(script, tmp_path):
     return {r.split()[0]: r.split()[1:] for r in run.stdout.splitlines() if r.strip()}
 
 
+@pytest.mark.slow   # compiles the loops afresh in a subprocess: about a minute
 def test_the_warp_front_end_loops_vectorise(tmp_path):
     """The Beckmann and exponential front ends' loops (compiled afresh in a subprocess,
     since numba does not show the IR of cached code) run the kernel in vector lanes."""
@@ -302,6 +303,7 @@ for name, labels in [("uniform_sphere", ("sample", "invert")), ("uniform_cone", 
 '''
 
 
+@pytest.mark.slow   # compiles the loops afresh in a subprocess: about a minute
 def test_the_azimuth_front_end_loops_vectorise(tmp_path):
     """The loops of the warps whose sample or inverse takes an azimuth (sin/cos of 2πu,
     atan2, the concentric inverse's atan) multiply in vector lanes, call no warp kernel

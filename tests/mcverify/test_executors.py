@@ -137,7 +137,10 @@ def test_bad_pool_arguments(kwargs, needle):
         Pool(**kwargs)
 
 
-def test_an_unreachable_scheduler_is_an_environment_problem():
+def test_an_unreachable_scheduler_is_an_environment_problem(monkeypatch):
+    from mcverify.gate import executors
+
+    monkeypatch.setattr(executors, "DASK_CONNECT_TIMEOUT", "2s")    # Dask retries till then
     with pytest.raises(EnvironmentProblem, match="cannot connect"):
         with Pool(dask="tcp://127.0.0.1:9"):
             pass
