@@ -259,3 +259,24 @@ def histogram_kernel(kind, args, tol, x, e0, lut0, cut0, e1, lut1, cut1, param_d
                 first[st] = part_first[q, st]
     n_status[VALID] = n - n_status.sum()
     return n_status, first
+
+
+@njit(cache=True)
+def screen_density(p, scale, out):
+    """``out = p · scale`` with NaN/Inf and negative values of ``p`` set to 0, in one
+    pass (the cubature calls this on every batch of pdf values); returns the counts of
+    non-finite and negative values and the first index of either (-1 if none)."""
+    nonfinite, negative, first = 0, 0, -1
+    for i in range(p.shape[0]):
+        v = p[i]
+        if v * 0.0 == 0.0 and v >= 0.0:
+            out[i] = v * scale
+        else:
+            out[i] = 0.0
+            if v * 0.0 == 0.0:
+                negative += 1
+            else:
+                nonfinite += 1
+            if first < 0:
+                first = i
+    return nonfinite, negative, first

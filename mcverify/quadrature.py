@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 __all__ = ["CellIntegral", "integrate_cells", "gauss_legendre_01", "merge_leaves"]
 
@@ -58,18 +59,65 @@ def merge_leaves(lo, width, mass, owner):
     return (lo[order], width[order], mass[order], np.asarray(owner)[order].astype(np.int64))
 
 
+_S_MAX = 1.0 - 2.0 ** -52      # the largest parameter below 1
+
+
+@njit(cache=True, parallel=True)
+def _box_points(lo, width, pts, clip, out):
+    """``out[i·Q + q] = lo[i] + width[i] · pts[q]`` for boxes i and offsets q (one
+    parallel pass: numpy built an (L, Q, m) product and a sum, and for corners a clip),
+    clipped to [0, 1 - 2^-52] with ``clip``."""
+    n_q, m = pts.shape
+    for i in prange(lo.shape[0]):
+        for q in range(n_q):
+            for j in range(m):
+                v = lo[i, j] + width[i, j] * pts[q, j]
+                out[i * n_q + q, j] = min(max(v, 0.0), _S_MAX) if clip else v
+
+
+@njit(cache=True, parallel=True)
+def _rule_sums(f, wts, width, out_sum, out_max, out_min):
+    """Per box i: ``Σ_q wts[q] f[i·Q + q] · volume``, and the largest (at least 0) and
+    smallest node value; a NaN value makes all three NaN, as numpy's reductions did."""
+    n_q = wts.shape[0]
+    for i in prange(out_sum.shape[0]):
+        acc, hi, lo, nan = 0.0, 0.0, np.inf, False
+        for q in range(n_q):
+            v = f[i * n_q + q]
+            acc += wts[q] * v
+            hi = max(hi, v)
+            lo = min(lo, v)
+            nan |= v != v
+        vol = 1.0
+        for j in range(width.shape[1]):
+            vol *= width[i, j]
+        out_sum[i] = acc * vol
+        out_max[i], out_min[i] = (np.nan, np.nan) if nan else (hi, lo)
+
+
+def _tensor(nodes, weights, m):
+    """The m-dimensional tensor rule's offsets (q^m, m) and weights (q^m,)."""
+    pts = np.stack([g.ravel() for g in np.meshgrid(*([nodes] * m), indexing="ij")], axis=-1)
+    wts = np.prod(np.stack(np.meshgrid(*([weights] * m), indexing="ij"), -1)
+                  .reshape(-1, m), axis=1)
+    return np.ascontiguousarray(pts), np.ascontiguousarray(wts)
+
+
+def _at_offsets(density, lo, width, pts, clip=False):
+    """``density`` at ``lo + width · pts`` of every box, (L · len(pts),)."""
+    s = np.empty((lo.shape[0] * pts.shape[0], lo.shape[1]))
+    _box_points(np.ascontiguousarray(lo), np.ascontiguousarray(width), pts, clip, s)
+    return np.ascontiguousarray(np.asarray(density(s), dtype=np.float64).reshape(-1))
+
+
 def _rule(density, lo, width, nodes, weights):
     """Tensor Gauss–Legendre integral over boxes ``lo + [0, width]`` (L, m) -> (L,),
-    and the largest density value at the nodes of each box."""
-    n_leaves, m = lo.shape
-    q = nodes.size
-    grids = np.meshgrid(*([nodes] * m), indexing="ij")
-    pts = np.stack([g.ravel() for g in grids], axis=-1)          # (q^m, m)
-    wts = np.prod(np.stack(np.meshgrid(*([weights] * m), indexing="ij"), -1)
-                  .reshape(-1, m), axis=1)                          # (q^m,)
-    s = lo[:, None, :] + width[:, None, :] * pts[None, :, :]       # (L, q^m, m)
-    f = np.asarray(density(s.reshape(-1, m)), dtype=np.float64).reshape(n_leaves, q ** m)
-    return (f @ wts) * np.prod(width, axis=1), f.max(axis=1, initial=0.0), f.min(axis=1, initial=np.inf)
+    and the largest and smallest density value at the nodes of each box."""
+    pts, wts = _tensor(nodes, weights, lo.shape[1])
+    f = _at_offsets(density, lo, width, pts)
+    out = np.empty((3, lo.shape[0]))
+    _rule_sums(f, wts, np.ascontiguousarray(width), out[0], out[1], out[2])
+    return out[0], out[1], out[2]
 
 
 #: Corners are sampled this fraction of the leaf inside it: a step lying exactly on a
@@ -81,12 +129,10 @@ _CORNER_INSET = 1e-7
 def _corner_values(density, lo, width):
     """Density just inside the 2^m corners of each box (Gauss nodes never come near
     them), (L, 2^m) with corner index ``sum(bit_axis << (m - 1 - axis))``."""
-    n_leaves, m = lo.shape
-    corners = np.stack(np.meshgrid(*([[_CORNER_INSET, 1.0 - _CORNER_INSET]] * m),
-                                   indexing="ij"), -1).reshape(-1, m)
-    pts = lo[:, None, :] + width[:, None, :] * corners[None, :, :]
-    f = np.asarray(density(np.clip(pts, 0.0, 1.0 - 2.0 ** -52).reshape(-1, m)), dtype=np.float64)
-    return f.reshape(n_leaves, 2 ** m)
+    m = lo.shape[1]
+    corners = np.ascontiguousarray(np.stack(np.meshgrid(
+        *([[_CORNER_INSET, 1.0 - _CORNER_INSET]] * m), indexing="ij"), -1).reshape(-1, m))
+    return _at_offsets(density, lo, width, corners, clip=True).reshape(lo.shape[0], 2 ** m)
 
 
 def _children(lo, width):

@@ -243,16 +243,15 @@ class _Density:
     def __call__(self, s):
         x = self.domain.to_point(s)
         p = validate.values("pdf", self.pdf(x), x.shape[0])
-        bad_nan = ~np.isfinite(p)
-        bad_neg = p < 0
-        if bad_nan.any() or bad_neg.any():
-            self.nonfinite += int(bad_nan.sum())
-            self.negative += int(bad_neg.sum())
+        out = np.empty(p.shape[0])
+        nonfinite, negative, first = kernels.screen_density(np.ascontiguousarray(p),
+                                                            self.domain.jacobian, out)
+        if nonfinite or negative:
+            self.nonfinite += int(nonfinite)
+            self.negative += int(negative)
             if self.example is None:
-                i = int(np.flatnonzero(bad_nan | bad_neg)[0])
-                self.example = (x[i].tolist(), float(p[i]))
-            p = np.where(bad_nan | bad_neg, 0.0, p)
-        return p * self.domain.jacobian
+                self.example = (x[first].tolist(), float(p[first]))
+        return out
 
 
 class _CubatureCache:

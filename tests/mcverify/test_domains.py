@@ -172,3 +172,13 @@ def test_every_status_is_counted_with_its_first_example(dom, dtype):
         first = 50 + (one_nan if rejection else 0)
         assert np.array_equal(h.examples[K.NONFINITE][1], x[first], equal_nan=True)
         assert np.array_equal(h.examples[K.OUTSIDE][1], x[50 + 3 * dom.dim])
+
+
+def test_density_values_are_screened_in_one_pass():
+    """The cubature's pdf screen: NaN/±Inf and negative values count once each and
+    integrate as 0; the rest are scaled by the jacobian; the first bad index is kept."""
+    p = np.array([1.0, 0.5, -2.0, np.nan, np.inf, -np.inf, 0.0, -0.0, 3.0])
+    out = np.empty_like(p)
+    assert K.screen_density(p, 2.0, out) == (3, 1, 2)
+    assert np.array_equal(out, [2.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 6.0])
+    assert K.screen_density(np.array([1.0, 2.0]), 0.5, np.empty(2)) == (0, 0, -1)
