@@ -51,7 +51,13 @@ def main():
     x = W.sample_cosine_hemisphere(u)
     calls = -(-n // chunk)
     res = dom.default_resolution(n)
-    pu, px = S._draw(W.sample_cosine_hemisphere, seq, min(max(n // 10, 1000), 100_000), 2, 3)
+    n_pilot = min(max(n // 10, 1000), 100_000)
+
+    def pilot():
+        u = S._uniforms(seq, n_pilot, 2)
+        return u, W.sample_cosine_hemisphere(u)
+
+    pu, px = pilot()
     edges = S._edges(S._screen(px, pu, dom)[0], res)
     rows = []
 
@@ -70,9 +76,7 @@ def main():
             h.add(x)
     stage("classify + bin (parallel numba pass)", binning)
     stage("pilot draw + cell edges",
-          lambda: S._edges(S._screen(*reversed(S._draw(
-              W.sample_cosine_hemisphere, seq, min(max(n // 10, 1000), 100_000), 2, 3)),
-              dom)[0], res), per_point=False)
+          lambda: S._edges(S._screen(*reversed(pilot()), dom)[0], res), per_point=False)
     stage("cubature of the expected counts",
           lambda: integrate_cells(S._Density(W.cosine_hemisphere_pdf, dom), edges,
                                   n_samples=n), per_point=False)

@@ -98,12 +98,6 @@ def _uniforms(seq, n, k):
     return u
 
 
-def _draw(sample, seq, n, k, dim, name="sample"):
-    """All n points at once (the pilot): uniforms (n, k) and points (n, dim)."""
-    u = _uniforms(seq, n, k)
-    return u, validate.points(name, sample(u), n, dim)
-
-
 _STATUS_TEXT = {kernels.NONFINITE: "are NaN/Inf", kernels.OUTSIDE: "lie outside the {} domain"}
 
 
