@@ -214,6 +214,9 @@ def _cmd_check(args) -> int:
     _distinct_outputs(("--json", args.json), ("--junit", args.junit))
     args.suite, checks, skipped, extra = _suite_checks(args)
     plan = None
+    if args.budget is not None and not args.budget > 0:     # before any message or work
+        raise InvalidArgument(f"--budget {args.budget:g}: must be a positive number of "
+                              "seconds")
     if args.budget is not None and args.scene:
         raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
                               "has its own spp and passes (use --budget without --scene)")

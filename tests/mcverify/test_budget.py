@@ -55,11 +55,11 @@ def test_detectable_contamination_needs_a_sampler_result():
 
 def test_cli_budget_puts_the_chosen_n_and_the_power_into_the_json(tmp_path):
     out = tmp_path / "b.json"
-    r = subprocess.run([sys.executable, "-m", "mcverify", "check", "--budget", "10", "-k",
+    r = subprocess.run([sys.executable, "-m", "mcverify", "check", "--budget", "3", "-k",
                         "sampler:cosine_hemisphere", "--json", str(out), "-q"],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "budget 10s" in r.stdout and "95 % power" in r.stdout
+    assert "budget 3s" in r.stdout and "95 % power" in r.stdout
     d = json.loads(out.read_text())
     budget = d["provenance"]["budget"]
     chosen = budget["n_samples"]["sampler:cosine_hemisphere"]
@@ -68,8 +68,9 @@ def test_cli_budget_puts_the_chosen_n_and_the_power_into_the_json(tmp_path):
 
 
 def test_cli_budget_refuses_bad_values():
-    for args, needle in ((["--budget", "0"], "positive"),
+    for args, needle in ((["--budget", "0"], "positive"), (["--budget", "nan"], "positive"),
                          (["--budget", "5", "--scene", "x.xml"], "--scene")):
         r = subprocess.run([sys.executable, "-m", "mcverify", "check", *args], text=True,
                            capture_output=True, timeout=600)
         assert r.returncode == 2 and needle in r.stderr, r.stderr
+        assert "calibrating" not in r.stderr, r.stderr     # refused before any work

@@ -112,6 +112,7 @@ def _passes_pair(a, b, with_passes):
     return dict(kw, test_passes=a, ref_passes=b) if with_passes else kw
 
 
+@pytest.mark.slow   # 400 seeded comparisons: 20-40 s
 def test_correlated_pixels_need_the_pass_images():
     """A/A on pass images whose pixels correlate (blurred noise, as a gaussian filter
     splats it): given the passes, the image and block tests are calibrated (false alarms
