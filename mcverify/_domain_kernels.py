@@ -109,7 +109,7 @@ def _locate(kind, args, tol, x, i, rejection, exact):
     # all finite <=> 0·x0 + 0·x1 + 0·x2 == 0 (0·±Inf and 0·NaN are NaN): one branch, where
     # a loop over the coordinates cost ~14 ns a point (most of a point's binning time)
     if not x0 * 0.0 + x1 * 0.0 + x2 * 0.0 == 0.0:
-        n_nan = (math.isnan(x0) + (d > 1 and math.isnan(x1)) + (d > 2 and math.isnan(x2)))
+        n_nan = math.isnan(x0) + math.isnan(x1) + math.isnan(x2)     # absent axes are 0
         if rejection and n_nan == d:
             return REJECTED, 0.0, 0.0
         return NONFINITE, 0.0, 0.0
@@ -201,9 +201,10 @@ def cell_lookup(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     inner = e[1:-1]                        # e[0] = 0 and e[-1] = 1 are never crossed
     first = np.searchsorted(inner, lo, side="right")
     count = np.searchsorted(inner, hi, side="left") - first
-    cut = np.where(count == 0, 2.0, inner[np.minimum(first, max(inner.size - 1, 0))]
-                   if inner.size else 2.0)
-    cut = np.where(count > 1, -1.0, cut)
+    cut = np.full(slots, 2.0)
+    one = count == 1
+    cut[one] = inner[first[one]]
+    cut[count > 1] = -1.0
     return np.clip(lut, 0, e.size - 2).astype(np.int64), cut
 
 
@@ -211,8 +212,8 @@ def cell_lookup(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _find_cell(e, lut, cut, s):
     """Index of the cell ``[e[k], e[k+1])`` holding ``s`` in [0, 1): the slot's cell,
     one further if ``s`` is past the slot's one inner edge (two independent loads and a
-    compare: no search, no data-dependent branch; this was most of a point's binning
-    time as a table look-up and a forward scan). A slot with several edges is scanned."""
+    compare, no search; a table look-up and a forward scan over the edges were most of a
+    point's binning time). Only a slot with several edges takes the branch to a scan."""
     j = min(int(s * lut.shape[0]), lut.shape[0] - 1)
     c = cut[j]
     if c >= 0.0:

@@ -516,9 +516,14 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     m = dom.param_dim
     res = res or dom.default_resolution(n)
 
+    n_budget = n
+    if batches is not None:         # refused before any draw
+        k_batches = validate.integer("batches", batches, minimum=1)
+        if k_batches > n_budget:
+            raise InvalidArgument(f"batches={k_batches}: more batches than "
+                                  f"n_samples={n_budget}")
     main_seq, pilot_seq = np.random.SeedSequence(seed).spawn(2)
     pilot_s = None
-    n_budget = n
     if pilot:
         n_pilot = int(min(max(n // 10, 1000), 100_000))
         pu = _uniforms(pilot_seq, n_pilot, k)
@@ -654,9 +659,6 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         return evaluate(n)
     from ..sequential import looks, run_sequential
 
-    k_batches = validate.integer("batches", batches, minimum=1)
-    if k_batches > n_budget:
-        raise InvalidArgument(f"batches={k_batches}: more batches than n_samples={n_budget}")
     # Rows end where a look is taken (the batches in between need no pause of their own:
     # fewer, larger calls of sample and of the binning kernel).
     bounds = {b: n_budget * b // k_batches for b in looks(k_batches)}

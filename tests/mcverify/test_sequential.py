@@ -173,8 +173,11 @@ def test_sequential_check_sampler_judges_a_correct_sampler_on_the_same_histogram
     assert s["p_looks"][-1] == once.p_value
     assert seq.details["tests"] == once.details["tests"]
     assert seq.p_value == stats.sequential_p_value(s["p_looks"], s["weights"])
+    called = []
+    spy = lambda u: called.append(1) or args[0](u)      # noqa: E731
     with pytest.raises(mv.InvalidArgument, match="batches=16: more batches than n_samples=10"):
-        mv.check_sampler(*args, n_samples=10, batches=16)
+        mv.check_sampler(spy, *args[1:], n_samples=10, batches=16)
+    assert not called                                   # refused before any draw
 
 
 def test_canaries_are_rejected_on_at_most_a_quarter_of_their_samples():
