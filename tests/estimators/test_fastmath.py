@@ -3,6 +3,7 @@
 the whole domain, the special values exactly, and that a loop over them vectorises (the
 reason they exist)."""
 
+import functools
 import math
 import os
 import re
@@ -38,8 +39,10 @@ def down(x):
     return float(np.nextafter(x, -np.inf))
 
 
+@functools.lru_cache(maxsize=None)
 def array_loop(f):
-    """``out[i] = f(x[i])`` compiled as callers of these functions should be."""
+    """``out[i] = f(x[i])`` compiled as callers of these functions should be (one loop
+    per function in a test process: each compiles for seconds, and is not cached)."""
     @njit(error_model="numpy")
     def loop(x, out):
         for i in range(x.size):

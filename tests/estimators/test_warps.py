@@ -160,32 +160,75 @@ def test_pdf_is_the_inverse_jacobian_of_the_sample_map(name):
     assert np.max(rel) < 1e-4, (name, float(np.max(rel)))
 
 
-@pytest.mark.parametrize("name", NAMES)
-def test_front_ends_are_bit_identical_whatever_the_thread_count(name):
-    """The array front ends run in parallel blocks; every row is computed on its own, so
-    one thread and two give the same bits (float64 and float32)."""
+#: Warps whose float32 pdf and inverse loops the default run compiles (a few seconds of
+#: numba each on a new machine): between them every shape of the loop template, rows of
+#: 1, 2 and 3 coordinates in and out, a density of 1, 2 and 3, the kernel inlined into the
+#: loop (the polar disk's and the sphere's inverses, the visible normals' pdf) or called.
+#: ``-m slow`` runs the same test on every other warp.
+FLOAT32_SHAPES = ("uniform_interval", "uniform_triangle", "uniform_disk_polar",
+                  "cosine_hemisphere", "uniform_sphere", "ggx_vndf")
+
+
+def _front_end_runs(w, u, dtype, pdf_and_invert):
+    """The sample (and its pdf and inverse) on one thread and on two."""
     import numba
 
-    if numba.config.NUMBA_NUM_THREADS < 2:
-        pytest.skip("numba has a single thread here")
-    w = WARPS[name]
-    u = np.random.default_rng(5).random((3 * 512 + 7, w.sample_dim))
     before = numba.get_num_threads()
     runs = []
     try:
         for threads in (1, 2):
             numba.set_num_threads(threads)
-            out = []
-            for dtype in (np.float64, np.float32):
-                x = w.sample(u.astype(dtype), *w.defaults)
-                out += [x, w.pdf(x, *w.defaults)]
+            x = w.sample(u.astype(dtype), *w.defaults)
+            out = [x]
+            if pdf_and_invert:
+                out.append(w.pdf(x, *w.defaults))
                 if w.invert is not None:
                     out.append(w.invert(x, *w.defaults))
             runs.append(out)
     finally:
         numba.set_num_threads(before)
     for a, b in zip(*runs):
-        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
+        assert a.dtype == dtype and b.dtype == dtype and np.array_equal(a, b, equal_nan=True)
+    return runs[0]
+
+
+def _same_bits_and_float32_within_half_an_ulp(name, float32_pdf_and_invert):
+    """The array front ends run in parallel blocks; every row is computed on its own, so
+    one thread and two give the same bits. The float32 path widens each input to float64,
+    computes in float64 and rounds once: its pdf and inverse are within half a float32 ulp
+    of the float64 ones at the same (float32) points."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has a single thread here")
+    w = WARPS[name]
+    u = np.random.default_rng(5).random((3 * 512 + 7, w.sample_dim))
+    _front_end_runs(w, u, np.float64, True)
+    got = _front_end_runs(w, u, np.float32, float32_pdf_and_invert)
+    if not float32_pdf_and_invert:
+        return
+    x32 = got[0]
+    want = [w.pdf(x32.astype(np.float64), *w.defaults)]
+    if w.invert is not None:
+        want.append(w.invert(x32.astype(np.float64), *w.defaults))
+    for g, f in zip(got[1:], want):
+        ok = np.isfinite(f)
+        assert np.array_equal(np.isfinite(g), ok)
+        assert np.all(np.abs(g[ok] - f[ok])
+                      <= 0.5 * np.spacing(np.abs(f[ok]).astype(np.float32))), name
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_front_ends_are_bit_identical_whatever_the_thread_count(name):
+    """float64 every front end; float32 the sample, and the pdf and the inverse of the
+    warps in ``FLOAT32_SHAPES``."""
+    _same_bits_and_float32_within_half_an_ulp(name, name in FLOAT32_SHAPES)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [n for n in NAMES if n not in FLOAT32_SHAPES])
+def test_every_float32_pdf_and_inverse_same_bits_and_within_half_an_ulp(name):
+    _same_bits_and_float32_within_half_an_ulp(name, True)
 
 
 def test_sincos_two_pi_matches_libm():
