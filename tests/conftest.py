@@ -10,19 +10,6 @@ from hypothesis import HealthCheck, settings
 # scene's specialised kernel to the general one bit for bit.
 os.environ.setdefault("MCVERIFY_GENERAL_KERNEL", "1")
 
-# Each pytest-xdist worker's numba loops get an equal share of the cores, as mcverify's
-# own worker processes do (gate/executors._worker_init): two workers each running two
-# OpenMP threads on two cores make every parallel region wait for a descheduled thread,
-# and the idle threads spin (measured, the tracer-checks, checks and sequential test files
-# on -n 2: 115-124 s wall and 181-196 s CPU with two threads each, 75 s and 96-100 s with
-# one). Results do not depend on the thread count; the tests of that set their own.
-# numba's count is per thread: this sets the worker's main thread, which runs the tests.
-_WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-if _WORKERS > 1:
-    import numba
-
-    numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // _WORKERS))
-
 # Hypothesis profiles, as the project's configuration habit: "ci" is derandomised so
 # CI is deterministic; "thorough" explores more for nightly runs.
 settings.register_profile("ci", derandomize=True, max_examples=40, deadline=None,

@@ -19,3 +19,37 @@ def test_assert_check_passes_through_and_fails_with_the_reason(assert_check):
                            n_samples=50_000)
     with pytest.raises(pytest.fail.Exception, match="integrates to 1.05"):
         assert_check(bad)
+
+
+@pytest.mark.parametrize("env, total, want", [
+    ({}, 2, None),                                                        # no xdist
+    ({"PYTEST_XDIST_WORKER_COUNT": "2"}, 2, None),                        # the controller
+    ({"PYTEST_XDIST_WORKER_COUNT": "2", "PYTEST_XDIST_WORKER": "gw1"}, 2, 1),
+    ({"PYTEST_XDIST_WORKER_COUNT": "2", "PYTEST_XDIST_WORKER": "gw0"}, 16, 8),
+    ({"PYTEST_XDIST_WORKER_COUNT": "3", "PYTEST_XDIST_WORKER": "gw2"}, 16, 5),
+    ({"PYTEST_XDIST_WORKER_COUNT": "4", "PYTEST_XDIST_WORKER": "gw3"}, 2, 1),
+    ({"PYTEST_XDIST_WORKER_COUNT": "1", "PYTEST_XDIST_WORKER": "gw0"}, 4, None),
+])
+def test_xdist_workers_get_an_equal_share_of_numbas_threads(monkeypatch, env, total, want):
+    from mcverify.pytest_plugin import worker_threads
+
+    for k in ("PYTEST_XDIST_WORKER_COUNT", "PYTEST_XDIST_WORKER"):
+        monkeypatch.delenv(k, raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    assert worker_threads(total) == want
+
+
+def test_this_run_shares_the_cores_unless_told_not_to(pytestconfig):
+    """In this very run: a pytest-xdist worker of N has NUMBA_NUM_THREADS // N threads
+    (this test runs in the worker's main thread), a lone process all of them."""
+    import numba
+
+    from mcverify.pytest_plugin import worker_threads
+
+    total = numba.config.NUMBA_NUM_THREADS
+    share = worker_threads(total)
+    if share is None or pytestconfig.getoption("mcverify_all_threads"):
+        assert numba.get_num_threads() == total
+    else:
+        assert numba.get_num_threads() == share
