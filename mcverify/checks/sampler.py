@@ -91,10 +91,14 @@ def _uniform_chunks(seq: np.random.SeedSequence, n: int, k: int, chunk: int):
 
 
 def _uniforms(seq, n, k):
-    """All n × k uniforms of the stream at once (the pilot's)."""
+    """All n × k uniforms of the stream at once (the pilot's): the same rows as
+    ``_uniform_chunks``, each block drawn on the pool straight into the result (a chunk
+    and a copy cost 4-5× the time: 3.6 against 0.7 ms at 1e5 rows)."""
     u = np.empty((n, k))
-    for start, c in _uniform_chunks(seq, n, k, DEFAULT_CHUNK):
-        u[start:start + c.shape[0]] = c
+    jobs = [_pool().submit(_fill_block, seq, a // STREAM_BLOCK, u[a:a + STREAM_BLOCK])
+            for a in range(0, n, STREAM_BLOCK)]
+    for j in jobs:
+        j.result()
     return u
 
 

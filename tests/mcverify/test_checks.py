@@ -5,6 +5,7 @@ import pytest
 
 import mcverify as mv
 from estimators import warps as W
+from mcverify.checks.sampler import STREAM_BLOCK as STREAM_BLOCK_FOR_TESTS
 
 
 def cosine(u):
@@ -152,6 +153,21 @@ def test_stream_is_independent_of_chunk_size_and_thread_count():
     assert np.array_equal(a.artifacts["histogram"]["observed"],
                           b.artifacts["histogram"]["observed"])
     assert a.p_value == b.p_value and a.statistic == b.statistic
+
+
+@pytest.mark.parametrize("n", [1, STREAM_BLOCK_FOR_TESTS - 1, STREAM_BLOCK_FOR_TESTS,
+                               3 * STREAM_BLOCK_FOR_TESTS + 7])
+def test_pilot_uniforms_are_the_streams_rows(n):
+    """The pilot's all-at-once draw (``_uniforms``) is row for row the chunked stream
+    (``_uniform_chunks``), whatever the chunk size: the same blocks, the same generators."""
+    from mcverify.checks.sampler import _uniform_chunks, _uniforms
+
+    seq = np.random.SeedSequence(42).spawn(2)[1]
+    whole = _uniforms(seq, n, 3)
+    for chunk in (STREAM_BLOCK_FOR_TESTS, 2 * STREAM_BLOCK_FOR_TESTS):
+        parts = np.concatenate([u for _, u in _uniform_chunks(seq, n, 3, chunk)])
+        assert whole.shape == (n, 3) and np.array_equal(whole, parts)
+    assert not np.array_equal(whole, _uniforms(np.random.SeedSequence(43), n, 3))
 
 
 def test_bad_chunk_is_rejected_before_any_work():
