@@ -261,7 +261,14 @@ def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = N
         raise EnvironmentProblem(f"{scene_path}: cannot read it here ({e.strerror}); workers "
                                  "need the scenes at the same path") from None
     scene = _loaded(scene_path, tuple(sorted((params or {}).items())), mtime)
-    return np.asarray(_mi().render(scene, spp=spp, seed=int(seed)), dtype=np.float64)
+    image = np.asarray(_mi().render(scene, spp=spp, seed=int(seed)), dtype=np.float64)
+    if scene.integrator().should_stop():
+        # While it renders, Mitsuba holds Ctrl-C itself: it cancels the render and returns
+        # the partial image without raising, so Python never sees the signal (a reference
+        # build went on to the next pass). An integrator's own ``timeout`` stops it alike;
+        # either way the pass is not the one asked for.
+        raise KeyboardInterrupt
+    return image
 
 
 def filter_radius(scene_path: str, params: dict | None = None) -> float:

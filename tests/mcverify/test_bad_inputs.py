@@ -765,3 +765,32 @@ def test_check_resolves_pending_lines_after_holm(monkeypatch, capsys, tmp_path):
     assert "fine ok" in err
     assert "PASS rescued: p=0.006 is no alarm after Holm (p_adj=0.012)" in out
     assert "FAIL condemned" in out and "2 passed, 1 failed" in out
+
+
+@pytest.mark.mitsuba
+def test_a_render_mitsuba_stopped_early_counts_as_interrupted(sandbox, tmp_path):
+    """Mitsuba holds Ctrl-C while it renders: it cancels the render and returns the partial
+    image without raising. A pass it stopped early must not count as a pass; its
+    integrator's ``timeout`` stops a render the same way, deterministically, so it stands
+    in for the signal here. The old reference stays as it was."""
+    from mcverify.gate import mitsuba as mvm
+
+    scene = tmp_path / "stopped"
+    shutil.copytree(sandbox / "ref-ok", scene)
+    xml = scene / "scene.xml"
+    text = xml.read_text()
+    assert '<integer name="rr_depth" value="64"/>' in text
+    xml.write_text(text.replace('<integer name="rr_depth" value="64"/>',
+                                '<integer name="rr_depth" value="64"/>'
+                                '<float name="timeout" value="1e-9"/>'))
+    with pytest.raises(KeyboardInterrupt):
+        mvm.render_pass(str(xml), spp=4, seed=1, params={"res": 8})
+    before = snapshot(scene)
+    r = subprocess.run(CMD + ["reference", "build", str(scene), "--spp", "4", "--passes", "3"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 130, r.stderr
+    assert "interrupted" in r.stderr and "Traceback" not in r.stderr
+    assert snapshot(scene) == before
+    # the same scene without the timeout renders its passes
+    assert mvm.render_pass(str(sandbox / "ref-ok" / "scene.xml"), spp=4, seed=1,
+                           params={"res": 8}).shape[:2] == (8, 8)
