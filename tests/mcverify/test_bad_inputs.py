@@ -581,9 +581,23 @@ def test_reference_swap_keeps_the_old_one_on_interrupt(sandbox, tmp_path, monkey
 
 
 # ------------------------------------------------------------------ SIGINT
+#: ``python -m mcverify`` as a terminal starts it: SIGINT unblocked and handled by Python.
+#: A child inherits its parent's signal mask and ignored signals, and Python installs
+#: its KeyboardInterrupt handler only where SIGINT is not ignored; in two cold test runs
+#: the SIGINT of ``test_sigint_during_check_leaves_outputs`` went unheard (exit 0, every
+#: check run), in the same pytest-xdist worker where Mitsuba's own handler, not Python's,
+#: caught the reference build's. The child restores what a user's Ctrl-C meets.
+SIGINT_CMD = [sys.executable, "-c",
+              "import signal, runpy, sys; "
+              "signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT]); "
+              "signal.signal(signal.SIGINT, signal.default_int_handler); "
+              "sys.argv[0] = 'mcverify'; runpy.run_module('mcverify', run_name='__main__')"]
+
+
 def _interrupt(args, wait_for, cwd, timeout=240):
-    """Start the command, send SIGINT once ``wait_for`` appears on stderr: (rc, stderr)."""
-    p = subprocess.Popen(CMD + [str(a) for a in args], cwd=cwd, stdout=subprocess.PIPE,
+    """Start the command, send SIGINT once ``wait_for`` appears on stderr: (rc, stderr);
+    the parent's own SIGINT disposition and mask are appended, for a failure's message."""
+    p = subprocess.Popen(SIGINT_CMD + [str(a) for a in args], cwd=cwd, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True)
     lines = []
     deadline = time.monotonic() + timeout
@@ -598,7 +612,9 @@ def _interrupt(args, wait_for, cwd, timeout=240):
     finally:
         if p.poll() is None:
             p.kill()
-    return p.returncode, "".join(lines) + rest
+    here = (f"\n[test process: SIGINT handler {signal.getsignal(signal.SIGINT)!r}, blocked "
+            f"{signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])}]")
+    return p.returncode, "".join(lines) + rest + here
 
 
 def test_sigint_during_check_leaves_outputs(tmp_path):
