@@ -1,0 +1,47 @@
+"""``mcverify bench``'s render rows: Mitsuba's scenes are loaded one at a time."""
+
+import numpy as np
+
+from mcverify.gate import bench
+
+
+class _FakeMitsuba:
+    """Stands in for the ``mitsuba`` module: counts the scenes alive and the loads."""
+
+    def __init__(self):
+        self.alive, self.most_alive, self.loads = 0, 0, []
+        fake = self
+
+        class Scene:
+            def __init__(self, path):
+                fake.alive += 1
+                fake.most_alive = max(fake.most_alive, fake.alive)
+                fake.loads.append(path)
+                self.path = path
+
+            def __del__(self):
+                fake.alive -= 1
+
+        self.Scene = Scene
+
+    def load_file(self, path, **params):
+        assert params == {"res": 128}
+        return self.Scene(path)
+
+    def render(self, scene, spp):
+        return np.full((2, 2, 3), float(spp))
+
+
+def test_render_rows_load_one_mitsuba_scene_at_a_time():
+    mi = _FakeMitsuba()
+    rows = [r for r in bench._render_pairs(mi, spp=4) if r[0].startswith("render:")]
+    assert len(rows) >= 2 and mi.loads == []           # nothing loaded up front
+    first, second = rows[0][3], rows[1][3]
+    assert first().shape == (2, 2, 3) and first() is not None
+    assert len(mi.loads) == 1 and mi.alive == 1          # loaded once, reused
+    second()
+    second()
+    assert len(mi.loads) == 2 and mi.alive == 1 and mi.most_alive == 1
+    assert mi.loads[0] != mi.loads[1]
+    first()                                              # back to the first: reloaded
+    assert len(mi.loads) == 3 and mi.alive == 1
