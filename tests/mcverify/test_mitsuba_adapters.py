@@ -237,7 +237,14 @@ def _draws(subjects):
 
 def test_the_scalar_variant_gives_the_same_draws_and_densities():
     """Per-sample calls on scalar_rgb (no LLVM) against one vectorised call: the same
-    points and pdf values, to float32 rounding."""
+    points and pdf values, to float32 rounding.
+
+    The rough conductor's directions carry one float32 error that grows where the sampled
+    normal m is near the pole: Mitsuba takes sin θ_m = sqrt(1 - cos² θ_m), so a rounding
+    δ ≤ 2 ε (ε = 2^-23) in cos θ_m becomes δ / sin θ_m in sin θ_m, and the reflection
+    wo = 2 (wi·m) m - wi passes at most 4× that on (measured on an AVX-512 machine: 3.7e-6
+    at sin θ_m = 0.059, with the float64 value between the two variants). Its points get
+    that bound on top of 2e-6; a wrong mapping of u moves points by O(1)."""
     import json
     import os
     import subprocess
@@ -255,5 +262,12 @@ def test_the_scalar_variant_gives_the_same_draws_and_densities():
     assert r.returncode == 0, r.stderr
     scalar, vector = json.loads(r.stdout), _draws(_scalar_subjects())
     for key in vector:
-        np.testing.assert_allclose(vector[key][0], scalar[key][0], atol=2e-6, err_msg=key)
+        atol = 2e-6
+        if key == "bsdf":
+            wi, wo = np.asarray(direction(80.0)), np.asarray(vector[key][0])
+            m = wi + wo
+            sin_m = np.hypot(m[:, 0], m[:, 1]) / np.linalg.norm(m, axis=1)
+            atol = atol + 8 * 2.0 ** -23 / sin_m[:, None]
+        diff = np.abs(np.asarray(vector[key][0]) - np.asarray(scalar[key][0]))
+        assert (diff <= atol).all(), (key, np.argwhere(diff > atol), diff.max())
         np.testing.assert_allclose(vector[key][1], scalar[key][1], rtol=2e-5, err_msg=key)
