@@ -22,9 +22,15 @@ from .suites import SCALABLE, Check, build_suite, check_seed, select
 
 __all__ = ["BudgetPlan", "plan_budget", "allocate", "power_bought"]
 
-#: Calibration sample counts: large enough that the per-sample cost shows above the
-#: fixed cost, small enough that calibrating ~30 checks takes seconds.
-_N_CAL = (1 << 16, 1 << 18)
+#: Calibration: every sampler check runs at ``_N_SMALL`` samples twice (the first run also
+#: pays JIT compilation or loading the kernel cache; the faster counts), then at 4×, 16×,
+#: ... that until the larger run takes at least ``_MIN_LARGE_S`` and 3× the smaller one,
+#: or reaches ``_N_CAP``. Two close sample counts do not do: on a loaded 2-core machine
+#: the cosine check timed at 2^16 and 2^18 gave 0.1 to 150 ns a sample from one run to
+#: the next, and 0.1 ns let a 3 s budget choose 10⁹ samples (53 s).
+_N_SMALL = 1 << 16
+_N_CAP = 1 << 22
+_MIN_LARGE_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -39,6 +45,7 @@ class BudgetPlan:
     calibration_seconds: float
     predicted_seconds: float
     notes: tuple[str, ...] = field(default=())
+    startup_seconds: float = 0.0
 
     @property
     def n_overrides(self) -> tuple[tuple[str, int], ...]:
@@ -49,6 +56,7 @@ class BudgetPlan:
                 "per_sample_ns": dict(self.per_sample_ns),
                 "fixed_seconds": dict(self.fixed_seconds),
                 "other_seconds": self.other_seconds,
+                "startup_seconds": self.startup_seconds,
                 "calibration_seconds": self.calibration_seconds,
                 "predicted_seconds": self.predicted_seconds, "notes": list(self.notes)}
 
@@ -59,11 +67,33 @@ def _timed(check: Check, seed: int) -> float:
     return time.perf_counter() - t0
 
 
+def measure_cost(run_at, timer=time.perf_counter) -> tuple[float, float]:
+    """(fixed seconds, seconds per sample) of a check, where ``run_at(n)`` runs it at n
+    samples; see ``_N_SMALL``. The cost per sample is at least half the larger run's
+    time per sample, so a load spike on the small runs cannot make it small: a run sized
+    by it takes at most about twice its share. Where the fixed cost still dominates at
+    ``_N_CAP`` (cubature), the estimate errs towards fewer samples."""
+    def timed(n: int) -> float:
+        t0 = timer()
+        run_at(n)
+        return timer() - t0
+
+    t_small = min(timed(_N_SMALL), timed(_N_SMALL))
+    n = 4 * _N_SMALL
+    t_large = timed(n)
+    while n < _N_CAP and (t_large < 3 * t_small or t_large < _MIN_LARGE_S):
+        n *= 4
+        t_large = timed(n)
+    per = max((t_large - t_small) / (n - _N_SMALL), 0.5 * t_large / n)
+    return max(t_small - per * _N_SMALL, 0.0), per
+
+
 def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0,
-                canary: bool = True, n_min: int = 1 << 17,
-                n_max: int = 1_000_000_000) -> BudgetPlan:
+                canary: bool = True, n_min: int = 1 << 17, n_max: int = 1_000_000_000,
+                startup: float = 0.0) -> BudgetPlan:
     """Sample counts for the checks of ``suite`` selected by ``pattern`` so that
-    calibration plus the run take about ``budget`` seconds on this machine."""
+    ``startup`` (seconds already spent, e.g. since the process started), calibration
+    and the run take about ``budget`` seconds on this machine."""
     if not budget > 0:
         raise InvalidArgument(f"--budget {budget}: must be a positive number of seconds")
     from .suites import canaries
@@ -71,26 +101,26 @@ def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0
     t0 = time.perf_counter()
     chosen = select(build_suite(suite), pattern)
     scalable = [c.name for c in chosen if SCALABLE in c.tags]
-    runs = [{c.name: c for c in build_suite(suite, tuple((name, n) for name in scalable))}
-            for n in _N_CAL]
+    suites_at: dict[int, dict[str, Check]] = {}
+
+    def check_at(name: str, n: int) -> Check:
+        if n not in suites_at:
+            suites_at[n] = {c.name: c for c in build_suite(
+                suite, tuple((x, n) for x in scalable))}
+        return suites_at[n][name]
+
     per, fixed = {}, {}
     for name in scalable:
         s = check_seed(seed, name)
-        # small, large, small again: the first run also pays JIT compilation or loading
-        # the kernel cache, which the run proper will not.
-        first = _timed(runs[0][name], s)
-        t_large = _timed(runs[1][name], s)
-        t_small = min(first, _timed(runs[0][name], s))
-        per[name] = max((t_large - t_small) / (_N_CAL[1] - _N_CAL[0]), 1e-10)
-        fixed[name] = max(t_small - per[name] * _N_CAL[0], 0.0)
+        fixed[name], per[name] = measure_cost(lambda n, name=name: check_at(name, n).run(s))
     other = sum(_timed(c, check_seed(seed, c.name)) for c in chosen if SCALABLE not in c.tags)
     if canary:
         other += sum(_timed(c, check_seed(seed, "canary:" + c.name)) for c in canaries())
     spent = time.perf_counter() - t0
-    n_samples, predicted, notes = allocate(budget, spent, other, fixed, per, n_min=n_min,
-                                           n_max=n_max)
+    n_samples, predicted, notes = allocate(budget, startup + spent, other, fixed, per,
+                                           n_min=n_min, n_max=n_max)
     return BudgetPlan(budget, n_samples, {k: v * 1e9 for k, v in per.items()}, fixed, other,
-                      spent, predicted, notes)
+                      spent, predicted, notes, startup)
 
 
 def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
@@ -108,7 +138,8 @@ def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
             n = int((share - fixed[name]) / per_sample[name]) if share > fixed[name] else 0
             n_samples[name] = min(max(n, n_min), n_max)
         if left < sum(fixed[x] + per_sample[x] * n_min for x in fixed):
-            notes.append(f"budget {budget:g}s is too small: calibration took {spent:.1f}s and "
+            notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
+                         f"{spent:.1f}s and "
                          f"the fixed-size checks {other:.1f}s; every sampler check runs at "
                          f"the minimum n = {n_min:,}")
     predicted = spent + other + sum(fixed[x] + per_sample[x] * n_samples[x] for x in fixed)

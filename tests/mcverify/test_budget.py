@@ -9,7 +9,8 @@ import pytest
 
 import mcverify as mv
 from estimators import warps as W
-from mcverify.gate.budget import allocate
+from mcverify.gate import budget as B
+from mcverify.gate.budget import allocate, measure_cost
 
 
 def test_allocate_gives_equal_time_shares():
@@ -27,6 +28,53 @@ def test_allocate_clamps_and_says_when_the_budget_is_too_small():
     assert n == {"a": 1000} and predicted > 5.0 and "too small" in notes[0]
     n, _, _ = allocate(1e6, 0.0, 0.0, {"a": 0.0}, {"a": 1e-9}, n_min=1000, n_max=10**9)
     assert n == {"a": 10**9}
+
+
+class _FakeCheck:
+    """A check whose run at n samples advances a fake clock by fixed + per·n seconds,
+    plus the load spike ``spikes[i]`` on its i-th run."""
+
+    def __init__(self, fixed, per, spikes=()):
+        self.fixed, self.per, self.spikes, self.now, self.ns = fixed, per, spikes, 0.0, []
+
+    def clock(self):
+        return self.now
+
+    def run_at(self, n):
+        i = len(self.ns)
+        self.ns.append(n)
+        self.now += self.fixed + self.per * n + (self.spikes[i] if i < len(self.spikes) else 0)
+
+
+@pytest.mark.parametrize("fixed, per, spikes, low", [
+    (0.01, 5e-9, (), 1.0),
+    # load spikes on the two small runs (the faster counts), and the first larger one
+    (0.01, 5e-9, (0.02, 0.02), 0.5),
+    (0.01, 5e-9, (0.02, 0.02, 0.01), 0.5),
+    # the old fit (2^16, 2^18, 2^16 again) measured 0.1 ns a sample with these spikes
+    (0.01, 5e-9, (0.02, 0.0, 0.02), 1.0),
+    (0.0, 2e-8, (0.5,), 1.0),                           # JIT on the first run only
+    (0.01, 5e-9, (0.0, 0.0, 0.0, 0.3), 1.0),            # a spike on a larger run
+])
+def test_measure_cost_finds_the_cost_per_sample_despite_load_spikes(fixed, per, spikes, low):
+    c = _FakeCheck(fixed, per, spikes)
+    f, p = measure_cost(c.run_at, c.clock)
+    # never under half the true cost per sample (a run sized by it takes at most about
+    # twice its share); exact but for rounding without spikes
+    assert low * per * (1 - 1e-9) <= p
+    if not spikes:
+        assert p == pytest.approx(per) and f == pytest.approx(fixed)
+        # the larger run grew until the per-sample cost showed, and no further
+        big = max(c.ns)
+        assert big == B._N_CAP or (big * per >= 2 * fixed and fixed + big * per >= B._MIN_LARGE_S)
+        assert fixed + big // 4 * per < max(3 * (fixed + per * B._N_SMALL), B._MIN_LARGE_S)
+
+
+def test_measure_cost_errs_towards_fewer_samples_when_the_fixed_cost_dominates():
+    c = _FakeCheck(2.0, 1e-10)                  # cubature-like fixed cost, cheap samples
+    f, p = measure_cost(c.run_at, c.clock)
+    assert max(c.ns) == B._N_CAP                # grew to the cap, no further
+    assert p >= 1e-10 and f + p * 10**9 >= 2.0 + 1e-10 * 10**9  # never under-predicts
 
 
 def test_detectable_contamination_falls_as_one_over_root_n():

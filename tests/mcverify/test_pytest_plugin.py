@@ -53,3 +53,9 @@ def test_this_run_shares_the_cores_unless_told_not_to(pytestconfig):
         assert numba.get_num_threads() == total
     else:
         assert numba.get_num_threads() == share
+        # ... and the processes its tests start inherit the share
+        import subprocess
+        import sys
+        r = subprocess.run([sys.executable, "-c", "import numba; print(numba.get_num_threads())"],
+                           capture_output=True, text=True, timeout=120, check=True)
+        assert int(r.stdout) == share
