@@ -12,9 +12,10 @@ the cores, ``NUMBA_NUM_THREADS // N`` threads (at least 1), as mcverify's own wo
 processes do: N workers each running every core's worth of OpenMP threads wait for
 descheduled threads and spin (measured on 2 cores, ``-n 2``, three of mcverify's judge
 test files: 115-124 s wall and 181-196 s of CPU with two threads a worker, 75 s and
-96-100 s with one). The processes a test starts get the same share (the worker sets
-``NUMBA_NUM_THREADS``): a CLI run of 2 threads beside a busy worker paid about 7 ms for
-every parallel loop it started, waiting for its descheduled second thread. Results do
+96-100 s with one). The mcverify runs a test starts get the same share (the worker sets
+``MCVERIFY_NUM_THREADS``, which the CLI reads): a CLI run of 2 threads beside a busy
+worker paid about 7 ms for every parallel loop it started, waiting for its descheduled
+second thread. Results do
 not depend on the thread count. ``--mcverify-all-threads`` keeps numba's default in every
 worker.
 
@@ -60,9 +61,10 @@ def pytest_configure(config):
     threads = worker_threads(numba.config.NUMBA_NUM_THREADS)
     if threads is not None:
         numba.set_num_threads(threads)
-        # The processes the tests start (a CLI run, a worker pool) read the share from
-        # the environment; this process read its own at numba's import, above.
-        os.environ["NUMBA_NUM_THREADS"] = str(threads)
+        # The mcverify runs the tests start read the share from the environment (not
+        # NUMBA_NUM_THREADS: numba re-reads that in this process too, and refuses a change
+        # once its threads run).
+        os.environ["MCVERIFY_NUM_THREADS"] = str(threads)
 
 
 @pytest.fixture

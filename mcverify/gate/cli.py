@@ -819,10 +819,25 @@ def _validate_common(args) -> None:
         reference.set_reference_root(args.refs)
 
 
+def _thread_limit() -> None:
+    """``MCVERIFY_NUM_THREADS``: numba threads for this run's parallel loops, at most
+    numba's own count (the pytest plugin sets it to an xdist worker's share, for the
+    runs its tests start)."""
+    value = os.environ.get("MCVERIFY_NUM_THREADS", "").strip()
+    if not value:
+        return
+    if not value.isdigit() or int(value) < 1:
+        raise InvalidArgument(f"MCVERIFY_NUM_THREADS={value!r}: must be a whole number >= 1")
+    import numba
+
+    numba.set_num_threads(min(int(value), numba.config.NUMBA_NUM_THREADS))
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         _validate_common(args)
+        _thread_limit()
         return args.func(args)
     except (InvalidArgument, EnvironmentProblem) as e:
         print(f"mcverify: error: {' '.join(str(e).split())}", file=sys.stderr)

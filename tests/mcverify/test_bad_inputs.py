@@ -810,3 +810,10 @@ def test_a_render_mitsuba_stopped_early_counts_as_interrupted(sandbox, tmp_path)
     # the same scene without the timeout renders its passes
     assert mvm.render_pass(str(sandbox / "ref-ok" / "scene.xml"), spp=4, seed=1,
                            params={"res": 8}).shape[:2] == (8, 8)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "two", "1.5"])
+def test_a_bad_thread_count_in_the_environment_exits_2(cli_sandbox, capsys, monkeypatch, value):
+    monkeypatch.setenv("MCVERIFY_NUM_THREADS", value)
+    rc, out, err = _run_cli(["list"], capsys, cli_sandbox)
+    assert rc == 2 and f"MCVERIFY_NUM_THREADS={value!r}" in err, err

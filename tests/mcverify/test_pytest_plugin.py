@@ -56,6 +56,8 @@ def test_this_run_shares_the_cores_unless_told_not_to(pytestconfig):
         # ... and the processes its tests start inherit the share
         import subprocess
         import sys
-        r = subprocess.run([sys.executable, "-c", "import numba; print(numba.get_num_threads())"],
-                           capture_output=True, text=True, timeout=120, check=True)
+        script = ("import numba, mcverify.gate.cli as c; c._thread_limit(); "
+                  "print(numba.get_num_threads())")
+        r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                           timeout=120, check=True)
         assert int(r.stdout) == share
