@@ -88,7 +88,15 @@ class Reference:
     def rmse(self, image) -> float:
         """RMSE of ``image`` against this reference's mean, with the reference's own noise
         (its per-pixel variance of the mean, var / n) subtracted from the MSE."""
-        mse = np.mean((np.asarray(image, np.float64) - self.mean) ** 2)
+        return self.rmse_of_mean_mse(self.mse(image))
+
+    def mse(self, image) -> float:
+        """Raw MSE of ``image`` against this reference's mean (its noise included)."""
+        return float(np.mean((np.asarray(image, np.float64) - self.mean) ** 2))
+
+    def rmse_of_mean_mse(self, mse: float) -> float:
+        """The RMSE that a (mean) raw MSE gives once the reference's own noise is
+        subtracted."""
         return float(np.sqrt(max(mse - np.mean(self.var / self.n), 0.0)))
 
 
