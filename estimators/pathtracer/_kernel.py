@@ -32,7 +32,8 @@ from estimators.pathtracer.geometry import (coordinate_system, intersect, new_st
                                             shading_frame, surface, to_local, to_world)
 from estimators.pathtracer.layout import (ALL_BSDF_FEATURES, ALL_FEATURES, BSDF_FRAME,
                                           F_AREA_LIGHTS, F_ENV, F_FRAME, F_MANY_LIGHTS,
-                                          F_NONDELTA_LIGHTS, F_NULL_BSDFS, LIGHT_KIND,
+                                          F_NONDELTA_LIGHTS, F_NULL_BSDFS, F_STRATIFIED,
+                                          LIGHT_KIND,
                                           LIGHT_RADIANCE, PRIM_SHAPE)
 
 # --- features (rewritten by render.specialised_kernel) ---
@@ -57,10 +58,89 @@ def _mix(z):
     return z ^ (z >> _S31)
 
 
+_U32 = np.uint64(0xFFFFFFFF)
+
+
+@njit(cache=True, _nrt=False)
+def permute(i, n, p):
+    """Element ``i`` of a pseudo-random permutation of 0..n-1 chosen by ``p`` (Kensler,
+    "Correlated multi-jittered sampling", 2013: a hash that is a bijection on the next
+    power of two, walked until it lands below n); 32-bit arithmetic in uint64 lanes."""
+    i, n, p = np.uint64(i), np.uint64(n), np.uint64(p) & _U32
+    w = n - np.uint64(1)
+    w |= w >> np.uint64(1)
+    w |= w >> np.uint64(2)
+    w |= w >> np.uint64(4)
+    w |= w >> np.uint64(8)
+    w |= w >> np.uint64(16)
+    while True:
+        i ^= p
+        i = (i * np.uint64(0xe170893d)) & _U32
+        i ^= p >> np.uint64(16)
+        i ^= (i & w) >> np.uint64(4)
+        i ^= p >> np.uint64(8)
+        i = (i * np.uint64(0x0929eb3f)) & _U32
+        i ^= p >> np.uint64(23)
+        i ^= (i & w) >> np.uint64(1)
+        i = (i * (np.uint64(1) | (p >> np.uint64(27)))) & _U32
+        i = (i * np.uint64(0x6935fa69)) & _U32
+        i ^= (i & w) >> np.uint64(11)
+        i = (i * np.uint64(0x74dcb303)) & _U32
+        i ^= (i & w) >> np.uint64(2)
+        i = (i * np.uint64(0x9e501cc3)) & _U32
+        i ^= (i & w) >> np.uint64(2)
+        i = (i * np.uint64(0xc860a3df)) & _U32
+        i &= w
+        i ^= i >> np.uint64(5)
+        if i < n:
+            return (i + p) % n
+
+
+@njit(cache=True, _nrt=False)
+def _stratum(u, s, n, seed):
+    """Sample s of n in one dimension: stratum permute(s) of n, jittered by u."""
+    return (float(permute(s, n, _mix(seed) >> np.uint64(32))) + u) / float(n)
+
+
+@njit(cache=True, _nrt=False)
+def _stratum2(u, v, s, n, seed):
+    """Sample s of n in two dimensions: a cell of the r × r grid when n = r², each cell
+    once; otherwise each coordinate stratified on its own."""
+    r = int(math.sqrt(float(n)) + 0.5)
+    if np.uint64(r * r) == n:
+        p = permute(s, n, _mix(seed) >> np.uint64(32))
+        y = p // np.uint64(r)
+        x = p - y * np.uint64(r)
+        return (float(x) + u) / r, (float(y) + v) / r
+    return _stratum(u, s, n, seed), _stratum(v, s, n, seed ^ _M1)
+
+
 @njit(cache=True, inline="always")
 def _next(state):
-    state = state + _GOLDEN
-    return float(_mix(state) >> _S11) * _TO_UNIT, state
+    """One uniform and the next state (rng, scramble, sample, n, dimension). With n = 0
+    (the independent sampler) a splitmix64 Weyl sequence; with n > 0 (stratified) sample
+    s of the pixel's n falls in the stratum a per-pixel, per-dimension permutation gives
+    it, jittered by that same uniform."""
+    rng, scramble, s, n, d = state
+    rng = rng + _GOLDEN
+    u = float(_mix(rng) >> _S11) * _TO_UNIT
+    if MASK & F_STRATIFIED and n != np.uint64(0):
+        u = _stratum(u, s, n, scramble + d * _GOLDEN)
+    return u, (rng, scramble, s, n, d + np.uint64(1))
+
+
+@njit(cache=True, inline="always")
+def _next2(state):
+    """Two uniforms (one 2-D dimension, as Mitsuba's samplers count them) and the next
+    state; independent: the same as two ``_next``."""
+    rng, scramble, s, n, d = state
+    rng = rng + _GOLDEN
+    u = float(_mix(rng) >> _S11) * _TO_UNIT
+    rng = rng + _GOLDEN
+    v = float(_mix(rng) >> _S11) * _TO_UNIT
+    if MASK & F_STRATIFIED and n != np.uint64(0):
+        u, v = _stratum2(u, v, s, n, scramble + d * _GOLDEN)
+    return u, v, (rng, scramble, s, n, d + np.uint64(1))
 
 
 @njit(cache=True, inline="always")
@@ -161,8 +241,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
         if n_lights > 0 and bsdf_is_smooth(bi, b):
             us, state = _next(state)
             u0, state = _next(state)
-            u1, state = _next(state)
-            u2, state = _next(state)
+            u1, u2, state = _next2(state)
             k = min(int(us * n_lights), n_lights - 1) if MASK & F_MANY_LIGHTS else 0
             wx, wy, wz, dist, lr, lg, lb, lpdf = sample_emitter(
                 light_f, light_i, light_cdf, prims, info, shape_flip, tex_data, tex_info,
@@ -194,8 +273,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                         rb += tb * fb * lb * w
         # ---- BSDF sampling
         u0, state = _next(state)
-        u1, state = _next(state)
-        u2, state = _next(state)
+        u1, u2, state = _next2(state)
         (wx, wy, wz, wr, wg, wb, pdf, delta, eta_k, null) = bsdf_sample(
             BSDF_MASK, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale)
         if not null:
@@ -226,17 +304,18 @@ CHUNK = 64
 
 
 @njit(cache=True, _nrt=False)
-def _trace_samples(sc, stack, cam, base, s0, s1, x, y, width, height, pdf_scale, out):
+def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_scale, out):
     """Samples s0 <= s < s1 of pixel (x, y) (``base``: the pixel's hashed seed) into rows
     of ``out``: the jitter (ξ, ξ') in the pixel, the radiance along the camera ray through
     (x + ξ, y + ξ') (a non-finite one as 0) and 1.0 if it was finite, else 0.0. One call
     serves many samples: a call of this large function costs ~150 ns of set-up (its
     stack slots are zeroed on entry), which a call per sample paid every time. ``out``
-    has at least ``s1 - s0`` rows of 6."""
+    has at least ``s1 - s0`` rows of 6. ``n``: the pixel's sample count for a stratified
+    sampler, 0 for the independent one."""
     for s in range(s0, s1):
-        state = _mix(base ^ (np.uint64(s) * _M2))
-        fx, state = _next(state)
-        fy, state = _next(state)
+        state = (_mix(base ^ (np.uint64(s) * _M2)), base, np.uint64(s), np.uint64(n),
+                 np.uint64(0))
+        fx, fy, state = _next2(state)
         ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(cam, (x + fx) / width,
                                                           (y + fy) / height)
         r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state, pdf_scale)
@@ -249,10 +328,12 @@ def _trace_samples(sc, stack, cam, base, s0, s1, x, y, width, height, pdf_scale,
 
 
 @njit(cache=True, parallel=True)
-def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, bad):
+def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale, mean, m2,
+                 bad):
     """Render the listed tiles (rows of x0, y0, x1, y1) on all threads: per pixel, the
-    mean and the sum of squared deviations (Welford) of ``spp`` samples; ``bad`` counts
-    non-finite samples (set to zero)."""
+    mean and the sum of squared deviations (Welford) of ``spp`` samples (stratified per
+    dimension when ``stratified``); ``bad`` counts non-finite samples (set to zero)."""
+    n_strat = spp if stratified else 0
     for ti in prange(tiles.shape[0]):
         stack = new_stack()
         out = np.empty((CHUNK, 6))
@@ -267,8 +348,8 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, 
                 for s in range(spp):
                     k = s % CHUNK
                     if k == 0:
-                        _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), x, y,
-                                       width, height, pdf_scale, out)
+                        _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), n_strat,
+                                       x, y, width, height, pdf_scale, out)
                     r, g, b = out[k, 2], out[k, 3], out[k, 4]
                     if out[k, 5] == 0.0:
                         nbad += 1
@@ -286,7 +367,8 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, pdf_scale, mean, m2, 
 
 
 @njit(cache=True, parallel=True)
-def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, pdf_scale, acc, bad):
+def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf_scale, acc,
+                bad):
     """Render the listed tiles with a splatting reconstruction filter (Mitsuba's
     ``ImageBlock::put``): sample s of pixel (x, y) sits at (x + ξ, y + ξ') and
     ``camera.splat_kernel`` adds it to the pixels within the filter's radius. The random
@@ -294,6 +376,7 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, pdf_scale, acc,
     and ``reach`` pixels around it); after the parallel loop the buffers are added into
     ``acc`` (H, W, SPLAT_CHANNELS) in tile order, so the image is the same whatever the
     number of threads. ``bad`` counts non-finite samples (set to zero) per pixel."""
+    n_strat = spp if stratified else 0
     n = tiles.shape[0]
     side = 2 * reach
     for ti in range(n):
@@ -314,8 +397,8 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, pdf_scale, acc,
                 for s in range(spp):
                     k = s % CHUNK
                     if k == 0:
-                        _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), x, y,
-                                       width, height, pdf_scale, out)
+                        _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), n_strat,
+                                       x, y, width, height, pdf_scale, out)
                     fx, fy, r, g, b = out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4]
                     if out[k, 5] == 0.0:
                         nbad += 1

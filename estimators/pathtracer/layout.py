@@ -64,6 +64,8 @@ FEATURE_BITS = {
     # without it the kernel keeps any frame around the normal (isotropic BSDFs)
     "shading:frame": 1 << 16,
     "bsdf:normalmap": 1 << 17,
+    # the stratified or multijitter sampler: each pixel's samples stratified per dimension
+    "sampler:stratified": 1 << 18,
 }
 ALL_FEATURES = sum(FEATURE_BITS.values())
 F_DIFFUSE, F_CONDUCTOR, F_ROUGHCONDUCTOR, F_DIELECTRIC, F_PLASTIC, F_ROUGHPLASTIC = (
@@ -83,6 +85,7 @@ F_NONDELTA_LIGHTS = FEATURE_BITS["light:nondelta"]
 F_MANY_LIGHTS = FEATURE_BITS["light:many"]
 F_FRAME = FEATURE_BITS["shading:frame"]
 F_NORMALMAP = FEATURE_BITS["bsdf:normalmap"]
+F_STRATIFIED = FEATURE_BITS["sampler:stratified"]
 #: the bits the BSDF code reads (BSDF types, textures, two-sided)
 ALL_BSDF_FEATURES = sum(bit for name, bit in FEATURE_BITS.items()
                         if name.startswith(("bsdf:", "texture:")))

@@ -746,6 +746,12 @@ class _Builder:
             max_depth=int(max_depth), rr_depth=int(rr_depth),
             hide_emitters=bool(integ.get("hide_emitters", False)), env=int(self.env))
         spp = int(d.sampler.get("sample_count", 4))
+        if d.sampler.type in ("stratified", "multijitter"):
+            if d.sampler.get("jitter", True) is False:
+                self.fail(d.sampler, "jitter=\"false\" (samples at the strata's centres) is "
+                          "not supported: its image is not the independent sampler's "
+                          "expectation; leave jitter on")
+            self.features |= layout.F_STRATIFIED
         n_tri = int(np.sum((info[:, layout.PRIM_KIND] == TRIANGLE)
                            & (info[:, layout.PRIM_SHAPE] >= 0)))
         return PreparedScene(d, camera_from_scene(d), arrays, self.features, spp, n_tri,

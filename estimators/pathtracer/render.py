@@ -22,6 +22,7 @@ from numba import get_num_threads
 
 from . import _kernel
 from .camera import SPLAT_CHANNELS
+from .layout import F_STRATIFIED
 from .._generated import first_call, load
 from .prepare import PreparedScene, prepare_scene
 
@@ -161,6 +162,8 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         film = _SplatFilm(cs.camera, module, h, w)
     else:
         film = _BoxFilm(module, h, w)
+    # a stratified or multijitter sampler: each pixel's samples stratified per dimension
+    film.stratified = bool(cs.features & F_STRATIFIED)
     t0 = time.perf_counter()
     # the kernel's first call in this process (no tiles: compile, or load from numba's
     # cache) holds the module's lock, so processes starting together compile it once: the
@@ -211,7 +214,7 @@ class _BoxFilm:
 
     def render(self, arrays, cam, tiles, spp, seed, pdf_scale, bad):
         self.module.render_tiles(arrays, cam, tiles, self.width, self.height, spp, seed,
-                                 pdf_scale, self.mean, self.m2, bad)
+                                 self.stratified, pdf_scale, self.mean, self.m2, bad)
 
     def develop(self, spp):
         return self.mean, self.m2 / (spp - 1)
@@ -241,7 +244,7 @@ class _SplatFilm:
 
     def render(self, arrays, cam, tiles, spp, seed, pdf_scale, bad):
         self.module.splat_tiles(arrays, cam, tiles, self.reach, self.width, self.height,
-                                spp, seed, pdf_scale, self.acc, bad)
+                                spp, seed, self.stratified, pdf_scale, self.acc, bad)
 
     def develop(self, spp):
         a = self.acc

@@ -141,7 +141,8 @@ SUPPORTED = {
     "film": {"hdrfilm": {"width": ("integer",), "height": ("integer",),
                          "pixel_format": ("string",), "children": ("rfilter",)}},
     "rfilter": {"box": {}, "gaussian": {"stddev": ("float",)}, "tent": {"radius": ("float",)}},
-    # any sampler has the same expectation: all are accepted and render as independent
+    # stratified and multijitter: each pixel's samples stratified per dimension (the same
+    # expectation as independent ones, less variance); jitter="false" is refused
     "sampler": {t: {"sample_count": ("integer",), "seed": ("integer",), **extra}
                 for t, extra in {"independent": {}, "stratified": {"jitter": ("boolean",)},
                                  "multijitter": {"jitter": ("boolean",)}}.items()},
