@@ -25,7 +25,8 @@ import numpy as np
 from numba import njit, prange
 
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
-from estimators.pathtracer.camera import SPLAT_CHANNELS, _generate_ray_kernel, splat_kernel
+from estimators.pathtracer.camera import (SPLAT_CHANNELS, _generate_ray_kernel, splat_columns,
+                                          splat_kernel)
 from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_environment,
                                             is_delta, sample_emitter)
 from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
@@ -386,6 +387,7 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
     for ti in prange(n):
         stack = new_stack()
         out = np.empty((CHUNK, 6))
+        wx = np.empty(splat_columns(cam))
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         bx, by = x0 - reach, y0 - reach
         tile_buf = buf[ti]
@@ -403,7 +405,7 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
                     if out[k, 5] == 0.0:
                         nbad += 1
                     splat_kernel(cam, tile_buf, bx, by, width, height, x + fx, y + fy,
-                                 r, g, b)
+                                 r, g, b, wx)
                 bad[y, x] = nbad
     for ti in range(n):
         bx, by = tiles[ti, 0] - reach, tiles[ti, 1] - reach
