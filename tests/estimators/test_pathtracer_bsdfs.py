@@ -2,6 +2,7 @@
 same function, or the two renderers estimate different images."""
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -214,8 +215,35 @@ def test_envmap_sampling_weights_cover_every_cell():
     img[3, 5] = 100.0
     w = envmap_sampling_weights(img)
     assert np.all(w > 0)
-    # the bright texel's bilinear support (its 3 × 3 cells) carries most of the weight
+    # the bright texel's bilinear support (its 3 × 3 cells) carries most of the weight,
+    # its own cell the most
     assert w[2:5, 4:7].sum() > 0.9 * w.sum()
+    assert w.argmax() == np.ravel_multi_index((3, 5), w.shape)
+
+
+def test_envmap_sampling_follows_the_lookup_closely():
+    """The envmap scene's sky: sampling (u, v) from the weights, the relative variance of
+    one sample of the environment's integral (its lookup, mean of R, G, B, times sin θ,
+    on a 4× finer grid) is 0.15 (0.55 with the 3 × 3 maximum the weights were before)."""
+    from estimators.pathtracer.textures import envmap_sampling_weights, read_image
+
+    scenes = os.path.join(os.path.dirname(__file__), "..", "..", "reference", "scenes")
+    img = np.asarray(read_image(os.path.join(scenes, "envmap", "sky.exr")))[..., :3]
+    h, w = img.shape[:2]
+    p = envmap_sampling_weights(img)
+    p = p / p.sum() * (h * w)
+    vv, uu = np.meshgrid((np.arange(4 * h) + 0.5) / (4 * h), (np.arange(4 * w) + 0.5) / (4 * w),
+                         indexing="ij")
+    x, y = uu * w - 0.5, vv * (h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+    xa, xb = x0 % w, (x0 + 1) % w
+    ya, yb = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
+    f = ((1 - fx) * (1 - fy) * img[ya, xa] + fx * (1 - fy) * img[ya, xb]
+         + (1 - fx) * fy * img[yb, xa] + fx * fy * img[yb, xb]).mean(axis=-1) * np.sin(np.pi * vv)
+    pdf = p[(vv * h).astype(int), (uu * w).astype(int)]
+    rel_var = (f ** 2 / pdf).mean() / f.mean() ** 2 - 1
+    assert rel_var < 0.2, rel_var
 
 
 # ----------------------------------------------- transmissive and composite BSDFs
