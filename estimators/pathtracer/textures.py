@@ -164,6 +164,23 @@ def eval_envmap(tex_data, tex_info, t, u, v):
                      v * (h - 1) if h > 1 else 0.0, REPEAT, CLAMP)
 
 
+@_jit
+def _cell_means(tex_data, tex_info, h, w, k):
+    """The mean over each (u, v) cell of ``eval_envmap`` (texture 0; the largest of R, G,
+    B, at least 0) at k × k points of the cell."""
+    out = np.zeros((h, w))
+    for j in range(h):
+        for i in range(w):
+            acc = 0.0
+            for a in range(k):
+                for b in range(k):
+                    r, g, bl = eval_envmap(tex_data, tex_info, 0, (i + (a + 0.5) / k) / w,
+                                           (j + (b + 0.5) / k) / h)
+                    acc += max(r, g, bl, 0.0)
+            out[j, i] = acc / (k * k)
+    return out
+
+
 def envmap_sampling_weights(image: np.ndarray, k: int = 4) -> np.ndarray:
     """Per-cell weights (H, W) for sampling an envmap's (u, v) piecewise constantly: the
     mean over the cell of what ``eval_envmap`` returns there (its bilinear lookup, the
@@ -173,23 +190,10 @@ def envmap_sampling_weights(image: np.ndarray, k: int = 4) -> np.ndarray:
     its 3 × 3 neighbourhood, which spread a bright texel's weight over nine cells: on the
     envmap scene's sky the relative variance of the environment's integral (luminance
     over the sphere, one sample) was 0.55; with the mean, 0.15."""
-    lum_img = np.asarray(image, dtype=np.float64)
-    h, w = lum_img.shape[:2]
-    j, i = np.mgrid[0:h, 0:w]
-    acc = np.zeros((h, w))
-    for a in range(k):
-        for b in range(k):
-            x = (i + (a + 0.5) / k) - 0.5                     # u·W - 1/2, u in the cell
-            y = (j + (b + 0.5) / k) / h * (h - 1) if h > 1 else np.zeros((h, w))
-            x0, y0 = np.floor(x), np.floor(y)
-            fx, fy = (x - x0)[..., None], (y - y0)[..., None]
-            xa, xb = x0.astype(int) % w, (x0.astype(int) + 1) % w            # repeat
-            ya = np.clip(y0.astype(int), 0, h - 1)                            # clamp
-            yb = np.clip(y0.astype(int) + 1, 0, h - 1)
-            val = ((1 - fx) * (1 - fy) * lum_img[ya, xa] + fx * (1 - fy) * lum_img[ya, xb]
-                   + (1 - fx) * fy * lum_img[yb, xa] + fx * fy * lum_img[yb, xb])
-            acc += np.maximum(val.max(axis=-1), 0.0)
+    store = TextureStore()
+    store.add(np.asarray(image, dtype=np.float64)[..., :3])
+    h, w = image.shape[:2]
     sin_t = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
-    weights = acc / (k * k) * sin_t
+    weights = _cell_means(*store.arrays(), h, w, k) * sin_t
     floor = 1e-3 * weights.mean() if weights.mean() > 0 else 1.0
     return weights + floor * sin_t

@@ -221,6 +221,38 @@ def test_envmap_sampling_weights_cover_every_cell():
     assert w.argmax() == np.ravel_multi_index((3, 5), w.shape)
 
 
+def _envmap_lookup(img, uu, vv):
+    """The envmap's bilinear lookup at (u, v) arrays, in numpy: x = u W - 1/2 repeating,
+    y = v (H - 1) clamped (Mitsuba's convention, as ``eval_envmap``)."""
+    h, w = img.shape[:2]
+    x, y = uu * w - 0.5, vv * (h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+    xa, xb = x0 % w, (x0 + 1) % w
+    ya, yb = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
+    return ((1 - fx) * (1 - fy) * img[ya, xa] + fx * (1 - fy) * img[ya, xb]
+            + (1 - fx) * fy * img[yb, xa] + fx * fy * img[yb, xb])
+
+
+@pytest.mark.parametrize("shape", [(5, 7), (1, 7), (8, 3)])
+def test_envmap_weights_are_cell_means_of_the_lookup_times_sin_theta(shape):
+    from estimators.pathtracer.textures import envmap_sampling_weights
+
+    img = np.random.default_rng(1).random((*shape, 3)) ** 4
+    h, w = shape
+    k = 4
+    off = (np.arange(k) + 0.5) / k
+    means = np.zeros(shape)
+    for a in off:
+        for b in off:
+            jj, ii = np.mgrid[0:h, 0:w]
+            means += _envmap_lookup(img, (ii + a) / w, (jj + b) / h).max(axis=-1)
+    sin_t = np.sin(np.pi * (np.arange(h) + 0.5) / h)[:, None]
+    want = means / k ** 2 * sin_t
+    want += 1e-3 * want.mean() * sin_t
+    np.testing.assert_allclose(envmap_sampling_weights(img), want, rtol=1e-12)
+
+
 def test_envmap_sampling_follows_the_lookup_closely():
     """The envmap scene's sky: sampling (u, v) from the weights, the relative variance of
     one sample of the environment's integral (its lookup, mean of R, G, B, times sin θ,
@@ -234,13 +266,7 @@ def test_envmap_sampling_follows_the_lookup_closely():
     p = p / p.sum() * (h * w)
     vv, uu = np.meshgrid((np.arange(4 * h) + 0.5) / (4 * h), (np.arange(4 * w) + 0.5) / (4 * w),
                          indexing="ij")
-    x, y = uu * w - 0.5, vv * (h - 1)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
-    xa, xb = x0 % w, (x0 + 1) % w
-    ya, yb = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
-    f = ((1 - fx) * (1 - fy) * img[ya, xa] + fx * (1 - fy) * img[ya, xb]
-         + (1 - fx) * fy * img[yb, xa] + fx * fy * img[yb, xb]).mean(axis=-1) * np.sin(np.pi * vv)
+    f = _envmap_lookup(img, uu, vv).mean(axis=-1) * np.sin(np.pi * vv)
     pdf = p[(vv * h).astype(int), (uu * w).astype(int)]
     rel_var = (f ** 2 / pdf).mean() / f.mean() ** 2 - 1
     assert rel_var < 0.2, rel_var
