@@ -1,9 +1,10 @@
 """A time-budgeted gate: choose each sampler check's n so the whole run fits the budget.
 
-``plan_budget`` measures this machine in a short calibration (every check tagged
-``SCALABLE`` run at two small sample counts, the smaller twice, which separates its
-fixed cost, such as the cubature, from its cost per sample; every other check and the
-canaries run once, since their cost is fixed), then gives each scalable check an equal share of the time left:
+``plan_budget`` measures this machine in a short calibration (``measure_cost``: every
+check tagged ``SCALABLE`` at a small sample count and at growing ones until its cost per
+sample shows, which separates its fixed cost, such as the cubature, from its cost per
+sample; every other check and the canaries run once, since their cost is fixed), then
+gives each scalable check an equal share of the time left:
 ``n = (share - fixed) / per_sample``, within ``[n_min, n_max]``. The chosen n are the
 suite's ``n_overrides``: the run itself stays seeded (each result is a function of its
 seed and n only, and n goes into the JSON), so rerunning with the same n reproduces it
