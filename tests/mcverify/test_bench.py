@@ -49,9 +49,12 @@ def test_render_rows_load_one_mitsuba_scene_at_a_time():
 
 
 def test_equal_time_rmse_of_our_tracer_against_itself_is_one():
-    """A stand-in Mitsuba that renders with our own tracer: the same estimator at the same
-    cost, so the equal-time RMSE ratio is 1 to within the spread of a mean of 4 MSEs and
-    of the timing; every render of both sides has its own seed."""
+    """A stand-in Mitsuba that renders with our own tracer, and a clock under which every
+    render takes the same time: the same estimator at the same spp, so the equal-time
+    RMSE ratio is 1 to within the spread of a mean of 4 MSEs (seeded: no timing in the
+    test); every render of both sides has its own seed."""
+    import itertools
+
     from estimators.pathtracer import prepare_scene, render
 
     seeds = []
@@ -66,7 +69,9 @@ def test_equal_time_rmse_of_our_tracer_against_itself_is_one():
             seeds.append(seed)
             return render(scene, spp=spp, seed=10_000 + seed).mean
 
-    row = bench.equal_time_rmse("cornell-box", spp=8, repeats=4, mi=Itself)
+    row = bench.equal_time_rmse("cornell-box", spp=8, repeats=4, mi=Itself,
+                                clock=itertools.count(0.0, 0.5).__next__)
+    assert "ours 8 spp" in row["workload"]                 # equal time: equal spp
     assert 0.8 < row["ratio"] < 1.25, row
     assert row["ours_rmse"] > 0 and "mean MSE of 4 renders" in row["workload"]
     assert len(seeds) == 8 and len(set(seeds[4:])) == 4     # warm-up, 3 timed, 4 measured
