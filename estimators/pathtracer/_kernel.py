@@ -117,6 +117,12 @@ def _stratum2(u, v, s, n, seed):
 
 
 @njit(cache=True, inline="always")
+def _unit(rng):
+    """The uniform in [0, 1) of one step of the Weyl sequence."""
+    return float(_mix(rng) >> _S11) * _TO_UNIT
+
+
+@njit(cache=True, inline="always")
 def _next(state):
     """One uniform and the next state (rng, scramble, sample, n, dimension). With n = 0
     (the independent sampler) a splitmix64 Weyl sequence; with n > 0 (stratified) sample
@@ -124,7 +130,7 @@ def _next(state):
     it, jittered by that same uniform."""
     rng, scramble, s, n, d = state
     rng = rng + _GOLDEN
-    u = float(_mix(rng) >> _S11) * _TO_UNIT
+    u = _unit(rng)
     if MASK & F_STRATIFIED and n != np.uint64(0):
         u = _stratum(u, s, n, scramble + d * _GOLDEN)
     return u, (rng, scramble, s, n, d + np.uint64(1))
@@ -136,9 +142,9 @@ def _next2(state):
     state; independent: the same as two ``_next``."""
     rng, scramble, s, n, d = state
     rng = rng + _GOLDEN
-    u = float(_mix(rng) >> _S11) * _TO_UNIT
+    u = _unit(rng)
     rng = rng + _GOLDEN
-    v = float(_mix(rng) >> _S11) * _TO_UNIT
+    v = _unit(rng)
     if MASK & F_STRATIFIED and n != np.uint64(0):
         u, v = _stratum2(u, v, s, n, scramble + d * _GOLDEN)
     return u, v, (rng, scramble, s, n, d + np.uint64(1))

@@ -163,14 +163,15 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     else:
         film = _BoxFilm(module, h, w)
     # a stratified or multijitter sampler: each pixel's samples stratified per dimension
-    film.stratified = bool(cs.features & F_STRATIFIED)
+    stratified = bool(cs.features & F_STRATIFIED)
     t0 = time.perf_counter()
     # the kernel's first call in this process (no tiles: compile, or load from numba's
     # cache) holds the module's lock, so processes starting together compile it once: the
     # box and the splatting film's kernels share ``trace``, so one lock for both (a
     # process that needs the other waits for ``trace`` and loads it from numba's cache)
     with first_call(f"{module.__name__}.{type(film).__name__}", module.__name__):
-        film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, pdf_scale, bad)
+        film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, stratified, pdf_scale,
+                    bad)
     compile_seconds = time.perf_counter() - t0
     # one parallel call, or with a progress callback up to 20 (each call ends on its
     # slowest thread, so chunks cost time); a splatting film also bounds its tile buffers
@@ -185,7 +186,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         band = _tiles(w, b - a, threads)
         band[:, 1] += a
         band[:, 3] += a
-        film.render(cs.arrays, cam, band, spp, seed, pdf_scale, bad)
+        film.render(cs.arrays, cam, band, spp, seed, stratified, pdf_scale, bad)
         if progress:
             progress(n_tiles * int(b) // h, n_tiles)
     seconds = time.perf_counter() - t0
@@ -212,9 +213,9 @@ class _BoxFilm:
     def min_chunks(self, w, h) -> int:
         return 1
 
-    def render(self, arrays, cam, tiles, spp, seed, pdf_scale, bad):
+    def render(self, arrays, cam, tiles, spp, seed, stratified, pdf_scale, bad):
         self.module.render_tiles(arrays, cam, tiles, self.width, self.height, spp, seed,
-                                 self.stratified, pdf_scale, self.mean, self.m2, bad)
+                                 stratified, pdf_scale, self.mean, self.m2, bad)
 
     def develop(self, spp):
         return self.mean, self.m2 / (spp - 1)
@@ -242,9 +243,9 @@ class _SplatFilm:
         n_tiles = -(-w // TILE) * -(-h // TILE)
         return max(1, min(-(-h // TILE), -(-n_tiles * per_tile // self.BUFFER_BYTES)))
 
-    def render(self, arrays, cam, tiles, spp, seed, pdf_scale, bad):
+    def render(self, arrays, cam, tiles, spp, seed, stratified, pdf_scale, bad):
         self.module.splat_tiles(arrays, cam, tiles, self.reach, self.width, self.height,
-                                spp, seed, self.stratified, pdf_scale, self.acc, bad)
+                                spp, seed, stratified, pdf_scale, self.acc, bad)
 
     def develop(self, spp):
         a = self.acc
