@@ -143,13 +143,8 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1,
         return render(ours_scene, spp=n, seed=s).mean
 
     def best_time(fn) -> float:
-        fn(seed)                                                    # warm-up: JIT
-        best = np.inf
-        for i in range(3):
-            t0 = clock()
-            fn(seed + 1 + i)
-            best = min(best, clock() - t0)
-        return best
+        seeds = iter(range(seed, seed + 4))           # the warm-up's, then each timed run's
+        return _best(lambda: fn(next(seeds)), 3, clock)
 
     t_theirs, t_ours = best_time(theirs), best_time(ours)
     ours_spp = max(2, int(round(spp * t_theirs / t_ours)))
@@ -163,13 +158,13 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1,
             "ratio": r_ours / r_theirs if r_theirs > 0 else float("nan"), "against": "mitsuba"}
 
 
-def _best(fn, repeats: int) -> float:
+def _best(fn, repeats: int, clock=time.perf_counter) -> float:
     fn()  # warm-up: JIT compilation on both sides is excluded
     best = np.inf
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        best = min(best, time.perf_counter() - t0)
+        best = min(best, clock() - t0)
     return float(best)
 
 
