@@ -22,8 +22,8 @@ MITSUBA = ("mitsuba", "drjit")
 #: (file, enclosing function, imported module): imports that are allowed by design.
 ALLOWED = {
     ("mcverify/__init__.py", "__getattr__", "mcverify.gate.render_check"),
-    ("estimators/pathtracer/textures.py", "read_image", "mitsuba"),
-    ("estimators/pathtracer/make_materials.py", "main", "mitsuba"),
+    ("estimators/pathtracer/textures.py", "import_mitsuba", "mitsuba"),
+    ("estimators/pathtracer/textures.py", "import_mitsuba", "drjit"),
 }
 
 

@@ -34,8 +34,8 @@ def _rgb(value) -> list[float]:
 
 
 def main() -> None:
-    import mitsuba as mi
-    mi.set_variant("scalar_rgb")
+    from .textures import import_mitsuba
+    mi = import_mitsuba("scalar_rgb")
     mi.set_log_level(mi.LogLevel.Error)
     conductors = {}
     for name in CONDUCTORS:

@@ -33,13 +33,28 @@ _fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see em
 _IDENTITY_UV = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 
 
+def import_mitsuba(variant: str | None = None):
+    """The ``mitsuba`` module, its variant set (``variant``, or ``scalar_rgb`` if none is
+    set yet), with at least two Dr.Jit worker threads: with one (a process confined to
+    one CPU, e.g. ``taskset -c 0``), Mitsuba 3.9's OpenEXR reader waits forever on its
+    thread pool, in ``Bitmap`` and in loading any scene with an EXR texture."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if dr.thread_count() < 2:
+        dr.set_thread_count(2)
+    if variant is not None:
+        mi.set_variant(variant)
+    elif mi.variant() is None:
+        mi.set_variant("scalar_rgb")
+    return mi
+
+
 def read_image(path: str, *, raw: bool = False) -> np.ndarray:
     """(H, W, 3) float64 RGB of an image file, 8-bit sRGB decoded to linear unless
     ``raw`` (as Mitsuba's ``bitmap`` does); raises OSError naming the file."""
     try:
-        import mitsuba as mi
-        if mi.variant() is None:
-            mi.set_variant("scalar_rgb")
+        mi = import_mitsuba()
         bmp = mi.Bitmap(path)
         if raw:
             bmp.set_srgb_gamma(False)

@@ -89,10 +89,9 @@ def choose_variant() -> VariantChoice:
 
 @lru_cache(maxsize=1)
 def _mi():
-    import mitsuba as mi
+    from estimators.pathtracer.textures import import_mitsuba
 
-    mi.set_variant(choose_variant().variant)
-    return mi
+    return import_mitsuba(choose_variant().variant)
 
 
 def mitsuba_version() -> str:

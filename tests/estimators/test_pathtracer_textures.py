@@ -328,3 +328,30 @@ def test_a_mirrored_sphere_turns_its_normals_as_in_mitsuba(mi, tmp_path, to_worl
     ray = mi.Ray3f(mi.Point3f(0.1, 0.2, 5), mi.Vector3f(0, 0, -1))
     si = mi.load_string(text).ray_intersect(ray)
     assert ours_inward == (float(np.dot(np.array(si.sh_frame.n), np.array(ray.d))) > 0)
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "sched_setaffinity"),
+                    reason="needs os.sched_setaffinity (Linux) to confine a process to one CPU")
+def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images):
+    """Confined to one CPU, Mitsuba's pool has one worker, and its OpenEXR reader waits
+    forever for a second one (found running under ``taskset -c 0``): ``import_mitsuba``
+    gives it two. In a fresh process (the pool is sized at Dr.Jit's first use), with a
+    timeout, so a hang fails instead of stalling the run."""
+    import subprocess
+    import sys
+
+    code = ("import os; os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})\n"
+            "from estimators.pathtracer import textures, prepare_scene\n"
+            f"print(textures.read_image({str(images / 't.exr')!r}).shape)\n"
+            "from mcverify.gate.mitsuba import _mi\n"
+            f"_mi().load_file({str(images / 'scene.xml')!r})\n"
+            "print('loaded')\n")
+    (images / "scene.xml").write_text(
+        '<scene version="3.0.0"><shape type="rectangle"><bsdf type="diffuse">'
+        '<texture type="bitmap" name="reflectance"><string name="filename" value="t.exr"/>'
+        '</texture></bsdf></shape></scene>')
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=90)
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = r.stdout.splitlines()       # Mitsuba's log (a warning) goes to stdout too
+    assert lines[0] == "(6, 10, 3)" and lines[-1].endswith("loaded"), r.stdout
