@@ -4,9 +4,9 @@
 numba's LLVM has no vector math library (no SVML), so ``math.exp`` and its kin stay
 scalar libm calls and a loop over points that calls one is not vectorised. These
 versions use only arithmetic, integer bit operations and selects, so LLVM vectorises a
-loop over them (``<4 x double>`` with AVX2; tested). Every special case is a select, not
-a branch: ±0, subnormals, ±inf, NaN, overflow and underflow (subnormal results
-included), log of a negative number (NaN).
+loop over them (``<4 x double>`` with AVX2, ``<8 x double>`` with 512-bit vectors;
+tested). Every special case is a select, not a branch: ±0, subnormals, ±inf, NaN,
+overflow and underflow (subnormal results included), log of a negative number (NaN).
 
 The algorithms are fdlibm's (Sun, 1993; as in FreeBSD's and musl's libm), rewritten
 without branches:

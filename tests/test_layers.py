@@ -126,3 +126,38 @@ def test_render_check_is_re_exported_lazily():
     assert mcverify.render_check is render_check
     with pytest.raises(AttributeError):
         mcverify.no_such_thing   # noqa: B018
+
+
+def test_the_judge_and_the_subject_run_the_same_vector_width_code():
+    """``mcverify/_vector_width.py`` is a copy of the subject's (the core may not import
+    it): the function and its flag are held to the same source."""
+    import inspect
+
+    import estimators._vector_width as a
+    import mcverify._vector_width as b
+
+    assert inspect.getsource(a.prefer_wide_vectors) == inspect.getsource(b.prefer_wide_vectors)
+    assert a.FEATURE == b.FEATURE == "-prefer-256-bit"
+
+
+@pytest.mark.parametrize("first", ["mcverify", "estimators"])
+@pytest.mark.parametrize("user_set", [False, True])
+def test_whichever_package_comes_first_sets_the_vector_width(first, user_set):
+    """Imported first in a fresh process, either package gives numba's code generator
+    the host's features with 512-bit vectors preferred (on an AVX-512 host; elsewhere
+    LLVM's own choice); a ``NUMBA_CPU_FEATURES`` the user set is kept."""
+    from numba.core.codegen import get_host_cpu_features
+
+    host = get_host_cpu_features()
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES",
+                                                             "NUMBA_CPU_NAME")}
+    if user_set:
+        env["NUMBA_CPU_FEATURES"] = host
+    probe = (f"import {first}, numba\n"
+             "from numba.core import registry\n"
+             "print(registry.cpu_target.target_context.codegen()._tm_features)\n")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                       cwd=ROOT, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    wide = "+avx512f" in host.split(",") and not user_set
+    assert r.stdout.strip() == (host + ",-prefer-256-bit" if wide else host)

@@ -246,3 +246,61 @@ def test_sincos_two_pi_matches_libm():
     assert np.max(np.abs(sc[:, 0] - np.sin(2 * np.pi * u))) < 1e-15
     assert np.max(np.abs(sc[:, 1] - np.cos(2 * np.pi * u))) < 1e-15
     assert np.all(np.abs(np.hypot(sc[:, 0], sc[:, 1]) - 1.0) < 4e-16)
+
+
+_WIDTH_PROBE = """
+import hashlib, sys, numpy as np
+from estimators.warps import WARPS
+from numba.core import registry
+u = np.random.default_rng(5).random((4099, 2))
+u[:6, 0] = [0.0, 0.5, 1 - 2**-53, 1 - 2**-24, 2**-53, 1e-300]
+for name in sys.argv[1:]:
+    w = WARPS[name]
+    x = w.sample(u[:, :w.sample_dim], *w.defaults)
+    outs = [x, w.pdf(x, *w.defaults)]
+    if w.invert is not None:
+        outs.append(w.invert(x, *w.defaults))
+    print(name, hashlib.sha256(b"".join(np.ascontiguousarray(o).tobytes()
+                                         for o in outs)).hexdigest())
+print("-prefer-256-bit" in registry.cpu_target.target_context.codegen()._tm_features)
+"""
+
+
+def _width_digests(names, features):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ)
+    env.pop("NUMBA_CPU_FEATURES", None)
+    if features is not None:
+        env["NUMBA_CPU_FEATURES"] = features
+    r = subprocess.run([sys.executable, "-c", _WIDTH_PROBE, *names], capture_output=True,
+                       text=True, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = r.stdout.split("\n")
+    return lines[:len(names)], lines[len(names)]
+
+
+def _check_width_bit_identical(names):
+    from numba.core.codegen import get_host_cpu_features
+
+    host = get_host_cpu_features()
+    wide, wide_flag = _width_digests(names, None)
+    narrow, narrow_flag = _width_digests(names, host)
+    assert narrow_flag == "False"
+    assert wide_flag == str("+avx512f" in host.split(","))
+    assert wide == narrow
+
+
+def test_wide_vectors_give_bit_identical_warps():
+    """``estimators._vector_width``: the warps' loops compiled for 512-bit vectors (the
+    default on an AVX-512 host) and for LLVM's own 256-bit choice give the same bits
+    (samples, pdfs, inverses; edge u included). Three warps here, every warp in the slow
+    run. On a host without AVX-512 both runs compile the same code."""
+    _check_width_bit_identical(["cosine_hemisphere", "uniform_sphere", "beckmann"])
+
+
+@pytest.mark.slow
+def test_wide_vectors_give_bit_identical_warps_for_every_warp():
+    _check_width_bit_identical(NAMES)
