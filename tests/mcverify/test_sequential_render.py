@@ -46,3 +46,22 @@ def test_a_correct_render_runs_every_pass_and_ends_with_the_pixel_tests():
     # how visible the remaining noise is, measured once on the deciding image
     assert 0 < r.details["flip_mean"] < 0.2 and r.artifacts["flip"].shape == (64, 64)
     assert r.details["delta_e2000_mean"] is not None
+
+
+@pytest.mark.parametrize("passes", [4, 8])
+def test_the_pixel_tests_need_eight_passes(passes):
+    """The pixel t-tests join the final look only with at least ``MIN_PIXEL_VALUES`` (8)
+    passes: a pixel's pass means are skewed, and with 4 of them the white furnace (every
+    pixel's expectation exactly 1) was rejected on 5 seeds of 20 at α = 0.01. Below 8
+    passes the final look tests image and block means only, and stays calibrated: at most
+    one false alarm in 8 seeds (the binomial chance of two at α = 0.01 is 0.3 %)."""
+    from mcverify.gate.render_check import MIN_PIXEL_VALUES
+
+    assert MIN_PIXEL_VALUES == 8
+    want = ["global", "blocks", "pixels"] if passes >= 8 else ["global", "blocks"]
+    failed = 0
+    for seed in range(8):
+        r = mv.render_check("white-furnace", spp=64 * passes, passes=passes, seed=seed)
+        assert r.details["tests"] == want and r.details["ours_passes"] == passes
+        failed += not r.passed
+    assert failed <= 1, failed
