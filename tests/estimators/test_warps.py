@@ -271,8 +271,8 @@ def _width_digests(names, features):
     import subprocess
     import sys
 
-    env = dict(os.environ)
-    env.pop("NUMBA_CPU_FEATURES", None)
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES",
+                                                             "NUMBA_CPU_NAME")}
     if features is not None:
         env["NUMBA_CPU_FEATURES"] = features
     r = subprocess.run([sys.executable, "-c", _WIDTH_PROBE, *names], capture_output=True,
