@@ -22,10 +22,6 @@ correlate. A pixel's K pass values are i.i.d. too, so test 3 is unchanged.
 
 A pixel with zero variance on both sides (e.g. black background) is equal (p = 1) or
 different (p = 0) by its values alone, to float32 resolution at the image's scale.
-
-The pixel t-tests need ``MIN_PIXEL_VALUES`` values a pixel on each side. By default, with
-fewer, test 3 compares only the zero-variance pixels (exactly, as above) and the verdict
-on the others rests on tests 1 and 2, which pool many pixels.
 """
 
 from __future__ import annotations
@@ -43,13 +39,6 @@ __all__ = ["compare_images", "perceptual_metrics"]
 
 #: The three tests of ``compare_images``.
 TESTS = ("global", "blocks", "pixels")
-
-#: Values per pixel (samples or passes, each side) the per-pixel t-tests need. A pixel's
-#: pass means are skewed (a rare bright path lifts one pass), and with few values the
-#: variance is often caught low while the mean sits below the truth: the render gate at
-#: 64 spp a pass rejected the white furnace (every pixel's expectation exactly 1) on 5
-#: seeds of 20 with 4 passes, on none of 20 with 8, on 1 of 20 with 16 (α = 0.01).
-MIN_PIXEL_VALUES = 8
 
 
 def _as_image(name, a, shape=None):
@@ -187,7 +176,7 @@ def perceptual_metrics(test, ref) -> tuple[dict, dict]:
 
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                    alpha: float = 0.01, block: int = 8, name: str = "image",
-                   tests=None, test_passes=None, ref_passes=None,
+                   tests=TESTS, test_passes=None, ref_passes=None,
                    perceptual: bool = True) -> CheckResult:
     """Test that two renders have the same expected value in every pixel.
 
@@ -204,13 +193,11 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         Family-wise level of the whole comparison.
     block : int
         Block side in pixels for the block tests (8: 64 blocks on a 64 × 64 image).
-    tests : sequence of {"global", "blocks", "pixels"}, optional
-        The tests to run, each at α / len(tests). Default: all three, the pixel t-tests
-        on every pixel when both sides have at least ``MIN_PIXEL_VALUES`` values a pixel,
-        else on the zero-variance pixels only (compared exactly), since a pixel's
-        variance from a few skewed values is too often caught low
-        (``details["pixel_scope"]``: "all" or "exact"). Given explicitly, as given (the
-        render gate's early looks leave out "pixels").
+    tests : sequence of {"global", "blocks", "pixels"}
+        The tests to run, each at α / len(tests) (all three by default). The render
+        gate's early looks, on a few passes, leave out the pixel t-tests: a pixel's
+        variance from 4 passes is too uncertain on caustic pixels, while image and block
+        means pool many pixels.
     test_passes, ref_passes : arrays (K, H, W[, C]), optional
         The i.i.d. pass images averaged into ``test_mean``/``ref_mean`` (K = ``test_n`` /
         ``ref_n``). Given both, the global and block tests estimate the variance of
@@ -264,11 +251,6 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     nr = validate.integer("ref_n", ref_n, minimum=2)
     alpha = validate.probability("alpha", alpha)
     block = validate.integer("block", block, minimum=1)
-    pixel_scope = "all"
-    if tests is None:
-        tests = TESTS
-        if min(nt, nr) < MIN_PIXEL_VALUES:
-            pixel_scope = "exact"
     tests = tuple(tests)
     if not tests or len(set(tests)) != len(tests) or not set(tests) <= set(TESTS):
         raise InvalidArgument(f"tests={tests}: a non-empty selection of {TESTS}")
@@ -323,8 +305,6 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
 
     # 3. pixels: Welch t with Welch–Satterthwaite dof
     p_pix = stats.welch_t_beyond(diff, tv, nt, rv, nr, tol(tm, rm))
-    if pixel_scope == "exact":
-        p_pix = np.where(se2 == 0, p_pix, 1.0)
     p_pix_adj = stats.benjamini_hochberg(p_pix.ravel()).reshape(p_pix.shape)
     p_map = p_pix_adj.min(axis=2)
 
@@ -360,8 +340,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         (dict.fromkeys(PERCEPTUAL_KEYS), {})
     maps = {"p_map": p_map, **seen_maps}
     details = {
-        "found_by": found, "tests": list(tests),
-        "pixel_scope": pixel_scope if "pixels" in tests else None, "alpha_per_test": level, "block": block,
+        "found_by": found, "tests": list(tests), "alpha_per_test": level, "block": block,
         "pixels_correlated": correlated,
         "global": {"difference": float(diff.mean()),
                    "relative": float(diff.mean() / max(abs(rm.mean()), 1e-300)),
