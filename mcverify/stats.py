@@ -19,7 +19,7 @@ __all__ = [
     "TTestResult", "ttest_mean",
     "TailResult", "hill_tail_index",
     "VarianceTestResult", "variance_test",
-    "SlopeResult", "loglog_slope", "z_test_beyond", "welch_t_beyond",
+    "SlopeResult", "loglog_slope", "z_test_beyond", "welch_t_beyond", "welch_dof",
     "holm", "sidak", "benjamini_hochberg", "bonferroni_min",
     "binomial_upper_bound",
     "obrien_fleming_spending", "power_spending", "spending_function", "spending_weights",
@@ -461,16 +461,55 @@ def z_test_beyond(diff, var, tol) -> np.ndarray:
     return np.where(var <= 0, np.where(excess == 0, 1.0, 0.0), p)
 
 
+#: The lower quantile of a sample variance's chi-square law at which ``welch_t_beyond``
+#: takes each side's variance when it chooses the degrees of freedom.
+WELCH_DOF_QUANTILE = 1e-5
+
+
+def welch_dof(var_a, n_a, var_b, n_b) -> np.ndarray:
+    """Degrees of freedom for Welch's t that stay valid in the far tail: the smaller of
+    the Welch–Satterthwaite values with either side's variance taken at its one-sided
+    upper confidence bound ((n - 1) s² / χ²_{n-1}(q), q = ``WELCH_DOF_QUANTILE``);
+    between min(n_a, n_b) - 1 (Hsu's conservative choice) and n_a + n_b - 2. With
+    q = 1e-3 the test was still anti-conservative at a nominal 1e-7 with 4 values a side
+    (8 times); q = 1e-5 held down to 1e-7 in simulation. Elementwise."""
+    a = np.asarray(var_a, dtype=np.float64) / n_a
+    b = np.asarray(var_b, dtype=np.float64) / n_b
+    qa = (n_a - 1) / _sps.chi2.ppf(WELCH_DOF_QUANTILE, n_a - 1)
+    qb = (n_b - 1) / _sps.chi2.ppf(WELCH_DOF_QUANTILE, n_b - 1)
+
+    def satterthwaite(x, y):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (x + y) ** 2 / (x * x / (n_a - 1) + y * y / (n_b - 1))
+
+    dof = np.minimum(satterthwaite(a * qa, b), satterthwaite(a, b * qb))
+    return np.where(np.isfinite(dof), dof, float(min(n_a, n_b) - 1))
+
+
 def welch_t_beyond(diff, var_a, n_a, var_b, n_b, tol) -> np.ndarray:
-    """Two-sided Welch t p-values of mean differences ``diff`` of two samples (per-element
-    sample variances ``var_a``, ``var_b`` of ``n_a``, ``n_b`` values; Welch–Satterthwaite
-    degrees of freedom), counting only ``|diff|`` beyond ``tol``; exact where both
-    variances are 0 (as ``z_test_beyond``). Elementwise."""
+    """Two-sided p-values of Welch's t for mean differences ``diff`` of two samples
+    (per-element sample variances ``var_a``, ``var_b`` of ``n_a``, ``n_b`` values),
+    counting only ``|diff|`` beyond ``tol``; exact where both variances are 0 (as
+    ``z_test_beyond``). Elementwise; degrees of freedom from :func:`welch_dof`.
+
+    Why not the Welch–Satterthwaite estimate itself: it uses the same variances as the
+    statistic, so when the side with fewer values has its variance caught low, t grows
+    and so does the estimated dof. In the far tail, where a multiple-testing correction
+    puts the levels, the test is then anti-conservative. Measured (normal data, 4 values
+    against 64, the 4 carrying 95 % of the difference's variance): rejections at a
+    nominal 1e-5 ran 175 times too often, at 1e-4 32 times; 8 against 64, 10 times at
+    1e-5. The render gate met it on the splatting-filter scenes, whose first look tests
+    pass-level block means of 4 passes against 64: 8-10 false alarms in 60 seeds at
+    α = 0.01, now none in 60. With ``welch_dof`` the rejection rate stayed at or below
+    the nominal level (within simulation noise) from 1e-2 to 1e-7, for 4 to 1024 values
+    a side and every variance share from 5 % to 99 % (``tests/mcverify/test_stats.py``).
+    The price is power with few values: 4 values against 64 reject at about the rate
+    of Student's t with 3 dof."""
     se2 = var_a / n_a + var_b / n_b
+    dof = welch_dof(var_a, n_a, var_b, n_b)
     with np.errstate(divide="ignore", invalid="ignore"):
-        dof = se2 ** 2 / ((var_a / n_a) ** 2 / (n_a - 1) + (var_b / n_b) ** 2 / (n_b - 1))
         t = _beyond(diff, tol) / np.sqrt(se2)
-    return np.where(se2 > 0, 2.0 * _sps.t.sf(t, np.where(np.isfinite(dof), dof, 1)),
+    return np.where(se2 > 0, 2.0 * _sps.t.sf(t, dof),
                     np.where(np.abs(diff) <= tol, 1.0, 0.0))
 
 

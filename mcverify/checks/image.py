@@ -226,8 +226,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     Pixel means of independent renders are independent across pixels (not across the
     channels of a pixel), so a channel's image mean has variance
     :math:`\\sum_p (s_{t,p}^2/n_t + s_{r,p}^2/n_r) / P^2`, and a block mean likewise.
-    Welch's test per pixel uses the Welch–Satterthwaite degrees of freedom. With pass
-    images, the image (block) mean of pass k, :math:`g_k`, is i.i.d. over k on each
+    Welch's t per pixel takes its degrees of freedom from ``stats.welch_dof`` (the
+    Welch–Satterthwaite value at a conservative end of the variances' uncertainty). With
+    pass images, the image (block) mean of pass k, :math:`g_k`, is i.i.d. over k on each
     side, and the difference of the two sides' averages of :math:`g_k` is Welch-t
     tested with the sample variances of the :math:`g_k`.
 
@@ -303,7 +304,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         p_blocks = stats.z_test_beyond(bdiff, bvar, tol(bref + bdiff, bref))
     p_blocks_adj = stats.holm(p_blocks.ravel()).reshape(p_blocks.shape)
 
-    # 3. pixels: Welch t with Welch–Satterthwaite dof
+    # 3. pixels: Welch t (dof from stats.welch_dof)
     p_pix = stats.welch_t_beyond(diff, tv, nt, rv, nr, tol(tm, rm))
     p_pix_adj = stats.benjamini_hochberg(p_pix.ravel()).reshape(p_pix.shape)
     p_map = p_pix_adj.min(axis=2)

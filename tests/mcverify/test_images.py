@@ -30,6 +30,22 @@ def test_false_alarms_within_binomial_bound(shape_k, n):
     assert alarms <= BOUND, (alarms, BOUND)
 
 
+def test_four_passes_against_sixteen_stay_calibrated():
+    """Four pass means a pixel (gamma shape 6.4: a 64-spp mean of samples with skewness
+    6) against a 16-pass reference of the same expectation, all three tests: false alarms
+    within the binomial bound over 200 seeds. With Welch–Satterthwaite degrees of freedom
+    the pixel t-tests alone raised 107 (``stats.welch_dof``)."""
+    def pair(rng):
+        a = rng.gamma(6.4, 1.0, (16, 16, 3, 4))
+        b = rng.gamma(25.6, 0.25, (16, 16, 3, 16))
+        return dict(test_mean=a.mean(-1), ref_mean=b.mean(-1), test_var=a.var(-1, ddof=1),
+                    ref_var=b.var(-1, ddof=1), test_n=4, ref_n=16, perceptual=False)
+
+    alarms = sum(not mv.compare_images(**pair(np.random.default_rng(s))).passed
+                 for s in range(RUNS))
+    assert alarms <= BOUND, (alarms, BOUND)
+
+
 @pytest.mark.parametrize("scale_b", [1.02, 0.98])
 def test_global_two_percent_bias_is_found_by_the_global_test(scale_b):
     r = mv.compare_images(**_pair(np.random.default_rng(1), 2.0, 64, scale_b=scale_b))

@@ -49,19 +49,16 @@ def test_a_correct_render_runs_every_pass_and_ends_with_the_pixel_tests():
 
 
 @pytest.mark.parametrize("passes", [4, 8])
-def test_the_pixel_tests_need_eight_passes(passes):
-    """The pixel t-tests join the final look only with at least ``MIN_PIXEL_VALUES`` (8)
-    passes: a pixel's pass means are skewed, and with 4 of them the white furnace (every
-    pixel's expectation exactly 1) was rejected on 5 seeds of 20 at α = 0.01. Below 8
-    passes the final look tests image and block means only, and stays calibrated: at most
-    one false alarm in 8 seeds (the binomial chance of two at α = 0.01 is 0.3 %)."""
-    from mcverify.gate.render_check import MIN_PIXEL_VALUES
-
-    assert MIN_PIXEL_VALUES == 8
-    want = ["global", "blocks", "pixels"] if passes >= 8 else ["global", "blocks"]
+def test_few_passes_keep_the_gate_calibrated(passes):
+    """The white furnace (every pixel's expectation exactly 1) with 4 or 8 passes, the
+    pixel t-tests at the final look: at most one false alarm in 8 seeds (the binomial
+    chance of two at α = 0.01 is 0.3 %). With Welch–Satterthwaite degrees of freedom, 4
+    passes were rejected on 5 seeds of 20 (``stats.welch_dof``)."""
     failed = 0
     for seed in range(8):
         r = mv.render_check("white-furnace", spp=64 * passes, passes=passes, seed=seed)
-        assert r.details["tests"] == want and r.details["ours_passes"] == passes
+        assert r.details["ours_passes"] == passes
+        if r.details["sequential"]["batch"] == r.details["sequential"]["batches"]:
+            assert r.details["tests"] == ["global", "blocks", "pixels"]
         failed += not r.passed
     assert failed <= 1, failed
