@@ -596,7 +596,7 @@ def _cmd_render_check(args) -> int:
     params = _params(args.param)
     if args.passes < 2 or args.spp < 1:
         raise InvalidArgument(f"--spp {args.spp} --passes {args.passes}: need --passes >= 2 "
-                              "and --spp (in all) >= 64 per pass")
+                              "and --spp (in all) >= 32 per pass")
     from estimators.pathtracer import SceneError, load_scene
 
     try:  # our parser must accept the scene and its --param names before anything renders

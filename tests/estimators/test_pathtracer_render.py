@@ -192,8 +192,8 @@ def test_planted_bugs_fail_the_render_gate(plant, caught_by):
 
 
 def test_render_check_refuses_too_few_samples_per_pass():
-    with pytest.raises(mv.InvalidArgument, match="64 samples per pass"):
-        mv.render_check("cornell-box", spp=256, passes=16)
+    with pytest.raises(mv.InvalidArgument, match="32 samples per pass"):
+        mv.render_check("cornell-box", spp=496, passes=16)
 
 
 def test_a_scene_without_shapes_renders_its_environment(tmp_path):

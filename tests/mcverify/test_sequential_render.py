@@ -48,6 +48,19 @@ def test_a_correct_render_runs_every_pass_and_ends_with_the_pixel_tests():
     assert r.details["delta_e2000_mean"] is not None
 
 
+def test_thirty_two_samples_a_pass_keep_the_gate_calibrated():
+    """512 spp in 16 passes (``MIN_SPP_PER_PASS``) on the Cornell box, whose glass
+    sphere's caustic makes pass means skewed: at most one false alarm in 8 seeds (the
+    binomial chance of two at α = 0.01 is 0.3 %). Before the variance floor and the
+    far-tail Welch dof: 9 of 20 seeds with 512 spp in 8 passes."""
+    from mcverify.gate.render_check import MIN_SPP_PER_PASS
+
+    assert MIN_SPP_PER_PASS == 32
+    failed = sum(not mv.render_check("cornell-box", spp=512, passes=16, seed=seed).passed
+                 for seed in range(40, 48))
+    assert failed <= 1, failed
+
+
 @pytest.mark.parametrize("passes", [4, 8])
 def test_few_passes_keep_the_gate_calibrated(passes):
     """The white furnace (every pixel's expectation exactly 1) with 4 or 8 passes, the
