@@ -520,6 +520,13 @@ def _cmd_compare(args) -> int:
     from ..checks import compare_images
     from ..result import write_json
 
+    for opt, value in (("--test-spp", args.test_spp), ("--ref-spp", args.ref_spp)):
+        if value is not None and value < 1:
+            raise InvalidArgument(f"{opt} {value}: samples per pixel behind each value "
+                                  "(per pass) must be >= 1")
+    if args.test_spp is None and args.ref_spp is not None:
+        raise InvalidArgument(f"--ref-spp {args.ref_spp}: give --test-spp too (the variance "
+                              "floor scales the reference's variance by their ratio)")
     want = (args.test_passes is None) + (args.ref_passes is None)
     if len(args.images) != want:
         shape = " ".join(x for x, given in (("TEST.exr", args.test_passes is None),
@@ -536,10 +543,13 @@ def _cmd_compare(args) -> int:
                                         args.ref_passes, reference_ok=True)
     _writable("--json", args.json, test_files + ref_files)
     correlated = args.correlated
+    ref_spp = args.ref_spp
     if ref_load is None:
         r = reference.load_reference(ref_image)
         ref_mean, ref_var, ref_n, ref_passes = r.mean, r.var, r.n, r.passes
         correlated |= r.pixels_correlated
+        if ref_spp is None and r.manifest.get("spp"):
+            ref_spp = int(r.manifest["spp"])
         if correlated and ref_passes is None:
             raise EnvironmentProblem(f"{ref_image}: the reference has no pass images (built "
                                      "before passes.exr was stored), which correlated pixels "
@@ -551,6 +561,10 @@ def _cmd_compare(args) -> int:
         raise InvalidArgument(f"{test_image}: pixels of a pass correlate (--correlated, or "
                               "the reference's filter splats); give the test side's pass "
                               "images (--test-passes GLOB) instead of one image")
+    if args.test_spp is not None and ref_spp is None:
+        raise InvalidArgument(f"--test-spp {args.test_spp}: the reference side's samples per "
+                              "value are unknown; give --ref-spp (a committed reference "
+                              "knows its own)")
     test = test_load(keep=correlated)
     if ref_load is not None:
         ref = ref_load(keep=correlated)
@@ -563,7 +577,9 @@ def _cmd_compare(args) -> int:
                             test_n=test.n, ref_n=ref_n, alpha=args.alpha,
                             name=f"compare:{label}",
                             **(dict(test_passes=test.passes, ref_passes=ref_passes)
-                               if correlated else {}))
+                               if correlated else {}),
+                            **(dict(test_spp=args.test_spp, ref_spp=ref_spp)
+                               if args.test_spp is not None else {}))
     if args.json:
         write_json(result, args.json)
     for note in test.notes + (() if ref_load is None else ref.notes):
@@ -778,6 +794,14 @@ def build_parser() -> argparse.ArgumentParser:
                          "use the pass images of both sides (--test-passes, and "
                          "--ref-passes or a reference); implied by a reference whose "
                          "filter splats")
+    cp.add_argument("--test-spp", type=int, metavar="N",
+                    help="samples per pixel behind each test value (per pass): floors the "
+                         "test side's variance at the reference's scaled to N, so that "
+                         "passes which missed a rare bright path (a caustic) cannot look "
+                         "overconfident; default: no floor")
+    cp.add_argument("--ref-spp", type=int, metavar="M",
+                    help="samples per pixel behind each reference value, with --test-spp; "
+                         "default: a committed reference's own")
     cp.add_argument("--alpha", type=float, default=0.01,
                     help="family-wise significance level of the whole comparison")
     cp.add_argument("--json", metavar="PATH",

@@ -46,6 +46,30 @@ def test_four_passes_against_sixteen_stay_calibrated():
     assert alarms <= BOUND, (alarms, BOUND)
 
 
+def test_the_variance_floor_scales_the_references_variance():
+    """``test_spp``/``ref_spp``: the test variance is raised to ref_var · ref_spp /
+    test_spp where below it. A 4 × 4 block whose 4 passes missed a rare bright path (10 %
+    low, almost no spread) is rejected by the block test without the floor and passes
+    with it; both or neither must be given."""
+    ref = np.ones((8, 8))
+    ref_var = np.full((8, 8), 0.04)             # 16 passes of 256 spp
+    test = ref.copy()
+    test_var = np.full((8, 8), 0.16)            # 4 passes of 64 spp, the same σ² a sample
+    test[:4, :4], test_var[:4, :4] = 0.9, 1e-4
+    kw = dict(test_var=test_var, ref_var=ref_var, test_n=4, ref_n=16, block=4,
+              perceptual=False)
+    bare = mv.compare_images(test, ref, **kw)
+    assert not bare.passed and bare.details["found_by"] == ["blocks"]
+    assert bare.details["variance_floor"] is None
+    r = mv.compare_images(test, ref, **kw, test_spp=64, ref_spp=256)
+    assert r.passed and r.details["variance_floor"] == {"test_spp": 64, "ref_spp": 256,
+                                                        "raised_fraction": 0.25}
+    with pytest.raises(mv.InvalidArgument, match="test_spp/ref_spp: give both"):
+        mv.compare_images(test, ref, **kw, test_spp=64)
+    with pytest.raises(mv.InvalidArgument, match="ref_spp"):
+        mv.compare_images(test, ref, **kw, test_spp=64, ref_spp=0)
+
+
 @pytest.mark.parametrize("scale_b", [1.02, 0.98])
 def test_global_two_percent_bias_is_found_by_the_global_test(scale_b):
     r = mv.compare_images(**_pair(np.random.default_rng(1), 2.0, 64, scale_b=scale_b))

@@ -89,7 +89,12 @@ def test_compare_two_renderers_pass_folders_end_to_end(tmp_path):
      "--test-n: not with --test-passes"),
     (["compare", "a.exr", "r"], "a.exr: an image needs --test-var and --test-n"),
     (["compare", "r", "--test-passes", "none_*.exr"], "matches 0 file"),
-], ids=["no-ref", "two-positionals", "n-with-passes", "no-var", "empty-glob"])
+    (["compare", "cornell-box", "--test-passes", "p_*.exr", "--test-spp", "0"],
+     "--test-spp 0: samples per pixel"),
+    (["compare", "cornell-box", "--test-passes", "p_*.exr", "--ref-spp", "64"],
+     "--ref-spp 64: give --test-spp too"),
+], ids=["no-ref", "two-positionals", "n-with-passes", "no-var", "empty-glob", "spp-0",
+        "ref-spp-alone"])
 def test_compare_bad_input_exit_2(tmp_path, args, needle):
     r = subprocess.run(CMD + args, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
@@ -120,3 +125,25 @@ def test_compare_against_a_splatting_reference_uses_the_pass_images(tmp_path):
                               "--ref-var", str(tmp_path / "v.exr"), "--ref-n", "8",
                               "--correlated"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "--ref-passes" in r.stderr, r.stderr
+
+
+def test_compare_floors_the_test_variance_at_the_references(tmp_path):
+    """``--test-spp``: the test side's variance is at least the committed reference's
+    scaled to the test's samples per pass (its manifest knows its own 256); the JSON
+    says how much was raised. Passes of unknown spp against images: --ref-spp needed."""
+    import json
+
+    imgs = mvm.render_passes(_scene(), spp=64, seeds=range(3000, 3008))
+    passes = _write(tmp_path / "mine", imgs)
+    out = tmp_path / "r.json"
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "cornell-box", "--test-spp",
+                              "64", "--json", str(out)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    floor = json.loads(out.read_text())["details"]["variance_floor"]
+    assert floor["test_spp"] == 64 and floor["ref_spp"] == 256
+    assert 0.0 < floor["raised_fraction"] < 1.0
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "--ref-passes", passes,
+                              "--test-spp", "64"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 2 and "give --ref-spp" in r.stderr, r.stderr
