@@ -32,9 +32,10 @@ from .executors import Pool, Unit, same_source, source_fingerprint
 
 # Samples per pass of our renders. With Welch-Satterthwaite dof and no variance floor,
 # pass means of 32 samples on the Cornell box's caustic pixels raised false alarms on 4
-# seeds of 4. With ``stats.welch_dof`` and the floor (below), 512 spp in 16 passes (32 a
-# pass) raised none in 280 runs: the 14 box-filter reference scenes, 20 seeds each (the
-# splatting-filter scenes need their reference's 64 a pass anyway).
+# seeds of 4. With ``stats.welch_dof`` and the variance floor (``compare_images``'
+# ``test_spp``/``ref_spp``), 512 spp in 16 passes (32 a pass) raised none in 280 runs:
+# the 14 box-filter reference scenes, 20 seeds each (the splatting-filter scenes need
+# their reference's 64 a pass anyway).
 MIN_SPP_PER_PASS = 32
 
 
