@@ -261,7 +261,7 @@ def filter_weights(camera: Camera, offsets) -> np.ndarray:
     return np.array([filter_weight_kernel(c, x) for x in d.ravel()]).reshape(d.shape)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _generate_ray_kernel(c, u, v):
     """Ray through film position (u, v): (ox, oy, oz, dx, dy, dz, t_max), unit d."""
     x = (1.0 - 2.0 * u) * c[12]
