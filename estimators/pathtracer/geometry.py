@@ -18,7 +18,12 @@ tree by a numba kernel (``build_bvh``); ``pack_bvh`` collapses it into a 4-wide 
 (``collapse_bvh``) laid out for traversal as ``layout``'s ``bvh_nodes`` (the four child
 boxes of a node coordinate by coordinate, tested against a ray in one AVX2 pass by
 ``_box4_entry``) and ``leaf_prims`` (what the ray tests read, copied in leaf order, so a
-leaf is one contiguous run of rows and triangle edges are not recomputed per test).
+leaf is one contiguous run of rows and triangle edges are not recomputed per test). A
+leaf's consecutive triangles are also stored in groups of up to four, lane by lane, and
+tested in one AVX2 pass (``_tri4_entry``, the scalar test's operations and predicates:
+the same hits to the bit). One thread, 128², 32 spp: bunny 0.349 -> 0.313 s,
+vocabulary-materials 0.398 -> 0.336, vocabulary-glass 0.90 -> 0.82, Cornell box 0.117 ->
+0.110; the 17 reference scenes' images bit-identical.
 """
 
 from __future__ import annotations
@@ -32,7 +37,8 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .._fastmath import fast_acos, fast_atan2
-from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_KIND, LEAF_P0,
+from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_GROUP,
+                     LEAF_GROUP_ROWS, LEAF_GROUP_SIZE, LEAF_INFO_WIDTH, LEAF_KIND, LEAF_P0,
                      LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_ARITY,
                      NODE_COUNT, NODE_HI, NODE_LINK, NODE_LO, NODE_WIDTH, PRIM_KIND, SPHERE,
                      SPHERE_CENTER, SPHERE_RADIUS, SPHERE_ROTATION, TRI_P0, TRI_P1, TRI_P2,
@@ -291,10 +297,41 @@ def pack_bvh(prims, info, node_bounds, node_info, order):
     rows[sph, LEAF_CENTER:LEAF_CENTER + 3] = p[sph, SPHERE_CENTER:SPHERE_CENTER + 3]
     rows[sph, LEAF_RADIUS] = p[sph, SPHERE_RADIUS]
     rows[dsk, LEAF_TO_LOCAL:LEAF_TO_LOCAL + 12] = p[dsk, DISK_TO_LOCAL:DISK_TO_LOCAL + 12]
-    leaf_info = np.empty((len(order), 2), dtype=np.int64)
+    leaf_info = np.empty((len(order), LEAF_INFO_WIDTH), dtype=np.int64)
     leaf_info[:, LEAF_KIND] = kind
     leaf_info[:, LEAF_PRIM] = order
-    return nodes, rows, leaf_info
+    leaf_info[:, LEAF_GROUP] = -1
+    leaf_info[:, LEAF_GROUP_SIZE] = 0
+    groups = _triangle_groups(nodes, kind == TRIANGLE)
+    lanes = np.zeros((len(groups), LEAF_GROUP_ROWS * LEAF_WIDTH))
+    for g, (first, size) in enumerate(groups):
+        leaf_info[first, LEAF_GROUP] = len(order) + LEAF_GROUP_ROWS * g
+        leaf_info[first, LEAF_GROUP_SIZE] = size
+        for c, col in enumerate(range(LEAF_P0, LEAF_E2 + 3)):     # p0, e1, e2: x, y, z
+            lanes[g, NODE_ARITY * c:NODE_ARITY * c + size] = rows[first:first + size, col]
+    rows = np.concatenate([rows, lanes.reshape(-1, LEAF_WIDTH)])
+    return nodes, _aligned_copy(rows), leaf_info
+
+
+def _triangle_groups(nodes, tri):
+    """(first row, size) of every triangle group: each leaf's runs of consecutive
+    triangle rows (``tri``), cut into groups of at most 4, in row order."""
+    counts = nodes[:, NODE_COUNT:NODE_COUNT + NODE_ARITY].ravel()
+    firsts = nodes[:, NODE_LINK:NODE_LINK + NODE_ARITY].ravel()
+    groups = []
+    for first, count in sorted(zip(firsts[counts > 0].astype(np.int64),
+                                   counts[counts > 0].astype(np.int64))):
+        k, end = first, first + count
+        while k < end:
+            if not tri[k]:
+                k += 1
+                continue
+            size = 1
+            while size < NODE_ARITY and k + size < end and tri[k + size]:
+                size += 1
+            groups.append((k, size))
+            k += size
+    return groups
 
 
 def bvh_bounds(nodes):
@@ -371,6 +408,80 @@ def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, 
         accept = ir.Constant(_V4, [_ACCEPT] * NODE_ARITY)
         enter = builder.fcmp_ordered("<=", t0, builder.fmul(t1, accept))
         t = builder.select(enter, t0, ir.Constant(_V4, [np.inf] * NODE_ARITY))
+        lanes = [builder.extract_element(t, ir.Constant(i32, k)) for k in range(NODE_ARITY)]
+        return context.make_tuple(builder, signature.return_type, lanes)
+
+    return sig, codegen
+
+
+@intrinsic
+def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
+    """The hit distances of the ray on the four lanes of the triangle group whose lanes
+    start at row ``row`` of ``leaf_prims`` (``LEAF_GROUP``): a 4-tuple, inf where a lane
+    is missed or its hit lies outside (t_min, t_max). One pass of ``<4 x double>`` LLVM
+    IR doing, lane by lane, the operations of ``_hit_prim``'s triangle test in its order
+    (no fused multiply-add), so a hit has the same t to the bit; its accept and reject
+    tests are the same predicates, NaN included (a NaN b1, b2 or t is no hit)."""
+    if not (isinstance(leaf, types.Array) and leaf.ndim == 2 and leaf.layout == "C"
+            and leaf.dtype == types.float64 and isinstance(row, types.Integer)):
+        return None
+    f8 = types.float64
+    sig = types.UniTuple(f8, NODE_ARITY)(leaf, types.intp, f8, f8, f8, f8, f8, f8, f8, f8)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i32 = ir.IntType(32)
+        undef = ir.Constant(_V4, ir.Undefined)
+        start = cgutils.get_item_pointer2(
+            context, builder, ary.data, cgutils.unpack_tuple(builder, ary.shape),
+            cgutils.unpack_tuple(builder, ary.strides), "C",
+            [args[1], context.get_constant(types.intp, 0)])
+
+        def lane(c):        # the 4 lanes of value c (p0 x, y, z, e1 x ... e2 z)
+            ptr = builder.gep(start, [ir.Constant(ir.IntType(64), NODE_ARITY * c)])
+            return builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
+
+        def splat(x):
+            v = builder.insert_element(undef, x, ir.Constant(i32, 0))
+            return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(i32, NODE_ARITY),
+                                                                [0] * NODE_ARITY))
+
+        def dot(ax, ay, az, bx, by, bz):
+            return builder.fadd(builder.fadd(builder.fmul(ax, bx), builder.fmul(ay, by)),
+                                builder.fmul(az, bz))
+
+        def cross_term(a, b, c, d):     # a·b - c·d
+            return builder.fsub(builder.fmul(a, b), builder.fmul(c, d))
+
+        p0x, p0y, p0z, e1x, e1y, e1z, e2x, e2y, e2z = (lane(c) for c in range(9))
+        o = [splat(a) for a in args[2:5]]
+        dx, dy, dz = (splat(a) for a in args[5:8])
+        px = cross_term(dy, e2z, dz, e2y)
+        py = cross_term(dz, e2x, dx, e2z)
+        pz = cross_term(dx, e2y, dy, e2x)
+        det = dot(e1x, e1y, e1z, px, py, pz)
+        inv = builder.fdiv(ir.Constant(_V4, [1.0] * NODE_ARITY), det)
+        sx, sy, sz = builder.fsub(o[0], p0x), builder.fsub(o[1], p0y), builder.fsub(o[2], p0z)
+        b1 = builder.fmul(dot(sx, sy, sz, px, py, pz), inv)
+        qx = cross_term(sy, e1z, sz, e1y)
+        qy = cross_term(sz, e1x, sx, e1z)
+        qz = cross_term(sx, e1y, sy, e1x)
+        b2 = builder.fmul(dot(dx, dy, dz, qx, qy, qz), inv)
+        th = builder.fmul(dot(e2x, e2y, e2z, qx, qy, qz), inv)
+        zero = ir.Constant(_V4, [0.0] * NODE_ARITY)
+        one = ir.Constant(_V4, [1.0] * NODE_ARITY)
+        # _hit_prim rejects on det == 0, b1 < 0 or b1 > 1, b2 < 0 or b1 + b2 > 1, t <= 0
+        # (each false for NaN) and the caller keeps t_min < t < t_max (false for NaN)
+        ok = builder.fcmp_unordered("!=", det, zero)
+        for test in (builder.fcmp_unordered(">=", b1, zero),
+                     builder.fcmp_unordered("<=", b1, one),
+                     builder.fcmp_unordered(">=", b2, zero),
+                     builder.fcmp_unordered("<=", builder.fadd(b1, b2), one),
+                     builder.fcmp_unordered(">", th, zero),
+                     builder.fcmp_ordered("<", splat(args[8]), th),
+                     builder.fcmp_ordered("<", th, splat(args[9]))):
+            ok = builder.and_(ok, test)
+        t = builder.select(ok, th, ir.Constant(_V4, [np.inf] * NODE_ARITY))
         lanes = [builder.extract_element(t, ir.Constant(i32, k)) for k in range(NODE_ARITY)]
         return context.make_tuple(builder, signature.return_type, lanes)
 
@@ -501,13 +612,40 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
             if c < 0:
                 node = first
                 break
-            for k in range(first, first + c):
+            k, end = first, first + c
+            while k < end:
+                g = leaf_info[k, LEAF_GROUP]
+                if g >= 0:
+                    # a triangle group: its lanes in one pass; the nearest lane (the
+                    # first of equals, as one by one) is tested again on its own row
+                    # for b1, b2 (the same arithmetic, the same values)
+                    t0, t1, t2, t3 = _tri4_entry(leaf, g, ox, oy, oz, dx, dy, dz, t_min,
+                                                 best_t)
+                    hit, near = -1, best_t
+                    if t0 < near:
+                        hit, near = 0, t0
+                    if t1 < near:
+                        hit, near = 1, t1
+                    if t2 < near:
+                        hit, near = 2, t2
+                    if t3 < near:
+                        hit, near = 3, t3
+                    size = leaf_info[k, LEAF_GROUP_SIZE]
+                    if hit >= 0:
+                        hit += k
+                        t, b1, b2 = _hit_prim(leaf[hit], TRIANGLE, ox, oy, oz, dx, dy, dz)
+                        best_t, best_k, best_b1, best_b2 = t, hit, b1, b2
+                        if any_hit:
+                            return best_t, leaf_info[hit, LEAF_PRIM], best_b1, best_b2
+                    k += size
+                    continue
                 t, b1, b2 = _hit_prim(leaf[k], leaf_info[k, LEAF_KIND], ox, oy, oz,
                                       dx, dy, dz)
                 if t_min < t < best_t:
                     best_t, best_k, best_b1, best_b2 = t, k, b1, b2
                     if any_hit:
                         return best_t, leaf_info[k, LEAF_PRIM], best_b1, best_b2
+                k += 1
     if best_k < 0:
         return best_t, -1, best_b1, best_b2
     return best_t, leaf_info[best_k, LEAF_PRIM], best_b1, best_b2

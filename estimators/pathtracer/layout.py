@@ -18,8 +18,10 @@ class SceneArrays(NamedTuple):
     """Everything the kernel reads, by name. Tables are one row per item."""
 
     bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float: 4-wide, see the NODE_ columns
-    leaf_prims: np.ndarray      # (prims, LEAF_WIDTH) float: intersection data in leaf order
-    leaf_info: np.ndarray       # (prims, 2) int: LEAF_KIND, LEAF_PRIM (row of prims)
+    leaf_prims: np.ndarray      # (prims + 3 groups, LEAF_WIDTH) float: intersection data
+                                # in leaf order, then the triangle groups' lanes
+    leaf_info: np.ndarray       # (prims, 4) int: LEAF_KIND, LEAF_PRIM (row of prims),
+                                # LEAF_GROUP, LEAF_GROUP_SIZE
     prims: np.ndarray           # (prims, PRIM_WIDTH) float: see the PRIM_ columns
     prim_info: np.ndarray       # (prims, 2) int: PRIM_KIND, PRIM_SHAPE
     shape_bsdf: np.ndarray      # (shapes,) int: row of the BSDF tables
@@ -126,7 +128,16 @@ LEAF_P0, LEAF_E1, LEAF_E2 = 0, 3, 6
 LEAF_CENTER, LEAF_RADIUS = 0, 3
 LEAF_TO_LOCAL = 0
 LEAF_WIDTH = 12
-LEAF_KIND, LEAF_PRIM = 0, 1     # leaf_info columns: primitive kind, row of prims
+# After the rows of every primitive come the triangle groups: up to 4 consecutive
+# triangles of a leaf, tested in one pass (``geometry._tri4_entry``), as 3 rows (36
+# values: the 4 lanes of p0 x, p0 y, p0 z, e1 x ... e2 z, 4 values each; lanes past the
+# group's size are 0, a degenerate triangle no ray hits).
+LEAF_GROUP_ROWS = 3
+# leaf_info columns: primitive kind, row of prims, and on the first row of a triangle
+# group the row of leaf_prims where its lanes start (-1 elsewhere) and its size (0
+# elsewhere)
+LEAF_KIND, LEAF_PRIM, LEAF_GROUP, LEAF_GROUP_SIZE = 0, 1, 2, 3
+LEAF_INFO_WIDTH = 4
 
 # ------------------------------------------------------------------------ BSDFs
 BSDF_NAMES = ("diffuse", "conductor", "roughconductor", "dielectric", "plastic",

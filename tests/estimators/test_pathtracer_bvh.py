@@ -130,11 +130,44 @@ def _check_hierarchy(prims, info, packed):
                 stack.append((link, c_lo, c_hi))
     assert np.all(seen == 1)
     assert parents[0] == 0 and np.all(parents[1:] == 1)
+    assert leaf.flags.c_contiguous and leaf.ctypes.data % 32 == 0
+    n = len(leaf_info)
     tri = leaf_info[:, LEAF_KIND] == TRIANGLE
     j = leaf_info[tri, LEAF_PRIM]
-    np.testing.assert_array_equal(leaf[tri, layout.LEAF_E2:layout.LEAF_E2 + 3],
+    np.testing.assert_array_equal(leaf[:n][tri, layout.LEAF_E2:layout.LEAF_E2 + 3],
                                   prims[j, layout.TRI_P2:layout.TRI_P2 + 3]
                                   - prims[j, layout.TRI_P0:layout.TRI_P0 + 3])
+    _check_triangle_groups(nodes, leaf, leaf_info)
+
+
+def _check_triangle_groups(nodes, leaf, leaf_info):
+    """Every triangle row is in exactly one group; a group is up to 4 consecutive
+    triangle rows of one leaf, and a run of triangles in a leaf is cut into groups of 4
+    (only its last is smaller); a group's lanes are its rows' p0, e1, e2, lane by lane,
+    and 0 past its size; the lane rows follow the primitives' rows, 3 per group."""
+    n = len(leaf_info)
+    kind, group, size = (leaf_info[:, c] for c in (LEAF_KIND, layout.LEAF_GROUP,
+                                                   layout.LEAF_GROUP_SIZE))
+    assert np.all((group >= 0) == (size > 0))
+    assert len(leaf) == n + layout.LEAF_GROUP_ROWS * np.count_nonzero(size)
+    covered = np.zeros(n, dtype=int)
+    leaf_of = np.full(n, -1)
+    counts = nodes[:, NODE_COUNT:NODE_COUNT + NODE_ARITY].ravel()
+    firsts = nodes[:, NODE_LINK:NODE_LINK + NODE_ARITY].ravel()
+    for i, (first, count) in enumerate(zip(firsts[counts > 0], counts[counts > 0])):
+        leaf_of[int(first):int(first + count)] = i
+    for k in np.flatnonzero(size):
+        g, m = group[k], size[k]
+        assert 1 <= m <= NODE_ARITY and np.all(kind[k:k + m] == TRIANGLE)
+        assert len(set(leaf_of[k:k + m])) == 1
+        if m < NODE_ARITY and k + m < n and leaf_of[k + m] == leaf_of[k]:
+            assert kind[k + m] != TRIANGLE, k      # a run is cut short only at its end
+        covered[k:k + m] += 1
+        lanes = leaf[g:g + layout.LEAF_GROUP_ROWS].reshape(9, NODE_ARITY)
+        np.testing.assert_array_equal(lanes[:, :m],
+                                      leaf[k:k + m, layout.LEAF_P0:layout.LEAF_E2 + 3].T)
+        assert np.all(lanes[:, m:] == 0.0)
+    assert np.array_equal(covered, (kind == TRIANGLE).astype(int))
 
 
 def test_traversal_finds_the_brute_force_nearest_hit(packed):
@@ -191,7 +224,7 @@ def _brute_hits(leaf, leaf_info, o, d):
     """t of every leaf row by the tracer's own primitive test (no hierarchy), and its
     (b1, b2)."""
     out = [geometry._hit_prim(leaf[k], leaf_info[k, LEAF_KIND], *o, *d)
-           for k in range(len(leaf))]
+           for k in range(len(leaf_info))]
     return np.array([h[0] for h in out]), [h[1:] for h in out]
 
 
@@ -256,7 +289,7 @@ def test_four_wide_traversal_is_brute_force(tris, origins, dirs, t_min):
     nb, ni, order = geometry.build_bvh(prims, info)
     nodes, leaf, leaf_info = packed = geometry.pack_bvh(prims, info, nb, ni, order)
     _check_hierarchy(prims, info, packed)
-    paths = _leaf_paths(nodes, len(leaf))
+    paths = _leaf_paths(nodes, len(leaf_info))
     stack = geometry.new_stack()
     for o, d in zip(origins, dirs):
         if not np.any(d):
@@ -267,7 +300,7 @@ def test_four_wide_traversal_is_brute_force(tris, origins, dirs, t_min):
         inv = [1.0 / float(x) if x != 0.0 else np.inf for x in d]
         inside = np.array([ts[k] < np.inf and all(_admits(lo, hi, of, inv, ts[k])
                                                   for lo, hi in paths[k])
-                           for k in range(len(leaf))], dtype=bool)
+                           for k in range(len(leaf_info))], dtype=bool)
         reach = ts[inside].min() if inside.any() else np.inf
         t, j, b1, b2 = geometry.intersect(nodes, leaf, leaf_info, stack, *o, *d, t_min,
                                           np.inf)
@@ -288,6 +321,50 @@ def test_four_wide_traversal_is_brute_force(tris, origins, dirs, t_min):
                 assert blocked, (o, d, limit, best)
             if not np.any(ts < limit):
                 assert not blocked, (o, d, limit, best)
+
+
+@njit
+def _group_lanes(leaf, row, o, d, t_min, t_max):
+    return geometry._tri4_entry(leaf, row, o[0], o[1], o[2], d[0], d[1], d[2], t_min, t_max)
+
+
+@given(tris=st.integers(1, NODE_ARITY).flatmap(
+           lambda n: arrays(np.float64, (n, 9), elements=_coord)),
+       o=arrays(np.float64, 3, elements=_coord), d=arrays(np.float64, 3, elements=_dir),
+       t_min=st.sampled_from([0.0, 1e-4, 0.5]),
+       t_max=st.sampled_from([np.inf, 1.0, 0.25]))
+@example(tris=np.zeros((1, 9)), o=np.zeros(3), d=np.array([0.0, 0.0, 1.0]), t_min=0.0,
+         t_max=np.inf)              # a degenerate triangle: det = 0 (0/0 = NaN after it)
+# a ray through a vertex, two edges (b1 = 0, b1 + b2 = 1) and a triangle it lies in the
+# plane of, all at once
+@example(tris=np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+                        [0.5, 0.5, 1.0, 0.5, -0.5, 1.0, -0.5, 0.5, 1.0],
+                        [0.5, 0.5, 0.5, 0.5, 1.0, 0.5, -1.0, 0.0, 0.5],
+                        [0.5, 0.5, -0.5, 0.5, 0.5, 1.0, 0.5, 1.0, 0.0]]),
+         o=np.array([0.5, 0.5, -1.0]), d=np.array([0.0, 0.0, 1.0]), t_min=0.0,
+         t_max=np.inf)
+def test_triangle_group_lanes_are_the_scalar_test(tris, o, d, t_min, t_max):
+    """Each lane of a triangle group (``_tri4_entry``) is the scalar triangle test of its
+    row (``_hit_prim``) to the bit, kept only inside (t_min, t_max): triangles on a
+    coarse grid (shared edges and vertices, axis-aligned and degenerate ones, rays along
+    their planes and through their edges), NaN and the det = 0 rejection included;
+    lanes past the group's size are never hit."""
+    prims = np.zeros((len(tris), PRIM_WIDTH))
+    prims[:, layout.TRI_P0:layout.TRI_P0 + 9] = tris
+    info = np.zeros((len(tris), 2), dtype=np.int64)
+    info[:, layout.PRIM_KIND] = TRIANGLE
+    nb, ni, order = geometry.build_bvh(prims, info)
+    nodes, leaf, leaf_info = geometry.pack_bvh(prims, info, nb, ni, order)
+    for k in np.flatnonzero(leaf_info[:, layout.LEAF_GROUP_SIZE]):
+        m = leaf_info[k, layout.LEAF_GROUP_SIZE]
+        lanes = _group_lanes(leaf, leaf_info[k, layout.LEAF_GROUP], o, d, t_min, t_max)
+        for lane in range(NODE_ARITY):
+            if lane >= m:
+                assert lanes[lane] == np.inf
+                continue
+            t = geometry._hit_prim(leaf[k + lane], TRIANGLE, *o, *d)[0]
+            want = t if t_min < t < t_max else np.inf
+            assert lanes[lane] == want, (k, lane, lanes[lane], t)
 
 
 # ----------------------------------------------------------------- the SIMD box test
