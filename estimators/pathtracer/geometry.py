@@ -562,14 +562,15 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 
 @_inline
-def _push(stack, base, sp, t, link, count):
+def _push(stack, base, sp, t, link, count, ordered):
     """Stack child (link, count) entered at distance t (none if inf) among those stacked
     from row ``base`` on, kept sorted far to near (equal distances: the earlier child on
-    top, as the binary tree's nearer-or-left-first order). Returns the new top."""
+    top, as the binary tree's nearer-or-left-first order) if ``ordered``, else on top.
+    Returns the new top."""
     if t == np.inf:
         return sp
     j = sp
-    while j > base and stack[j - 1, 0] <= t:
+    while ordered and j > base and stack[j - 1, 0] <= t:
         stack[j, 0], stack[j, 1], stack[j, 2] = stack[j - 1, 0], stack[j - 1, 1], \
             stack[j - 1, 2]
         j -= 1
@@ -594,13 +595,16 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
     while node >= 0:
         t0, t1, t2, t3 = _box4_entry(nodes, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, best_t)
         base = sp
-        sp = _push(stack, base, sp, t0, nodes[node, NODE_LINK], nodes[node, NODE_COUNT])
+        # nearest first for the nearest hit; an any-hit query needs no order (whether
+        # something lies in (t_min, t_max) is the same whichever box is opened first)
+        sp = _push(stack, base, sp, t0, nodes[node, NODE_LINK], nodes[node, NODE_COUNT],
+                   not any_hit)
         sp = _push(stack, base, sp, t1, nodes[node, NODE_LINK + 1],
-                   nodes[node, NODE_COUNT + 1])
+                   nodes[node, NODE_COUNT + 1], not any_hit)
         sp = _push(stack, base, sp, t2, nodes[node, NODE_LINK + 2],
-                   nodes[node, NODE_COUNT + 2])
+                   nodes[node, NODE_COUNT + 2], not any_hit)
         sp = _push(stack, base, sp, t3, nodes[node, NODE_LINK + 3],
-                   nodes[node, NODE_COUNT + 3])
+                   nodes[node, NODE_COUNT + 3], not any_hit)
         # pop the nearest stacked child still worth entering: test a leaf's primitives
         # and go on popping, or descend into an interior child
         node = -1
