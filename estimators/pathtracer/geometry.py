@@ -345,6 +345,21 @@ def bvh_bounds(nodes):
 # --------------------------------------------------------------------- intersection
 _V4 = ir.VectorType(ir.DoubleType(), NODE_ARITY)
 _ACCEPT = 1.0 + 4e-16     # a box is entered if t0 <= t1 · _ACCEPT: rounding slack
+_I32 = ir.IntType(32)
+
+
+def _splat(builder, x):
+    """The scalar double ``x`` in all four lanes of a ``<4 x double>``."""
+    undef = ir.Constant(_V4, ir.Undefined)
+    v = builder.insert_element(undef, x, ir.Constant(_I32, 0))
+    return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(_I32, NODE_ARITY),
+                                                        [0] * NODE_ARITY))
+
+
+def _as_tuple(context, builder, signature, v):
+    """The four lanes of ``v`` as the intrinsic's 4-tuple of float64."""
+    lanes = [builder.extract_element(v, ir.Constant(_I32, k)) for k in range(NODE_ARITY)]
+    return context.make_tuple(builder, signature.return_type, lanes)
 
 
 @intrinsic
@@ -378,8 +393,6 @@ def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, 
         ary = context.make_array(signature.args[0])(context, builder, args[0])
         shape = cgutils.unpack_tuple(builder, ary.shape)
         strides = cgutils.unpack_tuple(builder, ary.strides)
-        i32 = ir.IntType(32)
-        undef = ir.Constant(_V4, ir.Undefined)
 
         def load(col):
             ptr = cgutils.get_item_pointer2(context, builder, ary.data, shape, strides, "C",
@@ -388,19 +401,14 @@ def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, 
             # where this unaligned load costs the same as an aligned one)
             return builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
 
-        def splat(x):
-            v = builder.insert_element(undef, x, ir.Constant(i32, 0))
-            return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(i32, NODE_ARITY),
-                                                                [0] * NODE_ARITY))
-
         t0 = ir.Constant(_V4, [0.0] * NODE_ARITY)
-        t1 = splat(args[11])
+        t1 = _splat(builder, args[11])
         for axis in range(3):
             near_col = args[2 + axis]
             # the far plane's column: NODE_LO + NODE_HI + 2·4·axis - the near one's
             far_col = builder.sub(context.get_constant(
                 types.intp, NODE_LO + NODE_HI + 2 * NODE_ARITY * axis), near_col)
-            o, inv = splat(args[5 + axis]), splat(args[8 + axis])
+            o, inv = _splat(builder, args[5 + axis]), _splat(builder, args[8 + axis])
             near = builder.fmul(builder.fsub(load(near_col), o), inv)
             far = builder.fmul(builder.fsub(load(far_col), o), inv)
             t0 = builder.select(builder.fcmp_ordered(">", near, t0), near, t0)
@@ -408,8 +416,7 @@ def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, 
         accept = ir.Constant(_V4, [_ACCEPT] * NODE_ARITY)
         enter = builder.fcmp_ordered("<=", t0, builder.fmul(t1, accept))
         t = builder.select(enter, t0, ir.Constant(_V4, [np.inf] * NODE_ARITY))
-        lanes = [builder.extract_element(t, ir.Constant(i32, k)) for k in range(NODE_ARITY)]
-        return context.make_tuple(builder, signature.return_type, lanes)
+        return _as_tuple(context, builder, signature, t)
 
     return sig, codegen
 
@@ -430,8 +437,6 @@ def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
 
     def codegen(context, builder, signature, args):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
-        i32 = ir.IntType(32)
-        undef = ir.Constant(_V4, ir.Undefined)
         start = cgutils.get_item_pointer2(
             context, builder, ary.data, cgutils.unpack_tuple(builder, ary.shape),
             cgutils.unpack_tuple(builder, ary.strides), "C",
@@ -441,11 +446,6 @@ def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
             ptr = builder.gep(start, [ir.Constant(ir.IntType(64), NODE_ARITY * c)])
             return builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
 
-        def splat(x):
-            v = builder.insert_element(undef, x, ir.Constant(i32, 0))
-            return builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(i32, NODE_ARITY),
-                                                                [0] * NODE_ARITY))
-
         def dot(ax, ay, az, bx, by, bz):
             return builder.fadd(builder.fadd(builder.fmul(ax, bx), builder.fmul(ay, by)),
                                 builder.fmul(az, bz))
@@ -454,8 +454,8 @@ def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
             return builder.fsub(builder.fmul(a, b), builder.fmul(c, d))
 
         p0x, p0y, p0z, e1x, e1y, e1z, e2x, e2y, e2z = (lane(c) for c in range(9))
-        o = [splat(a) for a in args[2:5]]
-        dx, dy, dz = (splat(a) for a in args[5:8])
+        o = [_splat(builder, a) for a in args[2:5]]
+        dx, dy, dz = (_splat(builder, a) for a in args[5:8])
         px = cross_term(dy, e2z, dz, e2y)
         py = cross_term(dz, e2x, dx, e2z)
         pz = cross_term(dx, e2y, dy, e2x)
@@ -478,12 +478,11 @@ def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
                      builder.fcmp_unordered(">=", b2, zero),
                      builder.fcmp_unordered("<=", builder.fadd(b1, b2), one),
                      builder.fcmp_unordered(">", th, zero),
-                     builder.fcmp_ordered("<", splat(args[8]), th),
-                     builder.fcmp_ordered("<", th, splat(args[9]))):
+                     builder.fcmp_ordered("<", _splat(builder, args[8]), th),
+                     builder.fcmp_ordered("<", th, _splat(builder, args[9]))):
             ok = builder.and_(ok, test)
         t = builder.select(ok, th, ir.Constant(_V4, [np.inf] * NODE_ARITY))
-        lanes = [builder.extract_element(t, ir.Constant(i32, k)) for k in range(NODE_ARITY)]
-        return context.make_tuple(builder, signature.return_type, lanes)
+        return _as_tuple(context, builder, signature, t)
 
     return sig, codegen
 
