@@ -663,6 +663,7 @@ def _print_visibility(d: dict) -> None:
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0], epilog=EPILOG)
     from .._version import __version__
+    from .render_check import MIN_SPP_PER_PASS
 
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
@@ -813,8 +814,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "reference, pixel by pixel", epilog=EPILOG)
     rc.add_argument("scene", metavar="SCENE", help="scene.xml path or reference name")
     rc.add_argument("--spp", type=int, default=1024,
-                    help="samples per pixel IN ALL, split over --passes (at least 64 per "
-                         "pass); unlike `reference build --spp`, which is per pass")
+                    help="samples per pixel IN ALL, split over --passes (at least "
+                         f"{MIN_SPP_PER_PASS} per pass); unlike `reference build --spp`, "
+                         "which is per pass")
     rc.add_argument("--passes", type=int, default=16, help="independent passes (>= 2)")
     rc.add_argument("--seed", type=int, default=0, help=f"seed of our renders, 0 to {MAX_SEED}")
     rc.add_argument("--alpha", type=float, default=0.01,

@@ -2,13 +2,17 @@
 variance across passes and a manifest, so a stale or corrupt reference is never used.
 
 Layout: ``reference/scenes/<name>/scene.xml`` and, built from it,
-``reference/scenes/<name>/ref/{mean.exr, var.exr, passes.exr, manifest.json}``. The
-manifest records Mitsuba's version and variant, spp, passes, seeds, UTC time, the film's
-filter radius (``rfilter_radius``: above 1/2 the filter splats, and pixels of one pass
-correlate) and the SHA-256 of the scene and of each image: a changed scene or a swapped
-image is refused as stale. ``passes.exr`` holds the K pass images stacked vertically
-((K·H, W, C)): the render gate needs them where pixels correlate. References built
-before it was written have none and stay valid for box-filtered scenes.
+``reference/scenes/<name>/ref/{mean.exr, var.exr, passes.exr, manifest.json}``; a scene
+file of another name, ``<folder>/<file>.xml``, has its reference in
+``<folder>/ref-<file>.xml/`` (``ref_folder``), so scenes sharing a folder keep one each.
+The manifest records Mitsuba's version and variant, spp, passes, seeds, UTC time, the
+film's filter radius (``rfilter_radius``: above 1/2 the filter splats, and pixels of one
+pass correlate) and the SHA-256 of the scene, of every file it names (meshes, textures,
+environment maps: ``scene_assets``) and of each image: a changed scene, a changed mesh or
+texture, or a swapped image is refused as stale. ``passes.exr`` holds the K pass
+images stacked vertically ((K·H, W, C)): the render gate needs them where pixels
+correlate. References built before it was written have none and stay valid for
+box-filtered scenes.
 Images are read only as float OpenEXR (``read_float_exr``): an 8-bit PNG renamed ``.exr``
 would otherwise be read as radiance.
 """
@@ -125,6 +129,56 @@ def scene_hash(scene_path: str) -> str:
     return file_hash(scene_path)
 
 
+def scene_assets(scene_path: str) -> dict[str, str | None]:
+    """SHA-256 of every file the scene names (the manifest's ``assets_sha256``): each
+    ``<string name="filename" value=...>`` and ``<include filename=...>``, keyed by the
+    name as written, ``$name`` replaced by the scene's ``<default>`` (Mitsuba's
+    substitution), resolved against the scene's folder as Mitsuba resolves it; None for
+    a name that is no regular file (Mitsuba then refuses the scene)."""
+    with open(scene_path, "rb") as f:
+        text = f.read()
+    defaults, names = {}, []
+    parser = expat.ParserCreate()
+
+    def start(tag, attrib):
+        if tag == "default" and "name" in attrib:
+            defaults.setdefault(attrib["name"], attrib.get("value", ""))
+        elif tag == "string" and attrib.get("name") == "filename" and "value" in attrib:
+            names.append(attrib["value"])
+        elif tag == "include" and "filename" in attrib:
+            names.append(attrib["filename"])
+
+    parser.StartElementHandler = start
+    try:
+        parser.Parse(text, True)
+    except expat.ExpatError:
+        return {}                # not XML: precheck_scene refuses it, naming the line
+    folder = os.path.dirname(os.path.abspath(scene_path))
+    out: dict[str, str | None] = {}
+    for name in names:
+        real = name
+        for key in sorted(defaults, key=len, reverse=True):
+            real = real.replace("$" + key, defaults[key])
+        full = real if os.path.isabs(real) else os.path.join(folder, real)
+        out[name] = file_hash(full) if os.path.isfile(full) else None
+    return out
+
+
+def ref_folder(scene_path: str) -> str:
+    """Where the reference of a scene file lives: ``ref`` beside a ``scene.xml``,
+    ``ref-<file name>`` beside a scene file of any other name."""
+    folder, base = os.path.split(os.path.abspath(scene_path))
+    return os.path.join(folder, "ref" if base == "scene.xml" else f"ref-{base}")
+
+
+def rebuild_command(name: str, scene_path: str) -> str:
+    """The command that builds the reference of a scene: by its reference name when the
+    name resolves to it, else by its path."""
+    named = os.path.join(REFERENCE_ROOT, name, "scene.xml")
+    spec = name if os.path.abspath(named) == os.path.abspath(scene_path) else scene_path
+    return f"mcverify reference build {spec}"
+
+
 def _regular_file(path: str, what: str) -> None:
     """A readable regular file of sane size, or InvalidArgument naming it (a FIFO or
     /dev/zero would block or never end)."""
@@ -235,8 +289,9 @@ def precheck_scene(path: str) -> None:
 
 
 def resolve_scene(spec: str, root: str | None = None) -> tuple[str, str]:
-    """(name, scene.xml path) from a reference name (in ``root``, default
-    ``REFERENCE_ROOT``) or a path to a scene file/folder."""
+    """(name, scene file path) from a reference name (in ``root``, default
+    ``REFERENCE_ROOT``) or a path to a scene file/folder. The name is the folder's for a
+    ``scene.xml``, else the file's own without its extension."""
     root = REFERENCE_ROOT if root is None else root
     if os.path.isfile(spec):
         path = os.path.abspath(spec)
@@ -248,7 +303,10 @@ def resolve_scene(spec: str, root: str | None = None) -> tuple[str, str]:
         known = ", ".join(list_scenes(root)) or "none"
         raise InvalidArgument(f"scene {spec!r}: no such file, folder with scene.xml, or "
                               f"reference name (known: {known})")
-    return os.path.basename(os.path.dirname(path)), path
+    base = os.path.basename(path)
+    name = (os.path.basename(os.path.dirname(path)) if base == "scene.xml"
+            else os.path.splitext(base)[0])
+    return name, path
 
 
 def list_scenes(root: str | None = None) -> list[str]:
@@ -306,6 +364,7 @@ class _Job:
     spp: int
     seeds: list
     params: dict | None
+    assets: dict        # scene_assets() when the job was made, before any pass renders
 
     def units(self, pool: Pool, variant: str) -> list[Unit]:
         fingerprint = None if pool.in_process else source_fingerprint()
@@ -320,6 +379,7 @@ class _Job:
         from . import mitsuba as mvm
 
         manifest = provenance(scene=self.name, scene_sha256=scene_hash(self.path),
+                              assets_sha256=self.assets,
                               spp=self.spp, passes=len(self.seeds), seeds=self.seeds,
                               mitsuba_version=mvm.mitsuba_version(), mitsuba_variant=variant,
                               shape=list(imgs.shape[1:]), rfilter_radius=radius,
@@ -334,7 +394,7 @@ def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _J
                               "(the variance needs two passes)")
     name, path = resolve_scene(spec)
     precheck_scene(path)
-    return _Job(name, path, spp, _pass_seeds(seed, passes), params)
+    return _Job(name, path, spp, _pass_seeds(seed, passes), params, scene_assets(path))
 
 
 def _render_jobs(jobs: list[_Job], pool: Pool | None, progress) -> list[tuple[Reference,
@@ -398,9 +458,9 @@ def _write(path: str, ref: Reference) -> str:
     """Write a rendered reference beside its scene (``build_reference``'s swap)."""
     from . import mitsuba as mvm
 
-    folder = os.path.dirname(path)
-    out = os.path.join(folder, "ref")
-    tmp = tempfile.mkdtemp(prefix=".ref-new-", dir=folder)
+    out = ref_folder(path)
+    folder, base = os.path.split(out)
+    tmp = tempfile.mkdtemp(prefix=f".{base}-new-", dir=folder)
     old = None
     try:
         manifest = {k: v for k, v in ref.manifest.items() if k != "params"}
@@ -414,12 +474,12 @@ def _write(path: str, ref: Reference) -> str:
             json.dump(manifest, f, indent=2)
         os.chmod(tmp, shared_mode(0o777))  # mkdtemp makes 0700; references are shared
         if os.path.lexists(out):
-            old = tempfile.mkdtemp(prefix=".ref-old-", dir=folder)
-            os.rename(out, os.path.join(old, "ref"))
+            old = tempfile.mkdtemp(prefix=f".{base}-old-", dir=folder)
+            os.rename(out, os.path.join(old, base))
         os.rename(tmp, out)
     except BaseException:
         if old is not None and not os.path.lexists(out):
-            os.rename(os.path.join(old, "ref"), out)
+            os.rename(os.path.join(old, base), out)
             os.rmdir(old)
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -432,7 +492,7 @@ def reference_files(spec: str) -> list[str]:
     """The files a reference is made of (scene, manifest, images), for refusing to
     write an output over one of them."""
     _, path = resolve_scene(spec)
-    folder = os.path.join(os.path.dirname(path), "ref")
+    folder = ref_folder(path)
     return [path] + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES + (PASSES,)]
 
 
@@ -440,13 +500,14 @@ def load_reference(spec: str) -> Reference:
     """Load a built reference; a missing, stale (scene changed) or corrupt one raises
     ``EnvironmentProblem`` naming the file and saying how to rebuild it."""
     name, path = resolve_scene(spec)
-    folder = os.path.join(os.path.dirname(path), "ref")
+    folder = ref_folder(path)
+    parent, base = os.path.split(folder)
     mpath = os.path.join(folder, "manifest.json")
-    rebuild = f"run `mcverify reference build {name}`"
+    rebuild = f"run `{rebuild_command(name, path)}`"
     if not os.path.isfile(mpath):
-        aside = sorted(d for d in os.listdir(os.path.dirname(path)) if d.startswith(".ref-old-"))
+        aside = sorted(d for d in os.listdir(parent) if d.startswith(f".{base}-old-"))
         where = (f" (an interrupted build left the previous one in "
-                 f"{os.path.join(os.path.dirname(path), aside[-1], 'ref')})" if aside else "")
+                 f"{os.path.join(parent, aside[-1], base)})" if aside else "")
         raise MissingReference(f"{mpath}: no reference built for {name!r}{where}; {rebuild}")
     try:
         with open(mpath, encoding="utf-8") as f:
@@ -458,6 +519,16 @@ def load_reference(spec: str) -> Reference:
     if digest != scene_hash(path):
         raise EnvironmentProblem(f"{mpath}: stale: {path} changed since the reference was "
                                  f"built; {rebuild}")
+    assets = scene_assets(path)
+    recorded = manifest.get("assets_sha256")
+    if recorded is None and assets:
+        raise EnvironmentProblem(f"{mpath}: stale: records no SHA-256 of the files the scene "
+                                 f"names (built before they were recorded); {rebuild}")
+    for asset, digest in sorted(assets.items()):
+        if not isinstance(recorded, dict) or recorded.get(asset, "") != digest:
+            what = "is missing" if digest is None else "changed"
+            raise EnvironmentProblem(f"{mpath}: stale: {asset} (named by {path}) {what} "
+                                     f"since the reference was built; {rebuild}")
     labels = IMAGES + ((PASSES,) if "passes_sha256" in manifest else ())
     for label in labels:
         key = label.replace(".exr", "_sha256")

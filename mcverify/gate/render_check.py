@@ -73,17 +73,6 @@ def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
     return subject.planted(**dict(plant)) if plant else subject
 
 
-def _splats(scene_path: str, params: dict | None) -> bool:
-    """True if our loader gives the scene's film a splatting filter (XML only, no BVH)."""
-    from estimators.pathtracer import SceneError, load_scene
-    from estimators.pathtracer.camera import camera_from_scene
-
-    try:
-        return camera_from_scene(load_scene(scene_path, params=params)).splats
-    except SceneError as e:
-        raise InvalidArgument(str(e)) from None
-
-
 def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_scale: float,
               spp: int, seed: int):
     """One pass of our path tracer, a unit of work: (mean float32 (H, W, 3), seconds,
@@ -170,9 +159,9 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     both low (the Cornell box's caustic: 3 false alarms in 20 seeds at the defaults
     without the floor, 0 in 40 with it).
 
-    The cached reference (``<scene folder>/ref``) is used when ``params`` is empty; a
-    missing one is built first (``notice(message)`` says so); a stale or corrupt one is an
-    error. With ``params`` (XML ``$`` overrides, e.g. ``{"max_depth": 2}``) the reference
+    The cached reference (``reference.ref_folder``: ``ref`` beside the scene) is used
+    when ``params`` is empty; a missing one is built first (``notice(message)`` says so);
+    a stale or corrupt one is an error. With ``params`` (XML ``$`` overrides, e.g. ``{"max_depth": 2}``) the reference
     is rendered on the fly with the same overrides (16 passes × 64 spp)."""
     from ..sequential import run_sequential
     from . import reference
@@ -198,9 +187,13 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     pool = Pool() if own_pool else pool
     try:
         t0 = time.perf_counter()
-        # a splatting filter compares only at equal samples per pass (below): a reference
-        # made here for such a scene gets ours, over 64 passes (as the committed ones)
-        splats = ours and _splats(path, params)
+        # our loader sees the scene first: a scene it refuses (an unsupported plugin, a
+        # bad value) is refused before Mitsuba renders a reference, so nothing is written
+        # for it. A splatting filter compares only at equal samples per pass (below): a
+        # reference made here for such a scene gets ours, over 64 passes (as the
+        # committed ones)
+        splats = ours and _compiled(path, tuple(sorted((params or {}).items())), (),
+                                    os.stat(path).st_mtime_ns).camera.splats
         made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:
             ref, _ = reference.render_reference(path, params=params, seed=seed + 1, pool=pool,
@@ -222,7 +215,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         if splats and not ref.pixels_correlated:
             raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
                                      "does not say so (built before filters were recorded)"
-                                     f"; run `mcverify reference build {name}`")
+                                     f"; run `{reference.rebuild_command(name, path)}`")
         if ours and ref.pixels_correlated and spp // passes != int(ref.manifest["spp"]):
             # E[Σ w L / Σ w] over N samples differs from its limit by O(1/N): passes
             # compare only at equal samples per pass (measured: Mitsuba's own 16-spp passes
@@ -236,7 +229,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         if ref.pixels_correlated and ref.passes is None:
             raise EnvironmentProblem(f"{path}: its reference has no pass images (built "
                                      "before passes.exr was stored), which a splatting "
-                                     f"filter needs; run `mcverify reference build {name}`")
+                                     "filter needs; run "
+                                     f"`{reference.rebuild_command(name, path)}`")
         if ours:
             source = _OurPasses(path, spp, passes, seed, params, plant, pdf_scale, pool,
                                 progress)

@@ -132,6 +132,8 @@ def sandbox(tmp_path_factory):
         '<emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>',
         '<emitter type="envmap"><string name="filename" value="sky.fifo"/></emitter>'))
     (s / "nan-radius.xml").write_text(text.replace('value="0.8"', 'value="nan"'))
+    # Mitsuba renders this one; our loader refuses it
+    (s / "negative-radius.xml").write_text(text.replace('value="0.8"', 'value="-0.8"'))
     (s / "unsupported.xml").write_text(text.replace('type="diffuse"', 'type="hair"'))
     look = '<lookat origin="0, 1.2, 5" target="0, 0.3, 0" up="0, 1, 0"/>'
     assert look in text
@@ -440,6 +442,9 @@ CLI = [
     ("render-check-json-is-scene", ["render-check", "{d}/ref-ok", "--json",
                                     "{d}/ref-ok/scene.xml"], "is also an input"),
     ("render-check-spp", ["render-check", "{d}/ref-ok", "--spp", "100"], "spp=100"),
+    # our loader sees the scene before Mitsuba builds a reference for it: nothing written
+    ("render-check-loader-refuses", ["render-check", "{d}/scenes/negative-radius.xml",
+                                     "--spp", "64", "--passes", "2"], "radius"),
 ]
 
 

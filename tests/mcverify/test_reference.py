@@ -11,7 +11,7 @@ import pytest
 
 from mcverify.gate import mitsuba as mvm
 from mcverify.gate import reference
-from mcverify.errors import EnvironmentProblem
+from mcverify.errors import EnvironmentProblem, MissingReference
 
 pytestmark = pytest.mark.mitsuba
 SCENES = reference.REFERENCE_ROOT
@@ -125,3 +125,69 @@ def test_refs_dir_names_where_scene_names_resolve(tmp_path):
             "--test-var", "v.exr", "--test-n", "4")
     assert r.returncode == 2 and "--refs" in r.stderr and "does not exist" in r.stderr
     assert not (tmp_path / "nowhere").exists()
+
+
+def test_scenes_sharing_a_folder_keep_a_reference_each(tmp_path):
+    """Two scene files in one folder: each has its own reference (``ref-<file>``), its
+    own name (the file's), and a missing one is missing, not the other's gone stale; the
+    rebuild command names the file."""
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    a, b = tmp_path / "a.xml", tmp_path / "b.xml"
+    a.write_text(src)
+    b.write_text(src.replace('value="0.8"', 'value="0.6"'))
+    assert reference.resolve_scene(str(a))[0] == "a"
+    out_a = reference.build_reference(str(a), spp=16, passes=2)
+    assert out_a == str(tmp_path / "ref-a.xml")
+    assert reference.load_reference(str(a)).n == 2
+    with pytest.raises(MissingReference, match=f"mcverify reference build {b}"):
+        reference.load_reference(str(b))
+    reference.build_reference(str(b), spp=16, passes=2)
+    ra, rb = reference.load_reference(str(a)), reference.load_reference(str(b))
+    assert ra.manifest["scene_sha256"] != rb.manifest["scene_sha256"]
+    assert sorted(os.listdir(tmp_path)) == ["a.xml", "b.xml", "ref-a.xml", "ref-b.xml"]
+
+
+def test_a_changed_texture_or_mesh_makes_the_reference_stale(tmp_path):
+    """The manifest records the SHA-256 of every file the scene names: a texture changed
+    or removed after the build is refused as stale, naming it, instead of comparing a
+    render of the new texture with Mitsuba's image of the old one. A manifest that
+    records no such hashes, for a scene that names files, is stale too."""
+    scene = tmp_path / "textures"
+    shutil.copytree(os.path.join(SCENES, "textures"), scene,
+                    ignore=shutil.ignore_patterns("ref"))
+    reference.build_reference(str(scene), spp=4, passes=2)
+    ref = reference.load_reference(str(scene))
+    assert set(ref.manifest["assets_sha256"]) == {"checker.exr", "tiles.png"}
+    png = (scene / "tiles.png").read_bytes()
+    (scene / "tiles.png").write_bytes(png + b"\0")
+    with pytest.raises(EnvironmentProblem, match="stale: tiles.png .* changed"):
+        reference.load_reference(str(scene))
+    (scene / "tiles.png").unlink()
+    with pytest.raises(EnvironmentProblem, match="stale: tiles.png .* is missing"):
+        reference.load_reference(str(scene))
+    (scene / "tiles.png").write_bytes(png)
+    reference.load_reference(str(scene))
+    mpath = scene / "ref" / "manifest.json"
+    manifest = json.loads(mpath.read_text())
+    del manifest["assets_sha256"]
+    mpath.write_text(json.dumps(manifest))
+    with pytest.raises(EnvironmentProblem, match="records no SHA-256 of the files"):
+        reference.load_reference(str(scene))
+
+
+def test_scene_assets_resolve_defaults_and_relative_paths(tmp_path):
+    """``scene_assets``: names as written, ``$name`` replaced by the scene's default,
+    relative to the scene's folder, None for a name that is no file."""
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "m.obj").write_text("v 0 0 0\n")
+    (tmp_path / "t.png").write_bytes(b"png")
+    (tmp_path / "s.xml").write_text(
+        '<scene version="3.0.0"><default name="mesh" value="m"/>'
+        '<shape type="obj"><string name="filename" value="sub/$mesh.obj"/></shape>'
+        '<texture type="bitmap"><string name="filename" value="t.png"/></texture>'
+        '<texture type="bitmap"><string name="filename" value="gone.png"/></texture>'
+        '</scene>')
+    assets = reference.scene_assets(str(tmp_path / "s.xml"))
+    assert assets == {"sub/$mesh.obj": reference.file_hash(str(tmp_path / "sub" / "m.obj")),
+                      "t.png": reference.file_hash(str(tmp_path / "t.png")),
+                      "gone.png": None}
