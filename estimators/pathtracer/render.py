@@ -95,9 +95,10 @@ def _tiles(width: int, height: int, threads: int) -> np.ndarray:
     block of thread i holds tiles i, i + threads, i + 2 threads... spread over the
     whole image, and a costly region (a glass sphere, the mesh) is shared by all
     threads instead of falling to one."""
-    rows = np.array([(x, y, min(x + TILE, width), min(y + TILE, height))
-                     for y in range(0, height, TILE) for x in range(0, width, TILE)],
-                    dtype=np.int64)
+    y, x = np.meshgrid(np.arange(0, height, TILE, dtype=np.int64),
+                       np.arange(0, width, TILE, dtype=np.int64), indexing="ij")
+    x, y = x.ravel(), y.ravel()         # row-major tiles: x fastest
+    rows = np.stack([x, y, np.minimum(x + TILE, width), np.minimum(y + TILE, height)], axis=1)
     return np.concatenate([rows[i::threads] for i in range(threads)])
 
 

@@ -296,3 +296,23 @@ def test_stratified_scenes_have_mitsubas_per_sample_variance(name):
     # both sides' variances are of pass means of the same spp
     ratio = ours.variance.astype(np.float64).sum() / np.asarray(ref.var, np.float64).sum()
     assert ratio < 1.15, ratio
+
+
+@pytest.mark.parametrize("width, height, threads", [(128, 128, 2), (1, 1, 1), (7, 13, 3),
+                                                    (8, 8, 1), (130, 67, 2), (33, 1, 16)])
+def test_tiles_cover_the_image_once_dealt_to_threads_like_cards(width, height, threads):
+    """``render._tiles``: TILE × TILE tiles (cut at the image's edges) in row-major order,
+    dealt round-robin (thread i's contiguous block holds tiles i, i + threads, ...), and
+    every pixel in exactly one tile."""
+    from estimators.pathtracer.render import TILE, _tiles
+    t = _tiles(width, height, threads)
+    assert t.dtype == np.int64 and t.shape[1] == 4
+    order = [(x, y) for y in range(0, height, TILE) for x in range(0, width, TILE)]
+    dealt = [order[k] for i in range(threads) for k in range(i, len(order), threads)]
+    assert [tuple(r[:2]) for r in t] == dealt
+    assert np.array_equal(t[:, 2], np.minimum(t[:, 0] + TILE, width))
+    assert np.array_equal(t[:, 3], np.minimum(t[:, 1] + TILE, height))
+    cover = np.zeros((height, width), dtype=int)
+    for x0, y0, x1, y1 in t:
+        cover[y0:y1, x0:x1] += 1
+    assert np.all(cover == 1)
