@@ -191,7 +191,9 @@ class _Builder:
                          f"type=\"{plugin.type}\">: {message}")
 
     # ---------------------------------------------------------------- textures
-    def _image(self, plugin: Plugin, filename: str, raw: bool = False) -> np.ndarray:
+    def _image(self, plugin: Plugin, filename: str | None, raw: bool = False) -> np.ndarray:
+        if not filename:
+            self.fail(plugin, "set <string name=\"filename\" .../> (the image file)")
         path = filename if os.path.isabs(filename) else os.path.join(self.dir, filename)
         problem = file_problem(path, MAX_ASSET_BYTES)
         if problem:
@@ -203,7 +205,7 @@ class _Builder:
 
     def _bitmap(self, tex: Plugin) -> int:
         """Store a ``bitmap`` texture with its filter, wrap mode and ``to_uv``."""
-        img = self._image(tex, tex.get("filename", ""), raw=bool(tex.get("raw", False)))
+        img = self._image(tex, tex.get("filename"), raw=bool(tex.get("raw", False)))
         options = {}
         for name, names, default in (("filter_type", layout.FILTERS, "bilinear"),
                                      ("wrap_mode", layout.WRAPS, "repeat")):
@@ -245,7 +247,7 @@ class _Builder:
         return float(v)
 
     def _distribution(self, plugin: Plugin) -> int:
-        d = plugin.get("distribution", "beckmann")
+        d = str(plugin.get("distribution", "beckmann")).lower()     # as Mitsuba reads it
         if d not in ("ggx", "beckmann"):
             self.fail(plugin, f"distribution {d!r}; supported: ggx, beckmann")
         for name in ("alpha", "alpha_u", "alpha_v"):
@@ -648,7 +650,7 @@ class _Builder:
                                  "not normalise a <rotate> axis, so give a unit one): Mitsuba's "
                                  "envmap then looks up and samples directions that are not "
                                  "unit vectors, which cannot be matched")
-                img = self._image(e, e.get("filename", ""))
+                img = self._image(e, e.get("filename"))
                 i[layout.LIGHT_TEXTURE] = self.textures.add(img)
                 f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
                 f[layout.ENV_TO_LOCAL:layout.ENV_TO_LOCAL + 9] = np.linalg.inv(m[:3, :3]).ravel()
@@ -746,6 +748,8 @@ class _Builder:
             max_depth=int(max_depth), rr_depth=int(rr_depth),
             hide_emitters=bool(integ.get("hide_emitters", False)), env=int(self.env))
         spp = int(d.sampler.get("sample_count", 4))
+        if spp < 1:
+            self.fail(d.sampler, f"sample_count {spp}: must be at least 1")
         if d.sampler.type in ("stratified", "multijitter"):
             if d.sampler.get("jitter", True) is False:
                 self.fail(d.sampler, "jitter=\"false\" (samples at the strata's centres) is "

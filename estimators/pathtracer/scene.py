@@ -220,7 +220,8 @@ class _Loader:
 
     def fail(self, node, message):
         raise SceneError(f"{self.path}:{node.line}: <{node.tag}"
-                         + (f" type=\"{node.attrib['type']}\"" if "type" in node.attrib else "")
+                         + "".join(f" {a}=\"{node.attrib[a]}\"" for a in ("type", "name")
+                                   if a in node.attrib)
                          + f">: {message}")
 
     def attr(self, node, name):
@@ -242,13 +243,16 @@ class _Loader:
         try:
             vals = [float(t) for t in re.split(r"[,\s]+", text.strip()) if t]
         except ValueError:
-            self.fail(node, f"expected {count} numbers, got {text!r}")
+            self.fail(node, f"expected {'a number' if count == 1 else f'{count} numbers'}, "
+                            f"got {text!r}")
         if len(vals) == 1 and count == 3:
             vals = vals * 3
         if len(vals) != count:
-            self.fail(node, f"expected {count} numbers, got {text!r}")
+            self.fail(node, f"expected {'a number' if count == 1 else f'{count} numbers'}, "
+                            f"got {text!r}")
         if not all(np.isfinite(vals)):
-            self.fail(node, f"expected finite numbers, got {text!r}")
+            self.fail(node, f"expected {'a finite number' if count == 1 else 'finite numbers'}"
+                            f", got {text!r}")
         return np.array(vals)
 
     def value(self, node):
@@ -272,7 +276,10 @@ class _Loader:
         if tag in ("point", "vector"):
             if "value" in node.attrib:
                 return tag, self.numbers(node, self.attr(node, "value"), 3)
-            return tag, self._xyz(node, 0.0)
+            # all three coordinates, as Mitsuba requires (translate/scale/rotate default
+            # the ones left out; a point or vector does not)
+            return tag, np.array([self.numbers(node, self.attr(node, k), 1)[0]
+                                  for k in "xyz"])
         if tag == "transform":
             return "transform", self.transform(node)
         self.fail(node, "unsupported value type")
@@ -371,7 +378,16 @@ class _Loader:
                 self.fail(child, f"unsupported element inside {kind} {ptype!r}; supported: "
                                  f"{', '.join(_VALUE_TAGS)}, ref, texture and nested "
                                  f"plugins{hint}")
+        if kind == "shape":
+            for what in ("bsdf", "emitter"):
+                if sum(c.kind == what for c in p.children) > 1:
+                    self.fail(node, f"more than one {what} in one shape (Mitsuba refuses "
+                                    "it too); give each its own shape")
         if p.id:
+            if p.id in self.ids:
+                self.fail(node, f"id {p.id!r} is already used by the <{self.ids[p.id].kind}> "
+                                f"on line {self.ids[p.id].line} (Mitsuba refuses a "
+                                "duplicate id too)")
             self.ids[p.id] = p
         return p
 

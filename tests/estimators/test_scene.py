@@ -232,10 +232,26 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/></sensor>')
     ('<shape type="sphere"><transform name="to_world"><scale value="2" x="3"/></transform>'
      '</shape>', ["s.xml:3", "either value or x/y/z"]),
     ('<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" value="0.5"/>'
-     '</bsdf></shape>', ["s.xml:3", "<spectrum>", "supported: float, integer", "<rgb>"]),
+     '</bsdf></shape>', ["s.xml:3", '<spectrum name="reflectance">', "supported: float, integer",
+      "<rgb>"]),
+    # what Mitsuba refuses too, instead of a silent choice of one meaning
+    ('<bsdf type="diffuse" id="a"/>\n<bsdf type="conductor" id="a"/>',
+     ["s.xml:4", "id 'a' is already used by the <bsdf> on line 3"]),
+    ('<shape type="sphere"><emitter type="area"/><emitter type="area"/></shape>',
+     ["s.xml:3", "more than one emitter in one shape"]),
+    ('<shape type="sphere"><bsdf type="diffuse"/><bsdf type="conductor"/></shape>',
+     ["s.xml:3", "more than one bsdf in one shape"]),
+    ('<shape type="sphere"><point name="center" y="0.5"/></shape>',
+     ["s.xml:3", '<point name="center">', "missing attribute 'x'"]),
+    # a bad value names its property
+    ('<shape type="sphere"><float name="radius" value="abc"/></shape>',
+     ["s.xml:3", '<float name="radius">', "expected a number, got 'abc'"]),
+    ('<shape type="sphere"><float name="radius" value="nan"/></shape>',
+     ['<float name="radius">', "expected a finite number, got 'nan'"]),
 ], ids=["shape-type", "property", "area-top-level", "ref", "param", "kind", "medium",
         "bsdf-type", "transform-op", "transform-attribute", "lookat-attribute",
-        "value-and-xyz", "spectrum"])
+        "value-and-xyz", "spectrum", "duplicate-id", "two-emitters", "two-bsdfs",
+        "point-missing-x", "float-text", "float-nan"])
 def test_unsupported_input_is_rejected_by_line(body, needles):
     msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>')
     for n in needles:
@@ -325,6 +341,44 @@ def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
     if 'value="0"' not in body:     # Mitsuba takes an index of 0
         with pytest.raises(RuntimeError):
             mi.load_string(text)
+
+
+@pytest.mark.parametrize("sensor_extra,body,needle", [
+    ('<sampler type="independent"><integer name="sample_count" value="-4"/></sampler>', "",
+     'sampler type="independent">: sample_count -4: must be at least 1'),
+    ("", '<shape type="sphere"><bsdf type="diffuse"><texture type="bitmap" '
+         'name="reflectance"/></bsdf></shape>',
+     'texture type="bitmap">: set <string name="filename" .../>'),
+    ("", '<emitter type="envmap"/>', 'emitter type="envmap">: set <string name="filename"'),
+], ids=["negative-sample-count", "bitmap-without-file", "envmap-without-file"])
+def test_bad_values_are_refused_naming_the_plugin(tmp_path, sensor_extra, body, needle):
+    """A negative sample count (was accepted by the loader, then a bare ValueError in
+    render) and an image texture or envmap with no filename (was "<folder>/ is not a
+    regular file") are refused by line, naming what is wrong."""
+    from estimators.pathtracer import prepare_scene
+
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n<sensor type="perspective"><float name="fov" '
+                    f'value="45"/>{sensor_extra}</sensor>\n{body}\n</scene>')
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert needle in str(e.value), str(e.value)
+
+
+def test_microfacet_distribution_names_are_read_as_mitsuba_reads_them(tmp_path):
+    """Mitsuba lower-cases ``distribution`` ("GGX" is GGX): ours does too."""
+    from estimators.pathtracer import prepare_scene
+
+    scenes = {}
+    for d in ("GGX", "ggx", "Beckmann"):
+        path = tmp_path / f"{d}.xml"
+        path.write_text(f'<scene version="3.0.0"><sensor type="perspective"><float '
+                        f'name="fov" value="45"/></sensor><shape type="sphere"><bsdf '
+                        f'type="roughconductor"><string name="distribution" value="{d}"/>'
+                        f'</bsdf></shape></scene>')
+        scenes[d] = prepare_scene(str(path)).arrays.bsdf_i
+    assert np.array_equal(scenes["GGX"], scenes["ggx"])
+    assert not np.array_equal(scenes["GGX"], scenes["Beckmann"])
 
 
 def test_of_two_sensors_the_first_is_rendered_as_in_mitsuba(mi):
