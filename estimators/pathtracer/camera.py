@@ -96,9 +96,6 @@ class Camera:
 
 def camera_from_scene(desc: SceneDescription) -> Camera:
     s, f = desc.sensor, desc.film
-    if s.type == "perspective" and "fov" not in s.props:
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: set "
-                         "<float name=\"fov\" .../>; focal_length is not supported")
     w, h = int(f.get("width", 768)), int(f.get("height", 576))
     if w < 1 or h < 1:
         raise SceneError(f"{desc.path}:{f.line}: <film>: width and height must be >= 1")
@@ -117,11 +114,11 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
         raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: to_world "
                          "scales (Mitsuba refuses scale factors in a perspective camera's "
                          "to_world; a mirror such as <scale x=\"-1\"/> is allowed)")
-    if not 0.0 < s.props["fov"] < 180.0:
+    fov_deg, axis = _field_of_view(desc)
+    if not 0.0 < fov_deg < 180.0:
         raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: fov="
-                         f"{s.props['fov']!r}: must be in (0, 180) degrees, as in Mitsuba")
-    fov = math.radians(s.props["fov"])
-    axis = s.get("fov_axis", "x")
+                         f"{fov_deg!r}: must be in (0, 180) degrees, as in Mitsuba")
+    fov = math.radians(fov_deg)
     if axis == "smaller":
         axis = "x" if aspect <= 1 else "y"
     elif axis == "larger":
@@ -141,6 +138,30 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
                          "diagonal, smaller, larger")
     return _with_film_filter(desc, Camera(to_world, tan_x, tan_y, near, far, w, h,
                                           PERSPECTIVE))
+
+
+def _field_of_view(desc: SceneDescription) -> tuple[float, str]:
+    """(fov in degrees, fov_axis) of a perspective sensor, as Mitsuba's ``parse_fov``
+    reads them: ``fov`` along ``fov_axis`` (default x), or else ``focal_length``
+    ("<x>mm" or a number, default "50mm") on a 35 mm film, which spans the diagonal:
+    fov = 2 atan(√(36² + 24²) / (2 f))."""
+    s = desc.sensor
+    if "fov" in s.props:
+        if "focal_length" in s.props:
+            raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: give "
+                             "either fov or focal_length, not both (Mitsuba refuses both)")
+        return float(s.props["fov"]), s.get("fov_axis", "x")
+    text = str(s.get("focal_length", "50mm")).strip()
+    number = text[:-2] if text.endswith("mm") else text
+    try:
+        focal = float(number)
+    except ValueError:
+        focal = float("nan")
+    if not (math.isfinite(focal) and focal > 0):
+        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: "
+                         f"focal_length {text!r}: expected a positive length in mm, e.g. "
+                         "\"35mm\"")
+    return math.degrees(2.0 * math.atan(math.hypot(36.0, 24.0) / (2.0 * focal))), "diagonal"
 
 
 def _with_film_filter(desc: SceneDescription, cam: Camera) -> Camera:

@@ -134,6 +134,7 @@ SUPPORTED = {
                    "bsdf_samples": ("integer",)},
     },
     "sensor": {"perspective": {"fov": ("float",), "fov_axis": ("string",),
+                               "focal_length": ("string",),
                                "near_clip": ("float",), "far_clip": ("float",),
                                "to_world": ("transform",), "children": ("film", "sampler")},
                "orthographic": {"near_clip": ("float",), "far_clip": ("float",),
@@ -343,6 +344,9 @@ class _Loader:
                 if name not in spec or name == "children":
                     self.fail(child, f"{kind} {ptype!r} has no property {name!r}; supported: "
                                      f"{', '.join(k for k in sorted(spec) if k != 'children')}")
+                if vkind == "integer" and "integer" not in spec[name] and \
+                        "float" in spec[name]:
+                    vkind, val = "float", float(val)    # Mitsuba reads an integer as a float
                 if vkind not in spec[name]:
                     self.fail(child, f"property {name!r} takes {' or '.join(spec[name])}, "
                                      f"not {vkind}")

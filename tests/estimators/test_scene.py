@@ -188,6 +188,36 @@ def test_orthographic_rays_match_mitsuba_pixel_for_pixel(mi, width, height, to_w
     _assert_rays_match_mitsuba(mi, text)
 
 
+@pytest.mark.parametrize("width,height,lens", [
+    (64, 48, ""), (48, 64, ""), (64, 48, '<string name="focal_length" value="35mm"/>'),
+    (40, 40, '<string name="focal_length" value="85mm"/>'),
+    (64, 32, '<string name="focal_length" value="24"/>'),
+], ids=["no-fov-landscape", "no-fov-portrait", "35mm", "85mm-square", "24-no-unit"])
+def test_focal_length_and_its_default_are_mitsubas(mi, width, height, lens):
+    """A perspective sensor without ``fov``: Mitsuba's ``focal_length`` (default 50mm)
+    on a 35 mm film, along the diagonal. Was refused ("set fov") where Mitsuba renders."""
+    text = (f'<scene version="3.0.0"><sensor type="perspective">{lens}<transform '
+            f'name="to_world"><lookat origin="0.7, 0.4, 3.9" target="0, 0, 0" up="0, 1, 0"/>'
+            f'</transform><film type="hdrfilm"><integer name="width" value="{width}"/>'
+            f'<integer name="height" value="{height}"/><rfilter type="box"/></film>'
+            f'</sensor></scene>')
+    _assert_rays_match_mitsuba(mi, text)
+
+
+@pytest.mark.parametrize("lens,needle", [
+    ('<float name="fov" value="45"/><string name="focal_length" value="50mm"/>',
+     "either fov or focal_length"),
+    ('<string name="focal_length" value="wide"/>', "focal_length 'wide'"),
+    ('<string name="focal_length" value="-5mm"/>', "focal_length '-5mm'"),
+], ids=["both", "not-a-number", "negative"])
+def test_a_bad_focal_length_is_refused(mi, lens, needle):
+    text = (f'<scene version="3.0.0"><sensor type="perspective">{lens}</sensor></scene>')
+    with pytest.raises(SceneError, match=needle):
+        camera_from_scene(parse_scene(text, path="s.xml"))
+    with pytest.raises(RuntimeError):
+        mi.load_string(text)
+
+
 @pytest.mark.parametrize("body,needle", [
     ('<float name="fov" value="45"/>', "orthographic' has no property 'fov'"),
     ('<transform name="to_world"><scale z="0"/></transform>',
@@ -219,8 +249,8 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/></sensor>')
      ["s.xml:3", "must be inside a <shape>"]),
     ('<shape type="sphere"><ref id="nope"/></shape>', ["s.xml:3", "'nope'"]),
     ('<shape type="sphere"><float name="radius" value="$r"/></shape>', ["$r has no value"]),
-    ('<shape type="sphere"><integer name="radius" value="1"/></shape>',
-     ["takes float, not integer"]),
+    ('<shape type="sphere"><string name="radius" value="1"/></shape>',
+     ["takes float, not string"]),
     ('<medium type="homogeneous"/>', ["s.xml:3", "unsupported top-level element"]),
     ('<shape type="sphere"><bsdf type="hair"/></shape>', ["unsupported bsdf type 'hair'"]),
     ('<shape type="sphere"><transform name="to_world"><shear/></transform></shape>',
@@ -256,6 +286,20 @@ def test_unsupported_input_is_rejected_by_line(body, needles):
     msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>')
     for n in needles:
         assert n in msg, msg
+
+
+def test_an_integer_is_read_as_a_float_where_a_float_is_expected():
+    """Mitsuba reads ``<integer>`` as a number wherever a float (or a colour) is
+    expected; so does the loader (it refused it before)."""
+    def props(body):
+        d = parse_scene(f'<scene version="3.0.0">{SENSOR}{body}</scene>', path="s.xml")
+        return d.shapes[0].props, d.shapes[0].children
+
+    p, _ = props('<shape type="sphere"><integer name="radius" value="2"/></shape>')
+    assert p["radius"] == 2.0 and isinstance(p["radius"], float)
+    _, kids = props('<shape type="rectangle"><emitter type="area"><integer name="radiance" '
+                    'value="3"/></emitter></shape>')
+    assert kids[0].props["radiance"] == 3.0
 
 
 def test_malformed_xml_and_missing_sensor():
