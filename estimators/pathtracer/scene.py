@@ -206,6 +206,9 @@ _TRANSFORM_ATTRIBUTES = {"translate": ("value", "x", "y", "z"),
                          "scale": ("value", "x", "y", "z"),
                          "rotate": ("value", "x", "y", "z", "angle"),
                          "lookat": ("origin", "target", "up"), "matrix": ("value",)}
+#: BSDF properties whose <rgb> is no reflectance (complex index of refraction): Mitsuba
+#: lets them leave [0, 1]
+_UNBOUNDED_RGB = ("eta", "k")
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")
@@ -350,6 +353,12 @@ class _Loader:
                 if vkind not in spec[name]:
                     self.fail(child, f"property {name!r} takes {' or '.join(spec[name])}, "
                                      f"not {vkind}")
+                if kind == "bsdf" and vkind == "rgb" and name not in _UNBOUNDED_RGB and \
+                        not np.all((val >= 0.0) & (val <= 1.0)):
+                    # Mitsuba reads a BSDF's <rgb> as an sRGB reflectance
+                    self.fail(child, f"an RGB reflectance must lie in [0, 1], got "
+                                     f"{', '.join(f'{v:g}' for v in val)} (Mitsuba refuses "
+                                     "it too; a <float> may exceed 1)")
                 p.props[name] = val
             elif child.tag == "ref":
                 target = self.attr(child, "id")

@@ -369,8 +369,13 @@ def test_a_filter_without_a_positive_radius_is_refused(rfilter):
     ('<emitter type="directional"><vector name="direction" x="0" y="-1" z="0"/><transform '
      'name="to_world"><rotate x="1" angle="20"/></transform></emitter>',
      'directional">: give either direction or to_world, not both'),
+    ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="1.5, 0.5, 2"/>'
+     '</bsdf></shape>', 'an RGB reflectance must lie in [0, 1], got 1.5, 0.5, 2'),
+    ('<shape type="sphere"><bsdf type="plastic"><rgb name="diffuse_reflectance" '
+     'value="-0.1"/></bsdf></shape>', "must lie in [0, 1], got -0.1, -0.1, -0.1"),
 ], ids=["max-depth", "two-integrators", "negative-ior", "negative-ext-ior", "zero-ior",
-        "point-position-and-to-world", "directional-direction-and-to-world"])
+        "point-position-and-to-world", "directional-direction-and-to-world",
+        "rgb-reflectance-above-1", "rgb-reflectance-negative"])
 def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
     """Each of these rendered in ours (a negative index of refraction, max_depth -2 as
     infinite, the last of two integrators) where Mitsuba refuses the scene."""
