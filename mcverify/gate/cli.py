@@ -205,6 +205,26 @@ def _suite_checks(args):
     return "+".join(names), checks, skipped, ({"config": config.file} if config else {})
 
 
+def _no_check(args) -> str:
+    """Why nothing is selected: ``-k`` matches no check, or the suite has none."""
+    if args.k is None:
+        return f"suite {args.suite!r} has no checks"
+    return (f"-k {args.k!r}: matches no check of suite {args.suite!r}; `mcverify list` "
+            "shows the names")
+
+
+def _suite_sources(suite: str, extra: dict) -> list[str]:
+    """The files a run of ``suite`` reads its checks from: each user suite's module
+    (``MODULE:ATTR``, imported by now) and the project's pyproject.toml."""
+    files = [extra["config"]] if extra.get("config") else []
+    for name in suite.split("+"):
+        if ":" in name:
+            module = sys.modules.get(name.split(":", 1)[0])
+            if getattr(module, "__file__", None):
+                files.append(module.__file__)
+    return files
+
+
 def _seconds_since_start() -> float:
     """Wall seconds since this process started (Linux's /proc; elsewhere since mcverify's
     CLI was imported), so that ``--budget`` counts the interpreter's start and imports."""
@@ -225,15 +245,17 @@ def _cmd_check(args) -> int:
     from . import suites
     from ..result import write_json, write_junit
 
-    inputs = [args.scene] if args.scene else []
+    args.suite, checks, skipped, extra = _suite_checks(args)
+    # the scene, the project's pyproject.toml and a user suite's module are inputs: an
+    # output path naming one of them would replace it
+    inputs = ([args.scene] if args.scene else []) + _suite_sources(args.suite, extra)
     _writable("--json", args.json, inputs)
     _writable("--junit", args.junit, inputs)
     _distinct_outputs(("--json", args.json), ("--junit", args.junit))
-    args.suite, checks, skipped, extra = _suite_checks(args)
     plan = None
-    if args.budget is not None and not args.budget > 0:     # before any message or work
-        raise InvalidArgument(f"--budget {args.budget:g}: must be a positive number of "
-                              "seconds")
+    if args.budget is not None and not 0 < args.budget < float("inf"):  # before any work
+        raise InvalidArgument(f"--budget {args.budget:g}: must be a positive, finite number "
+                              "of seconds")
     if args.budget is not None and args.scene:
         raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
                               "has its own spp and passes (use --budget without --scene)")
@@ -248,8 +270,7 @@ def _cmd_check(args) -> int:
         from .budget import plan_budget
 
         if not suites.select(suites.build_suite(args.suite), args.k):
-            raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
-                                  "`mcverify list` shows the names")
+            raise InvalidArgument(_no_check(args))
         if not args.quiet:
             print(f"mcverify check --budget {args.budget:g}: calibrating this machine ...",
                   file=sys.stderr)
@@ -262,8 +283,7 @@ def _cmd_check(args) -> int:
         print(f"mcverify check --scene {args.scene}: the scene needs no sampler or estimator "
               "checks", file=sys.stderr)
     elif not selected:
-        raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}; "
-                              "`mcverify list` shows the names")
+        raise InvalidArgument(_no_check(args))
     extra.update(_mitsuba_provenance(selected))
     with _pool(args) as pool:
         result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
@@ -357,7 +377,7 @@ def _cmd_list(args) -> int:
     _, checks, _, _ = _suite_checks(args)
     selected = suites.select(checks, args.k)
     if not selected:
-        raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}")
+        raise InvalidArgument(_no_check(args))
     for c in selected:
         print(c.name)
     return EXIT_OK
@@ -378,7 +398,7 @@ def _cmd_report(args) -> int:
     if not args.no_suite:
         selected = suites.select(suites.build_suite(args.suite), args.k)
         if not selected:
-            raise InvalidArgument(f"-k {args.k!r}: matches no check of suite {args.suite!r}")
+            raise InvalidArgument(_no_check(args))
         extra = _mitsuba_provenance(selected)
         with _pool(args) as pool:
             suite = suites.run_suite(selected, name=args.suite, seed=args.seed, progress=show,

@@ -31,7 +31,7 @@ from xml.parsers import expat
 
 import numpy as np
 
-from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
+from ..errors import EnvironmentProblem, InvalidArgument, MissingReference, interrupted
 from ..provenance import provenance
 from ..result import shared_mode
 from .executors import Pool, Unit, same_source, source_fingerprint
@@ -316,17 +316,6 @@ def list_scenes(root: str | None = None) -> list[str]:
     return sorted(d for d in os.listdir(root) if os.path.isfile(os.path.join(root, d, "scene.xml")))
 
 
-def _interrupted(e: BaseException) -> bool:
-    """True if a KeyboardInterrupt is anywhere in ``e``'s chain of causes."""
-    seen = set()
-    while e is not None and id(e) not in seen:
-        if isinstance(e, KeyboardInterrupt):
-            return True
-        seen.add(id(e))
-        e = e.__cause__ or e.__context__
-    return False
-
-
 def _pass_seeds(seed: int, passes: int) -> list[int]:
     return [int(s) for s in np.random.SeedSequence([seed, 7]).generate_state(passes)]
 
@@ -349,7 +338,7 @@ def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarr
     except (InvalidArgument, EnvironmentProblem):
         raise
     except Exception as e:  # noqa: BLE001 - Mitsuba raises plain Exception/RuntimeError
-        if _interrupted(e):   # Ctrl-C inside a render arrives wrapped in a drjit error
+        if interrupted(e):    # Ctrl-C inside a render arrives wrapped in a drjit error
             raise KeyboardInterrupt from None
         raise EnvironmentProblem(f"{path}: Mitsuba cannot render it ("
                                  f"{' '.join(str(e).split())})") from None

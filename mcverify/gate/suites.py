@@ -30,7 +30,7 @@ from scipy import stats as sps
 
 from .. import checks
 from ..domains import Interval
-from ..errors import InvalidArgument
+from ..errors import InvalidArgument, interrupted
 from ..provenance import provenance
 from ..result import CheckResult, SuiteResult
 from .executors import Pool, Unit, same_source, source_fingerprint
@@ -405,15 +405,30 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
     """Run a check; a subject that raises is a failed check naming the exception.
     ``stop_alpha``: where a sequential check may stop early (None: its own level)."""
     t0 = time.perf_counter()
-    try:
-        if check.sequential and stop_alpha is not None:
-            return check.run(seed, stop_alpha=stop_alpha)
-        return check.run(seed)
-    except Exception as e:  # noqa: BLE001 - any subject error is a finding, not a crash
+
+    def failed(message: str, exception: str | None = None) -> CheckResult:
         return CheckResult(name=check.name, passed=False, p_value=None, statistic=None,
                            alpha=0.0, n_samples=0, seconds=time.perf_counter() - t0,
-                           details={"seed": seed, "exception": type(e).__name__},
-                           failures=(f"raised {type(e).__name__}: {e}",))
+                           details={"seed": seed, **({"exception": exception}
+                                                     if exception else {})},
+                           failures=(message,))
+
+    try:
+        if check.sequential and stop_alpha is not None:
+            r = check.run(seed, stop_alpha=stop_alpha)
+        else:
+            r = check.run(seed)
+    except (Exception, SystemExit) as e:  # noqa: BLE001 - a subject error is a finding
+        if interrupted(e):          # Ctrl-C inside a numba kernel arrives as SystemError
+            raise KeyboardInterrupt from None
+        # a check calling sys.exit fails too: it must not end the gate (with exit 0)
+        return failed(f"raised {type(e).__name__}: {e}", type(e).__name__)
+    if not isinstance(r, CheckResult):
+        return failed(f"returned {type(r).__name__}, not a CheckResult")
+    if r.name != check.name:        # reported under the suite's name for it
+        r = dataclasses.replace(r, name=check.name,
+                                details=dict(r.details, result_name=r.name))
+    return r
 
 
 @lru_cache(maxsize=16)

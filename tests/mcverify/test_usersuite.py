@@ -35,6 +35,22 @@ CHECKS = textwrap.dedent('''
     not_checks = [1, 2]
     duplicates = [good[0], good[0]]
     number = 3
+
+    def _exits(seed):
+        import sys
+        sys.exit(0)
+
+    def _unnamed(scale):
+        def run(seed):       # check_sampler names its result "sampler:<lambda>"
+            return mv.check_sampler(lambda u: np.sqrt(u), lambda x: scale * 2 * x[:, 0],
+                                    "interval", n_samples=20_000, seed=seed)
+        return run
+
+    # a failure, then a check that calls sys.exit(0), one that returns None, and two
+    # checks whose results carry the same default name
+    odd = [bad[0], Check("exits", _exits), Check("returns-none", lambda seed: None),
+           Check("unnamed-good", _unnamed(1.0)), Check("unnamed-bad", _unnamed(1.1))]
+    empty = []
 ''')
 
 
@@ -178,3 +194,68 @@ def test_a_user_suite_runs_in_worker_processes_with_the_same_results(project):
     with Pool(jobs=2) as pool:
         there = run_suite(checks, seed=5, canary=False, pool=pool)
     assert [r.p_value for r in here.results] == [r.p_value for r in there.results]
+
+
+def test_what_a_check_does_wrong_is_its_own_failure_not_the_gates(project, tmp_path):
+    """A check that calls sys.exit(0) (the gate used to exit 0 after a failure, writing
+    nothing), one that returns None (the run stopped with an AttributeError naming no
+    check): each is a named FAIL and the others still run; results are reported under
+    the suite's names for them, not the names their CheckResults carry."""
+    out = tmp_path / "r.json"
+    r = _cli(["check", "-q", "--suite", "mine.checks:odd", "--json", str(out)], cwd=project)
+    assert r.returncode == 1, r.stdout + r.stderr
+    doc = json.loads(out.read_text())
+    got = {x["name"]: x for x in doc["results"]}
+    assert list(got) == ["sqrt*1.1", "exits", "returns-none", "unnamed-good", "unnamed-bad"]
+    assert got["exits"]["failures"] == ["raised SystemExit: 0"]
+    assert got["returns-none"]["failures"] == ["returned NoneType, not a CheckResult"]
+    assert got["unnamed-good"]["passed"] and not got["unnamed-bad"]["passed"]
+    assert got["unnamed-bad"]["details"]["result_name"] == "sampler:<lambda>"
+    assert "FAIL unnamed-bad" in r.stdout
+
+
+def test_ctrl_c_inside_compiled_code_interrupts_instead_of_failing_the_check():
+    """Ctrl-C inside a numba kernel reaches Python as ``SystemError: ... returned a
+    result with an exception set`` caused by the KeyboardInterrupt: the gate stops
+    (exit 130), it does not record a failed check and go on."""
+    from mcverify.gate.suites import _run_guarded
+
+    def run(seed):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise SystemError("CPUDispatcher(<function histogram_kernel>) returned a "
+                              "result with an exception set") from e
+
+    def plain(seed):
+        raise SystemError("x")
+
+    with pytest.raises(KeyboardInterrupt):
+        _run_guarded(Check("interrupted", run), 0)
+    r = _run_guarded(Check("plain", plain), 0)
+    assert not r.passed and r.failures == ("raised SystemError: x",)
+
+
+@pytest.mark.parametrize("option", ["--json", "--junit"])
+@pytest.mark.parametrize("target", ["mine/checks.py", "pyproject.toml"])
+def test_an_output_path_naming_the_suite_module_or_the_config_exits_2(project, option,
+                                                                      target):
+    """The user suite's module and the project's pyproject.toml are inputs of `check`:
+    an output path naming one exits 2 before any check runs, and leaves it intact (the
+    module used to be replaced by the JSON, with exit 0)."""
+    _pyproject(project, '[tool.mcverify]\nsuite = "mine.checks:good"\n')
+    before = (project / target).read_text()
+    r = _cli(["check", "-q", option, target], cwd=project)
+    assert r.returncode == 2 and "is also an input" in r.stderr, r.stdout + r.stderr
+    assert (project / target).read_text() == before
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--suite", "mine.checks:empty"], "suite 'mine.checks:empty' has no checks"),
+    (["--suite", "mine.checks:good", "-k", "nosuch"], "-k 'nosuch': matches no check"),
+    (["--budget", "inf"], "--budget inf: must be a positive, finite number"),
+], ids=["empty-suite", "k-matches-nothing", "budget-inf"])
+def test_nothing_to_run_and_an_infinite_budget_exit_2_saying_why(project, args, needle):
+    r = _cli(["check", "-q", *args], cwd=project)
+    assert r.returncode == 2 and needle in r.stderr, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
