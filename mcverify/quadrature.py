@@ -120,6 +120,11 @@ def _rule(density, lo, width, nodes, weights):
     return out[0], out[1], out[2]
 
 
+#: A leaf is split only while it is this many ulps wide (of its coordinates) along every
+#: axis: the children's Gauss nodes, a few per cent of a child's width from its ends,
+#: then stay thousands of ulps apart and off the ends.
+_RESOLVABLE = 1e6
+
 #: Corners are sampled this fraction of the leaf inside it: a step lying exactly on a
 #: cell edge (a grid-aligned piecewise-constant pdf) then reads this cell's value, not
 #: the neighbour's, while any sliver wider than this is still seen.
@@ -132,7 +137,22 @@ def _corner_values(density, lo, width):
     m = lo.shape[1]
     corners = np.ascontiguousarray(np.stack(np.meshgrid(
         *([[_CORNER_INSET, 1.0 - _CORNER_INSET]] * m), indexing="ij"), -1).reshape(-1, m))
-    return _at_offsets(density, lo, width, corners, clip=True).reshape(lo.shape[0], 2 ** m)
+    lo, width = np.ascontiguousarray(lo), np.ascontiguousarray(width)
+    s = np.empty((lo.shape[0] * corners.shape[0], m))
+    _box_points(lo, width, corners, True, s)
+    # In a leaf only a few thousand ulps wide the inset rounds away and a corner lands on
+    # the leaf's end, which may be a point where the density is singular (a disk's
+    # centre under a pdf ∝ 1/r): there the corners sit 16 ulps inside instead.
+    ulps = 16.0 * np.spacing(np.abs(lo) + width)
+    tiny = np.any(_CORNER_INSET * width < ulps, axis=1)
+    if tiny.any():
+        near = np.clip(lo[tiny] + ulps[tiny], 0.0, _S_MAX)
+        far = np.clip(lo[tiny] + width[tiny] - ulps[tiny], 0.0, _S_MAX)
+        bits = corners > 0.5
+        fix = np.where(bits[None], far[:, None, :], near[:, None, :])     # (T, 2^m, m)
+        s.reshape(lo.shape[0], -1, m)[tiny] = fix
+    f = np.asarray(density(s), dtype=np.float64).reshape(-1)
+    return np.ascontiguousarray(f).reshape(lo.shape[0], 2 ** m)
 
 
 def _children(lo, width):
@@ -155,9 +175,10 @@ def _thin_leaves(density, lo, width, budget, n_samples, tau):
     All leaves' lines are integrated in one batch: line ``k`` is the segment
     ``[k/K, (k+1)/K]`` of one concatenated 1-D axis."""
     n_leaves = lo.shape[0]
-    corners = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]])
-    pts = np.clip(lo[:, None, :] + width[:, None, :] * corners[None], 0.0, 1.0 - 2.0 ** -52)
-    f = np.asarray(density(pts.reshape(-1, 2)), dtype=np.float64).reshape(n_leaves, 2, 2)
+    # the corners just inside the leaf, as _corner_values reads them: a corner on the
+    # domain's edge may be a point where the density is singular (a disk's centre under
+    # a pdf ∝ 1/r), which no integral needs
+    f = _corner_values(density, lo, width).reshape(n_leaves, 2, 2)
     across0 = np.abs(f[:, 1, :] - f[:, 0, :]).max(axis=1)
     across1 = np.abs(f[:, :, 1] - f[:, :, 0]).max(axis=1)
     j = np.where(across0 >= across1, 0, 1)                # axis the feature varies along
@@ -281,9 +302,16 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         area = np.prod(width, axis=1)
         hidden = (((peak > 4.0 * node_max) & (peak * area > budget))
                   | ((trough < 0.25 * node_min) & (node_max * area > budget)))
-        done = (((err <= budget) & ~hidden) | (level >= max_level) | ~np.isfinite(err))
-        if level >= max_level:
-            unconverged += int(np.count_nonzero(err > budget))
+        # A leaf whose children's nodes would no longer be distinct floating-point
+        # numbers is not split: its nodes would round onto its ends (onto x = 1 near
+        # the top of [0, 1], where doubles are coarsest), and a density with an
+        # integrable singularity there (the arcsine's 1/√(1 - x)) would be evaluated at
+        # the singular point itself.
+        bottom = ~np.all(width > _RESOLVABLE * np.spacing(np.abs(lo) + width), axis=1)
+        done = (((err <= budget) & ~hidden) | (level >= max_level) | bottom
+                | ~np.isfinite(err))
+        stopped = (level >= max_level) | bottom
+        unconverged += int(np.count_nonzero(stopped & (err > budget)))
         if m == 2 and hidden.any():
             # A feature thinner than the leaf's nodes can see (a rim a hair inside a cell
             # edge): integrate such leaves as nested 1-D integrals, at once where the

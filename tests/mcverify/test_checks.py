@@ -297,3 +297,57 @@ def test_cubature_is_cached_by_pdf_identity_and_grid():
     assert again.details["cubature_cached"]
     assert [f for f in first.failures if "negative" in f] == \
         [f for f in again.failures if "negative" in f] != []
+
+
+def _arcsine_sample(u):
+    return np.sin(np.pi * u[:, 0] / 2) ** 2
+
+
+def _arcsine_pdf(x, scale=1.0):
+    x = x[:, 0]
+    with np.errstate(divide="ignore"):
+        return scale / (np.pi * np.sqrt(x * (1 - x)))
+
+
+def _theta_uniform_sample(u, power=1.0):
+    th = u[:, 0] ** power * np.pi / 2
+    phi = 2 * np.pi * u[:, 1]
+    return np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], -1)
+
+
+def _theta_uniform_pdf(x):
+    with np.errstate(divide="ignore"):
+        return 1 / (np.pi ** 2 * np.hypot(x[:, 0], x[:, 1]))
+
+
+def _r_uniform_sample(u):
+    r, phi = u[:, 0], 2 * np.pi * u[:, 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+
+
+def _r_uniform_pdf(x, scale=1.0):
+    with np.errstate(divide="ignore"):
+        return scale / (2 * np.pi * np.hypot(x[:, 0], x[:, 1]))
+
+
+@pytest.mark.parametrize("sample, pdf, domain", [
+    (_arcsine_sample, _arcsine_pdf, "interval"),
+    (_theta_uniform_sample, _theta_uniform_pdf, "hemisphere"),
+    (_r_uniform_sample, _r_uniform_pdf, "disk"),
+], ids=["arcsine", "hemisphere-uniform-in-theta", "disk-uniform-in-r"])
+def test_pdfs_with_integrable_singularities_pass_and_their_bugs_fail(sample, pdf, domain):
+    """Correct samplers whose density is infinite on the domain's edge or at a point
+    (the arcsine at 0 and 1, 1/sin θ at the pole, 1/r at the disk's centre): they pass
+    (they failed with "pdf returned ... NaN/Inf" at the singular point, which the
+    cubature evaluated exactly), and the same pdf 2 % too large, or the hemisphere's
+    sampler drawing θ ∝ u^1.05, fails."""
+    r = mv.check_sampler(sample, pdf, domain, n_samples=200_000, seed=4)
+    assert r.passed, (r.failures, r.messages, r.p_value)
+    assert abs(r.details["pdf_integral"] - 1.0) < 1e-4
+    if domain == "hemisphere":
+        bad = mv.check_sampler(lambda u: _theta_uniform_sample(u, 1.05), pdf, domain,
+                               n_samples=200_000, seed=4)
+    else:
+        bad = mv.check_sampler(sample, lambda x: pdf(x, 1.02), domain, n_samples=200_000,
+                               seed=4)
+    assert not bad.passed
