@@ -30,6 +30,13 @@ def integer(name: str, v, *, minimum: int | None = None) -> int:
     return int(v)
 
 
+def boolean(name: str, v) -> bool:
+    """A flag must be a bool (numpy's included): ``rejection="False"`` would be true."""
+    if not isinstance(v, (bool, np.bool_)):
+        raise InvalidArgument(f"{name}={_show(v)}: must be True or False")
+    return bool(v)
+
+
 def probability(name: str, v) -> float:
     if isinstance(v, bool) or not isinstance(v, numbers.Real) or not (0.0 < v < 1.0):
         raise InvalidArgument(f"{name}={_show(v)}: must be a number strictly between 0 and 1")
@@ -92,7 +99,11 @@ def seed(name: str, v) -> int:
     return integer(name, v, minimum=0)
 
 
-def resolution(name: str, v, param_dim: int) -> tuple[int, ...] | None:
+def resolution(name: str, v, param_dim: int, *, cell_factor: int = 1,
+               bytes_per_cell: int = 0) -> tuple[int, ...] | None:
+    """Cells per axis as a tuple; with ``bytes_per_cell``, refused when the
+    ``prod(cells) · cell_factor`` cells would need more than half the memory available
+    (before any work: numpy raised MemoryError after seconds, or the system was killed)."""
     if v is None:
         return None
     if isinstance(v, numbers.Integral) and not isinstance(v, bool):
@@ -106,7 +117,14 @@ def resolution(name: str, v, param_dim: int) -> tuple[int, ...] | None:
         raise InvalidArgument(f"{name}={_show(v)}: this domain needs {param_dim} entries")
     if any(isinstance(r, bool) or not isinstance(r, numbers.Integral) or r < 1 for r in t):
         raise InvalidArgument(f"{name}={_show(v)}: every entry must be an integer >= 1")
-    return tuple(int(r) for r in t)
+    t = tuple(int(r) for r in t)
+    cells = int(np.prod(t, dtype=object)) * cell_factor
+    need, avail = cells * bytes_per_cell, _available_memory()
+    if avail is not None and need > avail // 2:
+        raise InvalidArgument(f"{name}={_show(v)}: {cells:,} histogram cells need about "
+                              f"{_bytes(need)} of memory, more than half of the "
+                              f"{_bytes(avail)} available; use fewer cells")
+    return t
 
 
 def points(name: str, x, n: int, dim: int) -> np.ndarray:

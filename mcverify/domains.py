@@ -10,6 +10,8 @@ random numbers its samplers usually consume.
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 from . import _domain_kernels as kernels
@@ -116,9 +118,14 @@ class Interval(Domain):
     kind = kernels.INTERVAL
 
     def __init__(self, a: float = 0.0, b: float = 1.0):
+        for name, v in (("a", a), ("b", b)):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                raise InvalidArgument(f"Interval({name}={v!r}): must be a real number")
         a, b = float(a), float(b)
-        if not (np.isfinite(a) and np.isfinite(b) and b > a):
-            raise InvalidArgument(f"Interval(a={a}, b={b}): need finite a < b")
+        # b - a finite too: Interval(-1e308, 1e308) would map parameters to inf
+        if not (np.isfinite(a) and np.isfinite(b) and b > a and np.isfinite(b - a)):
+            raise InvalidArgument(f"Interval(a={a}, b={b}): need finite a < b with b - a "
+                                  "finite")
         self.a, self.b = a, b
         self.jacobian = b - a
 

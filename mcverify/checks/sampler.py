@@ -46,6 +46,9 @@ DEFAULT_CHUNK = 1 << 20
 #: binned Kolmogorov–Smirnov test.
 KS_SPLIT = 64
 _POOL: ThreadPoolExecutor | None = None
+#: Memory a histogram cell costs, an upper estimate: the binning kernel's 16 partial
+#: int64 counts, the observed and expected counts, the cubature's leaves and errors.
+_BYTES_PER_CELL = 512
 
 
 def _name_of(f, default):
@@ -406,7 +409,9 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
     """Validate the arguments shared by the histogram tests; returns them normalised."""
     dom = as_domain(domain)
     n = validate.integer("n_samples", n_samples, minimum=min_samples)
-    res = validate.resolution("resolution", resolution, dom.param_dim)
+    res = validate.resolution("resolution", resolution, dom.param_dim,
+                              cell_factor=KS_SPLIT if dom.param_dim == 1 else 1,
+                              bytes_per_cell=_BYTES_PER_CELL)
     k = dom.sample_dim if sample_dim is None else validate.integer("sample_dim", sample_dim, minimum=1)
     chunk = validate.integer("chunk", chunk, minimum=STREAM_BLOCK)
     if chunk % STREAM_BLOCK:
@@ -519,6 +524,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     validate.callable_("pdf", pdf)
     dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
         domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=1)
+    pilot = validate.boolean("pilot", pilot)
+    rejection = validate.boolean("rejection", rejection)
     name = name or f"sampler:{_name_of(sample, 'sample')}"
     m = dom.param_dim
     res = res or dom.default_resolution(n)
@@ -705,6 +712,10 @@ def detectable_contamination(result: CheckResult, *, power: float = 0.95,
     uniform contamination is the cell volume in parameter space, since every domain
     maps to it with a constant Jacobian.
     """
+    if not isinstance(result, CheckResult):
+        raise InvalidArgument(f"result={type(result).__name__}: pass the CheckResult of "
+                              "check_sampler")
+    power = validate.probability("power", power)
     h = result.artifacts.get("histogram")
     if h is None or "expected" not in h:
         raise InvalidArgument(f"result {result.name!r}: no histogram artifact; pass the "
@@ -806,6 +817,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     t0 = time.perf_counter()
     dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
         domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=2)
+    rejection = validate.boolean("rejection", rejection)
     name = name or "same_distribution"
     seqs = np.random.SeedSequence(seed).spawn(2)
     sides = []

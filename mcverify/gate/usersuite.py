@@ -112,8 +112,16 @@ def _read_config(file: str) -> ProjectConfig | None:
         raise InvalidArgument(f"{file}: [tool.mcverify] alpha = {alpha}: must be strictly "
                               "between 0 and 1")
     seed = table.get("seed")
-    if seed is not None and seed < 0:
-        raise InvalidArgument(f"{file}: [tool.mcverify] seed = {seed}: must be >= 0")
+    if seed is not None and not 0 <= seed <= 2 ** 63 - 1:    # as --seed
+        raise InvalidArgument(f"{file}: [tool.mcverify] seed = {seed}: must be in "
+                              "[0, 2**63 - 1]")
+    if "suite" in table and not suites:
+        raise InvalidArgument(f"{file}: [tool.mcverify] suite: an empty list; name at least "
+                              "one suite, or leave the key out for the default suite")
+    if len(set(suites)) != len(suites):
+        raise InvalidArgument(f"{file}: [tool.mcverify] suite: "
+                              f"{next(s for s in suites if suites.count(s) > 1)!r} is listed "
+                              "twice")
     return ProjectConfig(file=file, suites=suites, alpha=None if alpha is None else
                          float(alpha), seed=seed, path=strings("path") or (".",))
 

@@ -113,13 +113,18 @@ def test_the_first_pyproject_decides_even_without_a_table(project):
     ('[tool.mcverify]\nsuites = "a:b"\n', "'suites': unknown key"),
     ('[tool.mcverify]\nalpha = 2.0\n', "alpha = 2.0: must be strictly between 0 and 1"),
     ('[tool.mcverify]\nalpha = "x"\n', "alpha = 'x': expected float or int"),
-    ('[tool.mcverify]\nseed = -1\n', "seed = -1: must be >= 0"),
+    ('[tool.mcverify]\nseed = -1\n', r"seed = -1: must be in \[0, 2\*\*63 - 1\]"),
+    # as --seed refuses it (was accepted)
+    ('[tool.mcverify]\nseed = 99999999999999999999\n', "seed = 99999999999999999999: must be"),
+    # an empty list fell back to the default suite; a repeated entry ran every check twice
+    ('[tool.mcverify]\nsuite = []\n', "suite: an empty list"),
+    ('[tool.mcverify]\nsuite = ["default", "default"]\n', "'default' is listed twice"),
     ('[tool.mcverify]\nseed = true\n', "seed = True: expected int"),
     ('[tool.mcverify]\nsuite = "nightly"\n', "suite 'nightly': expected MODULE:ATTR"),
     ('[tool.mcverify]\nsuite = [1]\n', "suite: 1 is not a string"),
     ('[tool.mcverify\n', "not valid TOML"),
-], ids=["unknown-key", "alpha-range", "alpha-type", "seed-negative", "seed-bool",
-        "suite-name", "suite-type", "toml"])
+], ids=["unknown-key", "alpha-range", "alpha-type", "seed-negative", "seed-beyond-2^63",
+        "empty-suite-list", "suite-twice", "seed-bool", "suite-name", "suite-type", "toml"])
 def test_a_malformed_table_names_the_file_and_key(project, body, match):
     _pyproject(project, body)
     with pytest.raises(mv.InvalidArgument, match=match) as e:
@@ -259,3 +264,4 @@ def test_nothing_to_run_and_an_infinite_budget_exit_2_saying_why(project, args, 
     r = _cli(["check", "-q", *args], cwd=project)
     assert r.returncode == 2 and needle in r.stderr, r.stdout + r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+

@@ -34,6 +34,19 @@ CASES = [
      "ns="),
     ("same-dist-bad-array", lambda: mv.check_same_distribution("abc", S, "square"),
      "sample_a"),
+    # found by a review of inputs not in the repository
+    ("resolution-beyond-memory", lambda: mv.check_sampler(S, P, "hemisphere",
+                                                          resolution=10 ** 5),
+     "resolution=(100000, 100000.: 10,000,000,000 histogram cells"),
+    ("interval-text", lambda: mv.Interval("a", 1), "Interval(a='a'.: must be a real number"),
+    ("interval-overflowing-width", lambda: mv.Interval(-1e308, 1e308), "b - a finite"),
+    ("rejection-string", lambda: mv.check_sampler(S, P, "square", rejection="False"),
+     "rejection='False'"),
+    ("pilot-string", lambda: mv.check_sampler(S, P, "square", pilot="no"), "pilot='no'"),
+    ("same-dist-rejection-none", lambda: mv.check_same_distribution(S, S, "square",
+                                                                    rejection=None),
+     "rejection=None"),
+    ("contamination-not-a-result", lambda: mv.detectable_contamination("x"), "result=str"),
 ]
 
 
@@ -45,3 +58,11 @@ def test_invalid_calls_raise_invalid_argument(call, match):
 
 def test_invalid_argument_is_a_value_error():
     assert issubclass(mv.InvalidArgument, ValueError)
+
+
+@pytest.mark.parametrize("power", [1.5, 0.0, float("nan")])
+def test_detectable_contamination_names_a_bad_power(power):
+    r = mv.check_sampler(lambda u: np.sqrt(u), lambda x: 2 * x[:, 0], "interval",
+                         n_samples=20_000, seed=0)
+    with pytest.raises(mv.InvalidArgument, match="power="):
+        mv.detectable_contamination(r, power=power)
