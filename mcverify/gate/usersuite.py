@@ -149,6 +149,12 @@ def load_user_suite(spec: str, *, roots=(".",)) -> list[Check]:
     except ImportError as e:
         raise InvalidArgument(f"--suite {spec!r}: cannot import {module_name!r} ({e}); "
                               f"import roots: {', '.join(roots)}") from None
+    except (Exception, SystemExit) as e:   # noqa: BLE001 - the user's module failed
+        where = ""
+        if isinstance(e, SyntaxError) and e.filename:
+            where = f" at {e.filename}:{e.lineno}"
+        raise InvalidArgument(f"--suite {spec!r}: importing {module_name!r} raised "
+                              f"{type(e).__name__}{where}: {e}") from None
     obj = module
     for part in attr.split("."):
         if not hasattr(obj, part):
@@ -156,7 +162,11 @@ def load_user_suite(spec: str, *, roots=(".",)) -> list[Check]:
                                   f"{attr!r}")
         obj = getattr(obj, part)
     if callable(obj) and not isinstance(obj, (list, tuple)):
-        obj = obj()
+        try:
+            obj = obj()
+        except (Exception, SystemExit) as e:   # noqa: BLE001 - the user's builder failed
+            raise InvalidArgument(f"--suite {spec!r}: {attr}() raised {type(e).__name__}: "
+                                  f"{e}") from None
     if not isinstance(obj, (list, tuple)):
         raise InvalidArgument(f"--suite {spec!r}: expected a list of "
                               f"mcverify.gate.suites.Check, got {type(obj).__name__}")

@@ -36,6 +36,9 @@ CHECKS = textwrap.dedent('''
     duplicates = [good[0], good[0]]
     number = 3
 
+    def raising_builder():
+        return 1 / 0
+
     def _exits(seed):
         import sys
         sys.exit(0)
@@ -60,6 +63,8 @@ def project(tmp_path, monkeypatch):
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "__init__.py").write_text("")
     (tmp_path / "mine" / "checks.py").write_text(CHECKS)
+    (tmp_path / "mine" / "broken.py").write_text('raise ValueError("at import")\n')
+    (tmp_path / "mine" / "syntax.py").write_text("suite = [\n")
     (tmp_path / "sub" / "deeper").mkdir(parents=True)
     monkeypatch.chdir(tmp_path / "sub" / "deeper")
     for name in list(sys.modules):
@@ -88,6 +93,10 @@ def test_a_list_and_a_factory_load(project):
     ("mine.checks:number", "expected a list of mcverify.gate.suites.Check, got int"),
     ("mine.checks:not_checks", "item 0 is a int"),
     ("mine.checks:duplicates", "two checks are named 'sqrt'"),
+    # the user's own code failing: named, not "unexpected ValueError"
+    ("mine.broken:suite", "importing 'mine.broken' raised ValueError: at import"),
+    ("mine.syntax:suite", "importing 'mine.syntax' raised SyntaxError at "),
+    ("mine.checks:raising_builder", r"raising_builder\(\) raised ZeroDivisionError"),
 ])
 def test_bad_user_suites_are_refused_by_name(project, spec, match):
     with pytest.raises(mv.InvalidArgument, match=match):
