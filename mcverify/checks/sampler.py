@@ -46,6 +46,8 @@ DEFAULT_CHUNK = 1 << 20
 #: binned Kolmogorov–Smirnov test.
 KS_SPLIT = 64
 _POOL: ThreadPoolExecutor | None = None
+#: Most samples a histogram test draws: counts and sums of counts stay exact in float64.
+MAX_SAMPLES = 2 ** 53
 #: Memory a histogram cell costs, an upper estimate: the binning kernel's 16 partial
 #: int64 counts, the observed and expected counts, the cubature's leaves and errors.
 _BYTES_PER_CELL = 512
@@ -409,6 +411,8 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
     """Validate the arguments shared by the histogram tests; returns them normalised."""
     dom = as_domain(domain)
     n = validate.integer("n_samples", n_samples, minimum=min_samples)
+    if n > MAX_SAMPLES:     # counts stay exact in float64; 10**30 crashed in numpy
+        raise InvalidArgument(f"n_samples={n}: at most 2**53 = {MAX_SAMPLES:.3g}")
     res = validate.resolution("resolution", resolution, dom.param_dim,
                               cell_factor=KS_SPLIT if dom.param_dim == 1 else 1,
                               bytes_per_cell=_BYTES_PER_CELL)
@@ -760,11 +764,7 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     name = name or f"inverse:{_name_of(inverse, 'inverse')}"
     u = np.random.default_rng(seed).random((n, k))
     x = np.asarray(sample(u))
-    u2 = np.asarray(inverse(x), dtype=np.float64)
-    if u2.shape == (n,) and k == 1:
-        u2 = u2.reshape(n, 1)
-    if u2.shape != (n, k):
-        raise InvalidArgument(f"inverse returned shape {u2.shape}: expected ({n}, {k})")
+    u2 = np.asarray(validate.points("inverse", inverse(x), n, k), dtype=np.float64)
     err = np.abs(u2 - u)
     err = np.where(np.isfinite(err), err, np.inf)
     per = err.max(axis=1)
@@ -827,6 +827,8 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
             continue
         try:
             x = np.asarray(smp)
+            if x.dtype == object:       # None entries would become NaN points
+                raise TypeError
             x = x if x.dtype == np.float32 else x.astype(np.float64)
         except (TypeError, ValueError):
             x = None

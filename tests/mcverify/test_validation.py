@@ -47,6 +47,13 @@ CASES = [
                                                                     rejection=None),
      "rejection=None"),
     ("contamination-not-a-result", lambda: mv.detectable_contamination("x"), "result=str"),
+    ("inverse-returns-text", lambda: mv.check_inverse(S, lambda x: np.full(x.shape, "a"), 2,
+                                                      n_samples=100),
+     "inverse returned dtype"),
+    ("same-dist-array-of-none", lambda: mv.check_same_distribution(
+        np.full((100, 2), None), S, "square", n_samples=100), "sample_a: must be"),
+    ("n-beyond-2^53", lambda: mv.check_sampler(S, P, "square", n_samples=10 ** 30),
+     "n_samples=1000000000000000000000000000000: at most 2\\*\\*53"),
 ]
 
 
