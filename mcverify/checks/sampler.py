@@ -391,7 +391,11 @@ def _cdf_from_leaves(density, leaves, s, total):
 def _worst_cells(domain, edges, counts, expected, k=5):
     e = expected.ravel()
     o = counts.ravel()
-    contrib = np.where(e > 0, (o - e) ** 2 / np.maximum(e, 1e-300), np.where(o > 0, np.inf, 0))
+    # a cell expecting under 5 counts is pooled by the χ² test: its deviation is weighed
+    # as a pooled bin of 5 would weigh it, so one count where 0.01 were expected (a tail
+    # cell of a correct sampler) does not top the list; a count where the pdf integrates
+    # to 0 does (a failure of its own)
+    contrib = np.where(e > 0, (o - e) ** 2 / np.maximum(e, 5.0), np.where(o > 0, np.inf, 0))
     out = []
     for flat in np.argsort(-contrib)[:k]:
         if contrib[flat] == 0:

@@ -351,3 +351,22 @@ def test_pdfs_with_integrable_singularities_pass_and_their_bugs_fail(sample, pdf
         bad = mv.check_sampler(sample, lambda x: pdf(x, 1.02), domain, n_samples=200_000,
                                seed=4)
     assert not bad.passed
+
+
+def test_the_largest_discrepancy_is_a_cell_the_chi2_test_weighs():
+    """A cell expecting 0.01 counts that got 1 (a correct sampler's tail, pooled by the
+    χ² test) used to top the "largest discrepancy" list ahead of the cell that drove the
+    failure; a count where the pdf integrates to 0 still comes first."""
+    from mcverify.checks.sampler import _worst_cells
+    from mcverify.domains import Square
+
+    edges = [np.linspace(0, 1, 4), np.linspace(0, 1, 4)]
+    expected = np.full((3, 3), 100.0)
+    expected[0, 0] = 0.01
+    counts = expected.copy()
+    counts[0, 0] = 1.0
+    counts[2, 1] = 140.0
+    worst = _worst_cells(Square(), edges, counts, expected)
+    assert worst[0]["cell"] == [2, 1]
+    expected[1, 1], counts[1, 1] = 0.0, 1.0
+    assert _worst_cells(Square(), edges, counts, expected)[0]["cell"] == [1, 1]
