@@ -122,3 +122,18 @@ def test_cli_budget_refuses_bad_values():
                            capture_output=True, timeout=600)
         assert r.returncode == 2 and needle in r.stderr, r.stderr
         assert "calibrating" not in r.stderr, r.stderr     # refused before any work
+
+
+def test_calibration_stops_at_two_thirds_of_the_budget():
+    """Calibration may use at most two thirds of the budget, start-up included (on busy
+    cores timing every check took 167 s of a 20 s budget): past it, the checks left
+    untimed run at the minimum n and a note says so. Here the start-up alone is past."""
+    plan = B.plan_budget("default", "sampler:cosine_hemisphere", 10.0, startup=7.0,
+                         canary=False, n_min=1 << 17)
+    assert plan.n_samples == {"sampler:cosine_hemisphere": 1 << 17}
+    assert any("calibration stopped at two thirds of the budget" in n
+               and "1 of 1 sampler checks"
+               in n for n in plan.notes), plan.notes
+    timed = B.plan_budget("default", "sampler:cosine_hemisphere", 60.0, canary=False)
+    assert not any("calibration stopped" in n for n in timed.notes)
+    assert "sampler:cosine_hemisphere" in timed.per_sample_ns
