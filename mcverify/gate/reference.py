@@ -134,11 +134,9 @@ def scene_assets(scene_path: str) -> dict[str, str | None]:
     ``<string name="filename" value=...>`` and ``<include filename=...>``, keyed by the
     name as written, ``$name`` replaced by the scene's ``<default>`` (Mitsuba's
     substitution), resolved against the scene's folder as Mitsuba resolves it; None for
-    a name that is no regular file (Mitsuba then refuses the scene)."""
-    with open(scene_path, "rb") as f:
-        text = f.read()
+    a name that is no regular file (Mitsuba then refuses the scene). Parsed as
+    ``precheck_scene`` parses it (``_parse_scene``)."""
     defaults, names = {}, []
-    parser = expat.ParserCreate()
 
     def start(tag, attrib):
         if tag == "default" and "name" in attrib:
@@ -148,11 +146,7 @@ def scene_assets(scene_path: str) -> dict[str, str | None]:
         elif tag == "include" and "filename" in attrib:
             names.append(attrib["filename"])
 
-    parser.StartElementHandler = start
-    try:
-        parser.Parse(text, True)
-    except expat.ExpatError:
-        return {}                # not XML: precheck_scene refuses it, naming the line
+    _parse_scene(scene_path, start)
     folder = os.path.dirname(os.path.abspath(scene_path))
     out: dict[str, str | None] = {}
     for name in names:
@@ -245,19 +239,37 @@ def read_float_exr(path: str) -> np.ndarray:
     return img
 
 
-def precheck_scene(path: str) -> None:
-    """What Mitsuba needs before rendering anything: a readable, well-formed XML file
-    whose root is <scene> with an <integrator> (Mitsuba has no default one) and a
-    <sensor> (or an <include> that may hold them). InvalidArgument names the file."""
+def _parse_scene(path: str, start, end=None) -> None:
+    """Parse a scene file (a readable regular file of sane size) with expat, calling
+    ``start(tag, attrib)`` and ``end(tag)`` per element; a DOCTYPE or entity
+    declaration (entity expansion) or malformed XML is InvalidArgument naming the file
+    and line. The one parser of scene files here, so every reading is hardened alike."""
     _regular_file(path, "scene")
     with open(path, "rb") as f:
         text = f.read()
-    tags, depth = [], [0]
     parser = expat.ParserCreate()
 
     def refuse(*_):
         raise InvalidArgument(f"{path}: has a DOCTYPE/entity declaration; Mitsuba scenes "
                               "need none (refused: entity expansion)")
+
+    parser.StartDoctypeDeclHandler = refuse
+    parser.EntityDeclHandler = refuse
+    parser.StartElementHandler = start
+    if end is not None:
+        parser.EndElementHandler = end
+    try:
+        parser.Parse(text, True)
+    except expat.ExpatError as e:
+        raise InvalidArgument(f"{path}:{e.lineno}: not well-formed XML "
+                              f"({expat.ErrorString(e.code)})") from None
+
+
+def precheck_scene(path: str) -> None:
+    """What Mitsuba needs before rendering anything: a readable, well-formed XML file
+    whose root is <scene> with an <integrator> (Mitsuba has no default one) and a
+    <sensor> (or an <include> that may hold them). InvalidArgument names the file."""
+    tags, depth = [], [0]
 
     def start(tag, attrib):
         if depth[0] == 1:
@@ -269,14 +281,7 @@ def precheck_scene(path: str) -> None:
     def end(tag):
         depth[0] -= 1
 
-    parser.StartDoctypeDeclHandler = refuse
-    parser.EntityDeclHandler = refuse
-    parser.StartElementHandler, parser.EndElementHandler = start, end
-    try:
-        parser.Parse(text, True)
-    except expat.ExpatError as e:
-        raise InvalidArgument(f"{path}:{e.lineno}: not well-formed XML "
-                              f"({expat.ErrorString(e.code)})") from None
+    _parse_scene(path, start, end)
     if not tags or tags[0] != "<root>scene":
         raise InvalidArgument(f"{path}: the root element must be <scene>")
     if "include" not in tags:
@@ -513,9 +518,9 @@ def load_reference(spec: str) -> Reference:
     if recorded is None and assets:
         raise EnvironmentProblem(f"{mpath}: stale: records no SHA-256 of the files the scene "
                                  f"names (built before they were recorded); {rebuild}")
-    for asset, digest in sorted(assets.items()):
-        if not isinstance(recorded, dict) or recorded.get(asset, "") != digest:
-            what = "is missing" if digest is None else "changed"
+    for asset, now in sorted(assets.items()):
+        if not isinstance(recorded, dict) or recorded.get(asset, "") != now:
+            what = "is missing" if now is None else "changed"
             raise EnvironmentProblem(f"{mpath}: stale: {asset} (named by {path}) {what} "
                                      f"since the reference was built; {rebuild}")
     labels = IMAGES + ((PASSES,) if "passes_sha256" in manifest else ())

@@ -161,8 +161,9 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
 
     The cached reference (``reference.ref_folder``: ``ref`` beside the scene) is used
     when ``params`` is empty; a missing one is built first (``notice(message)`` says so);
-    a stale or corrupt one is an error. With ``params`` (XML ``$`` overrides, e.g. ``{"max_depth": 2}``) the reference
-    is rendered on the fly with the same overrides (16 passes × 64 spp)."""
+    a stale or corrupt one is an error. With ``params`` (XML ``$`` overrides, e.g.
+    ``{"max_depth": 2}``) the reference is rendered on the fly with the same overrides
+    (16 passes × 64 spp)."""
     from ..sequential import run_sequential
     from . import reference
 
