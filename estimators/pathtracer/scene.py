@@ -244,16 +244,15 @@ class _Loader:
         return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", sub, value)
 
     def numbers(self, node, text, count):
+        want = "a number" if count == 1 else f"{count} numbers"
         try:
             vals = [float(t) for t in re.split(r"[,\s]+", text.strip()) if t]
         except ValueError:
-            self.fail(node, f"expected {'a number' if count == 1 else f'{count} numbers'}, "
-                            f"got {text!r}")
+            self.fail(node, f"expected {want}, got {text!r}")
         if len(vals) == 1 and count == 3:
             vals = vals * 3
         if len(vals) != count:
-            self.fail(node, f"expected {'a number' if count == 1 else f'{count} numbers'}, "
-                            f"got {text!r}")
+            self.fail(node, f"expected {want}, got {text!r}")
         if not all(np.isfinite(vals)):
             self.fail(node, f"expected {'a finite number' if count == 1 else 'finite numbers'}"
                             f", got {text!r}")
@@ -278,12 +277,9 @@ class _Loader:
         if tag == "rgb":
             return "rgb", self.numbers(node, self.attr(node, "value"), 3)
         if tag in ("point", "vector"):
-            if "value" in node.attrib:
-                return tag, self.numbers(node, self.attr(node, "value"), 3)
-            # all three coordinates, as Mitsuba requires (translate/scale/rotate default
-            # the ones left out; a point or vector does not)
-            return tag, np.array([self.numbers(node, self.attr(node, k), 1)[0]
-                                  for k in "xyz"])
+            # value, or all three coordinates, as Mitsuba requires (translate/scale/rotate
+            # default the ones left out; a point or vector does not)
+            return tag, self._xyz(node, None)
         if tag == "transform":
             return "transform", self.transform(node)
         self.fail(node, "unsupported value type")
@@ -324,10 +320,11 @@ class _Loader:
         return m
 
     def _xyz(self, op, default):
+        """``value`` or x, y, z; a coordinate left out is ``default`` (None: required)."""
         if "value" in op.attrib:
             return self.numbers(op, self.attr(op, "value"), 3)
-        return np.array([self.numbers(op, self.attr(op, k), 1)[0] if k in op.attrib
-                         else default for k in "xyz"])
+        return np.array([self.numbers(op, self.attr(op, k), 1)[0]
+                         if k in op.attrib or default is None else default for k in "xyz"])
 
     def plugin(self, node, kind=None):
         kind = kind or node.tag
