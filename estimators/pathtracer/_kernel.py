@@ -95,7 +95,8 @@ def permute(i, n, p):
         i &= w
         i ^= i >> np.uint64(5)
         if i < n:
-            return (i + p) % n
+            # n a power of two (w = n - 1): the walk ends here and % n is a mask
+            return (i + p) & w if n & w == np.uint64(0) else (i + p) % n
 
 
 @njit(cache=True, _nrt=False)
@@ -111,7 +112,9 @@ def _stratum2(u, v, s, n, seed):
     r = int(math.sqrt(float(n)) + 0.5)
     if np.uint64(r * r) == n:
         p = permute(s, n, _mix(seed) >> np.uint64(32))
-        y = p // np.uint64(r)
+        # p // r by a float division: exact, since p < 2^32 and r < 2^16 keep the
+        # quotient's distance from the next integer (>= 1/r) far above its rounding
+        y = np.uint64(float(p) / float(r))
         x = p - y * np.uint64(r)
         return (float(x) + u) / r, (float(y) + v) / r
     return _stratum(u, s, n, seed), _stratum(v, s, n, seed ^ _M1)

@@ -26,6 +26,54 @@ def test_permute_is_a_permutation_for_every_seed(n):
         assert len(orders) == 8
 
 
+def _kensler(i, n, p):
+    """Kensler's permute in Python integers (the paper's 32-bit arithmetic, walked until
+    below n, then offset mod n): the reference for the kernel's shortcuts."""
+    m = 0xFFFFFFFF
+    p &= m
+    w = n - 1
+    for s in (1, 2, 4, 8, 16):
+        w |= w >> s
+    while True:
+        i ^= p
+        i = (i * 0xe170893d) & m
+        i ^= p >> 16
+        i ^= (i & w) >> 4
+        i ^= p >> 8
+        i = (i * 0x0929eb3f) & m
+        i ^= p >> 23
+        i ^= (i & w) >> 1
+        i = (i * (1 | (p >> 27))) & m
+        i = (i * 0x6935fa69) & m
+        i ^= (i & w) >> 11
+        i = (i * 0x74dcb303) & m
+        i ^= (i & w) >> 2
+        i = (i * 0x9e501cc3) & m
+        i ^= (i & w) >> 2
+        i = (i * 0xc860a3df) & m
+        i &= w
+        i ^= i >> 5
+        if i < n:
+            return (i + p) % n
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 16, 64, 100, 256, 1000, 4096, 2**20])
+def test_permute_is_kenslers_for_powers_of_two_and_others(n):
+    """The kernel's shortcuts (a mask for % n when n is a power of two, a float division
+    for the 2-D grid's row) give Kensler's permutation and grid cell exactly."""
+    rng = np.random.default_rng(n)
+    for p in (0, 1, 0xDEADBEEF, 2**32 - 1, *rng.integers(0, 2**63, 4).tolist()):
+        for i in {0, n - 1, *rng.integers(0, n, 20).tolist()}:
+            assert int(K.permute(i, n, p)) == _kensler(i, n, p), (i, n, p)
+    r = int(round(n ** 0.5))
+    if r * r == n:           # the 2-D dimension's cell: row p // r, column p % r
+        for s in range(min(n, 300)):
+            seed = np.uint64(77 * s + 1)
+            u, v = K._stratum2(0.0, 0.0, np.uint64(s), np.uint64(n), seed)
+            c = _kensler(s, n, int(K._mix(seed) >> np.uint64(32)))
+            assert (round(u * r), round(v * r)) == (c % r, c // r)
+
+
 def _state(s, n, scramble=0x1234567):
     return (np.uint64(s * 77 + 5), np.uint64(scramble), np.uint64(s), np.uint64(n),
             np.uint64(0))
