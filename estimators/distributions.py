@@ -66,68 +66,109 @@ def sample_discrete_kernel(cdf, u):
     return i, p, min(max(r, 0.0), ONE_MINUS_EPSILON)
 
 
+def _guided(cdf: np.ndarray) -> np.ndarray:
+    """A piecewise-constant density's table: its CDF over n pieces (n + 1 values)
+    followed by a guide of n entries, ``guide[g]`` the piece that ``u = g / n`` falls in
+    (as ``_find_interval_kernel`` finds it), stored as floats so that the table is one
+    array. The guide narrows a sample's search to the pieces between ``guide[g - 2]``
+    and ``guide[g + 2]``: one or two steps where a whole binary search took ~10
+    dependent loads (an envmap's two searches were 14 % of a render's time)."""
+    n = cdf.size - 1
+    guide = np.clip(np.searchsorted(cdf, np.arange(n) / n, side="right") - 1, 0, n - 1)
+    return np.concatenate([cdf, guide.astype(np.float64)])
+
+
+@njit(cache=True, inline="always")
+def _pieces(table):
+    return (table.shape[0] - 1) // 2
+
+
 @njit(cache=True)
-def _sample_pc1d_kernel(cdf, u):
+def _find_piece_kernel(table, u):
+    """``_find_interval_kernel`` on a table's CDF, searching only where the guide says:
+    the same piece for every u. ``g = int(u·n)`` is ``floor(u·n)`` or one above (the
+    product's rounding), and ``g / n`` may round either way, so the guide entries two
+    cells either side bracket the piece."""
+    n = _pieces(table)
+    if not u >= 0.0:                         # below the CDF (or NaN): piece 0, as before
+        return 0
+    g = min(int(u * n), n - 1)
+    lo = int(table[n + 1 + max(g - 2, 0)])
+    hi = int(table[n + 1 + g + 2]) if g + 2 < n else n - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if table[mid] <= u:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+@njit(cache=True)
+def _sample_pc1d_kernel(table, u):
     """Piecewise-constant density on [0, 1] with n pieces: (x, pdf, piece)."""
-    n = cdf.shape[0] - 1
-    i, p, r = sample_discrete_kernel(cdf, u)
+    n = _pieces(table)
+    i = _find_piece_kernel(table, u)
+    p = table[i + 1] - table[i]
+    r = min(max((u - table[i]) / p if p > 0 else 0.0, 0.0), ONE_MINUS_EPSILON)
     return min((i + r) / n, ONE_MINUS_EPSILON), p * n, i
 
 
 @njit(cache=True)
-def _pc1d_pdf_kernel(cdf, x):
-    n = cdf.shape[0] - 1
+def _pc1d_pdf_kernel(table, x):
+    n = _pieces(table)
     if x < 0.0 or x > 1.0:
         return 0.0
     i = min(int(x * n), n - 1)
-    return (cdf[i + 1] - cdf[i]) * n
+    return (table[i + 1] - table[i]) * n
 
 
 @njit(cache=True)
-def _invert_pc1d_kernel(cdf, x):
-    n = cdf.shape[0] - 1
+def _invert_pc1d_kernel(table, x):
+    n = _pieces(table)
     i = min(max(int(x * n), 0), n - 1)
     t = x * n - i
-    return min(max(cdf[i] + t * (cdf[i + 1] - cdf[i]), 0.0), ONE_MINUS_EPSILON)
+    return min(max(table[i] + t * (table[i + 1] - table[i]), 0.0), ONE_MINUS_EPSILON)
 
 
 @njit(cache=True)
-def sample_pc2d_kernel(marginal_cdf, conditional_cdf, u0, u1):
-    """Piecewise-constant density on [0, 1]² ((ny, nx) pieces): pick the row y from the
-    marginal with u1, then x within the row with u0. Returns (x, y, pdf)."""
-    y, py, row = _sample_pc1d_kernel(marginal_cdf, u1)
-    x, px, _ = _sample_pc1d_kernel(conditional_cdf[row], u0)
+def sample_pc2d_kernel(marginal, conditional, u0, u1):
+    """Piecewise-constant density on [0, 1]² ((ny, nx) pieces; ``marginal`` and each
+    row of ``conditional`` a table of ``_guided``): pick the row y from the marginal
+    with u1, then x within the row with u0. Returns (x, y, pdf)."""
+    y, py, row = _sample_pc1d_kernel(marginal, u1)
+    x, px, _ = _sample_pc1d_kernel(conditional[row], u0)
     return x, y, px * py
 
 
 @njit(cache=True)
-def pc2d_pdf_kernel(marginal_cdf, conditional_cdf, x, y):
+def pc2d_pdf_kernel(marginal, conditional, x, y):
     if x < 0.0 or x > 1.0 or y < 0.0 or y > 1.0:
         return 0.0
-    ny = marginal_cdf.shape[0] - 1
+    ny = _pieces(marginal)
     row = min(int(y * ny), ny - 1)
-    return _pc1d_pdf_kernel(marginal_cdf, y) * _pc1d_pdf_kernel(conditional_cdf[row], x)
+    return _pc1d_pdf_kernel(marginal, y) * _pc1d_pdf_kernel(conditional[row], x)
 
 
 @njit(cache=True)
-def _invert_pc2d_kernel(marginal_cdf, conditional_cdf, x, y):
-    ny = marginal_cdf.shape[0] - 1
+def _invert_pc2d_kernel(marginal, conditional, x, y):
+    ny = _pieces(marginal)
     row = min(max(int(y * ny), 0), ny - 1)
-    return _invert_pc1d_kernel(conditional_cdf[row], x), _invert_pc1d_kernel(marginal_cdf, y)
+    return _invert_pc1d_kernel(conditional[row], x), _invert_pc1d_kernel(marginal, y)
 
 
 @njit(cache=True)
-def _pc1d_batch_kernel(cdf, u, mode):
+def _pc1d_batch_kernel(table, u, mode):
     """mode 0: sample u -> (x, pdf); 1: pdf(x); 2: invert x -> u."""
     out = np.empty((u.shape[0], 2))
     for i in range(u.shape[0]):
         if mode == 0:
-            x, p, _ = _sample_pc1d_kernel(cdf, u[i])
+            x, p, _ = _sample_pc1d_kernel(table, u[i])
             out[i, 0], out[i, 1] = x, p
         elif mode == 1:
-            out[i, 0] = _pc1d_pdf_kernel(cdf, u[i])
+            out[i, 0] = _pc1d_pdf_kernel(table, u[i])
         else:
-            out[i, 0] = _invert_pc1d_kernel(cdf, u[i])
+            out[i, 0] = _invert_pc1d_kernel(table, u[i])
     return out
 
 
@@ -186,22 +227,23 @@ class PiecewiseConstant1D:
             raise ValueError(f"PiecewiseConstant1D(a={a}, b={b}): need finite a < b")
         self.values = np.abs(np.asarray(values, dtype=np.float64))
         self.cdf, total = _cdf_of(self.values, "values")
+        self.table = _guided(self.cdf)        # what the kernels read
         self.a, self.b = float(a), float(b)
         #: ∫ |f| over [a, b] (the normalisation of the density).
         self.integral = total * (b - a) / self.values.size
 
     def sample(self, u):
         """``u`` (n,) or (n, 1) -> points (n, 1) on [a, b]."""
-        r = _pc1d_batch_kernel(self.cdf, _unit(u), 0)
+        r = _pc1d_batch_kernel(self.table, _unit(u), 0)
         return (self.a + (self.b - self.a) * r[:, 0]).reshape(-1, 1)
 
     def pdf(self, x):
         t = (_unit(x) - self.a) / (self.b - self.a)
-        return _pc1d_batch_kernel(self.cdf, t, 1)[:, 0] / (self.b - self.a)
+        return _pc1d_batch_kernel(self.table, t, 1)[:, 0] / (self.b - self.a)
 
     def invert(self, x):
         t = (_unit(x) - self.a) / (self.b - self.a)
-        return _pc1d_batch_kernel(self.cdf, t, 2)[:, :1]
+        return _pc1d_batch_kernel(self.table, t, 2)[:, :1]
 
 
 class PiecewiseConstant2D:
@@ -215,20 +257,23 @@ class PiecewiseConstant2D:
         self.values = v
         self.marginal_cdf, total = _cdf_of(v.sum(axis=1), "values")
         self.conditional_cdf = np.stack([_cdf_of(row, "values")[0] for row in v])
+        # what the kernels (and the path tracer's envmap) read: each CDF with its guide
+        self.marginal_table = _guided(self.marginal_cdf)
+        self.conditional_table = np.stack([_guided(c) for c in self.conditional_cdf])
         self.integral = total / v.size
 
     def sample(self, u):
         """``u`` (n, 2) -> points (n, 2) = (x, y)."""
         u = np.ascontiguousarray(np.asarray(u, dtype=np.float64).reshape(-1, 2))
-        return _pc2d_batch_kernel(self.marginal_cdf, self.conditional_cdf, u, 0)[:, :2]
+        return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, u, 0)[:, :2]
 
     def pdf(self, x):
         x = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, 2))
-        return _pc2d_batch_kernel(self.marginal_cdf, self.conditional_cdf, x, 1)[:, 0]
+        return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, x, 1)[:, 0]
 
     def invert(self, x):
         x = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, 2))
-        return _pc2d_batch_kernel(self.marginal_cdf, self.conditional_cdf, x, 2)[:, :2]
+        return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, x, 2)[:, :2]
 
 
 @dataclass(frozen=True)

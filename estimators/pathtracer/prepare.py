@@ -182,8 +182,8 @@ class _Builder:
         self.textures = TextureStore()
         self.texture_ids: dict[int, int] = {}
         self.env = -1
-        self.env_marg = np.zeros(2)
-        self.env_cond = np.zeros((1, 2))
+        self.env_marg = np.array([0.0, 1.0, 0.0])      # one piece (a table of _guided),
+        self.env_cond = np.array([[0.0, 1.0, 0.0]])    # unread while there is no envmap
         self.features = 0
 
     def fail(self, plugin: Plugin, message: str):
@@ -655,7 +655,7 @@ class _Builder:
                 f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
                 f[layout.ENV_TO_LOCAL:layout.ENV_TO_LOCAL + 9] = np.linalg.inv(m[:3, :3]).ravel()
                 pc = PiecewiseConstant2D(envmap_sampling_weights(img))
-                self.env_marg, self.env_cond = pc.marginal_cdf, pc.conditional_cdf
+                self.env_marg, self.env_cond = pc.marginal_table, pc.conditional_table
             self.env = len(self.lights)
             self.features |= FEATURE_BITS["light:environment"]
             self.features |= FEATURE_BITS["light:nondelta"]

@@ -63,6 +63,47 @@ def test_piecewise_constant_2d_like_an_envmap():
     assert not mv.check_sampler(d.sample, wrong.pdf, "square", seed=5).passed
 
 
+def _guide_cases():
+    rng = np.random.default_rng(5)
+    yield np.ones(7)
+    yield WEIGHTS
+    yield np.r_[np.zeros(50), 1.0, np.zeros(50)]                  # one piece holds all
+    yield np.r_[1e-12 * rng.random(300), 1e6, rng.random(200)]    # a sun in a dark sky
+    yield rng.random(1) + 0.5
+    yield np.where(rng.random(257) < 0.5, 0.0, rng.random(257) ** 6)
+    yield np.zeros(9)                                               # all zero: uniform
+
+
+@settings(max_examples=60, deadline=None)
+@given(w=arrays(np.float64, st.integers(1, 64),
+                elements=st.one_of(st.just(0.0), st.floats(0, 1e6))))
+def test_guided_search_finds_the_binary_searchs_piece_for_any_weights(w):
+    _check_guided(w)
+
+
+@pytest.mark.parametrize("case", range(7))
+def test_guided_search_finds_the_binary_searchs_piece(case):
+    _check_guided(list(_guide_cases())[case])
+
+
+def _check_guided(w):
+    """The guide (``_guided``) only narrows the search: ``_find_piece_kernel`` returns
+    the piece the plain binary search over the CDF returns, for u at and one ulp either
+    side of every guide threshold g / n and of every CDF value, at 0, just below 1,
+    at 1, below 0 and NaN, and for random u."""
+    from estimators.distributions import (_cdf_of, _find_interval_kernel, _find_piece_kernel,
+                                          _guided)
+
+    cdf = _cdf_of(np.asarray(w, dtype=np.float64), "w")[0]
+    table = _guided(cdf)
+    n = cdf.size - 1
+    base = np.r_[np.arange(n + 1) / n, cdf, np.random.default_rng(n).random(200)]
+    us = np.r_[base, np.nextafter(base, -1.0), np.nextafter(base, 2.0),
+               0.0, 1.0 - 2.0 ** -53, 1.0, -0.5, np.nan]
+    for u in us:
+        assert _find_piece_kernel(table, u) == _find_interval_kernel(cdf, u), (u, w)
+
+
 def test_inverted_cdf_of_sin_and_a_discontinuous_pdf():
     d = InvertedCDF(np.sin, 0.0, np.pi)
     assert d.cdf_error < 1e-9
