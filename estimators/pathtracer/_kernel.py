@@ -270,7 +270,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
             wx, wy, wz, dist, lr, lg, lb, lpdf = sample_emitter(
                 light_f, light_i, light_cdf, prims, info, shape_flip, tex_data, tex_info,
                 env_marg, env_cond, k, px, py, pz, u0, u1, u2)
-            if lpdf > 0.0 and (lr > 0.0 or lg > 0.0 or lb > 0.0):
+            # != 0: an emitter may be negative (Mitsuba adds it linearly)
+            if lpdf > 0.0 and (lr != 0.0 or lg != 0.0 or lb != 0.0):
                 wo = to_local(fs, ft, fn, wx, wy, wz)
                 fr, fg, fb, bpdf = bsdf_eval(BSDF_MASK, bf, bi, btex, tex_data, tex_info, b,
                                              wi, wo, u, v)
