@@ -102,6 +102,10 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
     aspect = w / h
     to_world = np.asarray(s.get("to_world", np.eye(4)), dtype=np.float64)
     near, far = float(s.get("near_clip", 1e-2)), float(s.get("far_clip", 1e4))
+    if not 0.0 < near < far:        # Mitsuba's ProjectiveCamera refuses both
+        what = "must be > 0" if not near > 0.0 else f"must be below far_clip={far!r}"
+        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: "
+                         f"near_clip={near!r}: {what} (as Mitsuba requires)")
     if s.type == "orthographic":
         if not np.linalg.norm(to_world[:3, 2]) > 0:
             raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"orthographic\">: "

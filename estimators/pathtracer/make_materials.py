@@ -12,8 +12,13 @@ from __future__ import annotations
 import json
 import os
 
-CONDUCTORS = ("a-C Ag Al AlAs AlSb Au Be Cr CsI Cu Cu2O CuO d-C Hg HgTe Ir K Li MgO Mo "
-              "Na_palik Nb Ni_palik Rh Se SiC SnTe Ta Te ThF4 TiC TiN TiO2 VC VN W none").split()
+def conductor_names(mi) -> list[str]:
+    """Every conductor Mitsuba ships (a ``NAME.eta.spd`` and ``NAME.k.spd`` pair in its
+    ``data/ior`` folder; 71 in 3.9.1, the ``_palik`` variants included), and ``none``."""
+    folder = os.path.join(os.path.dirname(mi.__file__), "data", "ior")
+    names = {f[:-len(".eta.spd")] for f in os.listdir(folder) if f.endswith(".eta.spd")}
+    return sorted(n for n in names if os.path.isfile(os.path.join(folder, f"{n}.k.spd"))) \
+        + ["none"]
 
 # Named dielectric indices (Mitsuba's table, the values of its documentation).
 DIELECTRICS = {
@@ -38,7 +43,7 @@ def main() -> None:
     mi = import_mitsuba("scalar_rgb")
     mi.set_log_level(mi.LogLevel.Error)
     conductors = {}
-    for name in CONDUCTORS:
+    for name in conductor_names(mi):
         params = mi.traverse(mi.load_dict({"type": "conductor", "material": name}))
         conductors[name] = {k: _rgb(params[f"{k}.value"]) for k in ("eta", "k")}
     out = {"source": f"mitsuba {mi.__version__} scalar_rgb", "conductors": conductors,

@@ -347,11 +347,16 @@ class _Builder:
             f[c0], tex[0], _ = self._colour(plugin, "specular_reflectance", 1.0)
             eta = slice(layout.COND_ETA, layout.COND_ETA + 3)
             k = slice(layout.COND_K, layout.COND_K + 3)
-            if "eta" in plugin.props or "k" in plugin.props:
+            name = plugin.get("material", "none")
+            given = [q for q in ("eta", "k") if q in plugin.props]
+            if given and name != "none":
+                # Mitsuba refuses both (eta with a material; k alone is left unread)
+                self.fail(plugin, f"material={name!r} and {'/'.join(given)} given: "
+                                  "specify either (eta, k) or a material, not both")
+            if given:
                 f[eta] = np.broadcast_to(plugin.get("eta", 0.0), 3)
                 f[k] = np.broadcast_to(plugin.get("k", 1.0), 3)
             else:
-                name = plugin.get("material", "none")
                 table = _materials()["conductors"]
                 if name not in table:
                     self.fail(plugin, f"unknown material {name!r}; supported: "

@@ -146,7 +146,11 @@ def test_a_mirrored_perspective_camera_is_mitsubas(mi, ops):
     ('<float name="fov" value="180"/>', "fov=180.0: must be in (0, 180)"),
     ('<float name="fov" value="200"/>', "fov=200.0: must be in (0, 180)"),
     ('<float name="fov" value="0"/>', "fov=0.0: must be in (0, 180)"),
-], ids=["scale-2", "scale-1.01", "fov-180", "fov-200", "fov-0"])
+    ('<float name="near_clip" value="5"/><float name="far_clip" value="2"/>',
+     "near_clip=5.0: must be below far_clip=2.0"),
+    ('<float name="near_clip" value="0"/>', "near_clip=0.0: must be > 0"),
+], ids=["scale-2", "scale-1.01", "fov-180", "fov-200", "fov-0", "near-beyond-far",
+        "near-zero"])
 def test_perspective_sensor_refuses_what_mitsuba_refuses(mi, body, needle):
     """Mitsuba throws on a scaled camera-to-world and on a field of view outside
     (0, 180); ours rendered them (a zoomed or upside-down view)."""
@@ -373,9 +377,18 @@ def test_a_filter_without_a_positive_radius_is_refused(rfilter):
      '</bsdf></shape>', 'an RGB reflectance must lie in [0, 1], got 1.5, 0.5, 2'),
     ('<shape type="sphere"><bsdf type="plastic"><rgb name="diffuse_reflectance" '
      'value="-0.1"/></bsdf></shape>', "must lie in [0, 1], got -0.1, -0.1, -0.1"),
+    ('<shape type="sphere"><bsdf type="conductor"><string name="material" value="Au"/>'
+     '<float name="eta" value="0.2"/></bsdf></shape>',
+     "material='Au' and eta given: specify either (eta, k) or a material, not both"),
+    ('<shape type="sphere"><bsdf type="conductor"><string name="material" value="Au"/>'
+     '<float name="k" value="2"/></bsdf></shape>', "material='Au' and k given"),
+    ('<shape type="sphere"><bsdf type="roughconductor"><string name="material" value="Cu"/>'
+     '<rgb name="eta" value="0.2, 0.9, 1.1"/><rgb name="k" value="3, 2.5, 2.3"/></bsdf>'
+     '</shape>', "material='Cu' and eta/k given"),
 ], ids=["max-depth", "two-integrators", "negative-ior", "negative-ext-ior", "zero-ior",
         "point-position-and-to-world", "directional-direction-and-to-world",
-        "rgb-reflectance-above-1", "rgb-reflectance-negative"])
+        "rgb-reflectance-above-1", "rgb-reflectance-negative", "material-and-eta",
+        "material-and-k", "material-and-eta-k"])
 def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
     """Each of these rendered in ours (a negative index of refraction, max_depth -2 as
     infinite, the last of two integrators) where Mitsuba refuses the scene."""
@@ -549,3 +562,21 @@ def test_direct_hiding_emitters_with_a_null_bsdf_is_refused(tmp_path, bsdf):
         prepare_scene(str(path))
     path.write_text(text.replace('value="true"', 'value="false"'))
     prepare_scene(str(path))
+
+
+def test_every_conductor_mitsuba_ships_is_named_with_mitsubas_indices(mi):
+    """``materials.json`` holds every named conductor of Mitsuba's ``data/ior`` (it had 36
+    of 71: ``Cu_palik``, ``Se-e`` and the rest were refused), each with the eta and k
+    Mitsuba's RGB variant uses."""
+    from estimators.pathtracer.make_materials import conductor_names
+    from estimators.pathtracer.prepare import _materials
+
+    table = _materials()["conductors"]
+    names = conductor_names(mi)
+    assert len(names) >= 72 and set(names) <= set(table), set(names) - set(table)
+    for name in ("Cu_palik", "Se-e", "TiO2-e_palik", "V_palik", "Au"):
+        params = mi.traverse(mi.load_dict({"type": "conductor", "material": name}))
+        for k in ("eta", "k"):
+            v = params[f"{k}.value"]
+            np.testing.assert_allclose(table[name][k], np.ravel([v[0], v[1], v[2]]),
+                                       rtol=1e-6)
