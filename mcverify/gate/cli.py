@@ -355,6 +355,9 @@ def _plan(scene, suite):
 
 
 def _cmd_plan(args) -> int:
+    if (args.scene is None) == (args.scene_option is None):
+        raise InvalidArgument("plan: name one scene, as SCENE.xml or --scene SCENE.xml")
+    args.scene = args.scene if args.scene is not None else args.scene_option
     checks, skipped, features = _plan(args.scene, args.suite)
     print(f"scene {args.scene} uses: {', '.join(sorted(features))}")
     print(f"checks ({len(checks)}):")
@@ -730,7 +733,9 @@ def build_parser() -> argparse.ArgumentParser:
     ls.set_defaults(func=_cmd_list)
 
     pl = sub.add_parser("plan", help="the checks a scene needs, and what is skipped")
-    pl.add_argument("scene", metavar="SCENE.xml", help="a Mitsuba XML scene")
+    pl.add_argument("scene", metavar="SCENE.xml", nargs="?", help="a Mitsuba XML scene")
+    pl.add_argument("--scene", dest="scene_option", metavar="SCENE.xml",
+                    help="the same, spelt as for mcverify check --scene")
     pl.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
     pl.add_argument("-v", "--verbose", action="store_true",
                     help="also list the checks the scene does not need")

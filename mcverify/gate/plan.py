@@ -11,7 +11,6 @@ instances, with their parameters, are χ²-checked (``tracer_checks``).
 from __future__ import annotations
 
 import dataclasses
-import os
 
 from .suites import Check, resolve_suite
 from .tracer_checks import tracer_checks
@@ -109,9 +108,10 @@ def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tup
 def _render_check(scene_path: str) -> Check:
     """The scene's render gate: our path tracer against its Mitsuba reference (built on
     first use); sequential, so the suite tells it where it may stop early."""
+    from .reference import scene_name
     from .render_check import render_check
 
-    name = f"render:{os.path.basename(os.path.dirname(os.path.abspath(scene_path)))}"
+    name = f"render:{scene_name(scene_path)}"
 
     def run(seed, stop_alpha=None):
         return dataclasses.replace(render_check(scene_path, seed=seed, stop_alpha=stop_alpha),

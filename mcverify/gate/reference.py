@@ -308,10 +308,16 @@ def resolve_scene(spec: str, root: str | None = None) -> tuple[str, str]:
         known = ", ".join(list_scenes(root)) or "none"
         raise InvalidArgument(f"scene {spec!r}: no such file, folder with scene.xml, or "
                               f"reference name (known: {known})")
+    return scene_name(path), path
+
+
+def scene_name(path: str) -> str:
+    """A scene file's name in check names and references: its folder's for a
+    ``scene.xml``, else the file's own without its extension."""
+    path = os.path.abspath(path)
     base = os.path.basename(path)
-    name = (os.path.basename(os.path.dirname(path)) if base == "scene.xml"
+    return (os.path.basename(os.path.dirname(path)) if base == "scene.xml"
             else os.path.splitext(base)[0])
-    return name, path
 
 
 def list_scenes(root: str | None = None) -> list[str]:

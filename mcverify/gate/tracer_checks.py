@@ -19,11 +19,10 @@ the instance (``rough-conductors/bsdf2:roughconductor(ggx,alpha=0.01)``).
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from .. import checks
+from .reference import scene_name
 from .suites import Check
 
 __all__ = ["ANGLES", "TRACER_SAMPLES", "tracer_checks", "scene_instances"]
@@ -118,7 +117,7 @@ def scene_instances(scene_path: str):
                                                 emitter_has_density, emitter_sampler)
 
     scene = prepare_scene(scene_path)
-    tag = os.path.basename(os.path.dirname(os.path.abspath(scene_path)))
+    tag = scene_name(scene_path)
     entries, skipped = [], []
     for b in range(len(scene.arrays.bsdf_i)):
         label = _bsdf_label(scene, tag, b)

@@ -49,10 +49,26 @@ def test_diffuse_scene_with_a_point_light(tmp_path):
     assert "delta emitter" in dict(skipped)[f"emitter {tmp_path.name}/light0:point"]
 
 
+def test_two_scene_files_in_one_folder_get_their_own_check_names(tmp_path):
+    """A scene file other than scene.xml is named by its stem, as its reference is
+    (``ref-FILE.xml/``) and as render-check names it; plan named both files of a folder
+    after the folder, so their checks collided."""
+    for stem in ("lamp", "desk"):
+        (tmp_path / f"{stem}.xml").write_text(DIFFUSE_POINT)
+    a, b = (_names(plan(str(tmp_path / f"{s}.xml"))[0]) for s in ("lamp", "desk"))
+    own = {n for n in a if n.startswith(("render:", "sampler:tracer."))}
+    assert "render:lamp" in own and "render:desk" in b and own.isdisjoint(b)
+    assert "sampler:tracer.bsdf:lamp/bsdf0:diffuse@wi=0°" in a
+
+
 def test_cli_plan_and_check_scene(tmp_path):
     r = subprocess.run(CMD + ["plan", CORNELL], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "sampler:cosine_hemisphere" in r.stdout
     assert "delta BSDF" in r.stdout
+    # spelt as for check, --scene works too
+    r2 = subprocess.run(CMD + ["plan", "--scene", CORNELL], capture_output=True, text=True,
+                        timeout=120)
+    assert r2.returncode == 0 and r2.stdout == r.stdout
     out = tmp_path / "r.json"
     r = subprocess.run(CMD + ["check", "--scene", CORNELL, "-k", "inverse:", "--json", str(out),
                               "-q"], capture_output=True, text=True, timeout=600)
