@@ -22,11 +22,13 @@ def callable_(name: str, v) -> None:
                               f"(got {type(v).__name__})")
 
 
-def integer(name: str, v, *, minimum: int | None = None) -> int:
+def integer(name: str, v, *, minimum: int | None = None, maximum: int | None = None) -> int:
     if isinstance(v, bool) or not isinstance(v, numbers.Integral):
         raise InvalidArgument(f"{name}={_show(v)}: must be an integer")
     if minimum is not None and v < minimum:
         raise InvalidArgument(f"{name}={v}: must be >= {minimum}")
+    if maximum is not None and v > maximum:
+        raise InvalidArgument(f"{name}={v}: must be <= {maximum}")
     return int(v)
 
 
@@ -75,11 +77,17 @@ def _bytes(n: float) -> str:
         n /= 1024
 
 
-def memory(name: str, n: int, bytes_each: int, what: str) -> None:
+def memory(name: str, n: int, bytes_each: int, what: str, *, width=None,
+           least: int = 1) -> None:
     """Refuse ``n`` items of ``bytes_each`` bytes when they need more than half the memory
     available, before any work (numpy would raise MemoryError half-way, or the system
-    would swap)."""
+    would swap). ``width``: ``(parameter, value)`` that sets ``bytes_each``, blamed
+    instead of ``name`` when not even ``least`` items fit."""
     need, avail = n * bytes_each, _available_memory()
+    if avail is not None and width is not None and least * bytes_each > avail // 2:
+        raise InvalidArgument(f"{width[0]}={width[1]}: {least} rows of it need about "
+                              f"{_bytes(least * bytes_each)} of memory ({what}), more than "
+                              f"half of the {_bytes(avail)} available")
     if avail is not None and need > avail // 2:
         raise InvalidArgument(f"{name}={n}: needs about {_bytes(need)} of memory ({what}), "
                               f"more than half of the {_bytes(avail)} available; use at "

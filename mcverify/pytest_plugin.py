@@ -52,6 +52,9 @@ def worker_threads(total: int) -> int | None:
 
 
 def pytest_configure(config):
+    seed = config.getoption("mcverify_seed")
+    if not 0 <= seed <= 2 ** 63 - 1:        # as mcverify check --seed
+        raise pytest.UsageError(f"--mcverify-seed={seed}: must be in [0, 2**63 - 1]")
     # numba's thread count is per thread: this sets the worker's main thread, which
     # runs the tests.
     if config.getoption("mcverify_all_threads"):
@@ -76,6 +79,11 @@ def mcverify_seed(request) -> int:
 def assert_check():
     def check(result):
         __tracebackhide__ = True
+        from mcverify.result import CheckResult
+
+        if not isinstance(result, CheckResult):
+            pytest.fail(f"assert_check expects the CheckResult of a mcverify check, got "
+                        f"{type(result).__name__} {result!r:.80}", pytrace=False)
         if not result.passed:
             lines = [result.summary(), *result.failures, *result.messages]
             pytest.fail("\n".join(lines), pytrace=False)

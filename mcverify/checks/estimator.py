@@ -179,6 +179,13 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
     if not np.all(np.isfinite(x)):
         failures.append(f"{np.count_nonzero(~np.isfinite(x))} samples are NaN/Inf")
         x = x[np.isfinite(x)]
+    if x.size < 2:
+        failures.append(f"{x.size} finite sample(s) left: a variance needs at least 2")
+        return CheckResult(name=name, passed=False, p_value=None, statistic=float("nan"),
+                           alpha=alpha, n_samples=int(x.size),
+                           seconds=time.perf_counter() - t0,
+                           details={"variance": None, "expected_variance": ev},
+                           failures=tuple(failures))
     r = stats.variance_test(x, ev)
     if ev == 0.0 and r.p_value == 0.0:
         failures.append(f"expected zero variance (p ∝ f), measured {r.variance:.3g}")
@@ -241,7 +248,10 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     t0 = time.perf_counter()
     validate.callable_("estimate", estimate)
     expected = validate.real("expected", expected)
-    ns = [validate.integer("ns[i]", n, minimum=1) for n in ns]
+    if isinstance(ns, (str, bytes)) or not hasattr(ns, "__iter__"):
+        raise InvalidArgument(f"ns={ns!r}: must be a sequence of sample counts")
+    ns = [validate.integer(f"ns[{i}]", n, minimum=1) for i, n in enumerate(ns)]
+    expected_slope = validate.real("expected_slope", expected_slope)
     if len(ns) < 3 or len(set(ns)) != len(ns):
         raise InvalidArgument(f"ns={ns}: need at least 3 distinct sample counts")
     r = validate.integer("n_seeds", n_seeds, minimum=4)
@@ -284,7 +294,8 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
         # Passing means rejecting "slope >= expected": report 1 - p as the check's
         # p-value so that, as everywhere, small p means failure.
         p = 1.0 - fit.p_value
-    msg = (f"slope {fit.slope:.3f} (99% CI [{fit.ci_low:.3f}, {fit.ci_high:.3f}]), "
+    msg = (f"slope {fit.slope:.3f} ({100 * (1 - alpha):.4g}% CI [{fit.ci_low:.3f}, "
+           f"{fit.ci_high:.3f}]), "
            f"expected {'<' if alternative == 'less' else ''}{expected_slope}")
     return CheckResult(name=name, passed=CheckResult.decide(p, alpha, failures), p_value=p,
                        statistic=fit.slope, alpha=alpha, n_samples=int(sum(ns) * r),

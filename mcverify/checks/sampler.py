@@ -447,9 +447,11 @@ def _worst_cells(domain, edges, counts, expected, k=5):
         idx = np.unravel_index(flat, counts.shape)
         lo = [float(edges[j][i]) for j, i in enumerate(idx)]
         hi = [float(edges[j][i + 1]) for j, i in enumerate(idx)]
-        centre = domain.to_point(np.array([[(a + b) / 2 for a, b in zip(lo, hi)]]))[0]
+        centre = (None if domain is None else      # None: a marginal's cells, no point
+                  domain.to_point(np.array([[(a + b) / 2 for a, b in zip(lo, hi)]]))[0]
+                  .tolist())
         out.append({"cell": [int(i) for i in idx], "param_lo": lo, "param_hi": hi,
-                    "point": centre.tolist(), "observed": float(o[flat]),
+                    "point": centre, "observed": float(o[flat]),
                     "expected": float(e[flat]), "contribution": float(contrib[flat])})
     return out
 
@@ -471,7 +473,8 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
                               "rows of one seeded block of uniforms)")
     # Streamed: two chunks of uniforms and one of points in memory at a time, whatever n.
     validate.memory("chunk" if chunk <= n else "n_samples", min(n, chunk),
-             8 * (2 * k + 2 * dom.dim), "uniform numbers and points of one chunk")
+                    8 * (2 * k + 2 * dom.dim), "uniform numbers and points of one chunk",
+                    width=("sample_dim", k), least=min(n, STREAM_BLOCK))
     return dom, n, res, validate.probability("alpha", alpha), validate.seed("seed", seed), k, chunk
 
 
@@ -808,10 +811,14 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     n = validate.integer("n_samples", n_samples, minimum=1)
     seed = validate.seed("seed", seed)
     atol = validate.real("atol", atol, minimum=0.0)
-    validate.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips")
+    validate.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips",
+                    width=("sample_dim", k), least=min(n, 1000))
     name = name or f"inverse:{_name_of(inverse, 'inverse')}"
     u = np.random.default_rng(seed).random((n, k))
     x = np.asarray(sample(u))
+    # the points' dimension is the sampler's own; their rows and dtype are checked here,
+    # so that a short or non-numeric output is blamed on sample, not on inverse
+    validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
     u2 = np.asarray(validate.points("inverse", inverse(x), n, k), dtype=np.float64)
     err = np.abs(u2 - u)
     err = np.where(np.isfinite(err), err, np.inf)
@@ -913,6 +920,14 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     else:
         sub["ks"] = stats.ks_2samp_binned(fa, fb)
     p_value = stats.bonferroni_min([r.p_value for r in sub.values()])
+    messages = []
+    label, smp, _, size = min(sides, key=lambda side: side[3])      # the smaller sample
+    note = validate.few_bins_note("n_samples" if callable(smp) else f"len({label})", size,
+                                  sub["chi2"].n_bins)
+    if note:
+        messages.append(note)
+    if p_value <= alpha:
+        messages += _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha)
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
                "tests": {key: _test_details(r) for key, r in sub.items()}}
     if rejection:
@@ -922,4 +937,39 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=sub["chi2"].statistic, alpha=alpha,
                        n_samples=n, seconds=time.perf_counter() - t0, details=details,
-                       failures=tuple(failures), artifacts={"histogram": histogram})
+                       messages=tuple(messages), failures=tuple(failures),
+                       artifacts={"histogram": histogram})
+
+
+def _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha) -> list[str]:
+    """What a failed two-sample check saw: the acceptance rates when they differ, and the
+    cell where sample_a's count departs most from its share of both samples' counts."""
+    out = []
+    if "acceptance" in sub and sub["acceptance"].p_value <= alpha / len(sub):
+        rates = [f"{label} accepted {size - int(h.n_status[kernels.REJECTED])} of {size}"
+                 for (label, *_, size), h in zip(sides, hists)]
+        out.append(f"acceptance differs: {', '.join(rates)} (Fisher p = "
+                   f"{sub['acceptance'].p_value:.3g})")
+    na, nb = ha.sum(), hb.sum()
+    if not (na > 0 and nb > 0):
+        return out
+    # the cell of the χ² test that rejects most strongly: of the grid, or of a marginal
+    key = min((k for k in sub if k.startswith("chi2")), key=lambda k: sub[k].p_value)
+    if key == "chi2":
+        a, b, where = ha, hb, None
+    else:
+        j = int(key[-1])
+        a, b = ha.sum(axis=1 - j), hb.sum(axis=1 - j)
+        where = j
+    w = _worst_cells(dom if where is None else None, edges if where is None else [edges[j]],
+                     a, (a + b) * (na / (na + nb)), k=1)
+    if w:
+        w = w[0]
+        nb_cell = float(b[tuple(w["cell"])])
+        at = (f"x≈{np.round(w['point'], 4).tolist()}" if where is None else
+              f"parameter {where} in [{w['param_lo'][0]:.4g}, {w['param_hi'][0]:.4g}) "
+              f"(the {'first' if where == 0 else 'second'} axis' marginal)")
+        out.append(f"largest discrepancy at {at}: sample_a {w['observed']:.0f} and sample_b "
+                   f"{nb_cell:.0f} points, where equal distributions would give sample_a "
+                   f"{w['expected']:.1f} of the {w['observed'] + nb_cell:.0f}")
+    return out

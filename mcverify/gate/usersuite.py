@@ -176,6 +176,13 @@ def load_user_suite(spec: str, *, roots=(".",)) -> list[Check]:
             raise InvalidArgument(f"--suite {spec!r}: item {i} is a {type(c).__name__}, "
                                   "not a mcverify.gate.suites.Check(name, run, tags, "
                                   "verifies)")
+        if not isinstance(c.name, str) or not c.name:
+            raise InvalidArgument(f"--suite {spec!r}: item {i} is named {c.name!r}: a "
+                                  "check's name must be a non-empty string (its seed "
+                                  "derives from it)")
+        if not callable(c.run):
+            raise InvalidArgument(f"--suite {spec!r}: check {c.name!r}: run={c.run!r} is "
+                                  "not callable")
         if c.name in seen:
             raise InvalidArgument(f"--suite {spec!r}: two checks are named {c.name!r} "
                                   "(seeds derive from names; make them unique)")

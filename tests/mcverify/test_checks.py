@@ -98,6 +98,22 @@ def test_same_distribution_two_sample():
     diff = mv.check_same_distribution(W.sample_cosine_hemisphere, mixture(0.03), "hemisphere",
                                       n_samples=500_000, seed=3)
     assert not diff.passed
+    # a failure says where: the cell of the rejecting χ² test (grid or marginal) with
+    # both samples' counts (it used to say nothing at all)
+    assert any(m.startswith("largest discrepancy at ") and "sample_a" in m and "sample_b"
+               in m for m in diff.messages), diff.messages
+    assert not any("largest" in m for m in same.messages)
+
+
+def test_same_distribution_says_when_its_histogram_has_no_power():
+    """Three points a side pool into one bin: the test cannot fail, and says so (as
+    check_sampler does), for arrays and for samplers."""
+    rng = np.random.default_rng(0)
+    r = mv.check_same_distribution(rng.random((3, 2)), 0.1 * rng.random((3, 2)), "square")
+    assert r.passed and any(m.startswith("len(sample_a)=3: the χ² test pooled its "
+                                         "histogram into 1 bin(s)") for m in r.messages)
+    r = mv.check_same_distribution(lambda u: u, lambda u: u ** 2, "square", n_samples=20)
+    assert any(m.startswith("n_samples=20: the χ² test pooled") for m in r.messages)
 
 
 def test_unbiased_on_the_seed_integrals():
@@ -122,6 +138,15 @@ def test_zero_variance_when_p_proportional_to_f():
     assert not mv.check_variance(x ** 2 / (2 * x)).passed
 
 
+@pytest.mark.parametrize("samples", [np.full(10, np.nan), np.r_[np.inf, 1.0, np.nan]])
+def test_variance_of_too_few_finite_samples_fails_saying_so(samples):
+    """All but one sample NaN/Inf: a failed check naming both problems (it was a
+    ZeroDivisionError)."""
+    r = mv.check_variance(samples, 1.0)
+    assert not r.passed and any("NaN/Inf" in f for f in r.failures)
+    assert any("a variance needs at least 2" in f for f in r.failures), r.failures
+
+
 def test_convergence_slope():
     def est(n, s):
         return np.mean(np.random.default_rng(s).random(n))
@@ -130,6 +155,9 @@ def test_convergence_slope():
     def biased(n, s):   # a constant bias: RMSE stops falling, slope -> 0
         return np.mean(np.random.default_rng(s).random(n)) + 0.01
     assert not mv.check_convergence(biased, 0.5, n_seeds=32).passed
+    # the interval it prints is at 1 - alpha (it always said 99 %)
+    r = mv.check_convergence(biased, 0.5, n_seeds=32, alpha=0.2)
+    assert r.messages[0].startswith(f"slope {r.statistic:.3f} (80% CI ["), r.messages
 
 
 # ----------------------------------------------------------------- streaming judge

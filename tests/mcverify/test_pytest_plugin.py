@@ -1,5 +1,8 @@
 """The pytest plugin (loaded through the installed pytest11 entry point)."""
 
+import subprocess
+import sys
+
 import pytest
 
 import mcverify as mv
@@ -19,6 +22,19 @@ def test_assert_check_passes_through_and_fails_with_the_reason(assert_check):
                            n_samples=50_000)
     with pytest.raises(pytest.fail.Exception, match="integrates to 1.05"):
         assert_check(bad)
+    with pytest.raises(pytest.fail.Exception, match="expects the CheckResult of a mcverify "
+                                                   "check, got bool True"):
+        assert_check(True)
+
+
+def test_a_negative_seed_is_refused_before_any_test_runs(tmp_path):
+    """--mcverify-seed -1 used to reach every check, each failing on its own."""
+    (tmp_path / "test_x.py").write_text("def test_x(mcverify_seed):\n    pass\n")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        "--mcverify-seed", "-1", str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.USAGE_ERROR, (r.stdout, r.stderr)
+    assert "--mcverify-seed=-1: must be in [0, 2**63 - 1]" in r.stderr, r.stderr
 
 
 @pytest.mark.parametrize("env, total, want", [

@@ -33,6 +33,8 @@ CHECKS = textwrap.dedent('''
         return good[:1]
 
     not_checks = [1, 2]
+    number_named = [Check(3, good[0].run)]
+    not_runnable = [Check("x", None)]
     duplicates = [good[0], good[0]]
     number = 3
 
@@ -93,6 +95,9 @@ def test_a_list_and_a_factory_load(project):
     ("mine.checks:number", "expected a list of mcverify.gate.suites.Check, got int"),
     ("mine.checks:not_checks", "item 0 is a int"),
     ("mine.checks:duplicates", "two checks are named 'sqrt'"),
+    ("mine.checks:number_named", "item 0 is named 3: a check's name must be a non-empty "
+                                 "string"),
+    ("mine.checks:not_runnable", "check 'x': run=None is not callable"),
     # the user's own code failing: named, not "unexpected ValueError"
     ("mine.broken:suite", "importing 'mine.broken' raised ValueError: at import"),
     ("mine.syntax:suite", "importing 'mine.syntax' raised SyntaxError at "),
