@@ -138,8 +138,8 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
         tan_x = diag * aspect / math.hypot(aspect, 1.0)
         tan_y = diag / math.hypot(aspect, 1.0)
     else:
-        raise SceneError(f"{desc.path}:{s.line}: fov_axis={axis!r}; supported: x, y, "
-                         "diagonal, smaller, larger")
+        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: fov_axis="
+                         f"{axis!r}; supported: x, y, diagonal, smaller, larger")
     return _with_film_filter(desc, Camera(to_world, tan_x, tan_y, near, far, w, h,
                                           PERSPECTIVE))
 
@@ -154,7 +154,7 @@ def _field_of_view(desc: SceneDescription) -> tuple[float, str]:
         if "focal_length" in s.props:
             raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: give "
                              "either fov or focal_length, not both (Mitsuba refuses both)")
-        return float(s.props["fov"]), s.get("fov_axis", "x")
+        return float(s.props["fov"]), str(s.get("fov_axis", "x")).lower()   # as Mitsuba
     text = str(s.get("focal_length", "50mm")).strip()
     number = text[:-2] if text.endswith("mm") else text
     try:

@@ -86,7 +86,7 @@ def test_mitsuba_loads_the_same_text(mi):
 
 @pytest.mark.parametrize("fov_axis,width,height", [
     ("x", 64, 48), ("y", 64, 48), ("diagonal", 48, 64), ("smaller", 48, 64),
-    ("larger", 64, 48)])
+    ("larger", 64, 48), ("Y", 64, 48), ("Smaller", 48, 64)])     # any case, as Mitsuba
 def test_rays_match_mitsuba_pixel_for_pixel(mi, fov_axis, width, height):
     text = (CORNELL.replace('value="x"', f'value="{fov_axis}"')
             .replace('value="$res"', f'value="{width}"').replace('value="48"', f'value="{height}"')
@@ -149,8 +149,10 @@ def test_a_mirrored_perspective_camera_is_mitsubas(mi, ops):
     ('<float name="near_clip" value="5"/><float name="far_clip" value="2"/>',
      "near_clip=5.0: must be below far_clip=2.0"),
     ('<float name="near_clip" value="0"/>', "near_clip=0.0: must be > 0"),
+    ('<float name="fov" value="45"/><string name="fov_axis" value="z"/>',
+     '<sensor type="perspective">: fov_axis=\'z\''),
 ], ids=["scale-2", "scale-1.01", "fov-180", "fov-200", "fov-0", "near-beyond-far",
-        "near-zero"])
+        "near-zero", "fov-axis-z"])
 def test_perspective_sensor_refuses_what_mitsuba_refuses(mi, body, needle):
     """Mitsuba throws on a scaled camera-to-world and on a field of view outside
     (0, 180); ours rendered them (a zoomed or upside-down view)."""
