@@ -43,11 +43,9 @@ def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
     return cdf, float(total)
 
 
-@njit(cache=True)
-def _find_interval_kernel(cdf, u):
-    """Largest i with cdf[i] <= u, clamped to [0, len(cdf) - 2]; skips zero-width
-    intervals so a zero-probability entry is never chosen."""
-    lo, hi = 0, cdf.shape[0] - 2
+@njit(cache=True, inline="always")
+def _search(cdf, u, lo, hi):
+    """Largest i in [lo, hi] with cdf[i] <= u (lo if none): a binary search."""
     while lo < hi:
         mid = (lo + hi + 1) // 2
         if cdf[mid] <= u:
@@ -55,6 +53,13 @@ def _find_interval_kernel(cdf, u):
         else:
             hi = mid - 1
     return lo
+
+
+@njit(cache=True)
+def _find_interval_kernel(cdf, u):
+    """Largest i with cdf[i] <= u, clamped to [0, len(cdf) - 2]; skips zero-width
+    intervals so a zero-probability entry is never chosen."""
+    return _search(cdf, u, 0, cdf.shape[0] - 2)
 
 
 @njit(cache=True)
@@ -95,13 +100,7 @@ def _find_piece_kernel(table, u):
     g = min(int(u * n), n - 1)
     lo = int(table[n + 1 + max(g - 2, 0)])
     hi = int(table[n + 1 + g + 2]) if g + 2 < n else n - 1
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        if table[mid] <= u:
-            lo = mid
-        else:
-            hi = mid - 1
-    return lo
+    return _search(table, u, lo, hi)
 
 
 @njit(cache=True)
