@@ -17,6 +17,7 @@ References: M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th 
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,10 +34,17 @@ def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
         raise ValueError(f"{name}: expected a non-empty 1-D array, got shape {w.shape}")
     if not np.all(np.isfinite(w)) or np.any(w < 0):
         raise ValueError(f"{name}: entries must be finite and >= 0")
-    cdf = np.concatenate([[0.0], np.cumsum(w)])
-    total = cdf[-1]
-    if total > 0:
-        cdf /= total
+    with np.errstate(over="ignore"):
+        cdf = np.concatenate([[0.0], np.cumsum(w)])
+    total = norm = cdf[-1]
+    if np.isinf(norm):             # finite weights whose sum overflows: scale them first
+        scale = w.max()
+        cdf = np.concatenate([[0.0], np.cumsum(w / scale)])
+        norm = cdf[-1]
+        with np.errstate(over="ignore"):
+            total = norm * scale   # the sum itself is beyond float64: inf
+    if norm > 0:
+        cdf /= norm
     else:  # all zero: sample uniformly, as pbrt does
         cdf = np.linspace(0.0, 1.0, w.size + 1)
     cdf[-1] = 1.0
@@ -97,6 +105,8 @@ def _find_piece_kernel(table, u):
     n = _pieces(table)
     if not u >= 0.0:                         # below the CDF (or NaN): piece 0, as before
         return 0
+    if not u < 1.0:                          # at or past the end (u·n may overflow int)
+        return _search(table, u, int(table[2 * n]), n - 1)
     g = min(int(u * n), n - 1)
     lo = int(table[n + 1 + max(g - 2, 0)])
     hi = int(table[n + 1 + g + 2]) if g + 2 < n else n - 1
@@ -116,7 +126,7 @@ def _sample_pc1d_kernel(table, u):
 @njit(cache=True)
 def _pc1d_pdf_kernel(table, x):
     n = _pieces(table)
-    if x < 0.0 or x > 1.0:
+    if not (x >= 0.0 and x <= 1.0):          # outside, or NaN (no index from it)
         return 0.0
     i = min(int(x * n), n - 1)
     return (table[i + 1] - table[i]) * n
@@ -125,6 +135,7 @@ def _pc1d_pdf_kernel(table, x):
 @njit(cache=True)
 def _invert_pc1d_kernel(table, x):
     n = _pieces(table)
+    x = min(max(x, 0.0), 1.0) if x == x else x       # int(x·n) of a huge x overflows
     i = min(max(int(x * n), 0), n - 1)
     t = x * n - i
     return min(max(table[i] + t * (table[i + 1] - table[i]), 0.0), ONE_MINUS_EPSILON)
@@ -142,7 +153,7 @@ def sample_pc2d_kernel(marginal, conditional, u0, u1):
 
 @njit(cache=True)
 def pc2d_pdf_kernel(marginal, conditional, x, y):
-    if x < 0.0 or x > 1.0 or y < 0.0 or y > 1.0:
+    if not (x >= 0.0 and x <= 1.0 and y >= 0.0 and y <= 1.0):     # NaN included
         return 0.0
     ny = _pieces(marginal)
     row = min(int(y * ny), ny - 1)
@@ -152,7 +163,7 @@ def pc2d_pdf_kernel(marginal, conditional, x, y):
 @njit(cache=True)
 def _invert_pc2d_kernel(marginal, conditional, x, y):
     ny = _pieces(marginal)
-    row = min(max(int(y * ny), 0), ny - 1)
+    row = min(max(int(min(max(y, 0.0), 1.0) * ny), 0), ny - 1)
     return _invert_pc1d_kernel(conditional[row], x), _invert_pc1d_kernel(marginal, y)
 
 
@@ -254,7 +265,15 @@ class PiecewiseConstant2D:
         if v.ndim != 2 or 0 in v.shape:
             raise ValueError(f"values: expected a non-empty 2-D array, got shape {v.shape}")
         self.values = v
-        self.marginal_cdf, total = _cdf_of(v.sum(axis=1), "values")
+        with np.errstate(over="ignore"):
+            rows = v.sum(axis=1)
+        # finite values whose row sums overflow: the rows of v / max(v) (the CDFs do not
+        # depend on the scale)
+        scale = v.max() if np.all(np.isfinite(v)) and not np.all(np.isfinite(rows)) else 1.0
+        self.marginal_cdf, total = _cdf_of(rows if scale == 1.0 else (v / scale).sum(axis=1),
+                                           "values")
+        with np.errstate(over="ignore"):
+            total = total * scale
         self.conditional_cdf = np.stack([_cdf_of(row, "values")[0] for row in v])
         # what the kernels (and the path tracer's envmap) read: each CDF with its guide
         self.marginal_table = _guided(self.marginal_cdf)
@@ -288,6 +307,8 @@ def _gl01(order):
 
 
 _GL_X, _GL_W = _gl01(10)
+#: Most pieces an InvertedCDF table refines to before it gives up (refusing the pdf).
+_MAX_PIECES = 1_000_000
 _GL20_X, _GL20_W = _gl01(20)
 
 
@@ -330,19 +351,28 @@ class InvertedCDF:
             raise ValueError(f"pdf={pdf!r}: must be callable")
         if not (np.isfinite(a) and np.isfinite(b) and b > a):
             raise ValueError(f"InvertedCDF(a={a}, b={b}): need finite a < b")
-        if pieces < 1:
-            raise ValueError(f"pieces={pieces}: must be >= 1")
+        for label, v in (("pieces", pieces), ("max_rounds", max_rounds)):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 1:
+                raise ValueError(f"{label}={v!r}: must be an integer >= 1")
+        if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not 0 < tol < 1:
+            raise ValueError(f"tol={tol!r}: must be a number in (0, 1)")
         self._f = pdf
         self.a, self.b = float(a), float(b)
         self.total = 1.0
         lo = np.linspace(self.a, self.b, pieces + 1)
         hi, lo = lo[1:], lo[:-1]
         done_lo, done_hi, done_m, done_e = [], [], [], []
-        scale = None
+        scale, accepted = 1e-300, 0.0
         for _ in range(max_rounds):
+            if lo.size > _MAX_PIECES:
+                raise ValueError(f"pdf: its CDF on [{self.a}, {self.b}] did not converge to "
+                                 f"tol={tol} within {_MAX_PIECES:,} pieces (a pdf that is "
+                                 "not integrable, or a feature narrower than 1e-13 of the "
+                                 "interval)")
             m10, m20, fmin, fmax = self._piece_rules(lo, hi)
-            if scale is None:
-                scale = max(float(m20.sum()), 1e-300)
+            # the budget scales with the mass found so far: a first round that saw only a
+            # narrow peak's tails (mass ~0) no longer asks every piece for ~0 error
+            scale = max(scale, accepted + float(m20.sum()))
             f_ends = self._eval(np.concatenate([lo, hi])).reshape(2, -1)
             err = np.abs(m20 - m10)
             budget = tol * scale * (hi - lo) / (self.b - self.a) + 1e-300
@@ -352,6 +382,7 @@ class InvertedCDF:
             bad = ((err > budget) | hidden) & ((hi - lo) > 1e-13 * (self.b - self.a))
             done_lo.append(lo[~bad]), done_hi.append(hi[~bad])
             done_m.append(m20[~bad]), done_e.append(err[~bad])
+            accepted += float(m20[~bad].sum())
             if not bad.any():
                 break
             mid = 0.5 * (lo[bad] + hi[bad])
@@ -380,14 +411,23 @@ class InvertedCDF:
         return v
 
     def _piece_rules(self, lo, hi):
-        """10- and 20-point Gauss–Legendre masses of each piece, and the node range."""
+        """Two masses of each piece, 20-point Gauss–Legendre over it and 10-point over
+        each half, and the node range. (10 points against 20 over the same piece agree
+        on a step between their two central nodes: both weigh its sides half and half.)"""
         out = []
-        for xs, ws in ((_GL_X, _GL_W), (_GL20_X, _GL20_W)):
-            t = lo[:, None] + (hi - lo)[:, None] * xs[None, :]
+        mid = 0.5 * (lo + hi)
+        for a, b, xs, ws in ((lo, mid, _GL_X, _GL_W), (mid, hi, _GL_X, _GL_W),
+                             (lo, hi, _GL20_X, _GL20_W)):
+            t = a[:, None] + (b - a)[:, None] * xs[None, :]
             f = self._eval(t.ravel()).reshape(t.shape)
-            out.append(((f @ ws) * (hi - lo), f.min(1), f.max(1)))
-        (m10, _, _), (m20, fmin, fmax) = out
-        return m10, m20, fmin, fmax
+            bad = ~(f >= 0) | ~np.isfinite(f)
+            if bad.any():
+                i = np.argmax(bad.ravel())
+                raise ValueError(f"pdf: must be finite and non-negative on [a, b], got "
+                                 f"pdf({t.ravel()[i]!r}) = {f.ravel()[i]!r}")
+            out.append(((f @ ws) * (b - a), f.min(1), f.max(1)))
+        (left, _, _), (right, _, _), (m20, fmin, fmax) = out
+        return left + right, m20, fmin, fmax
 
     @property
     def cdf_error(self) -> float:

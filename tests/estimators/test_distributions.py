@@ -148,3 +148,59 @@ def test_inverted_cdf_sampling_converges_in_a_few_newton_steps(pdf, a, b):
 def test_bad_input(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_nan_and_out_of_range_inputs_read_no_table_entry_beyond_the_end():
+    """NaN reached an index through int(nan) (garbage, even negative densities) and
+    u = 1e300 overflowed int(u·n) into the middle of the table (found by review)."""
+    p = PiecewiseConstant1D([1.0, 2.0])
+    assert p.pdf([np.nan])[0] == 0.0 and p.pdf([-0.1, 1.1]).tolist() == [0.0, 0.0]
+    assert p.sample([2.0, 1e300, np.inf]).ravel().tolist() == [1 - 2 ** -53] * 3
+    assert p.invert([1e300, -1e300]).ravel().tolist() == [1 - 2 ** -53, 0.0]
+    q = PiecewiseConstant2D([[1.0, 2.0], [3.0, 4.0]])
+    assert q.pdf([[np.nan, 0.5], [0.5, np.nan]]).tolist() == [0.0, 0.0]
+    assert np.all((q.invert([[0.5, 1e300]]) >= 0) & (q.invert([[0.5, 1e300]]) < 1))
+
+
+def test_finite_weights_whose_sum_overflows_keep_their_proportions():
+    d = DiscreteDistribution([1e308, 1e308])
+    assert d.pmf.tolist() == [0.5, 0.5] and d.sample([0.25, 0.75])[0].tolist() == [0, 1]
+    assert PiecewiseConstant1D([1e308, 1e308]).sample([0.25, 0.75]).ravel().tolist() \
+        == [0.25, 0.75]
+    q = PiecewiseConstant2D([[1e308, 1e308], [1.0, 1.0]])
+    assert q.marginal_cdf.tolist() == [0.0, 1.0, 1.0] and np.isinf(q.integral)
+
+
+def test_inverted_cdf_sees_a_step_between_the_rules_central_nodes():
+    """A 1 : 3 step at 1/π: 10- and 20-point Gauss–Legendre over the piece holding it
+    both weigh its sides half and half and agreed (total off by 1e-4, cdf_error 1e-16);
+    20 points against 10 over each half do not."""
+    c = 1 / np.pi
+    d = InvertedCDF(lambda x: np.where(x < c, 1.0, 3.0), 0, 1)
+    exact = c + 3 * (1 - c)
+    assert abs(d.total - exact) <= 1e-12 * exact
+    x = 0.3197201654025765
+    assert abs(d.cdf([x])[0] - (c + 3 * (x - c)) / exact) < 1e-12
+
+
+@pytest.mark.parametrize("pdf,kw,match", [
+    (lambda x: x - 0.5, {}, r"non-negative on \[a, b\], got pdf\("),
+    (np.sin, {"tol": -1}, "tol=-1"),
+    (np.sin, {"pieces": 2.5}, "pieces=2.5"),
+    (lambda x: 1 / np.abs(x - 0.5), {}, "did not converge"),
+])
+def test_inverted_cdf_refuses_what_it_cannot_tabulate_without_hanging(monkeypatch, pdf, kw,
+                                                                       match):
+    """Each of these refined without end (gigabytes in minutes) before."""
+    import estimators.distributions as D
+
+    monkeypatch.setattr(D, "_MAX_PIECES", 20_000)
+    with np.errstate(divide="ignore"), pytest.raises(ValueError, match=match):
+        InvertedCDF(pdf, 0.0, 1.0, **kw)
+
+
+def test_inverted_cdf_of_a_narrow_peak_alone_converges():
+    """A Gaussian of σ = 3e-5 alone: the first round saw only its tails (mass ~0), and a
+    budget fixed from that round asked every piece for ~0 error."""
+    d = InvertedCDF(lambda x: np.exp(-0.5 * ((x - 0.314) / 3e-5) ** 2), 0, 1)
+    assert abs(d.total / (3e-5 * np.sqrt(2 * np.pi)) - 1) < 1e-9
