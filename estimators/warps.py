@@ -22,9 +22,11 @@ square" (1997); E. Heitz, "Sampling the GGX distribution of visible normals", JC
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
+import numpy as np
 from numba import njit
 
 from ._fastmath import (fast_atan, fast_atan2, fast_exp, fast_expm1, fast_log1p,
@@ -51,6 +53,9 @@ _inline = njit(cache=True, error_model="numpy", inline="always")
 
 
 # ----------------------------------------------------------------------- helpers
+_DISK_RIM = 1.0 + 8.0 * 2.0 ** -52
+
+
 @_jit
 def _clamp_u(u):
     return min(max(u, 0.0), ONE_MINUS_EPSILON)
@@ -93,7 +98,7 @@ def _uniform_interval_pdf_kernel(x, p):
 
 @_jit
 def _invert_uniform_interval_kernel(x, p):
-    return ((x[0] - p[0]) / (p[1] - p[0]),)
+    return (_clamp_u((x[0] - p[0]) / (p[1] - p[0])),)
 
 
 @_jit
@@ -116,7 +121,9 @@ def _sample_uniform_disk_polar_kernel(u, p):
 
 @_jit
 def _uniform_disk_pdf_kernel(x, p):
-    return _INV_PI if x[0] * x[0] + x[1] * x[1] <= 1.0 else 0.0
+    # the rim with its rounding: the concentric map's points at r = 1 (u on the square's
+    # edge, common in QMC) have x² + y² up to 2 ulps above 1
+    return _INV_PI if x[0] * x[0] + x[1] * x[1] <= _DISK_RIM else 0.0
 
 
 @_jit
@@ -536,10 +543,28 @@ def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
                         inline="sample" in inline)
     p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.",
                         inline="pdf" in inline)
-    i = None if invert_k is None else point_front_end(
+    i = None if invert_k is None else _below_one(point_front_end(
         invert_k, n_out, n_in, f"invert_{name}", f"Inverse of ``sample_{name}``: x -> u.",
-        inline="invert" in inline)
+        inline="invert" in inline))
     return s, p, i
+
+
+_BELOW_ONE_F32 = np.float32(1.0 - 2.0 ** -24)
+
+
+def _below_one(invert):
+    """An inverse whose float32 output stays in [0, 1): the kernels clamp u to the
+    float64 ``ONE_MINUS_EPSILON``, which rounds to 1.0 in float32, so float32 results are
+    clamped again to the largest float32 below 1."""
+    def front(x, *params):
+        u = invert(x, *params)
+        if u.dtype == np.float32:
+            np.minimum(u, _BELOW_ONE_F32, out=u)
+        return u
+
+    functools.update_wrapper(front, invert)
+    front.kernel, front.loop = invert.kernel, invert.loop
+    return front
 
 
 _ALL = ("sample", "pdf", "invert")

@@ -304,3 +304,32 @@ def test_wide_vectors_give_bit_identical_warps():
 @pytest.mark.slow
 def test_wide_vectors_give_bit_identical_warps_for_every_warp():
     _check_width_bit_identical(NAMES)
+
+
+def test_float32_inverses_stay_below_one_and_the_interval_inverse_clamps():
+    """The kernels clamp u to float64's 1 - 2^-53, which rounds to 1.0 in float32: five
+    inverses returned u = 1.0 for float32 points; invert_uniform_interval did not clamp
+    at all (found by review)."""
+    from estimators import warps as W
+
+    u = np.array([[1 - 2 ** -24, 0.3]], np.float32)
+    outs = [W.invert_uniform_cone(W.sample_uniform_cone(u, 0.999), 0.999),
+            W.invert_exponential(W.sample_exponential(u[:, :1], 0.27, 0.01), 0.27, 0.01),
+            W.invert_linear(np.float32([[1.0]]), 0.0, 9.5),
+            W.invert_uniform_sphere(np.float32([[0, 0, -1]])),
+            W.invert_uniform_triangle(np.float32([[0, 1]]))]
+    for out in outs:
+        assert out.dtype == np.float32 and np.all((out >= 0) & (out < 1)), out
+    v = W.invert_uniform_interval(np.array([[20.0], [-20.0]]), -1.0, 3.0).ravel()
+    assert v.tolist() == [1 - 2 ** -53, 0.0]
+
+
+def test_the_concentric_disks_rim_points_have_the_disks_density():
+    """u on the square's edge (u0 or u1 exactly 0, common in QMC) maps to r = 1, where
+    x² + y² rounds up to 2 ulps above 1: uniform_disk_pdf gave 0 there (4 % of that edge)."""
+    from estimators import warps as W
+
+    g = np.linspace(0, 1, 100_001)[:-1]
+    for u in (np.stack([g, 0 * g], 1), np.stack([0 * g, g], 1)):
+        assert np.all(W.uniform_disk_pdf(W.sample_uniform_disk_concentric(u)) == 1 / np.pi)
+    assert W.uniform_disk_pdf(np.array([[1.0, 1e-7]]))[0] == 0.0    # beyond the rounding
