@@ -117,10 +117,12 @@ def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0
     # machine the default suite's takes ~10 s, ~12 s with start-up): on cores that
     # other processes keep busy every timed run is slow, and timing all checks took 167 s
     # of a 20 s budget. Checks left untimed run at the minimum n.
-    untimed = []
+    untimed, stopped_at = [], None
     for name in scalable:
-        if startup + time.perf_counter() - t0 > _CALIBRATION_SHARE * budget:
+        elapsed = startup + time.perf_counter() - t0
+        if elapsed > _CALIBRATION_SHARE * budget:
             untimed.append(name)
+            stopped_at = elapsed if stopped_at is None else stopped_at
             continue
         s = check_seed(seed, name)
         fixed[name], per[name] = measure_cost(lambda n, name=name: check_at(name, n).run(s))
@@ -132,10 +134,11 @@ def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0
                                            n_min=n_min, n_max=n_max)
     if untimed:
         n_samples.update((name, n_min) for name in untimed)
-        notes += (f"calibration stopped at two thirds of the budget ({startup + spent:.1f}s of "
-                  f"{budget:g}s): {len(untimed)} of {len(scalable)} sampler checks were not "
-                  f"timed and run at the minimum n = {n_min:,} (their time is not in the "
-                  "prediction)",)
+        notes += (f"calibration stopped when start-up and calibration had taken "
+                  f"{stopped_at:.1f}s, past two thirds of the {budget:g}s budget "
+                  f"({_CALIBRATION_SHARE * budget:.1f}s; the last timed check ran past it): "
+                  f"{len(untimed)} of {len(scalable)} sampler checks were not timed and run "
+                  f"at the minimum n = {n_min:,} (their time is not in the prediction)",)
     return BudgetPlan(budget, n_samples, {k: v * 1e9 for k, v in per.items()}, fixed, other,
                       spent, predicted, notes, startup)
 

@@ -81,19 +81,22 @@ def _writable(option: str, path: str | None, inputs=()) -> None:
             raise InvalidArgument(f"{option} {path}: {target} is not writable")
         return
     folder = os.path.dirname(target)
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
+    # The writer makes missing folders; here nothing is created (a run refused later
+    # must leave nothing behind): the nearest existing folder must be one we can write.
+    existing = os.path.abspath(folder or ".")
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
         raise InvalidArgument(f"{option} {path}: cannot create folder {folder} "
-                              f"({e.strerror})") from None
+                              f"({existing} is not a folder)")
     import tempfile
 
     try:  # the very operation the writer will do: a temporary file in that folder
-        fd, probe = tempfile.mkstemp(dir=folder, prefix=".tmp-probe-")
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=".tmp-probe-")
         os.close(fd)
         os.unlink(probe)
     except OSError as e:
-        raise InvalidArgument(f"{option} {path}: folder {folder} is not writable "
+        raise InvalidArgument(f"{option} {path}: folder {existing} is not writable "
                               f"({e.strerror})") from None
 
 
@@ -395,6 +398,16 @@ def _cmd_report(args) -> int:
     if not out.strip():
         raise InvalidArgument(f"--out {out!r}: empty path; give a folder")
     _writable("--out", os.path.join(out, "report.json"))
+    scenes = []
+    if args.renders != "none":
+        from .reference import list_scenes, resolve_scene
+
+        scenes = list_scenes() if args.renders == "all" else args.renders.split(",")
+        for s in scenes:
+            resolve_scene(s)            # before any work (it was checked after the suite)
+    if args.no_suite and args.k:
+        raise InvalidArgument(f"-k {args.k!r}: selects checks of the suite, which "
+                              "--no-suite leaves out")
     show = None if args.quiet else _progress(sys.stderr, alpha=0.01)
     suite = None
     extra = {}
@@ -410,13 +423,9 @@ def _cmd_report(args) -> int:
     study = run_study(seed=args.seed,
                       progress=None if args.quiet else _progress(sys.stderr, verdicts=False))
     renders = None
-    if args.renders != "none":
-        from .reference import list_scenes, resolve_scene
+    if scenes:
         from .report.renders import run_renders
 
-        scenes = list_scenes() if args.renders == "all" else args.renders.split(",")
-        for s in scenes:
-            resolve_scene(s)                                     # fail before any work
         renders = run_renders(scenes, seed=args.seed,
                               progress=None if args.quiet else _progress(sys.stderr))
     build_report(out, suite=suite, study=study, renders=renders,

@@ -34,6 +34,8 @@ __all__ = ["Unit", "Pool", "WorkerLost", "InProcessExecutor", "source_fingerprin
 #: How long ``--dask`` keeps trying to reach the scheduler (Dask retries a refused
 #: connection until then) before the run stops with an environment problem.
 DASK_CONNECT_TIMEOUT = "20s"
+#: Seconds to wait for a first worker of a Dask scheduler before refusing it.
+DASK_WORKER_WAIT = 30
 
 
 class WorkerLost(EnvironmentProblem):
@@ -185,9 +187,20 @@ class Pool:
                 else:
                     self._client = Client(scheduler_file=self.dask_scheduler_file,
                                           timeout=DASK_CONNECT_TIMEOUT)
-            except (OSError, TimeoutError, ValueError) as e:
+            except (OSError, TimeoutError, ValueError, AssertionError, KeyError) as e:
+                # AssertionError/KeyError: a scheduler file without an address in it
                 raise EnvironmentProblem(f"--dask {where}: cannot connect to the scheduler "
-                                         f"({e})") from None
+                                         f"({type(e).__name__}: {e or 'no address'})") \
+                    from None
+            try:
+                # a scheduler without workers would take the units and never run them
+                self._client.wait_for_workers(1, timeout=DASK_WORKER_WAIT)
+            except (TimeoutError, OSError) as e:
+                self._client.close()
+                self._client = None
+                raise EnvironmentProblem(f"--dask {where}: the scheduler has no workers "
+                                         f"(none joined within {DASK_WORKER_WAIT} s: {e}); "
+                                         "start some with `dask worker ADDRESS`") from None
             # pure=False: a unit rerun after a lost worker is a new task, never a cached
             # failure
             self._executor = self._client.get_executor(pure=False)

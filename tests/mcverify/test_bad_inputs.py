@@ -408,6 +408,13 @@ CLI = [
     ("json-is-scene", ["check", "--scene", "{d}/ref-ok/scene.xml", "--json",
                        "{d}/ref-ok/scene.xml"], "is also an input"),
     ("report-out-empty", ["report", "--out", ""], "--out ''"),
+    # refused before any work, and the --out folders not yet there are not created
+    ("report-renders-unknown", ["report", "--renders", "nosuch", "--out",
+                                "{d}/new/report"], "scene 'nosuch'"),
+    ("report-no-suite-k", ["report", "--no-suite", "-k", "disk", "--renders", "none",
+                           "--out", "{d}/new/report"], "--no-suite leaves out"),
+    ("check-json-new-folder", ["check", "-k", "zzz", "--json", "{d}/new/sub/x.json"],
+     "-k 'zzz'"),
     # arguments
     ("check-k-nomatch", ["check", "-k", "nomatch"], "-k 'nomatch'"),
     ("list-k-nomatch", ["list", "-k", "nomatch"], "-k 'nomatch'"),

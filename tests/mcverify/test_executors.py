@@ -161,3 +161,23 @@ def test_reference_and_render_passes_are_bit_identical_on_worker_processes():
     assert np.array_equal(imgs_a, imgs_b) and np.array_equal(a.var, b.var)
     assert np.array_equal(ours_a.artifacts["ours"], ours_b.artifacts["ours"])
     assert _timeless(ours_a.to_dict()) == _timeless(ours_b.to_dict())
+
+
+def test_a_scheduler_without_workers_is_refused_not_waited_on(monkeypatch, tmp_path):
+    """A live scheduler with no worker took the units and never ran them: the run hung
+    silently (found by review). A scheduler file without an address said only
+    'unexpected AssertionError'."""
+    from mcverify.gate import executors
+
+    monkeypatch.setattr(executors, "DASK_WORKER_WAIT", 1)
+    with distributed.LocalCluster(n_workers=0, dashboard_address=None,
+                                  processes=False) as cluster:
+        with pytest.raises(EnvironmentProblem, match="the scheduler has no workers"):
+            with Pool(dask=cluster.scheduler_address) as pool:
+                pool.width
+    bad = tmp_path / "scheduler.json"
+    bad.write_text("{}")
+    monkeypatch.setattr(executors, "DASK_CONNECT_TIMEOUT", "2s")
+    with pytest.raises(EnvironmentProblem, match="cannot connect to the scheduler"):
+        with Pool(dask_scheduler_file=str(bad)) as pool:
+            pool.width
