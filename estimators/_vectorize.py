@@ -47,6 +47,7 @@ from numba import njit
 
 from . import _fastmath
 from ._generated import first_call, load
+from .warp_params import check_params
 
 #: Rows per block: scratch of up to 4 float64 columns stays in L1 (16 KB), and a block
 #: is large enough for the per-block overhead to vanish.
@@ -156,15 +157,12 @@ def as_rows(name: str, x, n_in: int) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
-def params_array(params) -> np.ndarray:
-    return np.asarray(params, dtype=np.float64).reshape(-1) if len(params) else np.zeros(1)
-
-
 def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze: bool,
                inline: bool):
     row = _ROWS[n_in]
 
     def front(x, *params):
+        p = check_params(name, params)
         rows = as_rows(name, x, n_in)
         out = np.empty((rows.shape[0], n_out), dtype=rows.dtype)
         loop = _loop(kernel, row, put, inline)
@@ -172,7 +170,7 @@ def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze:
         # cache's lock, so processes starting together compile each loop once
         name_dtype = f"{loop.__module__}.{rows.dtype}"
         with first_call(name_dtype, name_dtype):
-            loop(rows, params_array(params), out)
+            loop(rows, p, out)
         return out[:, 0] if squeeze else out
 
     front.__name__ = front.__qualname__ = name

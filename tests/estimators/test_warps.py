@@ -333,3 +333,49 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
     for u in (np.stack([g, 0 * g], 1), np.stack([0 * g, g], 1)):
         assert np.all(W.uniform_disk_pdf(W.sample_uniform_disk_concentric(u)) == 1 / np.pi)
     assert W.uniform_disk_pdf(np.array([[1.0, 1e-7]]))[0] == 0.0    # beyond the rounding
+
+
+@pytest.mark.parametrize("call,needle", [
+    (lambda W, u: W.sample_ggx(u), "sample_ggx: takes 1 parameter(s) (alpha) after the "
+                                   "points, got 0"),
+    (lambda W, u: W.bilinear_pdf(u, 1, 2, 3), "takes 4 parameter(s) (w00, w10, w01, w11)"),
+    (lambda W, u: W.sample_cosine_hemisphere(u, 0.3), "takes no parameters after the points"),
+    (lambda W, u: W.sample_ggx(u, -0.3), "alpha=-0.3: the warp needs alpha > 0"),
+    (lambda W, u: W.ggx_pdf(np.ones((2, 3)), float("nan")), "alpha=nan: must be finite"),
+    (lambda W, u: W.sample_beckmann(u, "0.3"), "alpha='0.3': must be a real number"),
+    (lambda W, u: W.sample_uniform_cone(u, 1.5), "cos_theta_max=1.5: the warp needs"),
+    (lambda W, u: W.power_cosine_pdf(np.ones((2, 3)), -3), "n=-3.0: the warp needs n >= 0"),
+    (lambda W, u: W.sample_ggx_vndf(u, 0.3, 0.6, 0.0, 0.9), "a unit vector with wz > 0"),
+    (lambda W, u: W.sample_exponential(u[:, :1], 0.0, 1.0), "sigma > 0 and t_max > 0"),
+    (lambda W, u: W.sample_tent(u[:, :1], -1.0), "radius=-1.0: the warp needs radius > 0"),
+    (lambda W, u: W.sample_uniform_interval(u[:, :1], 3.0, 1.0), "a=3.0, b=1.0"),
+    (lambda W, u: W.sample_linear(u[:, :1], 0.0, 0.0), "a >= 0 and b >= 0, not both 0"),
+], ids=["missing", "too-few", "extra", "negative-alpha", "nan", "string", "cone-1.5",
+        "power-negative", "vndf-not-unit", "sigma-0", "tent-negative", "interval-reversed",
+        "linear-zero"])
+def test_warp_parameters_are_checked_by_name(call, needle):
+    """The kernels read their parameters by position: a missing one was read past its
+    array's end (sample_ggx(u) sampled α = 0), and values outside a warp's definition gave
+    plausible numbers silently (found by review)."""
+    from estimators import warps as W
+
+    u = np.random.default_rng(0).random((8, 2))
+    with pytest.raises(ValueError) as e:
+        call(W, u)
+    assert needle in str(e.value), str(e.value)
+
+
+def test_every_warps_parameters_have_a_rule_and_its_test_ranges_satisfy_it():
+    from estimators.warp_params import RULES
+    from estimators.warps import WARPS
+
+    for name, w in WARPS.items():
+        names, ok, _ = RULES.get(name, ((), None, ""))
+        assert names == w.params, name
+        corners = [w.defaults, tuple(lo for lo, _ in w.ranges), tuple(hi for _, hi in w.ranges)]
+        for values in corners if w.params else []:
+            if name == "ggx_vndf":          # the direction is normalised by the tests
+                a, x, y, z = values
+                n = (x * x + y * y + z * z) ** 0.5
+                values = (a, x / n, y / n, z / n)
+            assert ok(*values), (name, values)

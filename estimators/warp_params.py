@@ -1,0 +1,73 @@
+"""What each warp's parameters may be: how many, their names, and the values the warp is
+defined for. The array front ends (``_vectorize``) check them on every call, before any
+point is computed: a kernel reads its parameters by position, so a missing one was read
+past the end of its array (``sample_ggx(u)`` sampled α = 0), and a value outside the
+warp's definition gave plausible numbers (a negative α, a cone of cos θ_max = 1.5).
+
+These are the warps' definitions, not the ranges the property tests draw from (those are
+``warps.WARPS[name].ranges``, inside these).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+#: name -> (parameter names, condition on their values, the condition in words).
+RULES = {
+    "uniform_interval": (("a", "b"), lambda a, b: a < b, "a < b"),
+    "uniform_cone": (("cos_theta_max",), lambda c: -1.0 <= c < 1.0,
+                     "-1 <= cos_theta_max < 1"),
+    "power_cosine": (("n",), lambda n: n >= 0.0, "n >= 0"),
+    "ggx": (("alpha",), lambda a: a > 0.0, "alpha > 0"),
+    "beckmann": (("alpha",), lambda a: a > 0.0, "alpha > 0"),
+    "ggx_vndf": (("alpha", "wx", "wy", "wz"),
+                 lambda a, x, y, z: a > 0.0 and z > 0.0
+                 and abs(x * x + y * y + z * z - 1.0) <= 1e-6,
+                 "alpha > 0 and (wx, wy, wz) a unit vector with wz > 0"),
+    "exponential": (("sigma", "t_max"), lambda s, t: s > 0.0 and t > 0.0,
+                    "sigma > 0 and t_max > 0"),
+    "tent": (("radius",), lambda r: r > 0.0, "radius > 0"),
+    "linear": (("a", "b"), lambda a, b: a >= 0.0 and b >= 0.0 and a + b > 0.0,
+               "a >= 0 and b >= 0, not both 0"),
+    "bilinear": (("w00", "w10", "w01", "w11"),
+                 lambda *w: min(w) >= 0.0 and sum(w) > 0.0, "every w >= 0, not all 0"),
+}
+#: Parameters that may be +inf (an exponential without a far end).
+_MAY_BE_INFINITE = {"t_max"}
+
+
+def warp_of(front_name: str) -> str:
+    """The warp a front end belongs to: ``sample_X``, ``X_pdf`` and ``invert_X`` -> X."""
+    for prefix in ("sample_", "invert_"):
+        if front_name.startswith(prefix):
+            return front_name[len(prefix):]
+    return front_name[:-len("_pdf")] if front_name.endswith("_pdf") else front_name
+
+
+def check_params(front_name: str, params: tuple) -> np.ndarray:
+    """``params`` of the front end ``front_name`` as the float64 array its kernel reads,
+    or ValueError naming the parameter and what it must be."""
+    warp = warp_of(front_name)
+    names, condition, words = RULES.get(warp, ((), None, ""))
+    if len(params) != len(names):
+        want = (f"{len(names)} parameter(s) ({', '.join(names)})" if names
+                else "no parameters")
+        raise ValueError(f"{front_name}: takes {want} after the points, got "
+                         f"{len(params)}")
+    values = []
+    for name, v in zip(names, params):
+        if isinstance(v, np.ndarray) and v.ndim == 0:
+            v = v[()]
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+            raise ValueError(f"{front_name}: {name}={v!r}: must be a real number")
+        v = float(v)
+        if not (math.isfinite(v) or (v == math.inf and name in _MAY_BE_INFINITE)):
+            raise ValueError(f"{front_name}: {name}={v!r}: must be finite")
+        values.append(v)
+    if condition is not None and not condition(*values):
+        shown = ", ".join(f"{n}={v!r}" for n, v in zip(names, values))
+        raise ValueError(f"{front_name}: {shown}: the warp needs {words}")
+    return np.asarray(values, dtype=np.float64) if values else np.zeros(1)
