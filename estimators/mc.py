@@ -19,6 +19,8 @@ methods and examples* (2013), ch. 10 and 17 (variance reduction, RQMC).
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -62,8 +64,17 @@ def _count(n, name="n", minimum=1):
     return int(n)
 
 
+def _values(name: str, v, n: int) -> np.ndarray:
+    """What ``name`` returned for n points as (n,) float64, or ValueError: a scalar or a
+    wrong length had been averaged as if it were n values (``lambda x: 2.0`` gave n = 1)."""
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape not in ((n,), (n, 1)):
+        raise ValueError(f"{name} returned shape {a.shape} for {n} points: expected ({n},)")
+    return a.reshape(-1)
+
+
 def _call_f(f, x, scalar_box):
-    return np.asarray(f(x[:, 0] if scalar_box else x), dtype=np.float64).reshape(-1)
+    return _values("f", f(x[:, 0] if scalar_box else x), x.shape[0])
 
 
 def uniform(f, a, b, n: int, *, seed: int = 0) -> Estimate:
@@ -96,8 +107,8 @@ def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) ->
     n = _count(n)
     u = np.random.default_rng(seed).random((n, _count(sample_dim, "sample_dim")))
     x = sample(u)
-    fx = np.asarray(f(x), dtype=np.float64).reshape(-1)
-    px = np.asarray(pdf(x), dtype=np.float64).reshape(-1)
+    fx = _values("f", f(x), n)
+    px = _values("pdf", pdf(x), n)
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(fx == 0.0, 0.0, fx / px)
     return _from_terms(terms)
@@ -158,15 +169,23 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
         raise ValueError(f"heuristic={heuristic!r}: expected 'balance' or 'power'")
     if not techniques:
         raise ValueError("techniques: need at least one (sample, pdf, n, sample_dim)")
+    if heuristic == "power" and (isinstance(beta, bool) or not isinstance(beta, numbers.Real)
+                                 or not (math.isfinite(beta) and beta > 0)):
+        # beta <= 0 gives a technique weight where its pdf is 0: biased (0.875 for 1)
+        raise ValueError(f"beta={beta!r}: the power heuristic needs a finite beta > 0")
+    for i, t in enumerate(techniques):
+        if not isinstance(t, (tuple, list)) or len(t) != 4:
+            raise ValueError(f"techniques[{i}]: expected (sample, pdf, n, sample_dim), got "
+                             f"{t!r:.80}")
     ex = 1.0 if heuristic == "balance" else float(beta)
     seqs = np.random.SeedSequence(seed).spawn(len(techniques))
     counts = [_count(t[2], "n_i") for t in techniques]
     value, var, cols = 0.0, 0.0, []
     for (sample, _pdf, n_i, k), s in zip(techniques, seqs):
         x = sample(np.random.default_rng(s).random((n_i, _count(k, "sample_dim"))))
-        fx = np.asarray(f(x), dtype=np.float64).reshape(-1)
-        pj = np.stack([np.asarray(t[1](x), dtype=np.float64).reshape(-1) * c
-                       for t, c in zip(techniques, counts)])       # n_j p_j(x)
+        fx = _values("f", f(x), n_i)
+        pj = np.stack([_values(f"techniques[{j}] pdf", t[1](x), n_i) * c
+                       for j, (t, c) in enumerate(zip(techniques, counts))])   # n_j p_j(x)
         own = pj[len(cols)]
         with np.errstate(divide="ignore", invalid="ignore"):
             w = own ** ex / np.sum(pj ** ex, axis=0)
@@ -182,8 +201,8 @@ def russian_roulette(f, sample, pdf, n: int, q: float, *, seed: int = 0,
                      sample_dim: int = 1) -> Estimate:
     """Importance sampling where each term survives with probability ``q`` and is then
     divided by ``q`` (else 0): unbiased, and f is evaluated only for survivors."""
-    if not 0.0 < q <= 1.0:
-        raise ValueError(f"q={q}: survival probability must be in (0, 1]")
+    if isinstance(q, bool) or not isinstance(q, numbers.Real) or not 0.0 < q <= 1.0:
+        raise ValueError(f"q={q!r}: survival probability must be a number in (0, 1]")
     n = _count(n)
     rng = np.random.default_rng(seed)
     u = rng.random((n, _count(sample_dim, "sample_dim")))
@@ -191,8 +210,8 @@ def russian_roulette(f, sample, pdf, n: int, q: float, *, seed: int = 0,
     terms = np.zeros(n)
     if alive.any():
         x = sample(u[alive])
-        fx = np.asarray(f(x), dtype=np.float64).reshape(-1)
-        px = np.asarray(pdf(x), dtype=np.float64).reshape(-1)
+        m = int(alive.sum())
+        fx, px = _values("f", f(x), m), _values("pdf", pdf(x), m)
         with np.errstate(divide="ignore", invalid="ignore"):
             terms[alive] = np.where(fx == 0.0, 0.0, fx / px) / q
     return _from_terms(terms)

@@ -97,7 +97,19 @@ def test_stratified_and_rqmc_converge_faster():
     (lambda: mc.mis(np.sin, [], seed=0), "techniques"),
     (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10, 1)], heuristic="max"), "heuristic"),
     (lambda: mc.russian_roulette(np.sin, sin_sampler, sin_pdf, 10, 0.0), "q=0"),
-], ids=["bounds", "n", "sobol-n", "no-techniques", "heuristic", "q"])
+    (lambda: mc.russian_roulette(np.sin, sin_sampler, sin_pdf, 10, "0.5"), "q='0.5'"),
+    # found by review: each of these returned a wrong estimate silently
+    (lambda: mc.uniform(lambda x: 2.0, 0.0, 1.0, 1000), r"f returned shape \(\) for 1000"),
+    (lambda: mc.uniform(lambda x: np.ones((len(x), 2)), 0.0, 1.0, 100),
+     r"f returned shape \(100, 2\)"),
+    (lambda: mc.importance(np.sin, sin_sampler, lambda x: 1.0, 100), "pdf returned shape"),
+    (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10, 1)], heuristic="power", beta=0.0),
+     "beta=0.0: the power heuristic needs a finite beta > 0"),
+    (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10, 1)], heuristic="power",
+                    beta=float("nan")), "beta=nan"),
+    (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10)]), r"techniques\[0\]: expected"),
+], ids=["bounds", "n", "sobol-n", "no-techniques", "heuristic", "q", "q-string",
+        "f-scalar", "f-2-columns", "pdf-scalar", "beta-0", "beta-nan", "technique-3"])
 def test_bad_input(call, match):
     with pytest.raises(ValueError, match=match):
         call()
