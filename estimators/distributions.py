@@ -74,9 +74,16 @@ def _find_interval_kernel(cdf, u):
 def sample_discrete_kernel(cdf, u):
     """(index, probability, remapped u in [0, 1))."""
     i = _find_interval_kernel(cdf, u)
+    p, r = _remap(cdf, i, u)
+    return i, p, r
+
+
+@njit(cache=True, inline="always")
+def _remap(cdf, i, u):
+    """(probability of entry i, u remapped to [0, 1) within it)."""
     p = cdf[i + 1] - cdf[i]
     r = (u - cdf[i]) / p if p > 0 else 0.0
-    return i, p, min(max(r, 0.0), ONE_MINUS_EPSILON)
+    return p, min(max(r, 0.0), ONE_MINUS_EPSILON)
 
 
 def _guided(cdf: np.ndarray) -> np.ndarray:
@@ -118,8 +125,7 @@ def _sample_pc1d_kernel(table, u):
     """Piecewise-constant density on [0, 1] with n pieces: (x, pdf, piece)."""
     n = _pieces(table)
     i = _find_piece_kernel(table, u)
-    p = table[i + 1] - table[i]
-    r = min(max((u - table[i]) / p if p > 0 else 0.0, 0.0), ONE_MINUS_EPSILON)
+    p, r = _remap(table, i, u)
     return min((i + r) / n, ONE_MINUS_EPSILON), p * n, i
 
 

@@ -94,6 +94,16 @@ def memory(name: str, n: int, bytes_each: int, what: str, *, width=None,
                               f"most {max(avail // 2 // bytes_each, 1)}")
 
 
+def negatives(v: np.ndarray) -> tuple[int, tuple, float] | None:
+    """(how many entries of ``v`` are negative, the first one's index, its value), or
+    None if none is."""
+    bad = v < 0
+    if not np.any(bad):
+        return None
+    first = tuple(int(i) for i in np.argwhere(bad)[0])
+    return int(np.count_nonzero(bad)), first, float(v[first])
+
+
 def few_bins_note(name: str, n: int, n_bins: int) -> str | None:
     """A message when a χ² test pooled its histogram into so few bins (fewer than 5
     expected per cell elsewhere) that it can detect only gross errors."""

@@ -257,11 +257,11 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     tv = _as_image("test_var", test_var, tm.shape)
     rv = _as_image("ref_var", ref_var, tm.shape)
     for label, v in (("test_var", tv), ("ref_var", rv)):
-        if np.any(v < 0):
-            first = tuple(int(i) for i in np.argwhere(v < 0)[0])
-            raise InvalidArgument(f"{label}: {np.count_nonzero(v < 0)} negative variance(s) "
-                                  f"(first at {first}: {v[first]:.6g}); variances must be "
-                                  ">= 0")
+        bad = validate.negatives(v)
+        if bad:
+            count, first, value = bad
+            raise InvalidArgument(f"{label}: {count} negative variance(s) (first at {first}: "
+                                  f"{value:.6g}); variances must be >= 0")
     # counts beyond 2^53 are not exact in float64 (10^30 reached scipy as an object)
     nt = validate.integer("test_n", test_n, minimum=2, maximum=2 ** 53)
     nr = validate.integer("ref_n", ref_n, minimum=2, maximum=2 ** 53)

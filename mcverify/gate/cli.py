@@ -539,16 +539,15 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
         reference.exr_channel_types(path)
 
     def load(keep=False):
-        import numpy as np
-
+        from .._validate import negatives
         from .passes import ImageStats, read_radiance
 
         (m, a), (v, b) = read_radiance(image), read_radiance(var)
-        if np.any(v < 0):
-            first = tuple(int(i) for i in np.argwhere(v < 0)[0])
-            raise InvalidArgument(f"{var} ({opt}-var): {np.count_nonzero(v < 0)} negative "
-                                  f"variance value(s), first at pixel (y, x, channel) = "
-                                  f"{first}: {v[first]:.6g}")
+        bad = negatives(v)
+        if bad:       # named here by file (compare_images would name the side only)
+            count, first, value = bad
+            raise InvalidArgument(f"{var} ({opt}-var): {count} negative variance value(s), "
+                                  f"first at pixel (y, x, channel) = {first}: {value:.6g}")
         return ImageStats(m, v, n, (image, var), tuple(x for x in (a, b) if x))
 
     return load, [image, var]
