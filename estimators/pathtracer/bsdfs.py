@@ -35,7 +35,7 @@ from .layout import (ALPHA, ALPHA_V, BLEND, BSDF_CHILD0, BSDF_CHILD1, BSDF_DISTR
                      NORMALMAP, NORMALMAP_FLIP_INVALID, NORMALMAP_SHADOWING, PLASTIC,
                      ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPECULAR_WEIGHT,
                      THINDIELECTRIC)
-from .textures import eval_texture
+from .textures import eval_texture, luminance
 
 __all__ = ["bsdf_eval", "bsdf_sample", "bsdf_is_smooth", "rough_coat_tables",
            "fresnel_dielectric", "fresnel_conductor", "fresnel_diffuse_reflectance"]
@@ -365,7 +365,7 @@ def _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v):
         x = bf[b, MIX]
     else:
         r, g, bl = eval_texture(tex_data, tex_info, t, u, v)
-        x = 0.212671 * r + 0.715160 * g + 0.072169 * bl
+        x = luminance(r, g, bl)
     return min(max(x, 0.0), 1.0)
 
 

@@ -172,6 +172,12 @@ def envmap_direction(u, v):
     return s * sin_phi, cos_theta, -s * cos_phi
 
 
+@njit(cache=True, inline="always")
+def luminance(r, g, b):
+    """The luminance of linear sRGB (Rec. 709) r, g, b: Mitsuba's ``luminance``."""
+    return 0.212671 * r + 0.715160 * g + 0.072169 * b
+
+
 @_fast
 def eval_envmap(tex_data, tex_info, t, u, v):
     h = tex_info[t, TEX_HEIGHT]
@@ -181,8 +187,8 @@ def eval_envmap(tex_data, tex_info, t, u, v):
 
 @_jit
 def _cell_means(tex_data, tex_info, h, w, k):
-    """The mean over each (u, v) cell of ``eval_envmap`` (texture 0; the largest of R, G,
-    B, at least 0) at k × k points of the cell."""
+    """The mean over each (u, v) cell of the luminance of ``eval_envmap`` (texture 0; at
+    least 0) at k × k points of the cell."""
     out = np.zeros((h, w))
     for j in range(h):
         for i in range(w):
@@ -191,7 +197,7 @@ def _cell_means(tex_data, tex_info, h, w, k):
                 for b in range(k):
                     r, g, bl = eval_envmap(tex_data, tex_info, 0, (i + (a + 0.5) / k) / w,
                                            (j + (b + 0.5) / k) / h)
-                    acc += max(r, g, bl, 0.0)
+                    acc += max(luminance(r, g, bl), 0.0)
             out[j, i] = acc / (k * k)
     return out
 
@@ -216,13 +222,16 @@ def envmap_sampling_weights(image: np.ndarray, k: int = 4) -> np.ndarray:
     each texel split into s × s cells (``envmap_refinement``: a bilinear lookup varies
     across a texel, most where a small bright sun sits, and a constant density per texel
     cannot follow it): the mean over the cell of what ``eval_envmap`` returns there (its
-    bilinear lookup, the largest of R, G, B, at k × k points of the cell), times sin θ
-    at the cell centre, plus a floor so that every cell has a non-zero density (the
-    estimator stays unbiased wherever the map is non-zero). On the envmap scene's sky
-    (32 × 64, s = 4) the relative variance of one sample of the environment's integral
-    (luminance over the sphere) is 0.023; with one cell a texel it was 0.155, and with
-    each texel's weight the largest texel of its 3 × 3 neighbourhood (until 2 December)
-    0.55."""
+    bilinear lookup's luminance, as Mitsuba weights its envmap's texels, at k × k points
+    of the cell), times sin θ at the cell centre, plus a floor so that every cell has a
+    non-zero density (the estimator stays unbiased wherever the map is non-zero). On the
+    envmap scene's sky (32 × 64, s = 4) the relative variance of one sample of the
+    environment's integral (luminance over the sphere) is 0.0082; with the largest of R,
+    G, B (until 3 December; mean of R, G, B integrated) 0.023, with one cell a texel
+    0.155, and with each texel's weight the largest texel of its 3 × 3 neighbourhood
+    (until 2 December) 0.55. The luminance against the largest channel: per-sample variance of
+    the envmap scene at max_depth 2 against Mitsuba's 1.18 -> 1.07 (the sun, white,
+    weighs more against the blue sky)."""
     store = TextureStore()
     store.add(np.asarray(image, dtype=np.float64)[..., :3])
     h, w = image.shape[:2]
