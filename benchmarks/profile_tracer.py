@@ -18,6 +18,14 @@ variance matter: our per-sample variance against Mitsuba's (the reference's), pe
 block, at the reference's resolution and number of passes (``--spp`` per pass):
 
     python benchmarks/profile_tracer.py veach-mis --variance
+
+``--variance --renders N`` measures the same against Mitsuba itself at equal samples:
+N renders of each side at ``--spp`` (and ``--max-depth``, to isolate direct lighting
+with 2), the variance across them per pixel, summed over the image (and over all but
+the 1 % of pixels with the largest variance on either side, where a firefly dominates):
+
+    python benchmarks/profile_tracer.py vocabulary-materials --variance --renders 64 \
+        --max-depth 2
 """
 
 import argparse
@@ -74,17 +82,44 @@ def variance_ratio(name: str, spp: int, block: int = 8) -> str:
             f"({ref.n} passes: ours {spp} spp each, Mitsuba {ref_spp})")
 
 
+def mitsuba_variance_ratio(name: str, spp: int, renders: int,
+                           max_depth: int | None = None) -> str:
+    """Our per-pixel variance across ``renders`` renders at ``spp`` against Mitsuba's,
+    the scene as it is or with ``max_depth`` set (both sides the same)."""
+    from mcverify.gate import mitsuba as mvm
+
+    mi = mvm._mi()
+    path = resolve_scene(name)[1]
+    params = {} if max_depth is None else {"max_depth": str(max_depth)}
+    theirs = mi.load_file(path, **params)
+    ours = prepare_scene(path, params=params)
+    imgs = [np.array([np.asarray(mi.render(theirs, spp=spp, seed=1000 + r), np.float64)
+                      for r in range(renders)]),
+            np.array([render(ours, spp=spp, seed=2000 + r).mean for r in range(renders)])]
+    v_theirs, v_ours = (i.var(axis=0, ddof=1).sum(axis=-1) for i in imgs)
+    calm = np.maximum(v_ours, v_theirs) < np.quantile(np.maximum(v_ours, v_theirs), 0.99)
+    return (f"{name}{'' if max_depth is None else f' (max_depth {max_depth})'}: variance "
+            f"ours / Mitsuba at {spp} spp, {renders} renders each: whole image "
+            f"{v_ours.sum() / v_theirs.sum():.3f}, without the top 1 % of pixels "
+            f"{v_ours[calm].sum() / v_theirs[calm].sum():.3f}; mean ours / Mitsuba "
+            f"{imgs[1].mean() / imgs[0].mean():.4f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("scenes", nargs="*", default=list(SCENES))
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--variance", action="store_true")
+    ap.add_argument("--renders", type=int, default=0,
+                    help="with --variance: against Mitsuba at equal spp, N renders a side")
+    ap.add_argument("--max-depth", type=int, default=None)
     ap.add_argument("--cpu", action="store_true",
                     help="CPU seconds (time.process_time, best of 5), not wall seconds")
     a = ap.parse_args()
     if a.variance:
         for name in a.scenes:
-            print(variance_ratio(name, a.spp), flush=True)
+            print(mitsuba_variance_ratio(name, a.spp, a.renders, a.max_depth) if a.renders
+                  else variance_ratio(name, a.spp), flush=True)
         return
     clock, repeats = (time.process_time, 5) if a.cpu else (time.perf_counter, 3)
 

@@ -102,21 +102,34 @@ def permute(i, n, p):
 @njit(cache=True, _nrt=False)
 def _stratum(u, s, n, seed):
     """Sample s of n in one dimension: stratum permute(s) of n, jittered by u."""
-    return (float(permute(s, n, _mix(seed) >> np.uint64(32))) + u) / float(n)
+    # (n - 1 + u) / n rounds to 1 for u within an ulp of 1: clamped below 1
+    return min((float(permute(s, n, _mix(seed) >> np.uint64(32))) + u) / float(n),
+               ONE_MINUS_EPSILON)
 
 
 @njit(cache=True, _nrt=False)
 def _stratum2(u, v, s, n, seed):
-    """Sample s of n in two dimensions: a cell of the r × r grid when n = r², each cell
-    once; otherwise each coordinate stratified on its own."""
+    """Sample s of n in two dimensions. When n = r²: correlated multi-jittered (Kensler
+    2013): one sample in each cell of the r × r grid, and within its cell in the
+    sub-column given by a permutation of its row and the sub-row given by a permutation
+    of its column, so that each coordinate's projection also puts one sample in each of
+    n strata (a light chosen from the first coordinate is stratified over n, not r;
+    vocabulary-materials at max_depth 2, multijitter, 16 spp: per-sample variance 2.0x
+    Mitsuba's with the jittered grid, ...). Otherwise each coordinate stratified on its own."""
     r = int(math.sqrt(float(n)) + 0.5)
     if np.uint64(r * r) == n:
-        p = permute(s, n, _mix(seed) >> np.uint64(32))
+        h = _mix(seed)
+        p = permute(s, n, h >> np.uint64(32))
         # p // r by a float division: exact, since p < 2^32 and r < 2^16 keep the
         # quotient's distance from the next integer (>= 1/r) far above its rounding
         y = np.uint64(float(p) / float(r))
         x = p - y * np.uint64(r)
-        return (float(x) + u) / r, (float(y) + v) / r
+        rr = np.uint64(r)
+        sx = permute(x, rr, h)                       # the low 32 bits: another permutation
+        sy = permute(y, rr, h ^ (h >> np.uint64(21)))
+        fr = float(r)
+        return (min((float(x) + (float(sy) + u) / fr) / fr, ONE_MINUS_EPSILON),
+                min((float(y) + (float(sx) + v) / fr) / fr, ONE_MINUS_EPSILON))
     return _stratum(u, s, n, seed), _stratum(v, s, n, seed ^ _M1)
 
 

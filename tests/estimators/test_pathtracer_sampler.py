@@ -71,7 +71,7 @@ def test_permute_is_kenslers_for_powers_of_two_and_others(n):
             seed = np.uint64(77 * s + 1)
             u, v = K._stratum2(0.0, 0.0, np.uint64(s), np.uint64(n), seed)
             c = _kensler(s, n, int(K._mix(seed) >> np.uint64(32)))
-            assert (round(u * r), round(v * r)) == (c % r, c // r)
+            assert (int(u * r), int(v * r)) == (c % r, c // r)
 
 
 def _state(s, n, scramble=0x1234567):
@@ -91,13 +91,14 @@ def test_each_dimension_of_a_pixels_samples_is_stratified(n):
     r × r grid (n = r²; each coordinate in its own n strata otherwise), and every later
     1-D dimension one in each of n strata; the dimensions are not all in the same order."""
     r = int(round(n ** 0.5))
-    cells, strata, orders = set(), [[] for _ in range(5)], []
+    cells, strata, orders, proj = set(), [[] for _ in range(5)], [], []
     for s in range(n):
         u, v, st = K._next2(_state(s, n))
         st = _u64(st)
         assert 0.0 <= u < 1.0 and 0.0 <= v < 1.0
         if r * r == n:
             cells.add((int(u * r), int(v * r)))
+            proj.append((int(u * n), int(v * n)))
         else:
             strata[4].append((int(u * n), int(v * n)))
         for d in range(4):
@@ -106,6 +107,8 @@ def test_each_dimension_of_a_pixels_samples_is_stratified(n):
             strata[d].append(int(x * n))
     if r * r == n:
         assert len(cells) == n
+        # multi-jittered: each coordinate's projection also one sample in each of n strata
+        assert sorted(a for a, _ in proj) == sorted(b for _, b in proj) == list(range(n))
     else:
         assert sorted(a for a, _ in strata[4]) == list(range(n))
         assert sorted(b for _, b in strata[4]) == list(range(n))
@@ -113,6 +116,22 @@ def test_each_dimension_of_a_pixels_samples_is_stratified(n):
         assert sorted(strata[d]) == list(range(n)), d
         orders.append(tuple(strata[d]))
     assert len(set(orders)) == 4
+
+
+@pytest.mark.parametrize("n", [16, 64])
+def test_each_sample_of_the_2d_dimension_is_uniform_over_pixels(n):
+    """Unbiasedness: sample s of a pixel's n, over 4096 pixels (scrambles), is uniform on
+    the square (an 8 × 8 Pearson chi-square; the multi-jittered sub-cell offsets must not
+    favour a part of the cell). Three samples per n, alpha = 1e-4 each (6 tests: family
+    6e-4)."""
+    from scipy import stats
+    for s in (0, 5, n - 1):
+        counts = np.zeros((8, 8))
+        for pixel in range(4096):
+            u, v, _ = K._next2(_state(s, n, scramble=pixel * 0x9E3779B9 + 17))
+            counts[int(u * 8), int(v * 8)] += 1
+        p = stats.chisquare(counts.ravel()).pvalue
+        assert p > 1e-4, (s, p)
 
 
 def test_the_independent_sampler_draws_the_splitmix_sequence():
