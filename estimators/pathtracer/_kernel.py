@@ -413,14 +413,17 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
     numbers are those of ``render_tiles``. Each tile splats into a private buffer (the tile
     and ``reach`` pixels around it); after the parallel loop the buffers are added into
     ``acc`` (H, W, SPLAT_CHANNELS) in tile order, so the image is the same whatever the
-    number of threads. ``bad`` counts non-finite samples (set to zero) per pixel."""
+    number of threads. ``bad`` counts non-finite samples (set to zero) per pixel. ``acc``
+    with ``SPLAT_VALUE_CHANNELS`` (not ``SPLAT_CHANNELS``): the sums of the value alone."""
     n_strat = spp if stratified else 0
     n = tiles.shape[0]
+    channels = acc.shape[2]
+    variance = channels == SPLAT_CHANNELS
     side = 2 * reach
     for ti in range(n):
         side = max(side, tiles[ti, 2] - tiles[ti, 0] + 2 * reach,
                    tiles[ti, 3] - tiles[ti, 1] + 2 * reach)
-    buf = np.zeros((n, side, side, SPLAT_CHANNELS))
+    buf = np.zeros((n, side, side, channels))
     for ti in prange(n):
         stack = new_stack()
         out = np.empty((CHUNK, 6))
@@ -442,11 +445,11 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
                     if out[k, 5] == 0.0:
                         nbad += 1
                     splat_kernel(cam, tile_buf, bx, by, width, height, x + fx, y + fy,
-                                 r, g, b, wx)
+                                 r, g, b, wx, variance)
                 bad[y, x] = nbad
     for ti in range(n):
         bx, by = tiles[ti, 0] - reach, tiles[ti, 1] - reach
         for j in range(max(0, -by), min(side, height - by)):
             for i in range(max(0, -bx), min(side, width - bx)):
-                for k in range(SPLAT_CHANNELS):
+                for k in range(channels):
                     acc[by + j, bx + i, k] += buf[ti, j, i, k]

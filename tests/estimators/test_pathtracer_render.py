@@ -159,10 +159,41 @@ def test_render_reports_progress_and_rejects_bad_arguments():
     # tiles done, rising to all of them
     assert calls and calls[-1][0] == calls[-1][1] == n_tiles
     assert all(a[0] < b[0] for a, b in zip(calls, calls[1:]))
-    with pytest.raises(ValueError, match="spp"):
+    with pytest.raises(ValueError, match="spp.*variance=False"):
         render(scene, spp=1)
     with pytest.raises(ValueError, match="seed"):
         render(scene, spp=2, seed=-1)
+
+
+@pytest.mark.parametrize("name", ["cornell-box", "filters", "filters-tent"])
+def test_the_image_alone_is_the_same_image(name):
+    """render(variance=False) (the render gate's passes, the bench): the very mean of a
+    render with its variance, bit for bit, for the box film and the splatting ones; no
+    variance; spp = 1 allowed then; passes keep the variance of their pass means."""
+    scene = prepare_scene(f"reference/scenes/{name}/scene.xml", params={"res": 24})
+    full = render(scene, spp=6, seed=4)
+    alone = render(scene, spp=6, seed=4, variance=False)
+    assert np.array_equal(full.mean, alone.mean) and alone.variance is None
+    assert full.variance is not None and full.variance.sum() > 0
+    one = render(scene, spp=1, seed=4, variance=False)
+    assert one.mean.shape == full.mean.shape and one.variance is None
+    assert np.isfinite(one.mean).all() and one.mean.sum() > 0
+    split = render(scene, spp=8, seed=4, passes=4)
+    assert split.variance is not None and split.variance.shape == full.mean.shape
+    for bad in ("no", 1, None):
+        with pytest.raises(ValueError, match="variance="):
+            render(scene, spp=2, variance=bad)
+
+
+def test_splatting_without_variance_adds_the_value_sums_alone():
+    from estimators.pathtracer.camera import SPLAT_VALUE_CHANNELS, splat
+
+    cam = prepare_scene("reference/scenes/filters/scene.xml", params={"res": 20}).camera
+    rng = np.random.default_rng(3)
+    pts = np.column_stack([rng.random(500) * 20, rng.random(500) * 20, rng.random((500, 3))])
+    full, alone = splat(cam, pts), splat(cam, pts, variance=False)
+    assert alone.shape == (20, 20, SPLAT_VALUE_CHANNELS)
+    assert np.array_equal(full[..., :SPLAT_VALUE_CHANNELS], alone)
 
 
 @pytest.mark.mitsuba
