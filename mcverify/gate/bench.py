@@ -118,15 +118,16 @@ def _render_pairs(mi, spp: int):
 
 
 def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1,
-                    repeats: int = 4, mi=None, clock=time.perf_counter) -> dict:
+                    repeats: int = 16, mi=None, clock=time.perf_counter) -> dict:
     """RMSE of ours and of Mitsuba against the scene's reference when both get the time
     Mitsuba needs for ``spp`` samples per pixel. Both sides' times are whole render calls
     (the scene loaded and prepared before; JIT excluded: each side renders once first),
     the best of 3. Each side's MSE is the mean over ``repeats`` independent renders: one
     image's MSE is a noisy estimate where a few bright samples dominate (a tiny light seen
     in a glossy plate): single pairs of images put the Veach scene's ratio at 0.23, 0.33
-    and 1.18 for three seeds. The reference's own noise, var / passes, is subtracted from both
-    mean MSEs."""
+    and 1.18 for three seeds, and 4 renders a side (until 3 December) vocabulary-lights'
+    at 1.27 where 16 renders a side at equal spp gave 0.97 (its renders take ~10 ms).
+    The reference's own noise, var / passes, is subtracted from both mean MSEs."""
     from estimators.pathtracer import prepare_scene, render
 
     from . import mitsuba as mvm
