@@ -656,6 +656,18 @@ class _Builder:
                                  "envmap then looks up and samples directions that are not "
                                  "unit vectors, which cannot be matched")
                 img = self._image(e, e.get("filename"))
+                if img.shape[0] < 3 or img.shape[1] < 2:
+                    # Mitsuba 3.9.1 renders a 2-row map with a lookup not matched (newer
+                    # Mitsuba refuses maps under 2 x 3 pixels)
+                    self.fail(e, f"{e.get('filename')}: {img.shape[1]} x {img.shape[0]} "
+                                 "pixels; an envmap needs at least 2 columns and 3 rows")
+                lum = np.asarray(img, dtype=np.float64)[..., :3] @ _LUMINANCE
+                if not np.any(lum > 0) and np.any(np.asarray(img)[..., :3] != 0):
+                    # Mitsuba samples the map by its luminance: with no positive mass its
+                    # table is degenerate (max_depth 2: red 0.40 there, 0.57 here)
+                    self.fail(e, f"{e.get('filename')}: its luminance is nowhere positive; "
+                                 "Mitsuba cannot importance-sample it (its sampling table "
+                                 "has no mass), so its image is not matched")
                 i[layout.LIGHT_TEXTURE] = self.textures.add(img)
                 f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
                 f[layout.ENV_TO_LOCAL:layout.ENV_TO_LOCAL + 9] = np.linalg.inv(m[:3, :3]).ravel()
@@ -733,6 +745,17 @@ class _Builder:
                 max_depth = INFINITE_DEPTH
             if rr_depth < 1:
                 self.fail(integ, f"rr_depth must be >= 1, got {rr_depth}")
+            null = sorted({"bsdf:mask", "bsdf:thindielectric"} & d.features)
+            if integ.get("hide_emitters", False) and null and 2 <= max_depth < INFINITE_DEPTH:
+                # at the last vertex, Mitsuba's llvm variant counts a path that only passed
+                # through null components as valid, its scalar variant does not (a mask
+                # sphere under an envmap, max_depth 2: the two differ at p = 1e-173, the
+                # tracer matches scalar); neither can be matched for both
+                self.fail(integ, f"hide_emitters with a {null[0][5:]} BSDF and max_depth "
+                                 f"{max_depth}: Mitsuba's llvm and scalar variants render "
+                                 "what is seen through its null component at the last bounce "
+                                 "differently; not matched (use max_depth -1, or "
+                                 "hide_emitters false)")
         tex_data, tex_info = self.textures.arrays()
         arrays = layout.SceneArrays(
             bvh_nodes=bvh_nodes, leaf_prims=leaf_prims, leaf_info=leaf_info, prims=prims,
@@ -768,6 +791,8 @@ class _Builder:
 
 
 _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
+#: Rec. 709 luminance weights (Mitsuba's ``luminance``; ``textures.luminance``)
+_LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 #: what a blendbsdf may hold: BSDFs with a density and no delta lobe
 _BLENDABLE = ("diffuse", "roughconductor", "roughplastic", "roughdielectric", "twosided")
 

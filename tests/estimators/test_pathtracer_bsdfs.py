@@ -208,6 +208,63 @@ def test_an_envmap_that_is_not_rotated_rigidly_is_refused(tmp_path, to_world):
         prepare_scene(str(path))
 
 
+@pytest.mark.parametrize("shape, fill, match", [
+    ((2, 3), 1.0, r"3 x 2 pixels; an envmap needs at least 2 columns and 3 rows"),
+    ((5, 1), 1.0, r"1 x 5 pixels; an envmap needs at least 2 columns and 3 rows"),
+    ((4, 6), (1.0, -0.4, 0.0), r"its luminance is nowhere positive.*not matched")],
+    ids=["two-rows", "one-column", "negative-luminance"])
+def test_envmaps_mitsuba_cannot_render_consistently_are_refused(mi, tmp_path, shape, fill,
+                                                                 match):
+    """Found on maps not in the repository: Mitsuba 3.9.1 rendered a 3 x 2 map's directly
+    seen radiance differently (mean red 0.84 against our 0.76; newer Mitsuba refuses maps
+    under 2 x 3), and a map whose luminance is nowhere positive leaves Mitsuba's sampling
+    table without mass (max_depth 2: red 0.40 there, 0.57 here). An all-black map and a
+    map negative over half its area stay accepted."""
+    from estimators.pathtracer.scene import SceneError
+
+    def scene(img):
+        mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(str(tmp_path / "e.exr"))
+        path = tmp_path / "s.xml"
+        path.write_text(_SCENE.format(bsdf="").replace(
+            "</scene>", '<emitter type="envmap"><string name="filename" value="e.exr"/>'
+                        '</emitter></scene>'))
+        return str(path)
+
+    with pytest.raises(SceneError, match=r'<emitter type="envmap">: e\.exr: ' + match):
+        prepare_scene(scene(np.broadcast_to(fill, (*shape, 3))))
+    prepare_scene(scene(np.zeros((4, 6, 3))))
+    half = np.ones((4, 6, 3))
+    half[:, :3] = -1.0
+    prepare_scene(scene(half))
+
+
+@pytest.mark.parametrize("bsdf", ['<bsdf type="mask"><float name="opacity" value="0.3"/>'
+                                  '<bsdf type="diffuse"/></bsdf>',
+                                  '<bsdf type="thindielectric"/>'], ids=["mask", "thin"])
+def test_hidden_emitters_seen_through_a_null_component_at_a_depth_limit_are_refused(
+        tmp_path, bsdf):
+    """Found on a scene not in the repository (a mask sphere under an envmap, path,
+    hide_emitters, max_depth 2): Mitsuba's llvm variant counts a path that only passed
+    through null components as valid at the last vertex, its scalar variant does not (the
+    two differ at p = 1e-173); unlimited depth, or emitters shown, stay accepted."""
+    from estimators.pathtracer.scene import SceneError
+
+    def scene(max_depth, hide):
+        path = tmp_path / "s.xml"
+        path.write_text(_SCENE.format(bsdf=bsdf).replace(
+            "<sensor", f'<integrator type="path"><integer name="max_depth" value="{max_depth}"/>'
+                       f'<boolean name="hide_emitters" value="{hide}"/></integrator><sensor')
+            .replace("</scene>", '<emitter type="constant"/></scene>'))
+        return str(path)
+
+    for depth in (2, 3, 8):
+        with pytest.raises(SceneError, match=r"hide_emitters with a (mask|thindielectric) "
+                                             rf"BSDF and max_depth {depth}: .*not matched"):
+            prepare_scene(scene(depth, "true"))
+    for depth, hide in ((-1, "true"), (1, "true"), (2, "false")):
+        prepare_scene(scene(depth, hide))
+
+
 def test_envmap_sampling_weights_cover_every_cell():
     from estimators.pathtracer.textures import envmap_refinement, envmap_sampling_weights
 
