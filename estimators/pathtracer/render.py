@@ -284,7 +284,7 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
     seconds = 0.0
     stats = {}
     for k in range(passes):
-        r = render(cs, spp=max(per, 2), seed=pass_seed(seed, k),
+        r = render(cs, spp=per, seed=pass_seed(seed, k),
                    general=general, pdf_scale=pdf_scale, variance=False,
                    progress=(lambda d, t, k=k: progress(k * t + d, passes * t))
                    if progress else None)
@@ -292,8 +292,8 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
         seconds += r.seconds
         stats = r.stats
     m = np.stack(means)
-    stats = dict(stats, passes=passes, spp_per_pass=max(per, 2),
-                 samples_per_second=cs.width * cs.height * max(per, 2) * passes / seconds)
+    stats = dict(stats, passes=passes, spp_per_pass=per,
+                 samples_per_second=cs.width * cs.height * per * passes / seconds)
     return RenderResult(m.mean(axis=0).astype(np.float32),
                         m.var(axis=0, ddof=1).astype(np.float32), passes, seconds, stats,
                         m.astype(np.float32))

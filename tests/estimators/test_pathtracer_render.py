@@ -180,6 +180,12 @@ def test_the_image_alone_is_the_same_image(name):
     assert np.isfinite(one.mean).all() and one.mean.sum() > 0
     split = render(scene, spp=8, seed=4, passes=4)
     assert split.variance is not None and split.variance.shape == full.mean.shape
+    # one sample a pass: spp = passes renders spp samples (each pass used to render 2)
+    ones = render(scene, spp=4, seed=4, passes=4)
+    assert ones.stats["spp_per_pass"] == 1 and ones.n == 4
+    from estimators.pathtracer.render import pass_seed
+    first = render(scene, spp=1, seed=pass_seed(4, 0), variance=False)
+    assert np.array_equal(ones.passes[0], first.mean)
     for bad in ("no", 1, None):
         with pytest.raises(ValueError, match="variance="):
             render(scene, spp=2, variance=bad)
