@@ -138,12 +138,12 @@ def _stratum2(u, v, s, n, m, seed):
     of n up to √n (√n × √n when n is a square), or, where that grid would be more than
     4 times wider than tall (n prime or nearly), m = ⌈√n⌉ and n of the m·k cells filled
     (a per-pixel permutation of all m·k, so every cell is equally likely and the
-    estimate unbiased). Within its cell each sample takes the sub-column a permutation of its row
-    gives and the sub-row a permutation of its column gives, so each coordinate's
-    projection has at most one sample in each of m·k strata (one in each of n when
-    m·k = n). A light chosen from the first coordinate is then stratified over ~n strata,
-    not √n (vocabulary-materials at max_depth 2, multijitter, 16 spp: per-sample
-    variance 2.0× Mitsuba's with jittered grids, 0.95× now). Per-sample MSE on
+    estimate unbiased). Within its cell each sample takes the sub-column a permutation
+    of its row gives and the sub-row a permutation of its column gives, so each
+    coordinate's projection has at most one sample in each of m·k strata (one in each
+    of n when m·k = n). A light chosen from the first coordinate is then stratified
+    over ~n strata, not √n (vocabulary-materials at max_depth 2, multijitter, 16 spp:
+    per-sample variance 2.0× Mitsuba's with jittered grids, 0.95× now). Per-sample MSE on
     vocabulary-lights (× spp, 24 renders): 16 spp 0.040, 15 0.045, 14 0.050, 13 0.094,
     17 0.075; with the ⌈√n⌉ grid for every n, 15 0.058 and 14 0.072; with the divisor
     grid for every n, 13 0.113 and 17 0.103. Until 3 December a non-square n stratified

@@ -31,7 +31,7 @@ from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIA
 from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
-from .textures import TextureStore, envmap_sampling_weights, read_image
+from .textures import TextureStore, envmap_sampling_weights, luminance, read_image
 
 _MATERIALS = None
 
@@ -661,8 +661,9 @@ class _Builder:
                     # Mitsuba refuses maps under 2 x 3 pixels)
                     self.fail(e, f"{e.get('filename')}: {img.shape[1]} x {img.shape[0]} "
                                  "pixels; an envmap needs at least 2 columns and 3 rows")
-                lum = np.asarray(img, dtype=np.float64)[..., :3] @ _LUMINANCE
-                if not np.any(lum > 0) and np.any(np.asarray(img)[..., :3] != 0):
+                rgb = np.asarray(img, dtype=np.float64)[..., :3]
+                lum = luminance.py_func(rgb[..., 0], rgb[..., 1], rgb[..., 2])
+                if not np.any(lum > 0) and np.any(rgb != 0):
                     # Mitsuba samples the map by its luminance: with no positive mass its
                     # table is degenerate (max_depth 2: red 0.40 there, 0.57 here)
                     self.fail(e, f"{e.get('filename')}: its luminance is nowhere positive; "
@@ -712,6 +713,8 @@ class _Builder:
         nb, ni, order = build_bvh(prims, info)
         bvh_nodes, leaf_prims, leaf_info = pack_bvh(prims, info, nb, ni, order)
         integ = d.integrator
+        # BSDFs with a null component (hide_emitters cannot be matched with them below)
+        null = sorted({"bsdf:mask", "bsdf:thindielectric"} & d.features)
         if integ.type == "direct":
             max_depth, rr_depth = 2, INFINITE_DEPTH
             for name in ("emitter_samples", "bsdf_samples"):
@@ -721,7 +724,6 @@ class _Builder:
                     self.fail(integ, f"{name}={integ.get(name)}: must be >= 1 (with 0 "
                                      "Mitsuba drops that technique and the light only it "
                                      "finds; not matched)")
-            null = sorted({"bsdf:mask", "bsdf:thindielectric"} & d.features)
             if integ.get("hide_emitters", False) and null:
                 # Mitsuba's direct integrator keeps what is seen through a null component
                 # (its valid_ray is the camera hit); the tracer's depth-2 path drops it
@@ -745,7 +747,6 @@ class _Builder:
                 max_depth = INFINITE_DEPTH
             if rr_depth < 1:
                 self.fail(integ, f"rr_depth must be >= 1, got {rr_depth}")
-            null = sorted({"bsdf:mask", "bsdf:thindielectric"} & d.features)
             if integ.get("hide_emitters", False) and null and 2 <= max_depth < INFINITE_DEPTH:
                 # at the last vertex, Mitsuba's llvm variant counts a path that only passed
                 # through null components as valid, its scalar variant does not (a mask
@@ -791,8 +792,6 @@ class _Builder:
 
 
 _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
-#: Rec. 709 luminance weights (Mitsuba's ``luminance``; ``textures.luminance``)
-_LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 #: what a blendbsdf may hold: BSDFs with a density and no delta lobe
 _BLENDABLE = ("diffuse", "roughconductor", "roughplastic", "roughdielectric", "twosided")
 

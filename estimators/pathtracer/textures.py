@@ -229,9 +229,9 @@ def envmap_sampling_weights(image: np.ndarray, k: int = 4) -> np.ndarray:
     environment's integral (luminance over the sphere) is 0.0082; with the largest of R,
     G, B (until 3 December; mean of R, G, B integrated) 0.023, with one cell a texel
     0.155, and with each texel's weight the largest texel of its 3 × 3 neighbourhood
-    (until 2 December) 0.55. The luminance against the largest channel: per-sample variance of
-    the envmap scene at max_depth 2 against Mitsuba's 1.18 -> 1.07 (the sun, white,
-    weighs more against the blue sky)."""
+    (until 2 December) 0.55. The luminance against the largest channel: per-sample
+    variance of the envmap scene at max_depth 2 against Mitsuba's 1.18 -> 1.05 (the sun,
+    white, weighs more against the blue sky)."""
     store = TextureStore()
     store.add(np.asarray(image, dtype=np.float64)[..., :3])
     h, w = image.shape[:2]

@@ -102,10 +102,10 @@ def test_the_2d_grid_is_the_squarest_exact_one_unless_too_thin(n, columns, rows)
 @pytest.mark.parametrize("n", [16, 64, 12, 13, 14, 15, 17, 2, 3, 1])
 def test_each_dimension_of_a_pixels_samples_is_stratified(n):
     """Over a pixel's n samples: the 2-D dimension puts its samples in distinct cells of
-    an m × k grid (m = grid_columns(n), k = ceil(n / m): every cell filled when m·k = n), each coordinate's projection at most one sample in each
-    of m·k strata (exactly one in each of n when n is a square: multi-jittered), and
-    every later 1-D dimension one in each of n strata; the dimensions are not all in the
-    same order."""
+    an m × k grid (m = grid_columns(n), k = ceil(n / m): every cell filled when m·k = n),
+    each coordinate's projection at most one sample in each of m·k strata (exactly one in
+    each of n when m·k = n: multi-jittered), and every later 1-D dimension one in each of
+    n strata; the dimensions are not all in the same order."""
     m = int(K.grid_columns(n))
     k = -(-n // m)
     cells, strata, orders, proj = set(), [[] for _ in range(4)], [], []
