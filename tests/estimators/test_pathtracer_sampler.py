@@ -74,15 +74,22 @@ def test_permute_is_kenslers_for_powers_of_two_and_others(n):
             assert (int(u * r), int(v * r)) == (c % r, c // r)
 
 
-def _state(s, n, scramble=0x1234567):
-    return (np.uint64(s * 77 + 5), np.uint64(scramble), np.uint64(s), K.strata_field(n),
-            np.uint64(0))
+def _state(s, n, scramble=0x1234567, dims=K.STRATA_DIMS):
+    """The state of sample s of a pixel's n, as ``_trace_samples`` makes it, with a
+    strata table of ``dims`` dimensions (0: every dimension one sample at a time)."""
+    tab, ctl = K._strata_table(True)
+    tab = tab[:dims]
+    if n:
+        m = int(K.grid_columns(n))
+        ctl[1] = -(-n // m)
+    return (np.uint64(s * 77 + 5), np.uint64(scramble), np.uint64(s),
+            np.uint64(K.strata_field(n)), np.uint64(0), tab, ctl)
 
 
 def _u64(state):
     """A state back from numba (Python ints) as the kernel holds it (uint64: Python ints
     would be typed int64 on the way in)."""
-    return tuple(np.uint64(x) for x in state)
+    return tuple(np.uint64(x) for x in state[:5]) + tuple(state[5:])
 
 
 @pytest.mark.parametrize("n, columns, rows", [(16, 4, 4), (12, 4, 3), (14, 7, 2), (15, 5, 3),
@@ -147,6 +154,35 @@ def test_each_sample_of_the_2d_dimension_is_uniform_over_pixels(n):
             counts[int(u * 8), int(v * 8)] += 1
         p = stats.chisquare(counts.ravel()).pvalue
         assert p > 1e-4, (s, p)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 13, 16, 17, 64, 100, 130])
+def test_the_chunk_strata_table_gives_the_one_sample_strata(n):
+    """The strata table (``_strata_fill``: a chunk's samples at once, in vectorised loops)
+    holds the values ``_stratum`` and ``_stratum2`` compute one sample at a time: each
+    chunk's samples traced in order through one table, as ``_trace_samples`` does, a
+    random mix of 1-D and 2-D dimensions per sample (paths take different branches), some
+    samples ending early (a later one fills the dimension from where it is), and the
+    dimensions past the table's end. Compared exactly against the same states without a
+    table (every dimension one sample at a time)."""
+    rng = np.random.default_rng(n)
+    for s0 in range(0, n, K.CHUNK):
+        st = _state(s0, n)
+        tab, ctl = st[5], st[6]
+        ctl[0] = 0
+        for s in range(s0, min(s0 + K.CHUNK, n)):
+            with_table = (np.uint64(s * 77 + 5), *_state(s, n)[1:5], tab, ctl)
+            alone = _state(s, n, dims=0)
+            for _ in range(int(rng.integers(1, K.STRATA_DIMS + 6))):
+                if rng.random() < 0.4:
+                    a, with_table = K._next(with_table)
+                    b, alone = K._next(alone)
+                    assert a == b, (s, a, b)
+                else:
+                    *a, with_table = K._next2(with_table)
+                    *b, alone = K._next2(alone)
+                    assert a == b, (s, a, b)
+                with_table, alone = _u64(with_table), _u64(alone)
 
 
 def test_the_independent_sampler_draws_the_splitmix_sequence():
