@@ -155,52 +155,115 @@ def _stratum(u, s, n, seed):
 @njit(cache=True, _nrt=False)
 def grid_columns(n):
     """Columns m of the m × k grid a 2-D dimension of n stratified samples uses
-    (``_stratum2``): n / k, k the largest divisor of n up to √n, unless that grid is
-    more than 4 times wider than tall (n prime, or nearly): then ⌈√n⌉."""
+    (``_stratum2``): n / k, k the largest divisor of n up to √n; 0 where that grid would be
+    more than 4 times wider than tall (n prime, or nearly): the 2-D dimension is then a
+    rank-1 lattice (``lattice_generator``)."""
     n = np.uint64(n)
-    r = np.uint64(math.sqrt(float(n)))
-    k = r
+    k = np.uint64(math.sqrt(float(n)))
     while n % k != np.uint64(0):
         k -= np.uint64(1)
     m = n // k
-    if m > np.uint64(4) * k:
-        m = r if r * r == n else r + np.uint64(1)
-    return m
+    return np.uint64(0) if m > np.uint64(4) * k else m
+
+
+@njit(cache=True, _nrt=False)
+def lattice_generator(n):
+    """The generator a of the n-point rank-1 lattice {(i, a·i mod n) / n} a 2-D dimension
+    uses where n has no squarish grid: of the a within 8 of n / φ (the Fibonacci lattice's
+    choice) and coprime with n, the one whose shortest lattice vector on the torus is the
+    longest (0: none coprime)."""
+    n = np.uint64(n)
+    centre = np.uint64(float(n) * 0.6180339887498949 + 0.5)
+    lo = max(np.uint64(1), centre - np.uint64(min(centre, np.uint64(8))))
+    hi = min(n - np.uint64(1), centre + np.uint64(8))
+    best, best_d = np.uint64(0), np.uint64(0)
+    for ai in range(np.int64(lo), np.int64(hi) + 1):
+        a = np.uint64(ai)
+        x, y = n, a
+        while y != np.uint64(0):
+            x, y = y, x % y
+        if x != np.uint64(1):
+            continue
+        d = n * n
+        y = np.uint64(0)
+        for i in range(1, np.int64(n)):
+            y += a
+            if y >= n:
+                y -= n
+            di = min(np.uint64(i), n - np.uint64(i))
+            dy = min(y, n - y)
+            d = min(d, di * di + dy * dy)
+        if d > best_d:
+            best, best_d = a, d
+    return best
+
+
+#: The strata field's flag of a lattice 2-D dimension (its generator in bits 32-62).
+_LATTICE = np.uint64(1) << np.uint64(63)
+_U31 = np.uint64(0x7FFFFFFF)
 
 
 @njit(cache=True, _nrt=False)
 def strata_field(n):
-    """The state's strata field: n (0: the independent sampler) in the low 32 bits, the
-    2-D grid's columns (``grid_columns``) above, computed once a pixel."""
+    """The state's strata field, computed once a render: n (0: the independent sampler)
+    in the low 32 bits; above them the 2-D grid's columns (``grid_columns``), or the
+    lattice's generator (``lattice_generator``) and the ``_LATTICE`` flag. n < 2^31."""
     n = np.uint64(n)
-    return n if n == np.uint64(0) else n | (grid_columns(n) << np.uint64(32))
+    if n == np.uint64(0):
+        return n
+    m = grid_columns(n)
+    if m != np.uint64(0):
+        return n | (m << np.uint64(32))
+    return n | (lattice_generator(n) << np.uint64(32)) | _LATTICE
+
+
+@njit(cache=True, inline="always")
+def _lattice_row(x, g, h, n):
+    """Row (a·x + b) mod n of column x of an n-point rank-1 lattice: a = g or n - g (its
+    mirror image) and the shift b uniform on 0..n-1, both chosen by the hash h, so every
+    cell is equally likely and the estimate unbiased. The remainder by a float division
+    and one correction (a loop LLVM vectorises)."""
+    a = g if h & np.uint64(1 << 40) else n - g
+    t = np.int64(a * x + (((h & _U32) * n) >> np.uint64(32)))
+    nn = np.int64(n)
+    r = t - np.int64(float(t) / float(nn)) * nn
+    if r < 0:
+        r += nn
+    return np.uint64(r - nn if r >= nn else r)
 
 
 @njit(cache=True, _nrt=False)
-def _stratum2(u, v, s, n, m, seed):
-    """Sample s of n in two dimensions, correlated multi-jittered (Kensler 2013) on an
-    m × k grid, m = ``grid_columns(n)``, k = ⌈n / m⌉: m·k = n with k the largest divisor
-    of n up to √n (√n × √n when n is a square), or, where that grid would be more than
-    4 times wider than tall (n prime or nearly), m = ⌈√n⌉ and n of the m·k cells filled
-    (a per-pixel permutation of all m·k, so every cell is equally likely and the
-    estimate unbiased). Within its cell each sample takes the sub-column a permutation
-    of its row gives and the sub-row a permutation of its column gives, so each
-    coordinate's projection has at most one sample in each of m·k strata (one in each
-    of n when m·k = n). A light chosen from the first coordinate is then stratified
-    over ~n strata, not √n (vocabulary-materials at max_depth 2, multijitter, 16 spp:
-    per-sample variance 2.0× Mitsuba's with jittered grids, 0.95× now). Per-sample MSE on
-    vocabulary-lights (× spp, 24 renders): 16 spp 0.040, 15 0.045, 14 0.050, 13 0.094,
-    17 0.075; with the ⌈√n⌉ grid for every n, 15 0.058 and 14 0.072; with the divisor
-    grid for every n, 13 0.113 and 17 0.103. Until 3 December a non-square n stratified
-    each coordinate on its own."""
-    k = (n + m - np.uint64(1)) // m
+def _stratum2(u, v, s, field, seed):
+    """Sample s of n in two dimensions (``field``: ``strata_field(n)``).
+
+    Where n has a squarish grid (``grid_columns``: m × k = n, k the largest divisor of n
+    up to √n, m ≤ 4k): correlated multi-jittered (Kensler 2013) on it. Within its cell
+    each sample takes the sub-column a permutation of its row gives and the sub-row a
+    permutation of its column gives, so each coordinate's projection has one sample in
+    each of n strata. A light chosen from the first coordinate is then stratified over n
+    strata, not √n (vocabulary-materials at max_depth 2, multijitter, 16 spp: per-sample
+    variance 2.0× Mitsuba's with jittered grids, 0.95× now).
+
+    Otherwise (n prime, or nearly: 5, 7, 11, 13, 17, 22...): a rank-1 lattice, column
+    x = the sample's 1-D stratum (a permutation of n) and row ``_lattice_row``: again one
+    sample in each of n strata on each axis, and the points spread over the square as a
+    Fibonacci lattice's. Until this evening those n took ⌈√n⌉ columns with n of the
+    cells filled (each coordinate over up to n + ⌈√n⌉ strata): per-sample MSE on
+    vocabulary-lights (× spp, 24 renders) 11 spp 0.071, 13 0.105, 17 0.082 against 0.045
+    at 16; with the lattice, see docs/PERFORMANCE.md."""
+    n = field & _U32
     h = _mix(seed)
-    x, y = _cell(permute(s, m * k, h >> np.uint64(32)), m)
+    if field & _LATTICE:
+        x = permute(s, n, h >> np.uint64(32))
+        return (_jitter1(x, u, n),
+                _jitter1(_lattice_row(x, (field >> np.uint64(32)) & _U31, h, n), v, n))
+    m = field >> np.uint64(32)
+    k = n // m
+    x, y = _cell(permute(s, n, h >> np.uint64(32)), m)
     # the sub-strata's permutations: h's low 32 bits and a second hash, independent of
     # the cell's permutation (h's high 32 bits)
-    mk = m * k
-    return (_jitter1(_sub_stratum(x, permute(y, k, _mix(h ^ _M2)), k), u, mk),
-            _jitter1(_sub_stratum(y, permute(x, m, h), m), v, mk))
+    return (_jitter1(_sub_stratum(x, permute(y, k, _mix(h ^ _M2)), k), u, n),
+            _jitter1(_sub_stratum(y, permute(x, m, h), m), v, n))
 
 
 @njit(cache=True, inline="always")
@@ -230,19 +293,28 @@ STRATA_ROWS = 3
 
 
 @njit(cache=True, _nrt=False)
-def _strata_fill(tab, d, seed, s0, j0, c, n, m, k):
+def _strata_fill(tab, d, seed, s0, j0, c, field):
     """Dimension d of the strata table of a pixel's samples s0 + j0 <= s < s0 + c: the
     integers ``_stratum`` and ``_stratum2`` compute for one sample (the same values,
     tested), here for the c samples at once in loops LLVM vectorises. A 2-D dimension's
     three permutations one sample at a time took 24 ns (n = 16, 64) to 46 ns (n = 10, 15);
     filled here, both kinds of dimension: 5.6 ns a sample (16), 3.6 (64), 22 (10)."""
     h = _mix(seed)
+    n = field & _U32
     one, su, sv = tab[d, 0, j0:c], tab[d, 1, j0:c], tab[d, 2, j0:c]
     c -= j0
     s0 += np.uint64(j0)
     for j in range(c):
         one[j] = s0 + np.uint64(j)
-    _permute_rows(one, c, m * k, h >> np.uint64(32))
+    _permute_rows(one, c, n, h >> np.uint64(32))
+    if field & _LATTICE:
+        g = (field >> np.uint64(32)) & _U31
+        for j in range(c):
+            x = np.uint64(one[j])
+            su[j], sv[j] = x, _lattice_row(x, g, h, n)
+        return
+    m = field >> np.uint64(32)
+    k = n // m
     for j in range(c):
         x, y = _cell(np.uint64(one[j]), m)
         su[j], sv[j] = y, x
@@ -252,10 +324,6 @@ def _strata_fill(tab, d, seed, s0, j0, c, n, m, k):
         x, y = _cell(np.uint64(one[j]), m)
         su[j] = _sub_stratum(x, np.uint64(su[j]), k)
         sv[j] = _sub_stratum(y, np.uint64(sv[j]), m)
-    if m * k != n:          # the 1-D stratum: a permutation of n, not of the grid's cells
-        for j in range(c):
-            one[j] = s0 + np.uint64(j)
-        _permute_rows(one, c, n, h >> np.uint64(32))
 
 
 @njit(cache=True, inline="always")
@@ -263,14 +331,14 @@ def _strata_table(stratified):
     """A tile's strata table and its control words (``_strata_slot``); none for the
     independent sampler."""
     return (np.empty((STRATA_DIMS if stratified else 0, STRATA_ROWS, CHUNK), np.uint32),
-            np.zeros(2, np.int64))
+            np.zeros(1, np.int64))
 
 
 @njit(cache=True, inline="always")
 def _strata_slot(tab, ctl, d, s, n, scramble):
     """Column of sample s in dimension d of its chunk's strata table (-1: d is past the
-    table), the table's dimensions up to d filled first. ``ctl``: [dimensions filled, the
-    grid's rows k]; a chunk is CHUNK samples of a pixel from a multiple of CHUNK, traced
+    table), the table's dimensions up to d filled first. ``ctl``: [dimensions filled];
+    a chunk is CHUNK samples of a pixel from a multiple of CHUNK, traced
     in order: a dimension is filled for sample s and the chunk's later samples (the
     earlier ones never reach it)."""
     di = np.int64(d)
@@ -282,8 +350,7 @@ def _strata_slot(tab, ctl, d, s, n, scramble):
         n32 = n & _U32
         c = min(np.uint64(CHUNK), n32 - s0)
         for r in range(ctl[0], di + 1):
-            _strata_fill(tab, r, scramble + np.uint64(r) * _GOLDEN, s0, j, c, n32,
-                         n >> np.uint64(32), np.uint64(ctl[1]))
+            _strata_fill(tab, r, scramble + np.uint64(r) * _GOLDEN, s0, j, c, n)
         ctl[0] = di + 1
     return np.int64(j)
 
@@ -325,10 +392,9 @@ def _next2(state):
     if MASK & F_STRATIFIED and n != np.uint64(0):
         j = _strata_slot(tab, ctl, d, s, n, scramble)
         if j >= 0:
-            mk = (n >> np.uint64(32)) * np.uint64(ctl[1])
-            u, v = _jitter1(tab[d, 1, j], u, mk), _jitter1(tab[d, 2, j], v, mk)
+            u, v = _jitter1(tab[d, 1, j], u, n & _U32), _jitter1(tab[d, 2, j], v, n & _U32)
         else:
-            u, v = _stratum2(u, v, s, n & _U32, n >> np.uint64(32), scramble + d * _GOLDEN)
+            u, v = _stratum2(u, v, s, n, scramble + d * _GOLDEN)
     return u, v, (rng, scramble, s, n, d + np.uint64(1), tab, ctl)
 
 
@@ -512,13 +578,10 @@ def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_sca
     stack slots are zeroed on entry), which a call per sample paid every time. ``out``
     has at least ``s1 - s0`` rows of 6. ``n``: ``strata_field`` of the pixel's sample
     count for a stratified sampler, 0 for the independent one; ``tab`` and ``ctl`` the
-    chunk's strata table (``_strata_slot``: STRATA_DIMS × STRATA_ROWS × CHUNK uint32, two
+    chunk's strata table (``_strata_slot``: STRATA_DIMS × STRATA_ROWS × CHUNK uint32, one
     int64), filled as the samples reach its dimensions."""
     n = np.uint64(n)
     ctl[0] = 0
-    if n != np.uint64(0):
-        m = n >> np.uint64(32)
-        ctl[1] = ((n & _U32) + m - np.uint64(1)) // m
     for s in range(s0, s1):
         state = (_mix(base ^ (np.uint64(s) * _M2)), base, np.uint64(s), n, np.uint64(0),
                  tab, ctl)

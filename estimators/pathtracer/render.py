@@ -175,6 +175,9 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         film = _BoxFilm(module, h, w)
     # a stratified or multijitter sampler: each pixel's samples stratified per dimension
     stratified = bool(cs.features & F_STRATIFIED)
+    if stratified and spp >= 2 ** 31:
+        raise ValueError(f"spp={spp}: a stratified or multijitter sampler takes fewer than "
+                         "2^31 samples a pixel (its strata are 31-bit)")
     t0 = time.perf_counter()
     # the kernel's first call in this process (no tiles: compile, or load from numba's
     # cache) holds the module's lock, so processes starting together compile it once: the
