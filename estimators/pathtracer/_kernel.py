@@ -184,15 +184,18 @@ def lattice_generator(n):
             x, y = y, x % y
         if x != np.uint64(1):
             continue
+        # the shortest vector (i, a·i mod n), i ≤ n / 2 by symmetry, and no i with i² at
+        # or above the shortest found so far can beat it: O(√n) steps, not O(n)
         d = n * n
         y = np.uint64(0)
-        for i in range(1, np.int64(n)):
+        i = np.uint64(1)
+        while i * i < d and i + i <= n:
             y += a
             if y >= n:
                 y -= n
-            di = min(np.uint64(i), n - np.uint64(i))
             dy = min(y, n - y)
-            d = min(d, di * di + dy * dy)
+            d = min(d, i * i + dy * dy)
+            i += np.uint64(1)
         if d > best_d:
             best, best_d = a, d
     return best

@@ -157,6 +157,11 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     _render_iv(spp, seed, passes, pdf_scale, params, variance)
     cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
+    if cs.features & F_STRATIFIED and spp // passes >= 2 ** 31:
+        raise ValueError(f"spp={spp}" + (f", passes={passes}: {spp // passes} a pass"
+                                         if passes > 1 else "")
+                         + ": a stratified or multijitter sampler takes fewer than 2^31 "
+                         "samples a pixel (its strata are 31-bit)")
     if passes > 1:
         return _render_passes(cs, spp, seed, int(passes), general, pdf_scale, progress)
     if spp < 2 and variance:
@@ -175,9 +180,6 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         film = _BoxFilm(module, h, w)
     # a stratified or multijitter sampler: each pixel's samples stratified per dimension
     stratified = bool(cs.features & F_STRATIFIED)
-    if stratified and spp >= 2 ** 31:
-        raise ValueError(f"spp={spp}: a stratified or multijitter sampler takes fewer than "
-                         "2^31 samples a pixel (its strata are 31-bit)")
     t0 = time.perf_counter()
     # the kernel's first call in this process (no tiles: compile, or load from numba's
     # cache) holds the module's lock, so processes starting together compile it once: the

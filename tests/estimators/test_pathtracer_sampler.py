@@ -258,10 +258,22 @@ def test_a_lattice_count_passes_the_render_gate(name, per_pass):
     assert r.passed, (r.summary(), r.details["found_by"])
 
 
-def test_a_stratified_sampler_refuses_2_to_the_31_samples():
+def test_a_stratified_sampler_refuses_2_to_the_31_samples(tmp_path, capsys):
+    """render() names spp (and the passes and the count a pass); the render gate refuses
+    such a count per pass as bad input (exit 2, no JSON), before any rendering."""
+    from mcverify.gate.cli import main
+
     cs = prepare_scene(os.path.join(SCENES, "vocabulary-lights", "scene.xml"))
     with pytest.raises(ValueError, match=r"spp=2147483648: .*fewer than 2\^31"):
         render(cs, spp=2 ** 31, variance=False)
+    with pytest.raises(ValueError, match=r"spp=4294967296, passes=2: 2147483648 a pass: "):
+        render(cs, spp=2 ** 32, passes=2)
+    out = tmp_path / "r.json"
+    assert main(["render-check", "vocabulary-lights", "--spp", str(2 ** 32), "--passes", "2",
+                 "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "spp=4294967296, passes=2: 2147483648 samples per pass" in err
+    assert "unexpected" not in err and not out.exists()
 
 
 @pytest.mark.parametrize("kind", ["stratified", "multijitter"])
