@@ -95,7 +95,8 @@ def mitsuba_variance_ratio(name: str, spp: int, renders: int,
     ours = prepare_scene(path, params=params)
     imgs = [np.array([np.asarray(mi.render(theirs, spp=spp, seed=1000 + r), np.float64)
                       for r in range(renders)]),
-            np.array([render(ours, spp=spp, seed=2000 + r).mean for r in range(renders)])]
+            np.array([render(ours, spp=spp, seed=2000 + r, variance=False).mean
+                      for r in range(renders)])]
     v_theirs, v_ours = (i.var(axis=0, ddof=1).sum(axis=-1) for i in imgs)
     calm = np.maximum(v_ours, v_theirs) < np.quantile(np.maximum(v_ours, v_theirs), 0.99)
     return (f"{name}{'' if max_depth is None else f' (max_depth {max_depth})'}: variance "

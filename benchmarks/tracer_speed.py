@@ -14,27 +14,17 @@ with ``NUMBA_NUM_THREADS=1`` and ``--ours-only``, the figure that load does not 
 """
 
 import argparse
-import os
+import itertools
 import time
 
 import numpy as np
 
 from estimators.pathtracer import prepare_scene, render
 from mcverify.gate import mitsuba as mvm
+from mcverify.gate.bench import _best
 from mcverify.gate.reference import resolve_scene
 
 SCENES = ("cornell-box", "bunny", "glass-sphere", "envmap")
-
-
-def _block(fn, repeats, clock):
-    """Times of ``repeats`` calls ``fn(seed)`` after a warm-up call."""
-    fn(repeats)
-    times = []
-    for k in range(repeats):
-        t = clock()
-        fn(k)
-        times.append(clock() - t)
-    return times
 
 
 def main() -> None:
@@ -51,18 +41,16 @@ def main() -> None:
     for name in a.scenes:
         path = resolve_scene(name)[1]
         ours = prepare_scene(path, params={"res": a.res})
-
-        def ours_render(k):
-            render(ours, spp=a.spp, seed=k, variance=False)
-
-        to, tt = _block(ours_render, a.repeats, clock), []
+        seeds = itertools.count()           # the warm-up's, then each timed render's
+        to = _best(lambda: render(ours, spp=a.spp, seed=next(seeds), variance=False),
+                   a.repeats, clock)
+        line = f"{name}: ours {to:.3f}s"
         if mi is not None:
             theirs = mi.load_file(path, res=a.res)
-            tt = _block(lambda k: np.asarray(mi.render(theirs, spp=a.spp, seed=k)),
-                        a.repeats, clock)
-        line = f"{name}: ours {min(to):.3f}s"
-        if tt:
-            line += f" mitsuba {min(tt):.3f}s ratio {min(to) / min(tt):.2f}"
+            seeds = itertools.count()
+            tt = _best(lambda: np.asarray(mi.render(theirs, spp=a.spp, seed=next(seeds))),
+                       a.repeats, clock)
+            line += f" mitsuba {tt:.3f}s ratio {to / tt:.2f}"
         print(line, flush=True)
 
 

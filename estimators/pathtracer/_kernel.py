@@ -208,7 +208,7 @@ _U31 = np.uint64(0x7FFFFFFF)
 
 @njit(cache=True, _nrt=False)
 def strata_field(n):
-    """The state's strata field, computed once a render: n (0: the independent sampler)
+    """The state's strata field, computed once a kernel call: n (0: the independent sampler)
     in the low 32 bits; above them the 2-D grid's columns (``grid_columns``), or the
     lattice's generator (``lattice_generator``) and the ``_LATTICE`` flag. n < 2^31."""
     n = np.uint64(n)

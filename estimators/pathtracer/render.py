@@ -28,6 +28,9 @@ from .prepare import PreparedScene, prepare_scene
 
 TILE = 8
 _MODULES: dict[str, object] = {}
+#: A render's samples a pixel with a stratified sampler stay below this (31-bit strata:
+#: ``_kernel.strata_field``).
+STRATIFIED_SPP_LIMIT = 2 ** 31
 
 
 @dataclass(frozen=True)
@@ -157,7 +160,9 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     _render_iv(spp, seed, passes, pdf_scale, params, variance)
     cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
-    if cs.features & F_STRATIFIED and spp // passes >= 2 ** 31:
+    # a stratified or multijitter sampler: each pixel's samples stratified per dimension
+    stratified = bool(cs.features & F_STRATIFIED)
+    if stratified and spp // passes >= STRATIFIED_SPP_LIMIT:
         raise ValueError(f"spp={spp}" + (f", passes={passes}: {spp // passes} a pass"
                                          if passes > 1 else "")
                          + ": a stratified or multijitter sampler takes fewer than 2^31 "
@@ -178,8 +183,6 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         film = _SplatFilm(cs.camera, module, h, w, bool(variance))
     else:
         film = _BoxFilm(module, h, w)
-    # a stratified or multijitter sampler: each pixel's samples stratified per dimension
-    stratified = bool(cs.features & F_STRATIFIED)
     t0 = time.perf_counter()
     # the kernel's first call in this process (no tiles: compile, or load from numba's
     # cache) holds the module's lock, so processes starting together compile it once: the

@@ -180,9 +180,12 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             raise InvalidArgument(f"spp={spp}, passes={passes}: need passes >= 2 and at least "
                                   f"{MIN_SPP_PER_PASS} samples per pass (pass means of fewer "
                                   "samples are too skewed on caustic pixels for the t-tests)")
-        if spp // passes >= 2 ** 31:
+        from estimators.pathtracer.render import STRATIFIED_SPP_LIMIT
+
+        if spp // passes >= STRATIFIED_SPP_LIMIT:
             raise InvalidArgument(f"spp={spp}, passes={passes}: {spp // passes} samples per "
-                                  "pass; our tracer takes fewer than 2^31 a pixel")
+                                  "pass; the gate takes fewer than 2^31 a pass (our "
+                                  "tracer's stratified samplers cannot take more)")
     elif pdf_scale != 1.0 or plant:
         raise InvalidArgument("pdf_scale/plant: planted bugs are hooks of our path tracer; "
                               "they cannot be applied to a renderer= of your own")
