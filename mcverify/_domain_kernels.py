@@ -142,14 +142,6 @@ def _locate(kind, args, tol, x, i, rejection, exact):
     return VALID, w if kind == HEMISPHERE else 0.5 * w, s1
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def to_param_kernel(kind, args, tol, x, out_s, out_status, rejection):
-    """Fill ``out_s`` (n, 2) with clamped parameters and ``out_status`` (n,) codes."""
-    for i in prange(x.shape[0]):
-        st, s0, s1 = _locate(kind, args, tol, x, i, rejection, True)
-        out_status[i] = st
-        out_s[i, 0] = min(max(s0, 0.0), _S_MAX)
-        out_s[i, 1] = min(max(s1, 0.0), _S_MAX)
 
 
 @njit(cache=True, parallel=True)
@@ -225,12 +217,100 @@ def _find_cell(e, lut, cut, s):
     return k
 
 
+#: Points per block of ``histogram_kernel``: one vectorised pass computes a block's
+#: binning parameters into scratch (2 × 4 KB, in L1), a second bins them.
+_BIN_BLOCK = 256
+
+
+@njit(cache=True, inline="always")
+def _clamp(s):
+    return min(max(s, 0.0), _S_MAX)
+
+
+@njit(cache=True, inline="always")
+def _block_params(kind, args, tol, x, lo, m, s0, s1, exact):
+    """``s0[t], s1[t]``: the clamped parameters of point ``lo + t`` (those of ``_locate``,
+    ``exact`` as there: a constant where this is inlined), and ``s0[t] = -1`` where the
+    point is not valid.
+    Branch-free loops, one per kind, which LLVM vectorises (a point's parameters and its
+    status took ~5 ns one at a time, with the branches of ``_locate``; 1.9 here)."""
+    if kind == INTERVAL:
+        a, b = args[0], args[1]
+        t_ = tol * (b - a)
+        for t in range(m):
+            x0 = np.float64(x[lo + t, 0])
+            ok = (x0 * 0.0 == 0.0) & (x0 >= a - t_) & (x0 <= b + t_)
+            s0[t] = _clamp((x0 - a) / (b - a)) if ok else -1.0
+            s1[t] = 0.0
+    elif kind == SQUARE:
+        for t in range(m):
+            x0, x1 = np.float64(x[lo + t, 0]), np.float64(x[lo + t, 1])
+            ok = ((x0 * 0.0 + x1 * 0.0 == 0.0) & (x0 >= -tol) & (x0 <= 1.0 + tol)
+                  & (x1 >= -tol) & (x1 <= 1.0 + tol))
+            s0[t] = _clamp(x0) if ok else -1.0
+            s1[t] = _clamp(x1)
+    elif kind == DISK:
+        for t in range(m):
+            x0, x1 = np.float64(x[lo + t, 0]), np.float64(x[lo + t, 1])
+            r2 = x0 * x0 + x1 * x1
+            ok = (x0 * 0.0 + x1 * 0.0 == 0.0) & (r2 <= 1.0 + tol)
+            s0[t] = _clamp(r2) if ok else -1.0
+            s1[t] = _clamp(_azimuth(x0, x1) if exact else _pseudo_azimuth(x0, x1))
+    elif kind == SPHERE or kind == HEMISPHERE:
+        lo2, hi2 = (1.0 - tol) * (1.0 - tol), (1.0 + tol) * (1.0 + tol)
+        half = kind == HEMISPHERE
+        for t in range(m):
+            x0, x1 = np.float64(x[lo + t, 0]), np.float64(x[lo + t, 1])
+            x2 = np.float64(x[lo + t, 2])
+            r2 = x0 * x0 + x1 * x1
+            n2 = r2 + x2 * x2
+            ok = ((x0 * 0.0 + x1 * 0.0 + x2 * 0.0 == 0.0) & (n2 >= lo2) & (n2 <= hi2)
+                  & ((x2 >= -tol) | (not half)))
+            w = r2 / (1.0 + x2) if x2 > 0.0 else 1.0 - x2
+            s0[t] = _clamp(w if half else 0.5 * w) if ok else -1.0
+            s1[t] = _clamp(_azimuth(x0, x1) if exact else _pseudo_azimuth(x0, x1))
+    else:                       # no fast path: every point through ``_locate``
+        for t in range(m):
+            s0[t] = -1.0
+
+
+@njit(cache=True)
+def _point_status(kind, args, tol, x, i, rejection, exact):
+    """``_locate`` of one point, as a call: inlined into ``histogram_kernel`` its
+    branches kept LLVM from vectorising ``_block_params`` (5.4 against 3.0 ms for 1e6
+    hemisphere points on two threads)."""
+    return _locate(kind, args, tol, x, i, rejection, exact)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def to_param_kernel(kind, args, tol, x, out_s, out_status, rejection):
+    """Fill ``out_s`` (n, 2) with clamped parameters (φ / 2π exact) and ``out_status``
+    (n,) codes: ``_block_params`` a block at a time, ``_locate`` for invalid points."""
+    n = x.shape[0]
+    for blk in prange((n + _BIN_BLOCK - 1) // _BIN_BLOCK):
+        s0 = np.empty(_BIN_BLOCK)
+        s1 = np.empty(_BIN_BLOCK)
+        lo = blk * _BIN_BLOCK
+        m = min(_BIN_BLOCK, n - lo)
+        _block_params(kind, args, tol, x, lo, m, s0, s1, True)
+        for t in range(m):
+            st, a, b = VALID, s0[t], s1[t]
+            if a < 0.0:
+                st, a, b = _point_status(kind, args, tol, x, lo + t, rejection, True)
+                a, b = _clamp(a), _clamp(b)
+            out_status[lo + t] = st
+            out_s[lo + t, 0] = a
+            out_s[lo + t, 1] = b
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def histogram_kernel(kind, args, tol, x, e0, lut0, cut0, e1, lut1, cut1, param_dim, rejection,
                      counts):
-    """One parallel pass over the points ``x`` (n, dim): adds each valid point to
-    ``counts`` (flat, row-major cells); returns the status counts and the first index of
-    each status (-1 if none). ``lut*``, ``cut*`` from ``cell_lookup``."""
+    """One parallel pass over the points ``x`` (n, the domain's dim): adds each valid
+    point to ``counts`` (flat, row-major cells); returns the status counts and the first
+    index of each status (-1 if none). ``lut*``, ``cut*`` from ``cell_lookup``. Each
+    block's parameters come from ``_block_params``; the few points it finds invalid
+    get their status from ``_locate``."""
     n = x.shape[0]
     n0 = e0.shape[0] - 1
     n1 = e1.shape[0] - 1 if param_dim == 2 else 1
@@ -238,17 +318,26 @@ def histogram_kernel(kind, args, tol, x, e0, lut0, cut0, e1, lut1, cut1, param_d
     part_status = np.zeros((_PARTS, N_STATUS), dtype=np.int64)
     part_first = np.full((_PARTS, N_STATUS), -1, dtype=np.int64)
     for q in prange(_PARTS):
-        for i in range(n * q // _PARTS, n * (q + 1) // _PARTS):
-            st, s0, s1 = _locate(kind, args, tol, x, i, rejection, False)
-            if st != VALID:       # valid points are counted at the end: n minus the rest
-                part_status[q, st] += 1
-                if part_first[q, st] < 0:
-                    part_first[q, st] = i
-                continue
-            k = _find_cell(e0, lut0, cut0, min(max(s0, 0.0), _S_MAX))
-            if param_dim == 2:
-                k = k * n1 + _find_cell(e1, lut1, cut1, min(max(s1, 0.0), _S_MAX))
-            part_counts[q, k] += 1
+        s0 = np.empty(_BIN_BLOCK)
+        s1 = np.empty(_BIN_BLOCK)
+        stop = n * (q + 1) // _PARTS
+        for lo in range(n * q // _PARTS, stop, _BIN_BLOCK):
+            m = min(_BIN_BLOCK, stop - lo)
+            _block_params(kind, args, tol, x, lo, m, s0, s1, False)
+            for t in range(m):
+                a, b = s0[t], s1[t]
+                if a < 0.0:
+                    st, a, b = _point_status(kind, args, tol, x, lo + t, rejection, False)
+                    if st != VALID:  # valid points are counted at the end: n minus the rest
+                        part_status[q, st] += 1
+                        if part_first[q, st] < 0:
+                            part_first[q, st] = lo + t
+                        continue
+                    a, b = _clamp(a), _clamp(b)
+                k = _find_cell(e0, lut0, cut0, a)
+                if param_dim == 2:
+                    k = k * n1 + _find_cell(e1, lut1, cut1, b)
+                part_counts[q, k] += 1
     n_status = np.zeros(N_STATUS, dtype=np.int64)
     first = np.full(N_STATUS, -1, dtype=np.int64)
     for q in range(_PARTS):

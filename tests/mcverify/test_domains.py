@@ -182,3 +182,103 @@ def test_density_values_are_screened_in_one_pass():
     assert K.screen_density(p, 2.0, out) == (3, 1, 2)
     assert np.array_equal(out, [2.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 6.0])
     assert K.screen_density(np.array([1.0, 2.0]), 0.5, np.empty(2)) == (0, 0, -1)
+
+
+@njit
+def _scalar_histogram(kind, args, tol, x, e0, lut0, cut0, e1, lut1, cut1, param_dim,
+                      rejection, counts, n_status, first):
+    """The histogram one point at a time (``_locate``, then ``_find_cell`` per axis): the
+    reference for ``histogram_kernel``'s blocked, vectorised passes."""
+    n1 = e1.shape[0] - 1 if param_dim == 2 else 1
+    for i in range(x.shape[0]):
+        st, s0, s1 = K._locate(kind, args, tol, x, i, rejection, False)
+        n_status[st] += 1
+        if first[st] < 0:
+            first[st] = i
+        if st != K.VALID:
+            continue
+        k = K._find_cell(e0, lut0, cut0, min(max(s0, 0.0), K._S_MAX))
+        if param_dim == 2:
+            k = k * n1 + K._find_cell(e1, lut1, cut1, min(max(s1, 0.0), K._S_MAX))
+        counts[k] += 1
+
+
+@njit
+def _scalar_params(kind, args, tol, x, rejection, out_s, out_status):
+    """``to_param_kernel`` one point at a time: the reference for its blocked passes."""
+    for i in range(x.shape[0]):
+        st, s0, s1 = K._locate(kind, args, tol, x, i, rejection, True)
+        out_status[i] = st
+        out_s[i, 0] = min(max(s0, 0.0), K._S_MAX)
+        out_s[i, 1] = min(max(s1, 0.0), K._S_MAX)
+
+
+def _boundary_points(dom, rng, n):
+    """Points on and an ulp either side of the domain's tolerance bounds, in random
+    directions, with NaN/±Inf coordinates and rows of NaN scattered among them."""
+    tol = dom.tolerance
+    if dom.dim == 1:
+        a, b = dom.args
+        t = tol * (b - a)
+        edges = np.array([a - t, b + t, a, b])
+        v = rng.choice(edges, n)
+        x = (v + rng.choice([-1, 0, 1], n) * np.spacing(v))[:, None]
+    elif dom.name == "square":
+        x = rng.random((n, 2))
+        axis = rng.integers(0, 2, n)
+        v = rng.choice([-tol, 1.0 + tol, 0.0, 1.0], n)
+        x[np.arange(n), axis] = v + rng.choice([-1, 0, 1], n) * np.spacing(v)
+    else:
+        d = rng.normal(size=(n, dom.dim))
+        if dom.name == "hemisphere":
+            d[:, 2] = np.abs(d[:, 2])
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        # radius (disk) or norm (spheres) at the bound: 1 + tol for r², 1 ± tol for |x|
+        r = rng.choice([1.0, 1.0 + tol, 1.0 - tol, np.sqrt(1.0 + tol)], n)
+        x = d * (r + rng.choice([-1, 0, 1], n) * np.spacing(r))[:, None]
+        if dom.name == "hemisphere":        # z at the horizon's bound -tol, and at 0
+            z = rng.random(n) < 0.2
+            v = rng.choice([-tol, 0.0], z.sum())
+            x[z, 2] = v + rng.choice([-1, 0, 1], z.sum()) * np.spacing(v)
+    bad = rng.random(n) < 0.05
+    x[bad, rng.integers(0, dom.dim, bad.sum())] = rng.choice([np.nan, np.inf, -np.inf], bad.sum())
+    x[rng.random(n) < 0.02] = np.nan
+    return x
+
+
+@pytest.mark.parametrize("rejection", [False, True])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("dom", DOMAINS, ids=repr)
+def test_blocked_kernels_give_what_one_point_at_a_time_gives(dom, dtype, rejection):
+    """The blocked kernels (a branch-free pass for a block's parameters, then binning or
+    storing) give the scalar path's counts, status counts and first examples, and its
+    exact parameters and status codes, point for point:
+    random points, points on the domain's tolerance bounds and an ulp either side, bad
+    coordinates, over several blocks and parts (n not a multiple of either)."""
+    from mcverify.checks.sampler import _edges, _Histogram
+
+    rng = np.random.default_rng(11)
+    n = 3 * K._PARTS * K._BIN_BLOCK + 37
+    inside = dom.to_point(rng.random((n, dom.param_dim)))
+    x = np.concatenate([inside, _boundary_points(dom, rng, n)])[rng.permutation(2 * n)]
+    x = np.ascontiguousarray(x.astype(dtype))
+    edges = _edges(rng.random((5000, dom.param_dim)) ** 2, (7,) * dom.param_dim)
+    h = _Histogram(dom, edges, rejection=rejection)
+    h.add(x)
+    counts = np.zeros_like(h.flat)
+    n_status = np.zeros(K.N_STATUS, dtype=np.int64)
+    first = np.full(K.N_STATUS, -1, dtype=np.int64)
+    _scalar_histogram(dom.kind, dom.args, dom.tolerance, dom.points(x), h.e0, *h.lut0,
+                      h.e1, *h.lut1, dom.param_dim, rejection, counts, n_status, first)
+    assert np.array_equal(h.flat, counts)
+    assert h.n_status.tolist() == n_status.tolist()
+    assert min(n_status[K.VALID], n_status[K.OUTSIDE], n_status[K.NONFINITE]) > 0
+    for c in (K.NONFINITE, K.OUTSIDE):
+        assert np.array_equal(h.examples[c][1], x[first[c]], equal_nan=True)
+    # The exact parameters (the pilot's, the cubature's) the same way.
+    s, status = dom.classify(x, rejection=rejection)
+    ref_s, ref_status = np.empty((x.shape[0], 2)), np.empty(x.shape[0], dtype=np.int8)
+    _scalar_params(dom.kind, dom.args, dom.tolerance, dom.points(x), rejection, ref_s,
+                   ref_status)
+    assert np.array_equal(status, ref_status)
+    assert np.array_equal(s, ref_s[:, :dom.param_dim])
