@@ -108,7 +108,7 @@ from estimators._vectorize import _BLOCK, {row} as row, {put} as put
 @njit(parallel=True, cache=True)
 def loop(x, p, out):
     n = x.shape[0]
-    n_out = out.shape[1]
+    n_out = {n_out}
     for b in prange((n + _BLOCK - 1) // _BLOCK):
         lo = b * _BLOCK
         m = min(_BLOCK, n - lo)
@@ -134,8 +134,12 @@ def _loop(kernel, row: str, put: str, inline: bool = False):
     for every row; ``out`` is (n, n_out) of the input's dtype (a density's is (n, 1)).
     ``inline``: numba inlines the kernel's Python function into the loop."""
     fn = kernel.py_func
+    # n_out a literal: LLVM unrolls the copy out of the scratch block (with out.shape[1]
+    # it did not: cosine-hemisphere pdf 0.93 -> 0.54 ms, its sampling 2.2 -> 1.9 ms for
+    # 1e6 points on two threads)
+    n_out = 1 if put == "_put_value" else next(k for k, v in _PUTS.items() if v == put)
     source = _LOOP_SOURCE.format(module=fn.__module__, kernel=fn.__name__, row=row, put=put,
-                                 inline=_INLINE if inline else "")
+                                 n_out=n_out, inline=_INLINE if inline else "")
     h = hashlib.sha256(source.encode())
     for path in (inspect.getsourcefile(fn), __file__, _fastmath.__file__):
         with open(path, "rb") as f:

@@ -776,7 +776,8 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios")
     b.add_argument("--json", metavar="PATH", help="write the timings as JSON; default: none")
     b.add_argument("--repeats", type=int, default=5,
-                   help="timed repetitions per workload (the minimum is reported)")
+                   help="timed repetitions per workload, at least (a workload is also "
+                        "repeated for at least 0.25 s; the minimum is reported)")
     b.add_argument("--n", type=int, default=1_000_000, help="points per workload (>= 1000)")
     b.add_argument("--spp", type=int, default=64,
                    help="samples per pixel of the renders (in all, one pass)")
