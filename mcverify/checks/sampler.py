@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from .. import _domain_kernels as kernels
+from .. import _uniform_stream as stream
 from .. import _validate as validate
 from .. import stats
 from ..errors import InvalidArgument
@@ -40,7 +41,7 @@ _MAX_SUSPICIOUS_CELLS = 256
 #: Rows of one seeded block of the uniform stream: block b of a stream is drawn from its
 #: own generator, seeded by (stream seed, b), so the numbers do not depend on how the
 #: stream is cut into chunks for ``sample`` or on the thread count.
-STREAM_BLOCK = 1 << 16
+STREAM_BLOCK = stream.STREAM_BLOCK
 #: Default rows per call of ``sample`` (a multiple of ``STREAM_BLOCK``): 2^20 rows keep
 #: a chunk's uniforms and points (~60 MB at k = 2, d = 3) well inside memory.
 DEFAULT_CHUNK = 1 << 20
@@ -63,45 +64,26 @@ def _pool() -> ThreadPoolExecutor:
     global _POOL
     if _POOL is None:
         _POOL = ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1),
-                                   thread_name_prefix="mcverify-uniforms")
+                                   thread_name_prefix="mcverify-edges")
     return _POOL
 
 
-def _fill_block(seq: np.random.SeedSequence, block: int, out: np.ndarray) -> None:
-    child = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key + (block,))
-    np.random.Generator(np.random.PCG64(child)).random(out=out)
-
-
-def _submit_rows(seq: np.random.SeedSequence, start: int, u: np.ndarray) -> list:
-    """Pool jobs that fill ``u`` with rows ``start .. start + len(u)`` of the stream, one
-    job per block (``start`` a multiple of STREAM_BLOCK); wait on their results."""
-    return [_pool().submit(_fill_block, seq, (start + a) // STREAM_BLOCK,
-                           u[a:a + STREAM_BLOCK])
-            for a in range(0, u.shape[0], STREAM_BLOCK)]
-
-
 def _uniform_chunks(seq: np.random.SeedSequence, n: int, k: int, chunk: int):
-    """An iterator of ``(start, u)`` chunks of the seeded stream of n × k uniforms: row r
-    lies in block ``r // STREAM_BLOCK``, drawn by that block's generator. A chunk's
-    blocks are drawn on a thread pool (numpy releases the GIL) when the caller asks for
-    it, not ahead: drawn beside the caller's numba kernels (the sampler, the binning,
-    which use every core), they starved them (a 1e5-point pilot's warp took 9 ms
-    instead of 0.25 while the next chunk was drawn). Memory: one chunk."""
+    """An iterator of ``(start, u)`` chunks of the seeded stream of n × k uniforms
+    (``_uniform_stream``: row r lies in block ``r // STREAM_BLOCK``, drawn by that
+    block's generator), each drawn when the caller asks for it. Memory: one chunk."""
     for start in range(0, n, chunk):
-        u = np.empty((min(chunk, n - start), k))
-        for j in _submit_rows(seq, start, u):
-            j.result()
-        yield start, u
+        yield start, _uniforms_at(seq, start, min(chunk, n - start), k)
+
+
+def _uniforms_at(seq, start, m, k):
+    return stream.rows(seq, start, np.empty((m, k)))
 
 
 def _uniforms(seq, n, k):
     """All n × k uniforms of the stream at once (the pilot's): the same rows as
-    ``_uniform_chunks``, each block drawn on the pool straight into the result (a chunk
-    and a copy cost 4-5× the time: 3.6 against 0.7 ms at 1e5 rows)."""
-    u = np.empty((n, k))
-    for j in _submit_rows(seq, 0, u):
-        j.result()
-    return u
+    ``_uniform_chunks``."""
+    return _uniforms_at(seq, 0, n, k)
 
 
 _STATUS_TEXT = {kernels.NONFINITE: "are NaN/Inf", kernels.OUTSIDE: "lie outside the {} domain"}
@@ -540,9 +522,10 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     -----
     The uniforms are one seeded stream cut into blocks of 2^16 rows, block b drawn by
     its own generator seeded from (seed, b): the same seed gives the same numbers
-    whatever the chunk size or thread count. A chunk's blocks are drawn on a thread
-    pool, then ``sample`` (called from one thread, in order) and the binning (a parallel
-    numba pass) run on it: one after the other, each on every core.
+    whatever the chunk size or thread count (numpy's PCG64 generators, their output
+    computed by a numba kernel: ``mcverify._uniform_stream``). A chunk's uniforms, then
+    ``sample`` (called from one thread, in order), then the binning (a parallel numba
+    pass) run one after the other, each on every core.
 
     Sub-tests, each on the same samples: Pearson's χ² on the full grid (low-expectation
     cells pooled); on 2-D domains also χ² of the two marginal histograms (few cells,

@@ -1,0 +1,54 @@
+import numba
+import numpy as np
+import pytest
+
+from mcverify import _uniform_stream as stream
+
+B = stream.STREAM_BLOCK
+
+
+def _numpy_rows(seq, start, m, k):
+    """Rows ``start .. start + m`` of the stream as numpy draws them: block b from
+    ``Generator(PCG64(SeedSequence(entropy, spawn_key + (b,)))).random()``."""
+    first, last = start // B, -(-(start + m) // B)
+    u = np.empty(((last - first) * B, k))
+    for b in range(first, last):
+        child = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key + (b,))
+        np.random.Generator(np.random.PCG64(child)).random(out=u[(b - first) * B:(b - first + 1) * B])
+    return u[:m]
+
+
+@pytest.mark.parametrize("m", [1, 7, B - 1, B, B + 1, 3 * B, 4 * B - 1, 4 * B, 4 * B + 5,
+                               7 * B + 3, 9 * B])
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_the_numba_stream_is_numpys_pcg64_number_for_number(m, k):
+    """Every count of rows (partial blocks, block counts that are and are not multiples
+    of the four run in lockstep), every row width: numpy's numbers, bit for bit."""
+    seq = np.random.SeedSequence(2024).spawn(3)[2]
+    u = stream.rows(seq, 0, np.empty((m, k)))
+    assert np.array_equal(u, _numpy_rows(seq, 0, m, k))
+
+
+def test_rows_from_a_later_block_and_any_thread_count():
+    """A chunk starting at block 5 is the stream's rows there; one thread or two give the
+    same numbers."""
+    seq = np.random.SeedSequence(7)
+    want = _numpy_rows(seq, 5 * B, 6 * B + 11, 2)
+    got = {}
+    saved = numba.get_num_threads()
+    try:
+        for t in sorted({1, saved}):
+            numba.set_num_threads(t)
+            got[t] = stream.rows(seq, 5 * B, np.empty((6 * B + 11, 2)))
+    finally:
+        numba.set_num_threads(saved)
+    for u in got.values():
+        assert np.array_equal(u, want)
+
+
+def test_different_seeds_and_blocks_differ():
+    a = stream.rows(np.random.SeedSequence(1), 0, np.empty((2 * B, 1)))
+    b = stream.rows(np.random.SeedSequence(2), 0, np.empty((2 * B, 1)))
+    assert not np.array_equal(a, b)
+    assert not np.array_equal(a[:B], a[B:])
+    assert 0.0 <= a.min() and a.max() < 1.0
