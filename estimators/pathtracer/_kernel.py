@@ -30,8 +30,7 @@ from numba import njit, prange
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
 from estimators.pathtracer.camera import (SPLAT_CHANNELS, _generate_ray_kernel, splat_columns,
                                           splat_kernel)
-from estimators.pathtracer.emitters import (area_pdf, environment_pdf, eval_environment,
-                                            is_delta, sample_emitter)
+from estimators.pathtracer.emitters import area_pdf, eval_environment, is_delta, sample_emitter
 from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
                                             shading_frame, surface, to_local, to_world)
 from estimators.pathtracer.layout import (ALL_BSDF_FEATURES, ALL_FEATURES, BSDF_FRAME,
@@ -461,12 +460,10 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                                  t_min, t_max)
         if j < 0:
             if MASK & F_ENV and env >= 0 and not (depth == 0 and hide):
-                lr, lg, lb = eval_environment(light_f, light_i, tex_data, tex_info, env,
-                                              dx, dy, dz)
-                w = 1.0
-                if not prev_delta:
-                    w = _mis(prev_pdf, sel_pdf * environment_pdf(
-                        light_f, light_i, env_marg, env_cond, env, dx, dy, dz))
+                lr, lg, lb, env_pdf = eval_environment(light_f, light_i, tex_data, tex_info,
+                                                       env_marg, env_cond, env, dx, dy, dz,
+                                                       not prev_delta)
+                w = 1.0 if prev_delta else _mis(prev_pdf, sel_pdf * env_pdf)
                 rr += tr * lr * w
                 rg += tg * lg * w
                 rb += tb * lb * w
