@@ -50,7 +50,7 @@ def pool_cells(expected: np.ndarray, min_expected: float = MIN_EXPECTED) -> np.n
     """
     e = np.asarray(expected, dtype=np.float64).ravel()
     label = np.full(e.size, -1, dtype=np.int64)
-    big = np.flatnonzero(e >= min_expected)
+    big = np.flatnonzero((e > 0) & (e >= min_expected))
     small = np.flatnonzero((e > 0) & (e < min_expected))
     small = small[np.argsort(e[small], kind="stable")]
     n_big = big.size

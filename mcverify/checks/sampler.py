@@ -419,11 +419,13 @@ def _worst_cells(domain, edges, counts, expected, k=5):
     # cell of a correct sampler) does not top the list; a count where the pdf integrates
     # to 0 does (a failure of its own)
     contrib = np.where(e > 0, (o - e) ** 2 / np.maximum(e, 5.0), np.where(o > 0, np.inf, 0))
-    # the k largest (ties in cell order), without sorting every cell
-    top = np.flatnonzero(contrib >= np.partition(contrib, -k)[-k]) if contrib.size > k \
-        else np.arange(contrib.size)
-    top = top[np.argsort(-contrib[top], kind="stable")][:k]
-    top = top[contrib[top] > 0]
+    # the k largest (ties in cell order; NaN, from expected counts that overflowed, ranks
+    # first), without sorting every cell
+    key = np.where(np.isnan(contrib), np.inf, contrib)
+    top = np.flatnonzero(key >= np.partition(key, -k)[-k]) if key.size > k \
+        else np.arange(key.size)
+    top = top[np.argsort(-key[top], kind="stable")][:k]
+    top = top[key[top] > 0]
     idx = np.unravel_index(top, counts.shape)
     lo = np.stack([edges[j][i] for j, i in enumerate(idx)], -1)
     hi = np.stack([edges[j][i + 1] for j, i in enumerate(idx)], -1)

@@ -430,3 +430,20 @@ def test_the_largest_discrepancy_is_a_cell_the_chi2_test_weighs():
     assert worst[0]["cell"] == [2, 1]
     expected[1, 1], counts[1, 1] = 0.0, 1.0
     assert _worst_cells(Square(), edges, counts, expected)[0]["cell"] == [1, 1]
+
+
+def test_worst_cells_rank_overflowed_expectations_first():
+    """Expected counts that overflowed to inf give NaN contributions: the worst cells
+    still list them (first), and otherwise the largest contributions, ties in cell order."""
+    from mcverify.checks.sampler import _worst_cells
+
+    edges = [np.linspace(0, 1, 5)] * 2
+    counts = np.full((4, 4), 10.0)
+    expected = np.full((4, 4), 10.0)
+    expected[1, 2] = np.inf
+    expected[3, 0] = 2.0            # contribution 64 / 5
+    expected[0, 1] = expected[2, 2] = 6.0   # a tie at 16 / 6
+    with np.errstate(invalid="ignore"):
+        w = _worst_cells(mv.Square(), edges, counts, expected, k=3)
+    assert [c["cell"] for c in w] == [[1, 2], [3, 0], [0, 1]]
+    assert np.allclose(w[2]["point"], [0.125, 0.375])

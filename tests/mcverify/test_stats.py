@@ -166,3 +166,15 @@ def test_pooling_groups_the_cells_the_full_sort_grouped(e):
     assert _partition(label) == _partition(_pool_cells_by_full_sort(e))
     big = np.flatnonzero(e >= stats.MIN_EXPECTED)
     assert np.array_equal(label[big], np.arange(big.size))
+
+
+@pytest.mark.parametrize("min_expected", [0.0, -1.0])
+def test_no_pooling_still_leaves_empty_cells_out(min_expected):
+    """min_expected <= 0 (no pooling): every cell with expectation is a bin, and a cell
+    with none keeps label -1, so counts there are counted as observed in empty cells."""
+    label = stats.pool_cells(np.array([4.0, 6.0, 0.0]), min_expected=min_expected)
+    assert label.tolist() == [0, 1, -1]
+    r = stats.chi2_gof([3, 5, 2], [4, 6, 0], min_expected=min_expected)
+    assert r.observed_in_empty == 2 and r.p_value == 0.0
+    r = stats.chi2_gof([3, 5, 0], [4, 4, 0], min_expected=min_expected)
+    assert r.dof == 1 and r.statistic == pytest.approx(0.5)
