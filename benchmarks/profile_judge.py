@@ -65,7 +65,7 @@ def main():
         t, c = best(fn, reps)
         rows.append((label, t, c, t / n * 1e9 if per_point else None))
 
-    stage("uniforms (seeded 2^16-row blocks, thread pool)",
+    stage("uniforms (seeded 2^16-row PCG64 blocks, numba)",
           lambda: [None for _ in S._uniform_chunks(seq, n, 2, chunk)])
     stage("warp front end: sample_cosine_hemisphere",
           lambda: [W.sample_cosine_hemisphere(u) for _ in range(calls)])
