@@ -142,8 +142,6 @@ def _locate(kind, args, tol, x, i, rejection, exact):
     return VALID, w if kind == HEMISPHERE else 0.5 * w, s1
 
 
-
-
 @njit(cache=True, parallel=True)
 def to_point_kernel(kind, args, s, out):
     """Fill ``out`` (n, dim) with the points of the parameters ``s`` (n, m): the inverse

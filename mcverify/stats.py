@@ -50,8 +50,9 @@ def pool_cells(expected: np.ndarray, min_expected: float = MIN_EXPECTED) -> np.n
     """
     e = np.asarray(expected, dtype=np.float64).ravel()
     label = np.full(e.size, -1, dtype=np.int64)
-    big = np.flatnonzero((e > 0) & (e >= min_expected))
-    small = np.flatnonzero((e > 0) & (e < min_expected))
+    pos = e > 0
+    big = np.flatnonzero(pos & (e >= min_expected))
+    small = np.flatnonzero(pos & (e < min_expected))
     small = small[np.argsort(e[small], kind="stable")]
     n_big = big.size
     label[big] = np.arange(n_big)

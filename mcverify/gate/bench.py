@@ -2,8 +2,8 @@
 
 ``pairs()`` gives the workloads as (group, ours, theirs) callables; ``mcverify bench``
 times them (best of at least ``repeats`` runs and ``MIN_SECONDS`` of runs, after a
-warm-up, so JIT compilation is excluded on both sides) and reports ``ours / theirs``; ``benchmarks/`` feeds the same callables to
-pytest-benchmark for saved baselines.
+warm-up, so JIT compilation is excluded on both sides) and reports ``ours / theirs``;
+``benchmarks/`` feeds the same callables to pytest-benchmark for saved baselines.
 """
 
 from __future__ import annotations
@@ -182,9 +182,9 @@ def _best(fn, repeats: int, clock=time.perf_counter, min_seconds: float = 0.0) -
 def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = True,
               progress=None) -> list[dict]:
     """Time every pair (best of at least ``repeats`` runs and ``MIN_SECONDS`` of runs,
-    after a warm-up) and, with ``renders``, the
-    equal-time RMSE of the path tracer on every reference scene. ``ratio`` is ours /
-    theirs: time for timings, RMSE for the equal-time rows."""
+    after a warm-up) and, with ``renders``, the equal-time RMSE of the path tracer on
+    every reference scene. ``ratio`` is ours / theirs: time for timings, RMSE for the
+    equal-time rows."""
     from .reference import list_scenes
 
     rows = []

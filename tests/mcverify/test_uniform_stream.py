@@ -14,7 +14,8 @@ def _numpy_rows(seq, start, m, k):
     u = np.empty(((last - first) * B, k))
     for b in range(first, last):
         child = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key + (b,))
-        np.random.Generator(np.random.PCG64(child)).random(out=u[(b - first) * B:(b - first + 1) * B])
+        r = b - first
+        np.random.Generator(np.random.PCG64(child)).random(out=u[r * B:(r + 1) * B])
     return u[:m]
 
 
