@@ -570,7 +570,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
 
 @njit(cache=True, _nrt=False)
 def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_scale, out,
-                   tab, ctl):
+                   tab, ctl, rays, states):
     """Samples s0 <= s < s1 of pixel (x, y) (``base``: the pixel's hashed seed) into rows
     of ``out``: the jitter (ξ, ξ') in the pixel, the radiance along the camera ray through
     (x + ξ, y + ξ') (a non-finite one as 0) and 1.0 if it was finite, else 0.0. One call
@@ -579,7 +579,15 @@ def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_sca
     has at least ``s1 - s0`` rows of 6. ``n``: ``strata_field`` of the pixel's sample
     count for a stratified sampler, 0 for the independent one; ``tab`` and ``ctl`` the
     chunk's strata table (``_strata_slot``: STRATA_DIMS × STRATA_ROWS × CHUNK uint32, one
-    int64), filled as the samples reach its dimensions."""
+    int64), filled as the samples reach its dimensions. ``rays`` (rows of 7) and
+    ``states`` (rows of 2, uint64) are scratch for the chunk's camera rays.
+
+    The camera rays come first, in a loop of their own: each is a chain of divisions and
+    a square root, and the ray's traversal begins with three more, which one sample at a
+    time left the core waiting (profiled on the white furnace at max_depth 1: a quarter
+    of the samples on that chain); the loop's independent iterations overlap. The
+    strata table fills dimension 0 at the chunk's first sample either way, so the
+    numbers are the same."""
     n = np.uint64(n)
     ctl[0] = 0
     for s in range(s0, s1):
@@ -588,13 +596,29 @@ def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_sca
         fx, fy, state = _next2(state)
         ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(cam, (x + fx) / width,
                                                           (y + fy) / height)
-        r, g, b, state = trace(sc, stack, ox, oy, oz, dx, dy, dz, tm, state, pdf_scale)
         k = s - s0
         out[k, 0], out[k, 1] = fx, fy
+        rays[k, 0], rays[k, 1], rays[k, 2], rays[k, 3] = ox, oy, oz, dx
+        rays[k, 4], rays[k, 5], rays[k, 6] = dy, dz, tm
+        states[k, 0], states[k, 1] = state[0], state[4]
+    for s in range(s0, s1):
+        k = s - s0
+        state = (states[k, 0], base, np.uint64(s), n, states[k, 1], tab, ctl)
+        r, g, b, state = trace(sc, stack, rays[k, 0], rays[k, 1], rays[k, 2], rays[k, 3],
+                               rays[k, 4], rays[k, 5], rays[k, 6], state, pdf_scale)
         if math.isfinite(r) and math.isfinite(g) and math.isfinite(b):
             out[k, 2], out[k, 3], out[k, 4], out[k, 5] = r, g, b, 1.0
         else:
             out[k, 2], out[k, 3], out[k, 4], out[k, 5] = 0.0, 0.0, 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def _chunk_scratch(stratified):
+    """A tile's scratch for ``_trace_samples``: its output rows, the strata table and its
+    control words, the camera rays and their states."""
+    tab, ctl = _strata_table(stratified)
+    return (np.empty((CHUNK, 6)), tab, ctl, np.empty((CHUNK, 7)),
+            np.empty((CHUNK, 2), np.uint64))
 
 
 @njit(cache=True, parallel=True)
@@ -606,8 +630,7 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale
     n_strat = strata_field(spp) if stratified else np.uint64(0)
     for ti in prange(tiles.shape[0]):
         stack = new_stack()
-        out = np.empty((CHUNK, 6))
-        tab, ctl = _strata_table(stratified)
+        out, tab, ctl, rays, states = _chunk_scratch(stratified)
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         for y in range(y0, y1):
             for x in range(x0, x1):
@@ -620,15 +643,18 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale
                     k = s % CHUNK
                     if k == 0:
                         _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), n_strat,
-                                       x, y, width, height, pdf_scale, out, tab, ctl)
+                                       x, y, width, height, pdf_scale, out, tab, ctl,
+                                       rays, states)
                     r, g, b = out[k, 2], out[k, 3], out[k, 4]
                     if out[k, 5] == 0.0:
                         nbad += 1
-                    n = s + 1.0
+                    # 1/n off the running means' chain: a division in it (three, one a
+                    # channel) made each sample wait for the last one's
+                    inv_n = 1.0 / (s + 1.0)
                     d0, d1, d2 = r - mr, g - mg, b - mb
-                    mr += d0 / n
-                    mg += d1 / n
-                    mb += d2 / n
+                    mr += d0 * inv_n
+                    mg += d1 * inv_n
+                    mb += d2 * inv_n
                     sr += d0 * (r - mr)
                     sg += d1 * (g - mg)
                     sb += d2 * (b - mb)
@@ -659,8 +685,7 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
     buf = np.zeros((n, side, side, channels))
     for ti in prange(n):
         stack = new_stack()
-        out = np.empty((CHUNK, 6))
-        tab, ctl = _strata_table(stratified)
+        out, tab, ctl, rays, states = _chunk_scratch(stratified)
         wx = np.empty(splat_columns(cam))
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         bx, by = x0 - reach, y0 - reach
@@ -674,7 +699,8 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
                     k = s % CHUNK
                     if k == 0:
                         _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), n_strat,
-                                       x, y, width, height, pdf_scale, out, tab, ctl)
+                                       x, y, width, height, pdf_scale, out, tab, ctl,
+                                       rays, states)
                     fx, fy, r, g, b = out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4]
                     if out[k, 5] == 0.0:
                         nbad += 1

@@ -306,14 +306,15 @@ def _generate_ray_kernel(c, u, v):
         return (c[0] * x + c[1] * y + c[2] * z + c[9], c[3] * x + c[4] * y + c[5] * z + c[10],
                 c[6] * x + c[7] * y + c[8] * z + c[11], dx * inv, dy * inv, dz * inv,
                 c[15] - c[14])
-    inv = 1.0 / math.sqrt(x * x + y * y + 1.0)
+    norm = math.sqrt(x * x + y * y + 1.0)
+    inv = 1.0 / norm
     lx, ly, lz = x * inv, y * inv, inv               # camera-space unit direction
     dx = c[0] * lx + c[1] * ly + c[2] * lz
     dy = c[3] * lx + c[4] * ly + c[5] * lz
     dz = c[6] * lx + c[7] * ly + c[8] * lz
-    t_near = c[14] / lz                              # near plane z = near
+    t_near = c[14] * norm                            # near plane z = near: near / lz
     return (c[9] + dx * t_near, c[10] + dy * t_near, c[11] + dz * t_near, dx, dy, dz,
-            (c[15] - c[14]) / lz)
+            (c[15] - c[14]) * norm)
 
 
 def generate_rays(camera: Camera, film_uv) -> tuple[np.ndarray, np.ndarray]:
