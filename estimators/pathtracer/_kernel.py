@@ -568,7 +568,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     return rr, rg, rb, state
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, error_model="numpy")
 def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_scale, out,
                    tab, ctl, rays, states):
     """Samples s0 <= s < s1 of pixel (x, y) (``base``: the pixel's hashed seed) into rows
@@ -587,7 +587,12 @@ def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_sca
     time left the core waiting (profiled on the white furnace at max_depth 1: a quarter
     of the samples on that chain); the loop's independent iterations overlap. The
     strata table fills dimension 0 at the chunk's first sample either way, so the
-    numbers are the same."""
+    numbers are the same.
+
+    Compiled with IEEE division, as the warps are: the inlined per-ray code then has no
+    zero-divisor branch at each division (a division by zero that would have raised
+    gives ±inf or NaN, counted as a non-finite sample). One thread, 16 spp, alternating
+    runs: 1-3 % less time on five scenes, images bit-identical."""
     n = np.uint64(n)
     ctl[0] = 0
     for s in range(s0, s1):
