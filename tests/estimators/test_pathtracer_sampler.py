@@ -180,33 +180,43 @@ def test_each_sample_of_the_2d_dimension_is_uniform_over_pixels(n):
         assert p > 1e-4, (s, p)
 
 
+@pytest.mark.parametrize("camera_first", [False, True])
 @pytest.mark.parametrize("n", [1, 2, 3, 10, 13, 16, 17, 64, 100, 130])
-def test_the_chunk_strata_table_gives_the_one_sample_strata(n):
+def test_the_chunk_strata_table_gives_the_one_sample_strata(n, camera_first):
     """The strata table (``_strata_fill``: a chunk's samples at once, in vectorised loops)
     holds the values ``_stratum`` and ``_stratum2`` compute one sample at a time: each
-    chunk's samples traced in order through one table, as ``_trace_samples`` does, a
-    random mix of 1-D and 2-D dimensions per sample (paths take different branches), some
-    samples ending early (a later one fills the dimension from where it is), and the
-    dimensions past the table's end. Compared exactly against the same states without a
-    table (every dimension one sample at a time)."""
+    chunk's samples traced in order through one table, a random mix of 1-D and 2-D
+    dimensions per sample (paths take different branches), some samples ending early (a
+    later one fills the dimension from where it is), and the dimensions past the table's
+    end. Compared exactly against the same states without a table (every dimension one
+    sample at a time). ``camera_first``: as ``_trace_samples`` does, the first 2-D
+    dimension (the camera ray's) of every sample of the chunk before the rest of any."""
     rng = np.random.default_rng(n)
     for s0 in range(0, n, K.CHUNK):
         st = _state(s0, n)
         tab, ctl = st[5], st[6]
         ctl[0] = 0
-        for s in range(s0, min(s0 + K.CHUNK, n)):
-            with_table = (np.uint64(s * 77 + 5), *_state(s, n)[1:5], tab, ctl)
-            alone = _state(s, n, dims=0)
+        samples = range(s0, min(s0 + K.CHUNK, n))
+        pairs = {s: ((np.uint64(s * 77 + 5), *_state(s, n)[1:5], tab, ctl),
+                     _state(s, n, dims=0)) for s in samples}
+
+        def draw(s, two_d):
+            with_table, alone = pairs[s]
+            if two_d:
+                *a, with_table = K._next2(with_table)
+                *b, alone = K._next2(alone)
+            else:
+                a, with_table = K._next(with_table)
+                b, alone = K._next(alone)
+            assert a == b, (s, a, b)
+            pairs[s] = _u64(with_table), _u64(alone)
+
+        if camera_first:
+            for s in samples:
+                draw(s, True)
+        for s in samples:
             for _ in range(int(rng.integers(1, K.STRATA_DIMS + 6))):
-                if rng.random() < 0.4:
-                    a, with_table = K._next(with_table)
-                    b, alone = K._next(alone)
-                    assert a == b, (s, a, b)
-                else:
-                    *a, with_table = K._next2(with_table)
-                    *b, alone = K._next2(alone)
-                    assert a == b, (s, a, b)
-                with_table, alone = _u64(with_table), _u64(alone)
+                draw(s, rng.random() >= 0.4)
 
 
 def test_the_independent_sampler_draws_the_splitmix_sequence():
