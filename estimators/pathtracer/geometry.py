@@ -568,12 +568,11 @@ def _push(stack, base, sp, t, link, count, ordered):
     Returns the new top."""
     if t == np.inf:
         return sp
-    j = sp
-    while ordered and j > base and stack[j - 1, 0] <= t:
-        stack[j, 0], stack[j, 1], stack[j, 2] = stack[j - 1, 0], stack[j - 1, 1], \
-            stack[j - 1, 2]
-        j -= 1
-    stack[j, 0], stack[j, 1], stack[j, 2] = t, link, count
+    j = 3 * sp
+    while ordered and j > 3 * base and stack[j - 3] <= t:
+        stack[j], stack[j + 1], stack[j + 2] = stack[j - 3], stack[j - 2], stack[j - 1]
+        j -= 3
+    stack[j], stack[j + 1], stack[j + 2] = t, link, count
     return sp + 1
 
 
@@ -609,9 +608,9 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
         node = -1
         while sp > 0:
             sp -= 1
-            if stack[sp, 0] > best_t * _ACCEPT:
+            if stack[3 * sp] > best_t * _ACCEPT:
                 continue
-            first, c = int(stack[sp, 1]), int(stack[sp, 2])
+            first, c = int(stack[3 * sp + 1]), int(stack[3 * sp + 2])
             if c < 0:
                 node = first
                 break
@@ -656,9 +655,10 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
 
 @_inline
 def new_stack():
-    """Traversal scratch (entry distance, link, count of a stacked child) for
-    ``intersect``/``occluded``; one per thread, reused across rays."""
-    return np.empty((STACK, 3))
+    """Traversal scratch for ``intersect``/``occluded``, one per thread, reused across
+    rays: a stacked child's entry distance, link and count at 3 i, 3 i + 1, 3 i + 2 (flat:
+    a 2-D array's row stride is a run-time value, a multiply at each access)."""
+    return np.empty(3 * STACK)
 
 
 @_inline
