@@ -174,12 +174,18 @@ def _env_radiance(light_f, light_i, tex_data, tex_info, k, u, v):
 
 
 @_fast
-def _env_pdf(env_marg, env_cond, u, v, sin_theta):
-    """Solid-angle density of sampling (u, v) (the map's density over (u, v) divided by
-    the Jacobian 2π² sin θ)."""
+def _uv_to_solid_angle(pdf_uv, sin_theta):
+    """A density over the map's (u, v) as one over solid angle: divided by the Jacobian
+    2π² sin θ (0 at the poles, where sin θ = 0)."""
     if sin_theta == 0.0:
         return 0.0
-    return pc2d_pdf_kernel(env_marg, env_cond, u, v) / (2.0 * math.pi * math.pi * sin_theta)
+    return pdf_uv / (2.0 * math.pi * math.pi * sin_theta)
+
+
+@_fast
+def _env_pdf(env_marg, env_cond, u, v, sin_theta):
+    """Solid-angle density of sampling (u, v)."""
+    return _uv_to_solid_angle(pc2d_pdf_kernel(env_marg, env_cond, u, v), sin_theta)
 
 
 @_fast
@@ -253,4 +259,4 @@ def sample_emitter(light_f, light_i, light_cdf, prims, info, shape_flip, tex_dat
     wy = f[ENV_TO_LOCAL + 1] * lx + f[ENV_TO_LOCAL + 4] * ly + f[ENV_TO_LOCAL + 7] * lz
     wz = f[ENV_TO_LOCAL + 2] * lx + f[ENV_TO_LOCAL + 5] * ly + f[ENV_TO_LOCAL + 8] * lz
     r, g, b = _env_radiance(light_f, light_i, tex_data, tex_info, k, u, v)
-    return wx, wy, wz, np.inf, r, g, b, pdf_uv / (2.0 * math.pi * math.pi * s)
+    return wx, wy, wz, np.inf, r, g, b, _uv_to_solid_angle(pdf_uv, s)
