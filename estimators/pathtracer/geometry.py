@@ -33,7 +33,6 @@ import math
 import numpy as np
 from llvmlite import ir
 from numba import njit, types
-from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .._fastmath import fast_acos, fast_atan2
@@ -363,6 +362,23 @@ def _as_tuple(context, builder, signature, v):
 
 
 @intrinsic
+def _flat(typingctx, ary, i):
+    """Element ``i`` of the C-contiguous array ``ary`` read as a flat run (row r, column
+    c of a 2-D array at r · width + c): with the width a module constant, the row offset
+    is a shift, where ``ary[r, c]`` multiplies by the array's run-time row stride."""
+    if not (isinstance(ary, types.Array) and ary.layout == "C"
+            and isinstance(i, types.Integer)):
+        return None
+    sig = ary.dtype(ary, types.intp)
+
+    def codegen(context, builder, signature, args):
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        return builder.load(builder.gep(data, [args[1]]))
+
+    return sig, codegen
+
+
+@intrinsic
 def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, iy, iz,
                 t_max):
     """Where the ray (origin o, reciprocal direction i) enters each of the four child
@@ -390,13 +406,12 @@ def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, 
     sig = types.UniTuple(f8, NODE_ARITY)(nodes, i8, i8, i8, i8, f8, f8, f8, f8, f8, f8, f8)
 
     def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        shape = cgutils.unpack_tuple(builder, ary.shape)
-        strides = cgutils.unpack_tuple(builder, ary.strides)
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        row = builder.mul(args[1], context.get_constant(types.intp, NODE_WIDTH))
 
         def load(col):
-            ptr = cgutils.get_item_pointer2(context, builder, ary.data, shape, strides, "C",
-                                            [args[1], col])
+            # rows of NODE_WIDTH elements (pack_bvh's layout): a shift, no run-time stride
+            ptr = builder.gep(data, [builder.add(row, col)])
             # align 8: correct whatever the array's alignment (pack_bvh aligns it to 32,
             # where this unaligned load costs the same as an aligned one)
             return builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
@@ -436,11 +451,9 @@ def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
     sig = types.UniTuple(f8, NODE_ARITY)(leaf, types.intp, f8, f8, f8, f8, f8, f8, f8, f8)
 
     def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        start = cgutils.get_item_pointer2(
-            context, builder, ary.data, cgutils.unpack_tuple(builder, ary.shape),
-            cgutils.unpack_tuple(builder, ary.strides), "C",
-            [args[1], context.get_constant(types.intp, 0)])
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        start = builder.gep(data, [builder.mul(args[1], context.get_constant(types.intp,
+                                                                             LEAF_WIDTH))])
 
         def lane(c):        # the 4 lanes of value c (p0 x, y, z, e1 x ... e2 z)
             ptr = builder.gep(start, [ir.Constant(ir.IntType(64), NODE_ARITY * c)])
@@ -595,14 +608,15 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
         base = sp
         # nearest first for the nearest hit; an any-hit query needs no order (whether
         # something lies in (t_min, t_max) is the same whichever box is opened first)
-        sp = _push(stack, base, sp, t0, nodes[node, NODE_LINK], nodes[node, NODE_COUNT],
-                   not any_hit)
-        sp = _push(stack, base, sp, t1, nodes[node, NODE_LINK + 1],
-                   nodes[node, NODE_COUNT + 1], not any_hit)
-        sp = _push(stack, base, sp, t2, nodes[node, NODE_LINK + 2],
-                   nodes[node, NODE_COUNT + 2], not any_hit)
-        sp = _push(stack, base, sp, t3, nodes[node, NODE_LINK + 3],
-                   nodes[node, NODE_COUNT + 3], not any_hit)
+        row = node * NODE_WIDTH
+        sp = _push(stack, base, sp, t0, _flat(nodes, row + NODE_LINK),
+                   _flat(nodes, row + NODE_COUNT), not any_hit)
+        sp = _push(stack, base, sp, t1, _flat(nodes, row + NODE_LINK + 1),
+                   _flat(nodes, row + NODE_COUNT + 1), not any_hit)
+        sp = _push(stack, base, sp, t2, _flat(nodes, row + NODE_LINK + 2),
+                   _flat(nodes, row + NODE_COUNT + 2), not any_hit)
+        sp = _push(stack, base, sp, t3, _flat(nodes, row + NODE_LINK + 3),
+                   _flat(nodes, row + NODE_COUNT + 3), not any_hit)
         # pop the nearest stacked child still worth entering: test a leaf's primitives
         # and go on popping, or descend into an interior child
         node = -1
@@ -616,7 +630,7 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
                 break
             k, end = first, first + c
             while k < end:
-                g = leaf_info[k, LEAF_GROUP]
+                g = _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_GROUP)
                 if g >= 0:
                     # a triangle group: its lanes in one pass; the nearest lane (the
                     # first of equals, as one by one) is tested again on its own row
@@ -632,25 +646,27 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
                         hit, near = 2, t2
                     if t3 < near:
                         hit, near = 3, t3
-                    size = leaf_info[k, LEAF_GROUP_SIZE]
+                    size = _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_GROUP_SIZE)
                     if hit >= 0:
                         hit += k
                         t, b1, b2 = _hit_prim(leaf[hit], TRIANGLE, ox, oy, oz, dx, dy, dz)
                         best_t, best_k, best_b1, best_b2 = t, hit, b1, b2
                         if any_hit:
-                            return best_t, leaf_info[hit, LEAF_PRIM], best_b1, best_b2
+                            return (best_t, _flat(leaf_info, hit * LEAF_INFO_WIDTH + LEAF_PRIM),
+                                    best_b1, best_b2)
                     k += size
                     continue
-                t, b1, b2 = _hit_prim(leaf[k], leaf_info[k, LEAF_KIND], ox, oy, oz,
-                                      dx, dy, dz)
+                t, b1, b2 = _hit_prim(leaf[k], _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_KIND),
+                                      ox, oy, oz, dx, dy, dz)
                 if t_min < t < best_t:
                     best_t, best_k, best_b1, best_b2 = t, k, b1, b2
                     if any_hit:
-                        return best_t, leaf_info[k, LEAF_PRIM], best_b1, best_b2
+                        return (best_t, _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_PRIM),
+                                best_b1, best_b2)
                 k += 1
     if best_k < 0:
         return best_t, -1, best_b1, best_b2
-    return best_t, leaf_info[best_k, LEAF_PRIM], best_b1, best_b2
+    return best_t, _flat(leaf_info, best_k * LEAF_INFO_WIDTH + LEAF_PRIM), best_b1, best_b2
 
 
 @_inline

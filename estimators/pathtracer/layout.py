@@ -15,12 +15,14 @@ import numpy as np
 
 
 class SceneArrays(NamedTuple):
-    """Everything the kernel reads, by name. Tables are one row per item."""
+    """Everything the kernel reads, by name. Tables are one row per item. The BVH tables
+    (``bvh_nodes, leaf_prims, leaf_info``) are C-contiguous with exactly the widths
+    below: the traversal reads them flat, row · width + column (``geometry._flat``)."""
 
     bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float: 4-wide, see the NODE_ columns
     leaf_prims: np.ndarray      # (prims + 3 groups, LEAF_WIDTH) float: intersection data
                                 # in leaf order, then the triangle groups' lanes
-    leaf_info: np.ndarray       # (prims, 4) int: LEAF_KIND, LEAF_PRIM (row of prims),
+    leaf_info: np.ndarray       # (prims, LEAF_INFO_WIDTH) int: LEAF_KIND, LEAF_PRIM (row of prims),
                                 # LEAF_GROUP, LEAF_GROUP_SIZE
     prims: np.ndarray           # (prims, PRIM_WIDTH) float: see the PRIM_ columns
     prim_info: np.ndarray       # (prims, 2) int: PRIM_KIND, PRIM_SHAPE

@@ -98,6 +98,10 @@ def _check_hierarchy(prims, info, packed):
     nodes, leaf, leaf_info = packed
     lo, hi = geometry._prim_bounds(prims, info)
     assert nodes.flags.c_contiguous and nodes.ctypes.data % 32 == 0
+    # the traversal reads the three tables flat, row · the layout's width + column
+    assert nodes.shape[1] == layout.NODE_WIDTH and leaf.shape[1] == layout.LEAF_WIDTH
+    assert leaf_info.shape[1] == layout.LEAF_INFO_WIDTH
+    assert leaf.flags.c_contiguous and leaf_info.flags.c_contiguous
     assert sorted(leaf_info[:, LEAF_PRIM]) == list(range(len(prims)))
     np.testing.assert_array_equal(leaf_info[:, LEAF_KIND],
                                   info[leaf_info[:, LEAF_PRIM], layout.PRIM_KIND])
