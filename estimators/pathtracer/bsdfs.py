@@ -188,33 +188,33 @@ def sample_microfacet(wi, au, av, dist, u0, u1):
 
 
 @_jit
-def microfacet_pdf(wi, m, au, av, dist):
-    """Density (solid angle of m) of ``sample_microfacet(wi, ...)``."""
-    d = microfacet_d(m, au, av, dist)
+def _pdf_given_d(d, wi, m, au, av, dist):
+    """``microfacet_pdf`` from D(m) = d, which the caller has computed for its value."""
     if dist == GGX:
         return d * smith_g1(wi, m, au, av, dist) * max(_dot(wi, m), 0.0) / wi[2]
     return d * m[2]
 
 
 @_jit
-def microfacet_reflect_pdf(wi, wo, au, av, dist):
-    """pdf of wo = reflect(wi, m) with m from ``sample_microfacet``."""
-    m = _normalize(wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2])
-    wom = _dot(wo, m)
-    if _dot(wi, m) <= 0.0 or wom <= 0.0:
-        return 0.0
-    return microfacet_pdf(wi, m, au, av, dist) / (4.0 * wom)
+def microfacet_pdf(wi, m, au, av, dist):
+    """Density (solid angle of m) of ``sample_microfacet(wi, ...)``."""
+    return _pdf_given_d(microfacet_d(m, au, av, dist), wi, m, au, av, dist)
 
 
 @_jit
-def _microfacet_value(wi, wo, au, av, dist):
-    """(D G / (4 cos θ_i), wi · h) for the half vector h of wi and wo."""
+def _microfacet_value_pdf(wi, wo, au, av, dist):
+    """(D G / (4 cos θ_i), wi · h, pdf) for the half vector h of wi and wo: the value and
+    the density of wo = reflect(wi, m), m from ``sample_microfacet``, sharing h and D(h)
+    (each was computed twice, once for the value and once for the pdf)."""
     m = _normalize(wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2])
     d = microfacet_d(m, au, av, dist)
+    wim, wom = _dot(wi, m), _dot(wo, m)
+    pdf = (0.0 if wim <= 0.0 or wom <= 0.0
+           else _pdf_given_d(d, wi, m, au, av, dist) / (4.0 * wom))
     if d == 0.0:
-        return 0.0, 0.0
+        return 0.0, 0.0, pdf
     g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
-    return d * g / (4.0 * wi[2]), _dot(wi, m)
+    return d * g / (4.0 * wi[2]), wim, pdf
 
 
 # ------------------------------------------------------------------------- colours
@@ -287,7 +287,7 @@ def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u,
     f = fresnel_dielectric(wim, bf[b, ETA])[0]
     g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
     wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
-    pdf = microfacet_pdf(wp, m, au, av, dist)
+    pdf = _pdf_given_d(d, wp, m, au, av, dist)
     if reflect:
         val = f * d * g / (4.0 * abs(ci))
         pdf *= f / (4.0 * abs(wom))
@@ -322,11 +322,10 @@ def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
         return r * s, g * s, bl * s, s
     if mask & F_ROUGHCONDUCTOR and kind == ROUGHCONDUCTOR:
         au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
-        val, cos_h = _microfacet_value(wi, wo, au, av, dist)
+        val, cos_h, pdf = _microfacet_value_pdf(wi, wo, au, av, dist)
         if val == 0.0:
             return 0.0, 0.0, 0.0, 0.0
         r, g, bl = color(mask, bf, btex, tex_data, tex_info, b, 0, u, v)
-        pdf = microfacet_reflect_pdf(wi, wo, au, av, dist)
         f0, f1, f2 = _conductor_fresnel(bf, b, cos_h)
         return r * val * f0, g * val * f1, bl * val * f2, pdf
     eta = bf[b, ETA]
@@ -346,12 +345,12 @@ def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     dr, dg, db = _coat_base(dr, dg, db, bf[b, COAT_INTERNAL], bi[b, BSDF_NONLINEAR])
     s = _INV_PI / (eta * eta) * co * t_i * t_o
     r, g, bl = dr * s, dg * s, db * s
-    val, cos_h = _microfacet_value(wi, wo, alpha, alpha, dist)
+    val, cos_h, spec_pdf = _microfacet_value_pdf(wi, wo, alpha, alpha, dist)
     if val != 0.0:
         sr, sg, sb = color(mask, bf, btex, tex_data, tex_info, b, 1, u, v)
         val *= fresnel_dielectric(cos_h, eta)[0]
         r, g, bl = r + sr * val, g + sg * val, bl + sb * val
-    pdf = (ps * microfacet_reflect_pdf(wi, wo, alpha, alpha, dist)
+    pdf = (ps * spec_pdf
            + (1.0 - ps) * cosine_hemisphere_pdf_kernel(wo, (0.0,)))
     return r, g, bl, pdf
 
