@@ -178,7 +178,7 @@ def _sample_isotropic(wi, alpha, dist, u0, u1):
 @_jit
 def sample_microfacet(wi, au, av, dist, u0, u1):
     """A microfacet normal for ``wi`` (z > 0): visible normals for GGX, D cos θ_m for
-    Beckmann; its density is ``microfacet_pdf``. Anisotropic: ``wi`` stretched by
+    Beckmann; its density is ``_pdf_given_d``. Anisotropic: ``wi`` stretched by
     (αu, αv), a normal of the α = 1 distribution drawn, and unstretched."""
     if au == av:
         return _sample_isotropic(wi, au, dist, u0, u1)
@@ -188,33 +188,27 @@ def sample_microfacet(wi, au, av, dist, u0, u1):
 
 
 @_jit
-def _pdf_given_d(d, wi, m, au, av, dist):
-    """``microfacet_pdf`` from D(m) = d, which the caller has computed for its value."""
+def _pdf_given_d(d, g1, wi, m, dist):
+    """Density (solid angle of m) of ``sample_microfacet(wi, ...)``, from D(m) = d and,
+    for GGX, G1(wi, m) = g1: both computed by the caller for the BSDF's value."""
     if dist == GGX:
-        return d * smith_g1(wi, m, au, av, dist) * max(_dot(wi, m), 0.0) / wi[2]
+        return d * g1 * max(_dot(wi, m), 0.0) / wi[2]
     return d * m[2]
-
-
-@_jit
-def microfacet_pdf(wi, m, au, av, dist):
-    """Density (solid angle of m) of ``sample_microfacet(wi, ...)``."""
-    return _pdf_given_d(microfacet_d(m, au, av, dist), wi, m, au, av, dist)
 
 
 @_jit
 def _microfacet_value_pdf(wi, wo, au, av, dist):
     """(D G / (4 cos θ_i), wi · h, pdf) for the half vector h of wi and wo: the value and
-    the density of wo = reflect(wi, m), m from ``sample_microfacet``, sharing h and D(h)
-    (each was computed twice, once for the value and once for the pdf)."""
+    the density of wo = reflect(wi, m), m from ``sample_microfacet``, sharing h, D(h) and
+    G1(wi, h) (each was computed twice, once for the value and once for the pdf)."""
     m = _normalize(wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2])
     d = microfacet_d(m, au, av, dist)
+    g1 = smith_g1(wi, m, au, av, dist)
     wim, wom = _dot(wi, m), _dot(wo, m)
-    pdf = (0.0 if wim <= 0.0 or wom <= 0.0
-           else _pdf_given_d(d, wi, m, au, av, dist) / (4.0 * wom))
+    pdf = 0.0 if wim <= 0.0 or wom <= 0.0 else _pdf_given_d(d, g1, wi, m, dist) / (4.0 * wom)
     if d == 0.0:
         return 0.0, 0.0, pdf
-    g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
-    return d * g / (4.0 * wi[2]), wim, pdf
+    return d * (g1 * smith_g1(wo, m, au, av, dist)) / (4.0 * wi[2]), wim, pdf
 
 
 # ------------------------------------------------------------------------- colours
@@ -285,9 +279,10 @@ def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u,
     au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
     d = microfacet_d(m, au, av, dist)
     f = fresnel_dielectric(wim, bf[b, ETA])[0]
-    g = smith_g1(wi, m, au, av, dist) * smith_g1(wo, m, au, av, dist)
+    g1 = smith_g1(wi, m, au, av, dist)      # G1(-wi, m) too: it depends on wi's sign only
+    g = g1 * smith_g1(wo, m, au, av, dist)  # through (wi · m) wi_z, which it does not change
     wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
-    pdf = _pdf_given_d(d, wp, m, au, av, dist)
+    pdf = _pdf_given_d(d, g1, wp, m, dist)
     if reflect:
         val = f * d * g / (4.0 * abs(ci))
         pdf *= f / (4.0 * abs(wom))
