@@ -194,10 +194,34 @@ class Hemisphere(Sphere):
 _BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}
 
 
+#: What the numba binning and quadrature passes decide by ``kind`` and ``args``, not by
+#: calling the method: a subclass that overrides one would be silently ignored.
+_KERNEL_DECIDED = ("classify", "to_param", "inside", "to_point", "binning_edges", "points",
+                   "args", "kind", "dim", "param_dim", "jacobian", "_azimuth_axis")
+
+
+def _refuse_custom(domain: Domain) -> None:
+    """A clear error for a ``Domain`` the checks cannot honour: a subclass of its own
+    geometry (no kernel branch), or one overriding what the kernels decide."""
+    builtin = (Domain, Interval, Square, Disk, Sphere, Hemisphere)
+    cls = type(domain)
+    if cls in builtin:
+        return
+    for name in _KERNEL_DECIDED:
+        owner = next(c for c in cls.__mro__ if name in c.__dict__)
+        if owner not in builtin:
+            raise InvalidArgument(
+                f"domain={domain!r}: {cls.__name__} overrides {name!r}, which the checks "
+                "do not call (they bin and integrate in numba passes for the built-in "
+                "domains: Interval, Square, Disk, Sphere, Hemisphere); map the samples "
+                "to one of those, or subclass one for its repr or default_resolution only")
+
+
 def as_domain(domain) -> Domain:
     """A ``Domain`` from a name (``"interval"``, ``"square"``, ``"disk"``, ``"sphere"``,
-    ``"hemisphere"``) or a ``Domain`` instance."""
+    ``"hemisphere"``) or a ``Domain`` instance (a built-in one: ``_refuse_custom``)."""
     if isinstance(domain, Domain):
+        _refuse_custom(domain)
         return domain
     if isinstance(domain, str) and domain in _BY_NAME:
         return _BY_NAME[domain]()

@@ -45,6 +45,44 @@ def test_as_domain_names_and_errors():
         mv.Interval(1.0, 1.0)
 
 
+class _Triangle(mv.Domain):
+    name, dim, param_dim, sample_dim = "triangle", 2, 2, 2
+
+    def classify(self, x, *, rejection=False):
+        raise AssertionError("the kernels never call this")
+
+
+class _ShiftedDisk(mv.Disk):
+    def to_point(self, s):
+        return super().to_point(s) + 1.0
+
+
+class _NamedSquare(mv.Square):
+    def __repr__(self):
+        return "NamedSquare()"
+
+
+@pytest.mark.parametrize("dom, needle", [
+    (_Triangle(), "_Triangle overrides 'classify'"),
+    (_ShiftedDisk(), "_ShiftedDisk overrides 'to_point'"),
+], ids=["own-geometry", "overridden-kernel-method"])
+def test_a_domain_the_kernels_would_ignore_is_refused(dom, needle):
+    """The binning and quadrature passes branch on ``kind``: a subclass's own geometry or
+    an overridden ``classify``/``to_point`` would be silently ignored, so checks refuse
+    it with the reason (before it was binned as the parent domain, or as nothing)."""
+    with pytest.raises(mv.InvalidArgument, match=needle):
+        as_domain(dom)
+    with pytest.raises(mv.InvalidArgument, match=needle):
+        mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)), dom, n_samples=1000)
+
+
+def test_a_subclass_for_its_repr_only_is_accepted():
+    assert as_domain(_NamedSquare()) == _NamedSquare()
+    r = mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)), _NamedSquare(),
+                         n_samples=10_000, seed=1)
+    assert r.passed, r.summary()
+
+
 def test_azimuth_matches_atan2_to_an_ulp():
     """The binning kernel's azimuth (Cephes' atan, no libm call) against math.atan2, on
     random directions and on the axes and diagonals."""
