@@ -221,9 +221,14 @@ def atomic_write(path, data: str | bytes) -> None:
         raise
 
 
-def write_json(result, path: str) -> None:
-    """Write a ``CheckResult`` or ``SuiteResult`` as indented JSON, atomically."""
-    atomic_write(path, json.dumps(result.to_dict(), indent=2, sort_keys=False) + "\n")
+def write_json(result, path: str, *, provenance: dict | None = None) -> None:
+    """Write a ``CheckResult`` or ``SuiteResult`` as indented JSON, atomically; a
+    ``CheckResult`` written on its own (``compare``, ``render-check``) carries the run's
+    ``provenance`` as a suite's does."""
+    d = result.to_dict()
+    if provenance is not None:
+        d["provenance"] = _jsonable(provenance)
+    atomic_write(path, json.dumps(d, indent=2, sort_keys=False) + "\n")
 
 
 def write_junit(suite: SuiteResult, path: str) -> None:

@@ -380,7 +380,7 @@ def _cmd_list(args) -> int:
     from . import suites
 
     args.alpha = args.seed = 0   # not used by list
-    _, checks, _, _ = _suite_checks(args)
+    args.suite, checks, _, _ = _suite_checks(args)
     selected = suites.select(checks, args.k)
     if not selected:
         raise InvalidArgument(_no_check(args))
@@ -556,6 +556,7 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
 def _cmd_compare(args) -> int:
     from . import reference
     from ..checks import compare_images
+    from ..provenance import provenance
     from ..result import write_json
 
     for opt, value in (("--test-spp", args.test_spp), ("--ref-spp", args.ref_spp)):
@@ -619,7 +620,7 @@ def _cmd_compare(args) -> int:
                             **(dict(test_spp=args.test_spp, ref_spp=ref_spp)
                                if args.test_spp is not None else {}))
     if args.json:
-        write_json(result, args.json)
+        write_json(result, args.json, provenance=provenance(command="compare"))
     for note in test.notes + (() if ref_load is None else ref.notes):
         print(f"notice: {note}", file=sys.stderr)
     print(result.summary())
@@ -635,12 +636,16 @@ def _params(items) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise InvalidArgument(f"--param {item!r}: expected NAME=VALUE")
+        if key in out:      # the last one silently won
+            raise InvalidArgument(f"--param {item!r}: {key!r} is already set to "
+                                  f"{out[key]!r}; give each name once")
         out[key] = value
     return out
 
 
 def _cmd_render_check(args) -> int:
     from .render_check import render_check
+    from ..provenance import provenance
     from ..result import write_json
 
     from . import reference
@@ -673,7 +678,8 @@ def _cmd_render_check(args) -> int:
                               (lambda m: print(f"notice: {m}", file=sys.stderr)),
                               progress=show if tty else None, pool=pool)
     if args.json:
-        write_json(result, args.json)
+        write_json(result, args.json, provenance=provenance(
+            command="render-check", seed=args.seed, params=params))
     d = result.details
     print(result.summary())
     for m in result.messages:

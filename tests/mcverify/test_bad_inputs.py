@@ -484,6 +484,8 @@ CLI = [
     ("render-check-param", ["render-check", "{d}/ref-ok", "--param", "nosuch=3"], "nosuch"),
     ("render-check-param-form", ["render-check", "{d}/ref-ok", "--param", "oops"],
      "--param 'oops'"),
+    ("render-check-param-twice", ["render-check", "{d}/ref-ok", "--param", "res=8",
+                                  "--param", "res=16"], "'res' is already set to '8'"),
     ("render-check-json-is-scene", ["render-check", "{d}/ref-ok", "--json",
                                     "{d}/ref-ok/scene.xml"], "is also an input"),
     ("render-check-spp", ["render-check", "{d}/ref-ok", "--spp", "100"], "spp=100"),

@@ -29,7 +29,10 @@ def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
 
 @pytest.mark.parametrize("args,needle", [
     (["check", "--suite", "nightly"], "--suite"),
-    (["check", "-k", "no-such-check"], "-k 'no-such-check'"),
+    (["check", "-k", "no-such-check"], "-k 'no-such-check': matches no check of suite "
+                                        "'default'"),
+    (["list", "-k", "no-such-check"], "-k 'no-such-check': matches no check of suite "
+                                       "'default'"),
     (["check", "--alpha", "2"], "--alpha 2.0"),
     (["check", "--seed", "-3"], "--seed -3"),
     (["check", "--json", "/proc/forbidden/x.json"], "--json /proc/forbidden/x.json"),
@@ -37,8 +40,8 @@ def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
     (["report", "--out", "/proc/forbidden/rep"], "--out /proc/forbidden/rep"),
     (["bench", "--repeats", "0"], "--repeats 0"),
     (["bench", "--n", "10"], "--n 10"),
-], ids=["suite", "pattern", "alpha", "seed", "json-path", "command", "report-out",
-        "bench-repeats", "bench-n"])
+], ids=["suite", "pattern", "list-pattern", "alpha", "seed", "json-path", "command",
+        "report-out", "bench-repeats", "bench-n"])
 def test_bad_input_is_one_line_exit_2(args, needle):
     r = run(*args)
     assert r.returncode == 2

@@ -87,7 +87,9 @@ def test_compare_cli_passes_a_to_a_and_fails_a_brighter_render(scene_copy, tmp_p
                                   "--test-n", "16", "--json", str(tmp_path / f"{label}.json")],
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == expected, (label, r.stdout, r.stderr)
-        d = json.loads((tmp_path / f"{label}.json").read_text())["details"]
+        doc = json.loads((tmp_path / f"{label}.json").read_text())
+        d = doc["details"]
+        assert doc["provenance"]["command"] == "compare" and "git_commit" in doc["provenance"]
         assert "how visible: mean ΔE2000" in r.stdout and "HDR-FLIP" in r.stdout
         flips[label] = d["flip_mean"]
     assert 0 <= flips["same"] < flips["brighter"] <= 1, flips
@@ -117,8 +119,11 @@ def test_refs_dir_names_where_scene_names_resolve(tmp_path):
     r = run("render-check", "furnace", "--refs", str(refs), "--spp", "256", "--passes", "4",
             "--json", str(tmp_path / "rc.json"))
     assert r.returncode == 0, r.stderr
-    assert json.loads((tmp_path / "rc.json").read_text())["details"]["scene"] == \
-        str(refs / "furnace" / "scene.xml")
+    doc = json.loads((tmp_path / "rc.json").read_text())
+    assert doc["details"]["scene"] == str(refs / "furnace" / "scene.xml")
+    # who ran it, where and when: a suite's JSON says so, and so does a render check's
+    assert doc["provenance"]["command"] == "render-check" and doc["provenance"]["seed"] == 0
+    assert {"mcverify_version", "git_commit", "machine", "utc_time"} <= set(doc["provenance"])
     r = run("render-check", "cornell-box", "--refs", str(refs))
     assert r.returncode == 2 and "scene 'cornell-box'" in r.stderr and "known: furnace" in r.stderr
     r = run("compare", "a.exr", "furnace", "--refs", str(tmp_path / "nowhere"),

@@ -185,6 +185,9 @@ def test_list_shows_a_user_suite_and_a_bad_table_exits_2(project):
     _pyproject(project, '[tool.mcverify]\nsuite = "mine.checks:good"\n')
     r = _cli(["list"], cwd=project)
     assert r.returncode == 0 and r.stdout.split() == ["sqrt", "sqrt-again"]
+    # a pattern that selects nothing names the table's suite (it said "suite None")
+    r = _cli(["list", "-k", "nosuch"], cwd=project)
+    assert r.returncode == 2 and "of suite 'mine.checks:good'" in r.stderr, r.stderr
     _pyproject(project, '[tool.mcverify]\nsute = "mine.checks:good"\n')
     r = _cli(["check"], cwd=project)
     assert r.returncode == 2 and "'sute': unknown key" in r.stderr
