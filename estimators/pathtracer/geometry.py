@@ -355,9 +355,10 @@ def _splat(builder, x):
                                                         [0] * NODE_ARITY))
 
 
-def _as_tuple(context, builder, signature, v):
-    """The four lanes of ``v`` as the intrinsic's 4-tuple of float64."""
-    lanes = [builder.extract_element(v, ir.Constant(_I32, k)) for k in range(NODE_ARITY)]
+def _as_tuple(context, builder, signature, *vs):
+    """The four lanes of each of ``vs`` in turn as the intrinsic's tuple of float64."""
+    lanes = [builder.extract_element(v, ir.Constant(_I32, k)) for v in vs
+             for k in range(NODE_ARITY)]
     return context.make_tuple(builder, signature.return_type, lanes)
 
 
@@ -438,17 +439,19 @@ def _box4_entry(typingctx, nodes, node, near_x, near_y, near_z, ox, oy, oz, ix, 
 
 @intrinsic
 def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
-    """The hit distances of the ray on the four lanes of the triangle group whose lanes
-    start at row ``row`` of ``leaf_prims`` (``LEAF_GROUP``): a 4-tuple, inf where a lane
-    is missed or its hit lies outside (t_min, t_max). One pass of ``<4 x double>`` LLVM
-    IR doing, lane by lane, the operations of ``_hit_prim``'s triangle test in its order
-    (no fused multiply-add), so a hit has the same t to the bit; its accept and reject
-    tests are the same predicates, NaN included (a NaN b1, b2 or t is no hit)."""
+    """The hits of the ray on the four lanes of the triangle group whose lanes start at
+    row ``row`` of ``leaf_prims`` (``LEAF_GROUP``): a 12-tuple, the four t (inf where a
+    lane is missed or its hit lies outside (t_min, t_max)), then the four b1 and the four
+    b2. One pass of ``<4 x double>`` LLVM IR doing, lane by lane, the operations of
+    ``_hit_prim``'s triangle test in its order (no fused multiply-add), so a hit has the
+    same t, b1 and b2 to the bit; its accept and reject tests are the same predicates,
+    NaN included (a NaN b1, b2 or t is no hit)."""
     if not (isinstance(leaf, types.Array) and leaf.ndim == 2 and leaf.layout == "C"
             and leaf.dtype == types.float64 and isinstance(row, types.Integer)):
         return None
     f8 = types.float64
-    sig = types.UniTuple(f8, NODE_ARITY)(leaf, types.intp, f8, f8, f8, f8, f8, f8, f8, f8)
+    sig = types.UniTuple(f8, 3 * NODE_ARITY)(leaf, types.intp, f8, f8, f8, f8, f8, f8, f8,
+                                             f8)
 
     def codegen(context, builder, signature, args):
         data = context.make_array(signature.args[0])(context, builder, args[0]).data
@@ -495,7 +498,7 @@ def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
                      builder.fcmp_ordered("<", th, _splat(builder, args[9]))):
             ok = builder.and_(ok, test)
         t = builder.select(ok, th, ir.Constant(_V4, [np.inf] * NODE_ARITY))
-        return _as_tuple(context, builder, signature, t)
+        return _as_tuple(context, builder, signature, t, b1, b2)
 
     return sig, codegen
 
@@ -633,24 +636,25 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
                 g = _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_GROUP)
                 if g >= 0:
                     # a triangle group: its lanes in one pass; the nearest lane (the
-                    # first of equals, as one by one) is tested again on its own row
-                    # for b1, b2 (the same arithmetic, the same values)
-                    t0, t1, t2, t3 = _tri4_entry(leaf, g, ox, oy, oz, dx, dy, dz, t_min,
-                                                 best_t)
-                    hit, near = -1, best_t
+                    # first of equals, as one by one) with its b1, b2 (until 4 December
+                    # that lane was tested again on its own row for them: the same
+                    # arithmetic, the same values)
+                    (t0, t1, t2, t3, u0, u1, u2, u3,
+                     v0, v1, v2, v3) = _tri4_entry(leaf, g, ox, oy, oz, dx, dy, dz, t_min,
+                                                   best_t)
+                    hit, near, hb1, hb2 = -1, best_t, 0.0, 0.0
                     if t0 < near:
-                        hit, near = 0, t0
+                        hit, near, hb1, hb2 = 0, t0, u0, v0
                     if t1 < near:
-                        hit, near = 1, t1
+                        hit, near, hb1, hb2 = 1, t1, u1, v1
                     if t2 < near:
-                        hit, near = 2, t2
+                        hit, near, hb1, hb2 = 2, t2, u2, v2
                     if t3 < near:
-                        hit, near = 3, t3
+                        hit, near, hb1, hb2 = 3, t3, u3, v3
                     size = _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_GROUP_SIZE)
                     if hit >= 0:
                         hit += k
-                        t, b1, b2 = _hit_prim(leaf[hit], TRIANGLE, ox, oy, oz, dx, dy, dz)
-                        best_t, best_k, best_b1, best_b2 = t, hit, b1, b2
+                        best_t, best_k, best_b1, best_b2 = near, hit, hb1, hb2
                         if any_hit:
                             return (best_t, _flat(leaf_info, hit * LEAF_INFO_WIDTH + LEAF_PRIM),
                                     best_b1, best_b2)

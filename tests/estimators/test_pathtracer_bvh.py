@@ -349,7 +349,8 @@ def _group_lanes(leaf, row, o, d, t_min, t_max):
          t_max=np.inf)
 def test_triangle_group_lanes_are_the_scalar_test(tris, o, d, t_min, t_max):
     """Each lane of a triangle group (``_tri4_entry``) is the scalar triangle test of its
-    row (``_hit_prim``) to the bit, kept only inside (t_min, t_max): triangles on a
+    row (``_hit_prim``) to the bit, t, b1 and b2 (the traversal takes a hit's b1, b2
+    from its lane), kept only inside (t_min, t_max): triangles on a
     coarse grid (shared edges and vertices, axis-aligned and degenerate ones, rays along
     their planes and through their edges), NaN and the det = 0 rejection included;
     lanes past the group's size are never hit."""
@@ -366,9 +367,12 @@ def test_triangle_group_lanes_are_the_scalar_test(tris, o, d, t_min, t_max):
             if lane >= m:
                 assert lanes[lane] == np.inf
                 continue
-            t = geometry._hit_prim(leaf[k + lane], TRIANGLE, *o, *d)[0]
+            t, b1, b2 = geometry._hit_prim(leaf[k + lane], TRIANGLE, *o, *d)
             want = t if t_min < t < t_max else np.inf
             assert lanes[lane] == want, (k, lane, lanes[lane], t)
+            if want < np.inf:
+                b = (lanes[NODE_ARITY + lane], lanes[2 * NODE_ARITY + lane])
+                assert b == (b1, b2), (k, lane, b, b1, b2)
 
 
 # ----------------------------------------------------------------- the SIMD box test
