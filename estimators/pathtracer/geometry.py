@@ -488,15 +488,20 @@ def _tri4_entry(typingctx, leaf, row, ox, oy, oz, dx, dy, dz, t_min, t_max):
         one = ir.Constant(_V4, [1.0] * NODE_ARITY)
         # _hit_prim rejects on det == 0, b1 < 0 or b1 > 1, b2 < 0 or b1 + b2 > 1, t <= 0
         # (each false for NaN) and the caller keeps t_min < t < t_max (false for NaN)
-        ok = builder.fcmp_unordered("!=", det, zero)
-        for test in (builder.fcmp_unordered(">=", b1, zero),
-                     builder.fcmp_unordered("<=", b1, one),
-                     builder.fcmp_unordered(">=", b2, zero),
-                     builder.fcmp_unordered("<=", builder.fadd(b1, b2), one),
-                     builder.fcmp_unordered(">", th, zero),
-                     builder.fcmp_ordered("<", _splat(builder, args[8]), th),
-                     builder.fcmp_ordered("<", th, _splat(builder, args[9]))):
-            ok = builder.and_(ok, test)
+        tests = [builder.fcmp_unordered("!=", det, zero),
+                 builder.fcmp_unordered(">=", b1, zero),
+                 builder.fcmp_unordered("<=", b1, one),
+                 builder.fcmp_unordered(">=", b2, zero),
+                 builder.fcmp_unordered("<=", builder.fadd(b1, b2), one),
+                 builder.fcmp_unordered(">", th, zero),
+                 builder.fcmp_ordered("<", _splat(builder, args[8]), th),
+                 builder.fcmp_ordered("<", th, _splat(builder, args[9]))]
+        # and-ed as a balanced tree: a left-to-right chain became 7 dependent masked
+        # compares (AVX-512 folds each `and` into the next compare's mask)
+        while len(tests) > 1:
+            tests = [builder.and_(a, b) for a, b in zip(tests[::2], tests[1::2])] + \
+                tests[len(tests) - len(tests) % 2:]
+        ok = tests[0]
         t = builder.select(ok, th, ir.Constant(_V4, [np.inf] * NODE_ARITY))
         return _as_tuple(context, builder, signature, t, b1, b2)
 
