@@ -582,18 +582,21 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 
 @_inline
-def _push(stack, base, sp, t, link, count, ordered):
+def _push(stack, istack, base, sp, t, link, count, ordered):
     """Stack child (link, count) entered at distance t (none if inf) among those stacked
     from row ``base`` on, kept sorted far to near (equal distances: the earlier child on
     top, as the binary tree's nearer-or-left-first order) if ``ordered``, else on top.
-    Returns the new top."""
+    ``istack`` is ``stack`` read as int64: the link and count are stored as integers
+    (converted here, off the chain from a pop to the next node's loads), entries moved
+    as bits. Returns the new top."""
     if t == np.inf:
         return sp
     j = 3 * sp
     while ordered and j > 3 * base and stack[j - 3] <= t:
-        stack[j], stack[j + 1], stack[j + 2] = stack[j - 3], stack[j - 2], stack[j - 1]
+        istack[j], istack[j + 1], istack[j + 2] = istack[j - 3], istack[j - 2], istack[j - 1]
         j -= 3
-    stack[j], stack[j + 1], stack[j + 2] = t, link, count
+    stack[j] = t
+    istack[j + 1], istack[j + 2] = int(link), int(count)
     return sp + 1
 
 
@@ -609,6 +612,7 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
     iz = 1.0 / dz if dz != 0.0 else np.inf
     nx, ny, nz = _near_column(ix, 0), _near_column(iy, 1), _near_column(iz, 2)
     best_t, best_k, best_b1, best_b2 = t_max, -1, 0.0, 0.0
+    istack = stack.view(np.int64)
     sp = 0
     node = 0
     while node >= 0:
@@ -617,13 +621,13 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
         # nearest first for the nearest hit; an any-hit query needs no order (whether
         # something lies in (t_min, t_max) is the same whichever box is opened first)
         row = node * NODE_WIDTH
-        sp = _push(stack, base, sp, t0, _flat(nodes, row + NODE_LINK),
+        sp = _push(stack, istack, base, sp, t0, _flat(nodes, row + NODE_LINK),
                    _flat(nodes, row + NODE_COUNT), not any_hit)
-        sp = _push(stack, base, sp, t1, _flat(nodes, row + NODE_LINK + 1),
+        sp = _push(stack, istack, base, sp, t1, _flat(nodes, row + NODE_LINK + 1),
                    _flat(nodes, row + NODE_COUNT + 1), not any_hit)
-        sp = _push(stack, base, sp, t2, _flat(nodes, row + NODE_LINK + 2),
+        sp = _push(stack, istack, base, sp, t2, _flat(nodes, row + NODE_LINK + 2),
                    _flat(nodes, row + NODE_COUNT + 2), not any_hit)
-        sp = _push(stack, base, sp, t3, _flat(nodes, row + NODE_LINK + 3),
+        sp = _push(stack, istack, base, sp, t3, _flat(nodes, row + NODE_LINK + 3),
                    _flat(nodes, row + NODE_COUNT + 3), not any_hit)
         # pop the nearest stacked child still worth entering: test a leaf's primitives
         # and go on popping, or descend into an interior child
@@ -632,7 +636,7 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
             sp -= 1
             if stack[3 * sp] > best_t * _ACCEPT:
                 continue
-            first, c = int(stack[3 * sp + 1]), int(stack[3 * sp + 2])
+            first, c = istack[3 * sp + 1], istack[3 * sp + 2]
             if c < 0:
                 node = first
                 break
@@ -682,7 +686,8 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
 def new_stack():
     """Traversal scratch for ``intersect``/``occluded``, one per thread, reused across
     rays: a stacked child's entry distance, link and count at 3 i, 3 i + 1, 3 i + 2 (flat:
-    a 2-D array's row stride is a run-time value, a multiply at each access)."""
+    a 2-D array's row stride is a run-time value, a multiply at each access; the link
+    and count as int64 bits, ``_push``)."""
     return np.empty(3 * STACK)
 
 
