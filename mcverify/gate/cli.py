@@ -581,6 +581,16 @@ def _cmd_compare(args) -> int:
     ref_load, ref_files = _compare_side("ref", ref_image, args.ref_var, args.ref_n,
                                         args.ref_passes, reference_ok=True)
     _writable("--json", args.json, test_files + ref_files)
+    # the images under test (not their variance file) among the reference side's files:
+    # an image compared with itself always agrees, whatever the renderer did
+    shown = test_files if test_image is None else [test_image]
+    ref_real = {os.path.realpath(f): f for f in ref_files}
+    for f in shown:
+        if os.path.realpath(f) in ref_real:
+            raise InvalidArgument(f"{f}: is on both sides of the comparison (the reference "
+                                  f"side reads {ref_real[os.path.realpath(f)]}); an image "
+                                  "compared with itself always agrees: give the render "
+                                  "under test and a reference made apart from it")
     correlated = args.correlated
     ref_spp = args.ref_spp
     if ref_load is None:

@@ -73,6 +73,7 @@ def sandbox(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("bad")
     mvm.write_exr(str(d / "good.exr"), _img())
+    mvm.write_exr(str(d / "good2.exr"), _img())       # a reference apart from good.exr
     mvm.write_exr(str(d / "var.exr"), _img(value=0.01))
     mvm.write_exr(str(d / "negvar.exr"), np.where(np.arange(192).reshape(8, 8, 3) == 7,
                                                   -0.5, 0.01))
@@ -442,7 +443,7 @@ CLI = [
                            "{d}/var.exr", "--test-n", "4"], "data_cut.exr"),
     ("compare-missing", ["compare", "{d}/nosuch.exr", "ref-ok", "--test-var", "{d}/var.exr",
                          "--test-n", "4"], "nosuch.exr: cannot read"),
-    ("compare-json-is-test", ["compare", "{d}/good.exr", "{d}/good.exr", "--test-var",
+    ("compare-json-is-test", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
                               "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
                               "--ref-n", "4", "--json", "{d}/good.exr"], "is also an input"),
     ("compare-json-is-var", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
@@ -451,16 +452,22 @@ CLI = [
     ("compare-json-is-ref-mean", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
                                   "{d}/var.exr", "--test-n", "4", "--json",
                                   "{d}/ref-ok/ref/mean.exr"], "is also an input"),
-    ("compare-json-via-link", ["compare", "{d}/good.exr", "{d}/good.exr", "--test-var",
+    ("compare-self", ["compare", "{d}/good.exr", "{d}/link-to-good", "--test-var",
+                      "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
+                      "--ref-n", "4"], "is on both sides of the comparison"),
+    ("compare-self-reference", ["compare", "{d}/ref-ok/ref/mean.exr", "{d}/ref-ok",
+                                "--test-var", "{d}/var.exr", "--test-n", "4"],
+     "is on both sides of the comparison"),
+    ("compare-json-via-link", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
                                "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
                                "--ref-n", "4", "--json", "{d}/link-to-good"],
      "is also an input"),
-    ("compare-negative-var-file", ["compare", "{d}/good.exr", "{d}/good.exr", "--test-var",
+    ("compare-negative-var-file", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
                                    "{d}/var.exr", "--test-n", "4", "--ref-var",
                                    "{d}/negvar.exr", "--ref-n", "4"],
      "negvar.exr (--ref-var): 1 negative variance value(s), first at pixel (y, x, channel) "
      "= (0, 2, 1): -0.5"),
-    ("compare-no-ref-var", ["compare", "{d}/good.exr", "{d}/good.exr", "--test-var",
+    ("compare-no-ref-var", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
                             "{d}/var.exr", "--test-n", "4"], "needs --ref-var and --ref-n"),
     ("compare-test-n-1", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
                           "{d}/var.exr", "--test-n", "1"], "--test-n 1"),
@@ -582,7 +589,7 @@ def test_write_refuses_what_it_would_destroy(tmp_path, what):
 
 def test_cli_compare_writes_through_symlink_and_fifo(cli_sandbox, capsys, tmp_path):
     d = cli_sandbox
-    base = ["compare", d / "good.exr", d / "good.exr", "--test-var", d / "var.exr",
+    base = ["compare", d / "good.exr", d / "good2.exr", "--test-var", d / "var.exr",
             "--test-n", "4", "--ref-var", d / "var.exr", "--ref-n", "4", "--json"]
     target = tmp_path / "result.json"
     target.write_text("{}")

@@ -80,6 +80,10 @@ def test_compare_two_renderers_pass_folders_end_to_end(tmp_path):
     r = subprocess.run(CMD + ["compare", "--test-passes", bright, "--ref-passes", ref],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 1, r.stdout + r.stderr
+    # the same pass images on both sides would always agree: refused, naming a file
+    r = subprocess.run(CMD + ["compare", "--test-passes", same, "--ref-passes", same],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "is on both sides of the comparison" in r.stderr, r.stderr
 
 
 @pytest.mark.parametrize("args, needle", [
