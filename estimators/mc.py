@@ -115,22 +115,28 @@ def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) ->
 
 
 def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
-    """Jittered sampling: ``m = round(n^(1/d))`` strata per axis, one uniform sample in
-    each. The standard error comes from collapsing neighbouring strata in pairs (the
-    'collapsed strata' estimator, slightly conservative), so ``samples`` holds the
-    stratum-pair means."""
+    """Jittered sampling, one uniform sample in each stratum of a grid of about n: m =
+    ⌊n^(1/d)⌋ strata on each axis but the first, and on the first the even m₀ ≥ 2 nearest
+    n / m^(d-1) (only that axis is paired below). The standard error comes from
+    collapsing neighbouring strata in pairs along the first axis (the 'collapsed strata'
+    estimator, slightly conservative), so ``samples`` holds the stratum-pair means.
+    ``Estimate.n`` is the grid's m₀ · m^(d-1) samples: within a few per cent of n where m
+    is large; at most 2n in any dimension (until 4 December every axis took the even
+    number nearest n^(1/d), so at least 2^d samples: 2^20 for n = 1000 in 20-D)."""
     lo, hi = _box(a, b)
     n = _count(n, minimum=2)
     d = lo.size
-    m = max(2, int(round(n ** (1.0 / d))))
-    if m % 2:
-        m += 1
-    grid = np.stack(np.meshgrid(*([np.arange(m)] * d), indexing="ij"), -1).reshape(-1, d)
+    m = max(1, int(n ** (1.0 / d) + 1e-9))       # + 1e-9: 1000 ** (1/3) is 9.999...
+    m0 = max(2, int(round(n / m ** (d - 1))))
+    m0 += m0 % 2
+    sizes = np.array([m0] + [m] * (d - 1))
+    grid = np.stack(np.meshgrid(*[np.arange(k) for k in sizes], indexing="ij"),
+                    -1).reshape(-1, d)
     rng = np.random.default_rng(seed)
-    t = (grid + rng.random(grid.shape)) / m
+    t = (grid + rng.random(grid.shape)) / sizes
     vals = np.prod(hi - lo) * _call_f(f, lo + (hi - lo) * t, np.ndim(a) == 0)
     # Pair strata along the first axis: (2k, 2k+1).
-    paired = vals.reshape(m // 2, 2, -1)
+    paired = vals.reshape(m0 // 2, 2, -1)
     pairs = paired.mean(axis=1).ravel()
     value = float(vals.mean())
     se = float(np.sqrt(np.sum((paired[:, 0] - paired[:, 1]) ** 2)) / vals.size)

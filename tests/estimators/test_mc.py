@@ -78,6 +78,17 @@ def test_plain_mc_converges_at_minus_one_half():
     assert r.passed, r.messages
 
 
+@pytest.mark.parametrize("n, d", [(1000, 20), (5000, 5), (729, 3), (20_000, 2)])
+def test_stratified_takes_about_n_samples_in_any_dimension(n, d):
+    """The grid holds at most 2n samples whatever d (every axis even took at least 2^d:
+    a million for n = 1000 in 20-D), and the estimate stays unbiased: the integral of
+    Σ x_i² over [0, 1]^d is d / 3."""
+    e = mc.stratified(lambda x: np.sum(x * x, axis=1), [0.0] * d, [1.0] * d, n, seed=d)
+    assert n / 2 <= e.n <= 2 * n, e.n
+    r = mv.check_unbiased(e.samples, d / 3.0)
+    assert r.passed, r.summary()
+
+
 def test_stratified_and_rqmc_converge_faster():
     strat = mv.check_convergence(
         lambda n, s: mc.stratified(np.sin, 0.0, np.pi, n, seed=s).value, 2.0,
