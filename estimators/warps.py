@@ -438,6 +438,11 @@ def _invert_tent_kernel(x, p):
 def _sample_linear_1d(u, a, b):
     if u == 0.0 and a == 0.0:
         return 0.0
+    s = max(a, b)
+    if s < 1e-150 or s > 1e150:
+        # the density depends on a : b alone; a² and b² would underflow (a = b = 1e-300
+        # sampled 2u, not u) or overflow (x = 0): rescaled so that the larger is 1
+        a, b = a / s, b / s
     x = u * (a + b) / (a + math.sqrt((1.0 - u) * a * a + u * b * b))
     return min(x, ONE_MINUS_EPSILON)
 

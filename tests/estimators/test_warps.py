@@ -379,3 +379,20 @@ def test_every_warps_parameters_have_a_rule_and_its_test_ranges_satisfy_it():
                 n = (x * x + y * y + z * z) ** 0.5
                 values = (a, x / n, y / n, z / n)
             assert ok(*values), (name, values)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e160, 1e300])
+def test_the_linear_sampler_depends_on_a_to_b_alone(scale):
+    """The linear density depends on a : b only, so scaling both must not move a sample:
+    a² and b² underflowed (a = b = 1e-300 sampled 2u instead of u) or overflowed (every
+    sample 0). Also through the bilinear sampler, whose rows are linear densities."""
+    from estimators import warps as W
+
+    u = np.random.default_rng(5).random((1000, 2))
+    for a, b in ((1.0, 1.0), (0.2, 3.0), (0.0, 1.0), (5.0, 0.0)):
+        want = W.sample_linear(u[:, :1], a, b)
+        got = W.sample_linear(u[:, :1], a * scale, b * scale)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300, err_msg=(a, b))
+    w = (0.5, 2.0, 1.0, 3.0)
+    np.testing.assert_allclose(W.sample_bilinear(u, *(scale * c for c in w)),
+                               W.sample_bilinear(u, *w), rtol=1e-12)
