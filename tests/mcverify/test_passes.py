@@ -147,7 +147,8 @@ def test_compare_floors_the_test_variance_at_the_references(tmp_path):
     floor = json.loads(out.read_text())["details"]["variance_floor"]
     assert floor["test_spp"] == 64 and floor["ref_spp"] == 256
     assert 0.0 < floor["raised_fraction"] < 1.0
-    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "--ref-passes", passes,
+    theirs = _write(tmp_path / "theirs", imgs)      # the same images apart: not itself
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "--ref-passes", theirs,
                               "--test-spp", "64"], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 2 and "give --ref-spp" in r.stderr, r.stderr
