@@ -279,8 +279,10 @@ def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u,
     au, av, dist = bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION]
     d = microfacet_d(m, au, av, dist)
     f = fresnel_dielectric(wim, bf[b, ETA])[0]
-    g1 = smith_g1(wi, m, au, av, dist)      # G1(-wi, m) too: it depends on wi's sign only
-    g = g1 * smith_g1(wo, m, au, av, dist)  # through (wi · m) wi_z, which it does not change
+    # G1(wi, m) is G1(-wi, m) too (wi's sign enters only through (wi · m) wi_z), so the
+    # pdf of the flipped wp takes it
+    g1 = smith_g1(wi, m, au, av, dist)
+    g = g1 * smith_g1(wo, m, au, av, dist)
     wp = wi if ci > 0.0 else (-wi[0], -wi[1], -wi[2])
     pdf = _pdf_given_d(d, g1, wp, m, dist)
     if reflect:

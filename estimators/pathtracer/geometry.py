@@ -582,6 +582,12 @@ def _hit_prim(p, t, ox, oy, oz, dx, dy, dz):
 
 
 @_inline
+def _leaf_info(leaf_info, k, col):
+    """Column ``col`` of row ``k`` of ``leaf_info``, read flat (``_flat``)."""
+    return _flat(leaf_info, k * LEAF_INFO_WIDTH + col)
+
+
+@_inline
 def _push(stack, istack, base, sp, t, link, count, ordered):
     """Stack child (link, count) entered at distance t (none if inf) among those stacked
     from row ``base`` on, kept sorted far to near (equal distances: the earlier child on
@@ -642,7 +648,7 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
                 break
             k, end = first, first + c
             while k < end:
-                g = _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_GROUP)
+                g = _leaf_info(leaf_info, k, LEAF_GROUP)
                 if g >= 0:
                     # a triangle group: its lanes in one pass; the nearest lane (the
                     # first of equals, as one by one) with its b1, b2 (until 4 December
@@ -660,26 +666,24 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
                         hit, near, hb1, hb2 = 2, t2, u2, v2
                     if t3 < near:
                         hit, near, hb1, hb2 = 3, t3, u3, v3
-                    size = _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_GROUP_SIZE)
+                    size = _leaf_info(leaf_info, k, LEAF_GROUP_SIZE)
                     if hit >= 0:
                         hit += k
                         best_t, best_k, best_b1, best_b2 = near, hit, hb1, hb2
                         if any_hit:
-                            return (best_t, _flat(leaf_info, hit * LEAF_INFO_WIDTH + LEAF_PRIM),
-                                    best_b1, best_b2)
+                            return best_t, _leaf_info(leaf_info, hit, LEAF_PRIM), best_b1, best_b2
                     k += size
                     continue
-                t, b1, b2 = _hit_prim(leaf[k], _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_KIND),
-                                      ox, oy, oz, dx, dy, dz)
+                t, b1, b2 = _hit_prim(leaf[k], _leaf_info(leaf_info, k, LEAF_KIND), ox, oy, oz,
+                                      dx, dy, dz)
                 if t_min < t < best_t:
                     best_t, best_k, best_b1, best_b2 = t, k, b1, b2
                     if any_hit:
-                        return (best_t, _flat(leaf_info, k * LEAF_INFO_WIDTH + LEAF_PRIM),
-                                best_b1, best_b2)
+                        return best_t, _leaf_info(leaf_info, k, LEAF_PRIM), best_b1, best_b2
                 k += 1
     if best_k < 0:
         return best_t, -1, best_b1, best_b2
-    return best_t, _flat(leaf_info, best_k * LEAF_INFO_WIDTH + LEAF_PRIM), best_b1, best_b2
+    return best_t, _leaf_info(leaf_info, best_k, LEAF_PRIM), best_b1, best_b2
 
 
 @_inline
