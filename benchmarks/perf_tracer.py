@@ -51,6 +51,8 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--dump", metavar="DIR", help="write each function's machine code here")
+    ap.add_argument("--image-only", action="store_true",
+                    help="render the image alone (variance=False), as `mcverify bench` times")
     a = ap.parse_args()
     scratch = tempfile.mkdtemp(prefix="perf-tracer-")
     os.environ["MCVERIFY_CACHE"] = os.path.join(scratch, "kernels")
@@ -63,10 +65,11 @@ def main() -> None:
 
     module = sys.modules["estimators.pathtracer.render"]
     scene = prepare_scene(resolve_scene(a.scene)[1], params={"res": a.res})
-    render(scene, spp=a.spp)                                  # compiles the kernel
+    variance = not a.image_only
+    render(scene, spp=a.spp, variance=variance)               # compiles the kernel
     t0, renders = time.perf_counter(), 0
     while time.perf_counter() - t0 < a.seconds:
-        render(scene, spp=a.spp)
+        render(scene, spp=a.spp, variance=variance)
         renders += 1
     kernel = module.specialised_kernel(scene.features)
     symbols = {}
