@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit, prange
 
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
-from estimators.pathtracer.camera import (SPLAT_CHANNELS, _generate_ray_kernel, splat_columns,
+from estimators.pathtracer.camera import (SPLAT_CHANNELS, _generate_ray_kernel, splat_scratch,
                                           splat_kernel)
 from estimators.pathtracer.emitters import area_pdf, eval_environment, is_delta, sample_emitter
 from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
@@ -691,7 +691,7 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
     for ti in prange(n):
         stack = new_stack()
         out, tab, ctl, rays, states = _chunk_scratch(stratified)
-        wx = np.empty(splat_columns(cam))
+        wx = np.empty(splat_scratch(cam))
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         bx, by = x0 - reach, y0 - reach
         tile_buf = buf[ti]

@@ -36,6 +36,7 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from .._fastmath import fast_acos, fast_atan2
+from .flat import flat_get as _flat
 from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_GROUP,
                      LEAF_GROUP_ROWS, LEAF_GROUP_SIZE, LEAF_INFO_WIDTH, LEAF_KIND, LEAF_P0,
                      LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_ARITY,
@@ -360,23 +361,6 @@ def _as_tuple(context, builder, signature, *vs):
     lanes = [builder.extract_element(v, ir.Constant(_I32, k)) for v in vs
              for k in range(NODE_ARITY)]
     return context.make_tuple(builder, signature.return_type, lanes)
-
-
-@intrinsic
-def _flat(typingctx, ary, i):
-    """Element ``i`` of the C-contiguous array ``ary`` read as a flat run (row r, column
-    c of a 2-D array at r · width + c): with the width a module constant, the row offset
-    is a shift, where ``ary[r, c]`` multiplies by the array's run-time row stride."""
-    if not (isinstance(ary, types.Array) and ary.layout == "C"
-            and isinstance(i, types.Integer)):
-        return None
-    sig = ary.dtype(ary, types.intp)
-
-    def codegen(context, builder, signature, args):
-        data = context.make_array(signature.args[0])(context, builder, args[0]).data
-        return builder.load(builder.gep(data, [args[1]]))
-
-    return sig, codegen
 
 
 @intrinsic

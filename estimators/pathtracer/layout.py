@@ -17,7 +17,7 @@ import numpy as np
 class SceneArrays(NamedTuple):
     """Everything the kernel reads, by name. Tables are one row per item. The BVH tables
     (``bvh_nodes, leaf_prims, leaf_info``) are C-contiguous with exactly the widths
-    below: the traversal reads them flat, row · width + column (``geometry._flat``)."""
+    below: the traversal reads them flat, row · width + column (``flat.flat_get``)."""
 
     bvh_nodes: np.ndarray       # (nodes, NODE_WIDTH) float: 4-wide, see the NODE_ columns
     leaf_prims: np.ndarray      # (prims + 3 groups, LEAF_WIDTH) float: intersection data

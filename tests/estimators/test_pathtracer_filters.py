@@ -69,6 +69,29 @@ def test_one_samples_pixel_weights_match_mitsubas_imageblock(mi, name, kw, coale
         assert ours.sum() > 0          # every radius here reaches the nearest centre
 
 
+@pytest.mark.parametrize("name,kw", FILTERS + [("gaussian", {"stddev": 8.0}),
+                                               ("gaussian", {"stddev": 0.01})],
+                         ids=IDS + ["gaussian-8", "gaussian-0.01"])
+def test_a_splat_weighs_each_pixel_by_the_product_of_the_1d_filter_values(name, kw):
+    """The weight a sample splats into pixel (i, j) is f(i + 1/2 - x)·f(j + 1/2 - y), f
+    the filter evaluated on its own (``filter_weights``), to 1e-12 of the sample's
+    largest weight: the splat computes a gaussian's weights along a row and a column by
+    a recurrence, two exponentials a run, up to 65 pixels at σ = 8 (radius 32). Random
+    positions, pixel centres and edges, and the image's borders and corners."""
+    w, h = 80, 70
+    cam = _camera(name, w, h, **kw)
+    rng = np.random.default_rng(11)
+    points = np.concatenate([rng.uniform((0, 0), (w, h), (40, 2)),
+                             [(0.0, 0.0), (w - 1e-9, h - 1e-9), (40.5, 35.5), (40.0, 35.0),
+                              (0.5, h - 0.25), (w - 0.5, 0.75)]])
+    for p in points:
+        ours = splat(cam, [[p[0], p[1], 1.0, 1.0, 1.0]])[:, :, 0]
+        expect = np.outer(filter_weights(cam, np.arange(h) + 0.5 - p[1]),
+                          filter_weights(cam, np.arange(w) + 0.5 - p[0]))
+        np.testing.assert_allclose(ours, expect, rtol=0, atol=1e-12 * expect.max(),
+                                   err_msg=f"{name} {kw} at p={tuple(p)}")
+
+
 def test_the_film_sums_give_the_weighted_mean_and_its_delta_method_variance():
     """Every channel of the splat sums, for a few samples of known radiance reaching one
     pixel: Σw, Σw·L, Σw², Σw²·L, Σw²·L², from the filter weights computed apart."""

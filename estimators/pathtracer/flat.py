@@ -1,0 +1,45 @@
+"""Element access to C-contiguous arrays by one flat index, for the kernels' hot loops:
+``ary[r, c]`` multiplies by the array's run-time row stride and, for a signed index,
+adds numba's wrap-around of negative indices (a shift, an and, an add per access);
+with the row width a constant (or hoisted out of the loop) a flat index is one add."""
+
+from __future__ import annotations
+
+from numba import types
+from numba.extending import intrinsic
+
+
+def _c_array(ary, i):
+    return isinstance(ary, types.Array) and ary.layout == "C" and isinstance(i, types.Integer)
+
+
+@intrinsic
+def flat_get(typingctx, ary, i):
+    """Element ``i`` of the C-contiguous array ``ary`` read as one flat run (row r,
+    column c of a 2-D array at r · width + c). No bounds or sign check: ``i`` must lie
+    in [0, ary.size)."""
+    if not _c_array(ary, i):
+        return None
+    sig = ary.dtype(ary, types.intp)
+
+    def codegen(context, builder, signature, args):
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        return builder.load(builder.gep(data, [args[1]]))
+
+    return sig, codegen
+
+
+@intrinsic
+def flat_add(typingctx, ary, i, v):
+    """``ary`` read as one flat run: element ``i`` += ``v`` (as ``flat_get``, unchecked)."""
+    if not (_c_array(ary, i) and isinstance(v, types.Float) and ary.dtype == v):
+        return None
+    sig = types.void(ary, types.intp, ary.dtype)
+
+    def codegen(context, builder, signature, args):
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        ptr = builder.gep(data, [args[1]])
+        builder.store(builder.fadd(builder.load(ptr), args[2]), ptr)
+        return context.get_dummy_value()
+
+    return sig, codegen
