@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .flat import flat_add, flat_get
+from .flat import flat_add, flat_add4, flat_get
 from .scene import SceneDescription, SceneError
 
 
@@ -276,16 +276,10 @@ def splat_kernel(c, buf, bx, by, width, height, px, py, r, g, b, wx, variance):
         o = (j - by) * pitch + (i0 - bx) * ch
         for m in range(nx):
             w = wy * flat_get(wx, m)
-            flat_add(buf, o, w)
-            flat_add(buf, o + 1, w * r)
-            flat_add(buf, o + 2, w * g)
-            flat_add(buf, o + 3, w * b)
+            flat_add4(buf, o, w, 1.0, r, g, b)
             if variance:
                 w2 = w * w
-                flat_add(buf, o + 4, w2)
-                flat_add(buf, o + 5, w2 * r)
-                flat_add(buf, o + 6, w2 * g)
-                flat_add(buf, o + 7, w2 * b)
+                flat_add4(buf, o + 4, w2, 1.0, r, g, b)
                 flat_add(buf, o + 8, w2 * r * r)
                 flat_add(buf, o + 9, w2 * g * g)
                 flat_add(buf, o + 10, w2 * b * b)

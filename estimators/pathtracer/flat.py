@@ -5,6 +5,7 @@ with the row width a constant (or hoisted out of the loop) a flat index is one a
 
 from __future__ import annotations
 
+from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
@@ -40,6 +41,37 @@ def flat_add(typingctx, ary, i, v):
         data = context.make_array(signature.args[0])(context, builder, args[0]).data
         ptr = builder.gep(data, [args[1]])
         builder.store(builder.fadd(builder.load(ptr), args[2]), ptr)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+_V4 = ir.VectorType(ir.DoubleType(), 4)
+
+
+@intrinsic
+def flat_add4(typingctx, ary, i, w, a, b, c, d):
+    """``ary`` (float64) read as one flat run: elements i..i+3 += w·(a, b, c, d), as
+    one <4 x double> load, multiply, add and store (the same roundings as four scalar
+    ``flat_add``: w·a, then the sum; no fused multiply-add). Unchecked, as ``flat_get``."""
+    if not (_c_array(ary, i) and ary.dtype == types.float64
+            and all(isinstance(x, types.Float) for x in (w, a, b, c, d))):
+        return None
+    f8 = types.float64
+    sig = types.void(ary, types.intp, f8, f8, f8, f8, f8)
+
+    def codegen(context, builder, signature, args):
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        ptr = builder.bitcast(builder.gep(data, [args[1]]), _V4.as_pointer())
+        lanes = ir.Constant(_V4, ir.Undefined)
+        for k, x in enumerate(args[3:7]):
+            lanes = builder.insert_element(lanes, x, ir.Constant(ir.IntType(32), k))
+        splat = ir.Constant(_V4, ir.Undefined)
+        splat = builder.insert_element(splat, args[2], ir.Constant(ir.IntType(32), 0))
+        splat = builder.shuffle_vector(splat, ir.Constant(_V4, ir.Undefined),
+                                       ir.Constant(ir.VectorType(ir.IntType(32), 4), [0] * 4))
+        old = builder.load(ptr, align=8)
+        builder.store(builder.fadd(old, builder.fmul(splat, lanes)), ptr, align=8)
         return context.get_dummy_value()
 
     return sig, codegen
