@@ -75,3 +75,19 @@ def flat_add4(typingctx, ary, i, w, a, b, c, d):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def flat_get_bits(typingctx, ary, i):
+    """Element ``i`` of the C-contiguous float64 array ``ary`` (read as ``flat_get``)
+    reinterpreted as an int64: integers stored bit for bit in a float array."""
+    if not (_c_array(ary, i) and ary.dtype == types.float64):
+        return None
+    sig = types.int64(ary, types.intp)
+
+    def codegen(context, builder, signature, args):
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        ptr = builder.bitcast(builder.gep(data, [args[1]]), ir.IntType(64).as_pointer())
+        return builder.load(ptr)
+
+    return sig, codegen

@@ -37,6 +37,7 @@ from numba.extending import intrinsic
 
 from .._fastmath import fast_acos, fast_atan2
 from .flat import flat_get as _flat
+from .flat import flat_get_bits as _flat_bits
 from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_GROUP,
                      LEAF_GROUP_ROWS, LEAF_GROUP_SIZE, LEAF_INFO_WIDTH, LEAF_KIND, LEAF_P0,
                      LEAF_PRIM, LEAF_RADIUS, LEAF_TO_LOCAL, LEAF_WIDTH, NODE_ARITY,
@@ -286,7 +287,10 @@ def pack_bvh(prims, info, node_bounds, node_info, order):
     of every primitive copied in leaf order, triangle edges precomputed), from
     ``build_bvh``'s output. The edges are the same float64 differences the test computed
     from the vertices, so hits are the same to the bit."""
-    nodes = _aligned_copy(collapse_bvh(node_bounds, node_info))
+    nodes = collapse_bvh(node_bounds, node_info)
+    ints = slice(NODE_LINK, NODE_COUNT + NODE_ARITY)      # links and counts: int64 bits
+    nodes[:, ints] = nodes[:, ints].astype(np.int64).view(np.float64)
+    nodes = _aligned_copy(nodes)
     p = prims[order]
     kind = info[order, PRIM_KIND]
     rows = np.zeros((len(order), LEAF_WIDTH))
@@ -313,11 +317,21 @@ def pack_bvh(prims, info, node_bounds, node_info, order):
     return nodes, _aligned_copy(rows), leaf_info
 
 
+def child_links(nodes):
+    """(links, counts) of ``bvh_nodes``: two (nodes, 4) int64 views, child i of node r at
+    [r, i]. They are stored bit for bit as int64 in the float64 rows (``pack_bvh``), so
+    that the traversal reads a child's row without a float-to-integer conversion on its
+    way from one box test to the next."""
+    ints = nodes.view(np.int64)
+    return (ints[:, NODE_LINK:NODE_LINK + NODE_ARITY],
+            ints[:, NODE_COUNT:NODE_COUNT + NODE_ARITY])
+
+
 def _triangle_groups(nodes, tri):
     """(first row, size) of every triangle group: each leaf's runs of consecutive
     triangle rows (``tri``), cut into groups of at most 4, in row order."""
-    counts = nodes[:, NODE_COUNT:NODE_COUNT + NODE_ARITY].ravel()
-    firsts = nodes[:, NODE_LINK:NODE_LINK + NODE_ARITY].ravel()
+    links, counts = child_links(nodes)
+    counts, firsts = counts.ravel(), links.ravel()
     groups = []
     for first, count in sorted(zip(firsts[counts > 0].astype(np.int64),
                                    counts[counts > 0].astype(np.int64))):
@@ -586,17 +600,63 @@ def _push(stack, istack, base, sp, t, link, count, ordered):
         istack[j], istack[j + 1], istack[j + 2] = istack[j - 3], istack[j - 2], istack[j - 1]
         j -= 3
     stack[j] = t
-    istack[j + 1], istack[j + 2] = int(link), int(count)
+    istack[j + 1], istack[j + 2] = link, count
     return sp + 1
+
+
+@_inline
+def _leaf_hits(leaf, leaf_info, first, c, ox, oy, oz, dx, dy, dz, t_min, best_t, best_k,
+               best_b1, best_b2, any_hit):
+    """Test the ``c`` primitives of a leaf from row ``first`` of ``leaf_prims``: the
+    nearest hit so far (t, leaf row, b1, b2) updated, and whether an ``any_hit`` query is
+    answered."""
+    k, end = first, first + c
+    while k < end:
+        g = _leaf_info(leaf_info, k, LEAF_GROUP)
+        if g >= 0:
+            # a triangle group: its lanes in one pass; the nearest lane (the first of
+            # equals, as one by one) with its b1, b2
+            (t0, t1, t2, t3, u0, u1, u2, u3,
+             v0, v1, v2, v3) = _tri4_entry(leaf, g, ox, oy, oz, dx, dy, dz, t_min, best_t)
+            hit, near, hb1, hb2 = -1, best_t, 0.0, 0.0
+            if t0 < near:
+                hit, near, hb1, hb2 = 0, t0, u0, v0
+            if t1 < near:
+                hit, near, hb1, hb2 = 1, t1, u1, v1
+            if t2 < near:
+                hit, near, hb1, hb2 = 2, t2, u2, v2
+            if t3 < near:
+                hit, near, hb1, hb2 = 3, t3, u3, v3
+            size = _leaf_info(leaf_info, k, LEAF_GROUP_SIZE)
+            if hit >= 0:
+                best_t, best_k, best_b1, best_b2 = near, hit + k, hb1, hb2
+                if any_hit:
+                    return best_t, best_k, best_b1, best_b2, True
+            k += size
+            continue
+        t, b1, b2 = _hit_prim(leaf[k], _leaf_info(leaf_info, k, LEAF_KIND), ox, oy, oz,
+                              dx, dy, dz)
+        if t_min < t < best_t:
+            best_t, best_k, best_b1, best_b2 = t, k, b1, b2
+            if any_hit:
+                return best_t, best_k, best_b1, best_b2, True
+        k += 1
+    return best_t, best_k, best_b1, best_b2, False
 
 
 @_inline
 def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_max, any_hit):
     """Walk the 4-wide hierarchy: at a node the four children's boxes are tested at once
-    (``_box4_entry``) and the ones entered are stacked with their entry distance, the
-    nearest on top; a stacked child is skipped when a hit closer than its entry has been
-    found meanwhile. The nearest hit in (t_min, t_max), or with ``any_hit`` the first
-    found: (t, primitive, b1, b2); primitive -1 if none."""
+    (``_box4_entry``); the nearest child entered (the first of equals) is visited next,
+    and the other ones entered are stacked with their entry distance, the nearest on top;
+    a stacked child is skipped when a hit closer than its entry has been found meanwhile.
+    The nearest hit in (t_min, t_max), or with ``any_hit`` the first found: (t,
+    primitive, b1, b2); primitive -1 if none.
+
+    Until 4 December the nearest child was stacked too and popped at once: its link and
+    count went through a store and a load on the path from one box test to the next.
+    The order of visits is the same (a child just entered is never skipped: its entry is
+    at most best_t · _ACCEPT), so are the hits."""
     ix = 1.0 / dx if dx != 0.0 else np.inf
     iy = 1.0 / dy if dy != 0.0 else np.inf
     iz = 1.0 / dz if dz != 0.0 else np.inf
@@ -607,64 +667,51 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
     node = 0
     while node >= 0:
         t0, t1, t2, t3 = _box4_entry(nodes, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, best_t)
-        base = sp
-        # nearest first for the nearest hit; an any-hit query needs no order (whether
-        # something lies in (t_min, t_max) is the same whichever box is opened first)
         row = node * NODE_WIDTH
-        sp = _push(stack, istack, base, sp, t0, _flat(nodes, row + NODE_LINK),
-                   _flat(nodes, row + NODE_COUNT), not any_hit)
-        sp = _push(stack, istack, base, sp, t1, _flat(nodes, row + NODE_LINK + 1),
-                   _flat(nodes, row + NODE_COUNT + 1), not any_hit)
-        sp = _push(stack, istack, base, sp, t2, _flat(nodes, row + NODE_LINK + 2),
-                   _flat(nodes, row + NODE_COUNT + 2), not any_hit)
-        sp = _push(stack, istack, base, sp, t3, _flat(nodes, row + NODE_LINK + 3),
-                   _flat(nodes, row + NODE_COUNT + 3), not any_hit)
+        l0, c0 = _flat_bits(nodes, row + NODE_LINK), _flat_bits(nodes, row + NODE_COUNT)
+        l1, c1 = _flat_bits(nodes, row + NODE_LINK + 1), _flat_bits(nodes, row + NODE_COUNT + 1)
+        l2, c2 = _flat_bits(nodes, row + NODE_LINK + 2), _flat_bits(nodes, row + NODE_COUNT + 2)
+        l3, c3 = _flat_bits(nodes, row + NODE_LINK + 3), _flat_bits(nodes, row + NODE_COUNT + 3)
+        near, first, count, pick = t0, l0, c0, 0
+        if t1 < near:
+            near, first, count, pick = t1, l1, c1, 1
+        if t2 < near:
+            near, first, count, pick = t2, l2, c2, 2
+        if t3 < near:
+            near, first, count, pick = t3, l3, c3, 3
+        # the others, nearest on top for the nearest hit; an any-hit query needs no
+        # order (whether something lies in (t_min, t_max) is the same whichever box is
+        # opened first)
+        base = sp
+        sp = _push(stack, istack, base, sp, np.inf if pick == 0 else t0, l0, c0, not any_hit)
+        sp = _push(stack, istack, base, sp, np.inf if pick == 1 else t1, l1, c1, not any_hit)
+        sp = _push(stack, istack, base, sp, np.inf if pick == 2 else t2, l2, c2, not any_hit)
+        sp = _push(stack, istack, base, sp, np.inf if pick == 3 else t3, l3, c3, not any_hit)
+        node = -1
+        if near < np.inf:
+            if count < 0:
+                node = first
+                continue
+            best_t, best_k, best_b1, best_b2, done = _leaf_hits(
+                leaf, leaf_info, first, count, ox, oy, oz, dx, dy, dz, t_min,
+                best_t, best_k, best_b1, best_b2, any_hit)
+            if done:
+                return best_t, _leaf_info(leaf_info, best_k, LEAF_PRIM), best_b1, best_b2
         # pop the nearest stacked child still worth entering: test a leaf's primitives
         # and go on popping, or descend into an interior child
-        node = -1
         while sp > 0:
             sp -= 1
             if stack[3 * sp] > best_t * _ACCEPT:
                 continue
-            first, c = istack[3 * sp + 1], istack[3 * sp + 2]
+            first_i, c = istack[3 * sp + 1], istack[3 * sp + 2]
             if c < 0:
-                node = first
+                node = first_i
                 break
-            k, end = first, first + c
-            while k < end:
-                g = _leaf_info(leaf_info, k, LEAF_GROUP)
-                if g >= 0:
-                    # a triangle group: its lanes in one pass; the nearest lane (the
-                    # first of equals, as one by one) with its b1, b2 (until 4 December
-                    # that lane was tested again on its own row for them: the same
-                    # arithmetic, the same values)
-                    (t0, t1, t2, t3, u0, u1, u2, u3,
-                     v0, v1, v2, v3) = _tri4_entry(leaf, g, ox, oy, oz, dx, dy, dz, t_min,
-                                                   best_t)
-                    hit, near, hb1, hb2 = -1, best_t, 0.0, 0.0
-                    if t0 < near:
-                        hit, near, hb1, hb2 = 0, t0, u0, v0
-                    if t1 < near:
-                        hit, near, hb1, hb2 = 1, t1, u1, v1
-                    if t2 < near:
-                        hit, near, hb1, hb2 = 2, t2, u2, v2
-                    if t3 < near:
-                        hit, near, hb1, hb2 = 3, t3, u3, v3
-                    size = _leaf_info(leaf_info, k, LEAF_GROUP_SIZE)
-                    if hit >= 0:
-                        hit += k
-                        best_t, best_k, best_b1, best_b2 = near, hit, hb1, hb2
-                        if any_hit:
-                            return best_t, _leaf_info(leaf_info, hit, LEAF_PRIM), best_b1, best_b2
-                    k += size
-                    continue
-                t, b1, b2 = _hit_prim(leaf[k], _leaf_info(leaf_info, k, LEAF_KIND), ox, oy, oz,
-                                      dx, dy, dz)
-                if t_min < t < best_t:
-                    best_t, best_k, best_b1, best_b2 = t, k, b1, b2
-                    if any_hit:
-                        return best_t, _leaf_info(leaf_info, k, LEAF_PRIM), best_b1, best_b2
-                k += 1
+            best_t, best_k, best_b1, best_b2, done = _leaf_hits(
+                leaf, leaf_info, first_i, c, ox, oy, oz, dx, dy, dz, t_min, best_t, best_k,
+                best_b1, best_b2, any_hit)
+            if done:
+                return best_t, _leaf_info(leaf_info, best_k, LEAF_PRIM), best_b1, best_b2
     if best_k < 0:
         return best_t, -1, best_b1, best_b2
     return best_t, _leaf_info(leaf_info, best_k, LEAF_PRIM), best_b1, best_b2

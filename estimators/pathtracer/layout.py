@@ -112,8 +112,8 @@ DISK_TO_WORLD, DISK_TO_LOCAL = 0, 12
 # holding its (up to) four children: their boxes coordinate by coordinate (lo x of
 # children 0-3, lo y, lo z, hi x, hi y, hi z: one 4-lane SIMD load each, so a ray is
 # tested against all four boxes at once), then their links and counts. The root is row 0
-# (its own box is the union of its children's). Integers are stored as float64 values
-# (exact below 2**53).
+# (its own box is the union of its children's). The links and counts are int64 values
+# stored bit for bit in the float64 rows (``geometry.child_links`` views them).
 NODE_ARITY = 4                  # children per node
 NODE_LO, NODE_HI = 0, 12        # box corners: lo of axis a of child i at NODE_LO + 4 a + i
 NODE_LINK = 24                  # child i at NODE_LINK + i: an interior child's row of

@@ -14,9 +14,8 @@ from hypothesis.extra.numpy import arrays
 from numba import njit
 
 from estimators.pathtracer import geometry, layout
-from estimators.pathtracer.layout import (LEAF_KIND, LEAF_PRIM, NODE_ARITY, NODE_COUNT,
-                                          NODE_HI, NODE_LINK, NODE_LO, PRIM_WIDTH, SPHERE,
-                                          TRIANGLE)
+from estimators.pathtracer.layout import (LEAF_KIND, LEAF_PRIM, NODE_ARITY, NODE_HI,
+                                          NODE_LO, PRIM_WIDTH, SPHERE, TRIANGLE)
 
 
 def _soup(n_tri, n_sphere, seed):
@@ -111,14 +110,12 @@ def _check_hierarchy(prims, info, packed):
     stack = [(0, np.full(3, -np.inf), np.full(3, np.inf))]
     while stack:
         i, box_lo, box_hi = stack.pop()
-        counts = nodes[i, NODE_COUNT:NODE_COUNT + NODE_ARITY]
+        counts = geometry.child_links(nodes)[1][i]
         unused = nodes[i, NODE_LO:NODE_LO + NODE_ARITY] == np.inf
         assert not unused.any() or np.all(counts >= 0), (i, counts)
         for k in range(NODE_ARITY):
             c_lo, c_hi = _child_box(nodes, i, k)
-            link, count = nodes[i, NODE_LINK + k], nodes[i, NODE_COUNT + k]
-            assert link == int(link) and count == int(count)
-            link, count = int(link), int(count)
+            link, count = (int(a[i, k]) for a in geometry.child_links(nodes))
             if np.all(c_lo == np.inf):
                 assert np.all(c_hi == np.inf) and count == 0, (i, k)
                 continue
@@ -156,10 +153,9 @@ def _check_triangle_groups(nodes, leaf, leaf_info):
     assert len(leaf) == n + layout.LEAF_GROUP_ROWS * np.count_nonzero(size)
     covered = np.zeros(n, dtype=int)
     leaf_of = np.full(n, -1)
-    counts = nodes[:, NODE_COUNT:NODE_COUNT + NODE_ARITY].ravel()
-    firsts = nodes[:, NODE_LINK:NODE_LINK + NODE_ARITY].ravel()
+    firsts, counts = (a.ravel() for a in geometry.child_links(nodes))
     for i, (first, count) in enumerate(zip(firsts[counts > 0], counts[counts > 0])):
-        leaf_of[int(first):int(first + count)] = i
+        leaf_of[first:first + count] = i
     for k in np.flatnonzero(size):
         g, m = group[k], size[k]
         assert 1 <= m <= NODE_ARITY and np.all(kind[k:k + m] == TRIANGLE)
@@ -240,7 +236,7 @@ def _leaf_paths(nodes, n_rows):
     while stack:
         i, path = stack.pop()
         for k in range(NODE_ARITY):
-            link, count = int(nodes[i, NODE_LINK + k]), int(nodes[i, NODE_COUNT + k])
+            link, count = (int(a[i, k]) for a in geometry.child_links(nodes))
             here = path + [_child_box(nodes, i, k)]
             if count < 0:
                 stack.append((link, here))
