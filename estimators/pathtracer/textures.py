@@ -109,7 +109,9 @@ def _wrap(i, n, mode):
     if mode == MIRROR:
         i = i % (2 * n)
         return i if i < n else 2 * n - 1 - i
-    return i % n
+    # an index already in the row skips the integer division (~26 cycles, on the path
+    # to the texel's load): an envmap's columns are, all but its first half texel
+    return i if 0 <= i < n else i % n
 
 
 @_fast
