@@ -77,7 +77,8 @@ class Camera:
         return np.concatenate([m[:3, :3].ravel(), m[:3, 3],
                                [self.tan_x, self.tan_y, self.near, self.far, self.kind,
                                 RFILTERS.index(self.rfilter), self.filter_radius,
-                                self.filter_stddev, k, shift, 1.0 / self.filter_radius, step]])
+                                self.filter_stddev, k, shift, 1.0 / self.filter_radius,
+                                step]])
 
     def with_filter(self, rfilter: str, *, radius: float | None = None,
                     stddev: float | None = None) -> "Camera":
@@ -251,8 +252,9 @@ def splat_kernel(c, buf, bx, by, width, height, px, py, r, g, b, wx, variance):
     image pixel (i, j) whose centre is within the filter's radius of it gets the weight
     ``w = f(i + 1/2 - px)·f(j + 1/2 - py)`` (Mitsuba's ``ImageBlock::put``, the film
     without a border: pixels outside the image get nothing). ``wx``: scratch for the
-    column and row weights, at least ``splat_scratch(c)`` long (each weight is evaluated once a
-    sample, not once a pixel: a gaussian of radius 2 cost 305 ns a sample that way).
+    column and row weights, at least ``splat_scratch(c)`` long (each weight is evaluated
+    once a sample, not once a pixel: a gaussian of radius 2 cost 305 ns a sample that
+    way).
     Without ``variance`` only the first 4 sums (Σw, Σw·L): the 7 others took a third of
     the time (a gaussian of radius 2, one thread: 140 -> 96 ns a sample)."""
     radius = c[18]

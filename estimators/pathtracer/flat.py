@@ -11,7 +11,8 @@ from numba.extending import intrinsic
 
 
 def _c_array(ary, i):
-    return isinstance(ary, types.Array) and ary.layout == "C" and isinstance(i, types.Integer)
+    return (isinstance(ary, types.Array) and ary.layout == "C"
+            and isinstance(i, types.Integer))
 
 
 @intrinsic
@@ -68,8 +69,8 @@ def flat_add4(typingctx, ary, i, w, a, b, c, d):
             lanes = builder.insert_element(lanes, x, ir.Constant(ir.IntType(32), k))
         splat = ir.Constant(_V4, ir.Undefined)
         splat = builder.insert_element(splat, args[2], ir.Constant(ir.IntType(32), 0))
-        splat = builder.shuffle_vector(splat, ir.Constant(_V4, ir.Undefined),
-                                       ir.Constant(ir.VectorType(ir.IntType(32), 4), [0] * 4))
+        zeros = ir.Constant(ir.VectorType(ir.IntType(32), 4), [0] * 4)
+        splat = builder.shuffle_vector(splat, ir.Constant(_V4, ir.Undefined), zeros)
         old = builder.load(ptr, align=8)
         builder.store(builder.fadd(old, builder.fmul(splat, lanes)), ptr, align=8)
         return context.get_dummy_value()

@@ -668,10 +668,11 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
     while node >= 0:
         t0, t1, t2, t3 = _box4_entry(nodes, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, best_t)
         row = node * NODE_WIDTH
-        l0, c0 = _flat_bits(nodes, row + NODE_LINK), _flat_bits(nodes, row + NODE_COUNT)
-        l1, c1 = _flat_bits(nodes, row + NODE_LINK + 1), _flat_bits(nodes, row + NODE_COUNT + 1)
-        l2, c2 = _flat_bits(nodes, row + NODE_LINK + 2), _flat_bits(nodes, row + NODE_COUNT + 2)
-        l3, c3 = _flat_bits(nodes, row + NODE_LINK + 3), _flat_bits(nodes, row + NODE_COUNT + 3)
+        link, count = row + NODE_LINK, row + NODE_COUNT
+        l0, c0 = _flat_bits(nodes, link), _flat_bits(nodes, count)
+        l1, c1 = _flat_bits(nodes, link + 1), _flat_bits(nodes, count + 1)
+        l2, c2 = _flat_bits(nodes, link + 2), _flat_bits(nodes, count + 2)
+        l3, c3 = _flat_bits(nodes, link + 3), _flat_bits(nodes, count + 3)
         near, first, count, pick = t0, l0, c0, 0
         if t1 < near:
             near, first, count, pick = t1, l1, c1, 1
@@ -683,10 +684,11 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
         # order (whether something lies in (t_min, t_max) is the same whichever box is
         # opened first)
         base = sp
-        sp = _push(stack, istack, base, sp, np.inf if pick == 0 else t0, l0, c0, not any_hit)
-        sp = _push(stack, istack, base, sp, np.inf if pick == 1 else t1, l1, c1, not any_hit)
-        sp = _push(stack, istack, base, sp, np.inf if pick == 2 else t2, l2, c2, not any_hit)
-        sp = _push(stack, istack, base, sp, np.inf if pick == 3 else t3, l3, c3, not any_hit)
+        ordered = not any_hit
+        sp = _push(stack, istack, base, sp, np.inf if pick == 0 else t0, l0, c0, ordered)
+        sp = _push(stack, istack, base, sp, np.inf if pick == 1 else t1, l1, c1, ordered)
+        sp = _push(stack, istack, base, sp, np.inf if pick == 2 else t2, l2, c2, ordered)
+        sp = _push(stack, istack, base, sp, np.inf if pick == 3 else t3, l3, c3, ordered)
         node = -1
         if near < np.inf:
             if count < 0:
