@@ -435,14 +435,23 @@ def _invert_tent_kernel(x, p):
 
 
 @_jit
+def _unit_scale(a, b, c=0.0, d=0.0):
+    """The weights a, b (c, d) divided by the largest where that is below 1e-150 or
+    above 1e150, else as they are: a linear or bilinear density depends on their ratios
+    alone, and squares or sums of extreme weights under- or overflow (a = b = 1e-300
+    sampled 2u, not u; a, b near 1e300 sampled 0; a pdf with a + b or 2·a past 1.8e308
+    was 0, inf or NaN)."""
+    s = max(a, b, c, d)
+    if s < 1e-150 or s > 1e150:
+        return a / s, b / s, c / s, d / s
+    return a, b, c, d
+
+
+@_jit
 def _sample_linear_1d(u, a, b):
     if u == 0.0 and a == 0.0:
         return 0.0
-    s = max(a, b)
-    if s < 1e-150 or s > 1e150:
-        # the density depends on a : b alone; a² and b² would underflow (a = b = 1e-300
-        # sampled 2u, not u) or overflow (x = 0): rescaled so that the larger is 1
-        a, b = a / s, b / s
+    a, b, _, _ = _unit_scale(a, b)
     x = u * (a + b) / (a + math.sqrt((1.0 - u) * a * a + u * b * b))
     return min(x, ONE_MINUS_EPSILON)
 
@@ -451,11 +460,13 @@ def _sample_linear_1d(u, a, b):
 def _linear_pdf_1d(x, a, b):
     if x < 0.0 or x > 1.0:
         return 0.0
+    a, b, _, _ = _unit_scale(a, b)
     return 2.0 * ((1.0 - x) * a + x * b) / (a + b)
 
 
 @_jit
 def _invert_linear_1d(x, a, b):
+    a, b, _, _ = _unit_scale(a, b)
     return _clamp_u(x * (a * (2.0 - x) + b * x) / (a + b))
 
 
@@ -478,8 +489,9 @@ def _invert_linear_kernel(x, p):
 @_jit
 def _sample_bilinear_kernel(u, p):
     """Bilinear density on [0, 1]² with corner weights ``p = (w00, w10, w01, w11)``."""
-    y = _sample_linear_1d(u[1], p[0] + p[1], p[2] + p[3])
-    x = _sample_linear_1d(u[0], (1.0 - y) * p[0] + y * p[2], (1.0 - y) * p[1] + y * p[3])
+    w00, w10, w01, w11 = _unit_scale(p[0], p[1], p[2], p[3])
+    y = _sample_linear_1d(u[1], w00 + w10, w01 + w11)
+    x = _sample_linear_1d(u[0], (1.0 - y) * w00 + y * w01, (1.0 - y) * w10 + y * w11)
     return (x, y)
 
 
@@ -487,16 +499,18 @@ def _sample_bilinear_kernel(u, p):
 def _bilinear_pdf_kernel(x, p):
     if x[0] < 0.0 or x[0] > 1.0 or x[1] < 0.0 or x[1] > 1.0:
         return 0.0
+    w00, w10, w01, w11 = _unit_scale(p[0], p[1], p[2], p[3])
     s, t = x[0], x[1]
-    v = ((1 - s) * (1 - t) * p[0] + s * (1 - t) * p[1] + (1 - s) * t * p[2] + s * t * p[3])
-    return 4.0 * v / (p[0] + p[1] + p[2] + p[3])
+    v = ((1 - s) * (1 - t) * w00 + s * (1 - t) * w10 + (1 - s) * t * w01 + s * t * w11)
+    return 4.0 * v / (w00 + w10 + w01 + w11)
 
 
 @_jit
 def _invert_bilinear_kernel(x, p):
+    w00, w10, w01, w11 = _unit_scale(p[0], p[1], p[2], p[3])
     y = x[1]
-    return (_invert_linear_1d(x[0], (1.0 - y) * p[0] + y * p[2], (1.0 - y) * p[1] + y * p[3]),
-            _invert_linear_1d(y, p[0] + p[1], p[2] + p[3]))
+    return (_invert_linear_1d(x[0], (1.0 - y) * w00 + y * w01, (1.0 - y) * w10 + y * w11),
+            _invert_linear_1d(y, w00 + w10, w01 + w11))
 
 
 # ------------------------------------------------------------------ the registry

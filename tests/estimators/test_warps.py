@@ -381,18 +381,26 @@ def test_every_warps_parameters_have_a_rule_and_its_test_ranges_satisfy_it():
             assert ok(*values), (name, values)
 
 
-@pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e160, 1e300])
-def test_the_linear_sampler_depends_on_a_to_b_alone(scale):
-    """The linear density depends on a : b only, so scaling both must not move a sample:
-    a² and b² underflowed (a = b = 1e-300 sampled 2u instead of u) or overflowed (every
-    sample 0). Also through the bilinear sampler, whose rows are linear densities."""
+@pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e160, 1e300, 3e307])
+def test_the_linear_warp_depends_on_a_to_b_alone(scale):
+    """The linear density depends on a : b only, so scaling both must not move a sample,
+    a pdf value or an inverse: a² and b² underflowed (a = b = 1e-300 sampled 2u instead
+    of u) or overflowed (every sample 0), and the pdf's 2·a or a + b overflowed (a pdf of
+    inf, 0 or NaN at 3e307). Also the bilinear warp, whose rows are linear densities and
+    whose pdf sums its four weights."""
     from estimators import warps as W
 
     u = np.random.default_rng(5).random((1000, 2))
     for a, b in ((1.0, 1.0), (0.2, 3.0), (0.0, 1.0), (5.0, 0.0)):
-        want = W.sample_linear(u[:, :1], a, b)
-        got = W.sample_linear(u[:, :1], a * scale, b * scale)
-        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300, err_msg=(a, b))
+        for fn, x in ((W.sample_linear, u[:, :1]), (W.linear_pdf, u[:, :1]),
+                      (W.invert_linear, u[:, :1])):
+            want = fn(x, a, b)
+            got = fn(x, a * scale, b * scale)
+            assert np.all(np.isfinite(got)), (fn.__name__, a, b)
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300,
+                                       err_msg=(fn.__name__, a, b))
     w = (0.5, 2.0, 1.0, 3.0)
-    np.testing.assert_allclose(W.sample_bilinear(u, *(scale * c for c in w)),
-                               W.sample_bilinear(u, *w), rtol=1e-12)
+    for fn in (W.sample_bilinear, W.bilinear_pdf, W.invert_bilinear):
+        got = fn(u, *(scale * c for c in w))
+        assert np.all(np.isfinite(got)), fn.__name__
+        np.testing.assert_allclose(got, fn(u, *w), rtol=1e-12, err_msg=fn.__name__)
