@@ -220,6 +220,7 @@ def _filter_run(c, i0, n, centre, out, at):
         for m in range(n):
             out[at + m] = _filter_weight(kind, r, k, shift, inv_r, (i0 + m) - centre)
         return
+    step = c[23]                                        # e^(2k)
     d = i0 - centre
     e = math.exp(k * d * d)
     f = math.exp(k * (2.0 * d + 1.0))
@@ -227,7 +228,7 @@ def _filter_run(c, i0, n, centre, out, at):
         d = (i0 + m) - centre
         out[at + m] = 0.0 if abs(d) > r else max(0.0, e - shift)
         e *= f
-        f *= c[23]
+        f *= step
 
 
 @njit(cache=True)

@@ -333,8 +333,7 @@ def _triangle_groups(nodes, tri):
     links, counts = child_links(nodes)
     counts, firsts = counts.ravel(), links.ravel()
     groups = []
-    for first, count in sorted(zip(firsts[counts > 0].astype(np.int64),
-                                   counts[counts > 0].astype(np.int64))):
+    for first, count in sorted(zip(firsts[counts > 0], counts[counts > 0])):
         k, end = first, first + count
         while k < end:
             if not tri[k]:
@@ -668,11 +667,11 @@ def _traverse(nodes, leaf, leaf_info, stack, ox, oy, oz, dx, dy, dz, t_min, t_ma
     while node >= 0:
         t0, t1, t2, t3 = _box4_entry(nodes, node, nx, ny, nz, ox, oy, oz, ix, iy, iz, best_t)
         row = node * NODE_WIDTH
-        link, count = row + NODE_LINK, row + NODE_COUNT
-        l0, c0 = _flat_bits(nodes, link), _flat_bits(nodes, count)
-        l1, c1 = _flat_bits(nodes, link + 1), _flat_bits(nodes, count + 1)
-        l2, c2 = _flat_bits(nodes, link + 2), _flat_bits(nodes, count + 2)
-        l3, c3 = _flat_bits(nodes, link + 3), _flat_bits(nodes, count + 3)
+        at_link, at_count = row + NODE_LINK, row + NODE_COUNT
+        l0, c0 = _flat_bits(nodes, at_link), _flat_bits(nodes, at_count)
+        l1, c1 = _flat_bits(nodes, at_link + 1), _flat_bits(nodes, at_count + 1)
+        l2, c2 = _flat_bits(nodes, at_link + 2), _flat_bits(nodes, at_count + 2)
+        l3, c3 = _flat_bits(nodes, at_link + 3), _flat_bits(nodes, at_count + 3)
         near, first, count, pick = t0, l0, c0, 0
         if t1 < near:
             near, first, count, pick = t1, l1, c1, 1

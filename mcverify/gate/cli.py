@@ -586,9 +586,10 @@ def _cmd_compare(args) -> int:
     shown = test_files if test_image is None else [test_image]
     ref_real = {os.path.realpath(f): f for f in ref_files}
     for f in shown:
-        if os.path.realpath(f) in ref_real:
+        real = os.path.realpath(f)
+        if real in ref_real:
             raise InvalidArgument(f"{f}: is on both sides of the comparison (the reference "
-                                  f"side reads {ref_real[os.path.realpath(f)]}); an image "
+                                  f"side reads {ref_real[real]}); an image "
                                   "compared with itself always agrees: give the render "
                                   "under test and a reference made apart from it")
     correlated = args.correlated
