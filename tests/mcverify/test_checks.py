@@ -447,3 +447,19 @@ def test_worst_cells_rank_overflowed_expectations_first():
         w = _worst_cells(mv.Square(), edges, counts, expected, k=3)
     assert [c["cell"] for c in w] == [[1, 2], [3, 0], [0, 1]]
     assert np.allclose(w[2]["point"], [0.125, 0.375])
+
+
+@pytest.mark.parametrize("case", ["uniform", "empty", "one", "signs", "wide", "ties", "equal"])
+def test_the_pilots_radix_sort_sorts_as_numpy_does(case):
+    """``radix_sorted`` (the pilot's sort) gives ``np.sort``'s values: negative values,
+    ±0, subnormals, ±inf, ties, digits all equal (skipped passes), 0 and 1 values."""
+    from mcverify.checks.sampler import radix_sorted
+
+    rng = np.random.default_rng(5)
+    x = {"uniform": rng.random(100_003), "empty": np.zeros(0), "one": np.array([0.3]),
+         "signs": np.array([-0.0, 0.0, -1e-310, 1e-310, -np.inf, np.inf, 5.0, -5.0, 5.0,
+                            -2.5, 1e-300, -1e300]),
+         "wide": rng.standard_normal(20_001) * 10.0 ** rng.integers(-300, 300, 20_001),
+         "ties": rng.integers(-3, 4, 5_000).astype(float),
+         "equal": np.full(1000, 0.25)}[case]
+    assert np.array_equal(radix_sorted(x), np.sort(x))

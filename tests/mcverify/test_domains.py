@@ -284,24 +284,32 @@ def _boundary_points(dom, rng, n):
     return x
 
 
+@pytest.mark.parametrize("crowded", [False, True])
 @pytest.mark.parametrize("rejection", [False, True])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("dom", DOMAINS, ids=repr)
-def test_blocked_kernels_give_what_one_point_at_a_time_gives(dom, dtype, rejection):
-    """The blocked kernels (a branch-free pass for a block's parameters, then binning or
-    storing) give the scalar path's counts, status counts and first examples, and its
-    exact parameters and status codes, point for point:
-    random points, points on the domain's tolerance bounds and an ulp either side, bad
-    coordinates, over several blocks and parts (n not a multiple of either)."""
+def test_blocked_kernels_give_what_one_point_at_a_time_gives(dom, dtype, rejection, crowded):
+    """The blocked kernels (a branch-free pass for a block's parameters, a look-up pass
+    for their cells, then counting or storing) give the scalar path's counts, status
+    counts and first examples, and its exact parameters and status codes, point for
+    point: random points, points on the domain's tolerance bounds and an ulp either
+    side, bad coordinates, over several blocks and parts (n not a multiple of either);
+    ``crowded``: cell edges a look-up slot holds several of (the scan's path)."""
     from mcverify.checks.sampler import _edges, _Histogram
 
     rng = np.random.default_rng(11)
     n = 3 * K._PARTS * K._BIN_BLOCK + 37
     inside = dom.to_point(rng.random((n, dom.param_dim)))
+    if crowded:
+        inside = dom.to_point(rng.random((n, dom.param_dim)) * 4e-3)   # into those cells
     x = np.concatenate([inside, _boundary_points(dom, rng, n)])[rng.permutation(2 * n)]
     x = np.ascontiguousarray(x.astype(dtype))
     edges = _edges(rng.random((5000, dom.param_dim)) ** 2, (7,) * dom.param_dim)
+    if crowded:
+        edges = [np.array([0.0, 1e-3, 2e-3, 3e-3, 0.5, 1.0])] * dom.param_dim
     h = _Histogram(dom, edges, rejection=rejection)
+    if crowded:
+        assert (h.lut0[1] < 0).any()
     h.add(x)
     counts = np.zeros_like(h.flat)
     n_status = np.zeros(K.N_STATUS, dtype=np.int64)
