@@ -229,14 +229,14 @@ def _clamp(s):
 def _block_params(kind, args, tol, x, lo, m, s0, s1, c, exact):
     """``s0[t], s1[t]``: the clamped parameters of point ``lo + t`` (those of ``_locate``,
     ``exact`` as there: a constant where this is inlined), and ``s0[t] = -1`` where the
-    point is not valid (``s1[t] = 0`` then, so that both index look-up tables safely).
+    point is not valid (``s1[t] = 0`` then: both parameters index tables safely).
     ``c`` (3, ``_BIN_BLOCK``) is scratch.
     The block's coordinates are first copied into the contiguous rows of ``c``, then
     branch-free loops, one per kind, which LLVM vectorises (a point's parameters and its
     status took ~5 ns one at a time, with the branches of ``_locate``; 1.9 here). Read
     straight from the rows of ``x`` (stride 2 or 3), the loops were vectorised for
     Intel's Ice Lake but not for AMD's Zen 4, whose cost model prices those strided
-    loads higher: one thread, 1e6 hemisphere points, 3.9 -> 1.7 ms there."""
+    loads higher: one thread, 1e6 hemisphere points, 3.9 -> 1.9 ms there."""
     d = x.shape[1]
     c0, c1, c2 = c[0], c[1 if d > 1 else 0], c[2 if d > 2 else 0]
     if d == 3:                  # one loop per width: an inner loop over d was not unrolled
