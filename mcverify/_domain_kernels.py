@@ -199,12 +199,20 @@ def cell_lookup(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, inline="always")
+def _slot(s, slots):
+    """The look-up slot of ``s`` in [0, 1) (negative ``s`` as 0): ``int(s · slots)``, the
+    rule ``cell_lookup``'s margins assume; unsigned, so indexing with it takes no
+    wrap-around branch for negative indices."""
+    return np.uint64(min(int(max(s, 0.0) * slots), slots - 1))
+
+
+@njit(cache=True, inline="always")
 def _find_cell(e, lut, cut, s):
     """Index of the cell ``[e[k], e[k+1])`` holding ``s`` in [0, 1): the slot's cell,
     one further if ``s`` is past the slot's one inner edge (two independent loads and a
     compare, no search; a table look-up and a forward scan over the edges were most of a
     point's binning time). Only a slot with several edges takes the branch to a scan."""
-    j = min(int(s * lut.shape[0]), lut.shape[0] - 1)
+    j = _slot(s, lut.shape[0])
     c = cut[j]
     if c >= 0.0:
         return lut[j] + (s >= c)
@@ -301,9 +309,7 @@ def _block_cells(s0, s1, m, lut0, cut0, lut1, cut1, n1, two, cells):
     L0, L1 = lut0.shape[0], lut1.shape[0]
     for t in range(m):
         a, b = s0[t], s1[t]     # in [0, 1); an invalid point's: -1, 0
-        # unsigned: no wrap-around branch for negative indices at each look-up
-        j0 = np.uint64(min(int(max(a, 0.0) * L0), L0 - 1))
-        j1 = np.uint64(min(int(b * L1), L1 - 1))
+        j0, j1 = _slot(a, L0), _slot(b, L1)
         c0, c1 = cut0[j0], cut1[j1]
         k = lut0[j0] + (a >= c0)
         if two:

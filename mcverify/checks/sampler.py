@@ -196,9 +196,11 @@ def radix_sorted(values):
     radix sort of their bits (11 bits a pass, a pass skipped where every key shares its
     digit; negative values' bits flipped so that the keys order as the values do): the
     pilot's two 1e5-value sorts took 3.9 ms each with numpy on Zen 4 and take ~0.9 ms
-    here. Equal values may come out as either of ±0, which compare equal."""
+    here. Equal values may come out as either of ±0, which compare equal. ``values``
+    (any stride) is copied once and left as it is."""
     n = values.shape[0]
-    keys = values.view(np.uint64).copy()
+    keys = np.empty(n, np.uint64)
+    keys.view(np.float64)[:] = values
     for i in range(n):
         k = keys[i]
         keys[i] = ~k if k & _SIGN else k | _SIGN
@@ -297,8 +299,7 @@ def _axis_edges(values, r):
     at the sorted values and at 4r + 1 uniform points, merged in order (no second sort),
     inverted at the levels 0, 1/r, …, 1."""
     e = np.empty(r + 1)
-    _mixture_quantiles(radix_sorted(np.ascontiguousarray(values)),
-                       np.linspace(0.0, 1.0, 4 * r + 1),
+    _mixture_quantiles(radix_sorted(values), np.linspace(0.0, 1.0, 4 * r + 1),
                        np.linspace(0.0, 1.0, r + 1), e)
     e[0], e[-1] = 0.0, 1.0
     return np.unique(e)

@@ -449,10 +449,12 @@ def test_worst_cells_rank_overflowed_expectations_first():
     assert np.allclose(w[2]["point"], [0.125, 0.375])
 
 
-@pytest.mark.parametrize("case", ["uniform", "empty", "one", "signs", "wide", "ties", "equal"])
+@pytest.mark.parametrize("case", ["uniform", "empty", "one", "signs", "wide", "ties", "equal",
+                                  "column"])
 def test_the_pilots_radix_sort_sorts_as_numpy_does(case):
     """``radix_sorted`` (the pilot's sort) gives ``np.sort``'s values: negative values,
-    ±0, subnormals, ±inf, ties, digits all equal (skipped passes), 0 and 1 values."""
+    ±0, subnormals, ±inf, ties, digits all equal (skipped passes), 0 and 1 values, a
+    strided column (as the pilot's axes are); its input is left as it was."""
     from mcverify.checks.sampler import radix_sorted
 
     rng = np.random.default_rng(5)
@@ -461,5 +463,7 @@ def test_the_pilots_radix_sort_sorts_as_numpy_does(case):
                             -2.5, 1e-300, -1e300]),
          "wide": rng.standard_normal(20_001) * 10.0 ** rng.integers(-300, 300, 20_001),
          "ties": rng.integers(-3, 4, 5_000).astype(float),
-         "equal": np.full(1000, 0.25)}[case]
+         "equal": np.full(1000, 0.25), "column": rng.standard_normal((3001, 2))[:, 1]}[case]
+    before = x.copy()
     assert np.array_equal(radix_sorted(x), np.sort(x))
+    assert np.array_equal(x, before)

@@ -299,9 +299,8 @@ def test_blocked_kernels_give_what_one_point_at_a_time_gives(dom, dtype, rejecti
 
     rng = np.random.default_rng(11)
     n = 3 * K._PARTS * K._BIN_BLOCK + 37
-    inside = dom.to_point(rng.random((n, dom.param_dim)))
-    if crowded:
-        inside = dom.to_point(rng.random((n, dom.param_dim)) * 4e-3)   # into those cells
+    u = rng.random((n, dom.param_dim))
+    inside = dom.to_point(u * 4e-3 if crowded else u)        # crowded: into those cells
     x = np.concatenate([inside, _boundary_points(dom, rng, n)])[rng.permutation(2 * n)]
     x = np.ascontiguousarray(x.astype(dtype))
     edges = _edges(rng.random((5000, dom.param_dim)) ** 2, (7,) * dom.param_dim)
