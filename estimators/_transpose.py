@@ -12,11 +12,18 @@ them as one vector (x86-64: ``vpermt2pd``). Values are moved, not changed: float
 widened exactly to float64 on the way in and rounded to nearest once on the way out,
 as the scalar conversions ``np.float64(v)`` and ``np.float32(v)`` do.
 
+``stream_rows{k}`` stores as ``store_rows{k}`` does, with streaming (non-temporal)
+stores, which write whole cache lines to memory without first reading them in: the
+front ends use them for outputs too large for the cache (``_vectorize.STREAM_BYTES``),
+laid out from a 64-byte boundary, and end each block with ``store_fence``.
+
 The caller keeps every access in bounds: ``LANES`` whole rows from row ``i`` of the
 source or destination, ``LANES`` columns from ``t`` in the scratch block.
 """
 
 from __future__ import annotations
+
+import platform
 
 from llvmlite import ir
 from numba import types
@@ -94,7 +101,7 @@ def _make_load(k: int):
     return load
 
 
-def _make_store(k: int):
+def _make_store(k: int, stream: bool):
     @intrinsic
     def store(typingctx, columns, t, rows, i):
         if not (_scratch(columns) and _row_array(rows)):
@@ -127,16 +134,42 @@ def _make_store(k: int):
             if rows_t.dtype == types.float32:
                 v = builder.fptrunc(v, _vector(element, LANES * k))
             first = builder.mul(i, ir.Constant(intp, k))
-            builder.store(v, _pointer(builder, dst.data, first, _vector(element, LANES * k)),
-                          align=rows_t.dtype.bitwidth // 8)
+            size = LANES * k * rows_t.dtype.bitwidth // 8
+            at = _pointer(builder, dst.data, first, _vector(element, LANES * k))
+            if stream:          # the group's start: a multiple of `size` past a 64-byte line
+                done = builder.store(v, at, align=min(64, size & -size))
+                done.set_metadata("nontemporal", builder.module.add_metadata(
+                    [ir.Constant(ir.IntType(32), 1)]))
+            else:
+                builder.store(v, at, align=rows_t.dtype.bitwidth // 8)
             return context.get_dummy_value()
 
         return types.void(columns, t, rows, i), codegen
 
     store.__doc__ = (f"rows[i:i+{LANES}, j] = columns[j, t:t+{LANES}] for j < {k}, float64 "
-                     "columns to float32 (rounded to nearest) or float64 rows.")
+                     "columns to float32 (rounded to nearest) or float64 rows."
+                     + (" Streaming (non-temporal) stores: ``rows`` must start on a 64-byte "
+                        f"boundary and ``i`` be a multiple of {LANES}; ``store_fence`` "
+                        "before the rows are read elsewhere." if stream else ""))
     return store
 
 
+@intrinsic
+def store_fence(typingctx):
+    """Orders this thread's streaming stores before its later stores (x86-64 ``sfence``;
+    elsewhere a sequentially consistent fence), so that a thread that joins it sees them."""
+    def codegen(context, builder, signature, args):
+        if platform.machine().lower() in ("x86_64", "amd64"):
+            fn = builder.module.declare_intrinsic("llvm.x86.sse.sfence", (),
+                                                  ir.FunctionType(ir.VoidType(), ()))
+            builder.call(fn, ())
+        else:
+            builder.fence("seq_cst")
+        return context.get_dummy_value()
+
+    return types.void(), codegen
+
+
 load_rows1, load_rows2, load_rows3 = (_make_load(k) for k in (1, 2, 3))
-store_rows1, store_rows2, store_rows3 = (_make_store(k) for k in (1, 2, 3))
+store_rows1, store_rows2, store_rows3 = (_make_store(k, False) for k in (1, 2, 3))
+stream_rows1, stream_rows2, stream_rows3 = (_make_store(k, True) for k in (1, 2, 3))

@@ -43,6 +43,7 @@ hold the float32 path to half a float32 ulp of the float64 one.
 from __future__ import annotations
 
 import functools
+import glob
 import hashlib
 import inspect
 
@@ -105,13 +106,14 @@ import numpy as np
 from numba import njit, prange
 
 from {module} import {kernel} as kernel
-from estimators._transpose import LANES, load_rows{n_in} as load, store_rows{n_out} as store
+from estimators._transpose import (LANES, load_rows{n_in} as load, store_fence,
+                                   store_rows{n_out} as store, stream_rows{n_out} as stream)
 from estimators._vectorize import _BLOCK, {column} as column, {put} as put
 {inline}
 
 
 @njit(parallel=True, cache=True)
-def loop(x, p, out):
+def loop(x, p, out, streaming):
     n = x.shape[0]
     n_in = {n_in}
     n_out = {n_out}
@@ -128,8 +130,13 @@ def loop(x, p, out):
                 c[j, t] = x[lo + t, j]
         for t in range(m):
             put(o, t, kernel(column(c, t), p))
-        for t in range(0, whole, LANES):
-            store(o, t, out, lo + t)
+        if streaming:
+            for t in range(0, whole, LANES):
+                stream(o, t, out, lo + t)
+            store_fence()
+        else:
+            for t in range(0, whole, LANES):
+                store(o, t, out, lo + t)
         for t in range(whole, m):
             for j in range(n_out):
                 out[lo + t, j] = o[j, t]
@@ -177,18 +184,54 @@ def as_rows(name: str, x, n_in: int) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def _last_level_cache_bytes(default: int = 32 << 20) -> int:
+    """The largest CPU cache's size (Linux sysfs), or ``default`` where unknown."""
+    sizes = []
+    for path in glob.glob("/sys/devices/system/cpu/cpu0/cache/index*/size"):
+        try:
+            with open(path) as f:
+                text = f.read().strip()
+            sizes.append(int(text[:-1]) << {"K": 10, "M": 20, "G": 30}[text[-1]])
+        except (OSError, ValueError, KeyError, IndexError):
+            pass
+    return max(sizes, default=default)
+
+
+#: Outputs of at least this many bytes are written with streaming stores: half the
+#: last-level cache. An output that large would evict most of what the cache holds, and
+#: a normal store first reads each line it writes (measured on AMD Zen 4, 32 MB L3, the
+#: cosine hemisphere's sampling and then its pdf, two threads: 1e6 points, 24 MB out,
+#: 5.1 -> 4.1 ms streaming; 6e5 points 3.1 -> 2.9 ms; 3e5 points, 7 MB, 0.64 -> 0.95 ms,
+#: the pdf then reading from memory what the cache held). glibc's memcpy switches to
+#: streaming stores at a threshold of the same kind (3/4 of the shared cache).
+STREAM_BYTES = _last_level_cache_bytes() // 2
+
+
+def _output(n: int, n_out: int, dtype) -> tuple[np.ndarray, bool]:
+    """An uninitialised (n, n_out) array for a front end's results, and whether the loop
+    streams into it: at ``STREAM_BYTES`` and above the array starts on a 64-byte line,
+    as streaming stores of whole vectors require."""
+    dtype = np.dtype(dtype)
+    nbytes = n * n_out * dtype.itemsize
+    if nbytes < STREAM_BYTES:
+        return np.empty((n, n_out), dtype), False
+    raw = np.empty(nbytes + 64, np.uint8)
+    skip = -raw.ctypes.data % 64
+    return raw[skip:skip + nbytes].view(dtype).reshape(n, n_out), True
+
+
 def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze: bool,
                inline: bool):
     def front(x, *params):
         p = check_params(name, params)
         rows = as_rows(name, x, n_in)
-        out = np.empty((rows.shape[0], n_out), dtype=rows.dtype)
+        out, streaming = _output(rows.shape[0], n_out, rows.dtype)
         loop = _loop(kernel, n_in, put, inline)
         # the first call per dtype compiles (or loads numba's cache) under the kernel
         # cache's lock, so processes starting together compile each loop once
         name_dtype = f"{loop.__module__}.{rows.dtype}"
         with first_call(name_dtype, name_dtype):
-            loop(rows, p, out)
+            loop(rows, p, out, streaming)
         return out[:, 0] if squeeze else out
 
     front.__name__ = front.__qualname__ = name

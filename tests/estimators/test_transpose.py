@@ -9,8 +9,9 @@ from estimators import _transpose as tr
 LANES = tr.LANES
 
 
-def _movers(k):
-    load, store = getattr(tr, f"load_rows{k}"), getattr(tr, f"store_rows{k}")
+def _movers(k, streaming=False):
+    load = getattr(tr, f"load_rows{k}")
+    store = getattr(tr, f"stream_rows{k}" if streaming else f"store_rows{k}")
 
     @njit
     def to_columns(rows, i, columns, t):
@@ -19,6 +20,7 @@ def _movers(k):
     @njit
     def to_rows(columns, t, rows, i):
         store(columns, t, rows, i)
+        tr.store_fence()
 
     return to_columns, to_rows
 
@@ -44,6 +46,61 @@ def test_rows_to_columns_and_back_move_every_value_to_its_place(k, dtype):
     want = np.full((40, k), 7.0, dtype=dtype)
     want[i:i + LANES] = columns[:, t:t + LANES].T.astype(dtype)     # rounded to nearest
     assert np.array_equal(out, want)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_streaming_stores_write_what_plain_stores_write(k, dtype):
+    """``stream_rows{k}`` into rows that start on a 64-byte line (as the front ends lay
+    out their large outputs), at every group of ``LANES`` rows: the same values as the
+    plain stores, nothing written past the group."""
+    _, plain = _movers(k)
+    _, streaming = _movers(k, streaming=True)
+    columns = np.random.default_rng(k).normal(size=(k, 8 * LANES))
+    n = 4 * LANES + 3
+    raw = np.zeros(n * k * np.dtype(dtype).itemsize + 64, np.uint8)
+    skip = -raw.ctypes.data % 64
+    got = raw[skip:skip + n * k * np.dtype(dtype).itemsize].view(dtype).reshape(n, k)
+    assert got.ctypes.data % 64 == 0
+    want = np.full((n, k), 7.0, dtype)
+    got[:] = 7.0
+    for g in range(4):
+        plain(columns, 2 * LANES * g, want, LANES * g)
+        streaming(columns, 2 * LANES * g, got, LANES * g)
+    assert np.array_equal(got, want)
+    moved = np.concatenate([columns[:, 2 * LANES * g:2 * LANES * g + LANES].T for g in range(4)])
+    assert np.array_equal(got[:4 * LANES], moved.astype(dtype))
+    assert np.all(got[4 * LANES:] == 7.0)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_front_ends_give_the_same_bits_streaming_or_not(monkeypatch, dtype):
+    """Every warp's sample, pdf and inverse with every output streamed (the threshold
+    set to 0 bytes) against the same calls with none streamed (the threshold above the
+    outputs), at a row count that leaves a partial group and a partial block; a streamed
+    output starts on a 64-byte line, is C-contiguous and writable."""
+    from estimators import _vectorize
+    from estimators.warps import WARPS
+
+    u = np.random.default_rng(11).random((2 * 512 + 13, 3)).astype(dtype)
+
+    def run():
+        outs = []
+        for name, w in sorted(WARPS.items()):
+            x = w.sample(u[:, :w.sample_dim], *w.defaults)
+            outs += [x, w.pdf(x, *w.defaults)]
+            if w.invert is not None:
+                outs.append(w.invert(x, *w.defaults))
+        return outs
+
+    monkeypatch.setattr(_vectorize, "STREAM_BYTES", 1 << 62)
+    plain = run()
+    monkeypatch.setattr(_vectorize, "STREAM_BYTES", 0)
+    streamed = run()
+    for a, b in zip(plain, streamed):
+        assert a.dtype == b.dtype == dtype and np.array_equal(a, b)
+        assert b.ctypes.data % 64 == 0 and b.flags.writeable
+        assert b.ndim == 1 or b.flags.c_contiguous
 
 
 def test_the_movers_refuse_what_they_cannot_move():
