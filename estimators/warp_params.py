@@ -40,7 +40,9 @@ _MAY_BE_INFINITE = {"t_max"}
 
 
 def warp_of(front_name: str) -> str:
-    """The warp a front end belongs to: ``sample_X``, ``X_pdf`` and ``invert_X`` -> X."""
+    """The warp a front end belongs to: ``sample_X``, ``sample_X.with_pdf``, ``X_pdf``
+    and ``invert_X`` -> X."""
+    front_name = front_name.removesuffix(".with_pdf")
     for prefix in ("sample_", "invert_"):
         if front_name.startswith(prefix):
             return front_name[len(prefix):]

@@ -31,7 +31,7 @@ from numba import njit
 
 from ._fastmath import (fast_atan, fast_atan2, fast_exp, fast_expm1, fast_log1p,
                         fast_sincos_2pi, sincos_reduced)
-from ._vectorize import point_front_end, value_front_end
+from ._vectorize import fused_front_end, point_front_end, value_front_end
 
 ONE_MINUS_EPSILON = 1.0 - 2.0 ** -53
 _PI = math.pi
@@ -553,7 +553,8 @@ class Warp:
 
 
 def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
-    """The three front ends. ``inline`` names those ("sample", "pdf", "invert") whose
+    """The three front ends, and the sampler's ``with_pdf`` (sample and density in one
+    pass: ``_vectorize.fused_front_end``). ``inline`` names those ("sample", "pdf", "invert") whose
     loops numba inlines the kernel into (``_vectorize._loop``), for kernels LLVM finds
     too large to inline and so does not vectorise: those calling ``_fastmath`` (an
     azimuth's sin/cos or atan2 is enough), and GGX's visible normals (measured, one
@@ -565,6 +566,11 @@ def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
     i = None if invert_k is None else _below_one(point_front_end(
         invert_k, n_out, n_in, f"invert_{name}", f"Inverse of ``sample_{name}``: x -> u.",
         inline="invert" in inline))
+    s.with_pdf = fused_front_end(
+        sample_k, pdf_k, n_in, n_out, f"sample_{name}.with_pdf",
+        f"``(x, pdf)``: ``x = sample_{name}(u, *params)`` and ``{name}_pdf(x, *params)`` "
+        "in one pass over the points, bit for bit as the two calls.",
+        inline="sample" in inline, inline_density="pdf" in inline)
     return s, p, i
 
 

@@ -46,15 +46,21 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
          "square_to_uniform_cone"),
         ("beckmann", warps.sample_beckmann, warps.beckmann_pdf, (0.3,), "square_to_beckmann"),
     ]
+    # Ours: the sampler's ``with_pdf`` (both in one pass over the points), as Dr.Jit runs
+    # Mitsuba's two calls as one kernel; the two separate calls get a row of their own.
     for label, sample, pdf, params, mi_name in warp_pairs:
         theirs = (mi_warp(getattr(mi.warp, mi_name), getattr(mi.warp, mi_name + "_pdf"), *params)
                   if vectorised else None)
-        out.append((f"warp:{label}", f"sample + pdf of {n:,} points",
-                    lambda s=sample, p=pdf, a=params: p(s(u, *a), *a), theirs, "mitsuba"))
+        out.append((f"warp:{label}", f"sample + pdf of {n:,} points (with_pdf)",
+                    lambda s=sample, a=params: s.with_pdf(u, *a), theirs, "mitsuba"))
+        if label == "cosine_hemisphere":
+            out.append((f"warp:{label}(two calls)", f"pdf(sample(u)) of {n:,} points",
+                        lambda s=sample, p=pdf: p(s(u)), theirs, "mitsuba"))
     # float32 in, as Mitsuba computes: our front ends read and write float32 directly.
     u32 = u.astype(np.float32)
-    out.append(("warp:cosine_hemisphere(float32)", f"sample + pdf of {n:,} float32 points",
-                lambda: warps.cosine_hemisphere_pdf(warps.sample_cosine_hemisphere(u32)),
+    out.append(("warp:cosine_hemisphere(float32)",
+                f"sample + pdf of {n:,} float32 points (with_pdf)",
+                lambda: warps.sample_cosine_hemisphere.with_pdf(u32),
                 mi_warp(mi.warp.square_to_cosine_hemisphere,
                         mi.warp.square_to_cosine_hemisphere_pdf, u=u32) if vectorised else None,
                 "mitsuba"))

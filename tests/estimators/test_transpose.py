@@ -73,36 +73,6 @@ def test_streaming_stores_write_what_plain_stores_write(k, dtype):
     assert np.all(got[4 * LANES:] == 7.0)
 
 
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_front_ends_give_the_same_bits_streaming_or_not(monkeypatch, dtype):
-    """Every warp's sample, pdf and inverse with every output streamed (the threshold
-    set to 0 bytes) against the same calls with none streamed (the threshold above the
-    outputs), at a row count that leaves a partial group and a partial block; a streamed
-    output starts on a 64-byte line, is C-contiguous and writable."""
-    from estimators import _vectorize
-    from estimators.warps import WARPS
-
-    u = np.random.default_rng(11).random((2 * 512 + 13, 3)).astype(dtype)
-
-    def run():
-        outs = []
-        for name, w in sorted(WARPS.items()):
-            x = w.sample(u[:, :w.sample_dim], *w.defaults)
-            outs += [x, w.pdf(x, *w.defaults)]
-            if w.invert is not None:
-                outs.append(w.invert(x, *w.defaults))
-        return outs
-
-    monkeypatch.setattr(_vectorize, "STREAM_BYTES", 1 << 62)
-    plain = run()
-    monkeypatch.setattr(_vectorize, "STREAM_BYTES", 0)
-    streamed = run()
-    for a, b in zip(plain, streamed):
-        assert a.dtype == b.dtype == dtype and np.array_equal(a, b)
-        assert b.ctypes.data % 64 == 0 and b.flags.writeable
-        assert b.ndim == 1 or b.flags.c_contiguous
-
-
 def test_the_movers_refuse_what_they_cannot_move():
     """Rows must be a 2-D C-contiguous float array, the scratch 2-D float64: anything
     else is a typing error at compile time, not a wrong read."""
