@@ -65,6 +65,18 @@ def _column_start(context, builder, array, j, t):
                        t)
 
 
+def _operands(context, builder, signature, args, rows_at: int, columns_at: int):
+    """A mover's operands: the rows' and the scratch's array structs, the row index ``i``
+    and the column index ``t`` as intp (each index follows its array in the arguments),
+    and the rows' dtype."""
+    types_ = signature.args
+    rows = context.make_array(types_[rows_at])(context, builder, args[rows_at])
+    columns = context.make_array(types_[columns_at])(context, builder, args[columns_at])
+    i = context.cast(builder, args[rows_at + 1], types_[rows_at + 1], types.intp)
+    t = context.cast(builder, args[columns_at + 1], types_[columns_at + 1], types.intp)
+    return rows, columns, i, t, types_[rows_at].dtype
+
+
 def _make_load(k: int):
     @intrinsic
     def load(typingctx, rows, i, columns, t):
@@ -72,18 +84,14 @@ def _make_load(k: int):
             return None
 
         def codegen(context, builder, signature, args):
-            rows_t, i_t, columns_t, t_t = signature.args
-            src = context.make_array(rows_t)(context, builder, args[0])
-            dst = context.make_array(columns_t)(context, builder, args[2])
-            i = context.cast(builder, args[1], i_t, types.intp)
-            t = context.cast(builder, args[3], t_t, types.intp)
+            src, dst, i, t, dtype = _operands(context, builder, signature, args, 0, 2)
             intp = context.get_value_type(types.intp)
-            element = context.get_data_type(rows_t.dtype)
+            element = context.get_data_type(dtype)
             double = ir.DoubleType()
             first = builder.mul(i, ir.Constant(intp, k))
             v = builder.load(_pointer(builder, src.data, first, _vector(element, LANES * k)),
-                             align=rows_t.dtype.bitwidth // 8)
-            if rows_t.dtype == types.float32:
+                             align=dtype.bitwidth // 8)
+            if dtype == types.float32:
                 v = builder.fpext(v, _vector(double, LANES * k))
             for j in range(k):
                 column = v if k == 1 else builder.shuffle_vector(
@@ -108,13 +116,9 @@ def _make_store(k: int, stream: bool):
             return None
 
         def codegen(context, builder, signature, args):
-            columns_t, t_t, rows_t, i_t = signature.args
-            src = context.make_array(columns_t)(context, builder, args[0])
-            dst = context.make_array(rows_t)(context, builder, args[2])
-            t = context.cast(builder, args[1], t_t, types.intp)
-            i = context.cast(builder, args[3], i_t, types.intp)
+            dst, src, i, t, dtype = _operands(context, builder, signature, args, 2, 0)
             intp = context.get_value_type(types.intp)
-            element = context.get_data_type(rows_t.dtype)
+            element = context.get_data_type(dtype)
             double = ir.DoubleType()
             lane = _vector(double, LANES)
             cols = [builder.load(_pointer(builder, src.data,
@@ -131,17 +135,17 @@ def _make_store(k: int, stream: bool):
                 third = builder.shuffle_vector(cols[2], ir.Constant(lane, ir.Undefined),
                                                _mask(list(range(LANES)) + [LANES] * LANES))
                 v = builder.shuffle_vector(pair, third, interleave)
-            if rows_t.dtype == types.float32:
+            if dtype == types.float32:
                 v = builder.fptrunc(v, _vector(element, LANES * k))
             first = builder.mul(i, ir.Constant(intp, k))
-            size = LANES * k * rows_t.dtype.bitwidth // 8
+            size = LANES * k * dtype.bitwidth // 8
             at = _pointer(builder, dst.data, first, _vector(element, LANES * k))
             if stream:          # the group's start: a multiple of `size` past a 64-byte line
                 done = builder.store(v, at, align=min(64, size & -size))
                 done.set_metadata("nontemporal", builder.module.add_metadata(
                     [ir.Constant(ir.IntType(32), 1)]))
             else:
-                builder.store(v, at, align=rows_t.dtype.bitwidth // 8)
+                builder.store(v, at, align=dtype.bitwidth // 8)
             return context.get_dummy_value()
 
         return types.void(columns, t, rows, i), codegen
