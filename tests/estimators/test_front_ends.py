@@ -35,9 +35,13 @@ def test_front_ends_give_the_same_bits_streaming_or_not(monkeypatch, dtype):
 
 
 
-#: float32 fused loops compiled in the default run (each loop compiles in ~3 s); every
-#: warp's in the slow run.
-_FLOAT32_WARPS = ("cosine_hemisphere", "uniform_sphere", "beckmann")
+#: Warps whose fused loops the default run compiles (each loop takes ~3 s to compile on
+#: a new machine): every shape of loop (1 -> 1 with two parameters, 2 -> 2, 2 -> 3, a
+#: kernel inlined into the loop, a density that divides and calls ``fast_exp``); every
+#: warp, in both dtypes, in the slow run.
+_DEFAULT_WARPS = {np.float64: ("uniform_interval", "bilinear", "cosine_hemisphere",
+                               "beckmann", "ggx_vndf"),
+                  np.float32: ("cosine_hemisphere", "beckmann")}
 
 
 def _check_with_pdf(monkeypatch, dtype, streamed, names):
@@ -66,15 +70,15 @@ def test_with_pdf_gives_the_bits_of_sample_then_pdf(monkeypatch, dtype, streamed
     """Every warp's ``sample.with_pdf(u)`` against ``x = sample(u)``, ``pdf(x)``: the same
     points and densities bit for bit (float32: the density of the point as stored), at
     the default parameters and near both ends of each one's range, streamed or not; the
-    outputs' dtype is the input's and the pdf is 1-D. float32: three warps here, every
-    warp in the slow run."""
-    names = sorted(WARPS) if dtype == np.float64 else _FLOAT32_WARPS
-    _check_with_pdf(monkeypatch, dtype, streamed, names)
+    outputs' dtype is the input's and the pdf is 1-D. The warps of ``_DEFAULT_WARPS``
+    here, every warp in the slow run."""
+    _check_with_pdf(monkeypatch, dtype, streamed, _DEFAULT_WARPS[dtype])
 
 
 @pytest.mark.slow
-def test_with_pdf_gives_the_bits_of_sample_then_pdf_for_every_float32_warp(monkeypatch):
-    _check_with_pdf(monkeypatch, np.float32, True, sorted(WARPS))
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_with_pdf_gives_the_bits_of_sample_then_pdf_for_every_warp(monkeypatch, dtype):
+    _check_with_pdf(monkeypatch, dtype, True, sorted(WARPS))
 
 
 def test_with_pdf_checks_what_sample_checks():
