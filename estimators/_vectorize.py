@@ -285,18 +285,22 @@ def _output(n: int, n_out: int, dtype, total: int | None = None) -> tuple[np.nda
     return raw[skip:skip + nbytes].view(dtype).reshape(n, n_out), True
 
 
+def _run(loop, rows, *args):
+    """``loop(rows, *args)``. The first call per dtype compiles (or loads numba's cache)
+    under the kernel cache's lock, so processes starting together compile each loop
+    once."""
+    name_dtype = f"{loop.__module__}.{rows.dtype}"
+    with first_call(name_dtype, name_dtype):
+        loop(rows, *args)
+
+
 def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze: bool,
                inline: bool):
     def front(x, *params):
         p = check_params(name, params)
         rows = as_rows(name, x, n_in)
         out, streaming = _output(rows.shape[0], n_out, rows.dtype)
-        loop = _loop(kernel, n_in, put, inline)
-        # the first call per dtype compiles (or loads numba's cache) under the kernel
-        # cache's lock, so processes starting together compile each loop once
-        name_dtype = f"{loop.__module__}.{rows.dtype}"
-        with first_call(name_dtype, name_dtype):
-            loop(rows, p, out, streaming)
+        _run(_loop(kernel, n_in, put, inline), rows, p, out, streaming)
         return out[:, 0] if squeeze else out
 
     front.__name__ = front.__qualname__ = name
@@ -320,10 +324,8 @@ def fused_front_end(kernel, density, n_in: int, n_out: int, name: str, doc: str 
         total = n * (n_out + 1) * size
         out, streaming = _output(n, n_out, rows.dtype, total)
         pdf_out, _ = _output(n, 1, rows.dtype, total)
-        loop = _fused_loop(kernel, density, n_in, n_out, inline, inline_density)
-        name_dtype = f"{loop.__module__}.{rows.dtype}"
-        with first_call(name_dtype, name_dtype):
-            loop(rows, p, out, pdf_out, streaming)
+        _run(_fused_loop(kernel, density, n_in, n_out, inline, inline_density), rows, p,
+             out, pdf_out, streaming)
         return out, pdf_out[:, 0]
 
     front.__name__ = front.__qualname__ = name

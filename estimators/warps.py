@@ -554,11 +554,11 @@ class Warp:
 
 def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
     """The three front ends, and the sampler's ``with_pdf`` (sample and density in one
-    pass: ``_vectorize.fused_front_end``). ``inline`` names those ("sample", "pdf", "invert") whose
-    loops numba inlines the kernel into (``_vectorize._loop``), for kernels LLVM finds
-    too large to inline and so does not vectorise: those calling ``_fastmath`` (an
-    azimuth's sin/cos or atan2 is enough), and GGX's visible normals (measured, one
-    thread: 55 -> 19 ns a point to sample)."""
+    pass: ``_vectorize.fused_front_end``). ``inline`` names those ("sample", "pdf",
+    "invert") whose loops numba inlines the kernel into (``_vectorize._loop``), for
+    kernels LLVM finds too large to inline and so does not vectorise: those calling
+    ``_fastmath`` (an azimuth's sin/cos or atan2 is enough), and GGX's visible normals
+    (measured, one thread: 55 -> 19 ns a point to sample)."""
     s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc,
                         inline="sample" in inline)
     p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.",
