@@ -9,7 +9,8 @@ the general kernel), and numba compiles the copy with that value as a constant, 
 removes the code a scene does not need. The per-ray functions are inlined (numba IR
 inlining): a call that passes arrays costs reference-count updates that all threads
 share, which halved the speed before. ``trace`` is inlined too, into ``_trace_samples``,
-which the tile loops call once per ``CHUNK`` samples of a pixel: numba zeroes every
+which the tile loops call once per ``CHUNK`` samples of a pixel (at a few samples a
+pixel, once per group of pixels: ``pixel_group``): numba zeroes every
 return slot of a function's calls on entry (about 1.3 KB for ``trace``), and with a call
 per sample that set-up cost more than the camera ray and the pixel's bookkeeping together
 (measured on the Cornell box, one thread, max_depth 0: 38 ms -> 10.5 ms at 128², 16 spp;
@@ -286,6 +287,9 @@ def _sub_stratum(x, sy, k):
 
 #: Samples of one pixel per call of ``_trace_samples`` (a power of two).
 CHUNK = 64
+#: Rows of a call's scratch (samples of several pixels at a few samples a pixel,
+#: ``pixel_group``; a multiple of CHUNK).
+ROWS = 128
 #: Dimensions of a chunk's strata table (``_strata_fill``); a path's later dimensions
 #: are stratified one sample at a time (``_stratum``, ``_stratum2``).
 STRATA_DIMS = 16
@@ -569,15 +573,17 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")
-def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_scale, out,
-                   tab, ctl, rays, states):
-    """Samples s0 <= s < s1 of pixel (x, y) (``base``: the pixel's hashed seed) into rows
-    of ``out``: the jitter (ξ, ξ') in the pixel, the radiance along the camera ray through
-    (x + ξ, y + ξ') (a non-finite one as 0) and 1.0 if it was finite, else 0.0. One call
-    serves many samples: a call of this large function costs ~150 ns of set-up (its
-    stack slots are zeroed on entry), which a call per sample paid every time. ``out``
-    has at least ``s1 - s0`` rows of 6. ``n``: ``strata_field`` of the pixel's sample
-    count for a stratified sampler, 0 for the independent one; ``tab`` and ``ctl`` the
+def _trace_samples(sc, stack, cam, seed, s0, s1, n, x0, x1, y, width, height, pdf_scale,
+                   out, tab, ctl, rays, states):
+    """Samples s0 <= s < s1 of each pixel (x, y), x0 <= x < x1 (the render's ``seed``),
+    into rows ``(x - x0)·(s1 - s0) + s - s0`` of ``out``: the jitter (ξ, ξ') in the
+    pixel, the radiance along the camera ray through (x + ξ, y + ξ') (a non-finite one as
+    0) and 1.0 if it was finite, else 0.0. One call serves many samples: a call of this
+    large function costs ~150 ns of set-up (its stack slots are zeroed on entry), which a
+    call per sample paid every time, and a call per pixel at a few samples a pixel
+    (``pixel_group``). ``out`` has at least ``(x1 - x0)·(s1 - s0)`` rows of 6. ``n``:
+    ``strata_field`` of the pixel's sample count for a stratified sampler (then one
+    pixel a call: x1 = x0 + 1), 0 for the independent one; ``tab`` and ``ctl`` the
     chunk's strata table (``_strata_slot``: STRATA_DIMS × STRATA_ROWS × CHUNK uint32, one
     int64), filled as the samples reach its dimensions. ``rays`` (rows of 7) and
     ``states`` (rows of 2, uint64) are scratch for the chunk's camera rays.
@@ -595,26 +601,68 @@ def _trace_samples(sc, stack, cam, base, s0, s1, n, x, y, width, height, pdf_sca
     runs: 1-3 % less time on five scenes, images bit-identical."""
     n = np.uint64(n)
     ctl[0] = 0
-    for s in range(s0, s1):
-        state = (_mix(base ^ (np.uint64(s) * _M2)), base, np.uint64(s), n, np.uint64(0),
-                 tab, ctl)
-        fx, fy, state = _next2(state)
-        ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(cam, (x + fx) / width,
-                                                          (y + fy) / height)
-        k = s - s0
-        out[k, 0], out[k, 1] = fx, fy
-        rays[k, 0], rays[k, 1], rays[k, 2], rays[k, 3] = ox, oy, oz, dx
-        rays[k, 4], rays[k, 5], rays[k, 6] = dy, dz, tm
-        states[k, 0], states[k, 1] = state[0], state[4]
-    for s in range(s0, s1):
-        k = s - s0
-        state = (states[k, 0], base, np.uint64(s), n, states[k, 1], tab, ctl)
-        r, g, b, state = trace(sc, stack, rays[k, 0], rays[k, 1], rays[k, 2], rays[k, 3],
-                               rays[k, 4], rays[k, 5], rays[k, 6], state, pdf_scale)
-        if math.isfinite(r) and math.isfinite(g) and math.isfinite(b):
-            out[k, 2], out[k, 3], out[k, 4], out[k, 5] = r, g, b, 1.0
-        else:
-            out[k, 2], out[k, 3], out[k, 4], out[k, 5] = 0.0, 0.0, 0.0, 0.0
+    m = s1 - s0
+    for x in range(x0, x1):
+        base = pixel_base(seed, y * width + x)
+        for s in range(s0, s1):
+            state = (_mix(base ^ (np.uint64(s) * _M2)), base, np.uint64(s), n,
+                     np.uint64(0), tab, ctl)
+            fx, fy, state = _next2(state)
+            ox, oy, oz, dx, dy, dz, tm = _generate_ray_kernel(cam, (x + fx) / width,
+                                                              (y + fy) / height)
+            k = (x - x0) * m + s - s0
+            out[k, 0], out[k, 1] = fx, fy
+            rays[k, 0], rays[k, 1], rays[k, 2], rays[k, 3] = ox, oy, oz, dx
+            rays[k, 4], rays[k, 5], rays[k, 6] = dy, dz, tm
+            states[k, 0], states[k, 1] = state[0], state[4]
+    for x in range(x0, x1):
+        base = pixel_base(seed, y * width + x)
+        for s in range(s0, s1):
+            k = (x - x0) * m + s - s0
+            state = (states[k, 0], base, np.uint64(s), n, states[k, 1], tab, ctl)
+            r, g, b, state = trace(sc, stack, rays[k, 0], rays[k, 1], rays[k, 2],
+                                   rays[k, 3], rays[k, 4], rays[k, 5], rays[k, 6], state,
+                                   pdf_scale)
+            if math.isfinite(r) and math.isfinite(g) and math.isfinite(b):
+                out[k, 2], out[k, 3], out[k, 4], out[k, 5] = r, g, b, 1.0
+            else:
+                out[k, 2], out[k, 3], out[k, 4], out[k, 5] = 0.0, 0.0, 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def pixel_base(seed, pixel):
+    """The hashed seed of a pixel (flat index ``y · width + x``) of a render: its samples'
+    random numbers are splitmix64 steps from it."""
+    return _mix(_mix(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
+
+
+@njit(cache=True, inline="always")
+def pixel_group(spp, stratified):
+    """Pixels of a tile's row that share one ``_trace_samples`` call: as many as fill
+    its ROWS rows with all their samples (the independent sampler; a stratified
+    sampler's strata table holds one pixel's samples, so one pixel a call there), at
+    most the tile's width. A call per pixel cost ~45 ns a pixel of set-up (one thread).
+    Both kernels in one process, alternating, best of 40, 128², two threads: at 16 spp
+    (a tile row of 8 pixels a call) white furnace 7.68 -> 7.25 ms, Cornell box 23.1 ->
+    22.6, veach-mis no change; one thread at 4 spp, white furnace 4.77 -> 3.92 ms. At 64
+    spp two pixels a call (no change measured); above it one call per pixel's CHUNK of
+    samples, as before."""
+    return 1 if stratified or 2 * spp > ROWS else ROWS // spp
+
+
+@njit(cache=True, inline="always")
+def _sample_row(sc, stack, cam, seed, s, spp, n, x, xg, y, width, height, pdf_scale, out,
+                tab, ctl, rays, states, group):
+    """The row of ``out`` that holds sample s of pixel (x, y): with one pixel a call
+    (``group`` 1) its chunk's row, ``_trace_samples`` called at each chunk's first
+    sample; else row ``(x - xg)·spp + s`` of the call the group starting at ``xg`` made."""
+    if group > 1:
+        return (x - xg) * spp + s
+    k = s % CHUNK
+    if k == 0:
+        _trace_samples(sc, stack, cam, seed, s, min(s + CHUNK, spp), n, x, x + 1, y, width,
+                       height, pdf_scale, out, tab, ctl, rays, states)
+    return k
 
 
 @njit(cache=True, inline="always")
@@ -622,8 +670,8 @@ def _chunk_scratch(stratified):
     """A tile's scratch for ``_trace_samples``: its output rows, the strata table and its
     control words, the camera rays and their states."""
     tab, ctl = _strata_table(stratified)
-    return (np.empty((CHUNK, 6)), tab, ctl, np.empty((CHUNK, 7)),
-            np.empty((CHUNK, 2), np.uint64))
+    return (np.empty((ROWS, 6)), tab, ctl, np.empty((ROWS, 7)),
+            np.empty((ROWS, 2), np.uint64))
 
 
 @njit(cache=True, parallel=True)
@@ -633,39 +681,41 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale
     mean and the sum of squared deviations (Welford) of ``spp`` samples (stratified per
     dimension when ``stratified``); ``bad`` counts non-finite samples (set to zero)."""
     n_strat = strata_field(spp) if stratified else np.uint64(0)
+    group = pixel_group(spp, stratified)
     for ti in prange(tiles.shape[0]):
         stack = new_stack()
         out, tab, ctl, rays, states = _chunk_scratch(stratified)
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         for y in range(y0, y1):
-            for x in range(x0, x1):
-                pixel = y * width + x
-                base = _mix(_mix(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
-                mr, mg, mb = 0.0, 0.0, 0.0
-                sr, sg, sb = 0.0, 0.0, 0.0
-                nbad = 0
-                for s in range(spp):
-                    k = s % CHUNK
-                    if k == 0:
-                        _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), n_strat,
-                                       x, y, width, height, pdf_scale, out, tab, ctl,
-                                       rays, states)
-                    r, g, b = out[k, 2], out[k, 3], out[k, 4]
-                    if out[k, 5] == 0.0:
-                        nbad += 1
-                    # 1/n off the running means' chain: a division in it (three, one a
-                    # channel) made each sample wait for the last one's
-                    inv_n = 1.0 / (s + 1.0)
-                    d0, d1, d2 = r - mr, g - mg, b - mb
-                    mr += d0 * inv_n
-                    mg += d1 * inv_n
-                    mb += d2 * inv_n
-                    sr += d0 * (r - mr)
-                    sg += d1 * (g - mg)
-                    sb += d2 * (b - mb)
-                mean[y, x, 0], mean[y, x, 1], mean[y, x, 2] = mr, mg, mb
-                m2[y, x, 0], m2[y, x, 1], m2[y, x, 2] = sr, sg, sb
-                bad[y, x] = nbad
+            for xg in range(x0, x1, group):
+                xe = min(x1, xg + group)
+                if group > 1:
+                    _trace_samples(sc, stack, cam, seed, 0, spp, n_strat, xg, xe, y, width,
+                                   height, pdf_scale, out, tab, ctl, rays, states)
+                for x in range(xg, xe):
+                    mr, mg, mb = 0.0, 0.0, 0.0
+                    sr, sg, sb = 0.0, 0.0, 0.0
+                    nbad = 0
+                    for s in range(spp):
+                        k = _sample_row(sc, stack, cam, seed, s, spp, n_strat, x, xg, y,
+                                        width, height, pdf_scale, out, tab, ctl, rays,
+                                        states, group)
+                        r, g, b = out[k, 2], out[k, 3], out[k, 4]
+                        if out[k, 5] == 0.0:
+                            nbad += 1
+                        # 1/n off the running means' chain: a division in it (three, one a
+                        # channel) made each sample wait for the last one's
+                        inv_n = 1.0 / (s + 1.0)
+                        d0, d1, d2 = r - mr, g - mg, b - mb
+                        mr += d0 * inv_n
+                        mg += d1 * inv_n
+                        mb += d2 * inv_n
+                        sr += d0 * (r - mr)
+                        sg += d1 * (g - mg)
+                        sb += d2 * (b - mb)
+                    mean[y, x, 0], mean[y, x, 1], mean[y, x, 2] = mr, mg, mb
+                    m2[y, x, 0], m2[y, x, 1], m2[y, x, 2] = sr, sg, sb
+                    bad[y, x] = nbad
 
 
 @njit(cache=True, parallel=True)
@@ -680,6 +730,7 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
     number of threads. ``bad`` counts non-finite samples (set to zero) per pixel. ``acc``
     with ``SPLAT_VALUE_CHANNELS`` (not ``SPLAT_CHANNELS``): the sums of the value alone."""
     n_strat = strata_field(spp) if stratified else np.uint64(0)
+    group = pixel_group(spp, stratified)
     n = tiles.shape[0]
     channels = acc.shape[2]
     variance = channels == SPLAT_CHANNELS
@@ -696,22 +747,24 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
         bx, by = x0 - reach, y0 - reach
         tile_buf = buf[ti]
         for y in range(y0, y1):
-            for x in range(x0, x1):
-                pixel = y * width + x
-                base = _mix(_mix(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
-                nbad = 0
-                for s in range(spp):
-                    k = s % CHUNK
-                    if k == 0:
-                        _trace_samples(sc, stack, cam, base, s, min(s + CHUNK, spp), n_strat,
-                                       x, y, width, height, pdf_scale, out, tab, ctl,
-                                       rays, states)
-                    fx, fy, r, g, b = out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4]
-                    if out[k, 5] == 0.0:
-                        nbad += 1
-                    splat_kernel(cam, tile_buf, bx, by, width, height, x + fx, y + fy,
-                                 r, g, b, wx, variance)
-                bad[y, x] = nbad
+            for xg in range(x0, x1, group):
+                xe = min(x1, xg + group)
+                if group > 1:
+                    _trace_samples(sc, stack, cam, seed, 0, spp, n_strat, xg, xe, y, width,
+                                   height, pdf_scale, out, tab, ctl, rays, states)
+                for x in range(xg, xe):
+                    nbad = 0
+                    for s in range(spp):
+                        k = _sample_row(sc, stack, cam, seed, s, spp, n_strat, x, xg, y,
+                                        width, height, pdf_scale, out, tab, ctl, rays,
+                                        states, group)
+                        fx, fy = out[k, 0], out[k, 1]
+                        r, g, b = out[k, 2], out[k, 3], out[k, 4]
+                        if out[k, 5] == 0.0:
+                            nbad += 1
+                        splat_kernel(cam, tile_buf, bx, by, width, height, x + fx, y + fy,
+                                     r, g, b, wx, variance)
+                    bad[y, x] = nbad
     for ti in range(n):
         bx, by = tiles[ti, 0] - reach, tiles[ti, 1] - reach
         for j in range(max(0, -by), min(side, height - by)):

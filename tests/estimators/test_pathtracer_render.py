@@ -191,6 +191,40 @@ def test_the_image_alone_is_the_same_image(name):
             render(scene, spp=2, variance=bad)
 
 
+@pytest.mark.parametrize("name,spp", [("cornell-box", 3), ("cornell-box", 70),
+                                      ("filters-tent", 5), ("vocabulary-lights", 3)])
+def test_pixels_sharing_a_call_get_their_own_samples(name, spp):
+    """The tile loops give ``_trace_samples`` several pixels a call at a few samples a
+    pixel (``pixel_group``: 42 at 3 spp, partial groups at the tiles' ends; one pixel in
+    chunks at 70 spp; one pixel a call with a stratified sampler, vocabulary-lights).
+    Rendered as one-pixel tiles, each pixel alone in every call, the image is the same:
+    bit for bit on the box film; on a splatting film up to the order of the tile
+    buffers' sums (a sample given to the wrong pixel would move values by O(1))."""
+    R = importlib.import_module("estimators.pathtracer.render")
+    K = importlib.import_module("estimators.pathtracer._kernel")
+    scene = prepare_scene(f"reference/scenes/{name}/scene.xml", params={"res": 20})
+    assert (K.pixel_group.py_func(spp, False) > 1) == (2 * spp <= K.ROWS)
+    module = R.specialised_kernel(-1)
+    stratified = bool(scene.features & R.F_STRATIFIED)
+    h = w = 20
+    single = np.array([[x, y, x + 1, y + 1] for y in range(h) for x in range(w)], np.int64)
+    images = []
+    for tiles in (R._tiles(w, h, 2), single):
+        film = (R._SplatFilm(scene.camera, module, h, w) if scene.camera.splats
+                else R._BoxFilm(module, h, w))
+        bad = np.zeros((h, w), np.int64)
+        film.render(scene.arrays, scene.camera.params, tiles, spp, 11, stratified, 1.0, bad)
+        images.append(film.develop(spp))
+    (m0, v0), (m1, v1) = images
+    assert m0.sum() > 0 and v0.sum() > 0
+    if scene.camera.splats:
+        np.testing.assert_allclose(m1, m0, rtol=1e-12, atol=1e-15)
+        # the variance's delta-method sums cancel where a pixel's samples agree
+        np.testing.assert_allclose(v1, v0, rtol=1e-9, atol=1e-9 * v0.max())
+    else:
+        assert np.array_equal(m0, m1) and np.array_equal(v0, v1)
+
+
 def test_splatting_without_variance_adds_the_value_sums_alone():
     from estimators.pathtracer.camera import SPLAT_VALUE_CHANNELS, splat
 
