@@ -53,3 +53,33 @@ def test_different_seeds_and_blocks_differ():
     assert not np.array_equal(a, b)
     assert not np.array_equal(a[:B], a[B:])
     assert 0.0 <= a.min() and a.max() < 1.0
+
+
+def _numpy_states(seq, first, count):
+    out = np.empty((count, 4), dtype=np.uint64)
+    for r in range(count):
+        child = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key + (first + r,))
+        st = np.random.PCG64(child).state["state"]
+        s, inc = st["state"], st["inc"]
+        out[r] = (s >> 64, s & (2 ** 64 - 1), inc >> 64, inc & (2 ** 64 - 1))
+    return out
+
+
+@pytest.mark.parametrize("seq", [
+    np.random.SeedSequence(0).spawn(2)[1],            # the checks' streams: a spawned child
+    np.random.SeedSequence(12345),                    # no spawn key: the run padded to 4 words
+    np.random.SeedSequence(2 ** 64 + 1, spawn_key=(7,)),
+    np.random.SeedSequence(2 ** 127 + 3, spawn_key=(1, 2 ** 40)),   # multi-word key values
+    np.random.SeedSequence([1, 2, 2 ** 35]),          # entropy given as a sequence
+    np.random.SeedSequence(5, spawn_key=(0, 1, 2, 3, 4, 5)),
+    np.random.SeedSequence(),                         # entropy from the OS (128 bits)
+], ids=["child", "plain", "key", "wide-key", "sequence", "long-key", "os"])
+@pytest.mark.parametrize("first,count", [(0, 20), (2 ** 31, 3), (2 ** 32 - 2, 2),
+                                         (2 ** 32 - 1, 3), (10, 0)])
+def test_block_states_are_numpys_seeding(seq, first, count):
+    """``block_states`` computes numpy's SeedSequence mixing and PCG64 seeding itself:
+    the very states numpy gives each block, for spawned and plain sequences, entropy of
+    one to four words or a sequence, spawn keys of big values; block indexes past 2^32
+    (two key words) take numpy's own path."""
+    assert np.array_equal(stream.block_states(seq, first, count),
+                          _numpy_states(seq, first, count))
