@@ -651,6 +651,18 @@ def pixel_group(spp, stratified):
 
 
 @njit(cache=True, inline="always")
+def _group_end(sc, stack, cam, seed, spp, n, xg, x1, y, width, height, pdf_scale, out, tab,
+               ctl, rays, states, group):
+    """The end of the group of ``group`` pixels from ``xg`` in a tile's row that ends at
+    ``x1``; with several pixels a call, their samples traced into ``out`` now."""
+    xe = min(x1, xg + group)
+    if group > 1:
+        _trace_samples(sc, stack, cam, seed, 0, spp, n, xg, xe, y, width, height, pdf_scale,
+                       out, tab, ctl, rays, states)
+    return xe
+
+
+@njit(cache=True, inline="always")
 def _sample_row(sc, stack, cam, seed, s, spp, n, x, xg, y, width, height, pdf_scale, out,
                 tab, ctl, rays, states, group):
     """The row of ``out`` that holds sample s of pixel (x, y): with one pixel a call
@@ -688,10 +700,8 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
         for y in range(y0, y1):
             for xg in range(x0, x1, group):
-                xe = min(x1, xg + group)
-                if group > 1:
-                    _trace_samples(sc, stack, cam, seed, 0, spp, n_strat, xg, xe, y, width,
-                                   height, pdf_scale, out, tab, ctl, rays, states)
+                xe = _group_end(sc, stack, cam, seed, spp, n_strat, xg, x1, y, width, height,
+                                pdf_scale, out, tab, ctl, rays, states, group)
                 for x in range(xg, xe):
                     mr, mg, mb = 0.0, 0.0, 0.0
                     sr, sg, sb = 0.0, 0.0, 0.0
@@ -748,10 +758,8 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
         tile_buf = buf[ti]
         for y in range(y0, y1):
             for xg in range(x0, x1, group):
-                xe = min(x1, xg + group)
-                if group > 1:
-                    _trace_samples(sc, stack, cam, seed, 0, spp, n_strat, xg, xe, y, width,
-                                   height, pdf_scale, out, tab, ctl, rays, states)
+                xe = _group_end(sc, stack, cam, seed, spp, n_strat, xg, x1, y, width, height,
+                                pdf_scale, out, tab, ctl, rays, states, group)
                 for x in range(xg, xe):
                     nbad = 0
                     for s in range(spp):
