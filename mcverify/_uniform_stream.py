@@ -134,27 +134,31 @@ def _mix(x, y):
 @njit(cache=True)
 def _seeded_states(prefix, first, out):
     """``out[r]``: the PCG64 state (high, low, increment high, low) that numpy seeds from
-    ``SeedSequence`` whose assembled entropy words are ``prefix`` then the block index
-    ``first + r`` (one 32-bit word): its pool (``mix_entropy``), four 64-bit words of
-    ``generate_state``, then PCG64's ``srandom`` (state 0, step, add the seed, step)."""
-    n = prefix.shape[0] + 1
+    ``SeedSequence`` whose assembled entropy words are ``prefix`` (at least ``_POOL``
+    words) then the block index ``first + r`` (one 32-bit word): its pool
+    (``mix_entropy``), four 64-bit words of ``generate_state``, then PCG64's ``srandom``
+    (state 0, step, add the seed, step). The prefix is mixed once; each block mixes in
+    its last word from there."""
+    base = np.empty(_POOL, np.uint64)
+    h0 = np.uint64(_INIT_A)
+    for i in range(_POOL):
+        base[i], h0 = _hashmix(prefix[i], h0)
+    for src in range(_POOL):
+        for dst in range(_POOL):
+            if src != dst:
+                v, h0 = _hashmix(base[src], h0)
+                base[dst] = _mix(base[dst], v)
+    for src in range(_POOL, prefix.shape[0]):
+        for dst in range(_POOL):
+            v, h0 = _hashmix(prefix[src], h0)
+            base[dst] = _mix(base[dst], v)
     mixer = np.empty(_POOL, np.uint64)
     words = np.empty(2 * _POOL, np.uint64)
     for r in range(out.shape[0]):
-        last = np.uint64(first + r)
-        h = np.uint64(_INIT_A)
-        for i in range(_POOL):      # the assembled entropy has more than _POOL words
-            mixer[i], h = _hashmix(prefix[i], h)
-        for src in range(_POOL):
-            for dst in range(_POOL):
-                if src != dst:
-                    v, h = _hashmix(mixer[src], h)
-                    mixer[dst] = _mix(mixer[dst], v)
-        for src in range(_POOL, n):
-            w = prefix[src] if src < n - 1 else last
-            for dst in range(_POOL):
-                v, h = _hashmix(w, h)
-                mixer[dst] = _mix(mixer[dst], v)
+        last, h = np.uint64(first + r), h0
+        for dst in range(_POOL):
+            v, h = _hashmix(last, h)
+            mixer[dst] = _mix(base[dst], v)
         h = np.uint64(_INIT_B)
         for i in range(2 * _POOL):
             v = (mixer[i % _POOL] ^ h) & _M32
