@@ -210,6 +210,13 @@ _TRANSFORM_ATTRIBUTES = {"translate": ("value", "x", "y", "z"),
 #: lets them leave [0, 1]
 _UNBOUNDED_RGB = ("eta", "k")
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
+#: the attributes Mitsuba's parser allows on each element (it refuses any other: a typo
+#: such as ``vaule=`` would otherwise leave a default in place without a word)
+_ATTRIBUTES = {"scene": ("version",), "default": ("name", "value"), "ref": ("id", "name"),
+               "transform": ("name",), "point": ("name", "value", "x", "y", "z"),
+               "vector": ("name", "value", "x", "y", "z"),
+               **{t: ("name", "value") for t in ("float", "integer", "boolean", "string", "rgb")}}
+_PLUGIN_ATTRIBUTES = ("type", "id", "name")
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")
 
@@ -227,6 +234,15 @@ class _Loader:
                          + "".join(f" {a}=\"{node.attrib[a]}\"" for a in ("type", "name")
                                    if a in node.attrib)
                          + f">: {message}")
+
+    def check_attributes(self, node):
+        """Refuse an attribute Mitsuba's parser does not allow on ``node``'s element."""
+        allowed = _PLUGIN_ATTRIBUTES if node.tag in _PLUGIN_TAGS else \
+            _ATTRIBUTES.get(node.tag, _TRANSFORM_ATTRIBUTES.get(node.tag))
+        for a in node.attrib:
+            if allowed is not None and a not in allowed:
+                self.fail(node, f"unexpected attribute {a!r}; <{node.tag}> takes "
+                                f"{', '.join(allowed)} (Mitsuba refuses it too)")
 
     def attr(self, node, name):
         if name not in node.attrib:
@@ -287,11 +303,7 @@ class _Loader:
     def transform(self, node):
         m = np.eye(4)
         for op in node.children:
-            allowed = _TRANSFORM_ATTRIBUTES.get(op.tag, ())
-            for a in op.attrib:
-                if a not in allowed:     # Mitsuba refuses these too (a typo, not a default)
-                    self.fail(op, f"unexpected attribute {a!r}; <{op.tag}> takes "
-                                  f"{', '.join(allowed)}")
+            self.check_attributes(op)     # Mitsuba refuses others (a typo, not a default)
             if "value" in op.attrib and any(k in op.attrib for k in "xyz"):
                 self.fail(op, "give either value or x/y/z, not both")
             try:
@@ -319,6 +331,17 @@ class _Loader:
             m = t @ m
         return m
 
+    def _check_invertible(self, node, m):
+        """Refuse a shape's or emitter's singular ``to_world`` (it flattens the object to a
+        plane, a line or a point: its normals, the inverse transpose, are undefined; a
+        camera's is the camera's to judge: ``camera.py``)."""
+        sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+        if not sv[-1] > 1e-12 * sv[0]:
+            self.fail(node, f"to_world is singular (its linear part's singular values "
+                            f"{', '.join(f'{v:.3g}' for v in sv)}): it flattens the object "
+                            "and leaves its normals undefined; give it a nonzero scale on "
+                            "every axis")
+
     def _xyz(self, op, default):
         """``value`` or x, y, z; a coordinate left out is ``default`` (None: required)."""
         if "value" in op.attrib:
@@ -330,6 +353,7 @@ class _Loader:
         kind = kind or node.tag
         if kind not in SUPPORTED:
             self.fail(node, f"unsupported element; supported: {', '.join(_PLUGIN_TAGS)}")
+        self.check_attributes(node)
         ptype = self.attr(node, "type")
         spec = SUPPORTED[kind].get(ptype)
         if spec is None:
@@ -337,7 +361,16 @@ class _Loader:
                             f"{', '.join(sorted(SUPPORTED[kind]))}")
         p = Plugin(kind, ptype, {}, node.line, node.attrib.get("id"))
         allowed_children = spec.get("children", ())
+
+        def set_prop(child, name, val):
+            if name in p.props:     # Mitsuba: 'specified multiple times'
+                self.fail(child, f"property {name!r} is given twice in this {kind}; give "
+                                 "it once (Mitsuba refuses it too)")
+            p.props[name] = val
+
         for child in node.children:
+            if child.tag in _VALUE_TAGS or child.tag == "ref":
+                self.check_attributes(child)
             if child.tag in _VALUE_TAGS:
                 name = self.attr(child, "name")
                 vkind, val = self.value(child)
@@ -356,7 +389,9 @@ class _Loader:
                     self.fail(child, f"an RGB reflectance must lie in [0, 1], got "
                                      f"{', '.join(f'{v:g}' for v in val)} (Mitsuba refuses "
                                      "it too; a <float> may exceed 1)")
-                p.props[name] = val
+                if vkind == "transform" and name == "to_world" and kind in ("shape", "emitter"):
+                    self._check_invertible(child, val)
+                set_prop(child, name, val)
             elif child.tag == "ref":
                 target = self.attr(child, "id")
                 if target not in self.ids:
@@ -368,7 +403,7 @@ class _Loader:
                     if name is None or name not in spec or "texture" not in spec[name]:
                         self.fail(child, f"texture {target!r} needs name=\"...\" naming a "
                                          f"property of {kind} {ptype!r} that takes a texture")
-                    p.props[name] = ref
+                    set_prop(child, name, ref)
                     continue
                 if ref.kind not in allowed_children:
                     self.fail(child, f"a {ref.kind} cannot go inside {kind} {ptype!r}")
@@ -377,7 +412,7 @@ class _Loader:
                 name = self.attr(child, "name")
                 if name not in spec or "texture" not in spec[name]:
                     self.fail(child, f"property {name!r} of {kind} {ptype!r} takes no texture")
-                p.props[name] = self.plugin(child)
+                set_prop(child, name, self.plugin(child))
             elif child.tag in _PLUGIN_TAGS:
                 if child.tag not in allowed_children:
                     self.fail(child, f"a <{child.tag}> cannot go inside {kind} {ptype!r}")
@@ -393,6 +428,14 @@ class _Loader:
                 if sum(c.kind == what for c in p.children) > 1:
                     self.fail(node, f"more than one {what} in one shape (Mitsuba refuses "
                                     "it too); give each its own shape")
+            for c in p.children:
+                if c.kind == "emitter" and c.type != "area":
+                    # Mitsuba keeps such a light as it is (a point light at its own
+                    # position, not the shape's surface); rendering the shape as an
+                    # area light instead would be silently wrong
+                    self.fail(node, f"a {c.type!r} emitter inside a shape (line {c.line}): "
+                                    "only an area emitter makes a shape emit; put a "
+                                    f"{c.type} light at the top level of the scene")
         if p.id:
             if p.id in self.ids:
                 self.fail(node, f"id {p.id!r} is already used by the <{self.ids[p.id].kind}> "
@@ -402,6 +445,7 @@ class _Loader:
         return p
 
     def load(self, root) -> SceneDescription:
+        self.check_attributes(root)
         version = self.attr(root, "version")    # Mitsuba requires it too
         if not re.fullmatch(r"\d+\.\d+\.\d+", version.strip()):
             self.fail(root, f"version {version!r}: expected major.minor.patch, e.g. 3.0.0")
@@ -413,6 +457,7 @@ class _Loader:
         shapes, emitters = [], []
         for node in root.children:
             if node.tag == "default":
+                self.check_attributes(node)
                 name = self.attr(node, "name")
                 self.declared.add(name)
                 self.params.setdefault(name, node.attrib.get("value", ""))

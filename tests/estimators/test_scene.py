@@ -294,6 +294,98 @@ def test_unsupported_input_is_rejected_by_line(body, needles):
         assert n in msg, msg
 
 
+_CAMERA = ('<sensor type="perspective"><float name="fov" value="40"/><transform name="to_world">'
+           '<lookat origin="0,0,5" target="0,0,0" up="0,1,0"/></transform><film type="hdrfilm">'
+           '<integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>')
+
+
+@pytest.mark.parametrize("body,needles", [
+    # an attribute Mitsuba's parser does not know, on each kind of element
+    ('<shape type="sphere" foo="bar"/>', ["<shape type=\"sphere\">", "unexpected attribute 'foo'",
+                                          "type, id, name"]),
+    ('<shape type="sphere"><float name="radius" value="0.5" foo="bar"/></shape>',
+     ['<float name="radius">', "unexpected attribute 'foo'", "name, value"]),
+    ('<shape type="sphere"><float name="radius" vaule="0.5"/></shape>',
+     ["unexpected attribute 'vaule'"]),
+    ('<shape type="sphere"><point name="center" x="0" y="0" z="0" w="1"/></shape>',
+     ["unexpected attribute 'w'", "name, value, x, y, z"]),
+    ('<shape type="sphere"><transform name="to_world" type="x"><scale value="2"/></transform>'
+     '</shape>', ["<transform", "unexpected attribute 'type'"]),
+    ('<bsdf type="diffuse" id="b"/><shape type="sphere"><ref id="b" foo="1"/></shape>',
+     ["<ref>", "unexpected attribute 'foo'", "id, name"]),
+    ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="0.5" x="1"/>'
+     '</bsdf></shape>', ["<rgb", "unexpected attribute 'x'"]),
+    # a property given twice: Mitsuba does not pick one
+    ('<shape type="sphere"><float name="radius" value="0.5"/><float name="radius" value="0.2"/>'
+     '</shape>', ["property 'radius' is given twice"]),
+    ('<shape type="cube"><transform name="to_world"><scale value="0.3"/></transform>'
+     '<transform name="to_world"><translate y="1"/></transform></shape>',
+     ["property 'to_world' is given twice"]),
+    ('<shape type="sphere"><boolean name="flip_normals" value="false"/>'
+     '<boolean name="flip_normals" value="true"/></shape>', ["'flip_normals' is given twice"]),
+], ids=["plugin-attribute", "value-attribute", "value-typo", "point-attribute",
+        "transform-attribute", "ref-attribute", "rgb-attribute", "float-twice",
+        "to-world-twice", "boolean-twice"])
+def test_what_mitsuba_refuses_is_refused(mi, body, needles):
+    """Attributes Mitsuba's parser does not allow and properties given twice: a typo
+    (``vaule=``) or a second value would otherwise pass without a word, one of the two
+    meanings chosen silently; Mitsuba refuses each of these scenes too."""
+    text = f'<scene version="3.0.0">\n{_CAMERA}\n{body}\n<emitter type="constant"/></scene>'
+    msg = _error(text)
+    assert "s.xml:3" in msg, msg
+    for n in needles:
+        assert n in msg, msg
+    with pytest.raises(RuntimeError):
+        mi.load_string(text)
+
+
+def test_the_scene_and_default_elements_take_only_their_attributes():
+    assert "unexpected attribute 'foo'" in _error(f'<scene version="3.0.0" foo="1">{SENSOR}'
+                                                  '</scene>')
+    assert "unexpected attribute 'id'" in _error(f'<scene version="3.0.0"><default name="a" '
+                                                 f'value="1" id="x"/>{SENSOR}</scene>')
+    # the attributes Mitsuba allows still load: name on a plugin, value on a point
+    parse_scene(f'<scene version="3.0.0">{_CAMERA}<bsdf type="diffuse" id="b" name="n"/>'
+                '<shape type="sphere" name="s"><ref id="b" name="bsdf"/>'
+                '<point name="center" value="0, 0, 1"/></shape></scene>', path="s.xml")
+
+
+@pytest.mark.parametrize("light", [
+    '<emitter type="point"><point name="position" value="0, 2, 0"/></emitter>',
+    '<emitter type="directional"><vector name="direction" value="0, -1, 0"/></emitter>',
+    '<emitter type="constant"/>',
+], ids=["point", "directional", "constant"])
+def test_a_light_that_is_no_area_light_is_refused_inside_a_shape(light):
+    """Mitsuba keeps a point, directional or constant light nested in a shape as that light
+    (the shape does not emit); the loader rendered the shape as an area light instead,
+    silently (the image 25 % brighter). It is refused, nested or by reference."""
+    msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere">{light}</shape>'
+                 '</scene>')
+    assert "s.xml:3" in msg and "inside a shape" in msg and "top level" in msg, msg
+    ref = light.replace("<emitter ", '<emitter id="L" ', 1)
+    msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n{ref}\n<shape type="sphere">'
+                 '<ref id="L"/></shape></scene>')
+    assert "s.xml:4" in msg and "inside a shape" in msg, msg
+
+
+@pytest.mark.parametrize("ops", [
+    '<matrix value="0.5 0 0 0  0 0 0 1  0 0 0.5 0  0 0 0 1"/>',
+    '<scale x="2" y="0" z="1"/>',
+    '<scale value="0"/>',
+], ids=["matrix-flat", "scale-y-zero", "scale-zero"])
+@pytest.mark.parametrize("shape", ["cube", "rectangle", "sphere", "disk"])
+def test_a_singular_to_world_is_refused(shape, ops):
+    """A shape's to_world that flattens it (the helper's cube rendered 0.6 % off Mitsuba,
+    whose normals there are undefined) is refused, naming the transform."""
+    msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n<shape type="{shape}">'
+                 f'<transform name="to_world">{ops}</transform></shape></scene>')
+    assert "s.xml:3" in msg and "to_world is singular" in msg, msg
+    # a thin but invertible one loads
+    parse_scene(f'<scene version="3.0.0">{SENSOR}<shape type="{shape}"><transform '
+                f'name="to_world"><scale x="2" y="1e-3" z="1"/></transform></shape></scene>',
+                path="s.xml")
+
+
 def test_an_integer_is_read_as_a_float_where_a_float_is_expected():
     """Mitsuba reads ``<integer>`` as a number wherever a float (or a colour) is
     expected; so does the loader (it refused it before)."""
