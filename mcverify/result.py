@@ -199,6 +199,13 @@ def atomic_write(path, data: str | bytes) -> None:
     or character device is written into directly (see ``output_target``)."""
     target, how = output_target(path)
     payload = data.encode("utf-8") if isinstance(data, str) else data
+    try:
+        _write(target, how, payload)
+    except OSError as e:    # named by the path asked for, not a temporary file's name
+        raise OSError(e.errno, f"cannot write it ({e.strerror or e})", path) from None
+
+
+def _write(target: str, how: str, payload: bytes) -> None:
     if how == "stream":
         with open(target, "wb") as f:
             f.write(payload)
@@ -233,6 +240,10 @@ def write_json(result, path: str, *, provenance: dict | None = None) -> None:
 
 def write_junit(suite: SuiteResult, path: str) -> None:
     """Write a suite as JUnit XML (one testcase per check, canaries as their own class)."""
+    if not isinstance(suite, SuiteResult):
+        raise InvalidArgument(f"write_junit: expected a SuiteResult (what run_suite and "
+                              f"`mcverify check` make), got {type(suite).__name__}; a single "
+                              "CheckResult goes to write_json")
     cases = list(suite.results) + [replace(c, name="canary." + c.name, passed=not c.passed)
                                    for c in suite.canary]
     root = ET.Element("testsuite", name=f"mcverify.{suite.name}", tests=str(len(cases)),

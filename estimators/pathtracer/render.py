@@ -286,8 +286,9 @@ def pass_seed(seed: int, k: int) -> int:
 
 def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> RenderResult:
     per = spp // passes
-    if per < 1:
-        raise ValueError(f"spp={spp} cannot be split into {passes} passes")
+    if per < 1 or spp % passes:
+        raise ValueError(f"spp={spp} cannot be split into {passes} equal passes (spp must "
+                         "be a multiple of passes)")
     means = []
     seconds = 0.0
     stats = {}

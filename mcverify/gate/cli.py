@@ -28,7 +28,8 @@ EPILOG = """exit codes:
 
 output files (--json, --junit) are written when the run ends: a regular file is replaced
 atomically, a symlink is followed to its target, a FIFO or device (/dev/stdout) is
-written into; paths are checked before any work"""
+written into, missing folders are made; paths are checked before any work; an option
+given twice exits 2"""
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter):
@@ -42,10 +43,30 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
         return text
 
 
+class _Once(argparse.Action):
+    """An option that takes one value and may be given once: argparse keeps the last of
+    repeated ones, so ``--suite A --suite B`` ran B alone without a word."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = namespace.__dict__.setdefault("_given_once", {})
+        if self.dest in given:
+            parser.error(f"{option_string} given twice ({given[self.dest]!r} and {values!r}); "
+                         "give it once")
+        given[self.dest] = values
+        setattr(namespace, self.dest, values)
+
+
 class _Parser(argparse.ArgumentParser):
     def __init__(self, *a, **kw):
         kw.setdefault("formatter_class", _Formatter)
         super().__init__(*a, **kw)
+
+    def add_argument(self, *args, **kw):
+        # every option with one value (not --param, which collects; not flags)
+        if args and args[0].startswith("-") and kw.get("action", "store") == "store" \
+                and kw.get("nargs") is None:
+            kw["action"] = _Once
+        return super().add_argument(*args, **kw)
 
     def error(self, message):  # one line, exit 2 (argparse's own convention too)
         self.exit(EXIT_BAD_INPUT, f"mcverify: error: {message} (see `mcverify --help`)\n")
@@ -200,9 +221,16 @@ def _suite_checks(args):
         args.seed = config.seed if config and config.seed is not None else 0
     roots = [os.path.join(config.root, p) for p in config.path] if config else []
     roots.append(".")
-    checks, skipped = [], []
+    checks, skipped, origin = [], [], {}
     for n in names:
         c, s = suites.resolve_suite(n, roots=roots)
+        for check in c:     # each check's seed derives from its name: two would share one
+            if check.name in origin:
+                raise InvalidArgument(f"check {check.name!r} is in suite {origin[check.name]!r} "
+                                      f"and in suite {n!r}; names must be unique across the "
+                                      "suites of one run (seeds derive from names): rename "
+                                      "one")
+            origin[check.name] = n
         checks += c
         skipped += s
     return "+".join(names), checks, skipped, ({"config": config.file} if config else {})
@@ -268,6 +296,10 @@ def _cmd_check(args) -> int:
     if args.scene:
         planned, skipped, _ = _plan(args.scene, args.suite)
         selected = suites.select(planned, args.k)
+        if planned and not selected:      # -k left nothing: no gate may pass on no check
+            raise InvalidArgument(f"-k {args.k!r}: matches none of the {len(planned)} "
+                                  f"checks the scene needs; `mcverify plan {args.scene}` "
+                                  "lists them")
         extra["scene"] = os.path.abspath(args.scene)
     elif args.budget is not None:
         from .budget import plan_budget
@@ -527,7 +559,8 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
                                       "variance and n)")
         files = pass_files(passes, option=f"{opt}-passes")
         return (lambda keep=False: pass_stats(passes, option=f"{opt}-passes", keep=keep)), files
-    if reference_ok and not os.path.isfile(image):
+    if reference_ok and (not os.path.isfile(image) or image.lower().endswith(".xml")):
+        # a reference name, its folder or its scene file (never an image)
         return None, reference.reference_files(image)
     if var is None or n is None:
         raise InvalidArgument(f"{image}: an image needs {opt}-var and {opt}-n (or give "

@@ -174,6 +174,10 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     spp = validate.integer("spp", spp, minimum=1)
     passes = validate.integer("passes", passes, minimum=1)
     alpha = validate.probability("alpha", alpha)
+    if spp % passes:        # the passes are equal: none of the spp may be dropped unsaid
+        raise InvalidArgument(f"spp={spp}, passes={passes}: spp must be a multiple of "
+                              f"passes (each pass renders spp / passes samples); e.g. "
+                              f"spp={spp // passes * passes or passes}")
     ours = renderer is None
     if ours:
         if passes < 2 or spp < MIN_SPP_PER_PASS * passes:

@@ -418,6 +418,18 @@ CLI = [
      "-k 'zzz'"),
     # arguments
     ("check-k-nomatch", ["check", "-k", "nomatch"], "-k 'nomatch'"),
+    # with --scene too: a gate of no checks must not pass (it exited 0 until 4 December)
+    ("check-scene-k-nomatch", ["check", "--scene", "{d}/ref-ok/scene.xml", "-k", "zzz"],
+     "-k 'zzz': matches none of the"),
+    # an option given twice: argparse kept the last one without a word
+    ("check-suite-twice", ["check", "--suite", "default", "--suite", "full"],
+     "--suite given twice ('default' and 'full')"),
+    ("check-scene-twice", ["check", "--scene", "{d}/ref-ok/scene.xml", "--scene",
+                           "{d}/ref-ok/scene.xml"], "--scene given twice"),
+    ("render-check-spp-twice", ["render-check", "{d}/ref-ok", "--spp", "64", "--spp", "128"],
+     "--spp given twice"),
+    ("render-check-spp-passes", ["render-check", "{d}/ref-ok", "--spp", "1000", "--passes",
+                                 "16"], "spp must be a multiple of passes"),
     ("list-k-nomatch", ["list", "-k", "nomatch"], "-k 'nomatch'"),
     ("check-seed-2^63", ["check", "--seed", str(2 ** 63)], "--seed 9223372036854775808"),
     ("check-seed-text", ["check", "--seed", "abc"], "--seed"),
@@ -726,6 +738,52 @@ def test_powerless_sampler_check_says_so():
     right = mv.check_sampler(lambda u: u[:, :1], lambda x: np.ones(len(x)), "interval",
                              n_samples=20_000)
     assert right.passed and not any("power" in m for m in right.messages)
+
+
+def test_no_advice_to_draw_more_where_more_cannot_help():
+    """A pdf that is 0 everywhere, or a side with no point inside the domain, fails for
+    that reason; the pooled χ² has few bins then, but 'draw more samples' would be wrong
+    advice (it was given until 4 December)."""
+    zero = mv.check_sampler(lambda u: u, lambda x: np.zeros(len(x)), "square",
+                            n_samples=20_000)
+    assert not zero.passed and "integrates to 0" in " ".join(zero.failures)
+    assert not any("draw more" in m for m in zero.messages), zero.messages
+    outside = mv.check_same_distribution(lambda u: u[:, :1] + 2.0, lambda u: u[:, :1],
+                                         "interval", n_samples=20_000)
+    assert not outside.passed and "outside" in " ".join(outside.failures)
+    assert not any("draw more" in m for m in outside.messages), outside.messages
+
+
+def test_a_failed_write_names_the_output_not_a_temporary_file(tmp_path, monkeypatch):
+    """The run's end writes the outputs: a full device or a file that refuses to be
+    replaced (``chattr +i``) is reported by the path the user gave (it named nothing, or
+    the '.tmp-…' file, before); the old file stays, no temporary file is left."""
+    with pytest.raises(OSError) as e:
+        atomic_write("/dev/full", "x" * 100_000)
+    assert e.value.filename == "/dev/full" and "No space left" in e.value.strerror
+    target = tmp_path / "out.json"
+    target.write_text("old\n")
+
+    def refuse(src, dst):            # what the kernel answers for an immutable target
+        raise PermissionError(1, "Operation not permitted", src)
+
+    monkeypatch.setattr(os, "replace", refuse)
+    with pytest.raises(OSError) as e:
+        atomic_write(str(target), "new\n")
+    monkeypatch.undo()
+    assert e.value.filename == str(target) and ".tmp-" not in str(e.value), e.value
+    assert "Operation not permitted" in e.value.strerror
+    assert target.read_text() == "old\n" and os.listdir(tmp_path) == ["out.json"]
+
+
+def test_write_junit_refuses_a_single_check_result(tmp_path):
+    from mcverify.result import write_junit
+
+    with pytest.raises(mv.InvalidArgument, match="expected a SuiteResult.*CheckResult"):
+        write_junit(CheckResult("c", True, 0.5, 1.0, 0.01, 10, 0.0), str(tmp_path / "j.xml"))
+    assert not (tmp_path / "j.xml").exists()
+    write_junit(_suite(), str(tmp_path / "j.xml"))
+    assert "<testsuite" in (tmp_path / "j.xml").read_text()
 
 
 def test_constant_scalar_pdf_is_that_value_everywhere():
