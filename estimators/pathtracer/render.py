@@ -9,6 +9,7 @@ every feature on, for comparison.
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import math
@@ -48,16 +49,49 @@ class RenderResult:
     passes: np.ndarray | None = None
 
 
-def _dependency_digest() -> str:
-    """Hash of every source the kernel compiles in. numba's cache checks only the file of
-    the cached function itself, not its callees, so the generated file's name carries
-    this digest: an edit to a BSDF or a warp makes a new kernel, never a stale one."""
-    here = os.path.dirname(__file__)
-    parent = os.path.dirname(here)
-    files = sorted(os.path.join(here, f) for f in os.listdir(here) if f.endswith(".py"))
-    files += [os.path.join(parent, f) for f in ("warps.py", "distributions.py", "_fastmath.py")]
+def _imported_files(path: str, top: str | None = None) -> list[str]:
+    """The files of the ``estimators`` package that ``path`` imports, directly or through
+    them (every ``import``/``from`` statement, at module level or inside a function;
+    relative ones resolved), ``path`` excluded. A package's ``__init__`` is not followed:
+    numba compiles a function together with the globals of its own module only, and a
+    module's names reach another module only through an import statement."""
+    # ``top``: the folder holding ``estimators/`` (a test gives another)
+    top = top or os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    seen, todo = set(), [os.path.abspath(path)]
+    while todo:
+        current = todo.pop()
+        with open(current, encoding="utf-8") as f:
+            tree = ast.parse(f.read(), current)
+        package = os.path.relpath(os.path.dirname(current), top).split(os.sep)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                base = (package[:len(package) - node.level + 1] if node.level else [])
+                base += node.module.split(".") if node.module else []
+                targets = [base + [a.name] for a in node.names] + [base]
+            elif isinstance(node, ast.Import):
+                targets = [a.name.split(".") for a in node.names]
+            else:
+                continue
+            for parts in targets:
+                if parts[:1] != ["estimators"]:
+                    continue
+                f = os.path.join(top, *parts) + ".py"
+                if os.path.isfile(f) and f not in seen and f != os.path.abspath(path):
+                    seen.add(f)
+                    todo.append(f)
+    return sorted(seen)
+
+
+def _dependency_digest(template: str | None = None) -> str:
+    """Hash of every source the kernel (or another template, ``_sampling_loops.py``)
+    compiles in: the files it imports, transitively (``_imported_files``). numba's cache
+    checks only the file of the cached function itself, not its callees, so the
+    generated file's name carries this digest: an edit to a BSDF or a warp makes a new
+    kernel, never a stale one, and an edit to the Python that drives it (``render.py``,
+    ``prepare.py``) does not cost a recompilation of every scene's kernel."""
     h = hashlib.sha256()
-    for path in files:
+    for path in _imported_files(template or _kernel.__file__):
+        h.update(os.path.basename(path).encode())
         with open(path, "rb") as f:
             h.update(f.read())
     return h.hexdigest()

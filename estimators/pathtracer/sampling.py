@@ -43,10 +43,10 @@ __all__ = ["bsdf_sampler", "emitter_sampler", "bsdf_has_density", "emitter_has_d
 @functools.lru_cache(maxsize=1)
 def _loops():
     """The compiled loops (see ``_sampling_loops``)."""
-    with open(os.path.join(os.path.dirname(__file__), "_sampling_loops.py"),
-              encoding="utf-8") as f:
+    template = os.path.join(os.path.dirname(__file__), "_sampling_loops.py")
+    with open(template, encoding="utf-8") as f:
         source = f.read()
-    key = hashlib.sha256((source + _dependency_digest()).encode()).hexdigest()[:16]
+    key = hashlib.sha256((source + _dependency_digest(template)).encode()).hexdigest()[:16]
     return load_cached(f"mcverify_sampling_{key}", source)
 
 

@@ -150,6 +150,42 @@ def test_every_scenes_specialised_kernel_matches_the_general_one(name):
     assert np.array_equal(a.mean, b.mean) and np.array_equal(a.variance, b.variance)
 
 
+def test_the_kernels_digest_covers_what_it_imports_and_not_the_driver(tmp_path, monkeypatch):
+    """The kernel's cache name carries a digest of the files it imports, transitively
+    (numba's cache does not look at callees): a BSDF or warp edit makes a new kernel;
+    render.py or prepare.py (Python that drives it) are outside it."""
+    R = importlib.import_module("estimators.pathtracer.render")
+    names = {os.path.relpath(f, os.path.dirname(os.path.dirname(R.__file__)))
+             for f in R._imported_files(R._kernel.__file__)}
+    for needed in ("pathtracer/bsdfs.py", "pathtracer/camera.py", "pathtracer/emitters.py",
+                   "pathtracer/geometry.py", "pathtracer/layout.py", "pathtracer/textures.py",
+                   "pathtracer/flat.py", "warps.py", "distributions.py", "_fastmath.py"):
+        assert needed in names, (needed, names)
+    for driver in ("pathtracer/render.py", "pathtracer/prepare.py", "pathtracer/meshes.py",
+                   "pathtracer/sampling.py", "pathtracer/_kernel.py"):
+        assert driver not in names, (driver, names)
+    # the resolution rules on a small tree: relative (one and two dots, "from . import"),
+    # absolute, inside a function; outside packages and unknown modules ignored
+    pkg = tmp_path / "estimators"
+    (pkg / "sub").mkdir(parents=True)
+    files = {"sub/root.py": "from .a import x\nfrom . import b\nimport numpy\n"
+                            "def f():\n    from estimators.sub.c import y\n",
+             "sub/a.py": "from ..d import z\n", "sub/b.py": "", "sub/c.py": "",
+             "d.py": "from estimators import e\n", "e.py": "from .sub import root\n",
+             "sub/unused.py": "", "sub/__init__.py": "from .unused import *\n"}
+    for rel, text in files.items():
+        (pkg / rel).write_text(text)
+    got = {os.path.relpath(f, pkg) for f in R._imported_files(str(pkg / "sub" / "root.py"),
+                                                              top=str(tmp_path))}
+    assert got == {"sub/a.py", "sub/b.py", "sub/c.py", "d.py", "e.py"}, got
+    # and the digest moves with an imported file's bytes
+    monkeypatch.setattr(R, "_imported_files", lambda path, top=None: [str(pkg / "d.py")])
+    before = R._dependency_digest()
+    assert before == R._dependency_digest()
+    (pkg / "d.py").write_text("from ..d import z  # edited\n")
+    assert R._dependency_digest() != before
+
+
 def test_render_reports_progress_and_rejects_bad_arguments():
     calls = []
     scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 40})
