@@ -180,6 +180,9 @@ def values(name: str, v, n: int) -> np.ndarray:
 
 
 def samples_1d(name: str, v, *, minimum: int = 2) -> np.ndarray:
+    if np.iscomplexobj(v):      # numpy would drop the imaginary part with a warning
+        raise InvalidArgument(f"{name}: complex values; the checks test real estimates "
+                              "(test the real and imaginary parts separately)")
     try:
         a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):

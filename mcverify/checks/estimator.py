@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 
 import numpy as np
@@ -186,22 +187,38 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
                            seconds=time.perf_counter() - t0,
                            details={"variance": None, "expected_variance": ev},
                            failures=tuple(failures))
-    r = stats.variance_test(x, ev)
-    if ev == 0.0 and r.p_value == 0.0:
-        failures.append(f"expected zero variance (p ∝ f), measured {r.variance:.3g}")
-    p = None if ev == 0.0 else r.p_value
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = stats.variance_test(x, ev)
+    messages = []
+    if not (np.isfinite(r.variance) and np.isfinite(r.statistic) or r.statistic == -np.inf):
+        failures.append(f"the samples' variance or its standard error overflows float64 "
+                        f"(largest |x| = {np.abs(x).max():.3g}): rescale the estimates "
+                        "(e.g. divide f by a constant) before testing")
+        p = None
+    elif ev == 0.0:
+        p = None
+        if r.p_value == 0.0:
+            failures.append(f"expected zero variance (p ∝ f), measured {r.variance:.3g}")
+    else:
+        p = r.p_value
+        if p <= alpha:
+            why = ("the samples are constant" if r.statistic == -np.inf else
+                   f"{abs(r.statistic):.3g} standard errors {'above' if r.statistic > 0 else 'below'} it")
+            messages.append(f"sample variance {r.variance:.6g} against the expected "
+                            f"{ev:.6g}: {why} (p = {p:.3g})")
     return CheckResult(name=name, passed=CheckResult.decide(p, alpha, failures), p_value=p,
                        statistic=r.statistic, alpha=alpha, n_samples=int(x.size),
                        seconds=time.perf_counter() - t0,
                        details={"variance": r.variance, "expected_variance": ev},
-                       failures=tuple(failures))
+                       messages=tuple(messages), failures=tuple(failures))
 
 
 def _estimate(estimate, n: int, seed: int) -> float:
     """One estimate as a float, or InvalidArgument saying what ``estimate`` returned."""
     out = estimate(n, seed)
-    try:
-        value = np.asarray(out, dtype=np.float64)
+    try:    # None would become NaN, a complex number lose its imaginary part
+        value = None if out is None or np.iscomplexobj(out) else \
+            np.asarray(out, dtype=np.float64)
     except (TypeError, ValueError):
         value = None
     if value is None or value.size != 1 or isinstance(out, (str, bytes)):
@@ -231,7 +248,11 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
         −0.5 for i.i.d. Monte Carlo.
     alternative : {"two-sided", "less"}
         ``"two-sided"``: pass iff the slope is consistent with ``expected_slope``.
-        ``"less"``: pass iff the slope is significantly steeper (RQMC).
+        ``"less"``: the claim is "at least as steep as ``expected_slope``" (RQMC,
+        stratified sampling): fail iff the slope is significantly shallower; a steeper
+        one never fails. To verify a faster rate, claim it: ``expected_slope=-1.0``
+        fails an "RQMC" that converges as plain MC (−0.5), while ``-0.5`` shows only
+        that it is no slower than MC (plain MC passes that too).
 
     Notes
     -----
@@ -259,6 +280,13 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     if alternative not in ("two-sided", "less"):
         raise InvalidArgument(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
     seeds = np.random.SeedSequence(validate.seed("seed", seed)).generate_state(r * len(ns))
+    try:        # a wrong signature is the caller's mistake, named before any estimate
+        inspect.signature(estimate).bind(1, 2)
+    except TypeError:
+        raise InvalidArgument(f"estimate={validate._show(estimate)}: must take (n, seed), "
+                              "the sample count and a seed, and return one estimate") from None
+    except ValueError:
+        pass                                    # no signature to read (a builtin): call it
     e2 = np.empty((len(ns), r))
     for i, n in enumerate(ns):
         for j in range(r):
@@ -291,8 +319,9 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     if alternative == "two-sided":
         p = fit.p_value
     else:
-        # Passing means rejecting "slope >= expected": report 1 - p as the check's
-        # p-value so that, as everywhere, small p means failure.
+        # The claim "slope <= expected" is the null, as every check's claim is: small p
+        # (evidence of a shallower slope) means failure. fit.p_value is P(Z <= z) for
+        # the opposite alternative, so the check's p is 1 - that.
         p = 1.0 - fit.p_value
     msg = (f"slope {fit.slope:.3f} ({100 * (1 - alpha):.4g}% CI [{fit.ci_low:.3f}, "
            f"{fit.ci_high:.3f}]), "

@@ -816,6 +816,10 @@ def detectable_contamination(result: CheckResult, *, power: float = 0.95,
         pairs += [(expected.sum(axis=1), uniform.sum(axis=1)),
                   (expected.sum(axis=0), uniform.sum(axis=0))]
     level = alpha / (len(pairs) if expected.ndim == 2 else 2)
+    if not power > level:      # at ε = 0 the test already rejects with its level
+        raise InvalidArgument(f"power={power}: must exceed the test's level {level:.3g} "
+                              "(alpha over its sub-tests), which it has with no "
+                              "contamination at all")
     return min(stats.chi2_detectable_mixture(e, u, alpha=level, power=power) for e, u in pairs)
 
 

@@ -99,6 +99,15 @@ def test_stratified_and_rqmc_converge_faster():
                              seed=s, replicates=2).value, 1.3179021514544038,
         ns=(64, 256, 1024, 4096), n_seeds=32, expected_slope=-0.5, alternative="less")
     assert q.passed and q.statistic < -0.9, q.messages
+    # "less" is the claim "at least as steep": plain MC meets -0.5 (no slower than MC)
+    # but fails a claimed RQMC rate, which is how a broken RQMC is caught
+    mc_est = lambda n, s: np.mean(np.sin(np.pi * np.random.default_rng(s).random(n))) * np.pi
+    as_mc = mv.check_convergence(mc_est, 2.0, ns=(64, 256, 1024, 4096), n_seeds=32,
+                                 expected_slope=-0.5, alternative="less")
+    assert as_mc.passed, as_mc.messages
+    claimed = mv.check_convergence(mc_est, 2.0, ns=(64, 256, 1024, 4096), n_seeds=32,
+                                   expected_slope=-1.0, alternative="less")
+    assert not claimed.passed and claimed.p_value < 1e-6, claimed.messages
 
 
 @pytest.mark.parametrize("call,match", [

@@ -28,6 +28,10 @@ def test_allocate_clamps_and_says_when_the_budget_is_too_small():
     assert n == {"a": 1000} and predicted > 5.0 and "too small" in notes[0]
     n, _, _ = allocate(1e6, 0.0, 0.0, {"a": 0.0}, {"a": 1e-9}, n_min=1000, n_max=10**9)
     assert n == {"a": 10**9}
+    # a huge budget or a free check: capped, no infinite n (OverflowError until 4 December)
+    n, _, _ = allocate(1e308, 1.0, 0.0, {"a": 0.1, "b": 0.1}, {"a": 1e-8, "b": 0.0},
+                       n_min=1000, n_max=10**9)
+    assert n == {"a": 10**9, "b": 10**9}
 
 
 class _FakeCheck:
@@ -87,6 +91,10 @@ def test_detectable_contamination_falls_as_one_over_root_n():
     assert e4 == pytest.approx(e1 / 2, rel=1e-3)
     assert 0.001 < e4 < 0.02
     assert mv.detectable_contamination(r4, alpha=1e-4) > e4
+    # a power at or below the test's own level is no power (scipy's root finder raised)
+    with pytest.raises(mv.InvalidArgument, match="power=0.001: must exceed the test's level"):
+        mv.detectable_contamination(r4, power=0.001)
+    assert 0 < mv.detectable_contamination(r4, power=0.01) < e4
 
 
 def test_uniform_contamination_of_a_uniform_pdf_is_invisible():

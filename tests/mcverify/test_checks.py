@@ -138,6 +138,29 @@ def test_zero_variance_when_p_proportional_to_f():
     assert not mv.check_variance(x ** 2 / (2 * x)).passed
 
 
+def test_a_known_variance_is_tested_at_its_level_and_a_wrong_one_says_why():
+    """Fair coin flips and ±1 signs: (X − μ)² is constant, μ₄ = σ⁴, and the test's
+    standard error was 0 (an exact comparison: 59 of 100 seeds failed at α = 0.01). With
+    the sample variance's exact variance, 200 seeds give no false alarm (the test is
+    conservative there; measured 0 in 1000); uniform and exponential samples keep the
+    level (12 and 10 in 1000 at α = 0.01, not asserted here). A wrong claim fails
+    saying by how much, scaled data does not overflow, constant data is no variance."""
+    coin = [not mv.check_variance(np.random.default_rng(s).integers(0, 2, 10_000)
+                                  .astype(float), 0.25).passed for s in range(200)]
+    sign = [not mv.check_variance(np.random.default_rng(s).choice([-1.0, 1.0], 20_000),
+                                  1.0).passed for s in range(50)]
+    assert sum(coin) <= 5 and sum(sign) <= 3, (sum(coin), sum(sign))   # binomial: p < 1e-3
+    u = np.random.default_rng(0).random(100_000)
+    wrong = mv.check_variance(u, 1.03 / 12)
+    assert not wrong.passed and not wrong.failures
+    assert "standard errors below it" in wrong.messages[0], wrong.messages
+    assert mv.check_variance(u * 1e100, 1e200 / 12).passed     # (s²)² overflowed before
+    big = mv.check_variance(u * 1e160, 1e300)
+    assert not big.passed and "overflows float64" in big.failures[0], big.failures
+    const = mv.check_variance(np.full(1000, 1e-3), 5e-9)       # np.isclose passed it
+    assert not const.passed and "samples are constant" in const.messages[0], const.messages
+
+
 @pytest.mark.parametrize("samples", [np.full(10, np.nan), np.r_[np.inf, 1.0, np.nan]])
 def test_variance_of_too_few_finite_samples_fails_saying_so(samples):
     """All but one sample NaN/Inf: a failed check naming both problems (it was a

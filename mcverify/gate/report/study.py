@@ -101,8 +101,10 @@ def run_study(*, ns=(64, 256, 1024, 4096, 16384), n_seeds: int = 24, seed: int =
 
     ``ns`` are powers of two (for Sobol) and perfect squares/fourth powers are not
     required: stratified sampling rounds to the nearest grid. Expected slopes: −0.5 for
-    i.i.d. and antithetic MC; steeper than −0.5 ("less") for stratified and RQMC, which
-    on discontinuous integrands reach about −0.75 and on smooth ones −1 to −1.5.
+    i.i.d. and antithetic MC; at least as steep as −0.5 ("less": no slower than MC) for
+    stratified and RQMC, which on discontinuous integrands reach about −0.75 and on
+    smooth ones −1 to −1.5 (a 4-D product only −0.58 stratified at these N, its
+    asymptotic −0.75 not yet reached): the table shows how much steeper.
     """
     rows = []
     combos = [(g, name, spec) for g in integrands() for name, spec in _estimators().items()
