@@ -85,6 +85,29 @@ def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_sca
     return r.mean, r.seconds, r.stats
 
 
+def _held_to_the_references_passes(out, ref, spp: int, path: str, who: str) -> None:
+    """A renderer of one's own on a splatting scene is held to what ours is held to: the
+    reference's samples per pass (a pixel's Σ w L / Σ w has an O(1/samples) bias), and a
+    mean that is its passes' mean (the pixel tests read the passes, the image the mean)."""
+    passes = np.asarray(out[5], dtype=np.float64)
+    if passes.ndim != 4 or passes.shape[0] < 2:
+        return                                  # compare_images names a malformed one
+    ref_per = int(ref.manifest["spp"])
+    if spp // passes.shape[0] != ref_per or spp % passes.shape[0]:
+        raise InvalidArgument(f"renderer={who}: spp={spp} in {passes.shape[0]} passes; "
+                              f"{path}'s filter splats, and a pixel's weighted mean has a "
+                              "bias of order 1/(samples per pass), so the passes need the "
+                              f"reference's {ref_per} samples each: spp="
+                              f"{ref_per * passes.shape[0]} for {passes.shape[0]} passes")
+    mean = np.asarray(out[0], dtype=np.float64)
+    if mean.shape == passes.shape[1:] and not np.allclose(mean, passes.mean(axis=0),
+                                                          rtol=1e-4, atol=1e-6):
+        worst = float(np.max(np.abs(mean - passes.mean(axis=0))))
+        raise InvalidArgument(f"renderer={who}: its mean is not the mean of its passes "
+                              f"(largest difference {worst:.3g}); the pixel tests read the "
+                              "passes and the image its mean: return the two consistent")
+
+
 def _rendered(out, who: str):
     """(mean, var, n, seconds, stats) of a renderer's output: a RenderResult-like object
     or a ``(mean, var, n)`` tuple."""
@@ -174,12 +197,12 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     spp = validate.integer("spp", spp, minimum=1)
     passes = validate.integer("passes", passes, minimum=1)
     alpha = validate.probability("alpha", alpha)
-    if spp % passes:        # the passes are equal: none of the spp may be dropped unsaid
-        raise InvalidArgument(f"spp={spp}, passes={passes}: spp must be a multiple of "
-                              f"passes (each pass renders spp / passes samples); e.g. "
-                              f"spp={spp // passes * passes or passes}")
     ours = renderer is None
     if ours:
+        if spp % passes:    # the passes are equal: none of the spp may be dropped unsaid
+            raise InvalidArgument(f"spp={spp}, passes={passes}: spp must be a multiple of "
+                                  f"passes (each pass renders spp / passes samples); e.g. "
+                                  f"spp={spp // passes * passes or passes}")
         if passes < 2 or spp < MIN_SPP_PER_PASS * passes:
             raise InvalidArgument(f"spp={spp}, passes={passes}: need passes >= 2 and at least "
                                   f"{MIN_SPP_PER_PASS} samples per pass (pass means of fewer "
@@ -193,6 +216,11 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     elif pdf_scale != 1.0 or plant:
         raise InvalidArgument("pdf_scale/plant: planted bugs are hooks of our path tracer; "
                               "they cannot be applied to a renderer= of your own")
+    elif params:
+        raise InvalidArgument(f"params={params!r}: a renderer of your own is called as "
+                              "renderer(scene_path, spp, seed) and cannot take them (the "
+                              "reference would be rendered with them, your image without); "
+                              "write them into a copy of the scene (its <default> values)")
     name, path = reference.resolve_scene(scene)
     own_pool = pool is None
     pool = Pool() if own_pool else pool
@@ -256,6 +284,9 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                                       f"{ref.manifest['rfilter_radius']}), so pixels "
                                       "correlate; return an object with passes (the n pass "
                                       "images) besides mean, variance and n")
+            if ref.pixels_correlated:
+                _held_to_the_references_passes(out, ref, spp, path,
+                                               getattr(renderer, "__name__", "renderer"))
             batches, image, source = 1, (lambda b: out), None
         shown = {}
         # our passes' variance is floored at the reference's at our samples per pass
@@ -266,9 +297,12 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         def look(b):
             mean, var, n, seconds, stats, passes = image(b)
             if getattr(mean, "shape", None) != ref.mean.shape:
-                raise InvalidArgument(f"{path}: the rendered image is "
-                                      f"{getattr(mean, 'shape', None)}, the reference "
-                                      f"{ref.mean.shape}; rebuild the reference")
+                got = getattr(mean, "shape", None) or type(mean).__name__
+                raise InvalidArgument(
+                    f"{path}: the rendered image is {got}, the reference {ref.mean.shape}; "
+                    + ("rebuild the reference" if ours else
+                       "return the mean as a numpy array (height, width, 3) at the scene's "
+                       "film size"))
             shown.update(mean=mean, n=n, seconds=seconds, stats=stats)
             pairs = dict(test_passes=passes, ref_passes=ref.passes) \
                 if ref.pixels_correlated else {}

@@ -1,0 +1,59 @@
+"""``render_check(scene, renderer=...)``: a renderer of one's own through the render gate,
+held to what ours is held to (found by a probe with renderers not in the repository)."""
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+from estimators.pathtracer import render
+from mcverify.gate.render_check import render_check
+
+
+def _ours(scale=1.0):
+    def renderer(path, spp, seed):
+        r = render(path, spp=spp, seed=seed, passes=16)
+        if scale == 1.0:
+            return r
+        return (r.mean * scale, r.variance * scale ** 2, r.n)
+    renderer.__name__ = f"ours_x{scale}"
+    return renderer
+
+
+def test_a_renderer_of_ones_own_passes_when_right_and_fails_when_brighter():
+    assert render_check("white-furnace", renderer=_ours(), spp=512, seed=2).passed
+    brighter = render_check("white-furnace", renderer=_ours(1.02), spp=512, seed=2)
+    assert not brighter.passed
+
+
+@pytest.mark.parametrize("out,needle", [
+    (lambda r: (r.mean[:32], r.variance[:32], r.n), "return the mean as a numpy array"),
+    (lambda r: (r.mean.tolist(), r.variance, r.n), "the rendered image is list"),
+], ids=["shape", "list"])
+def test_a_wrong_image_is_named_without_blaming_the_reference(out, needle):
+    """It said 'rebuild the reference' for a renderer's own wrong shape."""
+    def renderer(path, spp, seed):
+        return out(render(path, spp=spp, seed=seed, passes=16))
+    with pytest.raises(mv.InvalidArgument) as e:
+        render_check("white-furnace", renderer=renderer, spp=512, seed=2)
+    assert needle in str(e.value) and "rebuild" not in str(e.value), str(e.value)
+
+
+def test_params_cannot_reach_a_renderer_of_ones_own():
+    """The reference was rendered with the params, the renderer's image without them (a
+    shape mismatch, or a silently different scene)."""
+    with pytest.raises(mv.InvalidArgument, match="params=.*renderer\\(scene_path, spp, seed\\)"):
+        render_check("white-furnace", renderer=_ours(), spp=512, params={"res": 16})
+
+
+def test_a_splatting_scene_holds_a_renderer_of_ones_own_to_the_references_passes():
+    """filters-tent's reference has 64 samples a pass: 16 passes of 16 are refused, as
+    for our tracer, and a mean that is not its passes' mean is refused."""
+    with pytest.raises(mv.InvalidArgument, match="64 samples each: spp=1024 for 16 passes"):
+        render_check("filters-tent", renderer=_ours(), spp=256, seed=1)
+
+    def inconsistent(path, spp, seed):
+        r = render(path, spp=spp, seed=seed, passes=16)
+        return type("R", (), dict(mean=r.mean * 1.02, variance=r.variance, n=r.n,
+                                  passes=r.passes))()
+    with pytest.raises(mv.InvalidArgument, match="not the mean of its passes"):
+        render_check("filters-tent", renderer=inconsistent, spp=1024, seed=1)
