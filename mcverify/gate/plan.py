@@ -42,6 +42,7 @@ NEEDS: dict[str, tuple[set[tuple[str, str]], str]] = {
     "emitter:area:rectangle": _MESH_LIGHT,
     "emitter:area:cube": _MESH_LIGHT,
     "emitter:area:obj": _MESH_LIGHT,
+    "emitter:area:ply": _MESH_LIGHT,
     "emitter:area:disk": (_pairs("sampler", "uniform_disk_concentric")
                           | _pairs("inverse", "uniform_disk_concentric"),
                           "disk lights are sampled by area"),
@@ -73,7 +74,13 @@ NOTHING_TO_SAMPLE = {
                       "instances are χ²-checked)",
     "bsdf:mask": "mask: a null component and its BSDF, nothing of its own (its instances "
                  "are χ²-checked)",
+    "bsdf:normalmap": "normal map: turns its BSDF's shading frame, nothing of its own to "
+                      "sample (its instances are χ²-checked)",
+    "texture:bitmap": "bitmap texture: a look-up, nothing to sample",
 }
+#: Features that need nothing verified and are not listed: the shapes themselves (their
+#: lights are, as emitter:area:SHAPE), and "emitter:area" (its shape's entry decides).
+UNLISTED = ("shape:", "emitter:area")
 
 
 def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tuple[str, str]],

@@ -88,3 +88,21 @@ def test_unsupported_scene_is_exit_2_naming_the_line(tmp_path):
     path.write_text(DIFFUSE_POINT.replace('<bsdf type="diffuse"/>', '<bsdf type="hair"/>'))
     r = subprocess.run(CMD + ["plan", str(path)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "bad.xml:4" in r.stderr and "hair" in r.stderr
+
+
+def test_a_ply_area_light_plans_triangle_sampling(tmp_path):
+    """A PLY mesh light is sampled triangle by triangle, as an OBJ one is (its feature
+    emitter:area:ply had no entry: uniform_triangle was 'not needed' until 4 December)."""
+    from mcverify.gate.plan import NEEDS
+
+    assert NEEDS["emitter:area:ply"] == NEEDS["emitter:area:obj"]
+    path = tmp_path / "scene.xml"
+    path.write_text(DIFFUSE_POINT.replace(
+        '<shape type="sphere"><bsdf type="diffuse"/></shape>',
+        '<shape type="ply"><string name="filename" value="lamp.ply"/><emitter type="area">'
+        '<rgb name="radiance" value="1"/></emitter></shape>'))
+    import shutil
+    shutil.copy(os.path.join(REFERENCE_ROOT, "vocabulary-geometry", "lamp.ply"), tmp_path)
+    checks, skipped, features = plan(str(path))
+    assert "emitter:area:ply" in features
+    assert {"sampler:uniform_triangle", "inverse:uniform_triangle"} <= _names(checks)
