@@ -155,8 +155,10 @@ def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
     if fixed:
         share = left / len(fixed)
         for name in fixed:
-            n = int((share - fixed[name]) / per_sample[name]) if share > fixed[name] else 0
-            n_samples[name] = min(max(n, n_min), n_max)
+            # in floats, capped before the int (a budget of 1e308 s made an infinite n)
+            n = (min((share - fixed[name]) / max(per_sample[name], 1e-15), n_max)
+                 if share > fixed[name] else 0)
+            n_samples[name] = min(max(int(n), n_min), n_max)
         if left < sum(fixed[x] + per_sample[x] * n_min for x in fixed):
             notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
                          f"{spent:.1f}s and "

@@ -434,7 +434,8 @@ def _cmd_report(args) -> int:
     if args.renders != "none":
         from .reference import list_scenes, resolve_scene
 
-        scenes = list_scenes() if args.renders == "all" else args.renders.split(",")
+        scenes = list_scenes() if args.renders == "all" else \
+            list(dict.fromkeys(args.renders.split(",")))        # each scene once
         for s in scenes:
             resolve_scene(s)            # before any work (it was checked after the suite)
     if args.no_suite and args.k:

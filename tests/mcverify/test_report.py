@@ -47,6 +47,22 @@ def test_json_first_with_provenance_and_all_parts(report):
     assert not list(out.glob("*.tmp")) and not list(out.glob(".tmp-*"))
 
 
+def test_a_report_over_an_old_one_removes_the_old_ones_images_only(tmp_path):
+    """A report written into the folder of an earlier one removes the images that report
+    listed and this one does not write (its render_*.png stayed before), and leaves
+    the user's own files alone."""
+    build_report(str(tmp_path), suite=None, study=None, extra_provenance={})
+    (tmp_path / "render_a.png").write_bytes(b"old")      # as if the old report drew it
+    doc = json.loads((tmp_path / "report.json").read_text())
+    doc["images"]["render_a.png"] = "render_a.png"
+    (tmp_path / "report.json").write_text(json.dumps(doc))
+    (tmp_path / "mine.png").write_bytes(b"user")
+    build_report(str(tmp_path), suite=None, study=None, extra_provenance={})
+    assert not (tmp_path / "render_a.png").exists()
+    assert (tmp_path / "mine.png").read_bytes() == b"user"
+    assert (tmp_path / "report.html").exists()
+
+
 def test_failed_checks_come_first(report):
     out, _ = report
     page = (out / "report.html").read_text()

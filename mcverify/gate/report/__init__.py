@@ -48,12 +48,30 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
                 png = plots.histogram(r.to_dict(arrays=True))
                 if png:
                     images[f"failed_{_safe(r.name)}.png"] = png
+    stale = set(_previous_images(out_dir)) - set(images)
     for name, data in images.items():
         atomic_write(os.path.join(out_dir, name), data)
     doc["images"] = {name: name for name in images}
     atomic_write(os.path.join(out_dir, "report.json"), json.dumps(doc, indent=2) + "\n")
     atomic_write(os.path.join(out_dir, "report.html"), render_html(doc, images))
+    for name in stale:      # the last report's images this one does not have
+        try:
+            os.remove(os.path.join(out_dir, name))
+        except FileNotFoundError:
+            pass
     return doc
+
+
+def _previous_images(out_dir: str) -> list[str]:
+    """The image files the report already in ``out_dir`` lists (its report.json): a
+    report written over it removes those it does not write again, and nothing else."""
+    try:
+        with open(os.path.join(out_dir, "report.json"), encoding="utf-8") as f:
+            names = json.load(f).get("images") or {}
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [n for n in names if isinstance(n, str) and n.endswith(".png")
+            and os.path.basename(n) == n and not n.startswith(".")]
 
 
 def _safe(name: str) -> str:
