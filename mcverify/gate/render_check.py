@@ -89,9 +89,12 @@ def _held_to_the_references_passes(out, ref, spp: int, path: str, who: str) -> N
     """A renderer of one's own on a splatting scene is held to what ours is held to: the
     reference's samples per pass (a pixel's Σ w L / Σ w has an O(1/samples) bias), and a
     mean that is its passes' mean (the pixel tests read the passes, the image the mean)."""
-    passes = np.asarray(out[5], dtype=np.float64)
-    if passes.ndim != 4 or passes.shape[0] < 2:
+    try:
+        passes = np.asarray(out[5], dtype=np.float64)
+    except (TypeError, ValueError):
         return                                  # compare_images names a malformed one
+    if passes.ndim != 4 or passes.shape[0] < 2:
+        return
     ref_per = int(ref.manifest["spp"])
     if spp // passes.shape[0] != ref_per or spp % passes.shape[0]:
         raise InvalidArgument(f"renderer={who}: spp={spp} in {passes.shape[0]} passes; "
