@@ -136,7 +136,9 @@ def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0
         n_samples.update((name, n_min) for name in untimed)
         notes += (f"calibration stopped when start-up and calibration had taken "
                   f"{stopped_at:.1f}s, past two thirds of the {budget:g}s budget "
-                  f"({_CALIBRATION_SHARE * budget:.1f}s; the last timed check ran past it): "
+                  f"({_CALIBRATION_SHARE * budget:.1f}s"
+                  + ("; the last timed check ran past it" if per else
+                     ": start-up alone took longer, no check was timed") + "): "
                   f"{len(untimed)} of {len(scalable)} sampler checks were not timed and run "
                   f"at the minimum n = {n_min:,} (their time is not in the prediction)",)
     return BudgetPlan(budget, n_samples, {k: v * 1e9 for k, v in per.items()}, fixed, other,

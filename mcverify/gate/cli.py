@@ -117,7 +117,7 @@ def _writable(option: str, path: str | None, inputs=()) -> None:
         os.close(fd)
         os.unlink(probe)
     except OSError as e:
-        raise InvalidArgument(f"{option} {path}: folder {existing} is not writable "
+        raise InvalidArgument(f"{option} {path}: cannot create a file in folder {existing} "
                               f"({e.strerror})") from None
 
 

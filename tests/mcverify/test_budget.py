@@ -144,6 +144,9 @@ def test_calibration_stops_at_two_thirds_of_the_budget():
     assert any(n.startswith("calibration stopped when start-up and calibration had taken "
                             ) and "s, past two thirds of the 10s budget (6.7s" in n
                and "1 of 1 sampler checks" in n for n in plan.notes), plan.notes
+    # no check was timed: the note does not speak of "the last timed check"
+    assert any("no check was timed" in n for n in plan.notes), plan.notes
+    assert not any("last timed check" in n for n in plan.notes), plan.notes
     timed = B.plan_budget("default", "sampler:cosine_hemisphere", 60.0, canary=False)
     assert not any("calibration stopped" in n for n in timed.notes)
     assert "sampler:cosine_hemisphere" in timed.per_sample_ns
