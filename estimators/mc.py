@@ -119,7 +119,9 @@ def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     ⌊n^(1/d)⌋ strata on each axis but the first, and on the first the even m₀ ≥ 2 nearest
     n / m^(d-1) (only that axis is paired below). The standard error comes from
     collapsing neighbouring strata in pairs along the first axis (the 'collapsed strata'
-    estimator, slightly conservative), so ``samples`` holds the stratum-pair means.
+    estimator, conservative: it counts the change of f between paired strata as noise,
+    so for a smooth f it overstates the error: 2.6× for ∫eˣ at n = 64, measured over
+    400 seeds), so ``samples`` holds the stratum-pair means.
     ``Estimate.n`` is the grid's m₀ · m^(d-1) samples: within a few per cent of n where m
     is large; at most 2n in any dimension (until 4 December every axis took the even
     number nearest n^(1/d), so at least 2^d samples: 2^20 for n = 1000 in 20-D)."""
@@ -146,7 +148,13 @@ def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
 def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     """Randomised QMC: ``replicates`` independently scrambled Sobol point sets of ``n``
     points (n a power of two, for the net property); the value is their mean and the
-    standard error their spread (``samples`` = the replicate estimates)."""
+    standard error their spread (``samples`` = the replicate estimates).
+
+    scipy's scrambled Sobol points are multiples of 2^-bits (30): uniform on that grid,
+    so E[x] = 1/2 - 2^-31, a bias ``check_unbiased`` saw in 1-D (∫x: -4.7e-10 with a
+    standard error below it). Each point gets a uniform offset within its 2^-bits cell,
+    which makes it exactly uniform on [0, 1) and keeps the net (elementary intervals of
+    n <= 2^bits points are whole cells)."""
     lo, hi = _box(a, b)
     n = _count(n)
     if n & (n - 1):
@@ -155,7 +163,11 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     seqs = np.random.SeedSequence(seed).spawn(r)
     reps = []
     for s in seqs:
-        pts = qmc.Sobol(lo.size, scramble=True, seed=np.random.default_rng(s)).random(n)
+        rng = np.random.default_rng(s)
+        sobol = qmc.Sobol(lo.size, scramble=True, seed=rng)
+        pts = sobol.random(n)
+        pts = np.minimum(pts + rng.random(pts.shape) * 2.0 ** -getattr(sobol, "bits", 30),
+                         1.0 - 2.0 ** -53)
         reps.append(np.prod(hi - lo) * _call_f(f, lo + (hi - lo) * pts, np.ndim(a) == 0).mean())
     e = _from_terms(reps)
     return Estimate(e.value, e.std_error, n * r, e.samples)
@@ -193,8 +205,11 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
         pj = np.stack([_values(f"techniques[{j}] pdf", t[1](x), n_i) * c
                        for j, (t, c) in enumerate(zip(techniques, counts))])   # n_j p_j(x)
         own = pj[len(cols)]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w = own ** ex / np.sum(pj ** ex, axis=0)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            # (n_j p_j / max_j n_j p_j)^beta: the same weights, no overflow of a power
+            # (beta ~ 250 made value and error NaN)
+            top = pj.max(axis=0)
+            w = (own / top) ** ex / np.sum((pj / top) ** ex, axis=0)
             terms = np.where(fx == 0.0, 0.0, w * fx / (own / n_i))
         value += terms.mean()
         var += terms.var(ddof=1) / n_i if n_i > 1 else np.inf

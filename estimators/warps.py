@@ -453,7 +453,9 @@ def _sample_linear_1d(u, a, b):
         return 0.0
     a, b, _, _ = _unit_scale(a, b)
     x = u * (a + b) / (a + math.sqrt((1.0 - u) * a * a + u * b * b))
-    return min(x, ONE_MINUS_EPSILON)
+    # a = b = 0 (the bilinear warp's row y = 0 when w00 = w10 = 0, or y = 1 when w01 =
+    # w11 = 0: a line of zero density, met only at u = 0 or 1): any x, so u (0/0 before)
+    return min(x, ONE_MINUS_EPSILON) if a + b > 0.0 else u
 
 
 @_jit
@@ -467,7 +469,7 @@ def _linear_pdf_1d(x, a, b):
 @_jit
 def _invert_linear_1d(x, a, b):
     a, b, _, _ = _unit_scale(a, b)
-    return _clamp_u(x * (a * (2.0 - x) + b * x) / (a + b))
+    return _clamp_u(x * (a * (2.0 - x) + b * x) / (a + b) if a + b > 0.0 else x)
 
 
 @_jit

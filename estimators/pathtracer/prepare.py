@@ -851,7 +851,15 @@ def _cube():
 
 
 def prepare_scene(scene, *, params: dict | None = None) -> PreparedScene:
-    """A path, a ``SceneDescription`` or an already prepared scene → ``PreparedScene``."""
+    """A path, a ``SceneDescription`` or an already prepared scene → ``PreparedScene``.
+    ``params`` override the scene's ``<default>`` values, so they need a path: a
+    description or a prepared scene has its values already (they were ignored until 4
+    December, an unknown name too)."""
+    if params and not isinstance(scene, (str, os.PathLike)):
+        raise ValueError(f"params={params!r}: scene parameters apply when the scene is read "
+                         f"from its file; this {type(scene).__name__} was read already: give "
+                         "its path, or load_scene(path, params=...) / "
+                         "prepare_scene(path, params=...)")
     if isinstance(scene, PreparedScene):
         return scene
     desc = scene if isinstance(scene, SceneDescription) else load_scene(str(scene),

@@ -199,6 +199,9 @@ def test_render_reports_progress_and_rejects_bad_arguments():
         render(scene, spp=1)
     with pytest.raises(ValueError, match="seed"):
         render(scene, spp=2, seed=-1)
+    # params need the scene's file: a prepared scene ignored them, an unknown name too
+    with pytest.raises(ValueError, match="params=.*read from its file.*PreparedScene"):
+        render(scene, spp=2, params={"res": 8})
     # passes are equal: 17 spp in 4 passes rendered 16 until 4 December
     with pytest.raises(ValueError, match="spp=17 cannot be split into 4 equal passes"):
         render(scene, spp=17, passes=4)

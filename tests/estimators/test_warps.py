@@ -404,3 +404,20 @@ def test_the_linear_warp_depends_on_a_to_b_alone(scale):
         got = fn(u, *(scale * c for c in w))
         assert np.all(np.isfinite(got)), fn.__name__
         np.testing.assert_allclose(got, fn(u, *w), rtol=1e-12, err_msg=fn.__name__)
+
+
+@pytest.mark.parametrize("w", [(0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 2.0, 3.0), (1.0, 2.0, 0.0, 0.0)])
+def test_the_bilinear_warp_on_a_row_of_zero_density_stays_finite(w):
+    """With w00 = w10 = 0 the row y = 0 has zero density (and y = 1 with w01 = w11 = 0):
+    a u on it (u1 = 0 or 1 exactly) sampled NaN (0/0) and the inverse at y = 0 was NaN.
+    Any x is right there; the warp gives u (and the inverse x). Elsewhere: unchanged."""
+    from estimators import warps as W
+
+    edge = np.array([[0.7, 0.0], [0.2, 0.0], [0.7, 1.0 - 2.0 ** -53], [0.3, 0.5]])
+    x = W.sample_bilinear(edge, *w)
+    assert np.all(np.isfinite(x)) and np.all((x >= 0.0) & (x < 1.0)), x
+    u = W.invert_bilinear(x, *w)
+    assert np.all(np.isfinite(u)), u
+    np.testing.assert_allclose(u[3], edge[3], rtol=1e-12)
+    rows = np.array([[0.7, 0.0], [0.25, 1.0]])
+    assert np.all(np.isfinite(W.invert_bilinear(rows, *w)))
