@@ -204,7 +204,23 @@ def _pc2d_batch_kernel(mcdf, ccdf, pts, mode):
 
 
 def _unit(u, name="u") -> np.ndarray:
-    return np.ascontiguousarray(np.asarray(u, dtype=np.float64).reshape(-1))
+    """A 1-D distribution's points as (n,): (n,), (n, 1) or a scalar; any other shape is
+    refused (an (n, 2) array was flattened into 2n points)."""
+    a = np.asarray(u, dtype=np.float64)
+    if a.ndim > 2 or (a.ndim == 2 and a.shape[1] != 1):
+        raise ValueError(f"{name}: expected shape (n,) or (n, 1), got {a.shape}")
+    return np.ascontiguousarray(a.reshape(-1))
+
+
+def _pairs(u, name="u") -> np.ndarray:
+    """A 2-D distribution's points as (n, 2): (n, 2) or one pair (2,); any other shape
+    is refused ((4, 3) was read as six pairs, (4,) as two)."""
+    a = np.asarray(u, dtype=np.float64)
+    if a.shape == (2,):
+        a = a.reshape(1, 2)
+    if a.ndim != 2 or a.shape[1] != 2:
+        raise ValueError(f"{name}: expected shape (n, 2), got {a.shape}")
+    return np.ascontiguousarray(a)
 
 
 class DiscreteDistribution:
@@ -288,15 +304,15 @@ class PiecewiseConstant2D:
 
     def sample(self, u):
         """``u`` (n, 2) -> points (n, 2) = (x, y)."""
-        u = np.ascontiguousarray(np.asarray(u, dtype=np.float64).reshape(-1, 2))
+        u = _pairs(u)
         return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, u, 0)[:, :2]
 
     def pdf(self, x):
-        x = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, 2))
+        x = _pairs(x, "x")
         return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, x, 1)[:, 0]
 
     def invert(self, x):
-        x = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(-1, 2))
+        x = _pairs(x, "x")
         return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, x, 2)[:, :2]
 
 

@@ -19,6 +19,8 @@ methods and examples* (2013), ch. 10 and 17 (variance reduction, RQMC).
 
 from __future__ import annotations
 
+import functools
+import inspect
 import math
 import numbers
 from dataclasses import dataclass, field
@@ -73,10 +75,31 @@ def _values(name: str, v, n: int) -> np.ndarray:
     return a.reshape(-1)
 
 
+def _checked(fn):
+    """Name a bad ``seed`` or a non-callable ``f``, ``sample`` or ``pdf`` before any work
+    (they raised a bare TypeError from the call or from numpy's SeedSequence, and a
+    negative seed numpy's message, which named no parameter)."""
+    sig = inspect.signature(fn)
+
+    @functools.wraps(fn)
+    def checked(*args, **kwargs):
+        given = sig.bind(*args, **kwargs).arguments
+        for name in ("f", "sample", "pdf"):
+            if name in given and not callable(given[name]):
+                raise ValueError(f"{name}={given[name]!r:.60}: must be callable")
+        seed = given.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seed={seed!r}: must be an integer >= 0")
+        return fn(*args, **kwargs)
+
+    return checked
+
+
 def _call_f(f, x, scalar_box):
     return _values("f", f(x[:, 0] if scalar_box else x), x.shape[0])
 
 
+@_checked
 def uniform(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     """``(b − a)/N Σ f(X_i)`` with X_i uniform on [a, b].
 
@@ -96,6 +119,7 @@ def uniform(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     return _from_terms(np.prod(hi - lo) * _call_f(f, x, np.ndim(a) == 0))
 
 
+@_checked
 def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) -> Estimate:
     """``1/N Σ f(X_i)/p(X_i)`` with ``X_i = sample(u_i)``.
 
@@ -114,6 +138,7 @@ def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) ->
     return _from_terms(terms)
 
 
+@_checked
 def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     """Jittered sampling, one uniform sample in each stratum of a grid of about n: m =
     ⌊n^(1/d)⌋ strata on each axis but the first, and on the first the even m₀ ≥ 2 nearest
@@ -145,6 +170,7 @@ def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     return Estimate(value, se, int(vals.size), pairs)
 
 
+@_checked
 def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     """Randomised QMC: ``replicates`` independently scrambled Sobol point sets of ``n``
     points (n a power of two, for the net property); the value is their mean and the
@@ -173,6 +199,7 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     return Estimate(e.value, e.std_error, n * r, e.samples)
 
 
+@_checked
 def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
         beta: float = 2.0) -> Estimate:
     """Multi-sample MIS (Veach): ``Σ_i 1/n_i Σ_k w_i(X_ik) f(X_ik)/p_i(X_ik)``.
@@ -218,6 +245,7 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
     return Estimate(float(value), float(np.sqrt(var)), int(sum(counts)), samples)
 
 
+@_checked
 def russian_roulette(f, sample, pdf, n: int, q: float, *, seed: int = 0,
                      sample_dim: int = 1) -> Estimate:
     """Importance sampling where each term survives with probability ``q`` and is then
@@ -238,6 +266,7 @@ def russian_roulette(f, sample, pdf, n: int, q: float, *, seed: int = 0,
     return _from_terms(terms)
 
 
+@_checked
 def antithetic(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     """Antithetic variates: pairs ``(X, a + b − X)``; ``samples`` holds pair means (i.i.d.),
     whose variance is below plain MC's for monotone f."""

@@ -148,7 +148,8 @@ def _integer(name: str, v, minimum: int, maximum: int | None = None) -> None:
                          f"{'∞' if maximum is None else maximum}]")
 
 
-def _render_iv(spp, seed, passes, pdf_scale, params, variance) -> None:
+def _render_iv(spp, seed, passes, pdf_scale, params, variance, general=None,
+               progress=None) -> None:
     """render()'s arguments, checked before the scene is compiled: a ValueError names the
     parameter (no silent coercion of '64' or 2.5)."""
     if spp is not None:
@@ -162,6 +163,11 @@ def _render_iv(spp, seed, passes, pdf_scale, params, variance) -> None:
         raise ValueError(f"params={params!r}: must be a dict of scene parameters")
     if not isinstance(variance, (bool, np.bool_)):
         raise ValueError(f"variance={variance!r}: must be True or False")
+    if general is not None and not isinstance(general, (bool, np.bool_)):
+        raise ValueError(f"general={general!r}: must be True, False or None (None: "
+                         "$MCVERIFY_GENERAL_KERNEL decides)")
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress={progress!r}: must be callable as progress(done, total)")
 
 
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
@@ -191,7 +197,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     a new machine compiles one kernel instead of one per scene), else specialised."""
     if general is None:
         general = os.environ.get("MCVERIFY_GENERAL_KERNEL", "") == "1"
-    _render_iv(spp, seed, passes, pdf_scale, params, variance)
+    _render_iv(spp, seed, passes, pdf_scale, params, variance, general, progress)
     cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
     # a stratified or multijitter sampler: each pixel's samples stratified per dimension

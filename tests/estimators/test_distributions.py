@@ -159,6 +159,25 @@ def test_bad_input(call, match):
         call()
 
 
+def test_wrongly_shaped_points_are_refused_not_reshaped():
+    """A 1-D distribution flattened (n, 2) into 2n points and the 2-D one read (4, 3) as
+    six pairs and (4,) as two; (n,), (n, 1) and one pair (2,) still work."""
+    d1 = PiecewiseConstant1D([1.0, 2.0])
+    inv = InvertedCDF(np.sin, 0.0, np.pi)
+    d2 = PiecewiseConstant2D([[1.0, 2.0], [3.0, 4.0]])
+    u = np.full((4, 2), 0.3)
+    for call in (lambda: d1.sample(u), lambda: d1.pdf(u), lambda: inv.sample(u),
+                 lambda: inv.pdf(np.zeros((2, 2, 1)))):
+        with pytest.raises(ValueError, match=r"expected shape \(n,\) or \(n, 1\)"):
+            call()
+    for call in (lambda: d2.sample(np.full((4, 3), 0.3)), lambda: d2.pdf(np.full(4, 0.3)),
+                 lambda: d2.invert(np.full((4, 1), 0.3))):
+        with pytest.raises(ValueError, match=r"expected shape \(n, 2\)"):
+            call()
+    assert d1.sample(np.full((4, 1), 0.3)).shape == d1.sample(np.full(4, 0.3)).shape
+    assert d2.sample(np.array([0.3, 0.6])).shape == (1, 2)
+
+
 def test_an_integrable_singularity_is_kept():
     """1/sqrt(x) on (0, 1): its error bound, 2e-9, is within the refusal's 1e-6 floor."""
     d = InvertedCDF(lambda t: 1.0 / np.sqrt(np.maximum(t, 1e-300)), 0.0, 1.0)

@@ -100,6 +100,21 @@ def test_rqmc_in_one_dimension_is_unbiased_to_its_own_standard_error():
     assert len(set(e.samples.tolist())) == len(e.samples)     # replicates differ
 
 
+@pytest.mark.parametrize("call,match", [
+    (lambda: mc.uniform(3.0, 0.0, 1.0, 10), "f=3.0: must be callable"),
+    (lambda: mc.importance(np.sin, 3, lambda x: np.ones(len(x)), 10), "sample=3"),
+    (lambda: mc.russian_roulette(np.sin, lambda u: u, None, 10, 0.5), "pdf=None"),
+    (lambda: mc.uniform(np.sin, 0.0, 1.0, 10, seed=1.5), "seed=1.5"),
+    (lambda: mc.stratified(np.sin, 0.0, 1.0, 10, seed=-1), "seed=-1"),
+    (lambda: mc.rqmc(np.sin, 0.0, 1.0, 16, seed=True), "seed=True"),
+], ids=["f", "sample", "pdf", "seed-float", "seed-negative", "seed-bool"])
+def test_a_bad_callable_or_seed_is_named(call, match):
+    """They raised a bare TypeError ('float' object is not callable, SeedSequence's) or
+    numpy's 'expected non-negative integer', naming no parameter."""
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
 def test_the_power_heuristic_does_not_overflow_at_a_large_beta():
     """(n p)^beta overflowed for beta ~ 250 and made value and error NaN; the weights are
     now powers of ratios to the largest n p (the same weights), and the estimate stays

@@ -199,6 +199,10 @@ def test_render_reports_progress_and_rejects_bad_arguments():
         render(scene, spp=1)
     with pytest.raises(ValueError, match="seed"):
         render(scene, spp=2, seed=-1)
+    with pytest.raises(ValueError, match="general='yes'"):     # it was taken as true
+        render(scene, spp=2, general="yes")
+    with pytest.raises(ValueError, match="progress=3"):         # a TypeError per tile
+        render(scene, spp=2, progress=3)
     # params need the scene's file: a prepared scene ignored them, an unknown name too
     with pytest.raises(ValueError, match="params=.*read from its file.*PreparedScene"):
         render(scene, spp=2, params={"res": 8})
