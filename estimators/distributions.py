@@ -246,6 +246,11 @@ class DiscreteDistribution:
     def invert(self, index, u_remapped):
         """Inverse of ``sample``: (index, remapped u) -> u."""
         index = np.asarray(index, dtype=np.int64)
+        n = self.cdf.size - 1
+        if index.size and (index.min() < 0 or index.max() >= n):
+            bad = index.ravel()[np.argmax((index.ravel() < 0) | (index.ravel() >= n))]
+            raise ValueError(f"index: {bad} is not an entry of the distribution (0 to "
+                             f"{n - 1}); -1 wrapped to the last one before")
         return np.clip(self.cdf[index] + np.asarray(u_remapped) * self.pmf[index], 0.0,
                        ONE_MINUS_EPSILON)
 

@@ -178,6 +178,15 @@ def test_wrongly_shaped_points_are_refused_not_reshaped():
     assert d2.sample(np.array([0.3, 0.6])).shape == (1, 2)
 
 
+def test_a_discrete_inverse_refuses_an_index_outside_the_distribution():
+    d = DiscreteDistribution([1.0, 2.0, 1.0])
+    for index in ([-1], [3], [0, 5]):
+        with pytest.raises(ValueError, match="is not an entry of the distribution"):
+            d.invert(index, [0.5] * len(index))
+    i, _, r = d.sample([0.1, 0.5, 0.9])
+    np.testing.assert_allclose(d.invert(i, r), [0.1, 0.5, 0.9], rtol=1e-12)
+
+
 def test_an_integrable_singularity_is_kept():
     """1/sqrt(x) on (0, 1): its error bound, 2e-9, is within the refusal's 1e-6 floor."""
     d = InvertedCDF(lambda t: 1.0 / np.sqrt(np.maximum(t, 1e-300)), 0.0, 1.0)
