@@ -79,8 +79,11 @@ NOTHING_TO_SAMPLE = {
     "texture:bitmap": "bitmap texture: a look-up, nothing to sample",
 }
 #: Features that need nothing verified and are not listed: the shapes themselves (their
-#: lights are, as emitter:area:SHAPE), and "emitter:area" (its shape's entry decides).
-UNLISTED = ("shape:", "emitter:area")
+#: lights are, as emitter:area:SHAPE), and "emitter:area" itself (its shape's entry
+#: decides). Exact names and prefixes, kept apart: a prefix "emitter:area" would also
+#: cover the emitter:area:SHAPE entries the planner must have.
+UNLISTED_PREFIXES = ("shape:",)
+UNLISTED_NAMES = ("emitter:area",)
 
 
 def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tuple[str, str]],

@@ -102,10 +102,10 @@ def _held_to_the_references_passes(out, ref, spp: int, path: str, who: str) -> N
                               "bias of order 1/(samples per pass), so the passes need the "
                               f"reference's {ref_per} samples each: spp="
                               f"{ref_per * passes.shape[0]} for {passes.shape[0]} passes")
-    mean = np.asarray(out[0], dtype=np.float64)
-    if mean.shape == passes.shape[1:] and not np.allclose(mean, passes.mean(axis=0),
-                                                          rtol=1e-4, atol=1e-6):
-        worst = float(np.max(np.abs(mean - passes.mean(axis=0))))
+    mean, of_passes = np.asarray(out[0], dtype=np.float64), passes.mean(axis=0)
+    if mean.shape == of_passes.shape and not np.allclose(mean, of_passes, rtol=1e-4,
+                                                         atol=1e-6):
+        worst = float(np.max(np.abs(mean - of_passes)))
         raise InvalidArgument(f"renderer={who}: its mean is not the mean of its passes "
                               f"(largest difference {worst:.3g}); the pixel tests read the "
                               "passes and the image its mean: return the two consistent")
