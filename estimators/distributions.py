@@ -86,6 +86,50 @@ def _remap(cdf, i, u):
     return p, min(max(r, 0.0), ONE_MINUS_EPSILON)
 
 
+def _cdf_rows(v: np.ndarray) -> np.ndarray:
+    """``_cdf_of(row)[0]`` for every row of ``v`` (finite, >= 0) at once, bit for bit:
+    numpy's cumsum along a row adds in the same order as over a 1-D array. A Python
+    loop over rows took 25 s for a (10⁶, 1) image."""
+    h, w = v.shape
+    cdf = np.zeros((h, w + 1))
+    with np.errstate(over="ignore"):
+        np.cumsum(v, axis=1, out=cdf[:, 1:])
+    norm = cdf[:, -1].copy()
+    over = np.isinf(norm)          # rows whose sum overflows: the row over its maximum
+    if over.any():
+        vo = v[over]
+        cdf[over, 1:] = np.cumsum(vo / vo.max(axis=1, keepdims=True), axis=1)
+        norm[over] = cdf[over, -1]
+    pos = norm > 0
+    cdf[pos] /= norm[pos, None]
+    cdf[~pos] = np.linspace(0.0, 1.0, w + 1)     # all zero: uniform, as _cdf_of
+    cdf[:, -1] = 1.0
+    return cdf
+
+
+@njit(cache=True)
+def _guides_kernel(cdfs, guides):
+    """Each row's guide as ``_guided`` computes it (the largest i with cdf[i] <= g / n,
+    clipped to [0, n - 1]), in one merge-like pass a row."""
+    n = cdfs.shape[1] - 1
+    for r in range(cdfs.shape[0]):
+        i = 0
+        for g in range(n):
+            t = g / n
+            while i + 1 <= n and cdfs[r, i + 1] <= t:
+                i += 1
+            guides[r, g] = min(i, n - 1)
+
+
+def _guided_rows(cdfs: np.ndarray) -> np.ndarray:
+    """``_guided`` of each row of ``cdfs`` (h, n + 1): (h, 2n + 1)."""
+    n = cdfs.shape[1] - 1
+    out = np.empty((cdfs.shape[0], 2 * n + 1))
+    out[:, :n + 1] = cdfs
+    _guides_kernel(cdfs, out[:, n + 1:])
+    return out
+
+
 def _guided(cdf: np.ndarray) -> np.ndarray:
     """A piecewise-constant density's table: its CDF over n pieces (n + 1 values)
     followed by a guide of n entries, ``guide[g]`` the piece that ``u = g / n`` falls in
@@ -124,9 +168,22 @@ def _find_piece_kernel(table, u):
 def _sample_pc1d_kernel(table, u):
     """Piecewise-constant density on [0, 1] with n pieces: (x, pdf, piece)."""
     n = _pieces(table)
+    # u outside [0, 1) as its nearest end: u = 1 found the last piece even where it has
+    # no weight (x of density 0); NaN stays NaN (max and min return their first argument)
+    u = min(max(u, 0.0), ONE_MINUS_EPSILON)
     i = _find_piece_kernel(table, u)
     p, r = _remap(table, i, u)
-    return min((i + r) / n, ONE_MINUS_EPSILON), p * n, i
+    x = min((i + r) / n, ONE_MINUS_EPSILON)
+    # x must lie in piece i as the pdf finds it (int(x·n)): (i + 0) / n times n rounds
+    # to just below i for some i and n (u = 0 after zero-weight pieces: x was given
+    # density 0 at 3258 of the 79,401 first positive pieces of n < 400), and i + r with
+    # r near 1 rounds up to i + 1. A NaN u gives a NaN x (no piece: left as it is).
+    if x == x:
+        while min(int(x * n), n - 1) < i:
+            x = np.nextafter(x, 2.0)
+        while int(x * n) > i:
+            x = np.nextafter(x, -1.0)
+    return x, p * n, i
 
 
 @njit(cache=True)
@@ -236,9 +293,14 @@ class DiscreteDistribution:
     def sample(self, u):
         """``u`` (n,) -> (index (n,), probability (n,), u remapped to [0, 1) (n,))."""
         u = _unit(u)
+        if np.isnan(u).any():
+            raise ValueError(f"u: NaN at index {int(np.argmax(np.isnan(u)))} (an index "
+                             "cannot carry it)")
+        # u outside [0, 1) as its nearest end. Zero-probability entries have zero-width
+        # CDF steps: searchsorted(right) never lands on them for u < 1 (u = 1 chose the
+        # last entry even where its weight is 0)
+        u = np.clip(u, 0.0, ONE_MINUS_EPSILON)
         i = np.clip(np.searchsorted(self.cdf, u, side="right") - 1, 0, self.cdf.size - 2)
-        # Zero-probability entries have zero-width CDF steps: searchsorted(right) never
-        # lands on them, except at u = 1 which is clamped below.
         p = self.cdf[i + 1] - self.cdf[i]
         r = np.where(p > 0, (u - self.cdf[i]) / np.where(p > 0, p, 1), 0.0)
         return i, p, np.clip(r, 0.0, ONE_MINUS_EPSILON)
@@ -260,8 +322,9 @@ class PiecewiseConstant1D:
     as pbrt does for signed functions)."""
 
     def __init__(self, values, a: float = 0.0, b: float = 1.0):
-        if not (np.isfinite(a) and np.isfinite(b) and b > a):
-            raise ValueError(f"PiecewiseConstant1D(a={a}, b={b}): need finite a < b")
+        if not (np.isfinite(a) and np.isfinite(b) and b > a and np.isfinite(b - a)):
+            raise ValueError(f"PiecewiseConstant1D(a={a}, b={b}): need finite a < b with "
+                             "b - a finite")
         self.values = np.abs(np.asarray(values, dtype=np.float64))
         self.cdf, total = _cdf_of(self.values, "values")
         self.table = _guided(self.cdf)        # what the kernels read
@@ -301,10 +364,10 @@ class PiecewiseConstant2D:
                                            "values")
         with np.errstate(over="ignore"):
             total = total * scale
-        self.conditional_cdf = np.stack([_cdf_of(row, "values")[0] for row in v])
+        self.conditional_cdf = _cdf_rows(v)
         # what the kernels (and the path tracer's envmap) read: each CDF with its guide
         self.marginal_table = _guided(self.marginal_cdf)
-        self.conditional_table = np.stack([_guided(c) for c in self.conditional_cdf])
+        self.conditional_table = _guided_rows(self.conditional_cdf)
         self.integral = total / v.size
 
     def sample(self, u):
@@ -381,8 +444,14 @@ class InvertedCDF:
         for label, v in (("pieces", pieces), ("max_rounds", max_rounds)):
             if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 1:
                 raise ValueError(f"{label}={v!r}: must be an integer >= 1")
+        if pieces > _MAX_PIECES:     # was refused as "did not converge", after the work
+            raise ValueError(f"pieces={pieces}: at most {_MAX_PIECES:,} (the table's "
+                             "limit; pieces are refined from there as the pdf needs)")
         if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not 0 < tol < 1:
             raise ValueError(f"tol={tol!r}: must be a number in (0, 1)")
+        if tol < 1e-15:              # ran for seconds, then called the pdf not integrable
+            raise ValueError(f"tol={tol!r}: below 1e-15 the rules' own rounding (about "
+                             "1e-16 of the total) is above it: use tol >= 1e-15")
         self._f = pdf
         self.a, self.b = float(a), float(b)
         self.total = 1.0
@@ -424,8 +493,10 @@ class InvertedCDF:
         if np.any(masses < 0) or not np.all(np.isfinite(masses)):
             raise ValueError("pdf: must be finite and non-negative on [a, b]")
         total = masses.sum()
-        if total <= 0:
-            raise ValueError("pdf: integrates to 0 on [a, b]")
+        if total <= 0:               # or has all its mass between the rules' nodes
+            raise ValueError(f"pdf: every value the rules took on [{self.a}, {self.b}] was 0 "
+                             f"({lo.size:,} pieces): a pdf that is 0 there, or a peak "
+                             f"narrower than the pieces that no node met (raise pieces=)")
         cdf = np.concatenate([[0.0], np.cumsum(masses)]) / total
         cdf[-1] = 1.0
         error = float(errors.sum() / total)
