@@ -240,6 +240,11 @@ def as_rows(name: str, x, n_in: int) -> np.ndarray:
     """``x`` as a C-contiguous (n, n_in) array, float32 kept as float32 and anything
     else as float64 (1-D accepted when n_in is 1)."""
     a = np.asarray(x)
+    # complex, object (None read as NaN), strings, bools: numpy's cast dropped the
+    # imaginary part with a warning, or raised a message that named no front end
+    if a.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: expected real numbers (float or integer), got an "
+                         f"array of dtype {a.dtype}")
     a = a.astype(np.float64, copy=False) if a.dtype != np.float32 else a
     if a.ndim == 1 and n_in == 1:
         a = a.reshape(-1, 1)

@@ -63,7 +63,10 @@ def _clamp_u(u):
 
 @_jit
 def _safe_sqrt(v):
-    return math.sqrt(max(0.0, v))
+    """√v of v rounded below 0; NaN stays NaN (``max`` returns its first argument when
+    the comparison fails: max(0.0, NaN) was 0, and GGX sampled a NaN u to a zero vector
+    of density 0)."""
+    return math.sqrt(max(v, 0.0))
 
 
 @_inline
@@ -420,8 +423,9 @@ def _sample_tent_kernel(u, p):
 
 @_jit
 def _tent_pdf_kernel(x, p):
+    # (1 - |x|/r)/r: (r - |x|)/r² overflowed to 0 at r = 1e155 and to inf at 1e-170
     r = p[0]
-    return max(0.0, r - abs(x[0])) / (r * r)
+    return max(0.0, 1.0 - abs(x[0]) / r) / r
 
 
 @_jit
@@ -451,7 +455,10 @@ def _unit_scale(a, b, c=0.0, d=0.0):
 def _sample_linear_1d(u, a, b):
     if u == 0.0 and a == 0.0:
         return 0.0
-    a, b, _, _ = _unit_scale(a, b)
+    # the weights over the larger, always: with a = 0, u·b² underflowed for tiny u
+    # (a = 0, b = 1e-60, u = 1e-250 sampled 1 - 2⁻⁵³, not 1e-125; smaller, 0/0 = NaN)
+    s = max(a, b)
+    a, b = (a / s, b / s) if s > 0.0 else (a, b)
     x = u * (a + b) / (a + math.sqrt((1.0 - u) * a * a + u * b * b))
     # a = b = 0 (the bilinear warp's row y = 0 when w00 = w10 = 0, or y = 1 when w01 =
     # w11 = 0: a line of zero density, met only at u = 0 or 1): any x, so u (0/0 before)

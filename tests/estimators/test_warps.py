@@ -340,19 +340,34 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
                                    "points, got 0"),
     (lambda W, u: W.bilinear_pdf(u, 1, 2, 3), "takes 4 parameter(s) (w00, w10, w01, w11)"),
     (lambda W, u: W.sample_cosine_hemisphere(u, 0.3), "takes no parameters after the points"),
-    (lambda W, u: W.sample_ggx(u, -0.3), "alpha=-0.3: the warp needs alpha > 0"),
+    (lambda W, u: W.sample_ggx(u, -0.3), "alpha=-0.3: the warp needs 1e-30 <= alpha <= 1e30"),
+    (lambda W, u: W.sample_ggx(u, 1e160), "alpha=1e+160: the warp needs 1e-30 <= alpha"),
+    (lambda W, u: W.ggx_pdf(np.ones((2, 3)), 1e-100), "alpha=1e-100: the warp needs"),
+    (lambda W, u: W.invert_beckmann(np.ones((2, 3)), 1e31), "alpha=1e+31: the warp needs"),
+    (lambda W, u: W.sample_ggx_vndf(u, 1e-40, 0.6, 0.0, 0.8), "alpha=1e-40, wx=0.6"),
     (lambda W, u: W.ggx_pdf(np.ones((2, 3)), float("nan")), "alpha=nan: must be finite"),
     (lambda W, u: W.sample_beckmann(u, "0.3"), "alpha='0.3': must be a real number"),
     (lambda W, u: W.sample_uniform_cone(u, 1.5), "cos_theta_max=1.5: the warp needs"),
     (lambda W, u: W.power_cosine_pdf(np.ones((2, 3)), -3), "n=-3.0: the warp needs n >= 0"),
     (lambda W, u: W.sample_ggx_vndf(u, 0.3, 0.6, 0.0, 0.9), "a unit vector with wz > 0"),
-    (lambda W, u: W.sample_exponential(u[:, :1], 0.0, 1.0), "sigma > 0 and t_max > 0"),
+    (lambda W, u: W.sample_exponential(u[:, :1], 0.0, 1.0), "sigma >= 1e-150, t_max > 0"),
     (lambda W, u: W.sample_tent(u[:, :1], -1.0), "radius=-1.0: the warp needs radius > 0"),
     (lambda W, u: W.sample_uniform_interval(u[:, :1], 3.0, 1.0), "a=3.0, b=1.0"),
     (lambda W, u: W.sample_linear(u[:, :1], 0.0, 0.0), "a >= 0 and b >= 0, not both 0"),
-], ids=["missing", "too-few", "extra", "negative-alpha", "nan", "string", "cone-1.5",
+    (lambda W, u: W.sample_exponential(u[:, :1], 1e-200, 1e-200), "sigma·t_max >= 1e-150"),
+    (lambda W, u: W.exponential_pdf(u[:, :1], 1e-310, np.inf), "sigma >= 1e-150"),
+    (lambda W, u: W.sample_uniform_interval(u[:, :1], -1e308, 1e308), "b - a finite"),
+    (lambda W, u: W.sample_ggx(u, 10 ** 400), "sample_ggx: alpha=1000"),
+    (lambda W, u: W.sample_cosine_hemisphere(u + 0.1j), "sample_cosine_hemisphere: expected "
+                                                        "real numbers"),
+    (lambda W, u: W.sample_uniform_sphere(np.array([[0.1, None]])), "dtype object"),
+    (lambda W, u: W.cosine_hemisphere_pdf(np.array([["a", "b", "c"]])), "cosine_hemisphere_pdf"),
+], ids=["missing", "too-few", "extra", "negative-alpha", "huge-alpha", "tiny-alpha-pdf",
+        "beckmann-huge-alpha", "vndf-tiny-alpha", "nan", "string", "cone-1.5",
         "power-negative", "vndf-not-unit", "sigma-0", "tent-negative", "interval-reversed",
-        "linear-zero"])
+        "linear-zero", "exponential-sigma-t-underflows", "exponential-tiny-sigma",
+        "interval-span-overflows", "int-beyond-float", "complex-points", "object-points",
+        "string-points"])
 def test_warp_parameters_are_checked_by_name(call, needle):
     """The kernels read their parameters by position: a missing one was read past its
     array's end (sample_ggx(u) sampled α = 0), and values outside a warp's definition gave
@@ -421,3 +436,56 @@ def test_the_bilinear_warp_on_a_row_of_zero_density_stays_finite(w):
     np.testing.assert_allclose(u[3], edge[3], rtol=1e-12)
     rows = np.array([[0.7, 0.0], [0.25, 1.0]])
     assert np.all(np.isfinite(W.invert_bilinear(rows, *w)))
+
+
+@pytest.mark.parametrize("alpha", [1e-30, 1e30])
+@pytest.mark.parametrize("name", ["ggx", "beckmann", "ggx_vndf"])
+def test_microfacet_warps_hold_at_the_ends_of_their_alpha_range(name, alpha):
+    """At the range's ends every sample is a unit vector of finite positive density and
+    (where the warp has an inverse) inverts to its u. Past them α² or α⁴ over- or
+    underflowed: a zero vector of density 0 at α = 1e160, GGX's density inf at 1e-100."""
+    from estimators.warps import WARPS
+
+    w = WARPS[name]
+    params = (alpha,) + tuple(w.defaults[1:])
+    u = np.random.default_rng(3).random((20_000, 2))
+    x = w.sample(u, *params)
+    pdf = w.pdf(x, *params)
+    assert np.all(np.abs(np.linalg.norm(x, axis=1) - 1) < 1e-15)
+    assert np.all(np.isfinite(pdf) & (pdf > 0))
+    if w.invert is not None:
+        assert np.max(np.abs(w.invert(x, *params) - u)) < 1e-15
+
+
+def test_a_nan_u_gives_a_nan_point_from_every_warp():
+    """sqrt(max(0, NaN)) was 0: GGX turned a NaN u into the zero vector, density 0."""
+    from estimators.warps import WARPS
+
+    for name, w in WARPS.items():
+        u = np.full((3, w.sample_dim), 0.4)
+        u[1, 0] = np.nan
+        x = w.sample(u, *w.defaults)
+        assert np.isnan(x[1]).any() and np.isfinite(x[[0, 2]]).all(), name
+
+
+@pytest.mark.parametrize("radius", [1e-170, 1e-3, 1e155])
+def test_tent_density_at_extreme_radii(radius):
+    """(r - |x|)/r² overflowed to 0 at r = 1e155 and to inf at r = 1e-170."""
+    from estimators import warps as W
+
+    x = np.array([[0.0], [0.5 * radius], [-0.75 * radius], [radius], [2 * radius]])
+    assert W.tent_pdf(x, radius).tolist() == pytest.approx(
+        [1 / radius, 0.5 / radius, 0.25 / radius, 0.0, 0.0], rel=1e-15)
+    u = np.random.default_rng(0).random((1000, 1))
+    assert np.allclose(W.invert_tent(W.sample_tent(u, radius), radius), u, atol=1e-14)
+
+
+def test_linear_warps_with_a_zero_weight_at_tiny_u():
+    """u·b² underflowed: a = 0, b = 1e-60, u = 1e-250 sampled 1 - 2⁻⁵³ (√u = 1e-125 is
+    right), smaller u gave NaN, and the bilinear warp's x NaN."""
+    from estimators import warps as W
+
+    assert W.sample_linear(np.array([[1e-250]]), 0.0, 1e-60)[0, 0] == pytest.approx(1e-125)
+    assert W.sample_linear(np.array([[1e-300]]), 0.0, 1e-149)[0, 0] == pytest.approx(1e-150)
+    xy = W.sample_bilinear(np.array([[1e-300, 1e-300]]), 0.0, 0.0, 0.0, 1.0)[0]
+    assert xy.tolist() == pytest.approx([1e-150, 1e-150])    # x, y = √u on this row
