@@ -447,6 +447,59 @@ def _refine_suspicious(density, edges, counts, integral, n, m):
     return mass, error, n_evals, unconverged, leaves
 
 
+def _guided_edges(lo, hi, values):
+    """Cuts of [lo, hi] around the pilot's ``values`` in it: at their least and largest,
+    then at distances that double from there (width w, 2w, 4w, ... with w their spread),
+    so that the support's end near the last pilot point lies in a box a few times its
+    distance from it, where the adaptive rule resolves it."""
+    a, b = float(values.min()), float(values.max())
+    w = max(b - a, (hi - lo) * 2.0 ** -40)
+    cuts = [lo, a, b, hi]
+    d = w
+    while b + d < hi or a - d > lo:
+        cuts += [b + d, a - d]
+        d *= 2.0
+    cuts = np.unique(np.clip(cuts, lo, hi))
+    return cuts if cuts.size >= 2 else np.array([lo, hi])
+
+
+def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
+    """2-D cells where the cubature found no mass but samples or pilot points fell: each
+    is re-integrated over the boxes ``_guided_edges`` cuts it into around its pilot
+    points, so that a support far narrower than the cell (a cone of cos θ_max = 1 - 1e-8:
+    2·10⁻⁹ of its cell's width, which no rule's node met at any level) lies in boxes of
+    its own. The integral is of the same cell, so a correct pdf now gets its mass and a
+    wrong one keeps failing (the pilot is an independent sample; only the quadrature's
+    partition depends on it). ``mass`` and ``error`` are updated in place, within
+    ``_REFINE_BUDGET`` evaluations; returns the evaluations spent."""
+    if pilot_s is None or pilot_s.shape[0] == 0:
+        return 0
+    shape = counts.shape
+    idx = [np.clip(np.searchsorted(e, pilot_s[:, j], side="right") - 1, 0, e.size - 2)
+           for j, e in enumerate(edges)]
+    flat = np.ravel_multi_index(idx, shape)
+    piloted = np.bincount(flat, minlength=counts.size) > 0
+    empty = np.flatnonzero(((counts.ravel() > 0) | piloted) & (mass.ravel() <= 0.0))
+    if empty.size == 0:
+        return 0
+    spent, budget = 0, _REFINE_BUDGET
+    for c in empty[:_MAX_SUSPICIOUS_CELLS]:
+        inside = pilot_s[flat == c]
+        if inside.shape[0] == 0:
+            continue
+        at = np.unravel_index(c, shape)
+        sub = [_guided_edges(edges[j][at[j]], edges[j][at[j] + 1], inside[:, j])
+               for j in range(len(edges))]
+        boxes = int(np.prod([e.size - 1 for e in sub]))
+        budget -= 9 * boxes             # the rule's first level; refinement adds to it
+        if budget < 0:
+            break
+        r = integrate_cells(density, sub, n_samples=n)
+        mass.ravel()[c], error.ravel()[c] = r.mass.sum(), r.error.sum()
+        spent += r.n_evals
+    return spent
+
+
 def _cdf_from_leaves(density, leaves, s, total):
     """CDF at points ``s`` (1-D): mass of leaves to the left plus a Gauss–Legendre
     integral inside the leaf (leaves are where the density is smooth)."""
@@ -667,6 +720,9 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         integral = integrated[0]
         mass, error, n_evals, unconverged, leaves = _refine_suspicious(
             density, edges, counts, integral, max(n_valid, 1), m)
+        if m == 2:
+            n_evals += _pilot_guided(density, edges, counts, mass, error, max(n_valid, 1),
+                                     pilot_s)
         if density.negative or density.nonfinite:
             failures.append(f"pdf returned {density.negative} negative and {density.nonfinite} "
                             f"NaN/Inf values (first: pdf({density.example[0]}) = "
