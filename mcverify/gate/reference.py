@@ -437,9 +437,31 @@ def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
     """Render the references of several scenes (all their passes as units on ``pool``,
     default this process) and write each (see ``build_reference``); returns their
     folders. Every scene is resolved and prechecked before any rendering."""
-    jobs = [_job(s, spp, passes, seed, None) for s in specs]
+    jobs = []
+    for s in specs:
+        job = _job(s, spp, passes, seed, None)
+        if all(os.path.realpath(j.path) != os.path.realpath(job.path) for j in jobs):
+            _replaceable(ref_folder(job.path))       # a scene named twice is built once
+            jobs.append(job)
     return [_write(job.path, ref) for job, (ref, _) in
             zip(jobs, _render_jobs(jobs, pool, progress))]
+
+
+def _replaceable(out: str) -> None:
+    """A reference folder may be replaced only if it is one: a file, a link or a folder
+    holding anything but a reference's files is refused before any rendering (a file
+    named ``ref`` beside the scene was deleted without a word)."""
+    if not os.path.lexists(out):
+        return
+    if os.path.islink(out) or not os.path.isdir(out):
+        raise InvalidArgument(f"{out}: exists and is not a reference folder (a "
+                              f"{'link' if os.path.islink(out) else 'file'}); building "
+                              "the reference would replace it: move it away first")
+    extra = sorted(set(os.listdir(out)) - {"manifest.json", *IMAGES, PASSES})
+    if extra:
+        raise InvalidArgument(f"{out}: holds {os.path.join(out, extra[0])}, which is not "
+                              "part of a reference; building the reference would delete "
+                              "it: move it away first")
 
 
 def build_reference(spec: str, *, spp: int = 256, passes: int = 16, seed: int = 0,

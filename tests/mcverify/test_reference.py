@@ -199,3 +199,40 @@ def test_scene_assets_resolve_defaults_and_relative_paths(tmp_path):
     assert assets == {"sub/$mesh.obj": reference.file_hash(str(tmp_path / "sub" / "m.obj")),
                       "t.png": reference.file_hash(str(tmp_path / "t.png")),
                       "gone.png": None}
+
+
+def test_build_refuses_to_replace_what_is_not_a_reference(scene_copy, monkeypatch):
+    """A file named ``ref`` beside the scene was deleted by the build (exit 0), as was a
+    user's folder of that name; both are refused before anything renders, and kept."""
+    from mcverify.errors import InvalidArgument
+
+    monkeypatch.setattr(reference, "_render_jobs", lambda *a, **k: pytest.fail("rendered"))
+    ref = scene_copy / "ref"
+    ref.write_text("my notes")
+    with pytest.raises(InvalidArgument, match=r"ref: exists and is not a reference folder"):
+        reference.build_reference(str(scene_copy), spp=4, passes=2)
+    r = subprocess.run(CMD + ["reference", "build", str(scene_copy), "--spp", "4",
+                              "--passes", "2"], capture_output=True, text=True)
+    assert r.returncode == 2 and "not a reference folder" in r.stderr
+    assert ref.read_text() == "my notes"
+    ref.unlink()
+    ref.mkdir()
+    (ref / "mean.exr").write_bytes(b"x")
+    (ref / "thesis.tex").write_text("keep me")
+    with pytest.raises(InvalidArgument, match=r"thesis.tex, which is not part of a reference"):
+        reference.build_reference(str(scene_copy), spp=4, passes=2)
+    assert (ref / "thesis.tex").read_text() == "keep me"
+
+
+def test_a_scene_named_twice_is_built_once(scene_copy, monkeypatch):
+    seen = []
+    real = reference._render_jobs
+
+    def spy(jobs, pool, progress):
+        seen.append(len(jobs))
+        return real(jobs, pool, progress)
+
+    monkeypatch.setattr(reference, "_render_jobs", spy)
+    out = reference.build_references([str(scene_copy), str(scene_copy / "scene.xml")],
+                                     spp=2, passes=2)
+    assert seen == [1] and len(out) == 1 and reference.load_reference(str(scene_copy)).n == 2
