@@ -455,6 +455,11 @@ class _Builder:
                 faces = np.asarray(faces).reshape(-1, 3)
                 normals = _vertex_normals(wverts, faces, pidx, int(pidx.max()) + 1)
             else:
+                if not np.all(np.isfinite(normals)) or not np.all(np.any(normals, axis=1)):
+                    # Mitsuba refuses both ("invalid vertex normal data"); a zero normal
+                    # shaded with a zero frame (a 2 % darker image, pixels at 0.44)
+                    self.fail(s, f"{self._mesh_path(s)}: a vertex normal is zero or not "
+                                 "finite")
                 # world-space unit normals, as Mitsuba stores them (a non-unit normal in
                 # the file would otherwise weigh more in the interpolation)
                 normals = normals @ np.linalg.inv(lin)
@@ -516,66 +521,81 @@ class _Builder:
         return verts, faces, normals, uvs, pidx
 
     def _obj(self, s: Plugin):
-        """An OBJ mesh as (vertices, faces, the file's normals or None, uvs, the position
-        index of each vertex), one vertex per face corner."""
+        """An OBJ mesh as (vertices, faces, the file's normals or None, uvs, the vertex
+        each corner is: one vertex per distinct (position, vt, vn) triple, as Mitsuba's
+        loader makes them, so that smooth normals are summed per such vertex), one
+        vertex per face corner. What Mitsuba refuses is refused, naming the line."""
         path = self._mesh_path(s)
         try:
             with open(path, encoding="utf-8") as fh:
                 lines = fh.readlines()
         except (OSError, UnicodeDecodeError) as e:
             self.fail(s, f"cannot read {path} ({getattr(e, 'strerror', None) or e})")
+        if lines and lines[0].startswith("\ufeff"):
+            self.fail(s, f"{path}: starts with a byte-order mark, which Mitsuba's OBJ "
+                         "loader reads as part of the first line (it refuses the file): "
+                         "save it as UTF-8 without one")
         v, vt, vn = [], [], []
         corners = []
+        width = {"v": 3, "vt": 2, "vn": 3}
         for ln, line in enumerate(lines, 1):
-            t = line.split()
-            if not t or t[0].startswith("#"):
+            t = line.split("#", 1)[0].split()      # a comment may end any line
+            if not t:
                 continue
-            try:
-                if t[0] == "v":
-                    v.append([float(x) for x in t[1:4]])
-                elif t[0] == "vt":
-                    vt.append([float(x) for x in t[1:3]])
-                elif t[0] == "vn":
-                    vn.append([float(x) for x in t[1:4]])
-                elif t[0] == "f":
-                    idx = []
-                    for tok in t[1:]:
-                        parts = (tok.split("/") + ["", ""])[:3]
-                        idx.append(tuple(int(p) if p else 0 for p in parts))
-                    for k in range(1, len(idx) - 1):
-                        corners.append((idx[0], idx[k], idx[k + 1]))
-            except ValueError:
-                self.fail(s, f"{path}:{ln}: cannot parse {line.strip()!r}")
+            where = f"{path}:{ln}: {line.strip()!r}"
+            if t[0] in width:
+                vals = _numbers(t[1:width[t[0]] + 1], float)
+                if vals is None or len(vals) < width[t[0]]:
+                    self.fail(s, f"{where}: needs {width[t[0]]} numbers")
+                if not all(math.isfinite(x) for x in vals):
+                    # Mitsuba: "invalid vertex position data"; the triangle vanished
+                    self.fail(s, f"{where}: not finite")
+                {"v": v, "vt": vt, "vn": vn}[t[0]].append(vals)
+            elif t[0] == "f":
+                idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]], int)
+                       for tok in t[1:]]
+                idx = [None if c is None else tuple(c) for c in idx]
+                if any(c is None for c in idx):
+                    self.fail(s, f"{where}: cannot parse it")
+                if any(i < 0 for c in idx for i in c):
+                    # Mitsuba reads them as huge unsigned indices and refuses the file
+                    self.fail(s, f"{where}: negative (relative) indices are not supported "
+                                 "(Mitsuba refuses them too)")
+                for k in range(1, len(idx) - 1):
+                    corners.append((idx[0], idx[k], idx[k + 1]))
         if not corners:
             self.fail(s, f"{path}: no faces")
         v, vt, vn = np.array(v, float), np.array(vt, float), np.array(vn, float)
-
-        def fix(i, n):
-            return i - 1 if i > 0 else n + i
-
-        verts, uvs, normals, faces, pidx = [], [], [], [], []
+        for j, (what, n, name) in enumerate((("a vertex", len(v), "v"),
+                                             ("a texture coordinate", len(vt), "vt"),
+                                             ("a normal", len(vn), "vn"))):
+            if any(c[j] > n for tri in corners for c in tri):
+                self.fail(s, f"{path}: a face refers to {what} that does not exist "
+                             f"({n} '{name}' lines)")
+            if any(c[j] == 0 for tri in corners for c in tri) and j == 0:
+                self.fail(s, f"{path}: a face refers to vertex 0 (indices start at 1)")
+        for j, word in ((1, "texture coordinates"), (2, "normals")):
+            given = {bool(c[j]) for tri in corners for c in tri}
+            if len(given) > 1:
+                self.fail(s, f"{path}: some faces have {word} and some do not (Mitsuba's "
+                             f"{word} on those are undefined); give them to every face or "
+                             "to none")
         use_vn = len(vn) > 0 and not s.get("face_normals", False)
-        with_uv = {bool(ti) for tri in corners for (_, ti, _) in tri}
-        if len(with_uv) > 1:
-            self.fail(s, f"{path}: some faces have texture coordinates and some do not "
-                         "(Mitsuba's uv on those is undefined); give every face vt indices "
-                         "or none")
-        try:
-            for tri in corners:
-                f = []
-                for k, (pi, ti, ni) in enumerate(tri):
-                    verts.append(v[fix(pi, len(v))])
-                    pidx.append(fix(pi, len(v)))
-                    # without texture coordinates Mitsuba's uv is the barycentric (b1, b2)
-                    uvs.append([vt[fix(ti, len(vt))][0], 1.0 - vt[fix(ti, len(vt))][1]]
-                               if ti else _BARYCENTRIC_UV[k])
-                    normals.append(vn[fix(ni, len(vn))] if (ni and use_vn) else [0, 0, 0])
-                    f.append(len(verts) - 1)
-                faces.append(tuple(f))
-        except IndexError:
-            self.fail(s, f"{path}: a face refers to a vertex that does not exist")
+        verts, uvs, normals, faces, key = [], [], [], [], {}
+        for tri in corners:
+            f = []
+            for k, (pi, ti, ni) in enumerate(tri):
+                verts.append(v[pi - 1])
+                key.setdefault((pi, ti, ni), len(key))
+                # without texture coordinates Mitsuba's uv is the barycentric (b1, b2)
+                uvs.append([vt[ti - 1][0], 1.0 - vt[ti - 1][1]] if ti else _BARYCENTRIC_UV[k])
+                if use_vn:
+                    normals.append(vn[ni - 1])
+                f.append(len(verts) - 1)
+            faces.append(tuple(f))
+        vertex = np.array([key[c] for tri in corners for c in tri])
         normals = np.array(normals, float) if use_vn else None
-        return np.array(verts), faces, normals, np.array(uvs), np.array(pidx)
+        return np.array(verts), faces, normals, np.array(uvs), vertex
 
     # ---------------------------------------------------------------- emitters
     def area_light(self, emitter: Plugin, first: int, count: int, kind: int):
@@ -624,6 +644,12 @@ class _Builder:
                                  "which is not matched")
                 cutoff = math.radians(float(e.get("cutoff_angle", 20.0)))
                 beam = math.radians(float(e.get("beam_width", math.degrees(cutoff) * 0.75)))
+                if not (cutoff > 0.0 and beam >= 0.0):
+                    # Mitsuba's falloff (cutoff - θ)/(cutoff - beam) turns a negative cutoff
+                    # into a bright ring; we lit nothing (-86 %, found by a probe)
+                    self.fail(e, f"cutoff_angle={math.degrees(cutoff):g} and beam_width="
+                                 f"{math.degrees(beam):g}: need cutoff_angle > 0 and "
+                                 "beam_width >= 0 (degrees)")
                 axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
                 f[layout.SPOT_AXIS:layout.SPOT_AXIS + 3] = axis
                 f[layout.SPOT_COS_CUTOFF] = math.cos(cutoff)
@@ -807,6 +833,14 @@ _DIFFUSE_LIKE = (layout.DIFFUSE, layout.PLASTIC, layout.ROUGHPLASTIC)
 
 
 _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
+
+
+def _numbers(tokens, kind):
+    """``tokens`` as numbers of ``kind`` (float or int), or None if one is not."""
+    try:
+        return [kind(x) for x in tokens]
+    except ValueError:
+        return None
 
 
 def _vertex_normals(verts, faces, pidx, n_positions):

@@ -674,3 +674,21 @@ def test_every_conductor_mitsuba_ships_is_named_with_mitsubas_indices(mi):
             v = params[f"{k}.value"]
             np.testing.assert_allclose(table[name][k], np.ravel([v[0], v[1], v[2]]),
                                        rtol=1e-6)
+
+
+@pytest.mark.parametrize("angles,needle", [
+    ('<float name="cutoff_angle" value="-20"/>', "cutoff_angle=-20 and beam_width=-15"),
+    ('<float name="cutoff_angle" value="0"/>', "cutoff_angle=0 and"),
+    ('<float name="beam_width" value="-5"/>', "cutoff_angle=20 and beam_width=-5"),
+], ids=["negative-cutoff", "zero-cutoff", "negative-beam"])
+def test_a_spot_needs_a_positive_cutoff_and_a_beam_of_zero_or_more(tmp_path, angles, needle):
+    """A negative cutoff lit nothing in our tracer; Mitsuba's falloff makes it a bright
+    ring (the image mean 0.048 against 0.348; found by a probe)."""
+    from estimators.pathtracer import prepare_scene
+
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<emitter type="spot">{angles}'
+                    '</emitter></scene>')
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
