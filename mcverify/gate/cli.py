@@ -494,15 +494,16 @@ def _cmd_bench(args) -> int:
 
     rows = run_bench(repeats=args.repeats, n=args.n, spp=args.spp,
                      renders=not args.no_render, progress=show)
-    print(f"{'workload':30s} {'ours':>10s} {'theirs':>10s} {'ours/theirs':>12s}  against")
+    w = max([30] + [len(r["group"]) for r in rows])     # long names kept the columns apart
+    print(f"{'workload':{w}s} {'ours':>10s} {'theirs':>10s} {'ours/theirs':>12s}  against")
     for r in rows:
         if "ours_rmse" in r:
-            print(f"{r['group']:30s} {r['ours_rmse']:10.4g} {r['mitsuba_rmse']:10.4g} "
+            print(f"{r['group']:{w}s} {r['ours_rmse']:10.4g} {r['mitsuba_rmse']:10.4g} "
                   f"{r['ratio']:12.2f}  mitsuba (RMSE at equal time)")
             continue
         m = "n/a" if r["mitsuba_s"] is None else f"{r['mitsuba_s']:.4f}"
         ratio = "n/a" if r["ratio"] is None else f"{r['ratio']:.2f}"
-        print(f"{r['group']:30s} {r['ours_s']:10.4f} {m:>10s} {ratio:>12s}  {r['against']} "
+        print(f"{r['group']:{w}s} {r['ours_s']:10.4f} {m:>10s} {ratio:>12s}  {r['against']} "
               "(seconds)")
     if args.json:
         doc = {"provenance": provenance(mitsuba_version=mv_mitsuba.mitsuba_version(),

@@ -96,6 +96,10 @@ def _bench(tmp_path, *extra):
     assert r.returncode == 0, r.stderr
     doc = json.loads(out.read_text())
     assert "ours/theirs" in r.stdout and doc["provenance"]["mitsuba_variant"]
+    header, *lines = r.stdout.splitlines()
+    end = header.index("ours/theirs") + len("ours/theirs")
+    for line in lines:          # the ratio column ends under its header on every row
+        assert line[end - 1] != " " and line[end:end + 2] == "  ", (header, line)
     rows = {row["group"]: row for row in doc["results"]}
     assert all(row["ratio"] > 0 for row in rows.values() if row["ratio"] is not None)
     return rows
