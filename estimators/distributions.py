@@ -168,8 +168,10 @@ def _find_piece_kernel(table, u):
 def _sample_pc1d_kernel(table, u):
     """Piecewise-constant density on [0, 1] with n pieces: (x, pdf, piece)."""
     n = _pieces(table)
+    if u != u:       # NaN: no piece (it read as u = 0: x = 0, density 0 after a zero piece)
+        return u, 0.0, 0
     # u outside [0, 1) as its nearest end: u = 1 found the last piece even where it has
-    # no weight (x of density 0); NaN stays NaN (max and min return their first argument)
+    # no weight (x of density 0)
     u = min(max(u, 0.0), ONE_MINUS_EPSILON)
     i = _find_piece_kernel(table, u)
     p, r = _remap(table, i, u)
@@ -177,12 +179,11 @@ def _sample_pc1d_kernel(table, u):
     # x must lie in piece i as the pdf finds it (int(x·n)): (i + 0) / n times n rounds
     # to just below i for some i and n (u = 0 after zero-weight pieces: x was given
     # density 0 at 3258 of the 79,401 first positive pieces of n < 400), and i + r with
-    # r near 1 rounds up to i + 1. A NaN u gives a NaN x (no piece: left as it is).
-    if x == x:
-        while min(int(x * n), n - 1) < i:
-            x = np.nextafter(x, 2.0)
-        while int(x * n) > i:
-            x = np.nextafter(x, -1.0)
+    # r near 1 rounds up to i + 1
+    while min(int(x * n), n - 1) < i:
+        x = np.nextafter(x, 2.0)
+    while int(x * n) > i:
+        x = np.nextafter(x, -1.0)
     return x, p * n, i
 
 

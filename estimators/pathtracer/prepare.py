@@ -462,10 +462,15 @@ class _Builder:
                                  "finite")
                 # world-space unit normals, as Mitsuba stores them (a non-unit normal in
                 # the file would otherwise weigh more in the interpolation)
-                normals = normals @ np.linalg.inv(lin)
-                length = np.linalg.norm(normals, axis=1, keepdims=True)
-                normals = np.divide(normals, length, out=np.zeros_like(normals),
-                                    where=length > 0)
+                with np.errstate(over="ignore", under="ignore"):    # refused just below
+                    normals = normals @ np.linalg.inv(lin)
+                    length = np.linalg.norm(normals, axis=1, keepdims=True)
+                if not np.all(np.isfinite(length) & (length > 0)):
+                    # a normal of 1e300 (its length overflows) or one the transform
+                    # shrinks below the smallest double: a zero or NaN normal again
+                    self.fail(s, f"{self._mesh_path(s)}: a vertex normal cannot be "
+                                 "normalised in world space (too large or too small)")
+                normals = normals / length
             self._triangles(wverts, faces, normals, uvs)
         elif s.type == "sphere":
             c = m @ np.append(np.asarray(s.get("center", np.zeros(3)), float), 1.0)
@@ -550,6 +555,9 @@ class _Builder:
                 if not all(math.isfinite(x) for x in vals):
                     # Mitsuba: "invalid vertex position data"; the triangle vanished
                     self.fail(s, f"{where}: not finite")
+                if t[0] == "vn" and not any(vals):
+                    # Mitsuba refuses the file for any such line, used or not
+                    self.fail(s, f"{where}: a zero normal")
                 {"v": v, "vt": vt, "vn": vn}[t[0]].append(vals)
             elif t[0] == "f":
                 idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]], int)
@@ -561,6 +569,11 @@ class _Builder:
                     # Mitsuba reads them as huge unsigned indices and refuses the file
                     self.fail(s, f"{where}: negative (relative) indices are not supported "
                                  "(Mitsuba refuses them too)")
+                for j, (name, seen) in enumerate((("v", v), ("vt", vt), ("vn", vn))):
+                    if any(c[j] > len(seen) for c in idx):
+                        # Mitsuba resolves an index as the face is read
+                        self.fail(s, f"{where}: refers to a '{name}' that is not defined "
+                                     f"before it ({len(seen)} so far)")
                 for k in range(1, len(idx) - 1):
                     corners.append((idx[0], idx[k], idx[k + 1]))
         if not corners:

@@ -453,10 +453,14 @@ def _guided_edges(lo, hi, values):
     so that the support's end near the last pilot point lies in a box a few times its
     distance from it, where the adaptive rule resolves it."""
     a, b = float(values.min()), float(values.max())
-    w = max(b - a, (hi - lo) * 2.0 ** -40)
+    # at least the smallest normal double: a subnormal-wide cell with one pilot value
+    # made w = 0, and the loop never ended (found by review)
+    w = max(b - a, (hi - lo) * 2.0 ** -40, np.finfo(float).tiny)
     cuts = [lo, a, b, hi]
     d = w
-    while b + d < hi or a - d > lo:
+    for _ in range(1100):                   # 2^1100 · tiny > any float: ends well before
+        if not (b + d < hi or a - d > lo):
+            break
         cuts += [b + d, a - d]
         d *= 2.0
     cuts = np.unique(np.clip(cuts, lo, hi))
@@ -471,9 +475,10 @@ def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
     its own. The integral is of the same cell, so a correct pdf now gets its mass and a
     wrong one keeps failing (the pilot is an independent sample; only the quadrature's
     partition depends on it). ``mass`` and ``error`` are updated in place, within
-    ``_REFINE_BUDGET`` evaluations; returns the evaluations spent."""
-    if pilot_s is None or pilot_s.shape[0] == 0 or not (mass <= 0.0).any():
-        return 0                 # (the usual case: no pilot binning paid, ~10 ms at 1e6)
+    about ``_REFINE_BUDGET`` evaluations (a cell started is finished); returns the
+    evaluations spent."""
+    if pilot_s is None or pilot_s.shape[0] == 0 or not ((counts > 0) & (mass <= 0.0)).any():
+        return 0     # the usual case: no pilot binning paid (~8 ms a check at 1e6 samples)
     shape = counts.shape
     idx = [np.clip(np.searchsorted(e, pilot_s[:, j], side="right") - 1, 0, e.size - 2)
            for j, e in enumerate(edges)]
@@ -491,12 +496,13 @@ def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
         sub = [_guided_edges(edges[j][at[j]], edges[j][at[j] + 1], inside[:, j])
                for j in range(len(edges))]
         boxes = int(np.prod([e.size - 1 for e in sub]))
-        budget -= 9 * boxes             # the rule's first level; refinement adds to it
-        if budget < 0:
+        if 49 * boxes > budget - spent:      # a box's first level: 9 + 36 + 4 corners
             break
         r = integrate_cells(density, sub, n_samples=n)
         mass.ravel()[c], error.ravel()[c] = r.mass.sum(), r.error.sum()
         spent += r.n_evals
+        if spent >= budget:
+            break
     return spent
 
 

@@ -436,7 +436,8 @@ def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
                      progress=None, pool: Pool | None = None) -> list[str]:
     """Render the references of several scenes (all their passes as units on ``pool``,
     default this process) and write each (see ``build_reference``); returns their
-    folders. Every scene is resolved and prechecked before any rendering."""
+    folders, one per distinct scene (a scene named twice is built once). Every scene is
+    resolved and prechecked before any rendering."""
     jobs = []
     for s in specs:
         job = _job(s, spp, passes, seed, None)

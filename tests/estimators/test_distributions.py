@@ -312,3 +312,11 @@ def test_u_outside_the_unit_interval_never_draws_an_entry_of_weight_zero():
     assert np.all(q.pdf(q.sample([[1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])) > 0)
     with pytest.raises(ValueError, match="b - a finite"):
         PiecewiseConstant1D([1.0, 1.0], -1e308, 1e308)
+
+
+def test_a_nan_u_gives_a_nan_point_even_after_a_zero_piece():
+    """A NaN u read as u = 0: x = 0 with density 0 where the first piece has no weight
+    (found by review)."""
+    assert np.isnan(PiecewiseConstant1D([0.0, 1.0, 2.0]).sample([np.nan])[0, 0])
+    xy = PiecewiseConstant2D([[0.0, 1.0], [0.0, 1.0]]).sample([[np.nan, 0.5]])[0]
+    assert np.isnan(xy[0])

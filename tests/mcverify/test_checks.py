@@ -521,3 +521,41 @@ def test_supports_far_narrower_than_a_cell_are_integrated(case, seed):
     assert abs(r.details["pdf_integral"] - 1) < 1e-3
     assert not mv.check_sampler(sample, lambda x: 1.03 * pdf(x), domain, **kw).passed
     assert not mv.check_sampler(wide, pdf, domain, **kw).passed
+
+
+def test_guided_cuts_end_on_a_subnormal_cell_and_a_wrong_sampler_there_fails():
+    """A cell 1e-315 wide holding one pilot value made the cuts' width 0 and the loop
+    never ended (MemoryError; found by review). Through the check: samples where the pdf
+    is 0 fail, as before the guided step."""
+    from mcverify.checks.sampler import _guided_edges
+
+    cuts = _guided_edges(0.0, 1e-315, np.array([0.0]))
+    assert cuts[0] == 0.0 and cuts[-1] == 1e-315 and np.all(np.diff(cuts) > 0)
+
+    def sample(u):
+        x0 = np.where(u[:, 0] < 0.3, 0.0, np.where(u[:, 0] < 0.6, 1e-315, u[:, 0]))
+        return np.stack([x0, u[:, 1]], 1)
+
+    r = mv.check_sampler(sample, lambda x: np.where(x[:, 0] > 1e-300, 1.0, 0.0), "square",
+                         n_samples=100_000, seed=0)
+    assert not r.passed
+
+
+def test_guided_reintegration_keeps_to_its_budget(monkeypatch):
+    """It charged 9 evaluations a box where the rule spends 49 and never counted what
+    refinement spent: 9.7e6 evaluations against a budget of 4e6 (found by review)."""
+    import mcverify.checks.sampler as S
+
+    def flipped(u):
+        x = W.sample_cosine_hemisphere(u)
+        x[: u.shape[0] // 1000, 2] *= -1.0
+        return x
+
+    base = mv.check_sampler(flipped, W.cosine_hemisphere_pdf, "sphere", n_samples=200_000,
+                            seed=0, pilot=True)
+    monkeypatch.setattr(S, "_pilot_guided", lambda *a: 0)
+    without = mv.check_sampler(flipped, W.cosine_hemisphere_pdf, "sphere", n_samples=200_000,
+                               seed=0, pilot=True)
+    assert not base.passed and not without.passed
+    extra = base.details["pdf_evaluations"] - without.details["pdf_evaluations"]
+    assert 0 < extra <= S._REFINE_BUDGET * 1.5, extra
