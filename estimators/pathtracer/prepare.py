@@ -455,21 +455,19 @@ class _Builder:
                 faces = np.asarray(faces).reshape(-1, 3)
                 normals = _vertex_normals(wverts, faces, pidx, int(pidx.max()) + 1)
             else:
-                if not np.all(np.isfinite(normals)) or not np.all(np.any(normals, axis=1)):
-                    # Mitsuba refuses both ("invalid vertex normal data"); a zero normal
-                    # shaded with a zero frame (a 2 % darker image, pixels at 0.44)
-                    self.fail(s, f"{self._mesh_path(s)}: a vertex normal is zero or not "
-                                 "finite")
                 # world-space unit normals, as Mitsuba stores them (a non-unit normal in
                 # the file would otherwise weigh more in the interpolation)
-                with np.errstate(over="ignore", under="ignore"):    # refused just below
+                with np.errstate(over="ignore", under="ignore", invalid="ignore"):
                     normals = normals @ np.linalg.inv(lin)
                     length = np.linalg.norm(normals, axis=1, keepdims=True)
                 if not np.all(np.isfinite(length) & (length > 0)):
-                    # a normal of 1e300 (its length overflows) or one the transform
-                    # shrinks below the smallest double: a zero or NaN normal again
-                    self.fail(s, f"{self._mesh_path(s)}: a vertex normal cannot be "
-                                 "normalised in world space (too large or too small)")
+                    # Mitsuba refuses these ("invalid vertex normal data"): a zero normal
+                    # shaded with a zero frame (a 2 % darker image, pixels at 0.44), and
+                    # one of 1e300 (its length overflows) or one the transform shrinks
+                    # below the smallest double became a zero or NaN normal again
+                    self.fail(s, f"{self._mesh_path(s)}: a vertex normal is zero or not "
+                                 "finite, or cannot be normalised in world space (too large "
+                                 "or too small)")
                 normals = normals / length
             self._triangles(wverts, faces, normals, uvs)
         elif s.type == "sphere":
@@ -562,13 +560,14 @@ class _Builder:
             elif t[0] == "f":
                 idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]], int)
                        for tok in t[1:]]
-                idx = [None if c is None else tuple(c) for c in idx]
                 if any(c is None for c in idx):
                     self.fail(s, f"{where}: cannot parse it")
                 if any(i < 0 for c in idx for i in c):
                     # Mitsuba reads them as huge unsigned indices and refuses the file
                     self.fail(s, f"{where}: negative (relative) indices are not supported "
                                  "(Mitsuba refuses them too)")
+                if any(c[0] == 0 for c in idx):
+                    self.fail(s, f"{where}: a face refers to vertex 0 (indices start at 1)")
                 for j, (name, seen) in enumerate((("v", v), ("vt", vt), ("vn", vn))):
                     if any(c[j] > len(seen) for c in idx):
                         # Mitsuba resolves an index as the face is read
@@ -579,14 +578,6 @@ class _Builder:
         if not corners:
             self.fail(s, f"{path}: no faces")
         v, vt, vn = np.array(v, float), np.array(vt, float), np.array(vn, float)
-        for j, (what, n, name) in enumerate((("a vertex", len(v), "v"),
-                                             ("a texture coordinate", len(vt), "vt"),
-                                             ("a normal", len(vn), "vn"))):
-            if any(c[j] > n for tri in corners for c in tri):
-                self.fail(s, f"{path}: a face refers to {what} that does not exist "
-                             f"({n} '{name}' lines)")
-            if any(c[j] == 0 for tri in corners for c in tri) and j == 0:
-                self.fail(s, f"{path}: a face refers to vertex 0 (indices start at 1)")
         for j, word in ((1, "texture coordinates"), (2, "normals")):
             given = {bool(c[j]) for tri in corners for c in tri}
             if len(given) > 1:
@@ -849,9 +840,10 @@ _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
 
 
 def _numbers(tokens, kind):
-    """``tokens`` as numbers of ``kind`` (float or int), or None if one is not."""
+    """``tokens`` as a tuple of numbers of ``kind`` (float or int), or None if one is
+    not."""
     try:
-        return [kind(x) for x in tokens]
+        return tuple(kind(x) for x in tokens)
     except ValueError:
         return None
 

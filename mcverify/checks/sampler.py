@@ -501,8 +501,6 @@ def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
         r = integrate_cells(density, sub, n_samples=n)
         mass.ravel()[c], error.ravel()[c] = r.mass.sum(), r.error.sum()
         spent += r.n_evals
-        if spent >= budget:
-            break
     return spent
 
 
