@@ -263,17 +263,18 @@ _WARP_LOOPS = r'''
 import re
 import numpy as np
 from estimators import warps as W
-for name in ("beckmann", "exponential"):
+for name in ("beckmann", "exponential", "power_cosine"):
     w = W.WARPS[name]
     u = np.full((8, w.sample_dim), 0.25)
-    for label, f, x in [("sample", w.sample, u), ("pdf", w.pdf, w.sample(u, *w.defaults))]:
+    x = w.sample(u, *w.defaults)
+    for label, f, x in [("sample", w.sample, u), ("pdf", w.pdf, x), ("invert", w.invert, x)]:
         f(x, *w.defaults)
         loop = f.loop()
         ir = loop.inspect_llvm(loop.signatures[0])
         # the fast functions' integer bit operations in vector lanes exist only if the
         # kernel's loop was vectorised
         print(name + "_" + label, bool(re.search(r"= (ashr|shl|and|or) <\d+ x i64>", ir)),
-              bool(re.search(r"call [^\n]*@(llvm\.)?(exp|expm1|log|log1p)(\.[a-z0-9]+)?\(", ir)))
+              bool(re.search(r"call [^\n]*@(llvm\.)?(exp|expm1|log|log1p|pow)(\.[a-z0-9]+)?\(", ir)))
 '''
 
 
@@ -290,11 +291,13 @@ def loop_rows(script, tmp_path):
 
 @pytest.mark.slow   # compiles the loops afresh in a subprocess: about a minute
 def test_the_warp_front_end_loops_vectorise(tmp_path):
-    """The Beckmann and exponential front ends' loops (compiled afresh in a subprocess,
-    since numba does not show the IR of cached code) run the kernel in vector lanes."""
+    """The Beckmann, exponential and power-cosine front ends' loops (compiled afresh in a
+    subprocess, since numba does not show the IR of cached code) run the kernel in
+    vector lanes and call no libm exp, expm1, log, log1p (or pow)."""
     rows = loop_rows(_WARP_LOOPS, tmp_path)
-    assert rows == {k: ["True", "False"] for k in ("beckmann_sample", "beckmann_pdf",
-                                                   "exponential_sample", "exponential_pdf")}, rows
+    assert rows == {f"{w}_{f}": ["True", "False"]
+                    for w in ("beckmann", "exponential", "power_cosine")
+                    for f in ("sample", "pdf", "invert")}, rows
 _AZIMUTH_LOOPS = r'''
 import re
 import numpy as np
