@@ -287,7 +287,7 @@ def _log_cos(x):
     return near if z > 0.5 else fast_log(z)
 
 
-@_inline
+@_jit
 def _power_cosine_pdf_kernel(x, p):
     # cos^n θ = e^(n ln cos θ), and cos^0 θ = 1 even at the horizon (0 · -inf would be NaN)
     t = p[0] * _log_cos(x) if p[0] > 0.0 else 0.0 * x[2]
@@ -661,7 +661,7 @@ sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
     "power_cosine", 2, 3, _sample_power_cosine_kernel, _power_cosine_pdf_kernel,
     _invert_power_cosine_kernel,
     "Phong / power-cosine lobe: pdf (n+1)/(2π) cos^n θ: ``sample_power_cosine(u, n)``.",
-    inline=("sample", "invert"))
+    inline=("sample", "pdf", "invert"))
 sample_ggx, ggx_pdf, invert_ggx = _triple(
     "ggx", 2, 3, _sample_ggx_kernel, _ggx_pdf_kernel, _invert_ggx_kernel,
     "GGX (Trowbridge–Reitz) normals, pdf D(h) cos θ_h: ``sample_ggx(u, alpha)``.",

@@ -109,6 +109,28 @@ def test_float32_agrees_with_float64(name):
     assert np.all(np.abs(x32 - x64) <= 0.5 * np.spacing(np.abs(x64).astype(np.float32)))
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("name", NAMES)
+def test_a_nan_point_has_a_nan_density(name, dtype):
+    """A NaN in any coordinate gives a NaN density, not the 0 (or the sphere's 1/4π)
+    the kernel's tests make of it, and leaves the other rows' densities as they were;
+    a NaN u gives a NaN point and density through ``with_pdf`` too."""
+    w = WARPS[name]
+    p = normalise(w, w.defaults)
+    u = np.random.default_rng(7).random((40, w.sample_dim)).astype(dtype)
+    x = w.sample(u, *p)
+    clean = w.pdf(x, *p)
+    for j in range(x.shape[1]):
+        y = x.copy()
+        y[3 + j, j] = np.nan
+        v = w.pdf(y, *p)
+        assert np.isnan(v[3 + j]) and np.array_equal(np.delete(v, 3 + j), np.delete(clean, 3 + j))
+    u[5, 0] = np.nan
+    xs, ps = w.sample.with_pdf(u, *p)
+    assert np.isnan(xs[5]).any() and np.isnan(ps[5]), (xs[5], ps[5])
+    assert np.array_equal(np.delete(ps, 5), np.delete(clean, 5))
+
+
 @pytest.mark.parametrize("n", [0.0, 20.0, 1e3, 1e8, 1e12])
 def test_power_cosine_keeps_its_precision_in_a_narrow_lobe(n):
     """A narrow lobe's directions lie within 1e-6 of the pole at n = 1e12: 1 - cos θ
