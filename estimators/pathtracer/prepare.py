@@ -18,6 +18,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +32,7 @@ from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIA
 from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
+from .text_numbers import SPACE, parse_float, parse_int
 from .textures import TextureStore, envmap_sampling_weights, luminance, read_image
 
 _MATERIALS = None
@@ -542,12 +544,13 @@ class _Builder:
         corners = []
         width = {"v": 3, "vt": 2, "vn": 3}
         for ln, line in enumerate(lines, 1):
-            t = line.split("#", 1)[0].split()      # a comment may end any line
+            t = line.split("#", 1)[0].strip(SPACE)      # a comment may end any line
+            t = re.split(f"[{SPACE}]+", t) if t else []
             if not t:
                 continue
             where = f"{path}:{ln}: {line.strip()!r}"
             if t[0] in width:
-                vals = _numbers(t[1:width[t[0]] + 1], float)
+                vals = _numbers(t[1:width[t[0]] + 1], parse_float)
                 if vals is None or len(vals) < width[t[0]]:
                     self.fail(s, f"{where}: needs {width[t[0]]} numbers")
                 if not all(math.isfinite(x) for x in vals):
@@ -558,7 +561,8 @@ class _Builder:
                     self.fail(s, f"{where}: a zero normal")
                 {"v": v, "vt": vt, "vn": vn}[t[0]].append(vals)
             elif t[0] == "f":
-                idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]], int)
+                idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]],
+                                lambda p: parse_int(p, sign="+-"))
                        for tok in t[1:]]
                 if any(c is None for c in idx):
                     self.fail(s, f"{where}: cannot parse it")
@@ -840,8 +844,8 @@ _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
 
 
 def _numbers(tokens, kind):
-    """``tokens`` as a tuple of numbers of ``kind`` (float or int), or None if one is
-    not."""
+    """``tokens`` as a tuple of numbers read by ``kind`` (``text_numbers.parse_float`` or
+    ``parse_int``: ASCII digits only, as Mitsuba reads them), or None if one is not."""
     try:
         return tuple(kind(x) for x in tokens)
     except ValueError:

@@ -26,6 +26,7 @@ from xml.parsers import expat
 
 import numpy as np
 
+from .text_numbers import INT32, SPACE, parse_float, parse_int, split_numbers
 from .transform import look_at, matrix, rotate, scale, translate
 
 __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scene"]
@@ -262,7 +263,7 @@ class _Loader:
     def numbers(self, node, text, count):
         want = "a number" if count == 1 else f"{count} numbers"
         try:
-            vals = [float(t) for t in re.split(r"[,\s]+", text.strip()) if t]
+            vals = [parse_float(t) for t in split_numbers(text)]
         except ValueError:
             self.fail(node, f"expected {want}, got {text!r}")
         if len(vals) == 1 and count == 3:
@@ -280,11 +281,16 @@ class _Loader:
             return "float", float(self.numbers(node, self.attr(node, "value"), 1)[0])
         if tag == "integer":
             text = self.attr(node, "value")
-            if not re.fullmatch(r"[+-]?\d+", text.strip()):
+            try:
+                n = parse_int(text.strip(SPACE))
+            except ValueError:
                 self.fail(node, f"expected an integer, got {text!r}")
-            return "integer", int(text)
+            if not INT32[0] <= n <= INT32[1]:
+                self.fail(node, f"{text!r} is outside the 32-bit integers Mitsuba reads "
+                                f"[{INT32[0]}, {INT32[1]}]")
+            return "integer", n
         if tag == "boolean":
-            text = self.attr(node, "value").strip().lower()
+            text = self.attr(node, "value").strip(SPACE).lower()
             if text not in ("true", "false"):
                 self.fail(node, f"expected true or false, got {text!r}")
             return "boolean", text == "true"
@@ -389,6 +395,13 @@ class _Loader:
                     self.fail(child, f"an RGB reflectance must lie in [0, 1], got "
                                      f"{', '.join(f'{v:g}' for v in val)} (Mitsuba refuses "
                                      "it too; a <float> may exceed 1)")
+                if kind == "bsdf" and vkind == "float" and "rgb" in spec[name] and \
+                        name not in _UNBOUNDED_RGB and val < 0.0:
+                    # Mitsuba carries a negative albedo through the path (a sphere's
+                    # block came out -0.15); the tracer ends such a path
+                    self.fail(child, f"{name} = {val:g}: a reflectance or transmittance "
+                                     "must be >= 0 (Mitsuba renders a negative one as a "
+                                     "negative albedo, which this tracer does not)")
                 if vkind == "transform" and name == "to_world" and kind in ("shape", "emitter"):
                     self._check_invertible(child, val)
                 set_prop(child, name, val)
@@ -447,7 +460,7 @@ class _Loader:
     def load(self, root) -> SceneDescription:
         self.check_attributes(root)
         version = self.attr(root, "version")    # Mitsuba requires it too
-        if not re.fullmatch(r"\d+\.\d+\.\d+", version.strip()):
+        if not re.fullmatch(r"[0-9]+\.[0-9]+\.[0-9]+", version.strip(SPACE)):
             self.fail(root, f"version {version!r}: expected major.minor.patch, e.g. 3.0.0")
         if int(version.split(".")[0]) < 2:
             self.fail(root, f"version {version!r}: Mitsuba rewrites scenes older than 2.0.0 "

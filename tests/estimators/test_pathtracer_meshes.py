@@ -229,6 +229,11 @@ OBJ_BAD = {   # name: (file text, what the message says, Mitsuba refuses it too)
     "one-uv": (_TRI + "vt 0.1\nf 1/1 2/1 3/1\n", "'vt 0.1': needs 2 numbers", True),
     "two-normal-values": (_TRI + "vn 0 1\nf 1//1 2//1 3//1\n", "'vn 0 1': needs 3", True),
     "byte-order-mark": ("\ufeff" + _TRI + "f 1 2 3\n", "starts with a byte-order mark", True),
+    "underscore-number": ("v 1_0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", ":1: 'v 1_0 0 0': needs 3",
+                          True),
+    # Mitsuba makes no face of it (and warns of invalid vertices)
+    "full-width-index": (_TRI + "f 1 2 \uff13\n", ":4: 'f 1 2 \uff13': cannot parse it",
+                         False),
     "some-faces-without-normals": (_TRI + "v 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\nf 2 4 3\n",
                                    "some faces have normals and some do not", False),
 }

@@ -499,6 +499,84 @@ def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
             mi.load_string(text)
 
 
+_DEPTH = '<integrator type="path"><integer name="max_depth" value="{}"/></integrator>'
+_IOR = '<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="{}"/></bsdf></shape>'
+_RGB = ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf>'
+        '</shape>')
+
+
+@pytest.mark.parametrize("body,needle", [
+    (_DEPTH.format("99999999999999999999"), "outside the 32-bit integers Mitsuba reads"),
+    (_DEPTH.format("2147483648"), "outside the 32-bit integers"),
+    (_DEPTH.format("+3"), "expected an integer, got '+3'"),
+    (_DEPTH.format("\u0665"), "expected an integer"),           # Arabic-Indic 5
+    (_DEPTH.format("3.0"), "expected an integer"),
+    (_IOR.format("1_5"), "expected a number, got '1_5'"),
+    (_IOR.format("\uff11.\uff15"), "expected a number"),          # full-width 1.5
+    (_IOR.format("\u00a01.5"), "expected a number"),               # no-break space
+    (_IOR.format("0x1p3"), "expected a number"),
+    (_RGB.format("0.1_0, 0.2, 0.3"), "expected 3 numbers"),
+    (_RGB.format("0.5\u20030.2\u20030.1"), "expected 3 numbers"),  # em spaces
+], ids=["int-20-digits", "int-2^31", "int-plus", "int-arabic-digit", "int-3.0",
+        "float-underscore", "float-full-width", "float-nbsp", "float-hex",
+        "rgb-underscore", "rgb-em-space"])
+def test_numbers_are_read_as_mitsuba_reads_them(mi, tmp_path, body, needle):
+    """Python's float() and int() read these (1_5 as 15, other scripts' digits, Unicode
+    spaces, integers of any size: max_depth 10^20 failed in numba as "Int value is too
+    large"); Mitsuba refuses each, and so does the loader, naming the line."""
+    from estimators.pathtracer import prepare_scene
+
+    text = f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>'
+    path = tmp_path / "s.xml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
+    with pytest.raises(RuntimeError):
+        mi.load_string(text)
+
+
+def test_numbers_both_read_are_read_alike(mi, tmp_path):
+    """The forms both parsers take give the same values: padding, a leading +, a bare
+    point, an exponent, leading zeros, repeated commas."""
+    from estimators.pathtracer import prepare_scene
+
+    for depth, ior, rgb, want in [(" 3 ", "+.15e1", "0.5,,0.25\t0.125", (3, 1.5)),
+                                  ("007", "1.5E0", " .5 .25 .125 ", (7, 1.5)),
+                                  ("-1", "15e-1", ",0.5,0.25,0.125", (-1, 1.5))]:
+        body = _DEPTH.format(depth) + _IOR.format(ior) + _RGB.format(rgb)
+        path = tmp_path / "s.xml"
+        path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>')
+        desc = parse_scene(path.read_text())
+        assert (desc.integrator.props["max_depth"], desc.shapes[0].children[0].props["int_ior"]
+                ) == want
+        assert desc.shapes[1].children[0].props["reflectance"].tolist() == [0.5, 0.25, 0.125]
+        prepare_scene(str(path))
+        mi.load_string(path.read_text())
+
+
+@pytest.mark.parametrize("bsdf,prop", [("diffuse", "reflectance"),
+                                       ("plastic", "diffuse_reflectance"),
+                                       ("conductor", "specular_reflectance"),
+                                       ("dielectric", "specular_transmittance")])
+def test_a_negative_float_reflectance_is_refused(tmp_path, bsdf, prop):
+    """Mitsuba renders a <float> reflectance of -0.5 as a negative albedo (a probe's
+    sphere: -0.15 where ours gave 0.0001, z = 1000); the loader refuses it by line. A
+    <float> above 1 stays allowed, as in Mitsuba."""
+    from estimators.pathtracer import prepare_scene
+
+    for value, refused in [("-0.5", True), ("1.5", False), ("0", False)]:
+        path = tmp_path / "s.xml"
+        path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf '
+                        f'type="{bsdf}"><float name="{prop}" value="{value}"/></bsdf>'
+                        '</shape>\n</scene>')
+        if refused:
+            with pytest.raises(SceneError, match=f"s.xml:3: .*{prop} = -0.5: a reflectance"):
+                prepare_scene(str(path))
+        else:
+            prepare_scene(str(path))
+
+
 @pytest.mark.parametrize("sensor_extra,body,needle", [
     ('<sampler type="independent"><integer name="sample_count" value="-4"/></sampler>', "",
      'sampler type="independent">: sample_count -4: must be at least 1'),

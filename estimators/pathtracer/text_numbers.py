@@ -1,0 +1,39 @@
+"""Numbers in scene text as Mitsuba's parsers read them, not as Python's ``float`` and
+``int`` do: those also take ``1_5``, digits of other scripts (``١.٥``, ``１.５``) and
+Unicode spaces, which Mitsuba refuses; and Python's integers have no range, where
+Mitsuba's are 32-bit (a ``max_depth`` of 10^20 reached numba as "Int value is too large").
+ASCII only: a sign, digits with at most one point, an exponent; ``inf`` and ``nan`` are
+read (the loader then refuses them as not finite, naming them)."""
+
+from __future__ import annotations
+
+import re
+
+#: What separates the numbers of an ``<rgb>`` or a ``value="x, y, z"``, and what may pad
+#: a value: commas and ASCII whitespace (Mitsuba's tokenizer; not a no-break space).
+SPACE = " \t\n\r"
+_SEPARATORS = re.compile(r"[, \t\n\r]+")
+_FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+                    r"|[+-]?(?:inf|infinity|nan)", re.ASCII | re.IGNORECASE)
+_INT = re.compile(r"[+-]?[0-9]+", re.ASCII)
+INT32 = (-2 ** 31, 2 ** 31 - 1)
+
+
+def parse_float(token: str) -> float:
+    """``token`` as a float64; ``ValueError`` unless it is a plain decimal number."""
+    if not _FLOAT.fullmatch(token):
+        raise ValueError(f"not a number: {token!r}")
+    return float(token)
+
+
+def parse_int(token: str, sign: str = "-") -> int:
+    """``token`` as an int; ``ValueError`` unless it is ASCII digits after an optional
+    sign (``sign``: the signs allowed; Mitsuba's XML integers take ``-`` only)."""
+    if not _INT.fullmatch(token) or (token[0] in "+-" and token[0] not in sign):
+        raise ValueError(f"not an integer: {token!r}")
+    return int(token)
+
+
+def split_numbers(text: str) -> list[str]:
+    """The number tokens of ``text``: split at commas and ASCII whitespace."""
+    return [t for t in _SEPARATORS.split(text.strip(SPACE)) if t]
