@@ -31,6 +31,7 @@ from numba import njit
 
 from .flat import flat_add, flat_add4, flat_get
 from .scene import SceneDescription, SceneError
+from .text_numbers import SPACE, parse_float
 
 
 PERSPECTIVE, ORTHOGRAPHIC = 0, 1
@@ -164,10 +165,18 @@ def _field_of_view(desc: SceneDescription) -> tuple[float, str]:
             raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: give "
                              "either fov or focal_length, not both (Mitsuba refuses both)")
         return float(s.props["fov"]), str(s.get("fov_axis", "x")).lower()   # as Mitsuba
-    text = str(s.get("focal_length", "50mm")).strip()
+    if "fov_axis" in s.props:
+        # Mitsuba reads fov_axis only with fov, and refuses it unread ("unreferenced
+        # property"); ignoring it would render another view than the file asks for
+        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: fov_axis "
+                         "without fov (Mitsuba refuses it as unused; a focal_length spans "
+                         "the diagonal)")
+    # Mitsuba's rule: a trailing "mm" cut off, then a number with ASCII spaces around it
+    # ("50 mm" and "50 " pass, "50mm " and "5_0mm" do not)
+    text = str(s.get("focal_length", "50mm"))
     number = text[:-2] if text.endswith("mm") else text
     try:
-        focal = float(number)
+        focal = parse_float(number.strip(SPACE))
     except ValueError:
         focal = float("nan")
     if not (math.isfinite(focal) and focal > 0):

@@ -218,6 +218,9 @@ _ATTRIBUTES = {"scene": ("version",), "default": ("name", "value"), "ref": ("id"
                "vector": ("name", "value", "x", "y", "z"),
                **{t: ("name", "value") for t in ("float", "integer", "boolean", "string", "rgb")}}
 _PLUGIN_ATTRIBUTES = ("type", "id", "name")
+#: children a plugin may hold one of at most (Mitsuba refuses a second: "A film can only
+#: have one reconstruction filter", "Only one sampler can be specified per sensor")
+_ONE_EACH = {"shape": ("bsdf", "emitter"), "sensor": ("film", "sampler"), "film": ("rfilter",)}
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")
 
@@ -436,11 +439,15 @@ class _Loader:
                 self.fail(child, f"unsupported element inside {kind} {ptype!r}; supported: "
                                  f"{', '.join(_VALUE_TAGS)}, ref, texture and nested "
                                  f"plugins{hint}")
+        for what in _ONE_EACH.get(kind, ()):
+            if sum(c.kind == what for c in p.children) > 1:
+                self.fail(node, f"more than one {what} in one {kind} (Mitsuba refuses it "
+                                f"too){'; give each its own shape' if kind == 'shape' else ''}")
+        if kind == "sampler" and "seed" in p.props and \
+                not 0 <= p.props["seed"] <= 2 ** 32 - 1:
+            self.fail(node, f"seed {p.props['seed']}: must lie in [0, 4294967295] (Mitsuba "
+                            "refuses it too)")
         if kind == "shape":
-            for what in ("bsdf", "emitter"):
-                if sum(c.kind == what for c in p.children) > 1:
-                    self.fail(node, f"more than one {what} in one shape (Mitsuba refuses "
-                                    "it too); give each its own shape")
             for c in p.children:
                 if c.kind == "emitter" and c.type != "area":
                     # Mitsuba keeps such a light as it is (a point light at its own

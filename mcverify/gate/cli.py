@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import sys
 import time
@@ -539,8 +540,12 @@ def _cmd_reference_build(args) -> int:
                                           passes=args.passes, seed=args.seed, progress=show,
                                           pool=pool)
     for out in outs:
-        print(f"built {out} ({args.passes} passes × {args.spp} spp per pass = "
-              f"{args.passes * args.spp} spp, {choice.variant})")
+        with open(os.path.join(out, "manifest.json"), encoding="utf-8") as f:
+            spp = json.load(f)["spp"]
+        rounded = (f"; Mitsuba's sampler rounds --spp {args.spp} to {spp}"
+                   if spp != args.spp else "")
+        print(f"built {out} ({args.passes} passes × {spp} spp per pass = "
+              f"{args.passes * spp} spp, {choice.variant}{rounded})")
     return EXIT_OK
 
 

@@ -279,6 +279,17 @@ def filter_radius(scene_path: str, params: dict | None = None) -> float:
     return float(scene.sensors()[0].film().rfilter().radius())
 
 
+def sampler_spp(scene_path: str, spp: int, params: dict | None = None) -> int:
+    """The samples per pixel Mitsuba renders when asked for ``spp``: its stratified
+    sampler rounds up to a square (33 -> 36), multijitter to a product of near-equal
+    factors (7 -> 8)."""
+    scene = _loaded(scene_path, tuple(sorted((params or {}).items())),
+                    os.stat(scene_path).st_mtime_ns)
+    sampler = scene.sensors()[0].sampler().clone()
+    sampler.set_sample_count(int(spp))
+    return int(sampler.sample_count())
+
+
 def render_passes(scene_path: str, *, spp: int, seeds, params: dict | None = None,
                   progress=None) -> np.ndarray:
     """Render ``scene_path`` once per seed (independent passes): (K, H, W, C) float64."""

@@ -331,12 +331,13 @@ def _pass_seeds(seed: int, passes: int) -> list[int]:
     return [int(s) for s in np.random.SeedSequence([seed, 7]).generate_state(passes)]
 
 
-def _filter_radius_unit(fingerprint, path, params, variant) -> float:
-    """The film's filter radius as Mitsuba loads the scene (a unit of work)."""
+def _film_unit(fingerprint, path, spp, params, variant) -> tuple[float, int]:
+    """(the film's filter radius, the samples per pixel Mitsuba's sampler renders for
+    ``spp``) as Mitsuba loads the scene (a unit of work)."""
     from . import mitsuba as mvm
 
     same_source(fingerprint)
-    return mvm.filter_radius(path, params)
+    return mvm.filter_radius(path, params), mvm.sampler_spp(path, spp, params)
 
 
 def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarray:
@@ -372,15 +373,20 @@ class _Job:
         return [Unit(f"{self.name} pass {i + 1}/{k}", _render_pass_unit,
                      (fingerprint, self.path, self.spp, s, self.params, variant))
                 for i, s in enumerate(self.seeds)] + \
-            [Unit(f"{self.name} filter", _filter_radius_unit,
-                  (fingerprint, self.path, self.params, variant))]
+            [Unit(f"{self.name} filter", _film_unit,
+                  (fingerprint, self.path, self.spp, self.params, variant))]
 
-    def assemble(self, imgs: np.ndarray, radius: float, variant: str) -> Reference:
+    def assemble(self, imgs: np.ndarray, film: tuple[float, int], variant: str) -> Reference:
         from . import mitsuba as mvm
 
+        radius, spp = film
+        # What Mitsuba rendered: a stratified sampler rounds 33 spp up to 36, and the
+        # render gate pairs passes of equal spp where the filter splats (a probe found
+        # the manifest saying 33)
+        asked = {} if spp == self.spp else {"spp_requested": self.spp}
         manifest = provenance(scene=self.name, scene_sha256=scene_hash(self.path),
-                              assets_sha256=self.assets,
-                              spp=self.spp, passes=len(self.seeds), seeds=self.seeds,
+                              assets_sha256=self.assets, spp=spp, **asked,
+                              passes=len(self.seeds), seeds=self.seeds,
                               mitsuba_version=mvm.mitsuba_version(), mitsuba_variant=variant,
                               shape=list(imgs.shape[1:]), rfilter_radius=radius,
                               params={k: str(v) for k, v in (self.params or {}).items()})
@@ -416,9 +422,9 @@ def _render_jobs(jobs: list[_Job], pool: Pool | None, progress) -> list[tuple[Re
     out, at = [], 0
     for job in jobs:
         stack = np.stack(imgs[at:at + len(job.seeds)])
-        radius = imgs[at + len(job.seeds)]
+        film = imgs[at + len(job.seeds)]
         at += len(job.seeds) + 1
-        out.append((job.assemble(stack, radius, variant), stack))
+        out.append((job.assemble(stack, film, variant), stack))
     return out
 
 

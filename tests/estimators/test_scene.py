@@ -555,6 +555,46 @@ def test_numbers_both_read_are_read_alike(mi, tmp_path):
         mi.load_string(path.read_text())
 
 
+_FILM = '<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>'
+
+
+@pytest.mark.parametrize("sensor,needle", [
+    ('<string name="focal_length" value="50mm "/>', "focal_length '50mm ': expected"),
+    ('<string name="focal_length" value="5_0mm"/>', "focal_length '5_0mm': expected"),
+    ('<string name="fov_axis" value="y"/>', "fov_axis without fov"),
+    (_FILM + '<rfilter type="box"/><rfilter type="tent"/></film>',
+     "more than one rfilter in one film"),
+    ('<sampler type="independent"/><sampler type="independent"><integer '
+     'name="sample_count" value="4"/></sampler>', "more than one sampler in one sensor"),
+    (_FILM + '</film>' + _FILM + '</film>', "more than one film in one sensor"),
+    ('<sampler type="independent"><integer name="seed" value="-5"/></sampler>',
+     "seed -5: must lie in [0, 4294967295]"),
+    ('<sampler type="independent"><integer name="seed" value="2147483647"/></sampler>',
+     None),
+], ids=["focal-trailing-space", "focal-underscore", "fov-axis-without-fov", "two-rfilters",
+        "two-samplers", "two-films", "negative-seed", "int32-seed"])
+def test_sensors_mitsuba_refuses_are_refused(mi, tmp_path, sensor, needle):
+    """Found by a probe: each rendered here (the first filter or sampler, the focal length
+    read by Python's float, the default view with fov_axis dropped), and Mitsuba refuses
+    each ("A film can only have one reconstruction filter", "Could not parse the focal
+    length", an unreferenced fov_axis, a seed out of bounds)."""
+    from estimators.pathtracer import prepare_scene
+
+    text = (f'<scene version="3.0.0">\n<sensor type="perspective">{sensor}</sensor>\n'
+            '<shape type="sphere"/>\n</scene>')
+    path = tmp_path / "s.xml"
+    path.write_text(text)
+    if needle is None:
+        prepare_scene(str(path))
+        mi.load_string(text)
+        return
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert "s.xml:2" in str(e.value) and needle in str(e.value), str(e.value)
+    with pytest.raises(RuntimeError):
+        mi.load_string(text)
+
+
 @pytest.mark.parametrize("bsdf,prop", [("diffuse", "reflectance"),
                                        ("plastic", "diffuse_reflectance"),
                                        ("conductor", "specular_reflectance"),

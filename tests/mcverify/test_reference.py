@@ -236,3 +236,26 @@ def test_a_scene_named_twice_is_built_once(scene_copy, monkeypatch):
     out = reference.build_references([str(scene_copy), str(scene_copy / "scene.xml")],
                                      spp=2, passes=2)
     assert seen == [1] and len(out) == 1 and reference.load_reference(str(scene_copy)).n == 2
+
+
+@pytest.mark.parametrize("sampler,asked,rendered", [("stratified", 5, 9),
+                                                    ("multijitter", 7, 8),
+                                                    ("independent", 5, 5)])
+def test_the_manifest_records_the_samples_mitsuba_renders(tmp_path, sampler, asked, rendered):
+    """Mitsuba's stratified sampler rounds 5 spp up to 9, multijitter 7 to 8: the manifest
+    said 5 (found by a probe), and the render gate pairs passes of equal spp where the
+    filter splats. It records what was rendered, and what was asked where they differ;
+    the CLI says so."""
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    scene = tmp_path / "s.xml"
+    scene.write_text(src.replace('type="independent"', f'type="{sampler}"'))
+    assert f'type="{sampler}"' in scene.read_text()
+    out = subprocess.run(CMD + ["reference", "build", str(scene), "--spp", str(asked),
+                                "--passes", "2", "-q"], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    manifest = reference.load_reference(str(scene)).manifest
+    assert manifest["spp"] == rendered
+    assert manifest.get("spp_requested") == (asked if asked != rendered else None)
+    assert f"2 passes × {rendered} spp per pass" in out.stdout
+    assert ("rounds --spp" in out.stdout) == (asked != rendered)
