@@ -270,6 +270,14 @@ def _unit(u, name="u") -> np.ndarray:
     return np.ascontiguousarray(a.reshape(-1))
 
 
+def _nan_where_nan(x, values) -> np.ndarray:
+    """``values`` (n,) with NaN in each row where a coordinate of ``x`` ((n,) or (n, d))
+    is NaN: a NaN point has a NaN density and a NaN u a NaN sample, as in the warps,
+    rather than the 0 or the table's end that a search makes of it."""
+    bad = np.isnan(x) if x.ndim == 1 else np.isnan(x).any(axis=1)
+    return np.where(bad, np.nan, values)
+
+
 def _pairs(u, name="u") -> np.ndarray:
     """A 2-D distribution's points as (n, 2): (n, 2) or one pair (2,); any other shape
     is refused ((4, 3) was read as six pairs, (4,) as two)."""
@@ -340,7 +348,7 @@ class PiecewiseConstant1D:
 
     def pdf(self, x):
         t = (_unit(x) - self.a) / (self.b - self.a)
-        return _pc1d_batch_kernel(self.table, t, 1)[:, 0] / (self.b - self.a)
+        return _nan_where_nan(t, _pc1d_batch_kernel(self.table, t, 1)[:, 0] / (self.b - self.a))
 
     def invert(self, x):
         t = (_unit(x) - self.a) / (self.b - self.a)
@@ -378,7 +386,8 @@ class PiecewiseConstant2D:
 
     def pdf(self, x):
         x = _pairs(x, "x")
-        return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, x, 1)[:, 0]
+        return _nan_where_nan(x, _pc2d_batch_kernel(self.marginal_table,
+                                                    self.conditional_table, x, 1)[:, 0])
 
     def invert(self, x):
         x = _pairs(x, "x")
@@ -560,7 +569,7 @@ class InvertedCDF:
     def pdf(self, x):
         x = _unit(x)
         inside = (x >= self.a) & (x <= self.b)
-        return np.where(inside, self._f_norm(np.clip(x, self.a, self.b)), 0.0)
+        return _nan_where_nan(x, np.where(inside, self._f_norm(np.clip(x, self.a, self.b)), 0.0))
 
     def invert(self, x):
         return np.clip(self.cdf(x), 0.0, ONE_MINUS_EPSILON).reshape(-1, 1)
@@ -596,4 +605,4 @@ class InvertedCDF:
             active = active[moving]
             if active.size == 0:
                 break
-        return x.reshape(-1, 1)
+        return _nan_where_nan(u, x).reshape(-1, 1)

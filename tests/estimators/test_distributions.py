@@ -197,13 +197,13 @@ def test_nan_and_out_of_range_inputs_read_no_table_entry_beyond_the_end():
     """NaN reached an index through int(nan) (garbage, even negative densities) and
     u = 1e300 overflowed int(u·n) into the middle of the table (found by review)."""
     p = PiecewiseConstant1D([1.0, 2.0])
-    assert p.pdf([np.nan])[0] == 0.0 and p.pdf([-0.1, 1.1]).tolist() == [0.0, 0.0]
+    assert np.isnan(p.pdf([np.nan])[0]) and p.pdf([-0.1, 1.1]).tolist() == [0.0, 0.0]
     top = p.sample([1 - 2 ** -53]).ravel().tolist()      # u past the end as its nearest u
     assert p.sample([2.0, 1e300, np.inf]).ravel().tolist() == top * 3 and top[0] < 1
     assert np.isnan(p.sample([np.nan])[0, 0])
     assert p.invert([1e300, -1e300]).ravel().tolist() == [1 - 2 ** -53, 0.0]
     q = PiecewiseConstant2D([[1.0, 2.0], [3.0, 4.0]])
-    assert q.pdf([[np.nan, 0.5], [0.5, np.nan]]).tolist() == [0.0, 0.0]
+    assert np.isnan(q.pdf([[np.nan, 0.5], [0.5, np.nan]])).all()    # NaN, not garbage
     assert np.all((q.invert([[0.5, 1e300]]) >= 0) & (q.invert([[0.5, 1e300]]) < 1))
 
 
@@ -320,3 +320,21 @@ def test_a_nan_u_gives_a_nan_point_even_after_a_zero_piece():
     assert np.isnan(PiecewiseConstant1D([0.0, 1.0, 2.0]).sample([np.nan])[0, 0])
     xy = PiecewiseConstant2D([[0.0, 1.0], [0.0, 1.0]]).sample([[np.nan, 0.5]])[0]
     assert np.isnan(xy[0])
+
+
+def test_a_nan_point_has_a_nan_density_and_a_nan_u_a_nan_sample():
+    """As in the warps: the piecewise pdfs said 0 at NaN and InvertedCDF.sample(NaN) gave
+    a point near b (a search puts NaN after every knot); other rows are unchanged."""
+    from estimators.distributions import InvertedCDF, PiecewiseConstant1D, PiecewiseConstant2D
+
+    nan = np.nan
+    one = PiecewiseConstant1D([1.0, 2.0, 3.0])
+    two = PiecewiseConstant2D([[1.0, 2.0], [3.0, 4.0]])
+    cdf = InvertedCDF(lambda x: 1.0 + x, 0.0, 1.0)
+    for d in (one, cdf):
+        pdf, x = d.pdf([nan, 0.5]), d.sample([nan, 0.5])
+        assert np.isnan(pdf[0]) and pdf[1] == d.pdf([0.5])[0]
+        assert np.isnan(x[0, 0]) and x[1, 0] == d.sample([0.5])[0, 0]
+    pdf = two.pdf([[nan, 0.5], [0.5, nan], [0.25, 0.75]])
+    assert np.isnan(pdf[:2]).all() and pdf[2] == two.pdf([0.25, 0.75])[0]
+    assert np.isnan(two.sample([[nan, 0.5]])).any()

@@ -500,7 +500,8 @@ def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
 
 
 _DEPTH = '<integrator type="path"><integer name="max_depth" value="{}"/></integrator>'
-_IOR = '<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="{}"/></bsdf></shape>'
+_IOR = ('<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="{}"/></bsdf>'
+        '</shape>')
 _RGB = ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf>'
         '</shape>')
 
