@@ -6,9 +6,10 @@ every pixel"), each at α/3 (Bonferroni):
 1. **global**: the image mean of each channel, z-tests of the differences (Bonferroni
    across channels, whose values are correlated: one path gives all three). It sees a
    light 2 % too bright long before any single pixel does.
-2. **blocks**: means of ``block × block`` pixel blocks per channel, z-tests under Holm
-   (Jung, Hanika, Dachsbacher, JCGT 2020). They see a local bias, one wall's albedo off by
-   10 %, and say where.
+2. **blocks**: means of ``block × block`` pixel blocks per channel, and of blocks half
+   and twice that side, z-tests under one Holm correction (Jung, Hanika, Dachsbacher,
+   JCGT 2020, at three scales). They see a local bias, one wall's albedo off by 10 %, a
+   small object's by 50 %, and say where.
 3. **pixels**: per-pixel Welch t-tests under Benjamini–Hochberg. Under the global null
    BH's FDR control is family-wise control, and the adjusted p-values form the p-map.
 
@@ -26,6 +27,7 @@ different (p = 0) by its values alone, to float32 resolution at the image's scal
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -107,6 +109,16 @@ def _as_passes(name, a, n, shape):
         raise InvalidArgument(f"{name}: expected {n} pass images of shape {shape} "
                               f"(an array ({n}, H, W[, C])), got shape {raw.shape}")
     return _as_image(name, raw.reshape(n * shape[0], *shape[1:])).reshape(n, *shape)
+
+
+def block_sides(block: int, h: int, w: int) -> tuple[int, ...]:
+    """The block sides the block test uses: ``block`` and, where they are blocks of more
+    than one pixel and less than the whole image, half and twice it (8: 4, 8 and 16
+    pixels). A difference is found best by blocks of its own size: a 4 × 4 patch 50 %
+    off in 8 × 8 blocks was found in 12 of 200 seeded trials, with the three sides under
+    one Holm correction in 108 (gamma noise, 32 values a pixel, α = 0.01)."""
+    return tuple(s for s in (block // 2, block, 2 * block)
+                 if s == block or (s >= 2 and s < max(h, w)))
 
 
 def _block_means(img, block):
@@ -192,7 +204,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     alpha : float
         Family-wise level of the whole comparison.
     block : int
-        Block side in pixels for the block tests (8: 64 blocks on a 64 × 64 image).
+        Block side in pixels for the block tests (8: 64 blocks on a 64 × 64 image); blocks
+        of half and twice the side are tested too (``block_sides``), all under one Holm
+        correction.
     tests : sequence of {"global", "blocks", "pixels"}
         The tests to run, each at α / len(tests) (all three by default). The render
         gate's early looks, on a few passes, leave out the pixel t-tests: a pixel's
@@ -314,21 +328,29 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                                          se2.sum(axis=(0, 1)) / n_px ** 2, gtol)
     p_global = stats.bonferroni_min(p_channels)
 
-    # 2. blocks (edge blocks may be smaller)
-    bref = _block_means(rm, block)
-    if correlated:
-        bt, br = _block_means(tp, block), _block_means(rp, block)   # (K, by, bx, C)
-        bdiff = bt.mean(0) - br.mean(0)
-        p_blocks = stats.welch_t_beyond(bdiff, bt.var(0, ddof=1), nt, br.var(0, ddof=1), nr,
-                                        tol(bref + bdiff, bref))
-    else:
-        bdiff = _block_means(diff, block)
-        # Var(mean of k independent pixels) = Σ se² / k² = (mean se²) / k
-        sizes = np.minimum(block, h - np.arange(0, h, block))[:, None, None] * \
-            np.minimum(block, w - np.arange(0, w, block))[None, :, None]
-        bvar = _block_means(se2, block) / sizes
-        p_blocks = stats.z_test_beyond(bdiff, bvar, tol(bref + bdiff, bref))
-    p_blocks_adj = stats.holm(p_blocks.ravel()).reshape(p_blocks.shape)
+    # 2. blocks (edge blocks may be smaller), at each side in ``sides``, all under one Holm
+    sides = block_sides(block, h, w)
+    scales = []                                 # (side, difference, reference, p) per side
+    for side in sides:
+        bref = _block_means(rm, side)
+        if correlated:
+            bt, br = _block_means(tp, side), _block_means(rp, side)   # (K, by, bx, C)
+            bdiff = bt.mean(0) - br.mean(0)
+            p = stats.welch_t_beyond(bdiff, bt.var(0, ddof=1), nt, br.var(0, ddof=1), nr,
+                                     tol(bref + bdiff, bref))
+        else:
+            bdiff = _block_means(diff, side)
+            # Var(mean of k independent pixels) = Σ se² / k² = (mean se²) / k
+            sizes = np.minimum(side, h - np.arange(0, h, side))[:, None, None] * \
+                np.minimum(side, w - np.arange(0, w, side))[None, :, None]
+            bvar = _block_means(se2, side) / sizes
+            p = stats.z_test_beyond(bdiff, bvar, tol(bref + bdiff, bref))
+        scales.append((side, bdiff, bref, p))
+    adjusted = stats.holm(np.concatenate([p.ravel() for *_, p in scales]))
+    p_blocks_adj, at = [], 0
+    for *_, p in scales:
+        p_blocks_adj.append(adjusted[at:at + p.size].reshape(p.shape))
+        at += p.size
 
     # 3. pixels: Welch t (dof from stats.welch_dof)
     p_pix = stats.welch_t_beyond(diff, tv, nt, rv, nr, tol(tm, rm))
@@ -339,23 +361,28 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     found = []
     if "global" in tests and p_global <= level:
         found.append("global")
-    rejected_blocks = np.argwhere(p_blocks_adj <= level) if "blocks" in tests \
-        else np.zeros((0, 3), dtype=int)
-    if rejected_blocks.size:
+    rejected_blocks = [(k, i, j, c) for k, adj in enumerate(p_blocks_adj)
+                       for i, j, c in np.argwhere(adj <= level)] if "blocks" in tests else []
+    if rejected_blocks:
         found.append("blocks")
     rejected_px = (p_pix_adj <= level) if "pixels" in tests else np.zeros(p_pix_adj.shape, bool)
     if rejected_px.any():
         found.append("pixels")
-    minima = {"global": p_global, "blocks": p_blocks_adj.min(), "pixels": p_pix_adj.min()}
+    min_blocks = float(adjusted.min())
+    minima = {"global": p_global, "blocks": min_blocks, "pixels": p_pix_adj.min()}
     p_value = stats.bonferroni_min([minima[t] for t in tests])
 
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.where(bref != 0, bdiff / np.abs(bref), np.nan)
-    blocks_info = [{"block": [int(i), int(j)], "channel": int(k),
-                    "pixels": [int(i * block), int(j * block)],
-                    "relative_difference": float(rel[i, j, k]),
-                    "p_adjusted": float(p_blocks_adj[i, j, k])}
-                   for i, j, k in rejected_blocks[:50]]
+    def relative(k, i, j, c):
+        _, bdiff, bref, _ = scales[k]
+        return float(bdiff[i, j, c] / abs(bref[i, j, c])) if bref[i, j, c] != 0 else math.nan
+
+    # the most significant first, so that the 50 kept are the clearest
+    rejected_blocks.sort(key=lambda r: p_blocks_adj[r[0]][r[1:]])
+    blocks_info = [{"side": sides[k], "block": [int(i), int(j)], "channel": int(c),
+                    "pixels": [int(i * sides[k]), int(j * sides[k])],
+                    "relative_difference": relative(k, i, j, c),
+                    "p_adjusted": float(p_blocks_adj[k][i, j, c])}
+                   for k, i, j, c in rejected_blocks[:50]]
     denom = rm ** 2 + 1e-2
     messages = []
     if found:
@@ -372,8 +399,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         "global": {"difference": float(diff.mean()),
                    "relative": float(diff.mean() / max(abs(rm.mean()), 1e-300)),
                    "p_value": p_global, "p_channels": [float(x) for x in p_channels]},
-        "blocks": {"n": int(p_blocks.size), "rejected": blocks_info,
-                   "min_p_adjusted": float(p_blocks_adj.min())},
+        "blocks": {"n": int(adjusted.size), "sides": list(sides),
+                   "n_rejected": len(rejected_blocks), "rejected": blocks_info,
+                   "min_p_adjusted": min_blocks},
         "rejected_fraction": float(rejected_px.any(axis=2).mean()),
         "min_pixel_p_adjusted": float(p_pix_adj.min()),
         "relmse": float(np.mean(diff ** 2 / denom)),
