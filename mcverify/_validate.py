@@ -152,6 +152,12 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
     if a.dtype == object or not (np.issubdtype(a.dtype, np.floating)
                                  or np.issubdtype(a.dtype, np.integer)):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers")
+    if a.dtype == np.float16:
+        # 11 bits: a unit vector is off the sphere by up to 1e-3 and read as outside the
+        # domain (a probe's correct float16 cosine sampler: 95042 points "outside")
+        raise InvalidArgument(f"{name} returned float16 points: judge a float32 or float64 "
+                              "version (float16's 11-bit significand puts unit vectors up "
+                              "to 1e-3 off the sphere, outside the domain)")
     if dim == 1 and a.shape == (n,):
         a = a.reshape(n, 1)
     if a.shape != (n, dim):
@@ -183,10 +189,14 @@ def samples_1d(name: str, v, *, minimum: int = 2) -> np.ndarray:
     if np.iscomplexobj(v):      # numpy would drop the imaginary part with a warning
         raise InvalidArgument(f"{name}: complex values; the checks test real estimates "
                               "(test the real and imaginary parts separately)")
-    try:
-        a = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidArgument(f"{name}: must be a 1-D array of numbers") from None
+    raw = np.asarray(v)
+    if raw.dtype == object or not (np.issubdtype(raw.dtype, np.floating)
+                                   or np.issubdtype(raw.dtype, np.integer)):
+        # strings ("1", "2") were read as numbers and booleans as 0/1 (found by a probe);
+        # check_sampler refuses a pdf returning them too
+        raise InvalidArgument(f"{name}: must be a 1-D array of numbers, got dtype "
+                              f"{raw.dtype}")
+    a = raw.astype(np.float64, copy=False)
     if a.ndim != 1:
         raise InvalidArgument(f"{name}: must be 1-D, got shape {a.shape}")
     if a.size < minimum:

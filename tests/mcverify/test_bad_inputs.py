@@ -948,3 +948,27 @@ def test_a_bad_thread_count_in_the_environment_exits_2(cli_sandbox, capsys, monk
     monkeypatch.setenv("MCVERIFY_NUM_THREADS", value)
     rc, out, err = _run_cli(["list"], capsys, cli_sandbox)
     assert rc == 2 and f"MCVERIFY_NUM_THREADS={value!r}" in err, err
+
+
+def test_inputs_a_probe_found_read_wrongly_are_refused_or_explained():
+    """Found by a probe: a float16 sampler was failed as 95042 points "outside" the
+    hemisphere; check_unbiased read strings ("1", "2") as numbers and booleans as 0/1;
+    NaN rows from a rejecting sampler judged without ``rejection=True`` did not say so."""
+    from estimators import warps as W
+
+    with pytest.raises(mv.InvalidArgument, match="float16 points"):
+        mv.check_sampler(lambda u: W.sample_cosine_hemisphere(u).astype(np.float16),
+                         W.cosine_hemisphere_pdf, "hemisphere", n_samples=10_000)
+    for bad in (["1", "2", "3"], [True, False, True], np.array(["0.5", "1.5"])):
+        with pytest.raises(mv.InvalidArgument, match="samples: must be a 1-D array of "
+                                                     "numbers, got dtype"):
+            mv.check_unbiased(bad, 1.0)
+    assert mv.check_unbiased(np.float32([0.9, 1.1, 1.0, 0.95]), 1.0).passed
+
+    def rejecting(u):
+        x = W.sample_cosine_hemisphere(u)
+        x[u[:, 0] < 0.01] = np.nan
+        return x
+
+    r = mv.check_sampler(rejecting, W.cosine_hemisphere_pdf, "hemisphere", n_samples=10_000)
+    assert not r.passed and "judge it with rejection=True" in r.failures[0], r.failures

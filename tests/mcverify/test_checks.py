@@ -579,3 +579,19 @@ def test_guided_reintegration_keeps_to_its_budget(monkeypatch):
     assert not base.passed and not without.passed
     extra = base.details["pdf_evaluations"] - without.details["pdf_evaluations"]
     assert 0 < extra <= S._REFINE_BUDGET * 1.5, extra
+
+
+def test_an_unnormalised_verdict_says_when_the_cubature_hit_its_depth_limit():
+    """x^-0.95 on [0, 1], sampled exactly: 7e-4 of its mass lies below the cubature's
+    deepest leaf, and the check said the pdf integrates to 0.99928, blaming the pdf
+    (found by a probe). It still fails (the quadrature cannot decide), but says the
+    shortfall may be the quadrature's; a pdf 1 % high without a singularity does not."""
+    a = 0.95
+    with np.errstate(divide="ignore"):
+        r = mv.check_sampler(lambda u: u ** (1 / (1 - a)), lambda x: (1 - a) * x[:, 0] ** -a,
+                             mv.Interval(0, 1), n_samples=100_000, seed=0)
+    assert not r.passed and "stopped at its depth limit" in r.failures[0], r.failures
+    r = mv.check_sampler(lambda u: u, lambda x: 1.01 * np.ones(len(x)), mv.Interval(0, 1),
+                         n_samples=100_000, seed=0)
+    assert not r.passed and "not 1" in r.failures[0]
+    assert "depth limit" not in r.failures[0], r.failures
