@@ -14,6 +14,7 @@ import importlib.util
 import os
 import sys
 import tempfile
+import time
 
 from ._inline_copy import shared_scope_copies
 
@@ -59,12 +60,43 @@ def compile_lock(name: str):
         if fcntl is None:
             yield
             return
-        with open(os.path.join(cache_dir(), name + ".lock"), "a") as f:
-            fcntl.flock(f, fcntl.LOCK_EX)
+        path = os.path.join(cache_dir(), name + ".lock")
+        with open(path, "a") as f:
+            _wait_for(f, path)
             try:
                 yield
             finally:
                 fcntl.flock(f, fcntl.LOCK_UN)
+
+
+#: seconds a process waits on another's compilation before saying so on a terminal
+LOCK_NOTICE_SECONDS = 5.0
+
+
+def _wait_for(f, path: str) -> None:
+    """``flock`` the open ``f`` exclusively. Where another process holds it (compiling
+    the kernel) for over ``LOCK_NOTICE_SECONDS``, say so once on stderr if stderr is a
+    terminal: a probe's script waited minutes in silence behind a test run's compile.
+    Pipes (CI logs, the tests' subprocesses) get nothing, so that their output is
+    unchanged."""
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return
+    except BlockingIOError:
+        pass
+    waited = 0.0
+    while waited < LOCK_NOTICE_SECONDS:
+        time.sleep(0.1)
+        waited += 0.1
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            pass
+    if sys.stderr is not None and sys.stderr.isatty():
+        print(f"mcverify: waiting for another process compiling the kernel {path} guards "
+              "(this one then loads it from the cache)", file=sys.stderr, flush=True)
+    fcntl.flock(f, fcntl.LOCK_EX)
 
 
 #: keys of ``first_call`` already made in this process

@@ -191,9 +191,10 @@ def samples_1d(name: str, v, *, minimum: int = 2) -> np.ndarray:
                               "(test the real and imaginary parts separately)")
     raw = np.asarray(v)
     if raw.dtype == object or not (np.issubdtype(raw.dtype, np.floating)
-                                   or np.issubdtype(raw.dtype, np.integer)):
-        # strings ("1", "2") were read as numbers and booleans as 0/1 (found by a probe);
-        # check_sampler refuses a pdf returning them too
+                                   or np.issubdtype(raw.dtype, np.integer)
+                                   or raw.dtype == np.bool_):
+        # strings ("1", "2") were read as numbers (found by a probe); booleans stay 0/1,
+        # a hit-or-miss estimator's values (found by review)
         raise InvalidArgument(f"{name}: must be a 1-D array of numbers, got dtype "
                               f"{raw.dtype}")
     a = raw.astype(np.float64, copy=False)

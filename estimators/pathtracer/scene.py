@@ -26,7 +26,8 @@ from xml.parsers import expat
 
 import numpy as np
 
-from .text_numbers import INT32, SPACE, parse_float, parse_int, split_numbers
+from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, parse_float, parse_int,
+                           split_numbers)
 from .transform import look_at, matrix, rotate, scale, translate
 
 __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scene"]
@@ -288,9 +289,11 @@ class _Loader:
                 n = parse_int(text.strip(SPACE))
             except ValueError:
                 self.fail(node, f"expected an integer, got {text!r}")
-            if not INT32[0] <= n <= INT32[1]:
-                self.fail(node, f"{text!r} is outside the 32-bit integers Mitsuba reads "
-                                f"[{INT32[0]}, {INT32[1]}]")
+            if not INT64[0] <= n <= INT64[1]:
+                self.fail(node, f"{text!r} is outside the 64-bit integers Mitsuba reads")
+            if node.attrib.get("name") in INT32_PROPERTIES and not INT32[0] <= n <= INT32[1]:
+                self.fail(node, f"{text!r} is outside the 32-bit integers Mitsuba takes for "
+                                f"{node.attrib['name']} [{INT32[0]}, {INT32[1]}]")
             return "integer", n
         if tag == "boolean":
             text = self.attr(node, "value").strip(SPACE).lower()

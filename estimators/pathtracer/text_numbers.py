@@ -1,7 +1,8 @@
 """Numbers in scene text as Mitsuba's parsers read them, not as Python's ``float`` and
 ``int`` do: those also take ``1_5``, digits of other scripts (``١.٥``, ``１.５``) and
 Unicode spaces, which Mitsuba refuses; and Python's integers have no range, where
-Mitsuba's are 32-bit (a ``max_depth`` of 10^20 reached numba as "Int value is too large").
+Mitsuba parses 64-bit ones and holds some properties to 32 bits (a ``max_depth`` of
+10^20 reached numba as "Int value is too large").
 ASCII only: a sign, digits with at most one point, an exponent; ``inf`` and ``nan`` are
 read (the loader then refuses them as not finite, naming them)."""
 
@@ -16,7 +17,12 @@ _SEPARATORS = re.compile(r"[, \t\n\r]+")
 _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
                     r"|[+-]?(?:inf|infinity|nan)", re.ASCII | re.IGNORECASE)
 _INT = re.compile(r"[+-]?[0-9]+", re.ASCII)
+INT64 = (-2 ** 63, 2 ** 63 - 1)
 INT32 = (-2 ** 31, 2 ** 31 - 1)
+#: integer properties Mitsuba 3.9.1 holds to 32 bits (it refuses max_depth 2^31 when it
+#: builds the integrator); a sampler's seed has its own range, [0, 2^32 - 1]
+INT32_PROPERTIES = ("max_depth", "rr_depth", "sample_count", "width", "height",
+                    "emitter_samples", "bsdf_samples")
 
 
 def parse_float(token: str) -> float:

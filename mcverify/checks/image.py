@@ -123,15 +123,15 @@ def block_sides(block: int, h: int, w: int) -> tuple[int, ...]:
 
 def _block_means(img, block):
     """Means of ``block × block`` pixel blocks (edge blocks may be smaller) over the two
-    axes before the last of ``img`` (..., H, W, C): (..., by, bx, C)."""
+    axes before the last of ``img`` (..., H, W, C): (..., by, bx, C). Sums by
+    ``np.add.reduceat``: a Python loop over blocks took 0.8 s of a 1280 × 720
+    comparison at side 4 (found by review)."""
     h, w = img.shape[-3:-1]
-    by, bx = -(-h // block), -(-w // block)
-    out = np.zeros(img.shape[:-3] + (by, bx, img.shape[-1]))
-    for i in range(by):
-        for j in range(bx):
-            out[..., i, j, :] = img[..., i * block:(i + 1) * block,
-                                    j * block:(j + 1) * block, :].mean(axis=(-3, -2))
-    return out
+    ys, xs = np.arange(0, h, block), np.arange(0, w, block)
+    sums = np.add.reduceat(np.add.reduceat(np.asarray(img, dtype=np.float64), ys, axis=-3),
+                           xs, axis=-2)
+    sizes = np.minimum(block, h - ys)[:, None, None] * np.minimum(block, w - xs)[None, :, None]
+    return sums / sizes
 
 
 #: Below this maximum luminance of the reference, HDR-FLIP is not measured: its automatic
@@ -361,10 +361,16 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     found = []
     if "global" in tests and p_global <= level:
         found.append("global")
-    rejected_blocks = [(k, i, j, c) for k, adj in enumerate(p_blocks_adj)
-                       for i, j, c in np.argwhere(adj <= level)] if "blocks" in tests else []
-    if rejected_blocks:
+    # (side index, i, j, channel) of every rejected block, the clearest first
+    rejected_blocks = np.concatenate(
+        [np.column_stack([np.full(len(at), k), at]) for k, adj in enumerate(p_blocks_adj)
+         for at in [np.argwhere(adj <= level)]]) if "blocks" in tests \
+        else np.zeros((0, 4), dtype=int)
+    if len(rejected_blocks):
         found.append("blocks")
+        # argwhere and a boolean mask both walk in C order: one p per row above
+        p_rej = np.concatenate([adj[adj <= level] for adj in p_blocks_adj])
+        rejected_blocks = rejected_blocks[np.argsort(p_rej, kind="stable")]
     rejected_px = (p_pix_adj <= level) if "pixels" in tests else np.zeros(p_pix_adj.shape, bool)
     if rejected_px.any():
         found.append("pixels")
@@ -376,8 +382,6 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         _, bdiff, bref, _ = scales[k]
         return float(bdiff[i, j, c] / abs(bref[i, j, c])) if bref[i, j, c] != 0 else math.nan
 
-    # the most significant first, so that the 50 kept are the clearest
-    rejected_blocks.sort(key=lambda r: p_blocks_adj[r[0]][r[1:]])
     blocks_info = [{"side": sides[k], "block": [int(i), int(j)], "channel": int(c),
                     "pixels": [int(i * sides[k]), int(j * sides[k])],
                     "relative_difference": relative(k, i, j, c),

@@ -43,6 +43,43 @@ def test_compile_lock_excludes_a_second_process(tmp_path, monkeypatch):
     assert lines[2][0] == lines[3][0] == str(second.pid)
 
 
+class _Terminal:
+    def __init__(self, tty):
+        self.tty, self.text = tty, ""
+
+    def isatty(self):
+        return self.tty
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+
+def test_a_long_wait_for_the_lock_is_said_on_a_terminal_only(tmp_path, monkeypatch):
+    """A probe's script waited minutes in silence behind a test run's compilation: past
+    ``LOCK_NOTICE_SECONDS`` the waiting process says so, on a terminal; a pipe (CI logs,
+    the tests' subprocesses) gets nothing. A short wait says nothing either."""
+    import fcntl
+    import threading
+
+    monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path))
+    monkeypatch.setattr(_generated, "LOCK_NOTICE_SECONDS", 0.3)
+    for tty, hold, said in [(True, 1.0, True), (False, 1.0, False), (True, 0.0, False)]:
+        term = _Terminal(tty)
+        monkeypatch.setattr(sys, "stderr", term)
+        holder = open(tmp_path / "k.lock", "a")
+        fcntl.flock(holder, fcntl.LOCK_EX)
+        release = threading.Timer(hold, lambda: (fcntl.flock(holder, fcntl.LOCK_UN),
+                                                 holder.close()))
+        release.start()
+        with _generated.compile_lock("k"):
+            pass
+        release.join()
+        assert ("waiting for another process compiling" in term.text) == said, term.text
+
+
 def test_other_names_do_not_wait(tmp_path, monkeypatch):
     """A lock of another name is free while one is held (kernels compile in parallel)."""
     monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path))

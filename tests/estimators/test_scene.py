@@ -507,8 +507,8 @@ _RGB = ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value
 
 
 @pytest.mark.parametrize("body,needle", [
-    (_DEPTH.format("99999999999999999999"), "outside the 32-bit integers Mitsuba reads"),
-    (_DEPTH.format("2147483648"), "outside the 32-bit integers"),
+    (_DEPTH.format("99999999999999999999"), "outside the 64-bit integers Mitsuba reads"),
+    (_DEPTH.format("2147483648"), "outside the 32-bit integers Mitsuba takes for max_depth"),
     (_DEPTH.format("+3"), "expected an integer, got '+3'"),
     (_DEPTH.format("\u0665"), "expected an integer"),           # Arabic-Indic 5
     (_DEPTH.format("3.0"), "expected an integer"),
@@ -570,10 +570,12 @@ _FILM = '<film type="hdrfilm"><integer name="width" value="8"/><integer name="he
     (_FILM + '</film>' + _FILM + '</film>', "more than one film in one sensor"),
     ('<sampler type="independent"><integer name="seed" value="-5"/></sampler>',
      "seed -5: must lie in [0, 4294967295]"),
-    ('<sampler type="independent"><integer name="seed" value="2147483647"/></sampler>',
+    ('<sampler type="independent"><integer name="seed" value="4294967295"/></sampler>',
      None),
+    ('<sampler type="independent"><integer name="seed" value="4294967296"/></sampler>',
+     "seed 4294967296: must lie in [0, 4294967295]"),
 ], ids=["focal-trailing-space", "focal-underscore", "fov-axis-without-fov", "two-rfilters",
-        "two-samplers", "two-films", "negative-seed", "int32-seed"])
+        "two-samplers", "two-films", "negative-seed", "uint32-seed", "seed-2^32"])
 def test_sensors_mitsuba_refuses_are_refused(mi, tmp_path, sensor, needle):
     """Found by a probe: each rendered here (the first filter or sampler, the focal length
     read by Python's float, the default view with fov_axis dropped), and Mitsuba refuses
