@@ -474,7 +474,8 @@ def _guided_edges(lo, hi, values):
 def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
     """2-D cells where the cubature found no mass but samples or pilot points fell, and
     cells whose χ² contribution, or their row's or column's in the marginals, is still
-    above ``_SUSPICIOUS`` after ``_refine_suspicious``: each is re-integrated over the boxes ``_guided_edges`` cuts it
+    above ``_SUSPICIOUS`` after ``_refine_suspicious`` (pooled as the test pools): each
+    is re-integrated over the boxes ``_guided_edges`` cuts it
     into around its pilot points, so that a support far narrower than the cell (a cone of
     cos θ_max = 1 - 1e-8: 2·10⁻⁹ of its cell's width, which no rule's node met at any
     level) lies in boxes of its own. A cell holding no pilot point is cut around the
