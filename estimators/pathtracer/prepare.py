@@ -18,7 +18,6 @@ import dataclasses
 import json
 import math
 import os
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +31,7 @@ from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIA
 from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
-from .text_numbers import SPACE, parse_float, parse_int
+from .text_numbers import parse_float, parse_int, split_words
 from .textures import TextureStore, envmap_sampling_weights, luminance, read_image
 
 _MATERIALS = None
@@ -544,8 +543,7 @@ class _Builder:
         corners = []
         width = {"v": 3, "vt": 2, "vn": 3}
         for ln, line in enumerate(lines, 1):
-            t = line.split("#", 1)[0].strip(SPACE)      # a comment may end any line
-            t = re.split(f"[{SPACE}]+", t) if t else []
+            t = split_words(line.split("#", 1)[0])      # a comment may end any line
             if not t:
                 continue
             where = f"{path}:{ln}: {line.strip()!r}"

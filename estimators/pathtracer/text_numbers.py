@@ -14,6 +14,7 @@ import re
 #: a value: commas and ASCII whitespace (Mitsuba's tokenizer; not a no-break space).
 SPACE = " \t\n\r"
 _SEPARATORS = re.compile(r"[, \t\n\r]+")
+_SPACES = re.compile(r"[ \t\n\r]+")
 _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
                     r"|[+-]?(?:inf|infinity|nan)", re.ASCII | re.IGNORECASE)
 _INT = re.compile(r"[+-]?[0-9]+", re.ASCII)
@@ -43,3 +44,9 @@ def parse_int(token: str, sign: str = "-") -> int:
 def split_numbers(text: str) -> list[str]:
     """The number tokens of ``text``: split at commas and ASCII whitespace."""
     return [t for t in _SEPARATORS.split(text.strip(SPACE)) if t]
+
+
+def split_words(text: str) -> list[str]:
+    """The words of ``text``: split at ASCII whitespace (an OBJ line's tokens; Python's
+    ``str.split`` also splits at Unicode spaces)."""
+    return [t for t in _SPACES.split(text.strip(SPACE)) if t]

@@ -127,11 +127,16 @@ def _block_means(img, block):
     ``np.add.reduceat``: a Python loop over blocks took 0.8 s of a 1280 × 720
     comparison at side 4 (found by review)."""
     h, w = img.shape[-3:-1]
-    ys, xs = np.arange(0, h, block), np.arange(0, w, block)
-    sums = np.add.reduceat(np.add.reduceat(np.asarray(img, dtype=np.float64), ys, axis=-3),
-                           xs, axis=-2)
-    sizes = np.minimum(block, h - ys)[:, None, None] * np.minimum(block, w - xs)[None, :, None]
-    return sums / sizes
+    sums = np.add.reduceat(np.add.reduceat(np.asarray(img, dtype=np.float64),
+                                           np.arange(0, h, block), axis=-3),
+                           np.arange(0, w, block), axis=-2)
+    return sums / _block_sizes(h, w, block)
+
+
+def _block_sizes(h, w, block):
+    """Pixels in each ``block × block`` block of an H × W image: (by, bx, 1)."""
+    return np.minimum(block, h - np.arange(0, h, block))[:, None, None] * \
+        np.minimum(block, w - np.arange(0, w, block))[None, :, None]
 
 
 #: Below this maximum luminance of the reference, HDR-FLIP is not measured: its automatic
@@ -330,7 +335,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
 
     # 2. blocks (edge blocks may be smaller), at each side in ``sides``, all under one Holm
     sides = block_sides(block, h, w)
-    scales = []                                 # (side, difference, reference, p) per side
+    scales = []                                 # (difference, reference, p) per side
     for side in sides:
         bref = _block_means(rm, side)
         if correlated:
@@ -341,11 +346,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         else:
             bdiff = _block_means(diff, side)
             # Var(mean of k independent pixels) = Σ se² / k² = (mean se²) / k
-            sizes = np.minimum(side, h - np.arange(0, h, side))[:, None, None] * \
-                np.minimum(side, w - np.arange(0, w, side))[None, :, None]
-            bvar = _block_means(se2, side) / sizes
+            bvar = _block_means(se2, side) / _block_sizes(h, w, side)
             p = stats.z_test_beyond(bdiff, bvar, tol(bref + bdiff, bref))
-        scales.append((side, bdiff, bref, p))
+        scales.append((bdiff, bref, p))
     adjusted = stats.holm(np.concatenate([p.ravel() for *_, p in scales]))
     p_blocks_adj, at = [], 0
     for *_, p in scales:
@@ -362,15 +365,15 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     if "global" in tests and p_global <= level:
         found.append("global")
     # (side index, i, j, channel) of every rejected block, the clearest first
-    rejected_blocks = np.concatenate(
-        [np.column_stack([np.full(len(at), k), at]) for k, adj in enumerate(p_blocks_adj)
-         for at in [np.argwhere(adj <= level)]]) if "blocks" in tests \
-        else np.zeros((0, 4), dtype=int)
+    rejected_blocks, p_rejected = [np.zeros((0, 4), dtype=int)], [np.zeros(0)]
+    for k, adj in enumerate(p_blocks_adj if "blocks" in tests else ()):
+        hit = adj <= level              # argwhere and the mask both walk in C order
+        rejected_blocks.append(np.column_stack([np.full(hit.sum(), k), np.argwhere(hit)]))
+        p_rejected.append(adj[hit])
+    rejected_blocks = np.concatenate(rejected_blocks)[
+        np.argsort(np.concatenate(p_rejected), kind="stable")]
     if len(rejected_blocks):
         found.append("blocks")
-        # argwhere and a boolean mask both walk in C order: one p per row above
-        p_rej = np.concatenate([adj[adj <= level] for adj in p_blocks_adj])
-        rejected_blocks = rejected_blocks[np.argsort(p_rej, kind="stable")]
     rejected_px = (p_pix_adj <= level) if "pixels" in tests else np.zeros(p_pix_adj.shape, bool)
     if rejected_px.any():
         found.append("pixels")
@@ -379,7 +382,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     p_value = stats.bonferroni_min([minima[t] for t in tests])
 
     def relative(k, i, j, c):
-        _, bdiff, bref, _ = scales[k]
+        bdiff, bref, _ = scales[k]
         return float(bdiff[i, j, c] / abs(bref[i, j, c])) if bref[i, j, c] != 0 else math.nan
 
     blocks_info = [{"side": sides[k], "block": [int(i), int(j)], "channel": int(c),

@@ -89,7 +89,7 @@ def _status_failures(n_status, examples, domain: Domain, what="sample"):
             # a whole row of NaN is how a rejecting sampler says "no sample"
             hint = ("; a sampler that rejects draws returns such rows: judge it with "
                     "rejection=True" if code == kernels.NONFINITE and what == "sample"
-                    and np.isnan(np.asarray(x, dtype=float)).all() else "")
+                    and np.isnan(x).all() else "")
             failures.append(f"{int(n_status[code])} {what}s {text.format(domain.name)} "
                             f"(first: {origin}x={x.tolist()}){hint}")
     return failures

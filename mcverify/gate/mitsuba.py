@@ -243,6 +243,12 @@ def _loaded(scene_path: str, params: tuple, mtime: int):
         raise EnvironmentProblem(f"{scene_path}: Mitsuba cannot load it ({e})") from None
 
 
+def _current(scene_path: str, params: dict | None):
+    """The scene as ``_loaded`` keeps it, at the file's present modification time."""
+    return _loaded(scene_path, tuple(sorted((params or {}).items())),
+                   os.stat(scene_path).st_mtime_ns)
+
+
 def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = None,
                 variant: str | None = None) -> np.ndarray:
     """One independent pass of ``scene_path``: (H, W, C) float64. The loaded scene is
@@ -274,18 +280,14 @@ def filter_radius(scene_path: str, params: dict | None = None) -> float:
     """The radius (pixels) of the reconstruction filter of the scene's first sensor's
     film, as Mitsuba loads it; 0.5 is a box filter (each sample in its own pixel), a
     larger one splats samples into neighbouring pixels."""
-    scene = _loaded(scene_path, tuple(sorted((params or {}).items())),
-                    os.stat(scene_path).st_mtime_ns)
-    return float(scene.sensors()[0].film().rfilter().radius())
+    return float(_current(scene_path, params).sensors()[0].film().rfilter().radius())
 
 
 def sampler_spp(scene_path: str, spp: int, params: dict | None = None) -> int:
     """The samples per pixel Mitsuba renders when asked for ``spp``: its stratified
     sampler rounds up to a square (33 -> 36), multijitter to a product of near-equal
     factors (7 -> 8)."""
-    scene = _loaded(scene_path, tuple(sorted((params or {}).items())),
-                    os.stat(scene_path).st_mtime_ns)
-    sampler = scene.sensors()[0].sampler().clone()
+    sampler = _current(scene_path, params).sensors()[0].sampler().clone()
     sampler.set_sample_count(int(spp))
     return int(sampler.sample_count())
 
