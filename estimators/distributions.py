@@ -27,6 +27,14 @@ from .warps import ONE_MINUS_EPSILON
 
 __all__ = ["DiscreteDistribution", "PiecewiseConstant1D", "PiecewiseConstant2D", "InvertedCDF"]
 
+# The scalar kernels (the path tracer calls them per ray) skip reference counting: they
+# allocate nothing, and a row of a 2-D table taken as a view (``conditional[row]``) cost
+# an atomic increment and decrement of the table's count per call, shared by every
+# thread: sampling an envmap's 2-D table took 87 ns a call with them, 50 without (one
+# thread; ``benchmarks/perf_tracer.py envmap`` had put the 1-D sampler at 19 % of the
+# kernel's time).
+_scalar = njit(cache=True, _nrt=False)
+
 
 def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
     w = np.asarray(weights, dtype=np.float64)
@@ -63,14 +71,14 @@ def _search(cdf, u, lo, hi):
     return lo
 
 
-@njit(cache=True)
+@_scalar
 def _find_interval_kernel(cdf, u):
     """Largest i with cdf[i] <= u, clamped to [0, len(cdf) - 2]; skips zero-width
     intervals so a zero-probability entry is never chosen."""
     return _search(cdf, u, 0, cdf.shape[0] - 2)
 
 
-@njit(cache=True)
+@_scalar
 def sample_discrete_kernel(cdf, u):
     """(index, probability, remapped u in [0, 1))."""
     i = _find_interval_kernel(cdf, u)
@@ -147,7 +155,7 @@ def _pieces(table):
     return (table.shape[0] - 1) // 2
 
 
-@njit(cache=True)
+@_scalar
 def _find_piece_kernel(table, u):
     """``_find_interval_kernel`` on a table's CDF, searching only where the guide says:
     the same piece for every u. ``g = int(u·n)`` is ``floor(u·n)`` or one above (the
@@ -164,7 +172,7 @@ def _find_piece_kernel(table, u):
     return _search(table, u, lo, hi)
 
 
-@njit(cache=True)
+@_scalar
 def _sample_pc1d_kernel(table, u):
     """Piecewise-constant density on [0, 1] with n pieces: (x, pdf, piece)."""
     n = _pieces(table)
@@ -187,7 +195,7 @@ def _sample_pc1d_kernel(table, u):
     return x, p * n, i
 
 
-@njit(cache=True)
+@_scalar
 def _pc1d_pdf_kernel(table, x):
     n = _pieces(table)
     if not (x >= 0.0 and x <= 1.0):          # outside, or NaN (no index from it)
@@ -196,7 +204,7 @@ def _pc1d_pdf_kernel(table, x):
     return (table[i + 1] - table[i]) * n
 
 
-@njit(cache=True)
+@_scalar
 def _invert_pc1d_kernel(table, x):
     n = _pieces(table)
     x = min(max(x, 0.0), 1.0) if x == x else x       # int(x·n) of a huge x overflows
@@ -205,7 +213,7 @@ def _invert_pc1d_kernel(table, x):
     return min(max(table[i] + t * (table[i + 1] - table[i]), 0.0), ONE_MINUS_EPSILON)
 
 
-@njit(cache=True)
+@_scalar
 def sample_pc2d_kernel(marginal, conditional, u0, u1):
     """Piecewise-constant density on [0, 1]² ((ny, nx) pieces; ``marginal`` and each
     row of ``conditional`` a table of ``_guided``): pick the row y from the marginal
@@ -215,7 +223,7 @@ def sample_pc2d_kernel(marginal, conditional, u0, u1):
     return x, y, px * py
 
 
-@njit(cache=True)
+@_scalar
 def pc2d_pdf_kernel(marginal, conditional, x, y):
     if not (x >= 0.0 and x <= 1.0 and y >= 0.0 and y <= 1.0):     # NaN included
         return 0.0
@@ -224,7 +232,7 @@ def pc2d_pdf_kernel(marginal, conditional, x, y):
     return _pc1d_pdf_kernel(marginal, y) * _pc1d_pdf_kernel(conditional[row], x)
 
 
-@njit(cache=True)
+@_scalar
 def _invert_pc2d_kernel(marginal, conditional, x, y):
     ny = _pieces(marginal)
     row = min(max(int(min(max(y, 0.0), 1.0) * ny), 0), ny - 1)
