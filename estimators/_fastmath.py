@@ -558,3 +558,60 @@ def fast_sincos_2pi(u):
     flip_sin = (q == 2.0) | (q == 3.0)            # sin < 0 in quadrants 2 and 3
     flip_cos = (q == 1.0) | (q == 2.0)            # cos < 0 in quadrants 1 and 2
     return (-sin if flip_sin else sin), (-cos if flip_cos else cos)
+
+
+# ------------------------------------------- angles for texture coordinates (1e-10)
+# Least-squares fits on 40,001 Chebyshev nodes of [0, 1] (numpy ``lstsq``): atan t / t
+# as a polynomial in t² (degree 11) and acos x / √(1 - x) in x (degree 10). Their
+# errors, measured on 4·10⁶ points of [0, 1], are at most 5.2e-11 and 8.0e-11
+# absolute, and 5.1e-11 relative for acos (tested).
+_ATAN_POLY = (0.9999999999775722, -0.3333333207917994, 0.19999928193125643,
+              -0.14284198620626296, 0.1109481233774139, -0.08987010437234337,
+              0.07264204803564145, -0.05460689553772921, 0.034586083791286394,
+              -0.016381885369403704, 0.004961077257035968, -0.0007042587470986315)
+_ACOS_POLY = (1.5707963267151788, -0.21460181664222042, 0.08904779002026471,
+              -0.05077912361181552, 0.03356400905713734, -0.023774524053216194,
+              0.01668944339214201, -0.010418516134319574, 0.005045564778472674,
+              -0.001593420415132375, 0.0002378293253944716)
+
+
+@_inline
+def _horner(c, x):
+    r = c[len(c) - 1]
+    for k in range(len(c) - 2, -1, -1):
+        r = r * x + c[k]
+    return r
+
+
+@_inline
+def coarse_atan2(y, x):
+    """atan2(y, x) in [-π, π] within 1e-10 absolute (5.2e-11 measured), for the angles
+    of texture coordinates, where the fdlibm-grade ``fast_atan2`` costs more than the
+    lookup needs: t = min(|x|, |y|) / max(|x|, |y|), atan t = t·P(t²), placed in its
+    octant. One division and a polynomial (an envmap's (u, v) of a direction went from
+    32 to 13 ns a call, one thread). Zeros, infinities and NaN as C99's ``atan2``."""
+    ay = abs(y)
+    ax = abs(x)
+    mx = max(ax, ay)
+    mn = min(ax, ay)
+    s = 2.0 ** -64 if mx > _TWO_960 else 1.0
+    s = 2.0 ** 600 if mx < _TWO_M400 else s
+    t = (mn * s) / max(mx * s, _MIN_NORMAL)
+    t = 1.0 if mn == mx else t                    # both infinite (inf / inf)
+    t = 0.0 if mx == 0.0 else t
+    a = t * _horner(_ATAN_POLY, t * t)
+    a = _PI_2_HI - a if ay > ax else a
+    a = _PI_HI - a if _bits(x) < 0 else a         # x < 0, -0 included
+    a = -a if _bits(y) < 0 else a
+    return x + y if (x != x) | (y != y) else a
+
+
+@_inline
+def coarse_acos(x):
+    """arccos x in [0, π] within 1e-10 absolute and relative (8.0e-11, 5.1e-11
+    measured): √(1 - |x|)·P(|x|), reflected for x < 0; the texture-coordinate
+    counterpart of ``fast_acos``. ±1 give 0 and π exactly, |x| > 1 and NaN give NaN."""
+    ax = abs(x)
+    r = math.sqrt(max(1.0 - ax, 0.0)) * _horner(_ACOS_POLY, ax)
+    r = _PI_HI - r if x < 0.0 else r
+    return _NAN if (ax > 1.0) | (x != x) else r

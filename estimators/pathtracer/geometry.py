@@ -35,7 +35,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from .._fastmath import fast_acos, fast_atan2
+from .._fastmath import coarse_acos, coarse_atan2
 from .flat import flat_get as _flat
 from .flat import flat_get_bits as _flat_bits
 from .layout import (DISK, DISK_TO_LOCAL, LEAF_CENTER, LEAF_E1, LEAF_E2, LEAF_GROUP,
@@ -801,18 +801,19 @@ def surface(prims, info, j, ox, oy, oz, dx, dy, dz, t, b1, b2):
         lx = p[4] * gx + p[5] * gy + p[6] * gz
         ly = p[7] * gx + p[8] * gy + p[9] * gz
         lz = p[10] * gx + p[11] * gy + p[12] * gz
-        # libm-free (a libm call is opaque: LLVM could not drop it where u, v are unused)
-        phi = fast_atan2(ly, lx)
+        # libm-free (a libm call is opaque: LLVM could not drop it where u, v are unused);
+        # texture coordinates need no more than 1e-10 (``textures.envmap_uv``)
+        phi = coarse_atan2(ly, lx)
         phi = phi + 2.0 * math.pi if phi < 0.0 else phi
         u = phi / (2.0 * math.pi)
-        v = fast_acos(min(max(lz, -1.0), 1.0)) / math.pi
+        v = coarse_acos(min(max(lz, -1.0), 1.0)) / math.pi
         return px, py, pz, gx, gy, gz, gx, gy, gz, u, v
     # disk: normal = world-to-local's third row (the inverse transpose of +z)
     gx, gy, gz = p[20], p[21], p[22]
     inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
     gx, gy, gz = gx * inv, gy * inv, gz * inv
     r = math.sqrt(b1 * b1 + b2 * b2)
-    phi = fast_atan2(b2, b1)
+    phi = coarse_atan2(b2, b1)
     phi = phi + 2.0 * math.pi if phi < 0.0 else phi
     return px, py, pz, gx, gy, gz, gx, gy, gz, r, phi / (2.0 * math.pi)
 
