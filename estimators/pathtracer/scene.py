@@ -266,8 +266,11 @@ class _Loader:
 
     def numbers(self, node, text, count):
         want = "a number" if count == 1 else f"{count} numbers"
+        # one number is the value alone (padded by ASCII spaces): Mitsuba refuses
+        # "0.5," and ",0.5" for a <float>, though a list's tokenizer skips empty items
+        tokens = [text.strip(SPACE)] if count == 1 else split_numbers(text)
         try:
-            vals = [parse_float(t) for t in split_numbers(text)]
+            vals = [parse_float(t) for t in tokens]
         except ValueError:
             self.fail(node, f"expected {want}, got {text!r}")
         if len(vals) == 1 and count == 3:
