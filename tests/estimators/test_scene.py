@@ -519,11 +519,16 @@ _RGB = ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value
     (_IOR.format("1.5,"), "expected a number, got '1.5,'"),
     (_IOR.format(",1.5"), "expected a number, got ',1.5'"),
     (_IOR.format("1.5 1.5"), "expected a number, got '1.5 1.5'"),
+    ('<shape type="sphere"><transform name="to_world"><rotate y="1" angle="90,"/>'
+     '</transform></shape>', "expected a number, got '90,'"),
+    ('<shape type="sphere"><transform name="to_world"><translate x="1,"/>'
+     '</transform></shape>', "expected a number, got '1,'"),
     (_RGB.format("0.1_0, 0.2, 0.3"), "expected 3 numbers"),
     (_RGB.format("0.5\u20030.2\u20030.1"), "expected 3 numbers"),  # em spaces
 ], ids=["int-20-digits", "int-2^31", "int-plus", "int-arabic-digit", "int-3.0",
         "float-underscore", "float-full-width", "float-nbsp", "float-hex",
         "float-trailing-comma", "float-leading-comma", "float-two-numbers",
+        "rotate-angle-comma", "translate-x-comma",
         "rgb-underscore", "rgb-em-space"])
 def test_numbers_are_read_as_mitsuba_reads_them(mi, tmp_path, body, needle):
     """Python's float() and int() read these (1_5 as 15, other scripts' digits, Unicode
