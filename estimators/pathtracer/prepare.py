@@ -31,7 +31,7 @@ from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIA
 from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
-from .text_numbers import parse_float, parse_int, split_words
+from .text_numbers import SPACE, parse_float, parse_int, split_words
 from .textures import TextureStore, envmap_sampling_weights, luminance, read_image
 
 _MATERIALS = None
@@ -559,6 +559,13 @@ class _Builder:
                     self.fail(s, f"{where}: a zero normal")
                 {"v": v, "vt": vt, "vn": vn}[t[0]].append(vals)
             elif t[0] == "f":
+                hash_at = line.find("#")
+                if hash_at > 0 and line[hash_at - 1] not in SPACE:
+                    # Mitsuba misreads such a face (it dropped 'f 1 2 3#c', kept one
+                    # triangle of 'f 1 2 4 3#c', and garbled the next face's vertices)
+                    self.fail(s, f"{where}: a comment glued to an index "
+                                 f"({line[:hash_at].split()[-1]}#...), which Mitsuba "
+                                 "misreads: put a space before '#'")
                 idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]],
                                 lambda p: parse_int(p, sign="+-"))
                        for tok in t[1:]]

@@ -236,6 +236,12 @@ OBJ_BAD = {   # name: (file text, what the message says, Mitsuba refuses it too)
                          False),
     "some-faces-without-normals": (_TRI + "v 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\nf 2 4 3\n",
                                    "some faces have normals and some do not", False),
+    # Mitsuba misreads these (no face of 'f 1 2 3#c'; one triangle of the quad)
+    "comment-glued-to-face": (_TRI + "f 1 2 3#c\n", ":4: 'f 1 2 3#c': a comment glued to an "
+                              "index (3#...)", False),
+    "comment-glued-to-quad": (_TRI + "v 1 1 0\nf 1 2 4 3#c\n", "glued to an index (3#...)",
+                              False),
+    "comment-glued-mid-face": (_TRI + "f 1 2#c 3\n", "glued to an index (2#...)", False),
 }
 
 
