@@ -73,30 +73,30 @@ def compile_lock(name: str):
 LOCK_NOTICE_SECONDS = 5.0
 
 
+def _try_lock(f) -> bool:
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
+
+
 def _wait_for(f, path: str) -> None:
     """``flock`` the open ``f`` exclusively. Where another process holds it (compiling
     the kernel) for over ``LOCK_NOTICE_SECONDS``, say so once on stderr if stderr is a
     terminal: a probe's script waited minutes in silence behind a test run's compile.
     Pipes (CI logs, the tests' subprocesses) get nothing, so that their output is
     unchanged."""
-    try:
-        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        return
-    except BlockingIOError:
-        pass
-    waited = 0.0
-    while waited < LOCK_NOTICE_SECONDS:
-        time.sleep(0.1)
-        waited += 0.1
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    deadline = time.monotonic() + LOCK_NOTICE_SECONDS
+    while not _try_lock(f):
+        if time.monotonic() >= deadline:
+            if sys.stderr is not None and sys.stderr.isatty():
+                print(f"mcverify: waiting for another process compiling the kernel {path} "
+                      "guards (this one then loads it from the cache)", file=sys.stderr,
+                      flush=True)
+            fcntl.flock(f, fcntl.LOCK_EX)
             return
-        except BlockingIOError:
-            pass
-    if sys.stderr is not None and sys.stderr.isatty():
-        print(f"mcverify: waiting for another process compiling the kernel {path} guards "
-              "(this one then loads it from the cache)", file=sys.stderr, flush=True)
-    fcntl.flock(f, fcntl.LOCK_EX)
+        time.sleep(0.1)
 
 
 #: keys of ``first_call`` already made in this process

@@ -145,12 +145,17 @@ def resolution(name: str, v, param_dim: int, *, cell_factor: int = 1,
     return t
 
 
+def real_dtype(dtype) -> bool:
+    """Whether arrays of ``dtype`` hold real numbers: floating or integer (not object,
+    string, complex or boolean)."""
+    return np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)
+
+
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
     """Output of a user callable as an (n, dim) array (float32 kept, anything else as
     float64), or InvalidArgument."""
     a = np.asarray(x)
-    if a.dtype == object or not (np.issubdtype(a.dtype, np.floating)
-                                 or np.issubdtype(a.dtype, np.integer)):
+    if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers")
     if a.dtype == np.float16:
         # 11 bits: a unit vector is off the sphere by up to 1e-3 and read as outside the
@@ -170,8 +175,7 @@ def values(name: str, v, n: int) -> np.ndarray:
     """Output of a user callable as (n,) float64. A single number is taken as that value
     at every point (a constant pdf, e.g. ``lambda x: 1 / (4 * np.pi)``)."""
     a = np.asarray(v)
-    if a.dtype == object or not (np.issubdtype(a.dtype, np.floating)
-                                 or np.issubdtype(a.dtype, np.integer)):
+    if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers "
                               f"(first value {_show(a.flat[0] if a.size else None)})")
     a = a.astype(np.float64, copy=False)
@@ -190,9 +194,7 @@ def samples_1d(name: str, v, *, minimum: int = 2) -> np.ndarray:
         raise InvalidArgument(f"{name}: complex values; the checks test real estimates "
                               "(test the real and imaginary parts separately)")
     raw = np.asarray(v)
-    if raw.dtype == object or not (np.issubdtype(raw.dtype, np.floating)
-                                   or np.issubdtype(raw.dtype, np.integer)
-                                   or raw.dtype == np.bool_):
+    if not (real_dtype(raw.dtype) or raw.dtype == np.bool_):
         # strings ("1", "2") were read as numbers (found by a probe); booleans stay 0/1,
         # a hit-or-miss estimator's values (found by review)
         raise InvalidArgument(f"{name}: must be a 1-D array of numbers, got dtype "

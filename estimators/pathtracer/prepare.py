@@ -543,7 +543,8 @@ class _Builder:
         corners = []
         width = {"v": 3, "vt": 2, "vn": 3}
         for ln, line in enumerate(lines, 1):
-            t = split_words(line.split("#", 1)[0])      # a comment may end any line
+            hash_at = line.find("#")                    # a comment may end any line
+            t = split_words(line if hash_at < 0 else line[:hash_at])
             if not t:
                 continue
             where = f"{path}:{ln}: {line.strip()!r}"
@@ -559,12 +560,11 @@ class _Builder:
                     self.fail(s, f"{where}: a zero normal")
                 {"v": v, "vt": vt, "vn": vn}[t[0]].append(vals)
             elif t[0] == "f":
-                hash_at = line.find("#")
                 if hash_at > 0 and line[hash_at - 1] not in SPACE:
                     # Mitsuba misreads such a face (it dropped 'f 1 2 3#c', kept one
                     # triangle of 'f 1 2 4 3#c', and garbled the next face's vertices)
                     self.fail(s, f"{where}: a comment glued to an index "
-                                 f"({line[:hash_at].split()[-1]}#...), which Mitsuba "
+                                 f"({t[-1]}#...), which Mitsuba "
                                  "misreads: put a space before '#'")
                 idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]],
                                 lambda p: parse_int(p, sign="+-"))

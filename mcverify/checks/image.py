@@ -45,8 +45,7 @@ TESTS = ("global", "blocks", "pixels")
 
 def _as_image(name, a, shape=None):
     raw = np.asarray(a)
-    if raw.dtype == object or not (np.issubdtype(raw.dtype, np.floating)
-                                   or np.issubdtype(raw.dtype, np.integer)):
+    if not validate.real_dtype(raw.dtype):
         raise InvalidArgument(f"{name}: must be an array of real numbers, got dtype "
                               f"{raw.dtype}")
     a = raw.astype(np.float64)
