@@ -72,16 +72,19 @@ from __future__ import annotations
 import math
 
 from llvmlite import ir
-from numba import njit, types
+from numba import types
 from numba.extending import intrinsic
 
+from ._compile_options import exact
+
 #: IEEE division (no ZeroDivisionError check, whose branch would stop vectorisation; no
-#: divisor here can be 0). Helpers are small and LLVM inlines them.
-_jit = njit(cache=True, error_model="numpy")
+#: divisor here can be 0), and every rounding as written whoever calls first
+#: (``_compile_options``). Helpers are small and LLVM inlines them.
+_jit = exact()
 #: The four functions are inlined into their callers by numba (LLVM's inliner keeps
 #: ``fast_expm1``, the largest, as a call, and a call in a loop stops vectorisation); the
 #: caller's error model then applies: compile callers with ``error_model="numpy"``.
-_inline = njit(cache=True, error_model="numpy", inline="always")
+_inline = exact(inline="always")
 
 
 def _bitcast(src, dst, doc):

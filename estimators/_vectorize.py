@@ -22,9 +22,9 @@ The loop of each kernel is a small generated module in the kernel cache
 ``cache=True``: a loop taking the kernel as an argument, or a closure over it, cannot
 be cached by numba, and a parallel loop costs about 1 s to compile, which every fresh
 process (every ``mcverify check``) would pay again for each warp. The module's name
-carries a hash of the kernel's source file, of this one and of ``_fastmath`` (numba's
-cache tracks only the file of the cached function, not its callees), so an edited
-kernel gets a new loop.
+carries a hash of the kernel's source file, of this one, of ``_fastmath`` and of
+``_compile_options`` (numba's cache tracks only the file of the cached function, not its
+callees), so an edited kernel gets a new loop.
 
 With ``inline=True`` the loop inlines its kernel (numba's ``inline="always"`` on the
 kernel's Python function, compiled with IEEE division): LLVM's inliner leaves a kernel
@@ -54,10 +54,11 @@ import hashlib
 import inspect
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.extending import overload
 
-from . import _fastmath, _transpose
+from . import _compile_options, _fastmath, _transpose
+from ._compile_options import exact
 from ._generated import first_call, load
 from .warp_params import check_params
 
@@ -66,55 +67,55 @@ from .warp_params import check_params
 _BLOCK = 512
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _column1(c, t):
     return (c[0, t],)
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _column2(c, t):
     return (c[0, t], c[1, t])
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _column3(c, t):
     return (c[0, t], c[1, t], c[2, t])
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _put_value(o, t, r):
     o[0, t] = r
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _put1(o, t, r):
     o[0, t] = r[0]
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _put2(o, t, r):
     o[0, t] = r[0]
     o[1, t] = r[1]
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _put3(o, t, r):
     o[0, t] = r[0]
     o[1, t] = r[1]
     o[2, t] = r[2]
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _nan_or1(x, v):
     return v if x[0] == x[0] else x[0]
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _nan_or2(x, v):
     return v if (x[0] == x[0]) & (x[1] == x[1]) else np.nan
 
 
-@njit(inline="always")
+@exact(inline="always")
 def _nan_or3(x, v):
     return v if (x[0] == x[0]) & (x[1] == x[1]) & (x[2] == x[2]) else np.nan
 
@@ -219,7 +220,8 @@ def _module(prefix: str, source: str, functions):
     its callees): an edited kernel gets a new loop."""
     h = hashlib.sha256(source.encode())
     paths = [inspect.getsourcefile(f) for f in functions]
-    for path in dict.fromkeys(paths + [__file__, _fastmath.__file__, _transpose.__file__]):
+    for path in dict.fromkeys(paths + [__file__, _fastmath.__file__, _transpose.__file__,
+                                       _compile_options.__file__]):
         with open(path, "rb") as f:
             h.update(f.read())
     return load(f"{prefix}_{h.hexdigest()[:16]}", source)

@@ -21,8 +21,8 @@ import numbers
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from ._compile_options import exact
 from .warps import ONE_MINUS_EPSILON
 
 __all__ = ["DiscreteDistribution", "PiecewiseConstant1D", "PiecewiseConstant2D", "InvertedCDF"]
@@ -32,8 +32,8 @@ __all__ = ["DiscreteDistribution", "PiecewiseConstant1D", "PiecewiseConstant2D",
 # an atomic increment and decrement of the table's count per call, shared by every
 # thread: sampling an envmap's 2-D table took 87 ns a call with them, 50 without (one
 # thread; ``benchmarks/perf_tracer.py envmap`` had put the 1-D sampler at 19 % of the
-# kernel's time).
-_scalar = njit(cache=True, _nrt=False)
+# kernel's time). IEEE arithmetic whoever calls first (``_compile_options``).
+_scalar = exact(_nrt=False)
 
 
 def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
@@ -59,7 +59,7 @@ def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
     return cdf, float(total)
 
 
-@njit(cache=True, inline="always")
+@exact(inline="always")
 def _search(cdf, u, lo, hi):
     """Largest i in [lo, hi] with cdf[i] <= u (lo if none): a binary search."""
     while lo < hi:
@@ -86,7 +86,7 @@ def sample_discrete_kernel(cdf, u):
     return i, p, r
 
 
-@njit(cache=True, inline="always")
+@exact(inline="always")
 def _remap(cdf, i, u):
     """(probability of entry i, u remapped to [0, 1) within it)."""
     p = cdf[i + 1] - cdf[i]
@@ -115,7 +115,7 @@ def _cdf_rows(v: np.ndarray) -> np.ndarray:
     return cdf
 
 
-@njit(cache=True)
+@exact()
 def _guides_kernel(cdfs, guides):
     """Each row's guide as ``_guided`` computes it (the largest i with cdf[i] <= g / n,
     clipped to [0, n - 1]), in one merge-like pass a row."""
@@ -150,7 +150,7 @@ def _guided(cdf: np.ndarray) -> np.ndarray:
     return np.concatenate([cdf, guide.astype(np.float64)])
 
 
-@njit(cache=True, inline="always")
+@exact(inline="always")
 def _pieces(table):
     return (table.shape[0] - 1) // 2
 
@@ -239,7 +239,7 @@ def _invert_pc2d_kernel(marginal, conditional, x, y):
     return _invert_pc1d_kernel(conditional[row], x), _invert_pc1d_kernel(marginal, y)
 
 
-@njit(cache=True)
+@exact()
 def _pc1d_batch_kernel(table, u, mode):
     """mode 0: sample u -> (x, pdf); 1: pdf(x); 2: invert x -> u."""
     out = np.empty((u.shape[0], 2))
@@ -254,7 +254,7 @@ def _pc1d_batch_kernel(table, u, mode):
     return out
 
 
-@njit(cache=True)
+@exact()
 def _pc2d_batch_kernel(mcdf, ccdf, pts, mode):
     """mode 0: sample u -> (x, y, pdf); 1: pdf(x, y); 2: invert (x, y) -> u."""
     out = np.empty((pts.shape[0], 3))

@@ -27,8 +27,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from ._compile_options import exact
 from ._fastmath import (fast_atan, fast_atan2, fast_exp, fast_expm1, fast_log, fast_log1p,
                         fast_sincos_2pi, sincos_reduced)
 from ._vectorize import fused_front_end, point_front_end, value_front_end
@@ -44,12 +44,13 @@ _PI_OVER_2 = math.pi / 2.0
 
 #: IEEE division (x/0 is ±inf or NaN, as in numpy): numba's default ZeroDivisionError
 #: check is a branch to an exception in every kernel that divides, and stops LLVM from
-#: vectorising the front ends' loops over it.
-_jit = njit(cache=True, error_model="numpy")
+#: vectorising the front ends' loops over it. No fast-math flag, whoever calls the kernel
+#: first (``_compile_options``: the path tracer's ``contract`` would otherwise reach it).
+_jit = exact()
 #: For helpers that call ``_fastmath``'s sin/cos or atan2 (an azimuth and its inverse):
 #: LLVM's inliner would keep them as calls, and a call stops a caller's loop from
 #: vectorising; numba inlines them into every caller.
-_inline = njit(cache=True, error_model="numpy", inline="always")
+_inline = exact(inline="always")
 
 
 # ----------------------------------------------------------------------- helpers

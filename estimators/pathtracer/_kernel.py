@@ -26,8 +26,9 @@ LLVM vectorises.
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from estimators._compile_options import fused
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
 from estimators.pathtracer.camera import (SPLAT_CHANNELS, _generate_ray_kernel, splat_scratch,
                                           splat_kernel)
@@ -56,7 +57,7 @@ _TO_UNIT = 2.0 ** -53
 _EPS = 1e-7
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _mix(z):
     z = (z ^ (z >> _S30)) * _M1
     z = (z ^ (z >> _S27)) * _M2
@@ -66,7 +67,7 @@ def _mix(z):
 _U32 = np.uint64(0xFFFFFFFF)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _walk_step(i, w, p):
     """One step of Kensler's walk (``permute``): a hash that is a bijection on 0..w, w + 1
     a power of two. Only the low 32 bits of ``i`` and of the products matter (the paper's
@@ -91,7 +92,7 @@ def _walk_step(i, w, p):
     return i ^ (i >> np.uint64(5))
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _walk_mask(n):
     """w: the next power of two at or above n, minus one."""
     w = n - np.uint64(1)
@@ -102,7 +103,7 @@ def _walk_mask(n):
     return w | (w >> np.uint64(16))
 
 
-@njit(cache=True, _nrt=False)
+@fused(_nrt=False)
 def permute(i, n, p):
     """Element ``i`` of a pseudo-random permutation of 0..n-1 chosen by ``p`` (Kensler,
     "Correlated multi-jittered sampling", 2013: a hash that is a bijection on the next
@@ -116,7 +117,7 @@ def permute(i, n, p):
             return (i + p) & w if n & w == np.uint64(0) else (i + p) % n
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _permute_rows(v, c, n, p):
     """``v[:c] = permute(v[:c], n, p)`` in place, the same values: for n a power of two
     one step of the walk, in a loop LLVM vectorises; otherwise two steps there, and the
@@ -139,20 +140,20 @@ def _permute_rows(v, c, n, p):
         v[j] = i - n if i >= n else i
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _jitter1(o, u, n):
     """Stratum o of n jittered by u: (o + u) / n, clamped below 1 ((n - 1 + u) / n rounds
     to 1 for u within an ulp of 1)."""
     return min((float(o) + u) / float(n), ONE_MINUS_EPSILON)
 
 
-@njit(cache=True, _nrt=False)
+@fused(_nrt=False)
 def _stratum(u, s, n, seed):
     """Sample s of n in one dimension: stratum permute(s) of n, jittered by u."""
     return _jitter1(permute(s, n, _mix(seed) >> np.uint64(32)), u, n)
 
 
-@njit(cache=True, _nrt=False)
+@fused(_nrt=False)
 def grid_columns(n):
     """Columns m of the m × k grid a 2-D dimension of n stratified samples uses
     (``_stratum2``): n / k, k the largest divisor of n up to √n; 0 where that grid would be
@@ -166,7 +167,7 @@ def grid_columns(n):
     return np.uint64(0) if m > np.uint64(4) * k else m
 
 
-@njit(cache=True, _nrt=False)
+@fused(_nrt=False)
 def lattice_generator(n):
     """The generator a of the n-point rank-1 lattice {(i, a·i mod n) / n} a 2-D dimension
     uses where n has no squarish grid: of the a within 8 of n / φ (the Fibonacci lattice's
@@ -206,7 +207,7 @@ _LATTICE = np.uint64(1) << np.uint64(63)
 _U31 = np.uint64(0x7FFFFFFF)
 
 
-@njit(cache=True, _nrt=False)
+@fused(_nrt=False)
 def strata_field(n):
     """The state's strata field, computed once a kernel call: n (0: the independent sampler)
     in the low 32 bits; above them the 2-D grid's columns (``grid_columns``), or the
@@ -220,7 +221,7 @@ def strata_field(n):
     return n | (lattice_generator(n) << np.uint64(32)) | _LATTICE
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _lattice_row(x, g, h, n):
     """Row (a·x + b) mod n of column x of an n-point rank-1 lattice: a = g or n - g (its
     mirror image) and the shift b uniform on 0..n-1, both chosen by the hash h, so every
@@ -235,7 +236,7 @@ def _lattice_row(x, g, h, n):
     return np.uint64(r - nn if r >= nn else r)
 
 
-@njit(cache=True, _nrt=False)
+@fused(_nrt=False)
 def _stratum2(u, v, s, field, seed):
     """Sample s of n in two dimensions (``field``: ``strata_field(n)``).
 
@@ -269,7 +270,7 @@ def _stratum2(u, v, s, field, seed):
             _jitter1(_sub_stratum(y, permute(x, m, h), m), v, n))
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _cell(p, m):
     """Column and row (p % m, p // m) of cell p of a grid m wide."""
     # p // m by a float division: exact, since p < 2^32 and m < 2^16 keep the quotient's
@@ -278,7 +279,7 @@ def _cell(p, m):
     return p - y * m, y
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _sub_stratum(x, sy, k):
     """Stratum x·k + sy of a coordinate's m·k: column x of the grid, sub-column sy of its
     k (the point is (x + (sy + u) / k) / m = (x·k + sy + u) / (m·k))."""
@@ -298,7 +299,7 @@ STRATA_DIMS = 16
 STRATA_ROWS = 3
 
 
-@njit(cache=True, _nrt=False)
+@fused(_nrt=False)
 def _strata_fill(tab, d, seed, s0, j0, c, field):
     """Dimension d of the strata table of a pixel's samples s0 + j0 <= s < s0 + c: the
     integers ``_stratum`` and ``_stratum2`` compute for one sample (the same values,
@@ -332,7 +333,7 @@ def _strata_fill(tab, d, seed, s0, j0, c, field):
         sv[j] = _sub_stratum(y, np.uint64(sv[j]), m)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _strata_table(stratified):
     """A tile's strata table and its control words (``_strata_slot``); none for the
     independent sampler."""
@@ -340,7 +341,7 @@ def _strata_table(stratified):
             np.zeros(1, np.int64))
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _strata_slot(tab, ctl, d, s, n, scramble):
     """Column of sample s in dimension d of its chunk's strata table (-1: d is past the
     table), the table's dimensions up to d filled first. ``ctl``: [dimensions filled];
@@ -361,13 +362,13 @@ def _strata_slot(tab, ctl, d, s, n, scramble):
     return np.int64(j)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _unit(rng):
     """The uniform in [0, 1) of one step of the Weyl sequence."""
     return float(_mix(rng) >> _S11) * _TO_UNIT
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _next(state):
     """One uniform and the next state (rng, scramble, sample, n, dimension), n the strata
     field (``strata_field``: the sample count and the 2-D grid's columns). With n = 0
@@ -386,7 +387,7 @@ def _next(state):
     return u, (rng, scramble, s, n, d + np.uint64(1), tab, ctl)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _next2(state):
     """Two uniforms (one 2-D dimension, as Mitsuba's samplers count them) and the next
     state; independent: the same as two ``_next``."""
@@ -404,7 +405,7 @@ def _next2(state):
     return u, v, (rng, scramble, s, n, d + np.uint64(1), tab, ctl)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _reuse(u, n):
     """Choose one of n items from the uniform u and return (index, u rescaled to a fresh
     uniform): the light choice takes the first of the light sample's 2-D dimension, as
@@ -416,14 +417,14 @@ def _reuse(u, n):
     return k, min(x - k, ONE_MINUS_EPSILON)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _mis(a, b):
     a2, b2 = a * a, b * b
     s = a2 + b2
     return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _offset(px, py, pz, gx, gy, gz, dx, dy, dz):
     """Origin lifted off the surface to the side the direction leaves on."""
     e = _EPS * (1.0 + max(abs(px), abs(py), abs(pz)))
@@ -432,7 +433,7 @@ def _offset(px, py, pz, gx, gy, gz, dx, dy, dz):
     return px + e * gx, py + e * gy, pz + e * gz
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     """Radiance along one camera ray: (r, g, b, rng state). ``sc`` is the scene's
     ``layout.SceneArrays``; ``pdf_scale`` is the wrong-pdf test hook (1: correct)."""
@@ -572,7 +573,7 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     return rr, rg, rb, state
 
 
-@njit(cache=True, _nrt=False, error_model="numpy", fastmath={"contract"})
+@fused(_nrt=False)
 def _trace_samples(sc, stack, cam, seed, s0, s1, n, x0, x1, y, width, height, pdf_scale,
                    out, tab, ctl, rays, states):
     """Samples s0 <= s < s1 of each pixel (x, y), x0 <= x < x1 (the render's ``seed``),
@@ -607,7 +608,10 @@ def _trace_samples(sc, stack, cam, seed, s0, s1, n, x0, x1, y, width, height, pd
     one's bit for bit (tested on five scenes). One thread, 16 spp, CPU seconds, two
     rounds A/B/A/B: Cornell box 0.043-0.044 -> 0.041, veach-mis 0.043 -> 0.041-0.042,
     vocabulary-glass 0.323-0.328 -> 0.306-0.307, vocabulary-lights 0.022-0.024 ->
-    0.021-0.022; bunny, envmap, white furnace within noise."""
+    0.021-0.022; bunny, envmap, white furnace within noise. These options are
+    ``_compile_options.fused``, which every function of the tracer's modules states for
+    itself; the warps' and distributions' kernels it calls state ``exact`` and keep
+    every rounding (a callee without options of its own would take this one's)."""
     n = np.uint64(n)
     ctl[0] = 0
     m = s1 - s0
@@ -638,14 +642,14 @@ def _trace_samples(sc, stack, cam, seed, s0, s1, n, x0, x1, y, width, height, pd
                 out[k, 2], out[k, 3], out[k, 4], out[k, 5] = 0.0, 0.0, 0.0, 0.0
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def pixel_base(seed, pixel):
     """The hashed seed of a pixel (flat index ``y · width + x``) of a render: its samples'
     random numbers are splitmix64 steps from it."""
     return _mix(_mix(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def pixel_group(spp, stratified):
     """Pixels of a tile's row that share one ``_trace_samples`` call: as many as fill
     its ROWS rows with all their samples (the independent sampler; a stratified
@@ -659,7 +663,7 @@ def pixel_group(spp, stratified):
     return 1 if stratified or 2 * spp > ROWS else ROWS // spp
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _group_end(sc, stack, cam, seed, spp, n, xg, x1, y, width, height, pdf_scale, out, tab,
                ctl, rays, states, group):
     """The end of the group of ``group`` pixels from ``xg`` in a tile's row that ends at
@@ -671,7 +675,7 @@ def _group_end(sc, stack, cam, seed, spp, n, xg, x1, y, width, height, pdf_scale
     return xe
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _sample_row(sc, stack, cam, seed, s, spp, n, x, xg, y, width, height, pdf_scale, out,
                 tab, ctl, rays, states, group):
     """The row of ``out`` that holds sample s of pixel (x, y): with one pixel a call
@@ -686,7 +690,7 @@ def _sample_row(sc, stack, cam, seed, s, spp, n, x, xg, y, width, height, pdf_sc
     return k
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _chunk_scratch(stratified):
     """A tile's scratch for ``_trace_samples``: its output rows, the strata table and its
     control words, the camera rays and their states."""
@@ -695,7 +699,7 @@ def _chunk_scratch(stratified):
             np.empty((ROWS, 2), np.uint64))
 
 
-@njit(cache=True, parallel=True)
+@fused(parallel=True)
 def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale, mean, m2,
                  bad):
     """Render the listed tiles (rows of x0, y0, x1, y1) on all threads: per pixel, the
@@ -737,7 +741,7 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale
                     bad[y, x] = nbad
 
 
-@njit(cache=True, parallel=True)
+@fused(parallel=True)
 def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf_scale, acc,
                 bad):
     """Render the listed tiles with a splatting reconstruction filter (Mitsuba's

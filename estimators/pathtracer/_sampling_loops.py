@@ -4,8 +4,9 @@ source (``render.load_cached``): numba's cache checks only this file, not the ke
 calls, so an edited BSDF or emitter gets new loops, never stale ones."""
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from estimators._compile_options import fused
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_sample
 from estimators.pathtracer.emitters import area_pdf, environment_pdf, sample_emitter
 from estimators.pathtracer.geometry import _hit_prim, surface
@@ -14,7 +15,7 @@ from estimators.pathtracer.layout import AREA, LEAF_KIND, LEAF_PRIM, LIGHT_KIND,
 _UV = 0.5    # texture coordinates of textured BSDFs (textures change weights, not directions)
 
 
-@njit(parallel=True, cache=True)
+@fused(parallel=True)
 def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, out):
     wi = (wx, wy, wz)
     for i in prange(u.shape[0]):
@@ -26,7 +27,7 @@ def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, 
             out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
 
 
-@njit(parallel=True, cache=True)
+@fused(parallel=True)
 def _bsdf_pdf_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, out):
     wi = (wx, wy, wz)
     for i in prange(wo.shape[0]):
@@ -34,7 +35,7 @@ def _bsdf_pdf_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, ou
                            (wo[i, 0], wo[i, 1], wo[i, 2]), _UV, _UV)[3]
 
 
-@njit(parallel=True, cache=True)
+@fused(parallel=True)
 def _emitter_sample_rows(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data,
                          tex_info, env_marg, env_cond, k, x, y, z, u, out):
     for i in prange(u.shape[0]):
@@ -46,7 +47,7 @@ def _emitter_sample_rows(light_f, light_i, light_cdf, prims, info, shape_flip, t
             out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
 
 
-@njit(parallel=True, cache=True)
+@fused(parallel=True)
 def _emitter_pdf_rows(light_f, light_i, prims, info, shape_flip, leaf, leaf_info, rows,
                       env_marg, env_cond, k, x, y, z, d, out):
     area = light_i[k, LIGHT_KIND] == AREA

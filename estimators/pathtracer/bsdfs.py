@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._compile_options import fused
 from ..warps import (beckmann_pdf_kernel, cosine_hemisphere_pdf_kernel, ggx_d,
                      sample_beckmann_kernel, sample_cosine_hemisphere_kernel,
                      sample_ggx_vndf_kernel)
@@ -40,8 +40,8 @@ from .textures import eval_texture, luminance
 __all__ = ["bsdf_eval", "bsdf_sample", "bsdf_is_smooth", "rough_coat_tables",
            "fresnel_dielectric", "fresnel_conductor", "fresnel_diffuse_reflectance"]
 
-_jit = njit(cache=True)
-_fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see emitters.py
+_jit = fused()
+_fast = fused(_nrt=False)    # array arguments, no allocation: see emitters.py
 _INV_PI = 1.0 / math.pi
 
 
@@ -86,7 +86,7 @@ def fresnel_conductor(cos_i, eta, k):
     return 0.5 * (rs + rp)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _conductor_fresnel(bf, b, cos_i):
     """BSDF b's conductor reflectance per colour channel."""
     return (fresnel_conductor(cos_i, bf[b, COND_ETA], bf[b, COND_K]),
@@ -212,7 +212,7 @@ def _microfacet_value_pdf(wi, wo, au, av, dist):
 
 
 # ------------------------------------------------------------------------- colours
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def color(mask, bf, btex, tex_data, tex_info, b, slot, u, v):
     t = btex[b, slot] if mask & F_TEXTURES else -1
     if t < 0:
@@ -259,7 +259,7 @@ def _coat_base(r, g, b, internal, nonlinear):
 
 
 # ------------------------------------------------------------------ eval and sample
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     """Mitsuba's ``roughdielectric`` (Walter et al. 2007), either side: (f · |cos θ_o| as
     r, g, b, pdf). In radiance mode the η² of the transmission term and the 1/η² of the
@@ -300,7 +300,7 @@ def _rough_dielectric_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u,
     return c0 * val, c1 * val, c2 * val, pdf
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     """``bsdf_eval`` of a row that is not composite."""
     kind = bi[b, BSDF_KIND]
@@ -352,7 +352,7 @@ def _eval_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     return r, g, bl, pdf
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v):
     """A composite row's scalar (blend weight, mask opacity), clipped to [0, 1]; a texture
     gives its luminance, as Mitsuba's ``eval_1`` of an RGB bitmap."""
@@ -365,7 +365,7 @@ def _mix_value(mask, bf, btex, tex_data, tex_info, b, u, v):
     return min(max(x, 0.0), 1.0)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     """``_eval_basic`` of row b, or of a ``blendbsdf``'s two rows mixed by its weight
     (one call site in a loop: the kernel is compiled with one copy of the BSDFs)."""
@@ -383,7 +383,7 @@ def _eval_mix(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
 
 
 # ------------------------------------------------------------------- normal maps
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _normalmap_frame(bi, btex, tex_data, tex_info, b, wi, u, v):
     """Mitsuba's ``normalmap`` frame (s, t, n), in the local shading frame: n is the
     texel v mapped to 2 v - 1, turned by π about the local z where it faces away from
@@ -413,7 +413,7 @@ def shadow_terminator(n, wo):
     return 2.0 / (1.0 + math.sqrt(1.0 + a2 * _tan2(wo)))
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     """(f · |cos θ_o| as r, g, b, pdf) of the non-delta components. A ``mask`` scales its
     BSDF's value and pdf by the opacity; a ``blendbsdf`` mixes its two by the weight; a
@@ -441,7 +441,7 @@ def bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi, wo, u, v):
     return r * scale, g * scale, bl * scale, pdf * scale
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale):
     """A direction from a row that is not composite: (wo x, y, z, ok, delta, weight r, g,
     b and pdf of a delta lobe, η, null). The weight of a non-delta direction is the
@@ -533,7 +533,7 @@ def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, 
     return wo[0], wo[1], -wo[2] if flip else wo[2], True, False, 0.0, 0.0, 0.0, 0.0, 1.0, False
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v, pdf_scale):
     """(wo x, y, z, weight r, g, b, pdf, delta, η, null) with weight = f cos θ_o / pdf.
     A ``normalmap`` samples its BSDF in the perturbed frame; a direction on opposite
@@ -568,7 +568,7 @@ def bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
     return wx, wy, -wz if flip else wz, wr * g, wg * g, wb * g, pdf, delta, eta, null
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _sample_unmapped(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, v,
                      pdf_scale):
     """``bsdf_sample`` of a row that is not a ``normalmap``. A zero weight ends the path;

@@ -27,8 +27,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from .._compile_options import fused
 from .flat import flat_add, flat_add4, flat_get
 from .scene import SceneDescription, SceneError
 from .text_numbers import SPACE, parse_float
@@ -198,13 +198,13 @@ def _with_film_filter(desc: SceneDescription, cam: Camera) -> Camera:
         raise SceneError(f"{desc.path}:{rf.line}: <rfilter type=\"{rf.type}\">: {e}") from None
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _filter_constants(c):
     """(kind, radius, gaussian exponent factor, gaussian value at the radius, 1/radius)."""
     return c[17], c[18], c[20], c[21], c[22]
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _filter_weight(kind, r, k, shift, inv_r, d):
     a = abs(d)
     if a > r:
@@ -216,7 +216,7 @@ def _filter_weight(kind, r, k, shift, inv_r, d):
     return 1.0                                        # box
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _filter_run(c, i0, n, centre, out, at):
     """The filter's weights at the n pixel centres i0 + m + 1/2 (m < n) around the
     sample position ``centre`` + 1/2 into ``out[at + m]``. A gaussian's by the recurrence
@@ -240,7 +240,7 @@ def _filter_run(c, i0, n, centre, out, at):
         f *= step
 
 
-@njit(cache=True)
+@fused()
 def filter_weight_kernel(c, d):
     """The 1-D reconstruction filter at offset ``d`` (pixels) from a pixel centre, for
     camera parameters ``c`` (``Camera.params``); 0 outside the radius."""
@@ -255,7 +255,7 @@ SPLAT_CHANNELS = 11
 SPLAT_VALUE_CHANNELS = 4
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def splat_kernel(c, buf, bx, by, width, height, px, py, r, g, b, wx, variance):
     """Add a sample of radiance (r, g, b) at film position (px, py) (pixels) to ``buf``
     (rows from image row ``by``, columns from ``bx``, ``SPLAT_CHANNELS`` deep): every
@@ -298,14 +298,14 @@ def splat_kernel(c, buf, bx, by, width, height, px, py, r, g, b, wx, variance):
             o += ch
 
 
-@njit(cache=True)
+@fused()
 def splat_scratch(c) -> int:
     """The length of ``splat_kernel``'s scratch: the weights of the columns and of the
     rows a splat reaches, each at most floor(x + r) - ceil(x - r) + 1 <= 2r + 1."""
     return 2 * (int(2.0 * c[18]) + 2)
 
 
-@njit(cache=True)
+@fused()
 def _splat_points_kernel(c, buf, width, height, points):
     wx = np.empty(splat_scratch(c))
     for k in range(points.shape[0]):
@@ -331,7 +331,7 @@ def filter_weights(camera: Camera, offsets) -> np.ndarray:
     return np.array([filter_weight_kernel(c, x) for x in d.ravel()]).reshape(d.shape)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _generate_ray_kernel(c, u, v):
     """Ray through film position (u, v): (ox, oy, oz, dx, dy, dz, t_max), unit d."""
     x = (1.0 - 2.0 * u) * c[12]

@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._compile_options import fused
 from .._fastmath import fast_acos
 from ..distributions import pc2d_pdf_kernel, sample_discrete_kernel, sample_pc2d_kernel
 from ..warps import (sample_uniform_cone_kernel, sample_uniform_disk_concentric_kernel,
@@ -31,7 +31,7 @@ from .layout import (AREA, CONSTANT, DIRECTIONAL, DISK_TO_LOCAL, DISK_TO_WORLD, 
                      SPHERE_RADIUS, SPOT, SPOT_AXIS, SPOT_COS_BEAM, SPOT_COS_CUTOFF,
                      SPOT_CUTOFF, SPOT_INV_FALLOFF, TRIANGLE)
 from .textures import envmap_direction, envmap_uv, eval_envmap
-_jit = njit(cache=True)
+_jit = fused()
 # Per-ray functions skip reference counting (_nrt=False): they allocate nothing, and the
 # atomic count updates on shared arrays cost more than the work when all threads call.
 # They are inlined into the kernel (numba IR inlining), as is the camera ray: a call
@@ -40,11 +40,11 @@ _jit = njit(cache=True)
 # -> 0.097, vocabulary-glass 1.00 -> 0.90), images bit-identical, for ~12 s more
 # compilation of the general kernel (48 -> 60 s). The texture lookups stay calls:
 # inlining them too cost 230 s more.
-_fast = njit(cache=True, _nrt=False, inline="always")
+_fast = fused(_nrt=False, inline="always")
 _INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def _xyz(row, col):
     """The three entries of a row from column ``col`` (a colour, point or direction)."""
     return row[col], row[col + 1], row[col + 2]

@@ -32,9 +32,10 @@ import math
 
 import numpy as np
 from llvmlite import ir
-from numba import njit, types
+from numba import types
 from numba.extending import intrinsic
 
+from .._compile_options import fused
 from .._fastmath import coarse_acos, coarse_atan2
 from .flat import flat_get as _flat
 from .flat import flat_get_bits as _flat_bits
@@ -52,10 +53,10 @@ _MAX_DEPTH = 60        # deeper subtrees become leaves, so traversal's stack suf
 #: at most 3 siblings stacked per level above it, and stacks 4 children itself
 STACK = (NODE_ARITY - 1) * _MAX_DEPTH + NODE_ARITY
 
-_jit = njit(cache=True)
+_jit = fused()
 # the per-ray functions are inlined into the kernel: a call that passes arrays costs
 # reference-count updates shared by all threads
-_inline = njit(cache=True, inline="always")
+_inline = fused(inline="always")
 
 
 # ------------------------------------------------------------------------- bounds

@@ -20,14 +20,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._compile_options import fused
 from .._fastmath import coarse_acos, coarse_atan2, fast_sincos_2pi
 from .layout import (BILINEAR, CLAMP, MIRROR, NEAREST, REPEAT, TEX_COLUMNS, TEX_FILTER,
                      TEX_HEIGHT, TEX_OFFSET, TEX_UV, TEX_WIDTH, TEX_WRAP)
 
-_jit = njit(cache=True)
-_fast = njit(cache=True, _nrt=False)    # array arguments, no allocation: see emitters.py
+_jit = fused()
+_fast = fused(_nrt=False)    # array arguments, no allocation: see emitters.py
 
 
 _IDENTITY_UV = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
@@ -179,7 +179,7 @@ def envmap_direction(u, v):
     return s * sin_phi, cos_theta, -s * cos_phi
 
 
-@njit(cache=True, inline="always")
+@fused(inline="always")
 def luminance(r, g, b):
     """The luminance of linear sRGB (Rec. 709) r, g, b: Mitsuba's ``luminance``."""
     return 0.212671 * r + 0.715160 * g + 0.072169 * b
