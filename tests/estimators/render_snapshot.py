@@ -11,7 +11,6 @@ best of three) is printed so a speed change shows beside the bits.
 
 import os
 import sys
-import time
 
 import numpy as np
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mcverify as mv
-from estimators.pathtracer import prepare_scene, render
+from estimators.pathtracer import prepare_scene
 from mcverify.gate import reference
 
 BUNNY = os.path.join(reference.REFERENCE_ROOT, "bunny")

@@ -1,7 +1,6 @@
 """The CLI runs as a real subprocess: output, exit codes, files."""
 
 import json
-import os
 import subprocess
 import sys
 

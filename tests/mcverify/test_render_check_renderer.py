@@ -1,7 +1,6 @@
 """``render_check(scene, renderer=...)``: a renderer of one's own through the render gate,
 held to what ours is held to (found by a probe with renderers not in the repository)."""
 
-import numpy as np
 import pytest
 
 import mcverify as mv
