@@ -25,6 +25,9 @@ NO_IMAGE_EFFECT = {
        for p in ("sample_count", "seed", "jitter") if p in SUPPORTED["sampler"][t]},
     ("integrator", "direct", "emitter_samples"): "samples per hit: noise only",
     ("integrator", "direct", "bsdf_samples"): "samples per hit: noise only",
+    ("integrator", "direct", "shading_samples"): "samples per hit: noise only",
+    **{("integrator", t, "samples_per_pass"): "passes of Mitsuba's render: time only"
+       for t in ("path", "direct")},
     ("bsdf", "roughconductor", "sample_visible"): "a sampling strategy: noise only",
     ("bsdf", "roughplastic", "sample_visible"): "a sampling strategy: noise only",
     ("bsdf", "roughdielectric", "sample_visible"): "a sampling strategy: noise only",

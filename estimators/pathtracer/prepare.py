@@ -754,10 +754,27 @@ class _Builder:
         integ = d.integrator
         # BSDFs with a null component (hide_emitters cannot be matched with them below)
         null = sorted({"bsdf:mask", "bsdf:thindielectric"} & d.features)
+        if int(integ.get("samples_per_pass", 1)) < 1:
+            # Mitsuba 3.9.1 refuses a negative value and crashes on 0 (a division by it)
+            self.fail(integ, f"samples_per_pass={integ.get('samples_per_pass')}: must be "
+                             ">= 1 (Mitsuba refuses a negative value and stops on 0)")
         if integ.type == "direct":
             max_depth, rr_depth = 2, INFINITE_DEPTH
+            shading = integ.get("shading_samples")
+            if shading is not None:
+                # Mitsuba's default for both counts; it refuses it beside either of them,
+                # and below 1 ("Must have at least 1 BSDF or emitter sample!")
+                given = [n for n in ("emitter_samples", "bsdf_samples") if n in integ.props]
+                if given:
+                    self.fail(integ, f"shading_samples with {given[0]}: give one or the "
+                                     "other (Mitsuba refuses both)")
+                if int(shading) < 1:
+                    self.fail(integ, f"shading_samples={shading}: must be >= 1 (Mitsuba "
+                                     "refuses it)")
+            samples = {n: int(integ.get(n, 1 if shading is None else shading))
+                       for n in ("emitter_samples", "bsdf_samples")}
             for name in ("emitter_samples", "bsdf_samples"):
-                if int(integ.get(name, 1)) < 1:
+                if samples[name] < 1:
                     # Mitsuba then drops a technique (and with it delta lights or delta
                     # BSDFs); the tracer always uses both, weighted by MIS
                     self.fail(integ, f"{name}={integ.get(name)}: must be >= 1 (with 0 "
@@ -771,8 +788,9 @@ class _Builder:
                                  "component, the tracer (a path of depth 2) does not; not "
                                  "matched")
             delta = [e for e in d.emitters if e.type in ("point", "spot", "directional")]
-            if delta and int(integ.get("emitter_samples", 1)) != 1:
-                self.fail(integ, f"emitter_samples={integ.get('emitter_samples')} with a "
+            if delta and samples["emitter_samples"] != 1:
+                given = "emitter_samples" if shading is None else "shading_samples"
+                self.fail(integ, f"{given}={samples['emitter_samples']} with a "
                                  f"{delta[0].type} light (line {delta[0].line}): Mitsuba "
                                  "3.9.1's direct integrator adds each sample of a delta light "
                                  "without dividing by emitter_samples (mitsuba3 issue 1861), "

@@ -131,9 +131,10 @@ _TEX = ("rgb", "float", "texture")
 SUPPORTED = {
     "integrator": {
         "path": {"max_depth": ("integer",), "rr_depth": ("integer",),
-                 "hide_emitters": ("boolean",)},
+                 "hide_emitters": ("boolean",), "samples_per_pass": ("integer",)},
         "direct": {"hide_emitters": ("boolean",), "emitter_samples": ("integer",),
-                   "bsdf_samples": ("integer",)},
+                   "bsdf_samples": ("integer",), "shading_samples": ("integer",),
+                   "samples_per_pass": ("integer",)},
     },
     "sensor": {"perspective": {"fov": ("float",), "fov_axis": ("string",),
                                "focal_length": ("string",),

@@ -413,6 +413,37 @@ def test_mesh_lights_are_sampled_by_their_shading_normal_as_in_mitsuba(tmp_path)
     assert r.passed, (r.summary(), r.details["found_by"])
 
 
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("integrator", [
+    '<integrator type="direct"><integer name="shading_samples" value="2"/></integrator>',
+    '<integrator type="path"><integer name="max_depth" value="4"/>'
+    '<integer name="samples_per_pass" value="4"/></integrator>',
+], ids=["direct-shading-samples", "path-samples-per-pass"])
+def test_the_integrators_sample_counts_render_as_in_mitsuba(tmp_path, integrator):
+    """``shading_samples`` and ``samples_per_pass`` are read (they change Mitsuba's noise
+    and its passes, not the image): a scene with each passes the render gate against
+    Mitsuba's reference made on the fly (α = 0.01)."""
+    path = tmp_path / "scene.xml"
+    path.write_text(f"""<scene version="3.0.0">
+  {integrator}
+  <sensor type="perspective"><float name="fov" value="45"/>
+    <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0, 0" up="0, 1, 0"/>
+    </transform><film type="hdrfilm"><integer name="width" value="16"/>
+    <integer name="height" value="16"/><rfilter type="box"/></film></sensor>
+  <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1"
+    angle="-90"/><translate y="-1"/></transform><bsdf type="diffuse"/></shape>
+  <shape type="sphere"><float name="radius" value="0.6"/><bsdf type="roughconductor"/>
+  </shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate x="1"
+    angle="90"/><translate y="1.5"/></transform>
+    <emitter type="area"><rgb name="radiance" value="8, 6, 4"/></emitter></shape>
+  <emitter type="constant"><rgb name="radiance" value="0.2"/></emitter>
+</scene>
+""")
+    r = mv.render_check(str(path), spp=1024, passes=16, seed=14)
+    assert r.passed, (r.summary(), r.details["found_by"])
+
+
 def test_the_light_choice_reuses_the_light_samples_first_uniform():
     """``_reuse(u, n)`` splits one uniform into a choice of n lights and a fresh uniform,
     as Mitsuba's emitter sampling does: u = (k + u') / n exactly, u' in [0, 1), and each

@@ -1,6 +1,8 @@
 """Scene loading: the supported subset parses, Mitsuba loads the very same text, rays
 match Mitsuba's sensor pixel for pixel, and everything else is rejected by line."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -822,3 +824,84 @@ def test_a_spot_needs_a_positive_cutoff_and_a_beam_of_zero_or_more(tmp_path, ang
     with pytest.raises(SceneError) as e:
         prepare_scene(str(path))
     assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
+
+
+_DIRECT_SCENE = ('<scene version="3.0.0">\n' + SENSOR + '\n<integrator type="{t}">{p}</integrator>'
+                 '\n<shape type="sphere"/>\n{light}</scene>')
+
+
+def _mitsuba_loads(mi, text):
+    """Whether Mitsuba builds the scene (its error text if not)."""
+    try:
+        mi.load_string(text)
+        return True
+    except RuntimeError as e:
+        return str(e)
+
+
+@pytest.mark.parametrize("t,p,needle,mitsuba", [
+    ("direct", '<integer name="shading_samples" value="0"/>',
+     "shading_samples=0: must be >= 1", "refuses"),
+    ("direct", '<integer name="shading_samples" value="2"/><integer name="bsdf_samples" '
+               'value="1"/>', "shading_samples with bsdf_samples: give one or the other",
+     "refuses"),
+    ("direct", '<integer name="shading_samples" value="3"/>',
+     "shading_samples=3 with a point light (line 5)", "renders too bright"),
+    ("path", '<integer name="samples_per_pass" value="-2"/>',
+     "samples_per_pass=-2: must be >= 1", "refuses"),
+    ("direct", '<integer name="samples_per_pass" value="0"/>',
+     "samples_per_pass=0: must be >= 1", "stops the process as it renders"),
+], ids=["shading-0", "shading-and-bsdf", "shading-3-delta", "per-pass-negative",
+        "per-pass-0"])
+def test_the_integrators_sample_counts_are_refused_where_mitsuba_fails(tmp_path, mi, t, p,
+                                                                       needle, mitsuba):
+    """``shading_samples`` (the direct integrator's default for both sample counts) and
+    ``samples_per_pass`` (Mitsuba's passes, no effect on the image) are read, and refused
+    where Mitsuba refuses them (below 1; shading_samples beside emitter_samples or
+    bsdf_samples), renders a wrong image (several light samples of a delta light,
+    mitsuba3 issue 1861) or crashes (samples_per_pass 0), each with a message naming the
+    line and the property."""
+    from estimators.pathtracer import prepare_scene
+
+    light = '<emitter type="point"><point name="position" x="0" y="2" z="0"/></emitter>'
+    text = _DIRECT_SCENE.format(t=t, p=p, light=light)
+    path = tmp_path / "s.xml"
+    path.write_text(text)
+    with pytest.raises(SceneError, match=rf's\.xml:3: <integrator type="{t}">: '
+                                         + re.escape(needle)):
+        prepare_scene(str(path))
+    assert (_mitsuba_loads(mi, text) is not True) == (mitsuba == "refuses")
+
+
+def test_shading_samples_and_samples_per_pass_are_read_as_mitsuba_reads_them(tmp_path, mi):
+    """Accepted where Mitsuba accepts them; ``samples_per_pass`` must divide the render's
+    spp where it is smaller, as Mitsuba's render requires (it refuses 8 spp at 3 a pass
+    and takes 8 spp at 16 a pass)."""
+    from estimators.pathtracer import prepare_scene, render
+
+    env = '<emitter type="constant"/>'
+    for t, p in [("direct", '<integer name="shading_samples" value="3"/>'),
+                 ("path", '<integer name="samples_per_pass" value="4"/>'),
+                 ("direct", '<integer name="samples_per_pass" value="3"/>')]:
+        text = _DIRECT_SCENE.format(t=t, p=p, light=env).replace(
+            '<float name="fov" value="45"/>', '<float name="fov" value="45"/><film type='
+            '"hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/>'
+            '</film>')
+        path = tmp_path / "s.xml"
+        path.write_text(text)
+        assert _mitsuba_loads(mi, text) is True
+        scene = prepare_scene(str(path))
+        if "samples_per_pass" not in p:
+            continue
+        k = int(p.split('value="')[1].split('"')[0])
+        for spp in (2 * k, k // 2 + 1 if k > 2 else 2 * k, 3 * k):
+            render(scene, spp=spp, variance=False)
+            mi.render(mi.load_string(text), spp=spp)
+        bad = k + 1
+        with pytest.raises(ValueError, match=rf"spp={bad} is not a multiple of the "
+                                             rf"integrator's samples_per_pass={k} \(line 3\)"):
+            render(scene, spp=bad, variance=False)
+        with pytest.raises(RuntimeError) as e:
+            mi.render(mi.load_string(text), spp=bad)
+        chain = (e.value, e.value.__cause__, e.value.__context__)     # llvm: a wrapped error
+        assert any("must be a multiple" in str(x) for x in chain if x is not None), chain
