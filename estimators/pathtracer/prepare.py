@@ -724,6 +724,12 @@ class _Builder:
         if d.film.get("pixel_format", "rgb") != "rgb":
             self.fail(d.film, f"pixel_format {d.film.get('pixel_format')!r}: only rgb is "
                               "supported (the tracer writes 3 channels)")
+        for name, allowed in _FILM_FORMATS.items():
+            # how Mitsuba writes and stores the image, not what it renders; it refuses
+            # other values (case aside)
+            if str(d.film.get(name, allowed[0])).lower() not in allowed:
+                self.fail(d.film, f"{name} {d.film.get(name)!r}: Mitsuba takes "
+                                  + ", ".join(allowed) + " (any case)")
         shape_bsdf, shape_light, shape_flip = [], [], []
         for index, s in enumerate(d.shapes):
             bsdf = next((c for c in s.children if c.kind == "bsdf"), None)
@@ -849,6 +855,9 @@ class _Builder:
 
 
 _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
+#: the film's output settings Mitsuba 3.9.1 accepts (its default first)
+_FILM_FORMATS = {"file_format": ("openexr", "exr", "pfm", "rgbe"),
+                 "component_format": ("float16", "float32", "uint32")}
 #: what a blendbsdf may hold: BSDFs with a density and no delta lobe
 _BLENDABLE = ("diffuse", "roughconductor", "roughplastic", "roughdielectric", "twosided")
 

@@ -143,7 +143,9 @@ SUPPORTED = {
                "orthographic": {"near_clip": ("float",), "far_clip": ("float",),
                                 "to_world": ("transform",), "children": ("film", "sampler")}},
     "film": {"hdrfilm": {"width": ("integer",), "height": ("integer",),
-                         "pixel_format": ("string",), "children": ("rfilter",)}},
+                         "pixel_format": ("string",), "file_format": ("string",),
+                         "component_format": ("string",), "compensate": ("boolean",),
+                         "children": ("rfilter",)}},
     "rfilter": {"box": {}, "gaussian": {"stddev": ("float",)}, "tent": {"radius": ("float",)}},
     # stratified and multijitter: each pixel's samples stratified per dimension (the same
     # expectation as independent ones, less variance); jitter="false" is refused

@@ -414,22 +414,25 @@ def test_mesh_lights_are_sampled_by_their_shading_normal_as_in_mitsuba(tmp_path)
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("integrator", [
-    '<integrator type="direct"><integer name="shading_samples" value="2"/></integrator>',
-    '<integrator type="path"><integer name="max_depth" value="4"/>'
-    '<integer name="samples_per_pass" value="4"/></integrator>',
+@pytest.mark.parametrize("integrator,film", [
+    ('<integrator type="direct"><integer name="shading_samples" value="2"/></integrator>',
+     '<string name="file_format" value="pfm"/><boolean name="compensate" value="true"/>'),
+    ('<integrator type="path"><integer name="max_depth" value="4"/>'
+     '<integer name="samples_per_pass" value="4"/></integrator>',
+     '<string name="component_format" value="float32"/>'),
 ], ids=["direct-shading-samples", "path-samples-per-pass"])
-def test_the_integrators_sample_counts_render_as_in_mitsuba(tmp_path, integrator):
-    """``shading_samples`` and ``samples_per_pass`` are read (they change Mitsuba's noise
-    and its passes, not the image): a scene with each passes the render gate against
-    Mitsuba's reference made on the fly (α = 0.01)."""
+def test_the_sample_counts_and_film_formats_render_as_in_mitsuba(tmp_path, integrator, film):
+    """``shading_samples``, ``samples_per_pass`` and the film's ``file_format``,
+    ``component_format`` and ``compensate`` are read (they change Mitsuba's noise, its
+    passes or its output file, not the image): a scene with each passes the render gate
+    against Mitsuba's reference made on the fly (α = 0.01)."""
     path = tmp_path / "scene.xml"
     path.write_text(f"""<scene version="3.0.0">
   {integrator}
   <sensor type="perspective"><float name="fov" value="45"/>
     <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0, 0" up="0, 1, 0"/>
     </transform><film type="hdrfilm"><integer name="width" value="16"/>
-    <integer name="height" value="16"/><rfilter type="box"/></film></sensor>
+    <integer name="height" value="16"/>{film}<rfilter type="box"/></film></sensor>
   <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1"
     angle="-90"/><translate y="-1"/></transform><bsdf type="diffuse"/></shape>
   <shape type="sphere"><float name="radius" value="0.6"/><bsdf type="roughconductor"/>

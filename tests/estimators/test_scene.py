@@ -905,3 +905,33 @@ def test_shading_samples_and_samples_per_pass_are_read_as_mitsuba_reads_them(tmp
             mi.render(mi.load_string(text), spp=bad)
         chain = (e.value, e.value.__cause__, e.value.__context__)     # llvm: a wrapped error
         assert any("must be a multiple" in str(x) for x in chain if x is not None), chain
+
+
+@pytest.mark.parametrize("prop,value,accepted", [
+    ("file_format", "openexr", True), ("file_format", "EXR", True),
+    ("file_format", "pfm", True), ("file_format", "rgbe", True),
+    ("file_format", "png", False), ("file_format", "hdr", False),
+    ("component_format", "float16", True), ("component_format", "Float32", True),
+    ("component_format", "uint32", True), ("component_format", "uint8", False),
+    ("component_format", "float64", False), ("compensate", "true", True),
+])
+def test_the_films_output_settings_are_read_as_mitsuba_reads_them(tmp_path, mi, prop,
+                                                                  value, accepted):
+    """``file_format``, ``component_format`` and ``compensate`` set how Mitsuba writes and
+    stores the image (``compensate`` it ignores): accepted where Mitsuba accepts them,
+    in any case, and refused by line where it refuses them."""
+    from estimators.pathtracer import prepare_scene
+
+    kind = "boolean" if prop == "compensate" else "string"
+    text = ('<scene version="3.0.0">\n<sensor type="perspective"><film type="hdrfilm">\n'
+            f'<{kind} name="{prop}" value="{value}"/></film></sensor>\n'
+            '<shape type="sphere"/></scene>')
+    path = tmp_path / "s.xml"
+    path.write_text(text)
+    assert (_mitsuba_loads(mi, text) is True) == accepted
+    if accepted:
+        prepare_scene(str(path))
+    else:
+        with pytest.raises(SceneError, match=rf's\.xml:2: <film type="hdrfilm">: {prop} '
+                                             rf"'{value}': Mitsuba takes"):
+            prepare_scene(str(path))
