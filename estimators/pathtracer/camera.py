@@ -116,6 +116,11 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
         what = "must be > 0" if not near > 0.0 else f"must be below far_clip={far!r}"
         raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: "
                          f"near_clip={near!r}: {what} (as Mitsuba requires)")
+    shutter = float(s.get("shutter_open", 0.0)), float(s.get("shutter_close", 0.0))
+    if not shutter[0] <= shutter[1]:    # the time of motion blur: nothing here moves
+        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: "
+                         f"shutter_open={shutter[0]!r} is after shutter_close="
+                         f"{shutter[1]!r} (Mitsuba refuses it)")
     if s.type == "orthographic":
         if not np.linalg.norm(to_world[:3, 2]) > 0:
             raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"orthographic\">: "

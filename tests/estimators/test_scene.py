@@ -907,6 +907,21 @@ def test_shading_samples_and_samples_per_pass_are_read_as_mitsuba_reads_them(tmp
         assert any("must be a multiple" in str(x) for x in chain if x is not None), chain
 
 
+def _prepared_where_mitsuba_loads(tmp_path, mi, text, accepted, refusal):
+    """Mitsuba builds ``text`` iff ``accepted``; so does ``prepare_scene``, which
+    otherwise raises a SceneError matching ``refusal``."""
+    from estimators.pathtracer import prepare_scene
+
+    path = tmp_path / "s.xml"
+    path.write_text(text)
+    assert (_mitsuba_loads(mi, text) is True) == accepted
+    if accepted:
+        prepare_scene(str(path))
+    else:
+        with pytest.raises(SceneError, match=refusal):
+            prepare_scene(str(path))
+
+
 @pytest.mark.parametrize("prop,value,accepted", [
     ("file_format", "openexr", True), ("file_format", "EXR", True),
     ("file_format", "pfm", True), ("file_format", "rgbe", True),
@@ -920,18 +935,34 @@ def test_the_films_output_settings_are_read_as_mitsuba_reads_them(tmp_path, mi, 
     """``file_format``, ``component_format`` and ``compensate`` set how Mitsuba writes and
     stores the image (``compensate`` it ignores): accepted where Mitsuba accepts them,
     in any case, and refused by line where it refuses them."""
-    from estimators.pathtracer import prepare_scene
-
     kind = "boolean" if prop == "compensate" else "string"
     text = ('<scene version="3.0.0">\n<sensor type="perspective"><film type="hdrfilm">\n'
             f'<{kind} name="{prop}" value="{value}"/></film></sensor>\n'
             '<shape type="sphere"/></scene>')
-    path = tmp_path / "s.xml"
-    path.write_text(text)
-    assert (_mitsuba_loads(mi, text) is True) == accepted
-    if accepted:
-        prepare_scene(str(path))
-    else:
-        with pytest.raises(SceneError, match=rf's\.xml:2: <film type="hdrfilm">: {prop} '
-                                             rf"'{value}': Mitsuba takes"):
-            prepare_scene(str(path))
+    _prepared_where_mitsuba_loads(tmp_path, mi, text, accepted,
+                                  rf's\.xml:2: <film type="hdrfilm">: {prop} '
+                                  rf"'{value}': Mitsuba takes")
+
+
+@pytest.mark.parametrize("sensor", ["perspective", "orthographic"])
+@pytest.mark.parametrize("props,accepted", [
+    ('<float name="focus_distance" value="1000"/>', True),
+    ('<float name="focus_distance" value="-1"/>', True),
+    ('<float name="shutter_open" value="0"/><float name="shutter_close" value="1"/>', True),
+    ('<float name="shutter_open" value="-1"/>', True),
+    ('<float name="shutter_open" value="1"/><float name="shutter_close" value="0.5"/>',
+     False),
+    ('<float name="shutter_close" value="-0.5"/>', False),
+], ids=["focus", "focus-negative", "shutter", "open-negative", "open-after-close",
+        "close-negative"])
+def test_the_sensors_lens_and_shutter_settings_are_read_as_mitsuba_reads_them(
+        tmp_path, mi, sensor, props, accepted):
+    """``focus_distance`` (a thin lens's, no effect on a pinhole) and the shutter times
+    (motion blur's; nothing in these scenes moves) change Mitsuba's noise at most:
+    accepted where Mitsuba accepts them, and an opening after the closing refused by line
+    as Mitsuba refuses it."""
+    text = (f'<scene version="3.0.0">\n<sensor type="{sensor}">\n{props}</sensor>\n'
+            '<shape type="sphere"/></scene>')
+    _prepared_where_mitsuba_loads(tmp_path, mi, text, accepted,
+                                  rf's\.xml:2: <sensor type="{sensor}">: shutter_open=.* '
+                                  r"is after shutter_close=.*Mitsuba refuses it")
