@@ -229,6 +229,8 @@ _PLUGIN_ATTRIBUTES = ("type", "id", "name")
 #: children a plugin may hold one of at most (Mitsuba refuses a second: "A film can only
 #: have one reconstruction filter", "Only one sampler can be specified per sensor")
 _ONE_EACH = {"shape": ("bsdf", "emitter"), "sensor": ("film", "sampler"), "film": ("rfilter",)}
+#: plugins a scene may declare at its top level with an id, for ``<ref>`` elsewhere
+_REFERENCED = ("bsdf", "texture", "film", "sampler", "rfilter")
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")
 
@@ -509,13 +511,15 @@ class _Loader:
                 if node.attrib.get("type") == "area":
                     self.fail(node, "an area emitter must be inside a <shape>")
                 emitters.append(self.plugin(node))
-            elif node.tag in ("bsdf", "texture"):
+            elif node.tag in _REFERENCED:
+                # declared once, used by <ref id=.../> (a sensor's film and sampler, a
+                # film's rfilter, as Mitsuba's own test scenes write them)
                 p = self.plugin(node)
                 if not p.id:
-                    self.fail(node, "a top-level bsdf/texture needs an id to be referenced")
+                    self.fail(node, f"a top-level {node.tag} needs an id to be referenced")
             else:
                 self.fail(node, "unsupported top-level element; supported: default, "
-                                "integrator, sensor, shape, emitter, bsdf, texture")
+                                "integrator, sensor, shape, emitter, " + ", ".join(_REFERENCED))
         if sensor is None:
             self.fail(root, "the scene has no <sensor>")
         unknown = sorted(self.given - self.declared)

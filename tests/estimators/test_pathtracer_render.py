@@ -425,17 +425,19 @@ def test_the_sample_counts_and_film_formats_render_as_in_mitsuba(tmp_path, integ
     """``shading_samples``, ``samples_per_pass``, the film's ``file_format``,
     ``component_format`` and ``compensate``, and the sensor's ``focus_distance`` and
     shutter times are read (they change Mitsuba's noise, its passes or its output file,
-    not the image): a scene with each passes the render gate against Mitsuba's reference
-    made on the fly (α = 0.01)."""
+    not the image): a scene with each, its film declared at the top and referenced by the
+    sensor, passes the render gate against Mitsuba's reference made on the fly
+    (α = 0.01)."""
     path = tmp_path / "scene.xml"
     path.write_text(f"""<scene version="3.0.0">
   {integrator}
+  <film type="hdrfilm" id="film"><integer name="width" value="16"/>
+    <integer name="height" value="16"/>{film}<rfilter type="box"/></film>
   <sensor type="perspective"><float name="fov" value="45"/>
     <float name="focus_distance" value="3"/><float name="shutter_open" value="0"/>
     <float name="shutter_close" value="0.5"/>
     <transform name="to_world"><lookat origin="0, 1, 4" target="0, 0, 0" up="0, 1, 0"/>
-    </transform><film type="hdrfilm"><integer name="width" value="16"/>
-    <integer name="height" value="16"/>{film}<rfilter type="box"/></film></sensor>
+    </transform><ref id="film"/></sensor>
   <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1"
     angle="-90"/><translate y="-1"/></transform><bsdf type="diffuse"/></shape>
   <shape type="sphere"><float name="radius" value="0.6"/><bsdf type="roughconductor"/>

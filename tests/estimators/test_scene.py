@@ -966,3 +966,32 @@ def test_the_sensors_lens_and_shutter_settings_are_read_as_mitsuba_reads_them(
     _prepared_where_mitsuba_loads(tmp_path, mi, text, accepted,
                                   rf's\.xml:2: <sensor type="{sensor}">: shutter_open=.* '
                                   r"is after shutter_close=.*Mitsuba refuses it")
+
+
+def test_a_sensors_film_sampler_and_filter_may_be_declared_at_the_top_and_referenced(mi):
+    """Mitsuba's own test scenes declare the sampler and the film at the top level and
+    give the sensor ``<ref id="sampler"/><ref id="film"/>`` (and a film may take its
+    ``rfilter`` by reference): read as the same scene written nested, its rays Mitsuba's,
+    where the loader refused the top-level sampler. Without an id they are refused by
+    line (nothing could use them)."""
+    text = ('<scene version="3.0.0">\n'
+            '<rfilter type="tent" id="f"><float name="radius" value="1.5"/></rfilter>\n'
+            '<sampler type="stratified" id="s"><integer name="sample_count" value="9"/>'
+            '</sampler>\n'
+            '<film type="hdrfilm" id="film"><integer name="width" value="24"/>'
+            '<integer name="height" value="12"/><ref id="f"/></film>\n'
+            '<sensor type="perspective"><float name="fov" value="50"/>'
+            '<transform name="to_world"><lookat origin="0.7, 0.4, 3.9" target="0, 0, 0" '
+            'up="0, 1, 0"/></transform><ref id="s"/><ref id="film"/></sensor>\n'
+            '<shape type="sphere"/></scene>')
+    d = parse_scene(text)
+    assert (d.film.props["width"], d.film.props["height"]) == (24, 12)
+    assert d.sampler.type == "stratified" and d.sampler.props["sample_count"] == 9
+    assert [(c.type, c.props) for c in d.film.children] == [("tent", {"radius": 1.5})]
+    _assert_rays_match_mitsuba(mi, text)
+    sensor = mi.load_string(text).sensors()[0]
+    assert list(sensor.film().size()) == [24, 12] and sensor.sampler().sample_count() == 9
+    for tag, ident, line in (("rfilter", "f", 2), ("sampler", "s", 3), ("film", "film", 4)):
+        bare = text.replace(f' id="{ident}">', ">", 1).replace(f'<ref id="{ident}"/>', "")
+        assert f"s.xml:{line}: <{tag} " in _error(bare)
+        assert f"a top-level {tag} needs an id to be referenced" in _error(bare)
