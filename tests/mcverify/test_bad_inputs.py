@@ -943,6 +943,26 @@ def test_a_render_mitsuba_stopped_early_counts_as_interrupted(sandbox, tmp_path)
                            params={"res": 8}).shape[:2] == (8, 8)
 
 
+def test_a_render_mitsuba_refuses_is_explained_by_mitsubas_own_message(sandbox, tmp_path):
+    """Dr.Jit's vectorised variants wrap an error raised inside a render as "error while
+    performing a custom differentiable operation. (see above)", which is all the reference
+    build printed; its cause, Mitsuba's own message, is what it prints now (here
+    ``samples_per_pass`` 3 against 4 samples a pass)."""
+    scene = tmp_path / "per-pass"
+    shutil.copytree(sandbox / "ref-ok", scene)
+    xml = scene / "scene.xml"
+    text = xml.read_text()
+    xml.write_text(text.replace('<integer name="rr_depth" value="64"/>',
+                                '<integer name="rr_depth" value="64"/>'
+                                '<integer name="samples_per_pass" value="3"/>'))
+    r = subprocess.run(CMD + ["reference", "build", str(scene), "--spp", "4", "--passes", "2"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    assert "Mitsuba cannot render it (" in r.stderr and "Traceback" not in r.stderr
+    assert "must be a multiple of spp_per_pass (3)" in r.stderr, r.stderr
+    assert "see above" not in r.stderr
+
+
 @pytest.mark.parametrize("value", ["0", "-1", "two", "1.5"])
 def test_a_bad_thread_count_in_the_environment_exits_2(cli_sandbox, capsys, monkeypatch, value):
     monkeypatch.setenv("MCVERIFY_NUM_THREADS", value)
