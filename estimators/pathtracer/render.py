@@ -173,19 +173,6 @@ def _render_iv(spp, seed, passes, pdf_scale, params, variance, general=None,
         raise ValueError(f"progress={progress!r}: must be callable as progress(done, total)")
 
 
-def _check_samples_per_pass(integrator, spp: int) -> None:
-    """The integrator's ``samples_per_pass`` (Mitsuba's passes of one ``render`` call; no
-    effect on the image) must divide ``spp`` where it is smaller, as Mitsuba 3.9.1 checks:
-    it refuses the render otherwise ("sample_count (8) must be a multiple of
-    spp_per_pass (3)")."""
-    k = integrator.get("samples_per_pass")
-    if k is not None and spp % min(int(k), spp):
-        raise ValueError(f"spp={spp} is not a multiple of the integrator's samples_per_pass="
-                         f"{k} (line {integrator.line}): Mitsuba refuses that render; give "
-                         "a multiple, or leave samples_per_pass out (it changes only how "
-                         "Mitsuba splits the work)")
-
-
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
            general: bool | None = None, pdf_scale: float = 1.0, params: dict | None = None,
            progress=None, variance: bool = True) -> RenderResult:
@@ -216,7 +203,6 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     _render_iv(spp, seed, passes, pdf_scale, params, variance, general, progress)
     cs: PreparedScene = prepare_scene(scene, params=params)
     spp = cs.spp if spp is None else int(spp)
-    _check_samples_per_pass(cs.desc.integrator, spp)
     # a stratified or multijitter sampler: each pixel's samples stratified per dimension
     stratified = bool(cs.features & F_STRATIFIED)
     if stratified and spp // passes >= STRATIFIED_SPP_LIMIT:

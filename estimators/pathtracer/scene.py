@@ -242,6 +242,7 @@ class _Loader:
         self.given = set(self.params)
         self.declared: set[str] = set()
         self.ids: dict[str, Plugin] = {}
+        self.referenced: set[str] = set()      # ids some <ref> names
 
     def fail(self, node, message):
         raise SceneError(f"{self.path}:{node.line}: <{node.tag}"
@@ -428,6 +429,7 @@ class _Loader:
                 if target not in self.ids:
                     self.fail(child, f"no object with id {target!r} defined before this line")
                 ref = self.ids[target]
+                self.referenced.add(target)
                 if ref.kind == "texture":
                     # a texture is a property value: <ref id="..." name="reflectance"/>
                     name = child.attrib.get("name")
@@ -489,7 +491,7 @@ class _Loader:
                             "(camelCase names, diffuse_reflectance, uoffset/uscale); not "
                             "supported here: write it for Mitsuba 3 (version=\"3.0.0\")")
         integrator = sensor = None
-        shapes, emitters = [], []
+        shapes, emitters, declared = [], [], []
         for node in root.children:
             if node.tag == "default":
                 self.check_attributes(node)
@@ -517,11 +519,18 @@ class _Loader:
                 p = self.plugin(node)
                 if not p.id:
                     self.fail(node, f"a top-level {node.tag} needs an id to be referenced")
+                declared.append((node, p))
             else:
                 self.fail(node, "unsupported top-level element; supported: default, "
                                 "integrator, sensor, shape, emitter, " + ", ".join(_REFERENCED))
         if sensor is None:
             self.fail(root, "the scene has no <sensor>")
+        for node, p in declared:
+            if p.kind in ("film", "sampler", "rfilter") and p.id not in self.referenced:
+                # Mitsuba builds it anyway (and refuses it where it is invalid); the
+                # checks here run on the sensor's film and sampler only
+                self.fail(node, f"{p.kind} {p.id!r} is never used: no <ref id=\"{p.id}\"/> "
+                                "names it; remove it or reference it")
         unknown = sorted(self.given - self.declared)
         if unknown:
             raise SceneError(f"{self.path}: params {unknown}: the scene has no such "

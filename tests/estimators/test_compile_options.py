@@ -74,8 +74,10 @@ print("with_pdf", np.array_equal(x, xs) and np.array_equal(ps, w.pdf(x, 0.3)))
 def test_callers_options_do_not_leak_into_kernels(tmp_path):
     """In fresh caches, a ``contract`` caller compiled first leaves the warps', the
     ``_fastmath`` helpers' and the distributions' kernels without the flag, and a plain
-    caller leaves the tracer's ``coordinate_system`` with it; GGX's ``with_pdf`` then
-    equals ``sample`` and ``pdf`` bit for bit (it was 2 ulps off on 45 of 4099 rows)."""
+    caller leaves the tracer's ``coordinate_system`` with it (the IR check is what tells
+    the old code from the new on any CPU: it printed True, True, True, False); GGX's
+    ``with_pdf`` equals ``sample`` and ``pdf`` bit for bit (it was 2 ulps off on 45 of
+    4099 rows when the flag had leaked, in another order of compilation)."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"),
                MCVERIFY_CACHE=str(tmp_path / "kernels"))
     r = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
