@@ -33,12 +33,12 @@ NO_IMAGE_EFFECT = {
     ("bsdf", "roughdielectric", "sample_visible"): "a sampling strategy: noise only",
     ("film", "hdrfilm", "pixel_format"): "only rgb is accepted (the image has 3 channels)",
     ("film", "hdrfilm", "file_format"): "the file Mitsuba writes, not the image",
+    ("film", "hdrfilm", "component_format"): "the precision Mitsuba stores the image in",
+    ("film", "hdrfilm", "compensate"): "ignored by Mitsuba 3.9.1 (it warns)",
     **{("sensor", t, p): reason for t in ("perspective", "orthographic")
        for p, reason in (("focus_distance", "a thin lens's; no effect without an aperture"),
                          ("shutter_open", "motion blur's time: nothing moves, noise only"),
                          ("shutter_close", "motion blur's time: nothing moves, noise only"))},
-    ("film", "hdrfilm", "component_format"): "the precision Mitsuba stores the image in",
-    ("film", "hdrfilm", "compensate"): "ignored by Mitsuba 3.9.1 (it warns)",
 }
 
 #: properties with a fixed set of values: each value is its own feature

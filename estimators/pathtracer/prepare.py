@@ -795,8 +795,8 @@ class _Builder:
                                  "matched")
             delta = [e for e in d.emitters if e.type in ("point", "spot", "directional")]
             if delta and samples["emitter_samples"] != 1:
-                given = "emitter_samples" if shading is None else "shading_samples"
-                self.fail(integ, f"{given}={samples['emitter_samples']} with a "
+                source = "emitter_samples" if shading is None else "shading_samples"
+                self.fail(integ, f"{source}={samples['emitter_samples']} with a "
                                  f"{delta[0].type} light (line {delta[0].line}): Mitsuba "
                                  "3.9.1's direct integrator adds each sample of a delta light "
                                  "without dividing by emitter_samples (mitsuba3 issue 1861), "

@@ -229,8 +229,10 @@ _PLUGIN_ATTRIBUTES = ("type", "id", "name")
 #: children a plugin may hold one of at most (Mitsuba refuses a second: "A film can only
 #: have one reconstruction filter", "Only one sampler can be specified per sensor")
 _ONE_EACH = {"shape": ("bsdf", "emitter"), "sensor": ("film", "sampler"), "film": ("rfilter",)}
-#: plugins a scene may declare at its top level with an id, for ``<ref>`` elsewhere
-_REFERENCED = ("bsdf", "texture", "film", "sampler", "rfilter")
+#: plugins a scene may declare at its top level with an id, for ``<ref>`` elsewhere; the
+#: sensor's parts must then be referenced (the loader's checks run on the sensor's)
+_SENSOR_PARTS = ("film", "sampler", "rfilter")
+_REFERENCED = ("bsdf", "texture") + _SENSOR_PARTS
 _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "bsdf",
                 "emitter", "texture")
 
@@ -519,14 +521,15 @@ class _Loader:
                 p = self.plugin(node)
                 if not p.id:
                     self.fail(node, f"a top-level {node.tag} needs an id to be referenced")
-                declared.append((node, p))
+                if p.kind in _SENSOR_PARTS:
+                    declared.append((node, p))
             else:
                 self.fail(node, "unsupported top-level element; supported: default, "
                                 "integrator, sensor, shape, emitter, " + ", ".join(_REFERENCED))
         if sensor is None:
             self.fail(root, "the scene has no <sensor>")
         for node, p in declared:
-            if p.kind in ("film", "sampler", "rfilter") and p.id not in self.referenced:
+            if p.id not in self.referenced:
                 # Mitsuba builds it anyway (and refuses it where it is invalid); the
                 # checks here run on the sensor's film and sampler only
                 self.fail(node, f"{p.kind} {p.id!r} is never used: no <ref id=\"{p.id}\"/> "

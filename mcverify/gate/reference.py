@@ -31,7 +31,8 @@ from xml.parsers import expat
 
 import numpy as np
 
-from ..errors import EnvironmentProblem, InvalidArgument, MissingReference, interrupted
+from ..errors import (EnvironmentProblem, InvalidArgument, MissingReference, first_cause,
+                      interrupted)
 from ..provenance import provenance
 from ..result import shared_mode
 from .executors import Pool, Unit, same_source, source_fingerprint
@@ -340,18 +341,6 @@ def _film_unit(fingerprint, path, spp, params, variant) -> tuple[float, int]:
     return mvm.filter_radius(path, params), mvm.sampler_spp(path, spp, params)
 
 
-def _first_cause(e: BaseException) -> BaseException:
-    """The first of ``e``'s explicit causes (``raise ... from``): Dr.Jit's vectorised
-    variants wrap an error raised inside a render as "drjit.custom(...): error while
-    performing a custom differentiable operation. (see above)", Mitsuba's own message
-    being its cause. (Not ``__context__``: that is whatever was being handled.)"""
-    seen = {id(e)}
-    while e.__cause__ is not None and id(e.__cause__) not in seen:
-        e = e.__cause__
-        seen.add(id(e))
-    return e
-
-
 def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarray:
     """One Mitsuba pass as a unit of work (in this process or a worker)."""
     from . import mitsuba as mvm
@@ -365,7 +354,7 @@ def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarr
         if interrupted(e):    # Ctrl-C inside a render arrives wrapped in a drjit error
             raise KeyboardInterrupt from None
         raise EnvironmentProblem(f"{path}: Mitsuba cannot render it ("
-                                 f"{' '.join(str(_first_cause(e)).split())})") from None
+                                 f"{' '.join(str(first_cause(e)).split())})") from None
 
 
 @dataclass(frozen=True)
