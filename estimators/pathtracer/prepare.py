@@ -69,7 +69,8 @@ class PreparedScene:
                 texture_raw: bool = False, camera_extent: float = 1.0,
                 filter_scale: float = 1.0, bsdf_scale: tuple | None = None,
                 swap_alpha_uv: bool = False, frame_ignored: bool = False,
-                normalmap_ignored: bool = False) -> "PreparedScene":
+                normalmap_ignored: bool = False,
+                checkerboard_swapped: bool = False) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
@@ -86,12 +87,18 @@ class PreparedScene:
         ``swap_alpha_uv``: every BSDF's alpha_u and alpha_v exchanged (anisotropy along
         the wrong tangent); ``frame_ignored``: every BSDF shaded in ``coordinate_system``'s
         frame around the normal instead of Mitsuba's (s along dp/du);
-        ``normalmap_ignored``: every ``normalmap`` replaced by the BSDF it holds."""
-        if texture_raw:
+        ``normalmap_ignored``: every ``normalmap`` replaced by the BSDF it holds;
+        ``checkerboard_swapped``: every ``checkerboard``'s two colours exchanged (as
+        Mitsuba's float look-up has them)."""
+        if texture_raw or checkerboard_swapped:
             desc = copy.deepcopy(self.desc)
             for shape in desc.shapes:
                 for tex in _textures(shape):
-                    tex.props["raw"] = True
+                    if tex.type == "checkerboard" and checkerboard_swapped:
+                        p = tex.props
+                        p["color0"], p["color1"] = p.get("color1", 0.2), p.get("color0", 0.4)
+                    elif texture_raw:
+                        tex.props["raw"] = True
             return _Builder(desc).build().planted(
                 light_scale=light_scale, albedo_scale=albedo_scale, bsdf=bsdf,
                 texture_filter=texture_filter, camera_extent=camera_extent,
@@ -214,13 +221,29 @@ class _Builder:
             if value not in names:
                 self.fail(tex, f"{name} {value!r}; supported: {', '.join(names)}")
             options[name] = names.index(value)
+        tex._mean = float(img.mean())
+        return self.textures.add(img, filter_type=options["filter_type"],
+                                 wrap=options["wrap_mode"], to_uv=self._to_uv(tex))
+
+    def _checkerboard(self, tex: Plugin) -> int:
+        """Store a ``checkerboard`` texture as the 2 × 2 image a nearest, repeating
+        look-up reads it from: Mitsuba's colour0 where the uv's fractional parts are both
+        above 1/2 or both not, else colour1 (the cells meet at 1/2, where a look-up's
+        floor(2·frac) and Mitsuba's frac > 1/2 differ: a set of measure zero). Its mean
+        is Mitsuba's, the two colours' average."""
+        c0, c1 = (np.broadcast_to(np.asarray(tex.get(name, default), dtype=np.float64), 3)
+                  for name, default in (("color0", 0.4), ("color1", 0.2)))
+        img = np.array([[c0, c1], [c1, c0]])
+        tex._mean = float(img.mean())
+        return self.textures.add(img, filter_type=layout.FILTERS.index("nearest"),
+                                 wrap=layout.WRAPS.index("repeat"), to_uv=self._to_uv(tex))
+
+    def _to_uv(self, tex: Plugin) -> tuple:
+        """A texture's ``to_uv`` as the six entries ``TextureStore.add`` takes."""
         m = np.asarray(tex.get("to_uv", np.eye(4)), dtype=np.float64)
         if np.any(m[2, [0, 1, 3]] != 0) or np.any(m[[0, 1], 2] != 0):
             self.fail(tex, "to_uv must map the uv plane to itself (x and y only)")
-        to_uv = (m[0, 0], m[0, 1], m[0, 3], m[1, 0], m[1, 1], m[1, 3])
-        tex._mean = float(img.mean())
-        return self.textures.add(img, filter_type=options["filter_type"],
-                                 wrap=options["wrap_mode"], to_uv=to_uv)
+        return m[0, 0], m[0, 1], m[0, 3], m[1, 0], m[1, 1], m[1, 3]
 
     def _colour(self, plugin: Plugin, name: str, default: float):
         """(rgb, texture id or -1, mean) of a colour property."""
@@ -228,7 +251,8 @@ class _Builder:
         if isinstance(v, Plugin):
             key = id(v)
             if key not in self.texture_ids:
-                self.texture_ids[key] = self._bitmap(v)
+                store = self._checkerboard if v.type == "checkerboard" else self._bitmap
+                self.texture_ids[key] = store(v)
                 self.features |= FEATURE_BITS["texture:bitmap"]
             return np.zeros(3), self.texture_ids[key], v._mean
         rgb = np.broadcast_to(np.asarray(v, dtype=np.float64), 3).astype(np.float64)
@@ -337,6 +361,12 @@ class _Builder:
             name = "weight" if kind == layout.BLEND else "opacity"
             if kind == layout.BLEND and name not in plugin.props:
                 self.fail(plugin, "set its weight (Mitsuba has no default)")
+            if getattr(plugin.get(name), "type", None) == "checkerboard":
+                # Mitsuba 3.9.1 reads a checkerboard as a float (eval_1) with its two
+                # colours the other way round from its colour (eval)
+                self.fail(plugin, f"a checkerboard as its {name} is not supported "
+                                  "(Mitsuba's float look-up swaps the two colours); "
+                                  "use a bitmap")
             rgb, tex[0], _ = self._colour(plugin, name, 0.5)
             f[layout.MIX] = rgb[0]
             for col, child in zip((layout.BSDF_CHILD0, layout.BSDF_CHILD1), nested):
@@ -411,7 +441,7 @@ class _Builder:
         if core.type in ("blendbsdf", "mask", "normalmap"):
             self.fail(plugin, f"a {core.type} inside a normalmap is not supported: it holds "
                               "one basic BSDF (twosided or not)")
-        if not isinstance(plugin.get("normalmap"), Plugin):
+        if getattr(plugin.get("normalmap"), "type", None) != "bitmap":
             self.fail(plugin, "normalmap must be a bitmap texture")
         _, tex[0], _ = self._colour(plugin, "normalmap", 0.5)
         i[layout.NORMALMAP_FLIP_INVALID] = int(bool(plugin.get("flip_invalid_normals", True)))

@@ -12,8 +12,8 @@ film ``hdrfilm``, ``rfilter`` ``box``, ``gaussian`` (the default) and ``tent``, 
 ``disk``, ``sphere``, ``obj``, ``ply``; BSDFs ``diffuse``, ``conductor``,
 ``roughconductor``, ``dielectric``, ``roughdielectric``, ``thindielectric``, ``plastic``,
 ``roughplastic``, ``twosided``, ``blendbsdf``, ``mask``; emitters ``area``, ``point``,
-``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values and ``bitmap``
-textures.
+``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values, ``bitmap`` and
+``checkerboard`` textures.
 """
 
 from __future__ import annotations
@@ -206,7 +206,10 @@ SUPPORTED = {
     },
     "texture": {"bitmap": {"filename": ("string",), "filter_type": ("string",),
                            "wrap_mode": ("string",), "raw": ("boolean",),
-                           "to_uv": ("transform",)}},
+                           "to_uv": ("transform",)},
+                # constant colours only: Mitsuba's may hold textures
+                "checkerboard": {"color0": ("rgb", "float"), "color1": ("rgb", "float"),
+                                 "to_uv": ("transform",)}},
 }
 #: BSDFs with a transmission (or null) component: Mitsuba refuses them inside twosided
 TRANSMISSIVE = ("dielectric", "roughdielectric", "thindielectric", "mask")
@@ -563,7 +566,7 @@ def _features(desc: SceneDescription) -> set[str]:
                     b = stack.pop()
                     feats.add(f"bsdf:{b.type}")
                     stack += [x for x in b.children if x.kind == "bsdf"]
-                    feats |= {"texture:bitmap" for v in b.props.values()
+                    feats |= {f"texture:{v.type}" for v in b.props.values()
                               if isinstance(v, Plugin)}
             elif c.kind == "emitter":
                 feats |= {"emitter:area", f"emitter:area:{s.type}"}

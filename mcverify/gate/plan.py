@@ -77,6 +77,7 @@ NOTHING_TO_SAMPLE = {
     "bsdf:normalmap": "normal map: turns its BSDF's shading frame, nothing of its own to "
                       "sample (its instances are χ²-checked)",
     "texture:bitmap": "bitmap texture: a look-up, nothing to sample",
+    "texture:checkerboard": "checkerboard texture: a look-up, nothing to sample",
 }
 #: Features that need nothing verified and are not listed: the shapes themselves (their
 #: lights are, as emitter:area:SHAPE), and "emitter:area" itself (its shape's entry

@@ -102,6 +102,17 @@ def test_an_ignored_filter_type_fails_the_gate_on_the_textures_scene():
 
 
 @pytest.mark.mitsuba
+def test_a_checkerboard_with_its_colours_swapped_fails_the_gate_on_the_textures_scene():
+    """The sphere's checkerboard with colour0 and colour1 exchanged (as Mitsuba's float
+    look-up has them): the texture's mean stays the same, only the cells tell it apart,
+    and the default gate must fail it."""
+    import mcverify as mv
+
+    r = mv.render_check("textures", seed=22, plant={"checkerboard_swapped": True})
+    assert not r.passed, r.summary()
+
+
+@pytest.mark.mitsuba
 @pytest.mark.parametrize("plant,what", [
     ({"camera_extent": 1.005}, "the orthographic view 0.5 % too wide"),
     ({"camera_extent": 0.995}, "the orthographic view 0.5 % too narrow"),
