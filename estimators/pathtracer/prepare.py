@@ -872,7 +872,7 @@ class _Builder:
         spp = int(d.sampler.get("sample_count", 4))
         if spp < 1:
             self.fail(d.sampler, f"sample_count {spp}: must be at least 1")
-        if d.sampler.type in ("stratified", "multijitter"):
+        if d.sampler.type != "independent":      # all the others render stratified
             if d.sampler.get("jitter", True) is False:
                 self.fail(d.sampler, "jitter=\"false\" (samples at the strata's centres) is "
                           "not supported: its image is not the independent sampler's "

@@ -84,6 +84,7 @@ def _render_pairs(mi, spp: int):
     on a diffuse-only scene (the white furnace)."""
     from estimators.pathtracer import prepare_scene, render
 
+    from . import mitsuba as mvm
     from .reference import list_scenes, resolve_scene
 
     def gate():
@@ -110,11 +111,13 @@ def _render_pairs(mi, spp: int):
         path = resolve_scene(name)[1]
         ours = prepare_scene(path, params={"res": 128})
         depth = ours.arrays.max_depth
+        # ours renders the samples Mitsuba's sampler rounds spp to (orthogonal: 64 -> 121)
+        n = mvm.sampler_spp(path, spp)
         what = (f"128 x 128, {ours.n_triangles:,} triangles, max_depth "
-                f"{depth if depth < 1 << 30 else 'unlimited'}, {spp} spp, the image alone")
+                f"{depth if depth < 1 << 30 else 'unlimited'}, {n} spp, the image alone")
         # the image alone on both sides (ours variance=False, as the render gate's passes)
         out.append((f"render:{name}", what,
-                    lambda ours=ours: render(ours, spp=spp, variance=False),
+                    lambda ours=ours, n=n: render(ours, spp=n, variance=False),
                     theirs_render(path), "mitsuba"))
     furnace = prepare_scene(resolve_scene("white-furnace")[1], params={"res": 128})
     out.append(("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
@@ -144,6 +147,7 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1,
     ref = load_reference(path)
     their_scene = mi.load_file(path)
     ours_scene = prepare_scene(path)
+    spp = mvm.sampler_spp(path, spp)      # what Mitsuba renders (orthogonal: 16 -> 25)
 
     def theirs(s: int, n: int = spp):
         return np.asarray(mi.render(their_scene, spp=n, seed=s), dtype=np.float64)

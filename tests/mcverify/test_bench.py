@@ -48,6 +48,14 @@ def test_render_rows_load_one_mitsuba_scene_at_a_time():
     assert len(mi.loads) == 3 and mi.alive == 1
 
 
+def test_render_rows_give_ours_the_samples_mitsubas_sampler_renders():
+    """vocabulary-geometry's orthogonal sampler renders 121 spp when asked for 64 (a
+    prime's square): our side of its row renders 121 too; an independent scene's 64."""
+    rows = {r[0]: r for r in bench._render_pairs(_FakeMitsuba(), spp=64)}
+    assert "121 spp" in rows["render:vocabulary-geometry"][1]
+    assert "64 spp" in rows["render:cornell-box"][1]
+
+
 def test_equal_time_rmse_of_our_tracer_against_itself_is_one():
     """A stand-in Mitsuba that renders with our own tracer, and a clock under which every
     render takes the same time: the same estimator at the same spp, so the equal-time
