@@ -58,6 +58,8 @@ class Camera:
     rfilter: str = "box"        # one of RFILTERS
     filter_radius: float = 0.5  # pixels
     filter_stddev: float = 0.0  # gaussian only
+    offset_x: float = 0.0       # perspective: principal point offset, in film widths
+    offset_y: float = 0.0       # and heights (Mitsuba's principal_point_offset_x/y)
 
     @property
     def splats(self) -> bool:
@@ -66,10 +68,10 @@ class Camera:
 
     @property
     def params(self) -> np.ndarray:
-        """Flat parameters for ``_generate_ray_kernel`` (0-16) and ``filter_weight_kernel``
-        (17-23: filter code, radius, stddev; a gaussian's exponent factor k = -1/(2σ²),
-        its value at the radius e^(k r²) and e^(2k); 1/radius: computed here once, not
-        once a splat)."""
+        """Flat parameters for ``_generate_ray_kernel`` (0-16, 24-25: the principal point
+        offset) and ``filter_weight_kernel`` (17-23: filter code, radius, stddev; a
+        gaussian's exponent factor k = -1/(2σ²), its value at the radius e^(k r²) and
+        e^(2k); 1/radius: computed here once, not once a splat)."""
         m = self.to_world
         gaussian = self.rfilter == "gaussian"
         k = -0.5 / (self.filter_stddev * self.filter_stddev) if gaussian else 0.0
@@ -79,7 +81,7 @@ class Camera:
                                [self.tan_x, self.tan_y, self.near, self.far, self.kind,
                                 RFILTERS.index(self.rfilter), self.filter_radius,
                                 self.filter_stddev, k, shift, 1.0 / self.filter_radius,
-                                step]])
+                                step, self.offset_x, self.offset_y]])
 
     def with_filter(self, rfilter: str, *, radius: float | None = None,
                     stddev: float | None = None) -> "Camera":
@@ -155,8 +157,11 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
     else:
         raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: fov_axis="
                          f"{axis!r}; supported: x, y, diagonal, smaller, larger")
+    offset = (float(s.get("principal_point_offset_x", 0.0)),
+              float(s.get("principal_point_offset_y", 0.0)))
     return _with_film_filter(desc, Camera(to_world, tan_x, tan_y, near, far, w, h,
-                                          PERSPECTIVE))
+                                          PERSPECTIVE, offset_x=offset[0],
+                                          offset_y=offset[1]))
 
 
 def _field_of_view(desc: SceneDescription) -> tuple[float, str]:
@@ -338,9 +343,11 @@ def filter_weights(camera: Camera, offsets) -> np.ndarray:
 
 @fused(inline="always")
 def _generate_ray_kernel(c, u, v):
-    """Ray through film position (u, v): (ox, oy, oz, dx, dy, dz, t_max), unit d."""
-    x = (1.0 - 2.0 * u) * c[12]
-    y = (1.0 - 2.0 * v) * c[13]
+    """Ray through film position (u, v): (ox, oy, oz, dx, dy, dz, t_max), unit d. A
+    perspective camera's principal point offset shifts (u, v) as Mitsuba's does (0 for
+    an orthographic one, which has none)."""
+    x = (1.0 - 2.0 * (u + c[24])) * c[12]
+    y = (1.0 - 2.0 * (v + c[25])) * c[13]
     if c[16] == ORTHOGRAPHIC:
         # the film point (x, y, near) in camera space, the camera's z axis as direction
         z = c[14]

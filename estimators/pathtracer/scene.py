@@ -141,6 +141,8 @@ SUPPORTED = {
                                "near_clip": ("float",), "far_clip": ("float",),
                                "focus_distance": ("float",), "shutter_open": ("float",),
                                "shutter_close": ("float",),
+                               "principal_point_offset_x": ("float",),
+                               "principal_point_offset_y": ("float",),
                                "to_world": ("transform",), "children": ("film", "sampler")},
                "orthographic": {"near_clip": ("float",), "far_clip": ("float",),
                                 "focus_distance": ("float",), "shutter_open": ("float",),

@@ -96,6 +96,20 @@ def test_rays_match_mitsuba_pixel_for_pixel(mi, fov_axis, width, height):
     _assert_rays_match_mitsuba(mi, text)
 
 
+@pytest.mark.parametrize("dx,dy", [(0.1, 0.0), (0.0, -0.25), (-0.3, 0.15)])
+def test_a_principal_point_offset_shifts_the_rays_as_in_mitsuba(mi, dx, dy):
+    """``principal_point_offset_x``/``_y`` (film widths and heights) on a wide film with a
+    turned camera and a near clip: the rays, their origins on the near plane and their
+    lengths to the far one are Mitsuba's."""
+    text = (CORNELL.replace('value="$res"', 'value="64"').replace('value="48"', 'value="40"')
+            .replace('origin="0, 0, 3.9"', 'origin="0.7, 0.4, 3.9"')
+            .replace('<float name="fov"', f'<float name="principal_point_offset_x" value="{dx}"/>'
+                     f'<float name="principal_point_offset_y" value="{dy}"/>'
+                     '<float name="near_clip" value="0.3"/><float name="fov"'))
+    assert camera_from_scene(parse_scene(text)).offset_x == dx
+    _assert_rays_match_mitsuba(mi, text)
+
+
 def _assert_rays_match_mitsuba(mi, text, *, origin_atol=2e-5):
     """Our camera rays (origin, unit direction, length) at 64 film positions, the
     corners and the centre among them, are Mitsuba's ``sensor.sample_ray``."""
