@@ -624,6 +624,7 @@ class _Builder:
                              f"{word} on those are undefined); give them to every face or "
                              "to none")
         use_vn = len(vn) > 0 and not s.get("face_normals", False)
+        flip = bool(s.get("flip_tex_coords", True))     # Mitsuba's default: v -> 1 - v
         verts, uvs, normals, faces, key = [], [], [], [], {}
         for tri in corners:
             f = []
@@ -631,7 +632,11 @@ class _Builder:
                 verts.append(v[pi - 1])
                 key.setdefault((pi, ti, ni), len(key))
                 # without texture coordinates Mitsuba's uv is the barycentric (b1, b2)
-                uvs.append([vt[ti - 1][0], 1.0 - vt[ti - 1][1]] if ti else _BARYCENTRIC_UV[k])
+                if ti:
+                    t_u, t_v = vt[ti - 1]
+                    uvs.append([t_u, 1.0 - t_v if flip else t_v])
+                else:
+                    uvs.append(_BARYCENTRIC_UV[k])
                 if use_vn:
                     normals.append(vn[ni - 1])
                 f.append(len(verts) - 1)

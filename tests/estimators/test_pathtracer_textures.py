@@ -198,7 +198,12 @@ _NON_UNIT_AXIS = '<transform name="to_world"><rotate x="1" y="1" angle="25"/></t
              '</transform>'),
     ("sphere", '<transform name="to_world"><rotate x="1" angle="70"/></transform>'),
     ("obj", '<string name="filename" value="quad.obj"/>'),
+    ("obj", '<string name="filename" value="quad.obj"/><boolean name="flip_tex_coords" '
+            'value="false"/><transform name="to_world"><rotate x="1" y="0.2" angle="35"/>'
+            '</transform>'),
     ("obj", '<string name="filename" value="tri.obj"/>'),
+    ("obj", '<string name="filename" value="tri.obj"/><boolean name="flip_tex_coords" '
+            'value="false"/>'),
     ("ply", '<string name="filename" value="quad.ply"/>'),
     ("ply", '<string name="filename" value="tri.ply"/>'),
     ("ply", '<string name="filename" value="grid.ply"/><transform name="to_world">'
@@ -226,7 +231,8 @@ _NON_UNIT_AXIS = '<transform name="to_world"><rotate x="1" y="1" angle="25"/></t
 ])
 def test_uv_and_shading_frame_at_a_hit_match_mitsuba(mi, images, shape, props):
     """Rays from all around hit the shape: our (u, v) at the hit is Mitsuba's ``si.uv``
-    (the texture layout of a cube face, an OBJ with and without vt, a PLY in each format
+    (the texture layout of a cube face, an OBJ with and without vt, its v flipped or not
+    by ``flip_tex_coords`` (a uv-less OBJ's barycentric uv is never flipped), a PLY in each format
     with each of Mitsuba's uv names or none); on meshes the shading normal is Mitsuba's
     ``si.sh_frame.n`` too (given, computed smooth, or the face's). The shading frame that
     anisotropic BSDFs read (``geometry.shading_frame``, s along dp/du) is Mitsuba's
