@@ -52,14 +52,14 @@ def look_at(origin, target, up=None) -> np.ndarray:
     origin, target = (np.asarray(v, dtype=np.float64) for v in (origin, target))
     d = target - origin
     if np.linalg.norm(d) == 0:
-        raise ValueError("lookat: origin and target coincide")
+        raise ValueError("origin and target coincide")
     d = d / np.linalg.norm(d)
     up = np.zeros(3) if up is None else np.asarray(up, dtype=np.float64)
     if not up.any():
         up = coordinate_system(d)[0]
     left = np.cross(up, d)
     if np.linalg.norm(left) == 0:
-        raise ValueError("lookat: 'up' is parallel to the viewing direction")
+        raise ValueError("'up' is parallel to the viewing direction")
     left = left / np.linalg.norm(left)
     new_up = np.cross(d, left)
     m = np.eye(4)

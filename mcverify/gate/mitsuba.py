@@ -89,9 +89,15 @@ def choose_variant() -> VariantChoice:
 
 @lru_cache(maxsize=1)
 def _mi():
+    """Mitsuba in the chosen variant, its log at errors only: its warnings repeat at every
+    load of a scene (a stratified sampler's rounded sample count: 64 lines in one
+    render-check, coloured, whatever ``-q`` says); what they say that matters is
+    reported by mcverify itself (the rounded spp) or raised (a refused scene)."""
     from estimators.pathtracer.textures import import_mitsuba
 
-    return import_mitsuba(choose_variant().variant)
+    mi = import_mitsuba(choose_variant().variant)
+    mi.set_log_level(mi.LogLevel.Error)
+    return mi
 
 
 def mitsuba_version() -> str:

@@ -305,6 +305,10 @@ def resolve_scene(spec: str, root: str | None = None) -> tuple[str, str]:
         path = os.path.abspath(os.path.join(spec, "scene.xml"))
     elif os.path.isfile(os.path.join(root, spec, "scene.xml")):
         path = os.path.join(root, spec, "scene.xml")
+    elif os.path.isdir(spec):
+        raise InvalidArgument(f"scene {spec!r} is a folder without a scene.xml (and no "
+                              "reference of that name): give the scene file's path, or "
+                              "the folder that holds scene.xml")
     else:
         known = ", ".join(list_scenes(root)) or "none"
         raise InvalidArgument(f"scene {spec!r}: no such file, folder with scene.xml, or "

@@ -347,7 +347,7 @@ SCENES = [
     ("unsupported-bsdf", "unsupported.xml", "hair"),
     ("rotate-zero-axis", "rotate-zero-axis.xml", "the axis must be non-zero"),
     ("rotate-angle-text", "rotate-angle-text.xml", "'thirty'"),
-    ("lookat-degenerate", "lookat-degenerate.xml", "origin and target coincide"),
+    ("lookat-degenerate", "lookat-degenerate.xml", "<lookat>: origin and target coincide"),
 ]
 
 

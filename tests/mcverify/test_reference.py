@@ -240,12 +240,14 @@ def test_a_scene_named_twice_is_built_once(scene_copy, monkeypatch):
 
 @pytest.mark.parametrize("sampler,asked,rendered", [("stratified", 5, 9),
                                                     ("multijitter", 7, 8),
+                                                    ("orthogonal", 10, 25),
                                                     ("independent", 5, 5)])
 def test_the_manifest_records_the_samples_mitsuba_renders(tmp_path, sampler, asked, rendered):
     """Mitsuba's stratified sampler rounds 5 spp up to 9, multijitter 7 to 8: the manifest
     said 5 (found by a probe), and the render gate pairs passes of equal spp where the
     filter splats. It records what was rendered, and what was asked where they differ;
-    the CLI says so."""
+    the CLI says so, once, and Mitsuba's own warning about it (one a load, coloured, on
+    stdout where that is not a terminal: among a --json /dev/stdout) stays silent."""
     src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
     scene = tmp_path / "s.xml"
     scene.write_text(src.replace('type="independent"', f'type="{sampler}"'))
@@ -259,3 +261,19 @@ def test_the_manifest_records_the_samples_mitsuba_renders(tmp_path, sampler, ask
     assert manifest.get("spp_requested") == (asked if asked != rendered else None)
     assert f"2 passes × {rendered} spp per pass" in out.stdout
     assert ("rounds --spp" in out.stdout) == (asked != rendered)
+    assert "WARN" not in out.stdout + out.stderr, out.stdout   # (its log: stdout)
+
+
+def test_a_folder_without_a_scene_file_is_named_as_such(tmp_path, monkeypatch):
+    """A folder given as the scene, holding no scene.xml, is refused as a folder (not
+    'no such file'); a reference name still wins over a local folder of that name."""
+    from mcverify.errors import InvalidArgument
+
+    empty = tmp_path / "scenes.xml"
+    empty.mkdir()
+    with pytest.raises(InvalidArgument, match="is a folder without a scene.xml"):
+        reference.resolve_scene(str(empty))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "cornell-box").mkdir()
+    assert reference.resolve_scene("cornell-box")[1].endswith(
+        os.path.join("cornell-box", "scene.xml"))
