@@ -165,7 +165,7 @@ def test_a_changed_texture_or_mesh_makes_the_reference_stale(tmp_path):
                     ignore=shutil.ignore_patterns("ref"))
     reference.build_reference(str(scene), spp=4, passes=2)
     ref = reference.load_reference(str(scene))
-    assert set(ref.manifest["assets_sha256"]) == {"checker.exr", "tiles.png"}
+    assert set(ref.manifest["assets_sha256"]) == {"checker.exr", "tiles.png", "card.obj"}
     png = (scene / "tiles.png").read_bytes()
     (scene / "tiles.png").write_bytes(png + b"\0")
     with pytest.raises(EnvironmentProblem, match="stale: tiles.png .* changed"):
