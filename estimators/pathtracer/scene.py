@@ -8,8 +8,8 @@ Supported: ``scene``, ``default`` and ``$param`` substitution, ``ref``/``id``,
 ``transform`` (``lookat``, ``translate``, ``rotate``, ``scale``, ``matrix``),
 integrators ``path`` and ``direct``, sensors ``perspective`` and ``orthographic`` with
 film ``hdrfilm``, ``rfilter`` ``box``, ``gaussian`` (the default) and ``tent``, samplers
-``independent``, ``stratified``, ``multijitter``, ``orthogonal``; shapes ``rectangle``, ``cube``,
-``disk``, ``sphere``, ``obj``, ``ply``; BSDFs ``diffuse``, ``conductor``,
+``independent``, ``stratified``, ``multijitter``, ``orthogonal``; shapes ``rectangle``,
+``cube``, ``disk``, ``sphere``, ``obj``, ``ply``; BSDFs ``diffuse``, ``conductor``,
 ``roughconductor``, ``dielectric``, ``roughdielectric``, ``thindielectric``, ``plastic``,
 ``roughplastic``, ``twosided``, ``blendbsdf``, ``mask``; emitters ``area``, ``point``,
 ``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values, ``bitmap`` and
@@ -153,7 +153,8 @@ SUPPORTED = {
                          "component_format": ("string",), "compensate": ("boolean",),
                          "children": ("rfilter",)}},
     "rfilter": {"box": {}, "gaussian": {"stddev": ("float",)}, "tent": {"radius": ("float",)}},
-    # stratified, multijitter and orthogonal: each pixel's samples stratified per dimension (the same expectation as independent ones, less variance);
+    # stratified, multijitter and orthogonal: each pixel's samples stratified per
+    # dimension (the same expectation as independent ones, less variance);
     # jitter="false" is refused
     "sampler": {t: {"sample_count": ("integer",), "seed": ("integer",), **extra}
                 for t, extra in {"independent": {}, "stratified": {"jitter": ("boolean",)},
@@ -222,7 +223,7 @@ UNMATCHED = {
     ("sampler", "ldsampler"): "Mitsuba 3.9.1's low-discrepancy sampler renders a biased "
                               "image: on the delta-lights scene 0.1 % brighter than its "
                               "independent, stratified, multijitter and orthogonal samplers, "
-                              "at 7-11 standard errors",
+                              "at 6-10 standard errors (README)",
 }
 #: BSDFs with a transmission (or null) component: Mitsuba refuses them inside twosided
 TRANSMISSIVE = ("dielectric", "roughdielectric", "thindielectric", "mask")
