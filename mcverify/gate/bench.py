@@ -112,7 +112,7 @@ def _render_pairs(mi, spp: int):
         ours = prepare_scene(path, params={"res": 128})
         depth = ours.arrays.max_depth
         # ours renders the samples Mitsuba's sampler rounds spp to (orthogonal: 64 -> 121)
-        n = mvm.sampler_spp(path, spp)
+        n = mvm.sampler_rounds(ours.desc.sampler, spp)
         what = (f"128 x 128, {ours.n_triangles:,} triangles, max_depth "
                 f"{depth if depth < 1 << 30 else 'unlimited'}, {n} spp, the image alone")
         # the image alone on both sides (ours variance=False, as the render gate's passes)
@@ -147,7 +147,7 @@ def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1,
     ref = load_reference(path)
     their_scene = mi.load_file(path)
     ours_scene = prepare_scene(path)
-    spp = mvm.sampler_spp(path, spp)      # what Mitsuba renders (orthogonal: 16 -> 25)
+    spp = mvm.sampler_rounds(ours_scene.desc.sampler, spp)   # Mitsuba's (orthogonal: 16 -> 25)
 
     def theirs(s: int, n: int = spp):
         return np.asarray(mi.render(their_scene, spp=n, seed=s), dtype=np.float64)

@@ -289,6 +289,17 @@ def filter_radius(scene_path: str, params: dict | None = None) -> float:
     return float(_current(scene_path, params).sensors()[0].film().rfilter().radius())
 
 
+def sampler_rounds(sampler, spp: int) -> int:
+    """The samples per pixel Mitsuba's sampler of this type renders when asked for
+    ``spp`` (``sampler``: the scene loader's ``Plugin``), from a sampler alone: no scene
+    is loaded and kept (the bench times Mitsuba with one scene alive; with others
+    loaded too its renders took up to 7 times as long)."""
+    props = {k: v for k, v in sampler.props.items() if k == "strength"}
+    s = _mi().load_dict({"type": sampler.type, **props})
+    s.set_sample_count(int(spp))
+    return int(s.sample_count())
+
+
 def sampler_spp(scene_path: str, spp: int, params: dict | None = None) -> int:
     """The samples per pixel Mitsuba renders when asked for ``spp``: its stratified
     sampler rounds up to a square (33 -> 36), multijitter to a product of near-equal

@@ -50,10 +50,17 @@ def test_render_rows_load_one_mitsuba_scene_at_a_time():
 
 def test_render_rows_give_ours_the_samples_mitsubas_sampler_renders():
     """vocabulary-geometry's orthogonal sampler renders 121 spp when asked for 64 (a
-    prime's square): our side of its row renders 121 too; an independent scene's 64."""
+    prime's square): our side of its row renders 121 too; an independent scene's 64.
+    Finding that out loads no Mitsuba scene (a first version loaded each through the
+    gate's scene cache, which kept four alive and made Mitsuba's renders up to 7 times
+    slower in the bench)."""
+    from mcverify.gate import mitsuba as mvm
+
+    loads = mvm._loaded.cache_info().misses
     rows = {r[0]: r for r in bench._render_pairs(_FakeMitsuba(), spp=64)}
     assert "121 spp" in rows["render:vocabulary-geometry"][1]
     assert "64 spp" in rows["render:cornell-box"][1]
+    assert mvm._loaded.cache_info().misses == loads
 
 
 def test_equal_time_rmse_of_our_tracer_against_itself_is_one():
