@@ -21,8 +21,7 @@ from .scene import SUPPORTED, TRANSMISSIVE, Plugin, SceneDescription, load_scene
 #: (kind, type, property) -> why it cannot change the expected image
 NO_IMAGE_EFFECT = {
     **{("sampler", t, p): "samples and their pattern: noise only"
-       for t in SUPPORTED["sampler"]
-       for p in ("sample_count", "seed", "jitter", "strength") if p in SUPPORTED["sampler"][t]},
+       for t, props in SUPPORTED["sampler"].items() for p in props},
     ("integrator", "direct", "emitter_samples"): "samples per hit: noise only",
     ("integrator", "direct", "bsdf_samples"): "samples per hit: noise only",
     ("integrator", "direct", "shading_samples"): "samples per hit: noise only",

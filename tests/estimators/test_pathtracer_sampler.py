@@ -286,20 +286,24 @@ def test_a_stratified_sampler_refuses_2_to_the_31_samples(tmp_path, capsys):
     assert "unexpected" not in err and not out.exists()
 
 
+#: a one-sphere scene around a sampler element (on line 2)
+_ONE_SPHERE = """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="40"/>{sampler}
+    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
+  </sensor>
+  <shape type="sphere"><bsdf type="diffuse"/></shape>
+</scene>"""
+
+
 @pytest.mark.parametrize("kind", ["stratified", "multijitter", "orthogonal"])
 def test_unjittered_strata_are_refused_naming_the_line(tmp_path, kind):
     from estimators.pathtracer.scene import SceneError
 
     p = tmp_path / "s.xml"
-    p.write_text(f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <sampler type="{kind}"><integer name="sample_count" value="16"/>
-      <boolean name="jitter" value="false"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
-  </sensor>
-  <shape type="sphere"><bsdf type="diffuse"/></shape>
-</scene>""")
-    with pytest.raises(SceneError, match=r"s.xml:3: <sampler type=\"%s\">: jitter" % kind):
+    p.write_text(_ONE_SPHERE.format(sampler=f'<sampler type="{kind}"><integer '
+                                            'name="sample_count" value="16"/><boolean '
+                                            'name="jitter" value="false"/></sampler>'))
+    with pytest.raises(SceneError, match=r"s.xml:2: <sampler type=\"%s\">: jitter" % kind):
         prepare_scene(str(p))
     p.write_text(p.read_text().replace('value="false"', 'value="true"'))
     assert prepare_scene(str(p)).features & F_STRATIFIED
@@ -337,11 +341,3 @@ def test_the_low_discrepancy_sampler_is_refused_saying_why(tmp_path):
                                          r"sampler type 'ldsampler' \(Mitsuba 3.9.1's "
                                          r"low-discrepancy sampler renders a biased image"):
         prepare_scene(str(p))
-
-
-_ONE_SPHERE = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="40"/>{sampler}
-    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
-  </sensor>
-  <shape type="sphere"><bsdf type="diffuse"/></shape>
-</scene>"""
