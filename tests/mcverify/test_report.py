@@ -69,6 +69,18 @@ def test_failed_checks_come_first(report):
     assert page.index("cosine+2%uniform") < page.index("sampler:uniform_disk_polar")
 
 
+def test_page_names_the_cpu_its_times_were_measured_on(report):
+    import html
+
+    out, doc = report
+    cpu = doc["provenance"]["machine"]["cpu"]
+    page = (out / "report.html").read_text()
+    if cpu["model"]:
+        assert html.escape(f"cpu: {cpu['model']} ({cpu['llvm_cpu']})") in page
+    else:
+        assert "cpu: " not in page
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed: `make setup` installs "
                     "it as root (apt-get install chromium); CI always has it")
 def test_html_renders_every_image_in_headless_chromium(report, tmp_path):
@@ -96,7 +108,10 @@ def _bench(tmp_path, *extra):
     assert r.returncode == 0, r.stderr
     doc = json.loads(out.read_text())
     assert "ours/theirs" in r.stdout and doc["provenance"]["mitsuba_variant"]
-    header, *lines = r.stdout.splitlines()
+    machine, header, *lines = r.stdout.splitlines()
+    # the first line names the processor and Mitsuba's variant the ratios were measured on
+    assert machine.startswith("on ") and " cores, Mitsuba " in machine, machine
+    assert machine.endswith(doc["provenance"]["mitsuba_variant"]), machine
     end = header.index("ours/theirs") + len("ours/theirs")
     for line in lines:          # the ratio column ends under its header on every row
         assert line[end - 1] != " " and line[end:end + 2] == "  ", (header, line)

@@ -96,9 +96,13 @@ def render_html(doc: dict, images: dict[str, bytes]) -> str:
     parts = [_HEAD]
     prov = doc["provenance"]
     parts.append("<h1>mcverify report</h1>")
-    parts.append("<p class=meta>" + " · ".join(_e(f"{k}: {prov.get(k)}") for k in (
-        "mcverify_version", "git_commit", "utc_time", "mitsuba_variant")
-        if prov.get(k) is not None) + "</p>")
+    meta = [f"{k}: {prov.get(k)}" for k in ("mcverify_version", "git_commit", "utc_time",
+                                            "mitsuba_variant") if prov.get(k) is not None]
+    cpu = prov.get("machine", {}).get("cpu")
+    if cpu and cpu.get("model"):     # the efficiency plots' times depend on it
+        meta.append(f"cpu: {cpu['model']}" + (f" ({cpu['llvm_cpu']})" if cpu.get("llvm_cpu")
+                                              else ""))
+    parts.append("<p class=meta>" + " · ".join(_e(m) for m in meta) + "</p>")
 
     ver = doc.get("verification")
     parts.append("<h2>Verification</h2>")
