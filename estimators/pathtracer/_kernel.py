@@ -670,8 +670,10 @@ def _group_end(sc, stack, cam, seed, spp, n, xg, x1, y, width, height, pdf_scale
     ``x1``; with several pixels a call, their samples traced into ``out`` now."""
     xe = min(x1, xg + group)
     if group > 1:
-        _trace_samples(sc, stack, cam, seed, 0, spp, n, xg, xe, y, width, height, pdf_scale,
-                       out, tab, ctl, rays, states)
+        # np.int64(0), not 0: a literal 0 made numba compile _trace_samples a second time
+        # (its signature with Literal[int](0)), doubling the kernel's compilation
+        _trace_samples(sc, stack, cam, seed, np.int64(0), spp, n, xg, xe, y, width, height,
+                       pdf_scale, out, tab, ctl, rays, states)
     return xe
 
 
