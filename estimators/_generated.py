@@ -17,6 +17,7 @@ import tempfile
 import time
 
 from ._inline_copy import shared_scope_copies
+from ._ssa_blocks import fast_ssa
 
 try:
     import fcntl
@@ -55,8 +56,9 @@ def compile_lock(name: str):
     the cache folder). Around a kernel's first call it makes processes that start
     together (``mcverify check -j N``, the test run's workers) compile a kernel once:
     the first compiles and writes numba's cache, the others wait and load it. Inside,
-    numba's inliner copies scopes once per copy (``_inline_copy``)."""
-    with shared_scope_copies():
+    numba's inliner copies scopes once per copy (``_inline_copy``) and its SSA
+    reconstruction rewrites only the blocks naming each variable (``_ssa_blocks``)."""
+    with shared_scope_copies(), fast_ssa():
         if fcntl is None:
             yield
             return
