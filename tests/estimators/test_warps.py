@@ -96,6 +96,15 @@ def test_stability_at_extreme_inputs(name, data):
         assert np.all(np.isfinite(back)) and np.all((back >= 0) & (back < 1)), (u, x, back)
 
 
+#: Warps whose float32 pdf and inverse loops the default run compiles (a few seconds of
+#: numba each on a new machine): between them every shape of the loop template, rows of
+#: 1, 2 and 3 coordinates in and out, a density of 1, 2 and 3, the kernel inlined into the
+#: loop (the polar disk's and the sphere's inverses, the visible normals' pdf) or called.
+#: ``-m slow`` runs the same test on every other warp.
+FLOAT32_SHAPES = ("uniform_interval", "uniform_triangle", "uniform_disk_polar",
+                  "cosine_hemisphere", "uniform_sphere", "ggx_vndf")
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_float32_agrees_with_float64(name):
     w = WARPS[name]
@@ -109,12 +118,16 @@ def test_float32_agrees_with_float64(name):
     assert np.all(np.abs(x32 - x64) <= 0.5 * np.spacing(np.abs(x64).astype(np.float32)))
 
 
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name, dtype", [
+    pytest.param(name, dtype, marks=() if dtype == np.float64 or name in FLOAT32_SHAPES
+                 else pytest.mark.slow, id=f"{name}-{dtype.__name__}")
+    for dtype in (np.float64, np.float32) for name in NAMES])
 def test_a_nan_point_has_a_nan_density(name, dtype):
     """A NaN in any coordinate gives a NaN density, not the 0 (or the sphere's 1/4π)
     the kernel's tests make of it, and leaves the other rows' densities as they were;
-    a NaN u gives a NaN point and density through ``with_pdf`` too."""
+    a NaN u gives a NaN point and density through ``with_pdf`` too. float32: the warps
+    of ``FLOAT32_SHAPES`` (their float32 pdf and ``with_pdf`` loops), every warp in the
+    slow run."""
     w = WARPS[name]
     p = normalise(w, w.defaults)
     u = np.random.default_rng(7).random((40, w.sample_dim)).astype(dtype)
@@ -202,15 +215,6 @@ def test_pdf_is_the_inverse_jacobian_of_the_sample_map(name):
         keep = np.ones(len(u), bool)
     rel = np.abs(pdf * stretch - 1.0)[keep]
     assert np.max(rel) < 1e-4, (name, float(np.max(rel)))
-
-
-#: Warps whose float32 pdf and inverse loops the default run compiles (a few seconds of
-#: numba each on a new machine): between them every shape of the loop template, rows of
-#: 1, 2 and 3 coordinates in and out, a density of 1, 2 and 3, the kernel inlined into the
-#: loop (the polar disk's and the sphere's inverses, the visible normals' pdf) or called.
-#: ``-m slow`` runs the same test on every other warp.
-FLOAT32_SHAPES = ("uniform_interval", "uniform_triangle", "uniform_disk_polar",
-                  "cosine_hemisphere", "uniform_sphere", "ggx_vndf")
 
 
 def _front_end_runs(w, u, dtype, pdf_and_invert):
