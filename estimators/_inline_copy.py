@@ -27,18 +27,15 @@ copy runs) where numba's module does not look as expected.
 
 from __future__ import annotations
 
-import contextlib
 import copy as _copy
-import threading
+
+from ._numba_patch import NestedPatch
 
 try:
     from numba.core import inline_closurecall as _icc
     from numba.core import ir as _ir
 except ImportError:             # another numba layout: leave numba alone
     _icc = _ir = None
-
-_LOCK = threading.RLock()
-_depth = 0
 
 
 class _SharedScopeCopy:
@@ -63,22 +60,10 @@ def _applicable() -> bool:
             and hasattr(_icc, "InlineWorker") and hasattr(_ir, "Block"))
 
 
-@contextlib.contextmanager
+_PATCH = NestedPatch(_icc, "copy", _SharedScopeCopy, _applicable)
+
+
 def shared_scope_copies():
     """numba's inliner copies each callee's scope once per copy (not once per block)
     while inside; nests; a no-op where numba is not laid out as expected."""
-    global _depth
-    with _LOCK:
-        active = _depth > 0 or _applicable()
-        if active:
-            if _depth == 0:
-                _icc.copy = _SharedScopeCopy()
-            _depth += 1
-    try:
-        yield
-    finally:
-        if active:
-            with _LOCK:
-                _depth -= 1
-                if _depth == 0:
-                    _icc.copy = _copy
+    return _PATCH.held()

@@ -26,9 +26,9 @@ kernels' compilation); it restores numba's function after, and is left out where
 
 from __future__ import annotations
 
-import contextlib
-import threading
 from collections import defaultdict
+
+from ._numba_patch import NestedPatch
 
 try:
     from numba.core import ir as _ir
@@ -36,12 +36,11 @@ try:
 except ImportError:             # another numba layout: leave numba alone
     _ir = _ssa = None
 
+
 _NEEDED = ("_run_ssa", "_iterated_domfronts", "_find_defs_violators", "_CacheListVars",
            "_run_block_rewrite", "_FreshVarHandler", "_FixSSAVars", "_compute_phi_locations",
            "_get_scope", "compute_cfg_from_blocks")
 _NUMBAS = getattr(_ssa, "_run_ssa", None)
-_LOCK = threading.RLock()
-_depth = 0
 
 
 def _run_ssa(blocks):
@@ -91,22 +90,10 @@ def _applicable() -> bool:
         and hasattr(_ssa, "errors") and hasattr(_ir, "Block")
 
 
-@contextlib.contextmanager
+_PATCH = NestedPatch(_ssa, "_run_ssa", lambda: _run_ssa, _applicable)
+
+
 def fast_ssa():
     """numba's SSA reconstruction rewrites only the blocks naming each variable while
     inside; nests; a no-op where numba is not laid out as expected."""
-    global _depth
-    with _LOCK:
-        active = _depth > 0 or _applicable()
-        if active:
-            if _depth == 0:
-                _ssa._run_ssa = _run_ssa
-            _depth += 1
-    try:
-        yield
-    finally:
-        if active:
-            with _LOCK:
-                _depth -= 1
-                if _depth == 0:
-                    _ssa._run_ssa = _NUMBAS
+    return _PATCH.held()

@@ -1,0 +1,40 @@
+"""One attribute of a numba module replaced while a context is held: how
+``_inline_copy`` and ``_ssa_blocks`` change numba only around our kernels' compilation.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+
+
+class NestedPatch:
+    """``module.attr`` set to ``make()`` while any thread is inside :meth:`held`: the
+    first entry sets it, the last exit puts back what was there before. Where
+    ``applicable()`` is false at the first entry (numba not laid out as expected),
+    entering changes nothing."""
+
+    def __init__(self, module, attr: str, make, applicable):
+        self._module, self._attr = module, attr
+        self._make, self._applicable = make, applicable
+        self._lock = threading.RLock()
+        self._depth = 0
+        self._before = None
+
+    @contextlib.contextmanager
+    def held(self):
+        with self._lock:
+            active = self._depth > 0 or self._applicable()
+            if active:
+                if self._depth == 0:
+                    self._before = getattr(self._module, self._attr)
+                    setattr(self._module, self._attr, self._make())
+                self._depth += 1
+        try:
+            yield
+        finally:
+            if active:
+                with self._lock:
+                    self._depth -= 1
+                    if self._depth == 0:
+                        setattr(self._module, self._attr, self._before)
