@@ -3,7 +3,10 @@
 Variant choice: ``llvm_ad_rgb`` (vectorised, about 3× faster here) needs libLLVM >= 16;
 with LLVM 15 Dr.Jit aborts the *whole process* ("Cannot select fminimum"), so the variant
 is probed in a subprocess first. Without a working LLVM we fall back to ``scalar_rgb``
-with a one-line notice. ``MCVERIFY_MITSUBA_VARIANT`` forces a variant.
+with a one-line notice. ``MCVERIFY_MITSUBA_VARIANT`` forces a variant. The probe's verdict
+on a library goes into ``MCVERIFY_LLVM_PROBED`` (``ok:PATH`` or ``bad:PATH``), so the
+processes this one starts (``mcverify check -j N``'s workers, a test run's CLI calls)
+inherit it instead of probing the same library again (about a second each).
 """
 
 from __future__ import annotations
@@ -59,6 +62,21 @@ def _find_libllvm() -> str | None:
     return good[0] if good else None
 
 
+_PROBED = "MCVERIFY_LLVM_PROBED"
+
+
+def _probe(lib: str) -> bool:
+    """Whether ``llvm_ad_rgb`` computes with ``lib``, tried in a subprocess (an LLVM that
+    Dr.Jit cannot use aborts the process that loads it)."""
+    env = dict(os.environ, DRJIT_LIBLLVM_PATH=lib)
+    try:
+        r = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
+                           text=True, timeout=120, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return r.returncode == 0 and r.stdout.strip() == "1.25"
+
+
 @lru_cache(maxsize=1)
 def choose_variant() -> VariantChoice:
     """Pick the Mitsuba variant for this process (probed once, in a subprocess)."""
@@ -73,13 +91,12 @@ def choose_variant() -> VariantChoice:
     if lib is None:
         return VariantChoice(_SCALAR_VARIANT, "mitsuba: no libLLVM >= 16 found (apt-get install "
                              "libllvm19 for the 3x faster llvm_ad_rgb); using scalar_rgb")
-    env = dict(os.environ, DRJIT_LIBLLVM_PATH=lib)
-    try:
-        r = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
-                           text=True, timeout=120, check=False)
-        ok = r.returncode == 0 and r.stdout.strip() == "1.25"
-    except (OSError, subprocess.SubprocessError):
-        ok = False
+    known = os.environ.get(_PROBED, "")
+    if known in ("ok:" + lib, "bad:" + lib):       # a parent process probed this library
+        ok = known.startswith("ok:")
+    else:
+        ok = _probe(lib)
+        os.environ[_PROBED] = ("ok:" if ok else "bad:") + lib
     if not ok:
         return VariantChoice(_SCALAR_VARIANT, f"mitsuba: {_LLVM_VARIANT} does not work with "
                              f"{lib}; using scalar_rgb")

@@ -1,0 +1,72 @@
+"""The Mitsuba variant choice (``mcverify.gate.mitsuba.choose_variant``): a libLLVM that
+Dr.Jit cannot use falls back to ``scalar_rgb`` with a notice naming it; the verdict on a
+library is passed to child processes in ``MCVERIFY_LLVM_PROBED``, which then do not probe
+that library again, and probe any other."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from mcverify.gate import mitsuba as mvm
+
+
+@pytest.fixture
+def fresh(monkeypatch):
+    """choose_variant as in a new process: nothing forced, nothing inherited; the
+    environment it writes is put back after the test."""
+    for name in ("MCVERIFY_MITSUBA_VARIANT", mvm._PROBED, "DRJIT_LIBLLVM_PATH"):
+        monkeypatch.delenv(name, raising=False)
+    mvm.choose_variant.cache_clear()
+    yield monkeypatch
+    mvm.choose_variant.cache_clear()
+
+
+def test_a_library_drjit_cannot_use_falls_back_to_scalar_naming_it(fresh, tmp_path):
+    fake = tmp_path / "libLLVM.so.19"
+    fake.write_bytes(b"not a shared library")
+    fresh.setenv("DRJIT_LIBLLVM_PATH", str(fake))
+    choice = mvm.choose_variant()
+    assert choice.variant == "scalar_rgb"
+    assert str(fake) in choice.notice and "llvm_ad_rgb does not work" in choice.notice
+    assert os.environ[mvm._PROBED] == f"bad:{fake}"
+
+
+def test_an_inherited_verdict_on_the_same_library_is_not_probed_again(fresh, tmp_path):
+    lib = str(tmp_path / "libLLVM.so.19")
+    fresh.setenv("DRJIT_LIBLLVM_PATH", lib)
+    probed = []
+    fresh.setattr(mvm, "_probe", lambda path: probed.append(path) or True)
+    fresh.setenv(mvm._PROBED, f"bad:{lib}")
+    assert mvm.choose_variant().variant == "scalar_rgb" and probed == []
+    mvm.choose_variant.cache_clear()
+    fresh.setenv(mvm._PROBED, f"ok:{lib}")
+    assert mvm.choose_variant() == mvm.VariantChoice("llvm_ad_rgb", None) and probed == []
+    assert os.environ["DRJIT_LIBLLVM_PATH"] == lib
+    # a verdict on another library is no verdict on this one
+    mvm.choose_variant.cache_clear()
+    fresh.setenv(mvm._PROBED, f"ok:{lib}.other")
+    assert mvm.choose_variant().variant == "llvm_ad_rgb" and probed == [lib]
+    assert os.environ[mvm._PROBED] == f"ok:{lib}"
+
+
+def test_a_forced_variant_is_not_probed(fresh):
+    fresh.setenv("MCVERIFY_MITSUBA_VARIANT", "scalar_rgb")
+    fresh.setattr(mvm, "_probe", lambda path: pytest.fail("probed"))
+    assert mvm.choose_variant() == mvm.VariantChoice("scalar_rgb", None)
+
+
+@pytest.mark.skipif(mvm._find_libllvm() is None, reason="needs a libLLVM >= 16 (libllvm19)")
+def test_a_child_process_inherits_the_verdict(fresh):
+    """The parent probes once; a child started after it finds the verdict and does not
+    start a probe of its own (its subprocess.run would say so)."""
+    assert mvm.choose_variant().variant == "llvm_ad_rgb"
+    script = ("import subprocess\n"
+              "def refuse(*a, **k): raise AssertionError('probed again')\n"
+              "subprocess.run = refuse\n"
+              "from mcverify.gate import mitsuba as mvm\n"
+              "print(mvm.choose_variant().variant)\n")
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "llvm_ad_rgb", r.stderr
