@@ -9,9 +9,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special as _spc
-from scipy import stats as _sps
-from scipy.optimize import brentq as _brentq
+
+from ._lazy import LazyModule
+
+_spc = LazyModule("scipy.special")
+_sps = LazyModule("scipy.stats")
+_optimize = LazyModule("scipy.optimize")
 
 __all__ = [
     "Chi2Result", "chi2_gof", "chi2_homogeneity", "pool_cells", "chi2_detectable_mixture",
@@ -160,7 +163,7 @@ def chi2_detectable_mixture(expected, alternative, *, alpha: float, power: float
     hi = 1.0
     while _sps.ncx2.sf(crit, dof, hi) < power:
         hi *= 2.0
-    lam = _brentq(lambda t: _sps.ncx2.sf(crit, dof, t) - power, 0.0, hi, xtol=1e-6)
+    lam = _optimize.brentq(lambda t: _sps.ncx2.sf(crit, dof, t) - power, 0.0, hi, xtol=1e-6)
     eps = float(np.sqrt(lam / spread))
     return eps if eps <= 1.0 else float("inf")
 

@@ -119,6 +119,25 @@ def test_importing_the_core_loads_neither(code):
     assert r.stdout.strip().splitlines()[-1] == "[]"
 
 
+@pytest.mark.parametrize("code, loaded", [
+    ("import mcverify", "[]"),
+    ("import sys; sys.argv = ['mcverify', '--help']\n"
+     "from mcverify.gate.cli import main\ntry: main()\nexcept SystemExit: pass", "[]"),
+    ("import mcverify; mcverify.stats.ks_uniform([0.1, 0.5, 0.9])",
+     "['scipy.optimize', 'scipy.stats']"),
+])
+def test_scipy_stats_and_optimize_load_on_first_use(code, loaded):
+    """``import mcverify`` and ``mcverify --help`` do not import scipy.stats or
+    scipy.optimize (about 2.5 s here, mcverify._lazy); a statistic does."""
+    probe = (code + "\nimport sys; print(sorted(m for m in ('scipy.stats', 'scipy.optimize')"
+             " if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                       cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr
+    got = r.stdout.strip().splitlines()[-1]
+    assert got == loaded, got
+
+
 def test_render_check_is_re_exported_lazily():
     import mcverify
     from mcverify.gate.render_check import render_check

@@ -26,7 +26,6 @@ from functools import lru_cache
 from typing import Callable
 
 import numpy as np
-from scipy import stats as sps
 
 from .. import checks
 from ..domains import Interval
@@ -165,6 +164,8 @@ def _warp_checks(profile: Profile) -> list[Check]:
 
 def _scipy_checks(profile: Profile) -> list[Check]:
     """scipy.stats distributions sampled by inverting their CDF (``ppf``)."""
+    from scipy import stats as sps
+
     subjects = [("beta(2,5)", sps.beta(2, 5), Interval(0.0, 1.0), profile.costly_samples),
                 ("norm", sps.norm(), Interval(-9.0, 9.0), profile.n_samples),
                 ("triang(0.3)", sps.triang(0.3), Interval(0.0, 1.0), profile.n_samples)]
