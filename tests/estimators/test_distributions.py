@@ -284,7 +284,8 @@ def test_a_sample_lies_in_the_piece_that_drew_it():
         for i in range(1, n):
             w = np.zeros(n)
             w[i:] = 1.0
-            zero += PiecewiseConstant1D(w).pdf(PiecewiseConstant1D(w).sample([0.0]))[0] == 0
+            p = PiecewiseConstant1D(w)
+            zero += p.pdf(p.sample([0.0]))[0] == 0
     assert zero == 0
     for n in range(2, 200):
         for i in range(n - 1):
