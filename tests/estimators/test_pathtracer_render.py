@@ -476,13 +476,16 @@ def test_stratified_scenes_have_mitsubas_per_sample_variance(name):
     """With the stratified sampler, the light choice shares the light sample's 2-D
     stratum (Mitsuba's layout): our per-sample variance on the whole image is within 15 %
     of the committed reference's, at its 256 spp a pass. Choosing the light from a
-    separate dimension left vocabulary-lights at 2.13 times Mitsuba's."""
+    separate dimension left vocabulary-lights at 2.13 times Mitsuba's. Four of our passes
+    estimate the ratio to about 1 % on vocabulary-materials (1.020-1.035 over seeds
+    11-14, 1.028 with the reference's 16) and 10 % on vocabulary-lights (0.49-0.62,
+    0.54 with 16): far from 1.15 either way, at a quarter of the time."""
     from mcverify.gate.reference import load_reference, resolve_scene
 
     path = resolve_scene(name)[1]
     ref = load_reference(path)
     spp = int(ref.manifest["spp"])
-    ours = render(path, spp=spp * ref.n, passes=ref.n, seed=11)
+    ours = render(path, spp=spp * 4, passes=4, seed=11)
     # both sides' variances are of pass means of the same spp
     ratio = ours.variance.astype(np.float64).sum() / np.asarray(ref.var, np.float64).sum()
     assert ratio < 1.15, ratio
