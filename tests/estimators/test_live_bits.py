@@ -5,20 +5,16 @@ and after SSA; numba is left as it was outside ``fast_liveness``, in all three m
 that hold the function. The tracer's kernels are compiled inside it (``compile_lock``),
 so every render test also checks its output."""
 
-import importlib
-import pkgutil
-
 import numpy as np
 import pytest
 from numba import njit
 from numba.core import analysis, compiler, ir_utils, ssa
 from numba.core.controlflow import CFGraph
-from numba.core.dispatcher import Dispatcher
 from numba.parfors import parfor
 
-import estimators
 from estimators import _generated, _live_bits
 from estimators._live_bits import fast_liveness
+from test_ssa_blocks import _package_functions
 
 _MODULES = (analysis, ir_utils, parfor)
 
@@ -67,17 +63,6 @@ def test_random_graphs_get_numbas_live_variables():
         dead += bool(cfg.dead_nodes())
     # the cases propagate liveness across blocks and include unreachable blocks
     assert spread > 300 and dead > 100, (spread, dead)
-
-
-def _package_functions():
-    """The Python functions behind every numba dispatcher of the ``estimators`` package."""
-    found = {}
-    for info in pkgutil.walk_packages(estimators.__path__, "estimators."):
-        module = importlib.import_module(info.name)
-        for name, obj in vars(module).items():
-            if isinstance(obj, Dispatcher) and obj.py_func.__module__ == info.name:
-                found[f"{info.name}.{name}"] = obj.py_func
-    return found
 
 
 def _both(blocks):
