@@ -46,29 +46,23 @@ def compute_live_map(cfg, blocks, var_use_map, var_def_map):
     entry of each block, keyed like ``blocks``), computed on bit sets."""
     topo_order = cfg.topo_order()
     index, names = {}, []
-    use = {}
-    for label in blocks.keys():
-        bits = 0
-        for name in var_use_map[label]:
+
+    def bits(of, new_bits: bool) -> int:
+        """The set ``of`` as bits; with ``new_bits`` its names not yet numbered get the
+        next bits, else they are left out (they cannot be live)."""
+        out = 0
+        for name in of:
             i = index.get(name)
             if i is None:
+                if not new_bits:
+                    continue
                 i = index[name] = len(names)
                 names.append(name)
-            bits |= 1 << i
-        use[label] = bits
+            out |= 1 << i
+        return out
 
-    def known(label) -> int:
-        """``var_def_map[label]`` restricted to the variables that have a bit."""
-        bits = 0
-        for name in var_def_map[label]:
-            i = index.get(name)
-            if i is not None:
-                bits |= 1 << i
-        return bits
-
-    defs = {}
-    for label in topo_order:
-        defs[label] = known(label)
+    use = {label: bits(var_use_map[label], True) for label in blocks.keys()}
+    defs = {label: bits(var_def_map[label], False) for label in blocks.keys()}
 
     # numba's def_reach: what is defined or used in any block reaching this one
     reach = {}
@@ -93,9 +87,8 @@ def compute_live_map(cfg, blocks, var_use_map, var_def_map):
         for label in reversed(topo_order):
             here = live[label]
             for pred, _ in cfg.predecessors(label):
-                pred_defs = defs[pred] if pred in defs else known(pred)
                 before = live[pred]
-                after = before | (here & reach.get(pred, 0) & ~pred_defs)
+                after = before | (here & reach.get(pred, 0) & ~defs[pred])
                 if after != before:
                     live[pred] = after
                     changed = True

@@ -1,5 +1,6 @@
 """One attribute of a numba module replaced while a context is held: how
-``_inline_copy`` and ``_ssa_blocks`` change numba only around our kernels' compilation.
+``_inline_copy``, ``_ssa_blocks`` and ``_live_bits`` change numba only around our kernels'
+compilation.
 """
 
 from __future__ import annotations
