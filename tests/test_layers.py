@@ -111,12 +111,18 @@ def test_mitsuba_is_imported_in_one_module_of_mcverify():
     "np.ones(len(x)), 'square', n_samples=20000)",
 ])
 def test_importing_the_core_loads_neither(code):
-    probe = (code + "; import sys; print(sorted(m for m in sys.modules if m.split('.')[0] in "
-             "('estimators', 'mitsuba', 'drjit') or m.startswith('mcverify.gate')))")
+    assert _loaded_after(code, "m.split('.')[0] in ('estimators', 'mitsuba', 'drjit') or "
+                               "m.startswith('mcverify.gate')") == "[]"
+
+
+def _loaded_after(code: str, which: str) -> str:
+    """The sorted names of the modules ``m`` in ``sys.modules`` for which ``which``
+    holds, after running ``code`` in a fresh interpreter."""
+    probe = code + f"\nimport sys; print(sorted(m for m in sys.modules if {which}))"
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                        cwd=ROOT, timeout=300)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.strip().splitlines()[-1] == "[]"
+    return r.stdout.strip().splitlines()[-1]
 
 
 @pytest.mark.parametrize("code, loaded", [
@@ -129,12 +135,7 @@ def test_importing_the_core_loads_neither(code):
 def test_scipy_stats_and_optimize_load_on_first_use(code, loaded):
     """``import mcverify`` and ``mcverify --help`` do not import scipy.stats or
     scipy.optimize (about 2.5 s here, mcverify._lazy); a statistic does."""
-    probe = (code + "\nimport sys; print(sorted(m for m in ('scipy.stats', 'scipy.optimize')"
-             " if m in sys.modules))")
-    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                       cwd=ROOT, timeout=300)
-    assert r.returncode == 0, r.stderr
-    got = r.stdout.strip().splitlines()[-1]
+    got = _loaded_after(code, "m in ('scipy.stats', 'scipy.optimize')")
     assert got == loaded, got
 
 
