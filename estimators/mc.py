@@ -26,7 +26,6 @@ import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import qmc
 
 __all__ = ["Estimate", "uniform", "importance", "stratified", "rqmc", "mis",
            "russian_roulette", "antithetic"]
@@ -210,6 +209,8 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     standard error below it). Each point gets a uniform offset within its 2^-bits cell,
     which makes it exactly uniform on [0, 1) and keeps the net (elementary intervals of
     n <= 2^bits points are whole cells)."""
+    from scipy.stats import qmc   # here: importing scipy.stats costs ~1.2 s (Zen 1)
+
     lo, hi = _box(a, b)
     n = _count(n)
     if n & (n - 1):

@@ -131,10 +131,19 @@ def _loaded_after(code: str, which: str) -> str:
      "from mcverify.gate.cli import main\ntry: main()\nexcept SystemExit: pass", "[]"),
     ("import mcverify; mcverify.stats.ks_uniform([0.1, 0.5, 0.9])",
      "['scipy.optimize', 'scipy.stats']"),
+    ("import estimators.mc, estimators.warps, estimators.distributions", "[]"),
+    ("import estimators.mc; estimators.mc.rqmc(lambda x: x, 0.0, 1.0, 8, replicates=2)",
+     "['scipy.optimize', 'scipy.stats']"),
+    ("from mcverify.gate.suites import build_suite; build_suite('default')", "[]"),
+    ("from mcverify.gate.suites import build_suite\n"
+     "[c for c in build_suite('default') if c.name == 'scipy:norm'][0].run(0)",
+     "['scipy.optimize', 'scipy.stats']"),
 ])
 def test_scipy_stats_and_optimize_load_on_first_use(code, loaded):
-    """``import mcverify`` and ``mcverify --help`` do not import scipy.stats or
-    scipy.optimize (about 2.5 s here, mcverify._lazy); a statistic does."""
+    """``import mcverify``, ``mcverify --help``, the subjects' modules and building the
+    default suite (what ``mcverify list`` and ``plan`` do) do not import scipy.stats or
+    scipy.optimize (about 2.5 s here, mcverify._lazy); a statistic, Sobol points or a
+    scipy subject's check does."""
     got = _loaded_after(code, "m in ('scipy.stats', 'scipy.optimize')")
     assert got == loaded, got
 

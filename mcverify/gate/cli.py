@@ -277,6 +277,13 @@ def _cmd_check(args) -> int:
     from . import suites
     from ..result import write_json, write_junit
 
+    # the arguments alone can be refused before the suite is built (seconds of imports)
+    if args.budget is not None and not 0 < args.budget < float("inf"):
+        raise InvalidArgument(f"--budget {args.budget:g}: must be a positive, finite number "
+                              "of seconds")
+    if args.budget is not None and args.scene:
+        raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
+                              "has its own spp and passes (use --budget without --scene)")
     args.suite, checks, skipped, extra = _suite_checks(args)
     # the scene, the project's pyproject.toml and a user suite's module are inputs: an
     # output path naming one of them would replace it
@@ -285,12 +292,6 @@ def _cmd_check(args) -> int:
     _writable("--junit", args.junit, inputs)
     _distinct_outputs(("--json", args.json), ("--junit", args.junit))
     plan = None
-    if args.budget is not None and not 0 < args.budget < float("inf"):  # before any work
-        raise InvalidArgument(f"--budget {args.budget:g}: must be a positive, finite number "
-                              "of seconds")
-    if args.budget is not None and args.scene:
-        raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
-                              "has its own spp and passes (use --budget without --scene)")
     if args.budget is not None and args.suite not in suites.SUITES:
         raise InvalidArgument(f"--budget with --suite {args.suite}: only the built-in suites "
                               f"{', '.join(suites.SUITES)} can be sized to a time budget")

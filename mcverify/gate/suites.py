@@ -163,15 +163,18 @@ def _warp_checks(profile: Profile) -> list[Check]:
 
 
 def _scipy_checks(profile: Profile) -> list[Check]:
-    """scipy.stats distributions sampled by inverting their CDF (``ppf``)."""
-    from scipy import stats as sps
-
-    subjects = [("beta(2,5)", sps.beta(2, 5), Interval(0.0, 1.0), profile.costly_samples),
-                ("norm", sps.norm(), Interval(-9.0, 9.0), profile.n_samples),
-                ("triang(0.3)", sps.triang(0.3), Interval(0.0, 1.0), profile.n_samples)]
+    """scipy.stats distributions sampled by inverting their CDF (``ppf``). Each is made
+    when its check runs: importing scipy.stats costs about 1.2 s (Zen 1), which listing or
+    planning a suite need not pay."""
+    subjects = [("beta(2,5)", lambda s: s.beta(2, 5), Interval(0.0, 1.0), profile.costly_samples),
+                ("norm", lambda s: s.norm(), Interval(-9.0, 9.0), profile.n_samples),
+                ("triang(0.3)", lambda s: s.triang(0.3), Interval(0.0, 1.0), profile.n_samples)]
     out = []
-    for label, dist, dom, n in subjects:
-        def run(seed, stop_alpha=None, d=dist, dom=dom, label=label, n=n):
+    for label, make, dom, n in subjects:
+        def run(seed, stop_alpha=None, make=make, dom=dom, label=label, n=n):
+            from scipy import stats
+
+            d = make(stats)
             return checks.check_sampler(lambda u: d.ppf(u[:, 0]), lambda x: d.pdf(x[:, 0]), dom,
                                         n_samples=profile.n("scipy:" + label, n),
                                         seed=seed, name="scipy:" + label, batches=BATCHES,
@@ -215,37 +218,47 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
 
 def _distribution_checks(profile: Profile) -> list[Check]:
     """The CDF-inversion distributions of ``estimators.distributions`` on fixed, awkward
-    inputs: zero-weight pieces, a steep environment-map-like image, a pdf with a step."""
+    inputs: zero-weight pieces, a steep environment-map-like image, a pdf with a step.
+    Each is built once, when a check first needs it (building the 2-D one loads its
+    kernels: ~1.3 s on Zen 1, which listing or planning a suite need not pay)."""
     from estimators import distributions
 
-    img = np.random.default_rng(2024).random((16, 32)) ** 4 * 10.0
-    img[3:5, 7:9] = 0.0
+    def image():
+        img = np.random.default_rng(2024).random((16, 32)) ** 4 * 10.0
+        img[3:5, 7:9] = 0.0
+        return img
+
     # The 2-D subject is checked on cells aligned with its 16 × 32 pieces (each piece
     # split 2 × 2): a valid χ² whose expected counts need no refinement along the
     # pieces' 48 discontinuity lines (pilot-placed cells take ~10× longer).
-    subjects = [   # (subject, label, distribution, domain, sample dimension)
+    subjects = [   # (subject, label, distribution's maker, domain, sample dimension)
         ("piecewise_constant_1d", "piecewise_constant_1d",
-         distributions.PiecewiseConstant1D([1.0, 0.0, 4.0, 2.5, 0.2], -1.0, 2.0), Interval(-1.0, 2.0), 1),
-        ("piecewise_constant_2d", "piecewise_constant_2d", distributions.PiecewiseConstant2D(img),
-         "square", 2),
+         lambda: distributions.PiecewiseConstant1D([1.0, 0.0, 4.0, 2.5, 0.2], -1.0, 2.0),
+         Interval(-1.0, 2.0), 1),
+        ("piecewise_constant_2d", "piecewise_constant_2d",
+         lambda: distributions.PiecewiseConstant2D(image()), "square", 2),
         ("inverted_cdf", "inverted_cdf(step)",
-         distributions.InvertedCDF(lambda t: np.where(t < 0.3, 1.0, 5.0), 0.0, 1.0), Interval(0.0, 1.0), 1),
-        ("inverted_cdf", "inverted_cdf(sin)", distributions.InvertedCDF(np.sin, 0.0, np.pi),
-         Interval(0.0, np.pi), 1),
+         lambda: distributions.InvertedCDF(lambda t: np.where(t < 0.3, 1.0, 5.0), 0.0, 1.0),
+         Interval(0.0, 1.0), 1),
+        ("inverted_cdf", "inverted_cdf(sin)",
+         lambda: distributions.InvertedCDF(np.sin, 0.0, np.pi), Interval(0.0, np.pi), 1),
     ]
     out = []
-    for subject, label, dist, dom, k in subjects:
+    for subject, label, make, dom, k in subjects:
         aligned = dict(resolution=(32, 64), pilot=False) if dom == "square" else {}
         n = profile.costly_samples if subject == "inverted_cdf" else profile.n_samples
+        dist = lru_cache(maxsize=None)(make)
 
-        def run(seed, stop_alpha=None, d=dist, dom=dom, k=k, label=label, aligned=aligned,
+        def run(seed, stop_alpha=None, dist=dist, dom=dom, k=k, label=label, aligned=aligned,
                 n=n):
+            d = dist()
             return checks.check_sampler(d.sample, d.pdf, dom, seed=seed, sample_dim=k,
                                         n_samples=profile.n("sampler:" + label, n),
                                         name="sampler:" + label, batches=BATCHES,
                                         stop_alpha=stop_alpha, **aligned)
 
-        def run_inv(seed, d=dist, k=k, label=label):
+        def run_inv(seed, dist=dist, k=k, label=label):
+            d = dist()
             return checks.check_inverse(d.sample, d.invert, k, seed=seed, n_samples=20_000,
                                         atol=1e-9, name="inverse:" + label)
 
