@@ -105,3 +105,27 @@ def test_integrable_singularities_at_the_domains_ends_are_never_evaluated():
     r2 = integrate_cells(polar, [e0, e1], n_samples=1e7)
     assert min(seen2) > 0.0
     assert abs(r2.mass.sum() - 1.0) <= max(1e-6, 2 * r2.error.sum())
+
+
+@given(c=st.floats(0.02, 0.98), side=st.sampled_from([0, 1]), n=st.sampled_from([1e6, 1e7]))
+@example(c=0.9, side=0, n=1e6)      # a uniform cone of cos θ_max = 0.8 in the sphere's grid
+def test_a_step_across_a_row_of_cells_converges_as_nested_line_integrals(c, side, n):
+    """A step along a whole row of 128 cells (a cone's rim on the sphere's grid): the
+    rules see both sides and disagree, and isotropic refinement took every leaf the step
+    crosses to the depth limit (65536 leaves unconverged, 10.9 million evaluations for
+    the uniform cone of the default suite). Unresolved leaves whose corners vary along
+    one axis only are integrated as nested 1-D integrals: all converge, each cell within
+    0.15 σ of its Poisson noise, in a tenth of the evaluations."""
+    e = np.linspace(0.0, 1.0, 65)
+    other = np.linspace(0.0, 1.0, 129)
+    edges = [e, other] if side == 0 else [other, e]
+    f = lambda s: np.where(s[:, side] < c, 0.0, 1.0)      # noqa: E731
+    r = integrate_cells(f, edges, n_samples=n)
+    exact_1d = np.clip(e[1:] - np.maximum(e[:-1], c), 0, None)
+    exact = np.outer(exact_1d, np.diff(other)) if side == 0 else \
+        np.outer(np.diff(other), exact_1d)
+    total = exact.sum()
+    noise = np.sqrt(np.maximum(exact / total * n, 5.0)) / n * total
+    assert np.all(np.abs(r.mass - exact) <= 0.15 * noise), np.abs(r.mass - exact).max()
+    assert r.unconverged == 0
+    assert r.n_evals < 2_000_000, r.n_evals
