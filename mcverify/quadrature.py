@@ -337,7 +337,18 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
             along0 = np.abs(c[:, 1, :] - c[:, 0, :]).max(axis=1)
             along1 = np.abs(c[:, :, 1] - c[:, :, 0]).max(axis=1)
             aligned = np.minimum(along0, along1) <= 1e-9 * np.maximum(along0, along1)
-            thin = (unresolved & aligned & (level >= 2)) | (hidden & (level >= max_level))
+            # A leaf whose rule error alone is over budget goes only where its corners
+            # vary at all (equal corners: a support strictly inside the leaf, which the
+            # 3-point rule across the feature would misjudge) and its four children's
+            # masses vary along the same axis as its corners (the 36 nodes see no
+            # feature across it).
+            kids = fine_parts.reshape(-1, 2, 2)
+            kid0 = np.abs(kids[:, 1, :] - kids[:, 0, :]).max(axis=1)
+            kid1 = np.abs(kids[:, :, 1] - kids[:, :, 0]).max(axis=1)
+            kids_along = np.where(along0 >= along1, kid1 <= 1e-9 * kid0, kid0 <= 1e-9 * kid1)
+            one_axis = aligned & (np.maximum(along0, along1) > 0) & kids_along
+            thin = (((hidden & aligned) | (unresolved & one_axis)) & (level >= 2)) \
+                | (hidden & (level >= max_level))
             if thin.any():
                 fine = fine.copy()
                 fine[thin], err[thin], spent = _thin_leaves(density, lo[thin], width[thin],
