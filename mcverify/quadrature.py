@@ -165,6 +165,14 @@ def _children(lo, width):
     return c_lo.reshape(-1, m), np.ascontiguousarray(c_w).reshape(-1, m)
 
 
+def _spread(values):
+    """How much values on a 2 × 2 block of each 2-D leaf, (L, 2, 2) indexed by the bits
+    along axis 0 and axis 1, differ along each axis: the largest difference between the
+    two halves along axis 0, and along axis 1."""
+    return (np.abs(values[:, 1, :] - values[:, 0, :]).max(axis=1),
+            np.abs(values[:, :, 1] - values[:, :, 0]).max(axis=1))
+
+
 def _thin_leaves(density, lo, width, budget, n_samples, tau):
     """Masses of 2-D leaves whose density varies across a feature thinner than the rule
     sees: along the axis where the corner values differ most, a 1-D adaptive integral
@@ -180,8 +188,7 @@ def _thin_leaves(density, lo, width, budget, n_samples, tau):
     # domain's edge may be a point where the density is singular (a disk's centre under
     # a pdf ∝ 1/r), which no integral needs
     f = _corner_values(density, lo, width).reshape(n_leaves, 2, 2)
-    across0 = np.abs(f[:, 1, :] - f[:, 0, :]).max(axis=1)
-    across1 = np.abs(f[:, :, 1] - f[:, :, 0]).max(axis=1)
+    across0, across1 = _spread(f)
     j = np.where(across0 >= across1, 0, 1)                # axis the feature varies along
     o = 1 - j
     rows = np.arange(n_leaves)
@@ -333,18 +340,14 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
             # leaves as nested 1-D integrals, at once where the corners vary along one
             # axis only (an axis-aligned feature), else, for a boundary layer, when the
             # isotropic refinement has reached its depth limit.
-            c = corner_f.reshape(-1, 2, 2)
-            along0 = np.abs(c[:, 1, :] - c[:, 0, :]).max(axis=1)
-            along1 = np.abs(c[:, :, 1] - c[:, :, 0]).max(axis=1)
+            along0, along1 = _spread(corner_f.reshape(-1, 2, 2))
             aligned = np.minimum(along0, along1) <= 1e-9 * np.maximum(along0, along1)
             # A leaf whose rule error alone is over budget goes only where its corners
             # vary at all (equal corners: a support strictly inside the leaf, which the
             # 3-point rule across the feature would misjudge) and its four children's
             # masses vary along the same axis as its corners (the 36 nodes see no
             # feature across it).
-            kids = fine_parts.reshape(-1, 2, 2)
-            kid0 = np.abs(kids[:, 1, :] - kids[:, 0, :]).max(axis=1)
-            kid1 = np.abs(kids[:, :, 1] - kids[:, :, 0]).max(axis=1)
+            kid0, kid1 = _spread(fine_parts.reshape(-1, 2, 2))
             kids_along = np.where(along0 >= along1, kid1 <= 1e-9 * kid0, kid0 <= 1e-9 * kid1)
             one_axis = aligned & (np.maximum(along0, along1) > 0) & kids_along
             thin = (((hidden & aligned) | (unresolved & one_axis)) & (level >= 2)) \
