@@ -16,6 +16,7 @@ import sys
 import tempfile
 import time
 
+from ._copy_propagate import fast_copy_propagation
 from ._inline_copy import shared_scope_copies
 from ._live_bits import fast_liveness
 from ._ssa_blocks import fast_ssa
@@ -58,9 +59,10 @@ def compile_lock(name: str):
     together (``mcverify check -j N``, the test run's workers) compile a kernel once:
     the first compiles and writes numba's cache, the others wait and load it. Inside,
     numba's inliner copies scopes once per copy (``_inline_copy``) and its SSA
-    reconstruction rewrites only the blocks naming each variable (``_ssa_blocks``) and its
-    liveness analysis runs on bit sets (``_live_bits``)."""
-    with shared_scope_copies(), fast_ssa(), fast_liveness():
+    reconstruction rewrites only the blocks naming each variable (``_ssa_blocks``), its
+    liveness analysis runs on bit sets (``_live_bits``) and its copy propagation analysis
+    makes no deep copies (``_copy_propagate``)."""
+    with shared_scope_copies(), fast_ssa(), fast_liveness(), fast_copy_propagation():
         if fcntl is None:
             yield
             return
