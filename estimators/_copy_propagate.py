@@ -18,7 +18,7 @@ the assigned part, as numba's condition says). The equations, the sweep order
 (``blocks``' keys, the entry left out) and the initial state are numba's, so each sweep
 gives numba's sets and the result is numba's, block for block:
 ``tests/estimators/test_copy_propagate.py`` holds it to numba's on every function of the
-package and on random graphs.
+package and on every call the parfor passes make while compiling a parallel loop.
 
 Active only inside :func:`fast_copy_propagation` (``_generated.compile_lock`` holds it
 around our kernels' compilation); numba's function is put back after. ``parfors.parfor``
