@@ -53,16 +53,24 @@ def load(name: str, source: str):
 
 
 @contextlib.contextmanager
+def compile_context():
+    """numba as our kernels compile (``compile_lock`` holds it, without the lock's file):
+    its inliner copies scopes once per copy (``_inline_copy``), its SSA reconstruction
+    rewrites only the blocks naming each variable (``_ssa_blocks``), its liveness analysis
+    runs on bit sets (``_live_bits``) and its copy propagation analysis makes no deep
+    copies (``_copy_propagate``). Each gives numba's own result; nests."""
+    with shared_scope_copies(), fast_ssa(), fast_liveness(), fast_copy_propagation():
+        yield
+
+
+@contextlib.contextmanager
 def compile_lock(name: str):
     """Hold the kernel cache's lock ``name`` (an advisory ``flock`` on ``name.lock`` in
     the cache folder). Around a kernel's first call it makes processes that start
     together (``mcverify check -j N``, the test run's workers) compile a kernel once:
     the first compiles and writes numba's cache, the others wait and load it. Inside,
-    numba's inliner copies scopes once per copy (``_inline_copy``) and its SSA
-    reconstruction rewrites only the blocks naming each variable (``_ssa_blocks``), its
-    liveness analysis runs on bit sets (``_live_bits``) and its copy propagation analysis
-    makes no deep copies (``_copy_propagate``)."""
-    with shared_scope_copies(), fast_ssa(), fast_liveness(), fast_copy_propagation():
+    numba compiles as in ``compile_context``."""
+    with compile_context():
         if fcntl is None:
             yield
             return

@@ -93,3 +93,15 @@ def _compile_warp_loops_once(request):
         w.pdf(x, *w.defaults)
         if w.invert is not None:
             w.invert(x, *w.defaults)
+
+
+@pytest.fixture(scope="module")
+def kernel_compile_context():
+    """A module's tests run inside ``estimators._generated.compile_context``, as the kernels
+    compile: the tracer's per-ray functions that its tests call on their own (the BVH's
+    ``intersect`` and ``occluded``, the BSDFs' dispatch) compile with numba's passes as
+    inside the kernels, the same code faster (empty caches, Zen 1: ``intersect`` 19.6 ->
+    8.0 s, ``occluded`` 21.0 -> 7.6 s)."""
+    from estimators._generated import compile_context
+    with compile_context():
+        yield

@@ -10,7 +10,8 @@ import pytest
 from estimators.pathtracer import prepare_scene, parse_scene
 from estimators.pathtracer import bsdfs as B
 
-pytestmark = pytest.mark.mitsuba
+# direct calls of the tracer's per-ray functions compile as inside the kernels
+pytestmark = [pytest.mark.mitsuba, pytest.mark.usefixtures("kernel_compile_context")]
 
 _SCENE = """<scene version="3.0.0">
   <sensor type="perspective"><float name="fov" value="40"/>

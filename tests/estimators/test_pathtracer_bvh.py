@@ -17,6 +17,9 @@ from estimators.pathtracer import geometry, layout
 from estimators.pathtracer.layout import (LEAF_KIND, LEAF_PRIM, NODE_ARITY, NODE_HI,
                                           NODE_LO, PRIM_WIDTH, SPHERE, TRIANGLE)
 
+# direct calls of the tracer's per-ray functions compile as inside the kernels
+pytestmark = pytest.mark.usefixtures("kernel_compile_context")
+
 
 def _soup(n_tri, n_sphere, seed):
     """Random triangles (some long and thin, some tiny) and spheres in [-1, 1]³."""

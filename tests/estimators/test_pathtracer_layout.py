@@ -6,9 +6,13 @@ import ast
 import os
 
 import numpy as np
+import pytest
 
 import estimators.pathtracer as pt
 from estimators.pathtracer import geometry, layout, prepare_scene
+
+# direct calls of the tracer's per-ray functions compile as inside the kernels
+pytestmark = pytest.mark.usefixtures("kernel_compile_context")
 
 HERE = os.path.dirname(pt.__file__)
 MODULES = sorted(f for f in os.listdir(HERE) if f.endswith(".py"))

@@ -14,7 +14,8 @@ from estimators.pathtracer import geometry, layout
 from estimators.pathtracer import textures
 from estimators.pathtracer.scene import SceneError
 
-pytestmark = pytest.mark.mitsuba
+# direct calls of the tracer's per-ray functions compile as inside the kernels
+pytestmark = [pytest.mark.mitsuba, pytest.mark.usefixtures("kernel_compile_context")]
 
 
 @pytest.fixture(scope="module")
