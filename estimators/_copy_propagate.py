@@ -27,9 +27,7 @@ imports the function by name, so both names are replaced.
 
 from __future__ import annotations
 
-import contextlib
-
-from ._numba_patch import NestedPatch
+from ._numba_patch import FunctionPatch
 
 try:
     from numba.core import ir_utils as _ir_utils
@@ -96,21 +94,11 @@ def copy_propagate(blocks, typemap):
     return in_copies, out_copies
 
 
-def _patch(module) -> NestedPatch:
-    """The patch of ``module.copy_propagate``, applied where it is numba's own."""
-    return NestedPatch(module, "copy_propagate", lambda: copy_propagate,
-                       lambda: getattr(module, "copy_propagate", None) is _NUMBAS)
+_PATCH = FunctionPatch(_MODULES, "copy_propagate", copy_propagate, _NUMBAS)
 
 
-_PATCHES = [_patch(m) for m in _MODULES] if _NUMBAS is not None else []
-
-
-@contextlib.contextmanager
 def fast_copy_propagation():
     """numba's copy propagation analysis runs without deep copies
     (:func:`copy_propagate`) while inside; nests; a no-op where numba is not laid out as
     expected."""
-    with contextlib.ExitStack() as stack:
-        for patch in _PATCHES:
-            stack.enter_context(patch.held())
-        yield
+    return _PATCH.held()

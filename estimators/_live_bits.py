@@ -26,9 +26,7 @@ name into ``ir_utils`` and ``parfors.parfor`` as well, so all three names are re
 
 from __future__ import annotations
 
-import contextlib
-
-from ._numba_patch import NestedPatch
+from ._numba_patch import FunctionPatch
 
 try:
     from numba.core import analysis as _analysis
@@ -105,20 +103,10 @@ def compute_live_map(cfg, blocks, var_use_map, var_def_map):
     return live_map
 
 
-def _patch(module) -> NestedPatch:
-    """The patch of ``module.compute_live_map``, applied where it is numba's own."""
-    return NestedPatch(module, "compute_live_map", lambda: compute_live_map,
-                       lambda: getattr(module, "compute_live_map", None) is _NUMBAS)
+_PATCH = FunctionPatch(_MODULES, "compute_live_map", compute_live_map, _NUMBAS)
 
 
-_PATCHES = [_patch(m) for m in _MODULES] if _NUMBAS is not None else []
-
-
-@contextlib.contextmanager
 def fast_liveness():
     """numba's liveness analysis runs on bit sets (:func:`compute_live_map`) while
     inside; nests; a no-op where numba is not laid out as expected."""
-    with contextlib.ExitStack() as stack:
-        for patch in _PATCHES:
-            stack.enter_context(patch.held())
-        yield
+    return _PATCH.held()

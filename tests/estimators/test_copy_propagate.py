@@ -1,20 +1,19 @@
 """``estimators._copy_propagate``: numba's copy propagation analysis without deep copies
 gives numba's own copies into and out of every block, on every numba function of the
 package (before and after SSA, every name of one type and names of a few types), on
-every call the parfor passes make while compiling parallel loops, and numba is left as
-it was outside ``fast_copy_propagation``. The warps' loops and the tracer's kernels are
+every call the parfor passes make while compiling parallel loops (that numba is left
+as it was outside ``fast_copy_propagation``: ``test_numba_patches``). The warps' loops and the tracer's kernels are
 compiled inside it (``compile_lock``), so every warp and render test also checks its
 output."""
 
 import collections
 
 import numpy as np
-import pytest
 from numba import njit, prange, types
 from numba.core import compiler, ir_utils, ssa
 from numba.parfors import parfor
 
-from estimators import _copy_propagate, _generated
+from estimators import _copy_propagate
 from estimators._copy_propagate import fast_copy_propagation
 from test_ssa_blocks import _package_functions
 
@@ -96,37 +95,3 @@ def test_every_call_of_a_parallel_compilation_gets_numbas_copies(monkeypatch):
     for n in (0, 1, 5, 40):
         np.testing.assert_array_equal(plain(a, np.empty_like(a), n),
                                       fast(a, np.empty_like(a), n))
-
-
-def test_numba_is_restored_outside_and_contexts_nest():
-    for module in _MODULES:
-        assert module.copy_propagate is _copy_propagate._NUMBAS
-    with fast_copy_propagation():
-        with fast_copy_propagation():
-            assert all(m.copy_propagate is _copy_propagate.copy_propagate for m in _MODULES)
-        assert all(m.copy_propagate is _copy_propagate.copy_propagate for m in _MODULES)
-    assert all(m.copy_propagate is _copy_propagate._NUMBAS for m in _MODULES)
-
-
-def test_an_error_inside_restores_numba():
-    with pytest.raises(RuntimeError):
-        with fast_copy_propagation():
-            raise RuntimeError("compile failed")
-    assert all(m.copy_propagate is _copy_propagate._NUMBAS for m in _MODULES)
-
-
-def test_a_module_holding_another_function_is_left_alone(monkeypatch):
-    def other(*args):
-        raise AssertionError("not ours to replace")
-
-    monkeypatch.setattr(parfor, "copy_propagate", other)
-    with fast_copy_propagation():
-        assert ir_utils.copy_propagate is _copy_propagate.copy_propagate
-        assert parfor.copy_propagate is other
-    assert parfor.copy_propagate is other
-
-
-def test_the_kernels_compile_inside_it():
-    with _generated.compile_lock("test-copy-propagate"):
-        assert ir_utils.copy_propagate is _copy_propagate.copy_propagate
-    assert ir_utils.copy_propagate is _copy_propagate._NUMBAS

@@ -1,18 +1,17 @@
 """``estimators._live_bits``: numba's liveness analysis on bit sets gives numba's own live
 variables, block for block, on random control-flow graphs (loops, self-loops, dead
 blocks, blocks without successors) and on every numba function of the package before
-and after SSA; numba is left as it was outside ``fast_liveness``, in all three modules
-that hold the function. The tracer's kernels are compiled inside it (``compile_lock``),
+and after SSA (that numba is left as it was outside ``fast_liveness``, in all three
+modules that hold the function: ``test_numba_patches``). The tracer's kernels are compiled inside it (``compile_lock``),
 so every render test also checks its output."""
 
 import numpy as np
-import pytest
 from numba import njit
 from numba.core import analysis, compiler, ir_utils, ssa
 from numba.core.controlflow import CFGraph
 from numba.parfors import parfor
 
-from estimators import _generated, _live_bits
+from estimators import _live_bits
 from estimators._live_bits import fast_liveness
 from test_ssa_blocks import _package_functions
 
@@ -121,38 +120,3 @@ def test_a_function_compiled_inside_uses_it_and_gives_the_same_results(monkeypat
     for x in np.linspace(-10, 60, 57):
         for n in (0, 1, 5, 40):
             assert plain(x, n) == fast(x, n)
-
-
-def test_numba_is_restored_outside_and_contexts_nest():
-    for module in _MODULES:
-        assert module.compute_live_map is _live_bits._NUMBAS
-    with fast_liveness():
-        with fast_liveness():
-            assert all(m.compute_live_map is _live_bits.compute_live_map for m in _MODULES)
-        assert all(m.compute_live_map is _live_bits.compute_live_map for m in _MODULES)
-    assert all(m.compute_live_map is _live_bits._NUMBAS for m in _MODULES)
-
-
-def test_an_error_inside_restores_numba():
-    with pytest.raises(RuntimeError):
-        with fast_liveness():
-            raise RuntimeError("compile failed")
-    assert all(m.compute_live_map is _live_bits._NUMBAS for m in _MODULES)
-
-
-def test_a_module_holding_another_function_is_left_alone(monkeypatch):
-    def other(*args):
-        raise AssertionError("not ours to replace")
-
-    monkeypatch.setattr(ir_utils, "compute_live_map", other)
-    with fast_liveness():
-        assert analysis.compute_live_map is _live_bits.compute_live_map
-        assert ir_utils.compute_live_map is other
-    assert ir_utils.compute_live_map is other
-
-
-def test_the_kernels_compile_inside_it():
-    with _generated.compile_lock("test-live-bits"):
-        assert analysis.compute_live_map is _live_bits.compute_live_map
-    assert analysis.compute_live_map is _live_bits._NUMBAS
-
