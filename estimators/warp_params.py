@@ -61,6 +61,11 @@ def warp_of(front_name: str) -> str:
     return front_name[:-len("_pdf")] if front_name.endswith("_pdf") else front_name
 
 
+def param_count(front_name: str) -> int:
+    """How many parameters the front end ``front_name`` takes."""
+    return len(RULES.get(warp_of(front_name), ((),))[0])
+
+
 def check_params(front_name: str, params: tuple) -> np.ndarray:
     """``params`` of the front end ``front_name`` as the float64 array its kernel reads,
     or ValueError naming the parameter and what it must be."""

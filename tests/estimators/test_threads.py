@@ -1,0 +1,112 @@
+"""``estimators._threads``: a serial block loop run on numba's threads."""
+
+import multiprocessing
+import threading
+import time
+
+import numba
+import numpy as np
+import pytest
+from numba import njit
+
+from estimators import _threads
+from estimators._threads import MIN_BLOCKS, run_blocks, threads_for
+
+
+@njit(nogil=True)
+def _mark(seen, b0, b1):
+    for b in range(b0, b1):
+        seen[b] += 1
+
+
+def _recorder():
+    calls = []
+    lock = threading.Lock()
+
+    def loop(tag, b0, b1):
+        with lock:
+            calls.append((tag, b0, b1, threading.get_ident()))
+    return loop, calls
+
+
+@pytest.fixture
+def threads():
+    """numba's thread count set for a test, put back after."""
+    before = numba.get_num_threads()
+    yield numba.set_num_threads
+    numba.set_num_threads(before)
+
+
+@pytest.mark.parametrize("blocks", [0, 1, MIN_BLOCKS - 1, 2 * MIN_BLOCKS - 1, 2 * MIN_BLOCKS,
+                                    5 * MIN_BLOCKS + 3, 1000])
+def test_every_block_runs_once_in_one_contiguous_range_a_thread(blocks, threads):
+    threads(numba.config.NUMBA_NUM_THREADS)
+    loop, calls = _recorder()
+    run_blocks(loop, blocks, "x")
+    ranges = sorted((b0, b1) for _, b0, b1, _ in calls)
+    covered = [b for b0, b1 in ranges for b in range(b0, b1)]
+    assert covered == list(range(blocks))
+    want = max(1, min(numba.config.NUMBA_NUM_THREADS, blocks // MIN_BLOCKS))
+    assert len(calls) == want == threads_for(blocks)
+    assert len({ident for *_, ident in calls}) == want           # each on its own thread
+    sizes = [b1 - b0 for b0, b1 in ranges]
+    assert max(sizes) - min(sizes) <= 1
+    assert all(tag == "x" for tag, *_ in calls)
+
+
+def test_a_numba_loop_marks_each_block_once(threads):
+    threads(numba.config.NUMBA_NUM_THREADS)
+    seen = np.zeros(777, np.int64)
+    run_blocks(_mark, seen.shape[0], seen)
+    assert np.all(seen == 1)
+
+
+def test_numbas_thread_count_limits_the_threads(threads):
+    threads(1)
+    loop, calls = _recorder()
+    run_blocks(loop, 100 * MIN_BLOCKS, None)
+    assert [(b0, b1) for _, b0, b1, _ in calls] == [(0, 100 * MIN_BLOCKS)]
+    assert calls[0][3] == threading.get_ident()                   # on the caller's thread
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two of numba's threads")
+@pytest.mark.parametrize("failing", ["caller", "helper"])
+def test_an_error_is_raised_once_every_range_has_finished(failing, threads):
+    threads(2)
+    finished = []
+
+    def loop(b0, b1):
+        mine = "caller" if b0 == 0 else "helper"
+        if mine == failing:
+            raise ValueError(f"{mine} failed")
+        time.sleep(0.2)
+        finished.append(mine)
+
+    with pytest.raises(ValueError, match=f"{failing} failed"):
+        run_blocks(loop, 4 * MIN_BLOCKS)
+    assert finished == ["helper" if failing == "caller" else "caller"]
+
+
+def _child(q):
+    loop, calls = _recorder()
+    run_blocks(loop, 4 * MIN_BLOCKS, None)
+    q.put(sorted((b0, b1) for _, b0, b1, _ in calls))
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two of numba's threads")
+@pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(), reason="no fork")
+def test_a_forked_child_gets_threads_of_its_own(threads):
+    """The parent's pool is made, then a forked child (which inherits the executor but
+    not its threads) runs blocks on two threads without hanging."""
+    threads(2)
+    run_blocks(_recorder()[0], 4 * MIN_BLOCKS, None)
+    assert _threads._POOL[0] is not None
+    ctx = multiprocessing.get_context("fork")
+    q = ctx.Queue()
+    p = ctx.Process(target=_child, args=(q,))
+    p.start()
+    try:
+        got = q.get(timeout=60)
+    finally:
+        p.join(timeout=60)
+    assert got == [(0, 2 * MIN_BLOCKS), (2 * MIN_BLOCKS, 4 * MIN_BLOCKS)]
