@@ -1,5 +1,5 @@
-"""A serial numba loop over a range of blocks, run on several threads: contiguous ranges,
-one a thread, the caller's own thread taking the first.
+"""A serial numba loop over a range of items (blocks of rows, rows), run on several
+threads: contiguous ranges, one a thread, the caller's own thread taking the first.
 
 The loops that ran as numba ``prange`` loops (``parallel=True``) are plain ``nogil``
 loops over ``range(b0, b1)`` instead, compiled with IEEE division as numba compiles a
@@ -11,8 +11,9 @@ at 28.1 -> 27.8 and 60.1 -> 57.2 ns a point on one thread).
 
 The thread count is numba's (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS``
 and ``numba.set_num_threads`` set), so that whoever limited numba's threads limits
-these too. A range of fewer than ``MIN_BLOCKS`` blocks a thread runs on the caller's
-thread alone: handing work to another thread costs tens of microseconds.
+these too. Each thread gets at least ``grain`` items, and fewer than two threads' worth
+run on the caller's thread alone: handing work to another thread costs about 50 µs
+(``ThreadPoolExecutor`` round trip, AMD Zen 1), so a thread's share should take longer.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba
 
-#: the fewest blocks worth a thread of their own
+#: the fewest of the warps' 512-row blocks worth a thread of their own (about 80 µs)
 MIN_BLOCKS = 16
 
 _POOL: list = [None, None]          # (executor, the pid that made it)
@@ -41,25 +42,33 @@ def _pool() -> ThreadPoolExecutor:
         return _POOL[0]
 
 
-def threads_for(blocks: int) -> int:
-    """How many threads ``run_blocks`` uses for ``blocks`` blocks."""
-    return max(1, min(numba.get_num_threads(), blocks // MIN_BLOCKS))
+def threads_for(count: int, grain: int = MIN_BLOCKS) -> int:
+    """How many threads ``run_ranges`` uses for ``count`` items."""
+    return max(1, min(numba.get_num_threads(), count // grain))
 
 
-def run_blocks(loop, blocks: int, *args) -> None:
-    """``loop(*args, b0, b1)`` over ``[0, blocks)``: one contiguous range a thread, the
-    ranges as equal as whole blocks make them. Returns once every range has run; the
-    first error raised by one is raised here, after the others have finished (none
-    writes into the caller's arrays after this returns)."""
-    t = threads_for(blocks)
-    if t == 1:
-        loop(*args, 0, blocks)
+def run_ranges(loop, count: int, *args, grain: int = MIN_BLOCKS) -> None:
+    """``loop(*args, i0, i1)`` over ``[0, count)``: one contiguous range a thread, at
+    least ``grain`` items each, the ranges as equal as whole items make them
+    (``run_split``)."""
+    t = threads_for(count, grain)
+    run_split(loop, [count * i // t for i in range(t + 1)], *args)
+
+
+def run_split(loop, cuts, *args) -> None:
+    """``loop(*args, cuts[k], cuts[k + 1])`` for every k, each range on a thread of its
+    own, the first on the caller's thread (an empty range is skipped, but one call is
+    always made: a first call compiles). Returns once every range has run; the first
+    error raised by one is raised here, after the others have finished (none writes
+    into the caller's arrays after this returns)."""
+    ranges = [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a] or [(cuts[0], cuts[0])]
+    if len(ranges) == 1:
+        loop(*args, *ranges[0])
         return
-    cut = [blocks * i // t for i in range(t + 1)]
     pool = _pool()
-    others = [pool.submit(loop, *args, cut[i], cut[i + 1]) for i in range(1, t)]
+    others = [pool.submit(loop, *args, a, b) for a, b in ranges[1:]]
     try:
-        loop(*args, cut[0], cut[1])
+        loop(*args, *ranges[0])
     finally:
         errors = [f.exception() for f in others]       # waits for each
     for e in errors:

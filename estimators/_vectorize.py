@@ -1,12 +1,12 @@
-"""numpy front ends for the numba scalar kernels: one generic parallel loop serves them all.
+"""numpy front ends for the numba scalar kernels: one generic block loop serves them all.
 
 A kernel takes ``(x, p)``: ``x`` a tuple of float64 coordinates (a point), ``p`` an
 indexable of parameters, and returns a tuple (a point) or a float (a density). The path
 tracer calls the same kernels on tuples, so each warp has one implementation.
 
 Each front end runs one loop over blocks of ``_BLOCK`` rows on numba's threads (a
-range of blocks a thread, ``_threads``). Within a block, the input rows are first moved into a column-major scratch
-block (one contiguous run per coordinate), the kernel reads those columns and writes its
+range of blocks a thread, ``_threads``). Within a block, the input rows are first moved
+into a column-major scratch block (one contiguous run per coordinate), the kernel reads those columns and writes its
 results to a second one, and these are moved back to rows: eight rows at a time, as
 vector shuffles (``_transpose``). Unit-stride columns are what lets LLVM vectorise a
 branch-light kernel (measured, cosine hemisphere, one thread: 9 ns a point against
@@ -21,7 +21,7 @@ whatever the thread count.
 The loop of each kernel is a small generated module in the kernel cache
 (``$MCVERIFY_CACHE``, default ``~/.cache/mcverify/kernels``), compiled by numba with
 ``cache=True``: a loop taking the kernel as an argument, or a closure over it, cannot
-be cached by numba, and a parallel loop costs about 1 s to compile, which every fresh
+be cached by numba, and a loop costs seconds to compile, which every fresh
 process (every ``mcverify check``) would pay again for each warp. The module's name
 carries a hash of the kernel's source file, of this one, of ``_fastmath`` and of
 ``_compile_options`` (numba's cache tracks only the file of the cached function, not its
@@ -61,7 +61,7 @@ from numba.extending import overload
 from . import _compile_options, _fastmath, _transpose
 from ._compile_options import exact
 from ._generated import first_call, load
-from ._threads import run_blocks
+from ._threads import run_ranges
 from .warp_params import check_params, param_count
 
 #: Rows per block: scratch of up to 4 float64 columns stays in L1 (16 KB), and a block
@@ -333,12 +333,12 @@ def _output(n: int, n_out: int, dtype, total: int | None = None) -> tuple[np.nda
 
 def _run(loop, rows, *args):
     """``loop(rows, *args, b0, b1)`` over every block of ``rows``, on numba's threads
-    (``_threads.run_blocks``). The first call per dtype compiles (or loads numba's cache)
+    (``_threads.run_ranges``). The first call per dtype compiles (or loads numba's cache)
     under the kernel cache's lock, so processes starting together compile each loop
     once."""
     name_dtype = f"{loop.__module__}.{rows.dtype}"
     with first_call(name_dtype, name_dtype):
-        run_blocks(loop, (rows.shape[0] + _BLOCK - 1) // _BLOCK, rows, *args)
+        run_ranges(loop, (rows.shape[0] + _BLOCK - 1) // _BLOCK, rows, *args)
 
 
 def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze: bool,

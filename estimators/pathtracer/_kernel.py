@@ -1,7 +1,7 @@
 """The path-tracing kernel: unidirectional path tracing with next-event estimation and
 multiple importance sampling (power heuristic) against BSDF sampling, Russian roulette
 after ``rr_depth`` (Mitsuba's rule: continue with probability min(max throughput · η², 0.95)),
-delta BSDFs and delta lights, over numba ``prange`` tiles.
+delta BSDFs and delta lights, over tiles (ranges of them on numba's threads).
 
 This file is the template of the kernels: ``render.specialised_kernel`` copies it with
 the feature block below rewritten (``FEATURES``, a bit mask of what a scene uses; -1 for
@@ -26,9 +26,8 @@ LLVM vectorises.
 import math
 
 import numpy as np
-from numba import prange
 
-from estimators._compile_options import fused
+from estimators._compile_options import THREADED, fused
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
 from estimators.pathtracer.camera import (SPLAT_CHANNELS, _generate_ray_kernel, splat_scratch,
                                           splat_kernel)
@@ -701,15 +700,16 @@ def _chunk_scratch(stratified):
             np.empty((ROWS, 2), np.uint64))
 
 
-@fused(parallel=True)
+@fused(**THREADED)
 def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale, mean, m2,
-                 bad):
-    """Render the listed tiles (rows of x0, y0, x1, y1) on all threads: per pixel, the
+                 bad, t0, t1):
+    """Render tiles ``t0`` to ``t1`` of the list (rows of x0, y0, x1, y1): per pixel, the
     mean and the sum of squared deviations (Welford) of ``spp`` samples (stratified per
-    dimension when ``stratified``); ``bad`` counts non-finite samples (set to zero)."""
+    dimension when ``stratified``); ``bad`` counts non-finite samples (set to zero).
+    ``render`` runs ranges of tiles on numba's threads (``_threads``)."""
     n_strat = strata_field(spp) if stratified else np.uint64(0)
     group = pixel_group(spp, stratified)
-    for ti in prange(tiles.shape[0]):
+    for ti in range(t0, t1):
         stack = new_stack()
         out, tab, ctl, rays, states = _chunk_scratch(stratified)
         x0, y0, x1, y1 = tiles[ti, 0], tiles[ti, 1], tiles[ti, 2], tiles[ti, 3]
@@ -743,28 +743,20 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale
                     bad[y, x] = nbad
 
 
-@fused(parallel=True)
-def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf_scale, acc,
-                bad):
-    """Render the listed tiles with a splatting reconstruction filter (Mitsuba's
-    ``ImageBlock::put``): sample s of pixel (x, y) sits at (x + ξ, y + ξ') and
+@fused(**THREADED)
+def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf_scale, buf,
+                bad, t0, t1):
+    """Render tiles ``t0`` to ``t1`` of the list with a splatting reconstruction filter
+    (Mitsuba's ``ImageBlock::put``): sample s of pixel (x, y) sits at (x + ξ, y + ξ') and
     ``camera.splat_kernel`` adds it to the pixels within the filter's radius. The random
-    numbers are those of ``render_tiles``. Each tile splats into a private buffer (the tile
-    and ``reach`` pixels around it); after the parallel loop the buffers are added into
-    ``acc`` (H, W, SPLAT_CHANNELS) in tile order, so the image is the same whatever the
-    number of threads. ``bad`` counts non-finite samples (set to zero) per pixel. ``acc``
-    with ``SPLAT_VALUE_CHANNELS`` (not ``SPLAT_CHANNELS``): the sums of the value alone."""
+    numbers are those of ``render_tiles``. Tile ``ti`` splats into its own zeroed buffer
+    ``buf[ti]`` (the tile and ``reach`` pixels around it; ``add_splats`` adds them up);
+    ``buf``'s last axis has ``SPLAT_CHANNELS``, or ``SPLAT_VALUE_CHANNELS`` for the sums
+    of the value alone. ``bad`` counts non-finite samples (set to zero) per pixel."""
     n_strat = strata_field(spp) if stratified else np.uint64(0)
     group = pixel_group(spp, stratified)
-    n = tiles.shape[0]
-    channels = acc.shape[2]
-    variance = channels == SPLAT_CHANNELS
-    side = 2 * reach
-    for ti in range(n):
-        side = max(side, tiles[ti, 2] - tiles[ti, 0] + 2 * reach,
-                   tiles[ti, 3] - tiles[ti, 1] + 2 * reach)
-    buf = np.zeros((n, side, side, channels))
-    for ti in prange(n):
+    variance = buf.shape[3] == SPLAT_CHANNELS
+    for ti in range(t0, t1):
         stack = new_stack()
         out, tab, ctl, rays, states = _chunk_scratch(stratified)
         wx = np.empty(splat_scratch(cam))
@@ -788,7 +780,15 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
                         splat_kernel(cam, tile_buf, bx, by, width, height, x + fx, y + fy,
                                      r, g, b, wx, variance)
                     bad[y, x] = nbad
-    for ti in range(n):
+
+
+@fused()
+def add_splats(tiles, reach, buf, acc):
+    """Add the tile buffers of ``splat_tiles`` into ``acc`` (H, W, channels) in tile
+    order, so that the image is the same whatever the number of threads."""
+    height, width, channels = acc.shape
+    side = buf.shape[1]
+    for ti in range(tiles.shape[0]):
         bx, by = tiles[ti, 0] - reach, tiles[ti, 1] - reach
         for j in range(max(0, -by), min(side, height - by)):
             for i in range(max(0, -bx), min(side, width - bx)):

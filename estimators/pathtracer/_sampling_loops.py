@@ -1,12 +1,12 @@
-"""The parallel loops of ``sampling``: a template, never imported as it is. ``sampling``
+"""The row loops of ``sampling``: a template, never imported as it is. ``sampling``
 loads a copy from the kernel cache folder whose name carries a hash of every tracer
 source (``render.load_cached``): numba's cache checks only this file, not the kernels it
-calls, so an edited BSDF or emitter gets new loops, never stale ones."""
+calls, so an edited BSDF or emitter gets new loops, never stale ones. Each computes
+rows ``i0`` to ``i1``; ``sampling`` runs them on numba's threads (``_threads``)."""
 
 import numpy as np
-from numba import prange
 
-from estimators._compile_options import fused
+from estimators._compile_options import THREADED, fused
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_sample
 from estimators.pathtracer.emitters import area_pdf, environment_pdf, sample_emitter
 from estimators.pathtracer.geometry import _hit_prim, surface
@@ -15,10 +15,10 @@ from estimators.pathtracer.layout import AREA, LEAF_KIND, LEAF_PRIM, LIGHT_KIND,
 _UV = 0.5    # texture coordinates of textured BSDFs (textures change weights, not directions)
 
 
-@fused(parallel=True)
-def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, out):
+@fused(**THREADED)
+def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, out, i0, i1):
     wi = (wx, wy, wz)
-    for i in prange(u.shape[0]):
+    for i in range(i0, i1):
         r = bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u[i, 0], u[i, 1],
                         u[i, 2], _UV, _UV, 1.0)
         if r[6] > 0.0 and not r[7]:
@@ -27,18 +27,18 @@ def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, 
             out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
 
 
-@fused(parallel=True)
-def _bsdf_pdf_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, out):
+@fused(**THREADED)
+def _bsdf_pdf_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, out, i0, i1):
     wi = (wx, wy, wz)
-    for i in prange(wo.shape[0]):
+    for i in range(i0, i1):
         out[i] = bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi,
                            (wo[i, 0], wo[i, 1], wo[i, 2]), _UV, _UV)[3]
 
 
-@fused(parallel=True)
+@fused(**THREADED)
 def _emitter_sample_rows(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data,
-                         tex_info, env_marg, env_cond, k, x, y, z, u, out):
-    for i in prange(u.shape[0]):
+                         tex_info, env_marg, env_cond, k, x, y, z, u, out, i0, i1):
+    for i in range(i0, i1):
         r = sample_emitter(light_f, light_i, light_cdf, prims, info, shape_flip, tex_data,
                            tex_info, env_marg, env_cond, k, x, y, z, u[i, 0], u[i, 1], u[i, 2])
         if r[7] > 0.0:
@@ -47,11 +47,11 @@ def _emitter_sample_rows(light_f, light_i, light_cdf, prims, info, shape_flip, t
             out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
 
 
-@fused(parallel=True)
+@fused(**THREADED)
 def _emitter_pdf_rows(light_f, light_i, prims, info, shape_flip, leaf, leaf_info, rows,
-                      env_marg, env_cond, k, x, y, z, d, out):
+                      env_marg, env_cond, k, x, y, z, d, out, i0, i1):
     area = light_i[k, LIGHT_KIND] == AREA
-    for i in prange(d.shape[0]):
+    for i in range(i0, i1):
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         if not area:
             out[i] = environment_pdf(light_f, light_i, env_marg, env_cond, k, dx, dy, dz)

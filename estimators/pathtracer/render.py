@@ -25,6 +25,7 @@ from . import _kernel
 from .camera import SPLAT_CHANNELS, SPLAT_VALUE_CHANNELS
 from .layout import F_STRATIFIED
 from .._generated import first_call, load
+from .._threads import run_split
 from .prepare import PreparedScene, prepare_scene
 
 TILE = 8
@@ -131,16 +132,22 @@ def load_cached(name: str, source: str):
 
 
 def _tiles(width: int, height: int, threads: int) -> np.ndarray:
-    """Rows (x0, y0, x1, y1) of the image's tiles, dealt to ``threads`` like cards:
-    numba's ``prange`` gives each thread one contiguous block of iterations, so the
-    block of thread i holds tiles i, i + threads, i + 2 threads... spread over the
-    whole image, and a costly region (a glass sphere, the mesh) is shared by all
-    threads instead of falling to one."""
+    """Rows (x0, y0, x1, y1) of the image's tiles, dealt to ``threads`` like cards: each
+    thread renders one contiguous block of them (``_dealt``), and the block of thread i
+    holds tiles i, i + threads, i + 2 threads... spread over the whole image, so a
+    costly region (a glass sphere, the mesh) is shared by all threads instead of falling
+    to one."""
     y, x = np.meshgrid(np.arange(0, height, TILE, dtype=np.int64),
                        np.arange(0, width, TILE, dtype=np.int64), indexing="ij")
     x, y = x.ravel(), y.ravel()         # row-major tiles: x fastest
     rows = np.stack([x, y, np.minimum(x + TILE, width), np.minimum(y + TILE, height)], axis=1)
     return np.concatenate([rows[i::threads] for i in range(threads)])
+
+
+def _dealt(n: int, threads: int) -> list[int]:
+    """Where each thread's block of ``_tiles(..., threads)`` starts, and the end: thread
+    i was dealt ``ceil((n - i) / threads)`` of the ``n`` tiles."""
+    return [sum(len(range(i, n, threads)) for i in range(k)) for k in range(threads + 1)]
 
 
 def _integer(name: str, v, minimum: int, maximum: int | None = None) -> None:
@@ -233,7 +240,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
     # process that needs the other waits for ``trace`` and loads it from numba's cache)
     with first_call(f"{module.__name__}.{type(film).__name__}", module.__name__):
         film.render(cs.arrays, cam, _tiles(1, 1, 1)[:0], spp, seed, stratified, pdf_scale,
-                    bad)
+                    bad, 1)
     compile_seconds = time.perf_counter() - t0
     # one parallel call, or with a progress callback up to 20 (each call ends on its
     # slowest thread, so chunks cost time); a splatting film also bounds its tile buffers
@@ -248,7 +255,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
         band = _tiles(w, b - a, threads)
         band[:, 1] += a
         band[:, 3] += a
-        film.render(cs.arrays, cam, band, spp, seed, stratified, pdf_scale, bad)
+        film.render(cs.arrays, cam, band, spp, seed, stratified, pdf_scale, bad, threads)
         if progress:
             progress(n_tiles * int(b) // h, n_tiles)
     seconds = time.perf_counter() - t0
@@ -275,9 +282,11 @@ class _BoxFilm:
     def min_chunks(self, w, h) -> int:
         return 1
 
-    def render(self, arrays, cam, tiles, spp, seed, stratified, pdf_scale, bad):
-        self.module.render_tiles(arrays, cam, tiles, self.width, self.height, spp, seed,
-                                 stratified, pdf_scale, self.mean, self.m2, bad)
+    def render(self, arrays, cam, tiles, spp, seed, stratified, pdf_scale, bad, threads):
+        """Render ``tiles``, dealt to ``threads`` by ``_tiles``, on that many threads."""
+        run_split(self.module.render_tiles, _dealt(len(tiles), threads), arrays, cam, tiles,
+                  self.width, self.height, spp, seed, stratified, pdf_scale, self.mean,
+                  self.m2, bad)
 
     def develop(self, spp):
         return self.mean, (self.m2 / (spp - 1) if spp > 1 else None)
@@ -306,9 +315,16 @@ class _SplatFilm:
         n_tiles = -(-w // TILE) * -(-h // TILE)
         return max(1, min(-(-h // TILE), -(-n_tiles * per_tile // self.BUFFER_BYTES)))
 
-    def render(self, arrays, cam, tiles, spp, seed, stratified, pdf_scale, bad):
-        self.module.splat_tiles(arrays, cam, tiles, self.reach, self.width, self.height,
-                                spp, seed, stratified, pdf_scale, self.acc, bad)
+    def render(self, arrays, cam, tiles, spp, seed, stratified, pdf_scale, bad, threads):
+        """Render ``tiles``, dealt to ``threads`` by ``_tiles``, on that many threads: each
+        tile into a buffer of its own, added up in tile order after."""
+        r = self.reach
+        extent = np.maximum(tiles[:, 2] - tiles[:, 0], tiles[:, 3] - tiles[:, 1])
+        side = int(extent.max(initial=0)) + 2 * r
+        buf = np.zeros((len(tiles), side, side, self.channels))
+        run_split(self.module.splat_tiles, _dealt(len(tiles), threads), arrays, cam, tiles,
+                  r, self.width, self.height, spp, seed, stratified, pdf_scale, buf, bad)
+        self.module.add_splats(tiles, r, buf, self.acc)
 
     def develop(self, spp):
         a = self.acc

@@ -2,7 +2,7 @@
 
 Each front end wraps the scalar kernels the path tracer calls (``bsdfs.bsdf_sample`` /
 ``bsdf_eval``, ``emitters.sample_emitter`` / ``area_pdf`` / ``environment_pdf``) in a
-numba ``prange`` loop over rows (``_sampling_loops``): no second implementation.
+loop over rows (``_sampling_loops``), run on numba's threads: no second implementation.
 
 - :func:`bsdf_sampler` (BSDF row ``b`` of a prepared scene, incident ``wi`` in the local
   shading frame, normal +z): ``sample(u (n, 3)) -> wo (n, 3)``, the first number choosing
@@ -32,6 +32,7 @@ import os
 import numpy as np
 
 from .._generated import first_call
+from .._threads import run_ranges
 from .bsdfs import bsdf_is_smooth
 from .emitters import is_delta
 from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
@@ -50,13 +51,18 @@ def _loops():
     return load_cached(f"mcverify_sampling_{key}", source)
 
 
+#: the fewest rows worth a thread of their own (a BSDF sample costs 0.1-1 µs)
+_GRAIN = 1024
+
+
 def _run(name: str, *args) -> None:
-    """Call the loop ``name``; its first call in this process holds the kernel cache's
+    """Run the loop ``name`` over every row of its last argument, on numba's threads
+    (``_threads.run_ranges``); its first call in this process holds the kernel cache's
     lock (``_generated.first_call``): processes starting together compile it once."""
     fn = getattr(_loops(), name)
     key = f"{fn.py_func.__module__}.{name}"
     with first_call(key, key):
-        fn(*args)
+        run_ranges(fn, args[-1].shape[0], *args, grain=_GRAIN)
 
 
 def _rows(name: str, x) -> np.ndarray:

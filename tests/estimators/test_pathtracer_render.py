@@ -259,7 +259,7 @@ def test_pixels_sharing_a_call_get_their_own_samples(name, spp):
         film = (R._SplatFilm(scene.camera, module, h, w) if scene.camera.splats
                 else R._BoxFilm(module, h, w))
         bad = np.zeros((h, w), np.int64)
-        film.render(scene.arrays, scene.camera.params, tiles, spp, 11, stratified, 1.0, bad)
+        film.render(scene.arrays, scene.camera.params, tiles, spp, 11, stratified, 1.0, bad, 2)
         images.append(film.develop(spp))
     (m0, v0), (m1, v1) = images
     assert m0.sum() > 0 and v0.sum() > 0

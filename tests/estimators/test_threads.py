@@ -1,6 +1,7 @@
 """``estimators._threads``: a serial block loop run on numba's threads."""
 
 import multiprocessing
+import re
 import threading
 import time
 
@@ -10,7 +11,8 @@ import pytest
 from numba import njit
 
 from estimators import _threads
-from estimators._threads import MIN_BLOCKS, run_blocks, threads_for
+from estimators._compile_options import FUSED, THREADED
+from estimators._threads import MIN_BLOCKS, run_ranges, run_split, threads_for
 
 
 @njit(nogil=True)
@@ -42,7 +44,7 @@ def threads():
 def test_every_block_runs_once_in_one_contiguous_range_a_thread(blocks, threads):
     threads(numba.config.NUMBA_NUM_THREADS)
     loop, calls = _recorder()
-    run_blocks(loop, blocks, "x")
+    run_ranges(loop, blocks, "x")
     ranges = sorted((b0, b1) for _, b0, b1, _ in calls)
     covered = [b for b0, b1 in ranges for b in range(b0, b1)]
     assert covered == list(range(blocks))
@@ -57,14 +59,14 @@ def test_every_block_runs_once_in_one_contiguous_range_a_thread(blocks, threads)
 def test_a_numba_loop_marks_each_block_once(threads):
     threads(numba.config.NUMBA_NUM_THREADS)
     seen = np.zeros(777, np.int64)
-    run_blocks(_mark, seen.shape[0], seen)
+    run_ranges(_mark, seen.shape[0], seen)
     assert np.all(seen == 1)
 
 
 def test_numbas_thread_count_limits_the_threads(threads):
     threads(1)
     loop, calls = _recorder()
-    run_blocks(loop, 100 * MIN_BLOCKS, None)
+    run_ranges(loop, 100 * MIN_BLOCKS, None)
     assert [(b0, b1) for _, b0, b1, _ in calls] == [(0, 100 * MIN_BLOCKS)]
     assert calls[0][3] == threading.get_ident()                   # on the caller's thread
 
@@ -83,13 +85,13 @@ def test_an_error_is_raised_once_every_range_has_finished(failing, threads):
         finished.append(mine)
 
     with pytest.raises(ValueError, match=f"{failing} failed"):
-        run_blocks(loop, 4 * MIN_BLOCKS)
+        run_ranges(loop, 4 * MIN_BLOCKS)
     assert finished == ["helper" if failing == "caller" else "caller"]
 
 
 def _child(q):
     loop, calls = _recorder()
-    run_blocks(loop, 4 * MIN_BLOCKS, None)
+    run_ranges(loop, 4 * MIN_BLOCKS, None)
     q.put(sorted((b0, b1) for _, b0, b1, _ in calls))
 
 
@@ -99,7 +101,7 @@ def test_a_forked_child_gets_threads_of_its_own(threads):
     """The parent's pool is made, then a forked child (which inherits the executor but
     not its threads) runs blocks on two threads without hanging."""
     threads(2)
-    run_blocks(_recorder()[0], 4 * MIN_BLOCKS, None)
+    run_ranges(_recorder()[0], 4 * MIN_BLOCKS, None)
     assert _threads._POOL[0] is not None
     ctx = multiprocessing.get_context("fork")
     q = ctx.Queue()
@@ -110,3 +112,63 @@ def test_a_forked_child_gets_threads_of_its_own(threads):
     finally:
         p.join(timeout=60)
     assert got == [(0, 2 * MIN_BLOCKS), (2 * MIN_BLOCKS, 4 * MIN_BLOCKS)]
+
+
+def test_run_split_runs_the_given_ranges_skipping_empty_ones(threads):
+    threads(numba.config.NUMBA_NUM_THREADS)
+    loop, calls = _recorder()
+    run_split(loop, [0, 3, 3, 10], "y")
+    assert sorted((b0, b1) for _, b0, b1, _ in calls) == [(0, 3), (3, 10)]
+    loop, calls = _recorder()
+    run_split(loop, [5, 5, 5], "z")                 # nothing to do: one call, to compile
+    assert [(b0, b1) for _, b0, b1, _ in calls] == [(5, 5)]
+
+
+@pytest.mark.parametrize("n, threads_", [(0, 1), (1, 2), (10, 3), (10, 4), (256, 2), (7, 16)])
+def test_dealt_tiles_start_where_each_threads_cards_start(n, threads_):
+    """``render._dealt`` cuts ``render._tiles``'s dealt list where each thread's cards
+    start: the block of thread i holds tiles i, i + threads, ..."""
+    from estimators.pathtracer.render import _dealt
+    order = list(range(n))
+    dealt = [k for i in range(threads_) for k in order[i::threads_]]
+    cuts = _dealt(n, threads_)
+    assert cuts[0] == 0 and cuts[-1] == n and len(cuts) == threads_ + 1
+    for i in range(threads_):
+        assert dealt[cuts[i]:cuts[i + 1]] == order[i::threads_]
+
+
+@njit(inline="always", error_model="numpy")
+def _density(x, p):
+    return 1.0 / (p[1] - p[0]) if p[0] <= x <= p[1] else 0.0
+
+
+def _body(a, w, out, i0, i1):
+    for i in range(i0, i1):
+        out[i] = _density(a[i], w)
+
+
+def test_threaded_loops_compile_as_a_parallel_body_with_the_same_values():
+    """``_compile_options.THREADED``: the loop's array arguments are ``noalias`` for LLVM
+    and the copies of ``w`` that inlining makes are gone (no reference count update in
+    the loop, where the plain compilation has them), with the same values."""
+    plain = njit(nogil=True, **FUSED)(_body)
+    threaded = njit(**THREADED, **FUSED)(_body)
+    a, w = np.linspace(0.0, 5.0, 1000), np.array([2.0, 3.0])
+    out = [np.zeros(1000), np.zeros(1000)]
+    plain(a, w, out[0], 0, 1000)
+    run_ranges(threaded, 1000, a, w, out[1], grain=100)
+    assert np.array_equal(out[0], out[1])
+    assert np.array_equal(out[1], np.where((a >= 2.0) & (a <= 3.0), 1.0, 0.0))
+
+    def body(f):
+        ir = f.inspect_llvm(f.signatures[0])
+        start = ir.index("define")
+        return ir[start:ir.index("\n}\n", start)]
+
+    def data_pointers(text):      # the attributes of each array's data pointer
+        return re.findall(r"ptr ([^,%]*)%arg\.\w+\.4\b", text.split("\n")[0])
+
+    assert all("noalias" in p for p in data_pointers(body(threaded)))
+    assert not any("noalias" in p for p in data_pointers(body(plain)))
+    assert len(data_pointers(body(threaded))) == 3
+    assert "NRT_incref" in body(plain) and "NRT_incref" not in body(threaded)
