@@ -105,3 +105,12 @@ def kernel_compile_context():
     from estimators._generated import compile_context
     with compile_context():
         yield
+
+
+@pytest.fixture
+def numba_threads():
+    """``numba.set_num_threads`` for a test, numba's thread count put back after it."""
+    import numba
+    before = numba.get_num_threads()
+    yield numba.set_num_threads
+    numba.set_num_threads(before)

@@ -147,7 +147,8 @@ def test_a_constant_sky_renders_its_radiance_in_every_pixel(tmp_path, rfilter):
     assert np.all(r.variance < 1e-10)
 
 
-def test_same_seed_same_splatted_image_whatever_the_thread_count_and_banding(monkeypatch):
+def test_same_seed_same_splatted_image_whatever_the_thread_count_and_banding(monkeypatch,
+                                                                           numba_threads):
     """Tiles splat into private buffers added in tile order: one thread, all threads, and
     a render cut into bands (tile buffers capped at 64 KiB a call) give the same bits."""
     import numba
@@ -158,16 +159,12 @@ def test_same_seed_same_splatted_image_whatever_the_thread_count_and_banding(mon
     render_module = importlib.import_module("estimators.pathtracer.render")
 
     scene = prepare_scene("reference/scenes/filters/scene.xml", params={"res": 32})
-    before = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        a = render(scene, spp=2, seed=7)
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        b = render(scene, spp=2, seed=7)
-        monkeypatch.setattr(render_module._SplatFilm, "BUFFER_BYTES", 1 << 16)
-        c = render(scene, spp=2, seed=7)
-    finally:
-        numba.set_num_threads(before)
+    numba_threads(1)
+    a = render(scene, spp=2, seed=7)
+    numba_threads(numba.config.NUMBA_NUM_THREADS)
+    b = render(scene, spp=2, seed=7)
+    monkeypatch.setattr(render_module._SplatFilm, "BUFFER_BYTES", 1 << 16)
+    c = render(scene, spp=2, seed=7)
     assert a.stats["rfilter"] == "gaussian"
     for other in (b, c):
         assert np.array_equal(a.mean, other.mean)

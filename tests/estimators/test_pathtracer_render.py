@@ -98,16 +98,12 @@ def _ratio_to_sphere_irradiance(path, R, L, rho, height, *, spp, seed):
     return r.mean.astype(np.float64)[..., 0].ravel() / expected
 
 
-def test_same_seed_same_image_whatever_the_thread_count():
+def test_same_seed_same_image_whatever_the_thread_count(numba_threads):
     scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 24})
-    before = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        a = render(scene, spp=4, seed=7)
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        b = render(scene, spp=4, seed=7)
-    finally:
-        numba.set_num_threads(before)
+    numba_threads(1)
+    a = render(scene, spp=4, seed=7)
+    numba_threads(numba.config.NUMBA_NUM_THREADS)
+    b = render(scene, spp=4, seed=7)
     c = render(scene, spp=4, seed=8)
     assert np.array_equal(a.mean, b.mean) and np.array_equal(a.variance, b.variance)
     assert not np.array_equal(a.mean, c.mean)

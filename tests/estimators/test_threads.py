@@ -31,18 +31,10 @@ def _recorder():
     return loop, calls
 
 
-@pytest.fixture
-def threads():
-    """numba's thread count set for a test, put back after."""
-    before = numba.get_num_threads()
-    yield numba.set_num_threads
-    numba.set_num_threads(before)
-
-
 @pytest.mark.parametrize("blocks", [0, 1, MIN_BLOCKS - 1, 2 * MIN_BLOCKS - 1, 2 * MIN_BLOCKS,
                                     5 * MIN_BLOCKS + 3, 1000])
-def test_every_block_runs_once_in_one_contiguous_range_a_thread(blocks, threads):
-    threads(numba.config.NUMBA_NUM_THREADS)
+def test_every_block_runs_once_in_one_contiguous_range_a_thread(blocks, numba_threads):
+    numba_threads(numba.config.NUMBA_NUM_THREADS)
     loop, calls = _recorder()
     run_ranges(loop, blocks, "x")
     ranges = sorted((b0, b1) for _, b0, b1, _ in calls)
@@ -56,15 +48,15 @@ def test_every_block_runs_once_in_one_contiguous_range_a_thread(blocks, threads)
     assert all(tag == "x" for tag, *_ in calls)
 
 
-def test_a_numba_loop_marks_each_block_once(threads):
-    threads(numba.config.NUMBA_NUM_THREADS)
+def test_a_numba_loop_marks_each_block_once(numba_threads):
+    numba_threads(numba.config.NUMBA_NUM_THREADS)
     seen = np.zeros(777, np.int64)
     run_ranges(_mark, seen.shape[0], seen)
     assert np.all(seen == 1)
 
 
-def test_numbas_thread_count_limits_the_threads(threads):
-    threads(1)
+def test_numbas_thread_count_limits_the_threads(numba_threads):
+    numba_threads(1)
     loop, calls = _recorder()
     run_ranges(loop, 100 * MIN_BLOCKS, None)
     assert [(b0, b1) for _, b0, b1, _ in calls] == [(0, 100 * MIN_BLOCKS)]
@@ -73,8 +65,8 @@ def test_numbas_thread_count_limits_the_threads(threads):
 
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two of numba's threads")
 @pytest.mark.parametrize("failing", ["caller", "helper"])
-def test_an_error_is_raised_once_every_range_has_finished(failing, threads):
-    threads(2)
+def test_an_error_is_raised_once_every_range_has_finished(failing, numba_threads):
+    numba_threads(2)
     finished = []
 
     def loop(b0, b1):
@@ -97,10 +89,10 @@ def _child(q):
 
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two of numba's threads")
 @pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(), reason="no fork")
-def test_a_forked_child_gets_threads_of_its_own(threads):
+def test_a_forked_child_gets_threads_of_its_own(numba_threads):
     """The parent's pool is made, then a forked child (which inherits the executor but
     not its threads) runs blocks on two threads without hanging."""
-    threads(2)
+    numba_threads(2)
     run_ranges(_recorder()[0], 4 * MIN_BLOCKS, None)
     assert _threads._POOL[0] is not None
     ctx = multiprocessing.get_context("fork")
@@ -114,8 +106,8 @@ def test_a_forked_child_gets_threads_of_its_own(threads):
     assert got == [(0, 2 * MIN_BLOCKS), (2 * MIN_BLOCKS, 4 * MIN_BLOCKS)]
 
 
-def test_run_split_runs_the_given_ranges_skipping_empty_ones(threads):
-    threads(numba.config.NUMBA_NUM_THREADS)
+def test_run_split_runs_the_given_ranges_skipping_empty_ones(numba_threads):
+    numba_threads(numba.config.NUMBA_NUM_THREADS)
     loop, calls = _recorder()
     run_split(loop, [0, 3, 3, 10], "y")
     assert sorted((b0, b1) for _, b0, b1, _ in calls) == [(0, 3), (3, 10)]
@@ -124,17 +116,17 @@ def test_run_split_runs_the_given_ranges_skipping_empty_ones(threads):
     assert [(b0, b1) for _, b0, b1, _ in calls] == [(5, 5)]
 
 
-@pytest.mark.parametrize("n, threads_", [(0, 1), (1, 2), (10, 3), (10, 4), (256, 2), (7, 16)])
-def test_dealt_tiles_start_where_each_threads_cards_start(n, threads_):
+@pytest.mark.parametrize("n, threads", [(0, 1), (1, 2), (10, 3), (10, 4), (256, 2), (7, 16)])
+def test_dealt_tiles_start_where_each_threads_cards_start(n, threads):
     """``render._dealt`` cuts ``render._tiles``'s dealt list where each thread's cards
     start: the block of thread i holds tiles i, i + threads, ..."""
     from estimators.pathtracer.render import _dealt
     order = list(range(n))
-    dealt = [k for i in range(threads_) for k in order[i::threads_]]
-    cuts = _dealt(n, threads_)
-    assert cuts[0] == 0 and cuts[-1] == n and len(cuts) == threads_ + 1
-    for i in range(threads_):
-        assert dealt[cuts[i]:cuts[i + 1]] == order[i::threads_]
+    dealt = [k for i in range(threads) for k in order[i::threads]]
+    cuts = _dealt(n, threads)
+    assert cuts[0] == 0 and cuts[-1] == n and len(cuts) == threads + 1
+    for i in range(threads):
+        assert dealt[cuts[i]:cuts[i + 1]] == order[i::threads]
 
 
 @njit(inline="always", error_model="numpy")
