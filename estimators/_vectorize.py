@@ -6,9 +6,9 @@ tracer calls the same kernels on tuples, so each warp has one implementation.
 
 Each front end runs one loop over blocks of ``_BLOCK`` rows on numba's threads (a
 range of blocks a thread, ``_threads``). Within a block, the input rows are first moved
-into a column-major scratch block (one contiguous run per coordinate), the kernel reads those columns and writes its
-results to a second one, and these are moved back to rows: eight rows at a time, as
-vector shuffles (``_transpose``). Unit-stride columns are what lets LLVM vectorise a
+into a column-major scratch block (one contiguous run per coordinate), the kernel reads
+those columns and writes its results to a second one, and these are moved back to rows:
+eight rows at a time, as vector shuffles (``_transpose``). Unit-stride columns are what lets LLVM vectorise a
 branch-light kernel (measured, cosine hemisphere, one thread: 9 ns a point against
 42 ns for one kernel call per row; the loop is compiled with IEEE division, as numba
 compiles a parallel loop's body: with numba's default error model LLVM did not
@@ -180,7 +180,7 @@ _LOOP_SOURCE = (_HEAD + '''
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def loop(x, p, out, streaming, b0, b1):
-''' + _BLOCK_IN.replace("{scratch}", "") + _BLOCK_OUT.format(o="o", out="out", store="store", stream="stream"))
+''' + _BLOCK_IN + _BLOCK_OUT.format(o="o", out="out", store="store", stream="stream"))
 
 _FUSED_SOURCE = (_HEAD + '''from {density_module} import {density} as density
 from estimators._transpose import store_rows1, stream_rows1
@@ -189,7 +189,7 @@ from estimators._vectorize import _as_stored, {point} as point
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def loop(x, p, out, pdf_out, streaming, b0, b1):
-''' + _BLOCK_IN.replace("{scratch}", "\n    q = np.empty((1, _BLOCK))") + '''        for t in range(m):
+''' + _BLOCK_IN + '''        for t in range(m):
             for j in range(n_out):          # the point as ``out`` holds it
                 o[j, t] = _as_stored(out, o[j, t])
             q[0, t] = nan_or(point(o, t), density(point(o, t), pt))
@@ -256,7 +256,7 @@ def _loop(kernel, n_in: int, put: str, inline: bool, n_params: int):
                                  call=f"nan_or(column(c, t), {call})" if put == "_put_value"
                                  else call,
                                  inline=_INLINE.format(name="kernel") if inline else "",
-                                 params=_params(n_params))
+                                 params=_params(n_params), scratch="")
     return _module(f"estimators_loop_{fn.__name__.strip('_')}", source, [fn]).loop
 
 
@@ -271,6 +271,7 @@ def _fused_loop(kernel, density, n_in: int, n_out: int, inline: bool, inline_den
         module=fn.__module__, kernel=fn.__name__, and_density=f" and {fd.__name__}",
         column=_COLUMNS[n_in], put=_PUTS[n_out], n_in=n_in, n_out=n_out,
         nan_or=_NAN_OR[n_out], call="kernel(column(c, t), pt)", params=_params(n_params),
+        scratch="\n    q = np.empty((1, _BLOCK))",     # the densities' block
         inline=_INLINE.format(name="kernel") if inline else "",
         density_module=fd.__module__, density=fd.__name__, point=_COLUMNS[n_out],
         inline_density=_INLINE.format(name="density") if inline_density else "")
@@ -375,8 +376,8 @@ def fused_front_end(kernel, density, n_in: int, n_out: int, name: str, doc: str 
         total = n * (n_out + 1) * size
         out, streaming = _output(n, n_out, rows.dtype, total)
         pdf_out, _ = _output(n, 1, rows.dtype, total)
-        _run(_fused_loop(kernel, density, n_in, n_out, inline, inline_density, count), rows, p,
-             out, pdf_out, streaming)
+        loop = _fused_loop(kernel, density, n_in, n_out, inline, inline_density, count)
+        _run(loop, rows, p, out, pdf_out, streaming)
         return out, pdf_out[:, 0]
 
     front.__name__ = front.__qualname__ = name

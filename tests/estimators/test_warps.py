@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import mcverify as mv
+from estimators._threads import MIN_BLOCKS, threads_for
 from estimators.warps import ONE_MINUS_EPSILON, WARPS
 
 NAMES = sorted(WARPS)
@@ -226,6 +227,7 @@ def _front_end_runs(w, u, dtype, pdf_and_invert):
     try:
         for threads in (1, 2):
             numba.set_num_threads(threads)
+            assert threads_for(-(-u.shape[0] // 512)) == threads    # the threads it runs on
             x = w.sample(u.astype(dtype), *w.defaults)
             out = [x]
             if pdf_and_invert:
@@ -250,7 +252,9 @@ def _same_bits_and_float32_within_half_an_ulp(name, float32_pdf_and_invert):
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("numba has a single thread here")
     w = WARPS[name]
-    u = np.random.default_rng(5).random((3 * 512 + 7, w.sample_dim))
+    # enough blocks of 512 rows for two threads (``_threads.MIN_BLOCKS`` each), and a
+    # partial last block
+    u = np.random.default_rng(5).random(((2 * MIN_BLOCKS + 3) * 512 + 7, w.sample_dim))
     _front_end_runs(w, u, np.float64, True)
     got = _front_end_runs(w, u, np.float32, float32_pdf_and_invert)
     if not float32_pdf_and_invert:
