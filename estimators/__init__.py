@@ -1,5 +1,5 @@
 """The subject: Monte Carlo estimators, warps, distributions and the path tracer."""
 
-from ._vector_width import prefer_wide_vectors
+from mcnumba.vector_width import prefer_wide_vectors
 
 prefer_wide_vectors()

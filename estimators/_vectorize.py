@@ -5,7 +5,7 @@ indexable of parameters, and returns a tuple (a point) or a float (a density). T
 tracer calls the same kernels on tuples, so each warp has one implementation.
 
 Each front end runs one loop over blocks of ``_BLOCK`` rows on numba's threads (a
-range of blocks a thread, ``_threads``). Within a block, the input rows are first moved
+range of blocks a thread, ``mcnumba.threads``). Within a block, the input rows are first moved
 into a column-major scratch block (one contiguous run per coordinate), the kernel reads
 those columns and writes its results to a second one, and these are moved back to rows:
 eight rows at a time, as vector shuffles (``_transpose``). Unit-stride columns are what lets LLVM vectorise a
@@ -61,7 +61,7 @@ from numba.extending import overload
 from . import _compile_options, _fastmath, _transpose
 from ._compile_options import exact
 from ._generated import first_call, load
-from ._threads import run_ranges
+from mcnumba.threads import run_ranges
 from .warp_params import check_params, param_count
 
 #: Rows per block: scratch of up to 4 float64 columns stays in L1 (16 KB), and a block
@@ -334,7 +334,7 @@ def _output(n: int, n_out: int, dtype, total: int | None = None) -> tuple[np.nda
 
 def _run(loop, rows, *args):
     """``loop(rows, *args, b0, b1)`` over every block of ``rows``, on numba's threads
-    (``_threads.run_ranges``). The first call per dtype compiles (or loads numba's cache)
+    (``mcnumba.threads.run_ranges``). The first call per dtype compiles (or loads numba's cache)
     under the kernel cache's lock, so processes starting together compile each loop
     once."""
     name_dtype = f"{loop.__module__}.{rows.dtype}"

@@ -1,4 +1,4 @@
-"""512-bit vectors on AVX-512 machines: numba's code for this package's loops.
+"""512-bit vectors on AVX-512 machines: numba's code for the subject's and the judge's loops.
 
 LLVM tunes its code for most AVX-512 CPUs with ``prefer-256-bit``: its loop vectoriser
 then uses 256-bit registers (4 float64 lanes), a choice made for old server CPUs whose
@@ -9,18 +9,15 @@ fast with 512-bit vectors: cosine hemisphere 6.4 -> 5.1 ms, uniform sphere 7.6 -
 Beckmann 12.5 -> 9.2, the χ² check 39 -> 29 ms, renders unchanged (±4 %). The results
 are bit-identical (no reassociation: numba compiles without fast-math).
 
-``prefer_wide_vectors()`` runs when ``estimators`` is imported, before any of its numba
-functions is defined. Numba reads ``NUMBA_CPU_FEATURES`` when its code generator starts
-(at the process's first ``@njit``), so it sets that variable, unless the user has set it or
-``NUMBA_CPU_NAME``, to the host's features with ``-prefer-256-bit``; child processes
-(workers) inherit it. A process that defined numba functions before importing
-``estimators`` (or ``mcverify``) keeps its code generator as it is.
-
-``mcverify`` runs a copy of this function (``mcverify/_vector_width.py``) at its own
-import: the judge's core may not import the subject (``tests/test_layers.py``), and
-either package may be imported first. Numba's cache is keyed by the features,
-so code compiled either way is never confused. Set ``NUMBA_CPU_FEATURES`` yourself (for
-example to ``numba.core.codegen.get_host_cpu_features()``) to keep LLVM's choice.
+``prefer_wide_vectors()`` runs when ``estimators`` or ``mcverify`` is imported (either
+may come first), before any of their numba functions is defined. Numba reads
+``NUMBA_CPU_FEATURES`` when its code generator starts (at the process's first ``@njit``),
+so it sets that variable, unless the user has set it or ``NUMBA_CPU_NAME``, to the host's
+features with ``-prefer-256-bit``; child processes (workers) inherit it. A process that
+defined numba functions before importing either package keeps its code generator as it
+is. Numba's cache is keyed by the features, so code compiled either way is never
+confused. Set ``NUMBA_CPU_FEATURES`` yourself (for example to
+``numba.core.codegen.get_host_cpu_features()``) to keep LLVM's choice.
 """
 
 from __future__ import annotations

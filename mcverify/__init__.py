@@ -31,9 +31,9 @@ references, the Mitsuba adapters, bench, report, CLI). ``render_check`` is re-ex
 from the gate lazily, so ``import mcverify`` loads neither.
 """
 
-from ._vector_width import prefer_wide_vectors
+from mcnumba.vector_width import prefer_wide_vectors
 
-prefer_wide_vectors()       # before any numba function is defined: see _vector_width
+prefer_wide_vectors()       # before any numba function is defined: see mcnumba.vector_width
 
 from ._version import __version__
 from .checks import (check_convergence, check_inverse, check_same_distribution,

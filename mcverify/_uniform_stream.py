@@ -10,8 +10,8 @@ does. Both bit for bit, tested against numpy.
 
 Why not numpy itself: its generators ran on a thread pool beside the checks' numba
 kernels, and on two cores the two thread teams starved each other (the uniforms of a
-1e6-row chunk took 3.5-4.8 ms there, 2.35 alone). ``fill`` runs in numba's own team,
-and steps four blocks' generators in lockstep, which hides the multiply's latency: 1.1
+1e6-row chunk took 3.5-4.8 ms there, 2.35 alone). ``fill`` runs on the threads of the
+checks' other loops (``mcnumba.threads``), and steps four blocks' generators in lockstep, which hides the multiply's latency: 1.1
 ns a number on one thread, against numpy's 1.8-2.0.
 """
 
@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 from llvmlite import ir
-from numba import njit, prange, types
+from numba import njit, types
 from numba.extending import intrinsic
+
+from mcnumba.threads import run_ranges
 
 #: Rows of one seeded block of a stream.
 STREAM_BLOCK = 1 << 16
@@ -75,15 +77,12 @@ def _run(st, b, out, lo, hi):
     st[b, 0], st[b, 1] = s_hi, s_lo
 
 
-@njit(cache=True, parallel=True)
-def fill(states, block_len, out):
-    """``out`` (flat) from the generators ``states`` (n_blocks, 4: state high, low,
-    increment high, low; consumed), ``block_len`` numbers each (the last block takes
-    what is left). Groups of four blocks run in lockstep, one group per thread at a
-    time; each block's numbers are its generator's sequence whatever the grouping."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fill_groups(states, block_len, out, g0, g1):
+    """``fill`` for the groups of four blocks ``g0`` to ``g1``."""
     n = out.shape[0]
     nb = states.shape[0]
-    for g in prange((nb + 3) // 4):
+    for g in range(g0, g1):
         b = 4 * g
         starts = (b * block_len, (b + 1) * block_len, (b + 2) * block_len,
                   (b + 3) * block_len)
@@ -106,6 +105,16 @@ def fill(states, block_len, out):
         for j in range(min(4, nb - b)):       # what lockstep left (all of a short group)
             lo = starts[j]
             _run(states, b + j, out, lo + common, min(lo + block_len, n))
+
+
+def fill(states, block_len, out):
+    """``out`` (flat) from the generators ``states`` (n_blocks, 4: state high, low,
+    increment high, low; consumed), ``block_len`` numbers each (the last block takes
+    what is left). Groups of four blocks run in lockstep, a range of groups a thread
+    (``mcnumba.threads``; a serial ``nogil`` loop compiles in about half the time of a
+    ``prange`` one); each block's numbers are its generator's sequence whatever the
+    grouping."""
+    run_ranges(_fill_groups, (states.shape[0] + 3) // 4, states, block_len, out, grain=1)
 
 
 # numpy's SeedSequence (numpy/random/bit_generator.pyx): its hash constants and pool size.
@@ -231,3 +240,4 @@ def rows(seq: np.random.SeedSequence, start: int, u: np.ndarray) -> np.ndarray:
         fill(block_states(seq, start // STREAM_BLOCK, nb), STREAM_BLOCK * u.shape[1],
              u.reshape(-1))
     return u
+

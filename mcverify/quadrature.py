@@ -24,7 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from mcnumba.threads import run_ranges
 
 __all__ = ["CellIntegral", "integrate_cells", "gauss_legendre_01", "merge_leaves"]
 
@@ -62,25 +64,37 @@ def merge_leaves(lo, width, mass, owner):
 _S_MAX = 1.0 - 2.0 ** -52      # the largest parameter below 1
 
 
-@njit(cache=True, parallel=True)
-def _box_points(lo, width, pts, clip, out):
-    """``out[i·Q + q] = lo[i] + width[i] · pts[q]`` for boxes i and offsets q (one
-    parallel pass: numpy built an (L, Q, m) product and a sum, and for corners a clip),
-    clipped to [0, 1 - 2^-52] with ``clip``."""
+#: Node values per thread at the least (a few ns each; handing a range of boxes to
+#: another thread costs about 50 µs). The box loops are serial ``nogil`` loops that
+#: ``mcnumba.threads`` runs on several threads, a range of boxes each: as numba
+#: ``prange`` loops they compiled in about twice the time.
+_VALUES_PER_THREAD = 16384
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _box_points_rows(lo, width, pts, clip, out, i0, i1):
+    """``_box_points`` for boxes ``i0`` to ``i1``."""
     n_q, m = pts.shape
-    for i in prange(lo.shape[0]):
+    for i in range(i0, i1):
         for q in range(n_q):
             for j in range(m):
                 v = lo[i, j] + width[i, j] * pts[q, j]
                 out[i * n_q + q, j] = min(max(v, 0.0), _S_MAX) if clip else v
 
 
-@njit(cache=True, parallel=True)
-def _rule_sums(f, wts, width, out_sum, out_max, out_min):
-    """Per box i: ``Σ_q wts[q] f[i·Q + q] · volume``, and the largest (at least 0) and
-    smallest node value; a NaN value makes all three NaN, as numpy's reductions did."""
+def _box_points(lo, width, pts, clip, out):
+    """``out[i·Q + q] = lo[i] + width[i] · pts[q]`` for boxes i and offsets q (one pass:
+    numpy built an (L, Q, m) product and a sum, and for corners a clip), clipped to
+    [0, 1 - 2^-52] with ``clip``."""
+    run_ranges(_box_points_rows, lo.shape[0], lo, width, pts, clip, out,
+               grain=max(1, _VALUES_PER_THREAD // pts.shape[0]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _rule_sums_rows(f, wts, width, out_sum, out_max, out_min, i0, i1):
+    """``_rule_sums`` for boxes ``i0`` to ``i1``."""
     n_q = wts.shape[0]
-    for i in prange(out_sum.shape[0]):
+    for i in range(i0, i1):
         acc, hi, lo, nan = 0.0, 0.0, np.inf, False
         for q in range(n_q):
             v = f[i * n_q + q]
@@ -93,6 +107,13 @@ def _rule_sums(f, wts, width, out_sum, out_max, out_min):
             vol *= width[i, j]
         out_sum[i] = acc * vol
         out_max[i], out_min[i] = (np.nan, np.nan) if nan else (hi, lo)
+
+
+def _rule_sums(f, wts, width, out_sum, out_max, out_min):
+    """Per box i: ``Σ_q wts[q] f[i·Q + q] · volume``, and the largest (at least 0) and
+    smallest node value; a NaN value makes all three NaN, as numpy's reductions did."""
+    run_ranges(_rule_sums_rows, out_sum.shape[0], f, wts, width, out_sum, out_max, out_min,
+               grain=max(1, _VALUES_PER_THREAD // wts.shape[0]))
 
 
 def _tensor(nodes, weights, m):

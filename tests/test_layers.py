@@ -1,5 +1,7 @@
 """The import rules of the house (docs/ARCHITECTURE.md), kept by a test:
 
+- ``mcnumba`` (numba plumbing both packages use: threads, vector width) imports
+  neither of them;
 - ``estimators`` (the subject) never imports ``mcverify`` (its judge);
 - ``mcverify``'s core (everything outside ``mcverify/gate/``) imports neither
   ``estimators`` nor Mitsuba nor the gate, at module level or inside functions; the one
@@ -157,16 +159,16 @@ def test_render_check_is_re_exported_lazily():
         mcverify.no_such_thing   # noqa: B018
 
 
-def test_the_judge_and_the_subject_run_the_same_vector_width_code():
-    """``mcverify/_vector_width.py`` is a copy of the subject's (the core may not import
-    it): the function and its flag are held to the same source."""
-    import inspect
-
-    import estimators._vector_width as a
-    import mcverify._vector_width as b
-
-    assert inspect.getsource(a.prefer_wide_vectors) == inspect.getsource(b.prefer_wide_vectors)
-    assert a.FEATURE == b.FEATURE == "-prefer-256-bit"
+def test_the_shared_numba_plumbing_imports_neither_subject_nor_judge():
+    """``mcnumba`` (threads, vector width) serves both packages: it may import neither,
+    nor Mitsuba, and both packages take their vector width from it."""
+    shared = list(files("mcnumba"))
+    assert "mcnumba/threads.py" in shared and "mcnumba/vector_width.py" in shared
+    bad = {rel: _hits(rel, ("estimators", "mcverify") + MITSUBA) for rel in shared}
+    assert not {k: v for k, v in bad.items() if v}
+    for package in ("estimators", "mcverify"):
+        assert ("mcnumba.vector_width.prefer_wide_vectors", None) in imports(
+            f"{package}/__init__.py")
 
 
 @pytest.mark.parametrize("first", ["mcverify", "estimators"])

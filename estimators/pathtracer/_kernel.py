@@ -706,7 +706,7 @@ def render_tiles(sc, cam, tiles, width, height, spp, seed, stratified, pdf_scale
     """Render tiles ``t0`` to ``t1`` of the list (rows of x0, y0, x1, y1): per pixel, the
     mean and the sum of squared deviations (Welford) of ``spp`` samples (stratified per
     dimension when ``stratified``); ``bad`` counts non-finite samples (set to zero).
-    ``render`` runs ranges of tiles on numba's threads (``_threads``)."""
+    ``render`` runs ranges of tiles on numba's threads (``mcnumba.threads``)."""
     n_strat = strata_field(spp) if stratified else np.uint64(0)
     group = pixel_group(spp, stratified)
     for ti in range(t0, t1):

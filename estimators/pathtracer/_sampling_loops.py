@@ -2,7 +2,7 @@
 loads a copy from the kernel cache folder whose name carries a hash of every tracer
 source (``render.load_cached``): numba's cache checks only this file, not the kernels it
 calls, so an edited BSDF or emitter gets new loops, never stale ones. Each computes
-rows ``i0`` to ``i1``; ``sampling`` runs them on numba's threads (``_threads``)."""
+rows ``i0`` to ``i1``; ``sampling`` runs them on numba's threads (``mcnumba.threads``)."""
 
 import numpy as np
 

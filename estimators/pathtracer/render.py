@@ -25,7 +25,7 @@ from . import _kernel
 from .camera import SPLAT_CHANNELS, SPLAT_VALUE_CHANNELS
 from .layout import F_STRATIFIED
 from .._generated import first_call, load
-from .._threads import run_split
+from mcnumba.threads import run_split
 from .prepare import PreparedScene, prepare_scene
 
 TILE = 8

@@ -32,7 +32,7 @@ import os
 import numpy as np
 
 from .._generated import first_call
-from .._threads import run_ranges
+from mcnumba.threads import run_ranges
 from .bsdfs import bsdf_is_smooth
 from .emitters import is_delta
 from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
@@ -57,7 +57,7 @@ _GRAIN = 1024
 
 def _run(name: str, *args) -> None:
     """Run the loop ``name`` over every row of its last argument, on numba's threads
-    (``_threads.run_ranges``); its first call in this process holds the kernel cache's
+    (``mcnumba.threads.run_ranges``); its first call in this process holds the kernel cache's
     lock (``_generated.first_call``): processes starting together compile it once."""
     fn = getattr(_loops(), name)
     key = f"{fn.py_func.__module__}.{name}"

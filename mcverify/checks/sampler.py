@@ -16,7 +16,9 @@ import weakref
 from collections import OrderedDict
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from mcnumba.threads import run_ranges
 
 from .. import _domain_kernels as kernels
 from .. import _uniform_stream as stream
@@ -301,16 +303,21 @@ def _edges(pilot_s, resolution):
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pilot_edges_axes(pilot_s, r, lin, levels, e, j0, j1):
+    """``_pilot_edges`` for axes ``j0`` to ``j1``."""
+    for j in range(j0, j1):
+        rj = r[j]
+        _mixture_quantiles(radix_sorted(pilot_s[:, j]), lin[j, :4 * rj + 1],
+                           levels[j, :rj + 1], e[j, :rj + 1])
+
+
 def _pilot_edges(pilot_s, r, lin, levels, e):
     """``e[j, :r[j] + 1]``: axis j's edges before their ends are pinned to 0 and 1, the
     inverse of g(c) = 0.5·F_pilot(c) + 0.5·c (the sorted pilot values and the uniform
     points ``lin[j, :4 r[j] + 1]``, merged in order, no second sort) at the levels
-    ``levels[j, :r[j] + 1]``; one axis a thread."""
-    for j in prange(r.shape[0]):
-        rj = r[j]
-        _mixture_quantiles(radix_sorted(pilot_s[:, j]), lin[j, :4 * rj + 1],
-                           levels[j, :rj + 1], e[j, :rj + 1])
+    ``levels[j, :r[j] + 1]``; one axis a thread (``mcnumba.threads``)."""
+    run_ranges(_pilot_edges_axes, r.shape[0], pilot_s, r, lin, levels, e, grain=1)
 
 
 class _Density:

@@ -240,7 +240,7 @@ def test_a_loop_over_it_vectorises(name):
 
 def expected_lanes():
     """float64 lanes of the code numba generates here: 8 with 512-bit vectors (an
-    AVX-512 host, ``estimators._vector_width``), 4 with AVX2, None elsewhere."""
+    AVX-512 host, ``mcnumba.vector_width``), 4 with AVX2, None elsewhere."""
     from numba.core import registry
 
     features = registry.cpu_target.target_context.codegen()._tm_features.split(",")

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import mcverify as mv
-from estimators._threads import MIN_BLOCKS, threads_for
+from mcnumba.threads import MIN_BLOCKS, threads_for
 from estimators.warps import ONE_MINUS_EPSILON, WARPS
 
 NAMES = sorted(WARPS)
@@ -252,7 +252,7 @@ def _same_bits_and_float32_within_half_an_ulp(name, float32_pdf_and_invert):
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("numba has a single thread here")
     w = WARPS[name]
-    # enough blocks of 512 rows for two threads (``_threads.MIN_BLOCKS`` each), and a
+    # enough blocks of 512 rows for two threads (``mcnumba.threads.MIN_BLOCKS`` each), and a
     # partial last block
     u = np.random.default_rng(5).random(((2 * MIN_BLOCKS + 3) * 512 + 7, w.sample_dim))
     _front_end_runs(w, u, np.float64, True)
@@ -346,7 +346,7 @@ def _check_width_bit_identical(names):
 
 
 def test_wide_vectors_give_bit_identical_warps():
-    """``estimators._vector_width``: the warps' loops compiled for 512-bit vectors (the
+    """``mcnumba.vector_width``: the warps' loops compiled for 512-bit vectors (the
     default on an AVX-512 host) and for LLVM's own 256-bit choice give the same bits
     (samples, pdfs, inverses; edge u included). Three warps here, every warp in the slow
     run. On a host without AVX-512 both runs compile the same code."""

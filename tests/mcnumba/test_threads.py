@@ -1,4 +1,4 @@
-"""``estimators._threads``: a serial block loop run on numba's threads."""
+"""``mcnumba.threads``: a serial block loop run on numba's threads."""
 
 import multiprocessing
 import re
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from numba import njit
 
-from estimators import _threads
+from mcnumba import threads as _threads
 from estimators._compile_options import FUSED, THREADED
-from estimators._threads import MIN_BLOCKS, run_ranges, run_split, threads_for
+from mcnumba.threads import MIN_BLOCKS, run_ranges, run_split, threads_for
 
 
 @njit(nogil=True)

@@ -1,3 +1,4 @@
+import numba
 import numpy as np
 import pytest
 from hypothesis import given
@@ -288,17 +289,23 @@ def _boundary_points(dom, rng, n):
 @pytest.mark.parametrize("rejection", [False, True])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("dom", DOMAINS, ids=repr)
-def test_blocked_kernels_give_what_one_point_at_a_time_gives(dom, dtype, rejection, crowded):
+def test_blocked_kernels_give_what_one_point_at_a_time_gives(dom, dtype, rejection, crowded,
+                                                            numba_threads):
     """The blocked kernels (a branch-free pass for a block's parameters, a look-up pass
     for their cells, then counting or storing) give the scalar path's counts, status
     counts and first examples, and its exact parameters and status codes, point for
     point: random points, points on the domain's tolerance bounds and an ulp either
-    side, bad coordinates, over several blocks and parts (n not a multiple of either);
+    side, bad coordinates, over several blocks and parts (n not a multiple of either),
+    on two threads where numba has two (each a range of parts and of blocks);
     ``crowded``: cell edges a look-up slot holds several of (the scan's path)."""
+    from mcnumba.threads import threads_for
     from mcverify.checks.sampler import _edges, _Histogram
 
+    threads = min(2, numba.config.NUMBA_NUM_THREADS)
+    numba_threads(threads)
     rng = np.random.default_rng(11)
-    n = 3 * K._PARTS * K._BIN_BLOCK + 37
+    n = 5 * K._PARTS * K._BIN_BLOCK + 37
+    assert threads_for(2 * n, K._ROWS_PER_THREAD) == threads
     u = rng.random((n, dom.param_dim))
     inside = dom.to_point(u * 4e-3 if crowded else u)        # crowded: into those cells
     x = np.concatenate([inside, _boundary_points(dom, rng, n)])[rng.permutation(2 * n)]
