@@ -69,11 +69,12 @@ class InProcessExecutor(cf.Executor):
 
 @lru_cache(maxsize=1)
 def source_fingerprint() -> str:
-    """SHA-256 of the sources of ``mcverify`` and ``estimators`` as this process sees
-    them: a worker that would rebuild checks from different code refuses to run."""
+    """SHA-256 of the sources of ``mcverify``, ``estimators`` and ``mcnumba`` as this
+    process sees them: a worker that would rebuild checks from different code refuses
+    to run."""
     here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     h = hashlib.sha256()
-    for pkg in ("mcverify", "estimators"):
+    for pkg in ("mcverify", "estimators", "mcnumba"):
         for folder, dirs, files in sorted(os.walk(os.path.join(here, pkg))):
             dirs.sort()
             for name in sorted(files):
@@ -90,7 +91,7 @@ def same_source(expected: str | None) -> None:
     if expected is not None and expected != source_fingerprint():
         raise EnvironmentProblem(
             f"worker {os.uname().nodename} (pid {os.getpid()}) runs different mcverify/"
-            f"estimators sources (fingerprint {source_fingerprint()[:12]}, client "
+            f"estimators/mcnumba sources (fingerprint {source_fingerprint()[:12]}, client "
             f"{expected[:12]}); install the same version on every worker")
 
 

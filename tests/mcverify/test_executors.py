@@ -122,8 +122,30 @@ def test_a_check_without_a_recipe_must_pickle_to_leave_the_process():
 
 def test_a_worker_with_other_sources_refuses():
     same_source(None)
-    with pytest.raises(EnvironmentProblem, match="different mcverify/estimators sources"):
+    with pytest.raises(EnvironmentProblem, match="different mcverify/estimators/mcnumba "
+                                                 "sources"):
         same_source("0" * 64)
+
+
+def test_the_source_fingerprint_reads_every_package_the_distribution_installs(monkeypatch):
+    """Every package ``pyproject.toml`` installs (``mcnumba``'s threads too) is in the
+    fingerprint a worker must match."""
+    import tomllib
+
+    from mcverify.gate import executors
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    with open(os.path.join(root, "pyproject.toml"), "rb") as f:
+        include = tomllib.load(f)["tool"]["setuptools"]["packages"]["find"]["include"]
+    walked, walk = [], os.walk
+    monkeypatch.setattr(executors.os, "walk", lambda p: walked.append(os.path.basename(p))
+                        or walk(p))
+    executors.source_fingerprint.cache_clear()
+    try:
+        executors.source_fingerprint()
+    finally:
+        executors.source_fingerprint.cache_clear()
+    assert sorted(walked) == sorted(p.rstrip("*") for p in include)
 
 
 @pytest.mark.parametrize("kwargs,needle", [
