@@ -26,6 +26,11 @@ import numba
 
 #: the fewest of the warps' 512-row blocks worth a thread of their own (about 80 µs)
 MIN_BLOCKS = 16
+#: ``njit`` options of a loop that these functions run, where nothing more is needed: a
+#: serial loop over a range that releases the GIL, compiled with IEEE division (x/0 is
+#: ±inf or NaN, no ZeroDivisionError branch) as numba compiles a ``prange`` body, and
+#: cached on disk.
+LOOP = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 _POOL: list = [None, None]          # (executor, the pid that made it)
 _POOL_LOCK = threading.Lock()

@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from mcnumba.threads import run_ranges, run_split, threads_for
+from mcnumba.threads import LOOP, run_ranges, run_split, threads_for
 
 INTERVAL, SQUARE, DISK, SPHERE, HEMISPHERE = 0, 1, 2, 3, 4
 #: Status codes of ``classify``: a valid point, a NaN/Inf coordinate, outside the domain,
@@ -33,9 +33,6 @@ _PARTS = 16
 #: The fewest rows worth a thread of their own (a few ns a row; handing a range to
 #: another thread costs about 50 µs).
 _ROWS_PER_THREAD = 16384
-#: ``njit`` options of the loops run on threads: no GIL, IEEE division (x/0 is ±inf or
-#: NaN, no ZeroDivisionError branch), as in the body of a ``prange`` loop.
-_LOOP = {"cache": True, "nogil": True, "error_model": "numpy"}
 _S_MAX = 1.0 - 2.0 ** -52
 _INV_TWO_PI = 1.0 / (2.0 * math.pi)
 
@@ -157,7 +154,7 @@ def _locate(kind, args, tol, x, i, rejection, exact):
     return VALID, w if kind == HEMISPHERE else 0.5 * w, s1
 
 
-@njit(**_LOOP)
+@njit(**LOOP)
 def _to_point_rows(kind, args, s, out, i0, i1):
     """``to_point_kernel`` for rows ``i0`` to ``i1``."""
     for i in range(i0, i1):
@@ -346,7 +343,7 @@ def _point_status(kind, args, tol, x, i, rejection, exact):
     return _locate(kind, args, tol, x, i, rejection, exact)
 
 
-@njit(**_LOOP)
+@njit(**LOOP)
 def _to_param_blocks(kind, args, tol, x, out_s, out_status, rejection, b0, b1):
     """``to_param_kernel`` for the blocks of ``_BIN_BLOCK`` rows ``b0`` to ``b1``."""
     n = x.shape[0]
@@ -374,7 +371,7 @@ def to_param_kernel(kind, args, tol, x, out_s, out_status, rejection):
                out_status, rejection, grain=_ROWS_PER_THREAD // _BIN_BLOCK)
 
 
-@njit(**_LOOP)
+@njit(**LOOP)
 def _histogram_parts(kind, args, tol, x, e0, lut0, cut0, e1, lut1, cut1, param_dim, rejection,
                      part_counts, part_status, part_first, q0, q1):
     """``histogram_kernel``'s parts ``q0`` to ``q1``, each counted into its own row of

@@ -22,7 +22,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from mcnumba.threads import run_ranges
+from mcnumba.threads import LOOP, run_ranges
 
 #: Rows of one seeded block of a stream.
 STREAM_BLOCK = 1 << 16
@@ -77,7 +77,7 @@ def _run(st, b, out, lo, hi):
     st[b, 0], st[b, 1] = s_hi, s_lo
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(**LOOP)
 def _fill_groups(states, block_len, out, g0, g1):
     """``fill`` for the groups of four blocks ``g0`` to ``g1``."""
     n = out.shape[0]
@@ -240,4 +240,3 @@ def rows(seq: np.random.SeedSequence, start: int, u: np.ndarray) -> np.ndarray:
         fill(block_states(seq, start // STREAM_BLOCK, nb), STREAM_BLOCK * u.shape[1],
              u.reshape(-1))
     return u
-

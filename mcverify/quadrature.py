@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mcnumba.threads import run_ranges
+from mcnumba.threads import LOOP, run_ranges
 
 __all__ = ["CellIntegral", "integrate_cells", "gauss_legendre_01", "merge_leaves"]
 
@@ -71,7 +71,7 @@ _S_MAX = 1.0 - 2.0 ** -52      # the largest parameter below 1
 _VALUES_PER_THREAD = 16384
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(**LOOP)
 def _box_points_rows(lo, width, pts, clip, out, i0, i1):
     """``_box_points`` for boxes ``i0`` to ``i1``."""
     n_q, m = pts.shape
@@ -90,7 +90,7 @@ def _box_points(lo, width, pts, clip, out):
                grain=max(1, _VALUES_PER_THREAD // pts.shape[0]))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(**LOOP)
 def _rule_sums_rows(f, wts, width, out_sum, out_max, out_min, i0, i1):
     """``_rule_sums`` for boxes ``i0`` to ``i1``."""
     n_q = wts.shape[0]

@@ -18,7 +18,7 @@ from collections import OrderedDict
 import numpy as np
 from numba import njit
 
-from mcnumba.threads import run_ranges
+from mcnumba.threads import LOOP, run_ranges
 
 from .. import _domain_kernels as kernels
 from .. import _uniform_stream as stream
@@ -303,7 +303,7 @@ def _edges(pilot_s, resolution):
     return out
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(**LOOP)
 def _pilot_edges_axes(pilot_s, r, lin, levels, e, j0, j1):
     """``_pilot_edges`` for axes ``j0`` to ``j1``."""
     for j in range(j0, j1):
