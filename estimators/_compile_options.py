@@ -66,10 +66,10 @@ class ThreadedLoopCompiler(Compiler):
     """numba's pipeline as it compiles the body of a parallel loop, without the parallel
     loop: copies simplified after typing (``SimplifyCopies``) and the ``noalias`` flag
     set (the pointers of the function's array arguments marked ``noalias`` for LLVM: no
-    two arguments overlap where one is written). The loops that ``mcnumba.threads`` runs were
-    such bodies; compiled as plain functions they ran 2-13 times slower (measured, one
-    thread: the Cornell box at 128² and 64 spp 0.37 -> 0.85 s, a BSDF's sampling loop
-    62 -> 316 ns a row), from reference count updates in the per-sample code."""
+    two arguments overlap where one is written). The loops that ``mcnumba.threads`` runs
+    were such bodies; compiled as plain functions they ran 2-13 times slower (measured,
+    one thread: the Cornell box at 128² and 64 spp 0.37 -> 0.85 s, a BSDF's sampling
+    loop 62 -> 316 ns a row), from reference count updates in the per-sample code."""
 
     def define_pipelines(self):
         self.state.flags.noalias = True
@@ -84,9 +84,9 @@ class ThreadedLoopCompiler(Compiler):
         return [pm]
 
 
-#: A loop over a range of items that ``mcnumba.threads`` runs on several threads (``@fused(
-#: **THREADED)``): it releases the GIL, and its callers pass arrays that do not overlap
-#: where one is written (``ThreadedLoopCompiler``).
+#: A loop over a range of items that ``mcnumba.threads`` runs on several threads
+#: (``@fused(**THREADED)``): it releases the GIL, and its callers pass arrays that do not
+#: overlap where one is written (``ThreadedLoopCompiler``).
 THREADED = {"nogil": True, "pipeline_class": ThreadedLoopCompiler}
 
 

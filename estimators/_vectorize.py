@@ -5,11 +5,11 @@ indexable of parameters, and returns a tuple (a point) or a float (a density). T
 tracer calls the same kernels on tuples, so each warp has one implementation.
 
 Each front end runs one loop over blocks of ``_BLOCK`` rows on numba's threads (a
-range of blocks a thread, ``mcnumba.threads``). Within a block, the input rows are first moved
-into a column-major scratch block (one contiguous run per coordinate), the kernel reads
-those columns and writes its results to a second one, and these are moved back to rows:
-eight rows at a time, as vector shuffles (``_transpose``). Unit-stride columns are what lets LLVM vectorise a
-branch-light kernel (measured, cosine hemisphere, one thread: 9 ns a point against
+range of blocks a thread, ``mcnumba.threads``). Within a block, the input rows are first
+moved into a column-major scratch block (one contiguous run per coordinate), the kernel
+reads those columns and writes its results to a second one, and these are moved back to
+rows: eight rows at a time, as vector shuffles (``_transpose``). Unit-stride columns are
+what lets LLVM vectorise a branch-light kernel (measured, cosine hemisphere, one thread: 9 ns a point against
 42 ns for one kernel call per row; the loop is compiled with IEEE division, as numba
 compiles a parallel loop's body: with numba's default error model LLVM did not
 vectorise it, 25 ns); the shuffles replace the gathers and scalar stores
@@ -58,10 +58,11 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
+from mcnumba.threads import run_ranges
+
 from . import _compile_options, _fastmath, _transpose
 from ._compile_options import exact
 from ._generated import first_call, load
-from mcnumba.threads import run_ranges
 from .warp_params import check_params, param_count
 
 #: Rows per block: scratch of up to 4 float64 columns stays in L1 (16 KB), and a block
@@ -334,9 +335,9 @@ def _output(n: int, n_out: int, dtype, total: int | None = None) -> tuple[np.nda
 
 def _run(loop, rows, *args):
     """``loop(rows, *args, b0, b1)`` over every block of ``rows``, on numba's threads
-    (``mcnumba.threads.run_ranges``). The first call per dtype compiles (or loads numba's cache)
-    under the kernel cache's lock, so processes starting together compile each loop
-    once."""
+    (``mcnumba.threads.run_ranges``). The first call per dtype compiles (or loads numba's
+    cache) under the kernel cache's lock, so processes starting together compile each
+    loop once."""
     name_dtype = f"{loop.__module__}.{rows.dtype}"
     with first_call(name_dtype, name_dtype):
         run_ranges(loop, (rows.shape[0] + _BLOCK - 1) // _BLOCK, rows, *args)

@@ -11,8 +11,9 @@ does. Both bit for bit, tested against numpy.
 Why not numpy itself: its generators ran on a thread pool beside the checks' numba
 kernels, and on two cores the two thread teams starved each other (the uniforms of a
 1e6-row chunk took 3.5-4.8 ms there, 2.35 alone). ``fill`` runs on the threads of the
-checks' other loops (``mcnumba.threads``), and steps four blocks' generators in lockstep, which hides the multiply's latency: 1.1
-ns a number on one thread, against numpy's 1.8-2.0.
+checks' other loops (``mcnumba.threads``), and steps four blocks' generators in
+lockstep, which hides the multiply's latency: 1.1 ns a number on one thread, against
+numpy's 1.8-2.0.
 """
 
 from __future__ import annotations

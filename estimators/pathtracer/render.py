@@ -21,11 +21,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import get_num_threads
 
+from mcnumba.threads import run_split
+
 from . import _kernel
 from .camera import SPLAT_CHANNELS, SPLAT_VALUE_CHANNELS
 from .layout import F_STRATIFIED
 from .._generated import first_call, load
-from mcnumba.threads import run_split
 from .prepare import PreparedScene, prepare_scene
 
 TILE = 8

@@ -31,8 +31,9 @@ import os
 
 import numpy as np
 
-from .._generated import first_call
 from mcnumba.threads import run_ranges
+
+from .._generated import first_call
 from .bsdfs import bsdf_is_smooth
 from .emitters import is_delta
 from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
@@ -57,8 +58,9 @@ _GRAIN = 1024
 
 def _run(name: str, *args) -> None:
     """Run the loop ``name`` over every row of its last argument, on numba's threads
-    (``mcnumba.threads.run_ranges``); its first call in this process holds the kernel cache's
-    lock (``_generated.first_call``): processes starting together compile it once."""
+    (``mcnumba.threads.run_ranges``); its first call in this process holds the kernel
+    cache's lock (``_generated.first_call``): processes starting together compile it
+    once."""
     fn = getattr(_loops(), name)
     key = f"{fn.py_func.__module__}.{name}"
     with first_call(key, key):
