@@ -342,20 +342,24 @@ def filter_weights(camera: Camera, offsets) -> np.ndarray:
 
 
 @fused(inline="always")
-def _generate_ray_kernel(c, u, v):
-    """Ray through film position (u, v): (ox, oy, oz, dx, dy, dz, t_max), unit d. A
-    perspective camera's principal point offset shifts (u, v) as Mitsuba's does (0 for
-    an orthographic one, which has none)."""
+def _orthographic_ray(c, u, v):
+    """``_generate_ray_kernel`` of an orthographic camera: the film point (x, y, near) in
+    camera space, the camera's z axis as direction."""
     x = (1.0 - 2.0 * (u + c[24])) * c[12]
     y = (1.0 - 2.0 * (v + c[25])) * c[13]
-    if c[16] == ORTHOGRAPHIC:
-        # the film point (x, y, near) in camera space, the camera's z axis as direction
-        z = c[14]
-        dx, dy, dz = c[2], c[5], c[8]
-        inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
-        return (c[0] * x + c[1] * y + c[2] * z + c[9], c[3] * x + c[4] * y + c[5] * z + c[10],
-                c[6] * x + c[7] * y + c[8] * z + c[11], dx * inv, dy * inv, dz * inv,
-                c[15] - c[14])
+    z = c[14]
+    dx, dy, dz = c[2], c[5], c[8]
+    inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+    return (c[0] * x + c[1] * y + c[2] * z + c[9], c[3] * x + c[4] * y + c[5] * z + c[10],
+            c[6] * x + c[7] * y + c[8] * z + c[11], dx * inv, dy * inv, dz * inv,
+            c[15] - c[14])
+
+
+@fused(inline="always")
+def _perspective_ray(c, u, v):
+    """``_generate_ray_kernel`` of a perspective camera."""
+    x = (1.0 - 2.0 * (u + c[24])) * c[12]
+    y = (1.0 - 2.0 * (v + c[25])) * c[13]
     norm = math.sqrt(x * x + y * y + 1.0)
     inv = 1.0 / norm
     lx, ly, lz = x * inv, y * inv, inv               # camera-space unit direction
@@ -365,6 +369,16 @@ def _generate_ray_kernel(c, u, v):
     t_near = c[14] * norm                            # near plane z = near: near / lz
     return (c[9] + dx * t_near, c[10] + dy * t_near, c[11] + dz * t_near, dx, dy, dz,
             (c[15] - c[14]) * norm)
+
+
+@fused(inline="always")
+def _generate_ray_kernel(c, u, v):
+    """Ray through film position (u, v): (ox, oy, oz, dx, dy, dz, t_max), unit d. A
+    perspective camera's principal point offset shifts (u, v) as Mitsuba's does (0 for
+    an orthographic one, which has none)."""
+    if c[16] == ORTHOGRAPHIC:
+        return _orthographic_ray(c, u, v)
+    return _perspective_ray(c, u, v)
 
 
 def generate_rays(camera: Camera, film_uv) -> tuple[np.ndarray, np.ndarray]:
