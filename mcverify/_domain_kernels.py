@@ -23,6 +23,8 @@ from numba import njit
 from mcnumba.threads import LOOP, run_ranges, run_split, threads_for
 
 INTERVAL, SQUARE, DISK, SPHERE, HEMISPHERE = 0, 1, 2, 3, 4
+#: Coordinates of a point of each kind (``_to_point_rows`` writes that many a row).
+_POINT_DIM = {INTERVAL: 1, SQUARE: 2, DISK: 2, SPHERE: 3, HEMISPHERE: 3}
 #: Status codes of ``classify``: a valid point, a NaN/Inf coordinate, outside the domain,
 #: a rejected draw (a row of NaN, when the caller accepts rejected draws).
 VALID, NONFINITE, OUTSIDE, REJECTED = 0, 1, 2, 3
@@ -185,6 +187,13 @@ def _to_point_rows(kind, args, s, out, i0, i1):
 def to_point_kernel(kind, args, s, out):
     """Fill ``out`` (n, dim) with the points of the parameters ``s`` (n, m): the inverse
     of ``_locate`` (one fused pass; the cubature maps millions of nodes through it)."""
+    # the loop writes the kind's coordinates unchecked: a wrong kind or width would
+    # write past the rows of ``out``
+    if (kind not in _POINT_DIM or out.ndim != 2 or out.shape[1] < _POINT_DIM[kind]
+            or s.ndim != 2 or s.shape[1] < min(2, _POINT_DIM[kind])
+            or s.shape[0] > out.shape[0]):
+        raise ValueError(f"to_point_kernel: kind {kind}, parameters of shape {s.shape}, "
+                         f"points of shape {out.shape}")
     run_ranges(_to_point_rows, s.shape[0], kind, args, s, out, grain=_ROWS_PER_THREAD)
 
 

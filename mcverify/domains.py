@@ -196,6 +196,9 @@ _BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}
 
 #: What the numba binning and quadrature passes decide by ``kind`` and ``args``, not by
 #: calling the method: a subclass that overrides one would be silently ignored.
+#: What the numba passes take from a built-in domain's class: an instance or subclass
+#: that changes one would be binned as the built-in one (or written past its arrays).
+_KERNEL_SHAPE = ("kind", "dim", "param_dim")
 _KERNEL_DECIDED = ("classify", "to_param", "inside", "to_point", "binning_edges", "points",
                    "args", "kind", "dim", "param_dim", "jacobian", "_azimuth_axis")
 
@@ -205,6 +208,21 @@ def _refuse_custom(domain: Domain) -> None:
     geometry (no kernel branch), or one overriding what the kernels decide."""
     builtin = (Domain, Interval, Square, Disk, Sphere, Hemisphere)
     cls = type(domain)
+    # the most derived built-in domain it is (Hemisphere before Sphere)
+    base = next((b for b in (Hemisphere, Sphere, Interval, Square, Disk)
+                 if isinstance(domain, b)), None)
+    if base is None:
+        raise InvalidArgument(
+            f"domain={domain!r}: {cls.__name__} is not one of the built-in domains "
+            "(Interval, Square, Disk, Sphere, Hemisphere), which the checks bin and "
+            "integrate in numba passes; Domain itself is only their base class")
+    for name in _KERNEL_SHAPE:
+        if getattr(domain, name) != getattr(base, name):
+            raise InvalidArgument(
+                f"domain={domain!r}: {cls.__name__} sets {name}={getattr(domain, name)!r}, "
+                f"but the checks bin it as the built-in {base.__name__} ({name}="
+                f"{getattr(base, name)!r}); subclass a built-in domain for its repr or "
+                "default_resolution only")
     if cls in builtin:
         return
     for name in _KERNEL_DECIDED:

@@ -63,18 +63,31 @@ class _NamedSquare(mv.Square):
         return "NamedSquare()"
 
 
+def _wide_interval():
+    d = mv.Interval(0.0, 1.0)
+    d.dim = 2               # an instance's own attribute, past the class checks
+    return d
+
+
 @pytest.mark.parametrize("dom, needle", [
-    (_Triangle(), "_Triangle overrides 'classify'"),
+    (_Triangle(), "_Triangle is not one of the built-in domains"),
+    (mv.Domain(), "Domain itself is only their base class"),
     (_ShiftedDisk(), "_ShiftedDisk overrides 'to_point'"),
-], ids=["own-geometry", "overridden-kernel-method"])
+    (_wide_interval(), "sets dim=2, but the checks bin it as the built-in Interval"),
+], ids=["own-geometry", "base-class", "overridden-kernel-method", "changed-dim"])
 def test_a_domain_the_kernels_would_ignore_is_refused(dom, needle):
     """The binning and quadrature passes branch on ``kind``: a subclass's own geometry or
     an overridden ``classify``/``to_point`` would be silently ignored, so checks refuse
-    it with the reason (before it was binned as the parent domain, or as nothing)."""
+    it with the reason (before it was binned as the parent domain, or as nothing). The
+    base class itself (kind -1) reached the point map, which wrote a sphere's three
+    coordinates into rows of one and aborted the process (an outside review)."""
     with pytest.raises(mv.InvalidArgument, match=needle):
         as_domain(dom)
     with pytest.raises(mv.InvalidArgument, match=needle):
-        mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)), dom, n_samples=1000)
+        mv.check_sampler(lambda u: u[:, :1].copy(), lambda x: np.ones(len(x)), dom,
+                         n_samples=1000)
+    with pytest.raises(mv.InvalidArgument, match=needle):
+        mv.check_same_distribution(np.zeros((10, 1)), np.zeros((10, 1)), dom)
 
 
 def test_a_subclass_for_its_repr_only_is_accepted():
@@ -334,3 +347,14 @@ def test_blocked_kernels_give_what_one_point_at_a_time_gives(dom, dtype, rejecti
                    ref_status)
     assert np.array_equal(status, ref_status)
     assert np.array_equal(s, ref_s[:, :dom.param_dim])
+
+
+@pytest.mark.parametrize("kind, s_cols, out_cols", [(-1, 2, 1), (3, 2, 1), (1, 1, 2)],
+                         ids=["unknown-kind", "points-too-narrow", "parameters-too-narrow"])
+def test_the_point_map_refuses_arrays_it_would_overrun(kind, s_cols, out_cols):
+    """``_to_point_rows`` writes a kind's coordinates without bounds checks: the front
+    end refuses a kind or shapes that would take it past its arrays."""
+    from mcverify import _domain_kernels as K
+
+    with pytest.raises(ValueError, match="to_point_kernel"):
+        K.to_point_kernel(kind, np.zeros(2), np.zeros((4, s_cols)), np.zeros((4, out_cols)))
