@@ -301,6 +301,19 @@ class TTestResult:
     n: int
 
 
+def scaled_std(x, ddof: int = 0) -> float:
+    """``np.std(x, ddof)`` computed on ``x / max|x|`` and scaled back: the squares of
+    values below ~1e-154 underflow to 0 (a spread of 0: "constant") and those above
+    ~1e154 overflow, where the standard deviation itself is a normal number."""
+    x = np.asarray(x, dtype=np.float64).ravel()
+    if x.size <= ddof:
+        return 0.0
+    c = float(np.max(np.abs(x)))
+    if not (np.isfinite(c) and c > 0.0):
+        return float(np.std(x, ddof=ddof))
+    return float(np.std(x / c, ddof=ddof)) * c
+
+
 def ttest_mean(x, expected: float) -> TTestResult:
     """Two-sided one-sample t-test of ``mean(x) == expected``.
 
@@ -310,7 +323,7 @@ def ttest_mean(x, expected: float) -> TTestResult:
     x = np.asarray(x, dtype=np.float64).ravel()
     n = x.size
     mean = float(np.mean(x))
-    sd = float(np.std(x, ddof=1)) if n > 1 else 0.0
+    sd = scaled_std(x, ddof=1) if n > 1 else 0.0
     se = sd / np.sqrt(n) if n > 0 else np.inf
     if se == 0.0:
         close = abs(mean - expected) <= 1e-12 + 1e-9 * abs(expected)

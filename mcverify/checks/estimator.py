@@ -66,6 +66,8 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
     >>> r.passed, r.details["sequential"]["batch"]    # a 10 % bias: decided at batch 1
     (False, 1)
     """
+    if stop_alpha is not None:      # checked with or without batches, which use it
+        validate.probability("stop_alpha", stop_alpha)
     if callable(samples):
         from ..sequential import run_sequential
 
@@ -98,7 +100,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         x = x[finite]
     with np.errstate(over="ignore", invalid="ignore"):
         scale = float(np.mean(np.abs(x))) if x.size else 0.0
-        spread = float(np.std(x)) if x.size > 1 else 0.0
+        spread = stats.scaled_std(x) if x.size > 1 else 0.0
     if not (np.isfinite(scale) and np.isfinite(spread)):
         failures.append(f"the samples' mean or variance overflows float64 (largest |x| = "
                         f"{np.abs(x).max():.3g}): rescale the estimates (e.g. divide f "
@@ -190,7 +192,10 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
     with np.errstate(over="ignore", invalid="ignore"):
         r = stats.variance_test(x, ev)
     messages = []
-    if not (np.isfinite(r.variance) and np.isfinite(r.statistic) or r.statistic == -np.inf):
+    # the zero-variance test's statistic is +inf for any variance above rounding: only
+    # the variance itself can overflow there
+    if not np.isfinite(r.variance) or (ev > 0.0 and not (np.isfinite(r.statistic)
+                                                          or r.statistic == -np.inf)):
         failures.append(f"the samples' variance or its standard error overflows float64 "
                         f"(largest |x| = {np.abs(x).max():.3g}): rescale the estimates "
                         "(e.g. divide f by a constant) before testing")

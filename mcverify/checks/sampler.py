@@ -714,6 +714,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     res = res or dom.default_resolution(n)
 
     n_budget = n
+    if stop_alpha is not None:      # checked with or without batches, which use it
+        validate.probability("stop_alpha", stop_alpha)
     if batches is not None:         # refused before any draw
         k_batches = validate.integer("batches", batches, minimum=1)
         if k_batches > n_budget:

@@ -154,10 +154,20 @@ def test_deterministic_failure_stops_at_once():
     (dict(samples=np.ones(10), batches=4), "batches=4: only with samples given as a callable"),
     (dict(samples=lambda b: np.ones(10), batches=0), "batches"),
     (dict(samples=lambda b: np.ones(10), batches=4, stop_alpha=2.0), "stop_alpha"),
-], ids=["array-with-batches", "zero-batches", "stop-alpha"])
+    (dict(samples=np.ones(10), stop_alpha=0.0), "stop_alpha"),
+], ids=["array-with-batches", "zero-batches", "stop-alpha", "stop-alpha-without-batches"])
 def test_bad_sequential_arguments(kwargs, needle):
     with pytest.raises(mv.InvalidArgument, match=needle):
         mv.check_unbiased(expected=1.0, **kwargs)
+
+
+@pytest.mark.parametrize("stop_alpha", [2.0, -1.0, 0.0, float("nan"), "x"])
+@pytest.mark.parametrize("batches", [None, 4])
+def test_check_sampler_refuses_a_bad_stop_alpha_with_or_without_batches(stop_alpha, batches):
+    """Without ``batches`` a bad ``stop_alpha`` ran and passed (an outside review)."""
+    with pytest.raises(mv.InvalidArgument, match="stop_alpha"):
+        mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)), "square", n_samples=1000,
+                         batches=batches, stop_alpha=stop_alpha)
 
 
 def test_sequential_check_sampler_judges_a_correct_sampler_on_the_same_histogram():
