@@ -137,6 +137,12 @@ def scene_assets(scene_path: str) -> dict[str, str | None]:
     substitution), resolved against the scene's folder as Mitsuba resolves it; None for
     a name that is no regular file (Mitsuba then refuses the scene). Parsed as
     ``precheck_scene`` parses it (``_parse_scene``)."""
+    return {name: file_hash(full) if os.path.isfile(full) else None
+            for name, full in scene_asset_files(scene_path).items()}
+
+
+def scene_asset_files(scene_path: str) -> dict[str, str]:
+    """The file each name of ``scene_assets`` resolves to (its key: the name as written)."""
     defaults, names = {}, []
 
     def start(tag, attrib):
@@ -149,13 +155,12 @@ def scene_assets(scene_path: str) -> dict[str, str | None]:
 
     _parse_scene(scene_path, start)
     folder = os.path.dirname(os.path.abspath(scene_path))
-    out: dict[str, str | None] = {}
+    out: dict[str, str] = {}
     for name in names:
         real = name
         for key in sorted(defaults, key=len, reverse=True):
             real = real.replace("$" + key, defaults[key])
-        full = real if os.path.isabs(real) else os.path.join(folder, real)
-        out[name] = file_hash(full) if os.path.isfile(full) else None
+        out[name] = real if os.path.isabs(real) else os.path.join(folder, real)
     return out
 
 
@@ -561,7 +566,12 @@ def load_reference(spec: str) -> Reference:
     for asset, now in sorted(assets.items()):
         if not isinstance(recorded, dict) or recorded.get(asset, "") != now:
             what = "is missing" if now is None else "changed"
-            raise EnvironmentProblem(f"{mpath}: stale: {asset} (named by {path}) {what} "
+            # a name with a $parameter: the file it names now, too
+            named = asset
+            if "$" in asset:
+                now_file = scene_asset_files(path)[asset]
+                named += f" = {os.path.relpath(now_file, os.path.dirname(path) or '.')}"
+            raise EnvironmentProblem(f"{mpath}: stale: {named} (named by {path}) {what} "
                                      f"since the reference was built; {rebuild}")
     labels = IMAGES + ((PASSES,) if "passes_sha256" in manifest else ())
     for label in labels:

@@ -73,6 +73,25 @@ def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
     return subject.planted(**dict(plant)) if plant else subject
 
 
+def _samples_kept(path, subject, spp: int, passes: int) -> None:
+    """Refuse, before Mitsuba renders a reference for a scene whose filter splats, a
+    count of samples per pass that the scene's sampler rounds (stratified: up to a
+    square, orthogonal: to a prime's square): the reference's passes would have the
+    rounded count, ours the asked one, and passes compare only at equal counts (the
+    check below), so the reference just built was refused (an outside review: the
+    default ``render-check`` of a splatting scene with an orthogonal sampler)."""
+    from . import mitsuba as mvm
+
+    per = spp // passes
+    theirs = mvm.sampler_rounds(subject.desc.sampler, per)
+    if theirs != per:
+        raise InvalidArgument(f"spp={spp}, passes={passes}: {path}'s filter splats, so our "
+                              "passes and the reference's compare only at equal samples "
+                              f"per pass, and its {subject.desc.sampler.type} sampler "
+                              f"renders {theirs} where {per} are asked; use "
+                              f"spp={theirs * passes} with passes={passes}")
+
+
 def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_scale: float,
               spp: int, seed: int):
     """One pass of our path tracer, a unit of work: (mean float32 (H, W, 3), seconds,
@@ -194,6 +213,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     from . import reference
 
     seed = validate.seed("seed", seed)
+    if stop_alpha is not None:
+        validate.probability("stop_alpha", stop_alpha)
     if seed > 2 ** 63 - 1:
         raise InvalidArgument(f"seed={seed}: must be at most 2**63 - 1 (renderers take a "
                               "signed 64-bit seed)")
@@ -234,10 +255,13 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # for it. A splatting filter compares only at equal samples per pass (below): a
         # reference made here for such a scene gets ours, over 64 passes (as the
         # committed ones)
-        splats = ours and _compiled(path, tuple(sorted((params or {}).items())), (),
-                                    os.stat(path).st_mtime_ns).camera.splats
+        subject = _compiled(path, tuple(sorted((params or {}).items())), (),
+                            os.stat(path).st_mtime_ns) if ours else None
+        splats = ours and subject.camera.splats
         made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:
+            if splats:
+                _samples_kept(path, subject, spp, passes)
             ref, _ = reference.render_reference(path, params=params, seed=seed + 1, pool=pool,
                                                 **made)
         else:
@@ -246,6 +270,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             except MissingReference:
                 if not build_missing:
                     raise
+                if splats:
+                    _samples_kept(path, subject, spp, passes)
                 if notice:
                     notice(f"{name}: no reference yet; building it with Mitsuba (once)")
                 reference.build_reference(path, pool=pool, **made)

@@ -183,6 +183,28 @@ def test_a_changed_texture_or_mesh_makes_the_reference_stale(tmp_path):
         reference.load_reference(str(scene))
 
 
+def test_a_stale_file_named_by_a_parameter_is_named_as_it_resolves(tmp_path):
+    """A texture named ``$tex``: the staleness message names the file it resolves to
+    (it said only "$tex", an outside review), and the manifest keeps the name as
+    written."""
+    shutil.copy(os.path.join(SCENES, "textures", "checker.exr"), tmp_path / "t.exr")
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    src = src.replace('<default name="res" value="64"/>',
+                      '<default name="res" value="4"/><default name="tex" value="t.exr"/>')
+    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
+                      '<texture type="bitmap" name="reflectance">'
+                      '<string name="filename" value="$tex"/></texture>')
+    assert "$tex" in src
+    scene = tmp_path / "scene.xml"
+    scene.write_text(src)
+    reference.build_reference(str(scene), spp=4, passes=2)
+    assert set(reference.load_reference(str(scene)).manifest["assets_sha256"]) == {"$tex"}
+    (tmp_path / "t.exr").write_bytes((tmp_path / "t.exr").read_bytes() + b"\0")
+    with pytest.raises(EnvironmentProblem, match=r"stale: \$tex = t.exr \(named by .*\) "
+                                                 "changed"):
+        reference.load_reference(str(scene))
+
+
 def test_scene_assets_resolve_defaults_and_relative_paths(tmp_path):
     """``scene_assets``: names as written, ``$name`` replaced by the scene's default,
     relative to the scene's folder, None for a name that is no file."""
@@ -262,6 +284,34 @@ def test_the_manifest_records_the_samples_mitsuba_renders(tmp_path, sampler, ask
     assert f"2 passes × {rendered} spp per pass" in out.stdout
     assert ("rounds --spp" in out.stdout) == (asked != rendered)
     assert "WARN" not in out.stdout + out.stderr, out.stdout   # (its log: stdout)
+
+
+@pytest.mark.parametrize("sampler,per,rounded", [("stratified", 32, 36),
+                                                ("orthogonal", 64, 121)])
+def test_render_check_refuses_before_building_a_reference_it_would_refuse(
+        tmp_path, sampler, per, rounded):
+    """A splatting filter compares passes of equal samples, and a reference's passes
+    have the count Mitsuba's sampler rounds to: the gate built a reference at the
+    rounded count, then refused it against ours, and left it on disk, so that every
+    later default run was refused too (an outside review). Now it refuses first, saying
+    which spp to use, and writes nothing; with that spp it builds and compares."""
+    from mcverify.errors import InvalidArgument
+    from mcverify.gate.render_check import render_check
+
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    src = src.replace('type="independent"', f'type="{sampler}"')
+    src = src.replace('<rfilter type="box"/>', '<rfilter type="gaussian"/>')
+    src = src.replace('<default name="res" value="64"/>', '<default name="res" value="4"/>')
+    scene = tmp_path / "s.xml"
+    scene.write_text(src)
+    assert 'type="gaussian"' in src and f'type="{sampler}"' in src and 'value="4"' in src
+    with pytest.raises(InvalidArgument, match=f"renders {rounded} where {per} are asked; "
+                                              f"use spp={rounded * 2} with passes=2"):
+        render_check(str(scene), spp=per * 2, passes=2, seed=1)
+    assert sorted(os.listdir(tmp_path)) == ["s.xml"]
+    r = render_check(str(scene), spp=rounded * 2, passes=2, seed=1)
+    assert r.passed, r.summary()
+    assert reference.load_reference(str(scene)).manifest["spp"] == rounded
 
 
 def test_a_folder_without_a_scene_file_is_named_as_such(tmp_path, monkeypatch):
