@@ -658,10 +658,9 @@ def _trace_samples(sc, stack, cam, seed, s0, s1, n, x0, x1, y, width, height, pd
     The camera rays come first, in a loop of their own: each is a chain of divisions and
     a square root, and the ray's traversal begins with three more, which one sample at a
     time left the core waiting (profiled on the white furnace at max_depth 1: a quarter
-    of the samples on that chain); the loop's independent iterations overlap, and with
-    the independent sampler LLVM vectorises it (``_camera_rays``). The strata table
-    fills dimension 0 at the chunk's first sample either way, so the numbers are the
-    same.
+    of the samples on that chain); the loop's independent iterations overlap, and LLVM
+    vectorises it (``_camera_rays``). The strata table fills dimension 0 at the chunk's
+    first sample either way, so the numbers are the same.
 
     Compiled with IEEE division, as the warps are: the inlined per-ray code then has no
     zero-divisor branch at each division (a division by zero that would have raised
