@@ -840,7 +840,13 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                     integrated[1:] = [cdf]
             sub["ks"] = stats.ks_binned(fine, cdf)
         p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
-        if n_valid == 0:
+        if n_valid == 0 and rejection and n_rejected == n and total <= slack:
+            # a sampler that rejects every draw where its pdf has no mass (an area
+            # light seen from behind): consistent, but nothing else is tested
+            messages.append(f"every one of the {n} draws was rejected, and the pdf "
+                            f"integrates to {total:.3g} (quadrature error bound "
+                            f"{err_bound:.2g}): consistent, nothing else to test")
+        elif n_valid == 0:
             failures.append("no valid samples to test")
         if rejection and sub["acceptance"].p_value <= alpha / len(sub):
             messages.append(f"acceptance: {n - n_rejected} of {n} draws accepted "

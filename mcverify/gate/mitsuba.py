@@ -272,6 +272,12 @@ def _current(scene_path: str, params: dict | None):
                    os.stat(scene_path).st_mtime_ns)
 
 
+def mitsuba_seed(seed: int) -> int:
+    """A seed as Mitsuba's ``render`` takes it: 32 bits (a larger one raised a
+    TypeError from its bindings); ``seed mod 2^32``, so seeds below 2^32 are kept."""
+    return int(seed) % (1 << 32)
+
+
 def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = None,
                 variant: str | None = None) -> np.ndarray:
     """One independent pass of ``scene_path``: (H, W, C) float64. The loaded scene is
@@ -289,7 +295,8 @@ def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = N
         raise EnvironmentProblem(f"{scene_path}: cannot read it here ({e.strerror}); workers "
                                  "need the scenes at the same path") from None
     scene = _loaded(scene_path, tuple(sorted((params or {}).items())), mtime)
-    image = np.asarray(_mi().render(scene, spp=spp, seed=int(seed)), dtype=np.float64)
+    image = np.asarray(_mi().render(scene, spp=spp, seed=mitsuba_seed(seed)),
+                       dtype=np.float64)
     if scene.integrator().should_stop():
         # While it renders, Mitsuba holds Ctrl-C itself: it cancels the render and returns
         # the partial image without raising, so Python never sees the signal (a reference

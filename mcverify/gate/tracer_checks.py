@@ -139,8 +139,13 @@ def scene_instances(scene_path: str):
             continue
         area = scene.arrays.light_i[k, layout.LIGHT_KIND] == layout.AREA
         refs = reference_points(scene) if area else reference_points(scene)[:1]
+        # points that coincide (the camera at the bounds' centre) or print alike: one
+        # check each, under a name of its own
+        unique: dict[str, tuple] = {}
         for p in refs:
-            entries.append(("emitter", label, f"ref={_fmt(p)}",
+            unique.setdefault(_fmt(p), p)
+        for where, p in unique.items():
+            entries.append(("emitter", label, f"ref={where}",
                             lambda k=k, p=p: emitter_sampler(scene, k, p)))
     return entries, skipped
 

@@ -108,6 +108,43 @@ def test_delta_instances_are_skipped_with_a_reason():
     assert any("dielectric" in k and "delta BSDF" in why for k, why in skipped)
 
 
+_BACKLIT = """<scene version="3.0.0">
+  <integrator type="path"/>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="{cam}" target="0, 0, -2" up="0, 1, 0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
+  </sensor>
+  <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-2"/></transform>
+    <bsdf type="diffuse"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate y="1" angle="180"/>
+    <translate y="0.5" z="-1"/></transform>
+    <emitter type="area"><rgb name="radiance" value="10, 10, 10"/></emitter></shape>
+  <shape type="sphere"><float name="radius" value="9"/>
+    <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
+</scene>"""
+
+
+def test_emitters_seen_from_behind_or_from_one_point_plan_and_pass(tmp_path):
+    """An outside review: a one-sided light facing away from a reference point rejects
+    every draw, where its pdf has no mass, and the check failed with "no valid samples to
+    test" on a correct tracer; a camera at the centre of the bounds (inside a sphere
+    light centred there) planned three checks under one name. Now such a check passes,
+    saying it tested nothing else, and coinciding points are checked once."""
+    scene = tmp_path / "backlit.xml"
+    scene.write_text(_BACKLIT.format(cam="0, 0, 0"))
+    checks, _ = tracer_checks(str(scene), 2 ** 14)
+    names = [c.name for c in checks if ".emitter:" in c.name]
+    assert len(names) == len(set(names)), names
+    sphere = [n for n in names if "sphere" in n]
+    assert len(sphere) == 1 and "@ref=(0,0,0)" in sphere[0], names    # all three coincide
+    n, bad = _family_passes(checks, seed=3, pick=lambda c: ".emitter:" in c.name)
+    assert n == len(names) and not bad, bad
+    back = [c.run(3) for c in checks if ".emitter:" in c.name and "triangles" in c.name]
+    assert any(r.passed and any("draws was rejected" in m for m in r.messages)
+               for r in back), [r.summary() for r in back]
+
+
 def test_front_ends_refuse_bad_input():
     scene = prepare_scene(ROUGH)
     with pytest.raises(ValueError, match="b=99"):

@@ -13,6 +13,11 @@ import numpy as np
 SPPS = (4, 16, 64, 256)
 
 
+def _shifted(seed: int, by: int) -> int:
+    """Seed ``seed + by`` kept within the seeds our renders take (0 to 2^63 - 1)."""
+    return (seed + by) % (1 << 63)
+
+
 def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[list, dict]:
     """(JSON-able rows, {scene: image arrays for the panels})."""
     from estimators.pathtracer import prepare_scene, render
@@ -29,16 +34,19 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
         ref = load_reference(path)
         ours_scene, their_scene = prepare_scene(path), mi.load_file(path)
         render(ours_scene, spp=2, seed=seed)                     # warm-ups: JIT excluded
-        np.asarray(mi.render(their_scene, spp=spps[0], seed=seed))
+        np.asarray(mi.render(their_scene, spp=spps[0], seed=mvm.mitsuba_seed(seed)))
         curve = {"spp": list(spps), "ours_rmse": [], "ours_seconds": [], "mitsuba_rmse": [],
                  "mitsuba_seconds": []}
         for k, spp in enumerate(spps):
-            r = render(ours_scene, spp=max(spp, 2), seed=seed + 10 + k)
+            r = render(ours_scene, spp=max(spp, 2), seed=_shifted(seed, 10 + k))
             curve["ours_rmse"].append(ref.rmse(r.mean))
             curve["ours_seconds"].append(r.seconds)
-            np.asarray(mi.render(their_scene, spp=spp, seed=seed + 20 + k))  # JIT per spp
+            # a render per spp first: Mitsuba compiles its kernels per spp
+            warm = mvm.mitsuba_seed(_shifted(seed, 20 + k))
+            np.asarray(mi.render(their_scene, spp=spp, seed=warm))
             t0 = time.perf_counter()
-            img = np.asarray(mi.render(their_scene, spp=spp, seed=seed + 30 + k))
+            img = np.asarray(mi.render(their_scene, spp=spp,
+                                       seed=mvm.mitsuba_seed(_shifted(seed, 30 + k))))
             curve["mitsuba_seconds"].append(time.perf_counter() - t0)
             curve["mitsuba_rmse"].append(ref.rmse(img))
         d = check.details
