@@ -633,7 +633,8 @@ def _camera_ray_loop(cam, seed, s0, s1, n, tab, x0, x1, y, width, height, fx, fy
                 o0, o1, o2, d0, d1, d2, t = _orthographic_ray(cam, fu, fv)
             else:
                 o0, o1, o2, d0, d1, d2, t = _perspective_ray(cam, fu, fv)
-            k = k0 + j
+            # unsigned: no negative-index fix-up, whose select made the stores scatters
+            k = np.uint64(k0 + j)
             fx[k], fy[k], ox[k], oy[k], oz[k] = u, v, o0, o1, o2
             dx[k], dy[k], dz[k], tm[k], rng[k] = d0, d1, d2, t, r
 
