@@ -692,7 +692,7 @@ def _trace_samples(sc, stack, cam, seed, s0, s1, n, x0, x1, y, width, height, pd
     for x in range(x0, x1):
         base = pixel_base(seed, y * width + x)
         for s in range(s0, s1):
-            k = (x - x0) * m + s - s0
+            k = np.uint64((x - x0) * m + s - s0)      # unsigned: no negative-index fix-up
             # every sample's state after the camera's 2-D dimension: dimension 1
             state = (states[k], base, np.uint64(s), n, np.uint64(1), tab, ctl)
             r, g, b, state = trace(sc, stack, rays[RAY_OX, k], rays[RAY_OY, k],
