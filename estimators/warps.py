@@ -7,7 +7,9 @@ directly on tuples (the path tracer's BSDFs and emitters) are public, without th
 underscore (``sample_cosine_hemisphere_kernel``, ``ggx_d``...): the one implementation
 both the array front ends and the tracer use.
 
-Numerical habits (pbrt-v4): ``u`` is clamped below ``1 - 2^-53``; square roots take
+Numerical habits (pbrt-v4): the inverses return ``u`` clamped to ``[0, 1 - 2^-53]``,
+and a sampler given u = 1 (a float32 u near 1 rounds to it) returns a point of its
+domain, never NaN (tested for every warp); square roots take
 ``max(0, ·)``; densities are 0 outside the support; quantities that cancel near a pole
 (``1 - cos θ``) are computed from the tangential components instead.
 
@@ -260,8 +262,9 @@ def _uniform_cone_pdf_kernel(x, p):
 
 @_jit
 def _invert_uniform_cone_kernel(x, p):
-    # 1 - cos θ = sin²θ / (1 + cos θ): no cancellation near the pole.
-    one_minus_cos = (x[0] * x[0] + x[1] * x[1]) / (1.0 + x[2])
+    # 1 - cos θ = sin²θ / (1 + cos θ): no cancellation near the pole; 1 - cos θ itself
+    # below the equator (the south pole's 0 / 0 was a NaN where cos θ_max = -1)
+    one_minus_cos = (x[0] * x[0] + x[1] * x[1]) / (1.0 + x[2]) if x[2] > 0.0 else 1.0 - x[2]
     return (_clamp_u(one_minus_cos / (1.0 - p[0])), _azimuth_u(x[0], x[1]))
 
 
@@ -337,8 +340,10 @@ def _invert_ggx_kernel(x, p):
 
 @_jit
 def sample_beckmann_kernel(u, p):
-    """Normals h distributed as D(h) cos θ_h for Beckmann of roughness ``p[0] = α``."""
-    tan2 = -p[0] * p[0] * fast_log1p(-u[0])
+    """Normals h distributed as D(h) cos θ_h for Beckmann of roughness ``p[0] = α``.
+    u[0] = 1 (a float32 u rounds to it once in 2^25 draws) is taken as 1 - 2^-53: its
+    log1p(-1) = -inf made the point NaN (an outside review)."""
+    tan2 = -p[0] * p[0] * fast_log1p(-min(u[0], ONE_MINUS_EPSILON))
     cos_t = 1.0 / math.sqrt(1.0 + tan2)
     return _direction(_safe_sqrt(tan2) * cos_t, cos_t, u[1])
 

@@ -520,6 +520,37 @@ def test_a_nan_u_gives_a_nan_point_from_every_warp():
         assert np.isnan(x[1]).any() and np.isfinite(x[[0, 2]]).all(), name
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_u_of_one_gives_a_point_of_the_domain_from_every_warp(dtype):
+    """u = 1 is outside [0, 1), but float32(u) rounds to it for u within 2^-25 of 1: the
+    Beckmann sampler's log1p(-1) = -inf made its point NaN (an outside review). Every
+    warp returns a finite point of its domain with a finite, non-negative density."""
+    from estimators.warps import WARPS
+
+    for name, w in WARPS.items():
+        corners = [(1.0,), (0.0,)] if w.sample_dim == 1 else \
+            [(1.0, 1.0), (1.0, 0.0), (0.0, 1.0), (1.0, 0.5), (0.5, 1.0)]
+        u = np.array(corners, dtype=dtype)
+        x = w.sample(u, *w.defaults)
+        pdf = w.pdf(x, *w.defaults)
+        assert x.dtype == dtype and np.isfinite(x).all(), (name, x)
+        assert np.all(np.isfinite(pdf) & (pdf >= 0)), (name, pdf)
+        if x.shape[1] == 3:
+            assert np.allclose(np.linalg.norm(x.astype(np.float64), axis=1), 1.0,
+                               atol=1e-6), (name, x)
+
+
+def test_the_cone_inverse_at_the_south_pole_of_the_whole_sphere():
+    """cos θ_max = -1: the cone is the sphere, and its inverse at (0, 0, -1) divided 0 by
+    0 (an outside review); the uniform sphere's inverse gives u0 = 1 - 2^-53 there."""
+    from estimators import warps as W
+
+    south = np.array([[0.0, 0.0, -1.0], [1e-9, 0.0, -1.0 + 5e-19]])
+    u = W.invert_uniform_cone(south, -1.0)
+    assert np.isfinite(u).all() and u[0, 0] == ONE_MINUS_EPSILON, u
+    assert np.allclose(W.invert_uniform_cone(south, -1.0), W.invert_uniform_sphere(south))
+
+
 @pytest.mark.parametrize("radius", [1e-170, 1e-3, 1e155])
 def test_tent_density_at_extreme_radii(radius):
     """(r - |x|)/r² overflowed to 0 at r = 1e155 and to inf at r = 1e-170."""
