@@ -36,8 +36,20 @@ __all__ = ["DiscreteDistribution", "PiecewiseConstant1D", "PiecewiseConstant2D",
 _scalar = exact(_nrt=False)
 
 
+def _reals(values, name: str) -> np.ndarray:
+    """``values`` as float64, or a ValueError naming ``name`` (complex numbers, strings,
+    objects and ragged lists gave numpy's or Python's message, naming nothing)."""
+    try:
+        a = np.asarray(values)
+    except ValueError as e:
+        raise ValueError(f"{name}: not an array of numbers ({e})") from None
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{name}: expected real numbers, got an array of {a.dtype}")
+    return a.astype(np.float64)
+
+
 def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
-    w = np.asarray(weights, dtype=np.float64)
+    w = _reals(weights, name)
     if w.ndim != 1 or w.size == 0:
         raise ValueError(f"{name}: expected a non-empty 1-D array, got shape {w.shape}")
     if not np.all(np.isfinite(w)) or np.any(w < 0):
@@ -342,7 +354,7 @@ class PiecewiseConstant1D:
         if not (np.isfinite(a) and np.isfinite(b) and b > a and np.isfinite(b - a)):
             raise ValueError(f"PiecewiseConstant1D(a={a}, b={b}): need finite a < b with "
                              "b - a finite")
-        self.values = np.abs(np.asarray(values, dtype=np.float64))
+        self.values = np.abs(_reals(values, "values"))
         self.cdf, total = _cdf_of(self.values, "values")
         self.table = _guided(self.cdf)        # what the kernels read
         self.a, self.b = float(a), float(b)
@@ -397,7 +409,7 @@ class PiecewiseConstant2D:
     marginal over rows and one conditional per row."""
 
     def __init__(self, values):
-        v = np.abs(np.asarray(values, dtype=np.float64))
+        v = np.abs(_reals(values, "values"))
         if v.ndim != 2 or 0 in v.shape:
             raise ValueError(f"values: expected a non-empty 2-D array, got shape {v.shape}")
         self.values = v

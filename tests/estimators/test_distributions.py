@@ -374,3 +374,20 @@ def test_piecewise_constant_integrals_of_tables_whose_sums_overflow():
     assert PiecewiseConstant2D(np.full((2, 3), 1e308)).integral == pytest.approx(1e308)
     assert PiecewiseConstant1D([1.0, 2.0, 3.0], 0.0, 2.0).integral == 4.0
     assert PiecewiseConstant2D(np.arange(1.0, 7.0).reshape(2, 3)).integral == 3.5
+
+
+@pytest.mark.parametrize("table, needle", [
+    ([1 + 2j, 3.0], "expected real numbers, got an array of complex128"),
+    (["a", "b"], "expected real numbers, got an array of <U1"),
+    ([[1.0, 2.0], [3.0]], "not an array of numbers"),
+], ids=["complex", "strings", "ragged"])
+def test_tables_that_are_not_real_numbers_are_refused_by_name(table, needle):
+    """Complex numbers raised Python's TypeError and strings numpy's message, neither
+    naming the parameter (an outside review)."""
+    from estimators.distributions import (DiscreteDistribution, PiecewiseConstant1D,
+                                          PiecewiseConstant2D)
+
+    for make, name in ((PiecewiseConstant1D, "values"), (DiscreteDistribution, "weights"),
+                       (PiecewiseConstant2D, "values")):
+        with pytest.raises(ValueError, match=f"^{name}: " + needle.replace("(", r"\(")):
+            make(table)
