@@ -387,18 +387,31 @@ def _next(state):
 
 
 @fused(inline="always")
+def _weyl2(rng):
+    """Two uniforms of the Weyl sequence after ``rng``, and the state after them."""
+    rng = rng + _GOLDEN
+    u = _unit(rng)
+    rng = rng + _GOLDEN
+    return u, _unit(rng), rng
+
+
+@fused(inline="always")
+def _table_jitter2(tab, d, j, u, v, n):
+    """(u, v) jittering column j of 2-D dimension d of the strata table (``n``: the
+    strata field)."""
+    return _jitter1(tab[d, 1, j], u, n & _U32), _jitter1(tab[d, 2, j], v, n & _U32)
+
+
+@fused(inline="always")
 def _next2(state):
     """Two uniforms (one 2-D dimension, as Mitsuba's samplers count them) and the next
     state; independent: the same as two ``_next``."""
     rng, scramble, s, n, d, tab, ctl = state
-    rng = rng + _GOLDEN
-    u = _unit(rng)
-    rng = rng + _GOLDEN
-    v = _unit(rng)
+    u, v, rng = _weyl2(rng)
     if MASK & F_STRATIFIED and n != np.uint64(0):
         j = _strata_slot(tab, ctl, d, s, n, scramble)
         if j >= 0:
-            u, v = _jitter1(tab[d, 1, j], u, n & _U32), _jitter1(tab[d, 2, j], v, n & _U32)
+            u, v = _table_jitter2(tab, d, j, u, v, n)
         else:
             u, v = _stratum2(u, v, s, n, scramble + d * _GOLDEN)
     return u, v, (rng, scramble, s, n, d + np.uint64(1), tab, ctl)
@@ -615,19 +628,14 @@ def _camera_ray_loop(cam, seed, s0, s1, n, tab, x0, x1, y, width, height, fx, fy
     """``_camera_rays``'s loop for one kind of camera and sampler (``ortho`` and
     ``stratified`` constants)."""
     m = s1 - s0
-    n32 = n & _U32
     for x in range(x0, x1):
         base = pixel_base(seed, y * width + x)
         k0 = (x - x0) * m
         for j in range(m):
             s = np.uint64(s0 + j)
-            r = _mix(base ^ (s * _M2)) + _GOLDEN
-            u = _unit(r)
-            r = r + _GOLDEN
-            v = _unit(r)
-            if stratified:
-                c = s & np.uint64(CHUNK - 1)
-                u, v = _jitter1(tab[0, 1, c], u, n32), _jitter1(tab[0, 2, c], v, n32)
+            u, v, r = _weyl2(_mix(base ^ (s * _M2)))
+            if stratified:      # dimension 0, column s % CHUNK (``_strata_slot``)
+                u, v = _table_jitter2(tab, 0, s & np.uint64(CHUNK - 1), u, v, n)
             fu, fv = (x + u) / width, (y + v) / height
             if ortho:
                 o0, o1, o2, d0, d1, d2, t = _orthographic_ray(cam, fu, fv)
