@@ -206,11 +206,11 @@ _KERNEL_DECIDED = ("classify", "to_param", "inside", "to_point", "binning_edges"
 def _refuse_custom(domain: Domain) -> None:
     """A clear error for a ``Domain`` the checks cannot honour: a subclass of its own
     geometry (no kernel branch), or one overriding what the kernels decide."""
-    builtin = (Domain, Interval, Square, Disk, Sphere, Hemisphere)
+    concrete = (Hemisphere, Sphere, Interval, Square, Disk)   # Hemisphere before Sphere
+    builtin = (Domain,) + concrete
     cls = type(domain)
-    # the most derived built-in domain it is (Hemisphere before Sphere)
-    base = next((b for b in (Hemisphere, Sphere, Interval, Square, Disk)
-                 if isinstance(domain, b)), None)
+    # the most derived built-in domain it is
+    base = next((b for b in concrete if isinstance(domain, b)), None)
     if base is None:
         raise InvalidArgument(
             f"domain={domain!r}: {cls.__name__} is not one of the built-in domains "
