@@ -23,7 +23,7 @@ import numpy as np
 
 from .._compile_options import fused
 from .._fastmath import coarse_acos, coarse_atan2, fast_sincos_2pi
-from .layout import (BILINEAR, CLAMP, MIRROR, NEAREST, REPEAT, TEX_COLUMNS, TEX_FILTER,
+from .layout import (BILINEAR, CLAMP, NEAREST, REPEAT, TEX_COLUMNS, TEX_FILTER,
                      TEX_HEIGHT, TEX_OFFSET, TEX_UV, TEX_WIDTH, TEX_WRAP)
 
 _jit = fused()
@@ -97,21 +97,44 @@ class TextureStore:
 
 @_fast
 def _texel(tex_data, off, w, x, y):
-    k = off + 3 * (y * w + x)
-    return tex_data[k], tex_data[k + 1], tex_data[k + 2]
+    # unsigned: x and y are wrapped into the image, and numba's negative-index fix-up
+    # (a compare and a select per load) is not paid
+    k = np.uint64(off + 3 * (y * w + x))
+    return tex_data[k], tex_data[k + np.uint64(1)], tex_data[k + np.uint64(2)]
 
 
 @_fast
 def _wrap(i, n, mode):
-    """Texel index i of a row of n, repeated, clamped or mirrored into [0, n)."""
+    """Texel index i of a row of n, clamped or (any other mode) mirrored into [0, n)."""
     if mode == CLAMP:
         return min(max(i, 0), n - 1)
-    if mode == MIRROR:
-        i = i % (2 * n)
-        return i if i < n else 2 * n - 1 - i
-    # an index already in the row skips the integer division (~26 cycles, on the path
-    # to the texel's load): an envmap's columns are, all but its first half texel
-    return i if 0 <= i < n else i % n
+    i = i % (2 * n)
+    return i if i < n else 2 * n - 1 - i
+
+
+@fused(inline="always")
+def _wrap_pair(x0, n, mode):
+    """Texel indices of ⌊x⌋ and ⌊x⌋ + 1 (x0 = ⌊x⌋, a float) in a row of n, repeated,
+    clamped or mirrored. Both inside the row, the common case, costs one compare; a
+    repeat reduces x0 in floating point (exact: the integers are below 2^53) instead of
+    by an integer division (~26 cycles on the path to the texel's load). x0 not finite
+    (a NaN uv) reads texel 0."""
+    if 0.0 <= x0 and x0 + 1.0 < n:
+        i = int(x0)
+        return i, i + 1
+    if not abs(x0) < 4503599627370496.0:    # 2^52: beyond it no fraction is left
+        x0 = 0.0
+    ni = int(n)
+    if mode == REPEAT:
+        r = x0 - n * math.floor(x0 / n)
+        if r < 0.0:         # the rounded quotient one off
+            r += n
+        elif r >= n:
+            r -= n
+        i = int(r)
+        return i, (i + 1 if i + 1 < ni else 0)
+    i = int(x0)
+    return _wrap(i, ni, mode), _wrap(i + 1, ni, mode)
 
 
 @_fast
@@ -122,13 +145,11 @@ def _size(tex_info, t):
 @_fast
 def _bilinear(tex_data, tex_info, t, x, y, wrap_x, wrap_y):
     off, w, h = _size(tex_info, t)
-    x0 = math.floor(x)
-    y0 = math.floor(y)
+    x0 = np.floor(x)
+    y0 = np.floor(y)
     fx, fy = x - x0, y - y0
-    xa = _wrap(int(x0), w, wrap_x)
-    xb = _wrap(int(x0) + 1, w, wrap_x)
-    ya = _wrap(int(y0), h, wrap_y)
-    yb = _wrap(int(y0) + 1, h, wrap_y)
+    xa, xb = _wrap_pair(x0, float(w), wrap_x)
+    ya, yb = _wrap_pair(y0, float(h), wrap_y)
     a = _texel(tex_data, off, w, xa, ya)
     b = _texel(tex_data, off, w, xb, ya)
     c = _texel(tex_data, off, w, xa, yb)
@@ -151,8 +172,8 @@ def eval_texture(tex_data, tex_info, t, u, v):
     if row[TEX_FILTER] == NEAREST:
         off = int(row[TEX_OFFSET])
         iw, ih = int(w), int(h)
-        return _texel(tex_data, off, iw, _wrap(int(math.floor(uu * w)), iw, wrap),
-                      _wrap(int(math.floor(vv * h)), ih, wrap))
+        return _texel(tex_data, off, iw, _wrap_pair(np.floor(uu * w), w, wrap)[0],
+                      _wrap_pair(np.floor(vv * h), h, wrap)[0])
     return _bilinear(tex_data, tex_info, t, uu * w - 0.5, vv * h - 0.5, wrap, wrap)
 
 

@@ -96,6 +96,40 @@ def test_filter_and_wrap_modes_match_mitsuba(mi, images, case):
     _lookups_agree(mi, cs, scene, uvs)
 
 
+@pytest.mark.parametrize("case", ["bilinear", "nearest"])
+def test_repeat_far_from_the_unit_square(mi, images, case):
+    """A repeating texture at uv shifted by whole periods, up to 1e6 of them (a tiled
+    floor's uv), reads what it reads at the unshifted uv: the index is reduced in floating
+    point, exactly, not approximated."""
+    cs, _ = _compiled(mi, images, _texture_xml("t.exr", CASES[case]))
+    a = cs.arrays
+    t = int(a.bsdf_tex[0, 0])
+    uvs = np.random.default_rng(8).random((200, 2))
+    for shift in (-1e6, -3.0, 1.0, 17.0, 1e6 + 1.0):
+        for u, v in uvs:
+            want = textures.eval_texture(a.tex_data, a.tex_info, t, u, v)
+            got = textures.eval_texture(a.tex_data, a.tex_info, t, u + shift, v - shift)
+            # (u + shift) - shift loses up to 1e6 · 2^-53 of u: that much of a texel
+            np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-8)
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_non_finite_uv_reads_a_texel(mi, images, case):
+    """A NaN or infinite uv (a degenerate mesh's) reads texels inside the image, never
+    memory outside it: the value is a texel's (nearest) or NaN (bilinear weights of a
+    NaN fraction), as NaN uv gives in Mitsuba."""
+    cs, _ = _compiled(mi, images, _texture_xml("t.exr", CASES[case]))
+    a = cs.arrays
+    t = int(a.bsdf_tex[0, 0])
+    for u, v in [(np.nan, 0.3), (0.3, np.nan), (np.inf, 0.5), (-np.inf, -np.inf), (1e300, 0.2)]:
+        got = np.array(textures.eval_texture(a.tex_data, a.tex_info, t, u, v))
+        inside = (got >= 0.0) & (got <= 4.0)
+        if "nearest" in case:
+            assert np.all(inside), (u, v, got)
+        else:
+            assert np.all(inside | np.isnan(got)), (u, v, got)
+
+
 def test_to_uv_matches_mitsuba(mi, images):
     """A rotated, scaled, shifted uv map (Mitsuba's ``to_uv`` keeps the x/y part)."""
     xml = _texture_xml("t.exr", [("string", "filter_type", "nearest")]).replace(
