@@ -88,10 +88,18 @@ def fresnel_conductor(cos_i, eta, k):
 
 @fused(inline="always")
 def _conductor_fresnel(bf, b, cos_i):
-    """BSDF b's conductor reflectance per colour channel."""
-    return (fresnel_conductor(cos_i, bf[b, COND_ETA], bf[b, COND_K]),
-            fresnel_conductor(cos_i, bf[b, COND_ETA + 1], bf[b, COND_K + 1]),
-            fresnel_conductor(cos_i, bf[b, COND_ETA + 2], bf[b, COND_K + 2]))
+    """BSDF b's conductor reflectance per colour channel: one Fresnel term where the
+    three channels' (η, k) agree (a grey conductor), none for (0, 1), Mitsuba's material
+    "none", a perfect mirror (each term costs two square roots and two divisions)."""
+    e0, e1, e2 = bf[b, COND_ETA], bf[b, COND_ETA + 1], bf[b, COND_ETA + 2]
+    k0, k1, k2 = bf[b, COND_K], bf[b, COND_K + 1], bf[b, COND_K + 2]
+    if e0 == e1 and e0 == e2 and k0 == k1 and k0 == k2:
+        if e0 == 0.0 and k0 == 1.0:
+            return 1.0, 1.0, 1.0
+        f = fresnel_conductor(cos_i, e0, k0)
+        return f, f, f
+    return (fresnel_conductor(cos_i, e0, k0), fresnel_conductor(cos_i, e1, k1),
+            fresnel_conductor(cos_i, e2, k2))
 
 
 def fresnel_diffuse_reflectance(eta: float) -> float:

@@ -31,6 +31,13 @@ BSDFS = {
     "roughconductor-eta-k": '<bsdf type="roughconductor"><rgb name="eta" value="0.2, 0.9, 1.1"/>'
                             '<rgb name="k" value="3, 2.5, 2"/><float name="alpha" value="0.05"/>'
                             '<string name="distribution" value="ggx"/></bsdf>',
+    # one Fresnel term for all channels: grey (η, k), and Mitsuba's default material
+    # "none", (0, 1), a perfect mirror
+    "roughconductor-grey": '<bsdf type="roughconductor"><float name="eta" value="0.4"/>'
+                           '<float name="k" value="2.5"/><float name="alpha" value="0.3"/>'
+                           '</bsdf>',
+    "roughconductor-none": '<bsdf type="roughconductor"><float name="alpha" value="0.08"/>'
+                           '<string name="distribution" value="ggx"/></bsdf>',
     "plastic": '<bsdf type="plastic"><rgb name="diffuse_reflectance" value="0.6, 0.1, 0.1"/>'
                '</bsdf>',
     "plastic-nonlinear": '<bsdf type="plastic"><rgb name="diffuse_reflectance" '
@@ -99,6 +106,8 @@ def test_eval_matches_mitsuba(mi, name):
                          '<rgb name="specular_transmittance" value="0.9, 0.8, 0.7"/></bsdf>'),
     ("conductor-Ag", '<bsdf type="conductor"><string name="material" value="Ag"/></bsdf>'),
     ("conductor-mirror", '<bsdf type="conductor"/>'),
+    ("conductor-grey", '<bsdf type="conductor"><float name="eta" value="1.3"/>'
+                       '<float name="k" value="0.7"/></bsdf>'),
     ("plastic", BSDFS["plastic"]),
 ])
 def test_delta_sampling_matches_mitsuba(mi, name, xml):
