@@ -557,6 +557,12 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                         rr += tr * fr * lr * w
                         rg += tg * fg * lg * w
                         rb += tb * fb * lb * w
+        if depth + 2 >= max_depth and not (MASK & F_AREA_LIGHTS) and not (MASK & F_NULL_BSDFS) \
+                and not (MASK & F_ENV and env >= 0):
+            # the BSDF's ray would end the path where it lands, and nothing there emits:
+            # no area light, no environment (the same image; a direct integrator under
+            # point, spot and directional lights traced it for nothing)
+            break
         # ---- BSDF sampling
         u0, state = _next(state)
         u1, u2, state = _next2(state)
