@@ -605,6 +605,15 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
     return dom, n, res, validate.probability("alpha", alpha), validate.seed("seed", seed), k, chunk
 
 
+def _default_resolution(dom: Domain, n: int) -> tuple[int, ...]:
+    """``dom.default_resolution(n)``, validated as the ``resolution`` argument is: a
+    subclass may override it (for its repr or default_resolution only)."""
+    return validate.resolution(f"{type(dom).__name__}.default_resolution({n})",
+                               dom.default_resolution(n), dom.param_dim,
+                               cell_factor=KS_SPLIT if dom.param_dim == 1 else 1,
+                               bytes_per_cell=_BYTES_PER_CELL)
+
+
 def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution=None,
                   alpha: float = 0.01, seed: int = 0, sample_dim: int | None = None,
                   pilot: bool = True, name: str | None = None, rejection: bool = False,
@@ -711,7 +720,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     rejection = validate.boolean("rejection", rejection)
     name = name or f"sampler:{_name_of(sample, 'sample')}"
     m = dom.param_dim
-    res = res or dom.default_resolution(n)
+    res = res or _default_resolution(dom, n)
 
     n_budget = n
     if stop_alpha is not None:      # checked with or without batches, which use it
@@ -1050,7 +1059,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
             raise InvalidArgument(f"{label}: must be a sampler callable or an array "
                                   f"of points (n, {dom.dim})")
         sides.append((label, validate.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
-    res = res or dom.default_resolution(min(size for *_, size in sides))
+    res = res or _default_resolution(dom, min(size for *_, size in sides))
     edges = _edges(None, res)
     m = dom.param_dim
     hist_edges = [_split_edges(edges[0], KS_SPLIT)] if m == 1 else edges

@@ -358,3 +358,47 @@ def test_the_point_map_refuses_arrays_it_would_overrun(kind, s_cols, out_cols):
 
     with pytest.raises(ValueError, match="to_point_kernel"):
         K.to_point_kernel(kind, np.zeros(2), np.zeros((4, s_cols)), np.zeros((4, out_cols)))
+
+
+class _FixedResolutionSquare(mv.Square):
+    """A subclass for its default_resolution, as the refusal message invites."""
+
+    def __init__(self, res):
+        self.res = res
+
+    def default_resolution(self, n_samples):
+        return self.res
+
+    def __repr__(self):
+        return f"_FixedResolutionSquare({self.res!r})"
+
+
+@pytest.mark.parametrize("res, needle", [
+    ((0, 5), "every entry must be an integer >= 1"),
+    ((10,), "this domain needs 2 entries"),
+    ((2.5, 4), "every entry must be an integer >= 1"),
+    ("ab", "every entry must be an integer >= 1"),
+    ((10 ** 7, 10 ** 7), "histogram cells need about"),
+], ids=["zero", "one-entry", "float", "string", "too-many-cells"])
+@pytest.mark.parametrize("check", ["check_sampler", "check_same_distribution"])
+def test_a_subclass_default_resolution_is_validated(res, needle, check):
+    """What a subclass's default_resolution returns is checked as the resolution argument
+    is: before, (0, 5) failed a correct sampler with "pdf integrates to 0", (10,) and 12
+    raised raw ValueError/TypeError, and 10^7 × 10^7 cells a MemoryError (an outside
+    review)."""
+    dom = _FixedResolutionSquare(res)
+    call = (lambda: mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)), dom,
+                                     n_samples=1000)) if check == "check_sampler" else \
+        (lambda: mv.check_same_distribution(lambda u: u, lambda u: u, dom, n_samples=1000))
+    with pytest.raises(mv.InvalidArgument,
+                       match=r"_FixedResolutionSquare\.default_resolution\(.*" + needle):
+        call()
+
+
+def test_a_subclass_default_resolution_is_used():
+    r = mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)),
+                         _FixedResolutionSquare((6, 7)), n_samples=10_000, seed=1)
+    assert r.passed and r.details["resolution"] == [6, 7], r.summary()
+    r = mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)),
+                         _FixedResolutionSquare(12), n_samples=10_000, seed=1)
+    assert r.passed and r.details["resolution"] == [12, 12], r.summary()
