@@ -924,7 +924,8 @@ def detectable_contamination(result: CheckResult, *, power: float = 0.95,
     rejected with probability ``power`` by the same check, at the same n and cells.
 
     Each χ² sub-test (full grid and, in 2-D, both marginals) runs at ``alpha`` (default:
-    the check's own) divided by the number of sub-tests, as the check combines them;
+    the check's own) divided by the number of sub-tests, as the check combines them (the
+    KS test in 1-D and, with ``rejection``, the acceptance test count among them);
     the check rejects when any does, so the smallest ε over the sub-tests is an upper
     bound on the check's (the KS test's extra power in 1-D is not counted). Computed
     from the noncentral χ² distribution (:func:`mcverify.stats.chi2_detectable_mixture`);
@@ -948,7 +949,10 @@ def detectable_contamination(result: CheckResult, *, power: float = 0.95,
     if expected.ndim == 2:
         pairs += [(expected.sum(axis=1), uniform.sum(axis=1)),
                   (expected.sum(axis=0), uniform.sum(axis=0))]
-    level = alpha / (len(pairs) if expected.ndim == 2 else 2)
+    # the check's own Bonferroni divisor: its sub-tests (χ², marginals or KS, and with
+    # rejection the acceptance test), as recorded; the χ² tests' count where not
+    subtests = result.details.get("tests") or ()
+    level = alpha / (len(subtests) or (len(pairs) if expected.ndim == 2 else 2))
     if not power > level:      # at ε = 0 the test already rejects with its level
         raise InvalidArgument(f"power={power}: must exceed the test's level {level:.3g} "
                               "(alpha over its sub-tests), which it has with no "

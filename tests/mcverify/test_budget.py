@@ -5,9 +5,11 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import mcverify as mv
+from mcverify import stats
 from estimators import warps as W
 from mcverify.gate import budget as B
 from mcverify.gate.budget import allocate, measure_cost
@@ -150,3 +152,37 @@ def test_calibration_stops_at_two_thirds_of_the_budget():
     timed = B.plan_budget("default", "sampler:cosine_hemisphere", 60.0, canary=False)
     assert not any("calibration stopped" in n for n in timed.notes)
     assert "sampler:cosine_hemisphere" in timed.per_sample_ns
+
+
+def _linear_sphere(u):
+    """Density (1 + 0.9 z) / 4π on the sphere, draws below the equator rejected."""
+    a = 0.9
+    z = (-1.0 + np.sqrt(1.0 - 2.0 * a * (1.0 - a / 2.0 - 2.0 * u[:, 0]))) / a
+    z = np.clip(z, -1.0, 1.0)
+    r, phi = np.sqrt(np.maximum(0.0, 1.0 - z * z)), 2.0 * np.pi * u[:, 1]
+    x = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    x[z < 0.0] = np.nan
+    return x
+
+
+@pytest.mark.parametrize("dom, sample, pdf", [
+    ("sphere", _linear_sphere,
+     lambda x: np.where(x[:, 2] >= 0.0, (1.0 + 0.9 * x[:, 2]) / (4.0 * np.pi), 0.0)),
+    ("interval", lambda u: np.where(u[:, :1] < 0.8, np.sqrt(u[:, :1] / 0.8), np.nan),
+     lambda x: 1.6 * x[:, 0]),
+], ids=["sphere", "interval"])
+def test_detectable_contamination_counts_the_acceptance_test(dom, sample, pdf):
+    """With rejection=True the check Bonferroni-combines the acceptance test too (α/4 in
+    2-D, α/3 in 1-D); the power was computed at α/3 and α/2, as without rejection, which
+    overstated it (an outside review)."""
+    r = mv.check_sampler(sample, pdf, dom, n_samples=200_000, seed=1, rejection=True)
+    assert r.passed, r.summary()
+    h = r.artifacts["histogram"]
+    e = np.asarray(h["expected"])
+    widths = [np.diff(np.asarray(x)) for x in h["edges"]]
+    u = (widths[0] if len(widths) == 1 else np.outer(*widths)) * e.sum()
+    pairs = [(e, u)] + ([(e.sum(1), u.sum(1)), (e.sum(0), u.sum(0))] if e.ndim == 2 else [])
+    level = r.alpha / len(r.details["tests"])
+    assert len(r.details["tests"]) == (4 if e.ndim == 2 else 3)
+    want = min(stats.chi2_detectable_mixture(a, b, alpha=level) for a, b in pairs)
+    assert mv.detectable_contamination(r) == pytest.approx(want, rel=1e-9)
