@@ -39,6 +39,17 @@ def boolean(name: str, v) -> bool:
     return bool(v)
 
 
+def label(v, default: str) -> str:
+    """A check's ``name`` (its name in reports and JUnit): a string, ``default`` for None
+    or "" (a number reached the JUnit writer, which raised a bare TypeError)."""
+    if v is None or (isinstance(v, str) and not v):
+        return default
+    if not isinstance(v, str):
+        raise InvalidArgument(f"name={_show(v)}: must be a string (the check's name in "
+                              f"reports), got {type(v).__name__}")
+    return v
+
+
 def probability(name: str, v) -> float:
     if isinstance(v, bool) or not isinstance(v, numbers.Real) or not (0.0 < v < 1.0):
         raise InvalidArgument(f"{name}={_show(v)}: must be a number strictly between 0 and 1")

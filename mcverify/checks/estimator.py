@@ -66,6 +66,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
     >>> r.passed, r.details["sequential"]["batch"]    # a 10 % bias: decided at batch 1
     (False, 1)
     """
+    name = validate.label(name, "unbiased")
     if stop_alpha is not None:      # checked with or without batches, which use it
         validate.probability("stop_alpha", stop_alpha)
     if callable(samples):
@@ -178,6 +179,7 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
     if ev < 0:
         raise InvalidArgument(f"expected_variance={ev}: must be >= 0")
     alpha = validate.probability("alpha", alpha)
+    name = validate.label(name, "variance")
     failures = []
     if not np.all(np.isfinite(x)):
         failures.append(f"{np.count_nonzero(~np.isfinite(x))} samples are NaN/Inf")
@@ -282,6 +284,7 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
         raise InvalidArgument(f"ns={ns}: need at least 3 distinct sample counts")
     r = validate.integer("n_seeds", n_seeds, minimum=4)
     alpha = validate.probability("alpha", alpha)
+    name = validate.label(name, "convergence")
     if alternative not in ("two-sided", "less"):
         raise InvalidArgument(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
     seeds = np.random.SeedSequence(validate.seed("seed", seed)).generate_state(r * len(ns))

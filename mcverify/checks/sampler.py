@@ -718,7 +718,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=1)
     pilot = validate.boolean("pilot", pilot)
     rejection = validate.boolean("rejection", rejection)
-    name = name or f"sampler:{_name_of(sample, 'sample')}"
+    name = validate.label(name, f"sampler:{_name_of(sample, 'sample')}")
     m = dom.param_dim
     res = res or _default_resolution(dom, n)
 
@@ -985,7 +985,7 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     atol = validate.real("atol", atol, minimum=0.0)
     validate.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips",
                     width=("sample_dim", k), least=min(n, 1000))
-    name = name or f"inverse:{_name_of(inverse, 'inverse')}"
+    name = validate.label(name, f"inverse:{_name_of(inverse, 'inverse')}")
     u = np.random.default_rng(seed).random((n, k))
     x = np.asarray(sample(u))
     # the points' dimension is the sampler's own; their rows and dtype are checked here,
@@ -1045,7 +1045,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     dom, n, res, alpha, seed, k, chunk = _histogram_test_iv(
         domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=2)
     rejection = validate.boolean("rejection", rejection)
-    name = name or "same_distribution"
+    name = validate.label(name, "same_distribution")
     seqs = np.random.SeedSequence(seed).spawn(2)
     sides = []
     for label, smp, seq in (("sample_a", sample_a, seqs[0]), ("sample_b", sample_b, seqs[1])):

@@ -54,6 +54,25 @@ CASES = [
         np.full((100, 2), None), S, "square", n_samples=100), "sample_a: must be"),
     ("n-beyond-2^53", lambda: mv.check_sampler(S, P, "square", n_samples=10 ** 30),
      "n_samples=1000000000000000000000000000000: at most 2\\*\\*53"),
+    # a name that is no string reached the JUnit writer, which raised a bare TypeError
+    ("sampler-name-int", lambda: mv.check_sampler(S, P, "square", name=3, n_samples=100),
+     "name=3: must be a string"),
+    ("inverse-name-int", lambda: mv.check_inverse(S, S, 2, name=3), "name=3: must be"),
+    ("same-dist-name-int", lambda: mv.check_same_distribution(S, S, "square", name=3,
+                                                              n_samples=100),
+     "name=3: must be"),
+    ("unbiased-name-int", lambda: mv.check_unbiased(np.arange(5.0), 2.0, name=3),
+     "name=3: must be"),
+    ("unbiased-draw-name-list", lambda: mv.check_unbiased(lambda b: np.arange(5.0), 2.0,
+                                                          batches=2, name=["a"]),
+     "name=\\['a'\\]: must be"),
+    ("variance-name-int", lambda: mv.check_variance(np.arange(5.0), name=3),
+     "name=3: must be"),
+    ("convergence-name-int", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0, name=3),
+     "name=3: must be"),
+    ("images-name-int", lambda: mv.compare_images(
+        np.ones((4, 4)), np.ones((4, 4)), test_var=np.ones((4, 4)),
+        ref_var=np.ones((4, 4)), test_n=4, ref_n=4, name=3), "name=3: must be"),
 ]
 
 
@@ -73,3 +92,10 @@ def test_detectable_contamination_names_a_bad_power(power):
                          n_samples=20_000, seed=0)
     with pytest.raises(mv.InvalidArgument, match="power="):
         mv.detectable_contamination(r, power=power)
+
+
+def test_a_checks_name_is_a_string_or_its_default():
+    assert mv.check_unbiased(np.arange(5.0), 2.0, name=None).name == "unbiased"
+    assert mv.check_variance(np.ones(5), name="").name == "variance"
+    assert mv.check_sampler(S, P, "square", n_samples=100, name=None).name == "sampler:<lambda>"
+    assert mv.check_inverse(S, S, 2, n_samples=10, name=np.str_("mine")).name == "mine"
