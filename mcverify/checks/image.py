@@ -285,6 +285,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     nr = validate.integer("ref_n", ref_n, minimum=2, maximum=2 ** 53)
     alpha = validate.probability("alpha", alpha)
     block = validate.integer("block", block, minimum=1)
+    perceptual = validate.boolean("perceptual", perceptual)
     name = validate.label(name, "image")
     tests = tuple(tests)
     if not tests or len(set(tests)) != len(tests) or not set(tests) <= set(TESTS):

@@ -73,6 +73,11 @@ CASES = [
     ("images-name-int", lambda: mv.compare_images(
         np.ones((4, 4)), np.ones((4, 4)), test_var=np.ones((4, 4)),
         ref_var=np.ones((4, 4)), test_n=4, ref_n=4, name=3), "name=3: must be"),
+    # a flag given as text was read as true (perceptual="no" measured ΔE and FLIP)
+    ("images-perceptual-string", lambda: mv.compare_images(
+        np.ones((4, 4)), np.ones((4, 4)), test_var=np.ones((4, 4)),
+        ref_var=np.ones((4, 4)), test_n=4, ref_n=4, perceptual="no"),
+     "perceptual='no': must be True or False"),
 ]
 
 
