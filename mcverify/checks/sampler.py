@@ -605,6 +605,15 @@ def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, c
     return dom, n, res, validate.probability("alpha", alpha), validate.seed("seed", seed), k, chunk
 
 
+def _pilot(sample, label, seq, n, k, dom: Domain, rejection):
+    """Parameters of the valid points of an independent pilot draw for ``n`` samples
+    (a tenth of them, 1000 to 100,000), from which ``_edges`` places the cells."""
+    n_pilot = int(min(max(n // 10, 1000), 100_000))
+    pu = _uniforms(seq, n_pilot, k)
+    px = validate.points(label, sample(pu), n_pilot, dom.dim)
+    return _screen(px, pu, dom, rejection=rejection)[0]
+
+
 def _default_resolution(dom: Domain, n: int) -> tuple[int, ...]:
     """``dom.default_resolution(n)``, validated as the ``resolution`` argument is: a
     subclass may override it (for its repr or default_resolution only)."""
@@ -733,10 +742,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     main_seq, pilot_seq = np.random.SeedSequence(seed).spawn(2)
     pilot_s = None
     if pilot:
-        n_pilot = int(min(max(n // 10, 1000), 100_000))
-        pu = _uniforms(pilot_seq, n_pilot, k)
-        px = validate.points("sample", sample(pu), n_pilot, dom.dim)
-        pilot_s, _ = _screen(px, pu, dom, rejection=rejection)
+        pilot_s = _pilot(sample, "sample", pilot_seq, n, k, dom, rejection)
     uniforms = _uniform_chunks(main_seq, n_budget, k, chunk)
     edges = _edges(pilot_s, res)
     # 1-D: a fine histogram (each cell split in KS_SPLIT) serves the binned KS test; the
@@ -1024,13 +1030,18 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     For regression-checking a sampler without a closed-form pdf against its previous
     version, or ours against Mitsuba's. ``sample_a``/``sample_b`` are sampler callables
     (fed independent uniform numbers) or arrays of points. Sub-tests, combined by
-    Bonferroni: χ² homogeneity on a shared histogram (edges from both samples' pooled
-    quantiles would depend on the data, so uniform parameter cells are used), on 2-D
-    domains χ² of both marginals, and in 1-D the two-sample Kolmogorov–Smirnov test on
+    Bonferroni: χ² homogeneity on a shared histogram, on 2-D domains χ² of both
+    marginals, and in 1-D the two-sample Kolmogorov–Smirnov test on
     a fine histogram (conservative, as in :func:`check_sampler`). Samplers are streamed
     in chunks (memory O(chunk + cells)). With ``rejection``, rows of NaN are rejected
     draws: Fisher's exact test compares the two acceptance rates, and the tests above
     compare the accepted points.
+
+    Cell edges are placed as :func:`check_sampler` places them, from an independent
+    pilot draw of each sampler callable (pooled): a narrow peak, such as GGX at
+    α = 0.005, gets cells of its own. Edges from the tested points themselves would
+    depend on the data; the pilot's do not. With both sides arrays of points (no pilot
+    to draw) the cells are uniform in the domain's parameters.
 
     Examples
     --------
@@ -1046,7 +1057,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
         domain, n_samples, resolution, alpha, seed, sample_dim, chunk, min_samples=2)
     rejection = validate.boolean("rejection", rejection)
     name = validate.label(name, "same_distribution")
-    seqs = np.random.SeedSequence(seed).spawn(2)
+    seqs = np.random.SeedSequence(seed).spawn(3)    # the two sides, and their pilots
     sides = []
     for label, smp, seq in (("sample_a", sample_a, seqs[0]), ("sample_b", sample_b, seqs[1])):
         if callable(smp):
@@ -1064,7 +1075,12 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                                   f"of points (n, {dom.dim})")
         sides.append((label, validate.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
     res = res or _default_resolution(dom, min(size for *_, size in sides))
-    edges = _edges(None, res)
+    # independent pilot draws of the sampler callables place the cells (a uniform grid
+    # put all of a GGX lobe at α = 0.005 into one row: 10 % too wide passed)
+    pilots = [_pilot(smp, label, pseq, size, k, dom, rejection)
+              for (label, smp, seq, size), pseq in zip(sides, seqs[2].spawn(2))
+              if seq is not None]
+    edges = _edges(np.concatenate(pilots) if pilots else None, res)
     m = dom.param_dim
     hist_edges = [_split_edges(edges[0], KS_SPLIT)] if m == 1 else edges
     hists, failures = [], []

@@ -105,6 +105,25 @@ def test_same_distribution_two_sample():
     assert not any("largest" in m for m in same.messages)
 
 
+def test_same_distribution_resolves_a_narrow_lobe():
+    """Cells placed from independent pilot draws, as check_sampler places them: on a
+    uniform grid a GGX lobe at α = 0.005 fell into the first row, and a sampler 10 %
+    too wide passed at 3e5 samples (an outside review). Seeded, α = 0.01."""
+    wide = lambda u: W.sample_ggx(u, 0.0055)        # noqa: E731
+    narrow = lambda u: W.sample_ggx(u, 0.005)       # noqa: E731
+    r = mv.check_same_distribution(narrow, wide, "hemisphere", n_samples=300_000, seed=1)
+    assert not r.passed and r.p_value < 1e-6, r.summary()
+    same = mv.check_same_distribution(narrow, lambda u: W.sample_ggx(u[:, ::-1], 0.005),
+                                      "hemisphere", n_samples=300_000, seed=1)
+    assert same.passed, same.summary()
+    # one side an array of points: the sampler side's pilot places the cells
+    pts = narrow(np.random.default_rng(7).random((300_000, 2)))
+    assert not mv.check_same_distribution(pts, wide, "hemisphere", n_samples=300_000,
+                                          seed=1).passed
+    assert mv.check_same_distribution(pts, narrow, "hemisphere", n_samples=300_000,
+                                      seed=1).passed
+
+
 def test_same_distribution_says_when_its_histogram_has_no_power():
     """Three points a side pool into one bin: the test cannot fail, and says so (as
     check_sampler does), for arrays and for samplers."""
