@@ -387,7 +387,7 @@ class VarianceTestResult:
     n: int
 
 
-def variance_test(x, expected_variance: float) -> VarianceTestResult:
+def variance_test(x, expected_variance: float, *, rounding: float = 0.0) -> VarianceTestResult:
     """Large-sample z-test of ``Var(X) == expected_variance`` that does not assume
     normality: the sample variance's exact variance ``Var(s²) = (μ₄ − σ⁴)/n +
     2σ⁴/(n(n − 1))``, with μ₄ the fourth central moment, estimated by the sample's.
@@ -403,14 +403,17 @@ def variance_test(x, expected_variance: float) -> VarianceTestResult:
     α = 0.01).
 
     ``expected_variance == 0`` is the zero-variance ("perfect estimate") case: p = 1 iff
-    the sample variance is 0 to rounding (≤ (1e-12 · max|x|)²), else p = 0.
+    the sample variance is 0 to rounding (≤ (1e-12 · max|x|)² · n, or ≤ (``rounding`` ·
+    max|x|)², the values' own precision: float32 estimates are constant only to float32's
+    ulps), else p = 0.
     """
     x = np.asarray(x, dtype=np.float64).ravel()
     n = x.size
     s2 = float(np.var(x, ddof=1)) if n > 1 else 0.0
     if expected_variance == 0.0:
         scale = float(np.max(np.abs(x))) if n else 0.0
-        ok = s2 <= (1e-12 * max(scale, 1e-300)) ** 2 * n
+        ok = s2 <= max((1e-12 * max(scale, 1e-300)) ** 2 * n,
+                       (rounding * max(scale, 1e-300)) ** 2)
         return VarianceTestResult(s2, 0.0, 0.0 if ok else np.inf, 1.0 if ok else 0.0, n)
     # z is scale-free: computed on x / max|x|, so that the fourth moment cannot overflow
     c = float(np.max(np.abs(x))) if n else 0.0

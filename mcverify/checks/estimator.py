@@ -27,6 +27,16 @@ _MIN_TAIL_SAMPLES = 1000
 _ROUNDING = 64 * np.finfo(np.float64).eps
 
 
+def _rounding(samples) -> float:
+    """The relative rounding allowance of ``samples`` (validated): ``_ROUNDING`` in
+    float32's precision where they are float32. A float32 renderer's perfect estimator
+    (p ∝ f) is constant only to float32's ulps (0.1f ± 7e-9), which float64's allowance
+    took for a bias and a variance. (Float16, 64 of whose ulps are 6 %, keeps float64's.)"""
+    if np.asarray(samples).dtype == np.float32:
+        return 64 * float(np.finfo(np.float32).eps)
+    return _ROUNDING
+
+
 def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbiased",
                    batches: int | None = None, stop_alpha: float | None = None) -> CheckResult:
     """One-sample t-test that per-sample estimates ``f(X)/p(X)`` have mean ``expected``.
@@ -79,7 +89,9 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         def look(b):
             t0 = time.perf_counter()
             while len(drawn) < b:
-                drawn.append(validate.samples_1d(f"samples({len(drawn)})", samples(len(drawn))))
+                v = samples(len(drawn))
+                validate.samples_1d(f"samples({len(drawn)})", v)
+                drawn.append(np.asarray(v))     # its own dtype: float32 rounds as float32
             r = check_unbiased(np.concatenate(drawn), expected, alpha=alpha, name=name)
             return dataclasses.replace(r, seconds=time.perf_counter() - t0)
 
@@ -91,6 +103,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
                               "draw(batch) -> estimates")
     t0 = time.perf_counter()
     x = validate.samples_1d("samples", samples)
+    rounding = _rounding(samples)
     expected = validate.real("expected", expected)
     alpha = validate.probability("alpha", alpha)
     failures, messages = [], []
@@ -110,7 +123,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
                            alpha=alpha, n_samples=int(x.size),
                            seconds=time.perf_counter() - t0,
                            details={"expected": expected}, failures=tuple(failures))
-    tol = _ROUNDING * max(abs(expected), scale)
+    tol = rounding * max(abs(expected), scale)
     if x.size > 1 and spread <= tol:
         # Constant to rounding (a perfect estimator, p ∝ f): its standard error is rounding
         # noise (1e-19 for 0.1), so the t-test would accuse any last-bit difference.
@@ -192,7 +205,7 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
                            details={"variance": None, "expected_variance": ev},
                            failures=tuple(failures))
     with np.errstate(over="ignore", invalid="ignore"):
-        r = stats.variance_test(x, ev)
+        r = stats.variance_test(x, ev, rounding=_rounding(samples))
     messages = []
     # the zero-variance test's statistic is +inf for any variance above rounding: only
     # the variance itself can overflow there

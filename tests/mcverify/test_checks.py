@@ -161,6 +161,31 @@ def test_zero_variance_when_p_proportional_to_f():
         f"expected zero variance (p ∝ f), measured {np.var(x / 2, ddof=1):.3g}",), r.failures
 
 
+def test_a_perfect_float32_estimator_is_constant_to_float32_rounding():
+    """A float32 renderer's f/p with p ∝ f is constant only to float32's ulps: its
+    estimates of 0.1 are 0.1f ± an ulp (7e-9). Both checks allowed float64's rounding
+    only, so check_unbiased failed them by 278 standard errors, check_unbiased of
+    np.full(n, np.float32(0.1)) against 0.1 failed ("every sample is
+    0.100000001490116"), and check_variance(·, 0) measured a variance of 5.5e-18 (an
+    outside review). Float32 values are now compared within 64 of their own ulps."""
+    u = np.random.default_rng(0).random(100_000).astype(np.float32)
+    x = np.sqrt(u)                                          # p(x) = 2x, float32
+    est = (np.float32(0.2) * x) / (np.float32(2.0) * x)     # f = 0.2 x: f/p = 0.1
+    assert est.dtype == np.float32 and np.ptp(est) > 0
+    assert mv.check_unbiased(est, 0.1).passed
+    assert mv.check_variance(est, 0.0).passed
+    assert mv.check_unbiased(np.full(1000, 0.1, dtype=np.float32), 0.1).passed
+    draw = lambda b: est[b * 10_000:(b + 1) * 10_000]      # noqa: E731
+    assert mv.check_unbiased(draw, 0.1, batches=4).passed
+    # what float32 cannot hide still fails: 0.1 % off, and a spread of 1e-4
+    assert not mv.check_unbiased(np.full(1000, 0.1001, dtype=np.float32), 0.1).passed
+    wobble = (est * (1 + 1e-4 * (u - np.float32(0.5)))).astype(np.float32)
+    assert not mv.check_variance(wobble, 0.0).passed
+    # float64 keeps float64's allowance
+    assert not mv.check_unbiased(np.full(1000, float(np.float32(0.1))), 0.1).passed
+    assert not mv.check_variance(est.astype(np.float64), 0.0).passed
+
+
 @pytest.mark.parametrize("scale", [1e-160, 1e-200, 1e-300, 1e-305])
 def test_unbiased_at_tiny_scales_tests_the_mean(scale):
     """Estimates near the bottom of float64's range: their squares underflow, and the
