@@ -162,10 +162,19 @@ def real_dtype(dtype) -> bool:
     return np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)
 
 
+def as_array(what: str, v) -> np.ndarray:
+    """``np.asarray(v)``, or InvalidArgument saying ``what`` is wrong: a ragged sequence
+    (``[[1, 2], [3]]``) raised numpy's bare ValueError, naming nothing."""
+    try:
+        return np.asarray(v)
+    except (ValueError, TypeError) as e:
+        raise InvalidArgument(f"{what}: not an array of numbers ({e})") from None
+
+
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
     """Output of a user callable as an (n, dim) array (float32 kept, anything else as
     float64), or InvalidArgument."""
-    a = np.asarray(x)
+    a = as_array(f"{name} returned {_show(x)}", x)
     if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers")
     if a.dtype == np.float16:
@@ -185,7 +194,7 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
 def values(name: str, v, n: int) -> np.ndarray:
     """Output of a user callable as (n,) float64. A single number is taken as that value
     at every point (a constant pdf, e.g. ``lambda x: 1 / (4 * np.pi)``)."""
-    a = np.asarray(v)
+    a = as_array(f"{name} returned {_show(v)}", v)
     if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers "
                               f"(first value {_show(a.flat[0] if a.size else None)})")
@@ -201,10 +210,10 @@ def values(name: str, v, n: int) -> np.ndarray:
 
 
 def samples_1d(name: str, v, *, minimum: int = 2) -> np.ndarray:
-    if np.iscomplexobj(v):      # numpy would drop the imaginary part with a warning
+    raw = as_array(name, v)
+    if np.iscomplexobj(raw):    # numpy would drop the imaginary part with a warning
         raise InvalidArgument(f"{name}: complex values; the checks test real estimates "
                               "(test the real and imaginary parts separately)")
-    raw = np.asarray(v)
     if not (real_dtype(raw.dtype) or raw.dtype == np.bool_):
         # strings ("1", "2") were read as numbers (found by a probe); booleans stay 0/1,
         # a hit-or-miss estimator's values (found by review)

@@ -44,7 +44,7 @@ TESTS = ("global", "blocks", "pixels")
 
 
 def _as_image(name, a, shape=None):
-    raw = np.asarray(a)
+    raw = validate.as_array(name, a)
     if not validate.real_dtype(raw.dtype):
         raise InvalidArgument(f"{name}: must be an array of real numbers, got dtype "
                               f"{raw.dtype}")
@@ -101,7 +101,7 @@ def _as_passes(name, a, n, shape):
     """Pass images (K, H, W[, C]) as float64 (K, H, W, C) with K == n, or None."""
     if a is None:
         return None
-    raw = np.asarray(a)
+    raw = validate.as_array(name, a)
     if raw.ndim == len(shape):             # (K, H, W) for single-channel means
         raw = raw[..., None]
     if raw.ndim != 4 or raw.shape[1:] != shape or raw.shape[0] != n:

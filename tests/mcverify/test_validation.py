@@ -73,6 +73,25 @@ CASES = [
     ("images-name-int", lambda: mv.compare_images(
         np.ones((4, 4)), np.ones((4, 4)), test_var=np.ones((4, 4)),
         ref_var=np.ones((4, 4)), test_n=4, ref_n=4, name=3), "name=3: must be"),
+    # a ragged sequence raised numpy's bare "setting an array element with a sequence"
+    ("unbiased-ragged", lambda: mv.check_unbiased([[1.0, 2.0], [3.0]], 2.0),
+     "samples: not an array of numbers"),
+    ("variance-ragged", lambda: mv.check_variance([[1.0, 2.0], [3.0]]),
+     "samples: not an array of numbers"),
+    ("unbiased-draw-ragged", lambda: mv.check_unbiased(lambda b: [[1.0, 2.0], [3.0]], 2.0,
+                                                       batches=2),
+     "samples.0.: not an array of numbers"),
+    ("images-ragged-var", lambda: mv.compare_images(
+        np.ones((4, 4)), np.ones((4, 4)), test_var=[[1.0, 2.0], [3.0]],
+        ref_var=np.ones((4, 4)), test_n=4, ref_n=4), "test_var: not an array of numbers"),
+    ("sample-returns-ragged", lambda: mv.check_sampler(lambda u: [[0.1, 0.2], [0.3]], P,
+                                                       "square", n_samples=2),
+     "sample returned .*: not an array of numbers"),
+    ("pdf-returns-ragged", lambda: mv.check_sampler(S, lambda x: [[1.0], [1.0, 2.0]],
+                                                    "square", n_samples=2),
+     "pdf returned .*: not an array of numbers"),
+    ("inverse-sample-returns-ragged", lambda: mv.check_inverse(
+        lambda u: [[0.1, 0.2], [0.3]], S, 2, n_samples=2), "sample returned .*: not an array"),
     # a flag given as text was read as true (perceptual="no" measured ΔE and FLIP)
     ("images-perceptual-string", lambda: mv.compare_images(
         np.ones((4, 4)), np.ones((4, 4)), test_var=np.ones((4, 4)),
