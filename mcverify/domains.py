@@ -126,8 +126,22 @@ class Interval(Domain):
         if not (np.isfinite(a) and np.isfinite(b) and b > a and np.isfinite(b - a)):
             raise InvalidArgument(f"Interval(a={a}, b={b}): need finite a < b with b - a "
                                   "finite")
-        self.a, self.b = a, b
-        self.jacobian = b - a
+        self._ends = (a, b)
+
+    # read-only: an interval changed after its checks were planned would be binned with
+    # its old width (d.b = 2 made a correct sampler on [0, 2] fail, "pdf integrates to
+    # 0.5"); make a new Interval instead
+    @property
+    def a(self) -> float:
+        return self._ends[0]
+
+    @property
+    def b(self) -> float:
+        return self._ends[1]
+
+    @property
+    def jacobian(self) -> float:
+        return self._ends[1] - self._ends[0]
 
     @property
     def args(self):
@@ -223,6 +237,12 @@ def _refuse_custom(domain: Domain) -> None:
                 f"but the checks bin it as the built-in {base.__name__} ({name}="
                 f"{getattr(base, name)!r}); subclass a built-in domain for its repr or "
                 "default_resolution only")
+    changed = [name for name in _KERNEL_DECIDED if name in vars(domain)]
+    if changed:
+        raise InvalidArgument(
+            f"domain={domain!r}: {', '.join(changed)} set on the instance, but the checks "
+            f"bin it as the built-in {base.__name__} (they do not read it); make a new "
+            "domain instead")
     if cls in builtin:
         return
     for name in _KERNEL_DECIDED:

@@ -69,12 +69,21 @@ def _wide_interval():
     return d
 
 
+def _rescaled_sphere():
+    d = mv.Sphere()
+    d.jacobian = 1.0        # the checks integrate by kind: the sphere's 4π stays
+    return d
+
+
 @pytest.mark.parametrize("dom, needle", [
+    (_rescaled_sphere(), "jacobian set on the instance, but the checks bin it as the "
+                         "built-in Sphere"),
     (_Triangle(), "_Triangle is not one of the built-in domains"),
     (mv.Domain(), "Domain itself is only their base class"),
     (_ShiftedDisk(), "_ShiftedDisk overrides 'to_point'"),
     (_wide_interval(), "sets dim=2, but the checks bin it as the built-in Interval"),
-], ids=["own-geometry", "base-class", "overridden-kernel-method", "changed-dim"])
+], ids=["changed-jacobian", "own-geometry", "base-class", "overridden-kernel-method",
+        "changed-dim"])
 def test_a_domain_the_kernels_would_ignore_is_refused(dom, needle):
     """The binning and quadrature passes branch on ``kind``: a subclass's own geometry or
     an overridden ``classify``/``to_point`` would be silently ignored, so checks refuse
@@ -88,6 +97,22 @@ def test_a_domain_the_kernels_would_ignore_is_refused(dom, needle):
                          n_samples=1000)
     with pytest.raises(mv.InvalidArgument, match=needle):
         mv.check_same_distribution(np.zeros((10, 1)), np.zeros((10, 1)), dom)
+
+
+def test_an_interval_cannot_be_changed_after_it_is_made():
+    """An interval's ends are read-only: ``d.b = 2`` after ``Interval(0, 1)`` kept the
+    old width in the binning, and a correct sampler on [0, 2] failed with "pdf
+    integrates to 0.5" (an outside review)."""
+    d = mv.Interval(0.0, 1.0)
+    for name in ("a", "b", "jacobian"):
+        with pytest.raises(AttributeError):
+            setattr(d, name, 2.0)
+    assert (d.a, d.b, d.jacobian) == (0.0, 1.0, 1.0)
+    wide = mv.Interval(0.0, 2.0)
+    assert wide.jacobian == 2.0
+    r = mv.check_sampler(lambda u: 2.0 * u, lambda x: np.full(len(x), 0.5), wide,
+                         n_samples=20_000, seed=3)
+    assert r.passed, r.summary()
 
 
 def test_a_subclass_for_its_repr_only_is_accepted():
