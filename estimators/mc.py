@@ -65,9 +65,11 @@ def _count(n, name="n", minimum=1):
     return int(n)
 
 
-def _values(name: str, v, n: int) -> np.ndarray:
+def _values(name: str, v, n: int, x=None) -> np.ndarray:
     """What ``name`` returned for n points as (n,) float64, or ValueError: a scalar or a
-    wrong length had been averaged as if it were n values (``lambda x: 2.0`` gave n = 1)."""
+    wrong length had been averaged as if it were n values (``lambda x: 2.0`` gave n = 1).
+    A NaN is refused, naming the first point ``x[i]`` that gave it: it made the value and
+    the standard error NaN without saying where."""
     if np.iscomplexobj(v):       # numpy drops the imaginary part with a warning only
         raise ValueError(f"{name} returned complex values: expected real numbers")
     try:
@@ -77,13 +79,28 @@ def _values(name: str, v, n: int) -> np.ndarray:
                          f"numbers ({e})") from None
     if a.shape not in ((n,), (n, 1)):
         raise ValueError(f"{name} returned shape {a.shape} for {n} points: expected ({n},)")
-    return a.reshape(-1)
+    a = a.reshape(-1)
+    nan = np.isnan(a)
+    if nan.any():
+        i = int(np.argmax(nan))
+        at = "" if x is None else f" ({_show_point(x[i])})"
+        raise ValueError(f"{name} returned NaN at point {i}{at}, {int(nan.sum())} of {n} "
+                         "points: an estimate needs a number at every point")
+    return a
 
 
-def _density(name: str, v, n: int) -> np.ndarray:
+def _show_point(p) -> str:
+    try:
+        return "x = " + np.array2string(np.asarray(p, dtype=np.float64), precision=17,
+                                        separator=", ")
+    except (TypeError, ValueError):
+        return f"x = {p!r:.60}"
+
+
+def _density(name: str, v, n: int, x=None) -> np.ndarray:
     """``_values`` of a pdf, which must be >= 0 (a negative one gave a negative estimate
     without a word)."""
-    a = _values(name, v, n)
+    a = _values(name, v, n, x)
     if (a < 0).any():
         i = int(np.argmax(a < 0))
         raise ValueError(f"{name} returned {a[i]:.6g} at point {i}: a density is >= 0")
@@ -120,7 +137,8 @@ def _checked(fn):
 
 
 def _call_f(f, x, scalar_box):
-    return _values("f", f(x[:, 0] if scalar_box else x), x.shape[0])
+    x = x[:, 0] if scalar_box else x
+    return _values("f", f(x), x.shape[0], x)
 
 
 @_checked
@@ -155,8 +173,8 @@ def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) ->
     n = _count(n)
     u = np.random.default_rng(seed).random((n, _count(sample_dim, "sample_dim")))
     x = _points("sample", sample(u), n)
-    fx = _values("f", f(x), n)
-    px = _density("pdf", pdf(x), n)
+    fx = _values("f", f(x), n, x)
+    px = _density("pdf", pdf(x), n, x)
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(fx == 0.0, 0.0, fx / px)
     return _from_terms(terms)
@@ -263,8 +281,8 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
         x = _points(f"techniques[{len(cols)}] sample",
                     sample(np.random.default_rng(s).random((n_i, _count(k, "sample_dim")))),
                     n_i)
-        fx = _values("f", f(x), n_i)
-        pj = np.stack([_density(f"techniques[{j}] pdf", t[1](x), n_i) * c
+        fx = _values("f", f(x), n_i, x)
+        pj = np.stack([_density(f"techniques[{j}] pdf", t[1](x), n_i, x) * c
                        for j, (t, c) in enumerate(zip(techniques, counts))])   # n_j p_j(x)
         own = pj[len(cols)]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -295,7 +313,7 @@ def russian_roulette(f, sample, pdf, n: int, q: float, *, seed: int = 0,
     if alive.any():
         m = int(alive.sum())
         x = _points("sample", sample(u[alive]), m)
-        fx, px = _values("f", f(x), m), _density("pdf", pdf(x), m)
+        fx, px = _values("f", f(x), m, x), _density("pdf", pdf(x), m, x)
         with np.errstate(divide="ignore", invalid="ignore"):
             terms[alive] = np.where(fx == 0.0, 0.0, fx / px) / q
     return _from_terms(terms)

@@ -200,3 +200,30 @@ def test_stratified_standard_error_is_conservative_in_expectation(f):
     values = np.array([e.value for e in es])
     se2 = np.array([e.std_error ** 2 for e in es])
     assert se2.mean() > np.var(values, ddof=1)
+
+
+def _nan_above_half(x):
+    return np.where(np.asarray(x).reshape(len(x), -1)[:, 0] > 0.5, np.nan, 1.0)
+
+
+@pytest.mark.parametrize("call,match", [
+    (lambda: mc.uniform(_nan_above_half, 0.0, 1.0, 100), "f returned NaN at point"),
+    (lambda: mc.uniform(_nan_above_half, [0.0, 0.0], [1.0, 1.0], 100), "f returned NaN"),
+    (lambda: mc.importance(_nan_above_half, linear_sampler, linear_pdf, 100),
+     "f returned NaN"),
+    (lambda: mc.importance(np.sin, linear_sampler, lambda x: np.full(len(x), np.nan), 100),
+     "pdf returned NaN at point 0"),
+    (lambda: mc.stratified(_nan_above_half, 0.0, 1.0, 100), "f returned NaN"),
+    (lambda: mc.rqmc(_nan_above_half, 0.0, 1.0, 64), "f returned NaN"),
+    (lambda: mc.antithetic(_nan_above_half, 0.0, 1.0, 100), "f returned NaN"),
+    (lambda: mc.russian_roulette(_nan_above_half, linear_sampler, linear_pdf, 100, 0.5),
+     "f returned NaN"),
+    (lambda: mc.mis(np.sin, [(sin_sampler, lambda x: np.full(len(x), np.nan), 10, 1)]),
+     r"techniques\[0\] pdf returned NaN"),
+], ids=["uniform", "uniform-box", "importance-f", "importance-pdf", "stratified", "rqmc",
+        "antithetic", "roulette", "mis-pdf"])
+def test_a_nan_from_f_or_pdf_is_refused_naming_the_point(call, match):
+    """A NaN from f or the pdf made value and std_error NaN without a word (found by
+    review): each estimator now refuses it, naming the first point that gave it."""
+    with pytest.raises(ValueError, match=match + r".*\(x = .*\), [0-9]+ of [0-9]+ points"):
+        call()
