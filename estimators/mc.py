@@ -23,6 +23,7 @@ import functools
 import inspect
 import math
 import numbers
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -252,14 +253,19 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
         beta: float = 2.0) -> Estimate:
     """Multi-sample MIS (Veach): ``Σ_i 1/n_i Σ_k w_i(X_ik) f(X_ik)/p_i(X_ik)``.
 
-    ``techniques``: a list of ``(sample, pdf, n_i, sample_dim)``; every technique's pdf
-    is evaluated at every technique's samples. ``heuristic``: ``"balance"``
+    ``techniques``: a list (or any iterable) of ``(sample, pdf, n_i, sample_dim)``;
+    every technique's pdf is evaluated at every technique's samples. ``heuristic``: ``"balance"``
     (``w_i = n_i p_i / Σ_j n_j p_j``) or ``"power"`` (exponent ``beta``, 2 by default).
     When all n_i are equal, ``samples`` holds per index k the sum over techniques of
     their k-th terms (i.i.d. estimates of the integral); otherwise None.
     """
     if heuristic not in ("balance", "power"):
         raise ValueError(f"heuristic={heuristic!r}: expected 'balance' or 'power'")
+    # any iterable of techniques (a generator raised a bare TypeError from len())
+    if isinstance(techniques, (str, bytes)) or not isinstance(techniques, Iterable):
+        raise ValueError(f"techniques={techniques!r:.60}: expected a list of (sample, pdf, "
+                         "n, sample_dim)")
+    techniques = list(techniques)
     if not techniques:
         raise ValueError("techniques: need at least one (sample, pdf, n, sample_dim)")
     if heuristic == "power" and (isinstance(beta, bool) or not isinstance(beta, numbers.Real)

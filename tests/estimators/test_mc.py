@@ -227,3 +227,16 @@ def test_a_nan_from_f_or_pdf_is_refused_naming_the_point(call, match):
     review): each estimator now refuses it, naming the first point that gave it."""
     with pytest.raises(ValueError, match=match + r".*\(x = .*\), [0-9]+ of [0-9]+ points"):
         call()
+
+
+def test_mis_takes_any_iterable_of_techniques():
+    """A generator of techniques raised a bare TypeError (len() of a generator; found by
+    review): it gives the list's estimate, and what is no iterable is named."""
+    techs = [(sin_sampler, sin_pdf, 100, 1), (linear_sampler, linear_pdf, 100, 1)]
+    ref = mc.mis(np.sin, techs, seed=3)
+    got = mc.mis(np.sin, (t for t in techs), seed=3)
+    assert (got.value, got.std_error) == (ref.value, ref.std_error)
+    assert mc.mis(np.sin, tuple(techs), seed=3).value == ref.value
+    for bad in (5, "abc", None):
+        with pytest.raises(ValueError, match="techniques=.*expected a list"):
+            mc.mis(np.sin, bad)
