@@ -234,6 +234,14 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     n = _count(n)
     if n & (n - 1):
         raise ValueError(f"n={n}: must be a power of two for Sobol points")
+    # scipy's own messages named neither n nor the dimension ("At most 2**30=... distinct
+    # points can be generated", "Maximum allowed dimension exceeded" for n = 2^64)
+    if n > 2 ** 30:
+        raise ValueError(f"n={n}: at most 2^30 = {2 ** 30} Sobol points a replicate (scipy's "
+                         "30-bit Sobol sequence); raise replicates instead")
+    if lo.size > qmc.Sobol.MAXDIM:
+        raise ValueError(f"a, b: {lo.size} dimensions, Sobol points have at most "
+                         f"{qmc.Sobol.MAXDIM}")
     r = _count(replicates, "replicates", minimum=2)
     seqs = np.random.SeedSequence(seed).spawn(r)
     reps = []
