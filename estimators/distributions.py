@@ -298,6 +298,12 @@ def _nan_where_nan(x, values) -> np.ndarray:
     return np.where(bad, np.nan, values)
 
 
+def _nan_rows(x, values) -> np.ndarray:
+    """``values`` (n, k) with every column NaN in each row where a coordinate of ``x``
+    (n, d) is NaN: half a NaN input no longer gives half a point."""
+    return np.where(np.isnan(x).any(axis=1)[:, None], np.nan, values)
+
+
 def _pairs(u, name="u") -> np.ndarray:
     """A 2-D distribution's points as (n, 2): (n, 2) or one pair (2,); any other shape
     is refused ((4, 3) was read as six pairs, (4,) as two)."""
@@ -429,9 +435,11 @@ class PiecewiseConstant2D:
             self.integral = total / v.size * scale
 
     def sample(self, u):
-        """``u`` (n, 2) -> points (n, 2) = (x, y)."""
+        """``u`` (n, 2) -> points (n, 2) = (x, y); a NaN in either coordinate of a u gives
+        (NaN, NaN) (a NaN u1 had drawn x from row 0: a finite x beside a NaN y)."""
         u = _pairs(u)
-        return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, u, 0)[:, :2]
+        return _nan_rows(u, _pc2d_batch_kernel(self.marginal_table, self.conditional_table,
+                                               u, 0)[:, :2])
 
     def pdf(self, x):
         x = _pairs(x, "x")
@@ -439,8 +447,10 @@ class PiecewiseConstant2D:
                                                     self.conditional_table, x, 1)[:, 0])
 
     def invert(self, x):
+        """Points (n, 2) -> u (n, 2); a point with a NaN coordinate gives (NaN, NaN)."""
         x = _pairs(x, "x")
-        return _pc2d_batch_kernel(self.marginal_table, self.conditional_table, x, 2)[:, :2]
+        return _nan_rows(x, _pc2d_batch_kernel(self.marginal_table, self.conditional_table,
+                                               x, 2)[:, :2])
 
 
 @dataclass(frozen=True)

@@ -207,6 +207,19 @@ def test_nan_and_out_of_range_inputs_read_no_table_entry_beyond_the_end():
     assert np.all((q.invert([[0.5, 1e300]]) >= 0) & (q.invert([[0.5, 1e300]]) < 1))
 
 
+def test_a_2d_sample_or_inverse_with_one_nan_coordinate_is_nan_in_both():
+    """A NaN in one coordinate of u gave half a point: (NaN, y) for a NaN u0, and for a
+    NaN u1 a finite x drawn from row 0 beside a NaN y; the inverse likewise (found by
+    review). Both coordinates are NaN now, the other rows untouched."""
+    q = PiecewiseConstant2D(np.arange(12.0).reshape(3, 4) + 1)
+    u = np.array([[np.nan, 0.3], [0.3, np.nan], [np.nan, np.nan], [0.2, 0.7]])
+    x = q.sample(u)
+    assert np.isnan(x[:3]).all() and x[3].tolist() == q.sample(u[3:]).ravel().tolist()
+    assert np.isfinite(x[3]).all()
+    inv = q.invert(np.array([[np.nan, 0.3], [0.3, np.nan], [0.2, 0.7]]))
+    assert np.isnan(inv[:2]).all() and np.isfinite(inv[2]).all()
+
+
 def test_finite_weights_whose_sum_overflows_keep_their_proportions():
     d = DiscreteDistribution([1e308, 1e308])
     assert d.pmf.tolist() == [0.5, 0.5] and d.sample([0.25, 0.75])[0].tolist() == [0, 1]
