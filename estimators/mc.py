@@ -78,8 +78,9 @@ def _values(name: str, v, n: int, x=None) -> np.ndarray:
     except (TypeError, ValueError) as e:
         raise ValueError(f"{name} returned {type(v).__name__} that is no array of real "
                          f"numbers ({e})") from None
-    if a.shape not in ((n,), (n, 1)):
-        raise ValueError(f"{name} returned shape {a.shape} for {n} points: expected ({n},)")
+    if a.shape not in ((n,), (n, 1)):     # (n, 1): one value a row, as check_sampler reads it
+        raise ValueError(f"{name} returned shape {a.shape} for {n} points: expected ({n},) "
+                         f"or ({n}, 1)")
     a = a.reshape(-1)
     nan = np.isnan(a)
     if nan.any():
@@ -167,7 +168,9 @@ def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) ->
     """``1/N Σ f(X_i)/p(X_i)`` with ``X_i = sample(u_i)``.
 
     ``sample(u: (n, sample_dim)) -> points``; ``pdf(points) -> (n,)``; ``f(points) ->
-    (n,)``. Points where ``f = 0`` contribute 0 even if ``p = 0`` there. A sample with
+    (n,)``; each of the two may also return (n, 1), one value a row, as
+    ``mcverify.check_sampler`` reads a pdf (``lambda x: 2 * x`` of (n, 1) points), and
+    the estimate is the same; any other shape is refused. Points where ``f = 0`` contribute 0 even if ``p = 0`` there. A sample with
     ``p = 0`` but ``f ≠ 0`` is impossible for a correct sampler and yields inf, which
     ``mcverify.check_unbiased`` reports.
     """

@@ -245,3 +245,21 @@ def test_mis_takes_any_iterable_of_techniques():
     for bad in (5, "abc", None):
         with pytest.raises(ValueError, match="techniques=.*expected a list"):
             mc.mis(np.sin, bad)
+
+
+def test_an_n_by_1_pdf_or_f_gives_the_estimate_of_n_values():
+    """A pdf or f of shape (n, 1), one value a row, was accepted where the docstring said
+    (n,) (found by review): it is the shape check_sampler accepts for a pdf of (n, 1)
+    points, so the same sampler serves both. Documented now, and the estimate is bit for
+    bit that of (n,); (n, 2) and (1, n) are refused, naming both accepted shapes."""
+    pts = lambda u: np.pi * np.sqrt(u)                     # (n, 1) points, p = 2x/π²
+    col = mc.importance(np.sin, pts, lambda x: 2.0 * x / np.pi ** 2, 1000, seed=4)
+    flat = mc.importance(lambda x: np.sin(x[:, 0]), pts,
+                         lambda x: 2.0 * x[:, 0] / np.pi ** 2, 1000, seed=4)
+    assert (col.value, col.std_error) == (flat.value, flat.std_error)
+    assert mv.check_sampler(pts, lambda x: 2.0 * x / np.pi ** 2, mv.Interval(0.0, np.pi),
+                            n_samples=20_000, seed=1).passed
+    for bad in (lambda x: np.ones((len(x), 2)), lambda x: np.ones((1, len(x)))):
+        with pytest.raises(ValueError, match=r"pdf returned shape .* expected \(100,\) "
+                                             r"or \(100, 1\)"):
+            mc.importance(np.sin, pts, bad, 100)
