@@ -306,8 +306,14 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
             # (n_j p_j / max_j n_j p_j)^beta: the same weights, no overflow of a power
             # (beta ~ 250 made value and error NaN)
             top = pj.max(axis=0)
-            w = (own / top) ** ex / np.sum((pj / top) ** ex, axis=0)
-            terms = np.where(fx == 0.0, 0.0, w * fx / (own / n_i))
+            # w f / p_i = f n_i (n_i p_i / top)^(beta-1) / (top Σ_j (n_j p_j / top)^beta):
+            # w · f / p_i was 0 · f / 0 = NaN at a sample where its own pdf is 0 and
+            # another's is not (the balance term f n_i / Σ n_j p_j is finite there); where
+            # every pdf is 0 it is f / 0, as in ``importance``
+            s = top * np.sum((pj / top) ** ex, axis=0)
+            terms = np.where(fx == 0.0, 0.0,
+                             np.where(top > 0, fx * n_i * (own / top) ** (ex - 1.0) / s,
+                                      fx / top))
         value += terms.mean()
         var += terms.var(ddof=1) / n_i if n_i > 1 else np.inf
         cols.append(terms)

@@ -263,3 +263,33 @@ def test_an_n_by_1_pdf_or_f_gives_the_estimate_of_n_values():
         with pytest.raises(ValueError, match=r"pdf returned shape .* expected \(100,\) "
                                              r"or \(100, 1\)"):
             mc.importance(np.sin, pts, bad, 100)
+
+
+@pytest.mark.parametrize("heuristic, beta", [("balance", 2.0), ("power", 2.0),
+                                             ("power", 3.0)])
+def test_mis_term_at_a_sample_where_its_own_pdf_is_0_is_its_limit(heuristic, beta):
+    """w_i f / p_i was computed as 0 · f / 0 = NaN at a sample where its own technique's
+    pdf is 0 (a sampler's edge: x = 0 of p = 2x) though the other technique's is not,
+    and made value and error NaN (found by review). The term is its limit there: f n_i /
+    Σ n_j p_j for the balance heuristic, 0 for the power heuristic (β > 1); the
+    estimate equals the weights written out by hand."""
+    def edge(u):
+        x = np.sqrt(u)
+        x[0] = 0.0
+        return x
+    techs = [(lambda u: u, lambda x: np.ones(len(x)), 50, 1),
+             (edge, lambda x: 2.0 * x[:, 0], 50, 1)]
+    f = lambda x: 1.0 + x[:, 0]
+    e = mc.mis(f, techs, seed=2, heuristic=heuristic, beta=beta)
+    assert np.isfinite(e.value) and np.isfinite(e.std_error)
+    ex = 1.0 if heuristic == "balance" else beta
+    seqs = np.random.SeedSequence(2).spawn(2)
+    want = 0.0
+    for (sample, pdf, n, _), s in zip(techs, seqs):
+        x = sample(np.random.default_rng(s).random((n, 1)))
+        p = [np.ravel(t[1](x)) for t in techs]
+        own = pdf(x)
+        denom = sum(q ** ex for q in p)
+        wf_over_p = np.where(own > 0, own ** (ex - 1.0), 1.0 if ex == 1.0 else 0.0) / denom
+        want += np.mean(wf_over_p * f(x))
+    assert e.value == pytest.approx(want, rel=1e-12)
