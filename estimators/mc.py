@@ -55,8 +55,17 @@ def _box(a, b):
     if a.shape != b.shape or a.ndim != 1:
         raise ValueError(f"a, b: expected scalars or 1-D arrays of one shape, got "
                          f"{a.shape} and {b.shape}")
+    if a.size == 0:                # stratified divided by d = 0 (ZeroDivisionError)
+        raise ValueError("a, b: empty bounds; need at least one dimension")
     if not np.all(np.isfinite(a) & np.isfinite(b) & (b > a)):
         raise ValueError(f"a={a.tolist()}, b={b.tolist()}: need finite a < b")
+    with np.errstate(over="ignore"):
+        width = b - a
+        volume = np.prod(width)
+    # a = -1e308, b = 1e308: the points were inf and f's NaN at them was blamed on f
+    if not (np.all(np.isfinite(width)) and np.isfinite(volume)):
+        raise ValueError(f"a={a.tolist()}, b={b.tolist()}: b - a (and the box's volume, "
+                         "their product) must be finite in float64")
     return a, b
 
 

@@ -150,6 +150,11 @@ def test_stratified_and_rqmc_converge_faster():
 
 @pytest.mark.parametrize("call,match", [
     (lambda: mc.uniform(np.sin, 1.0, 0.0, 10), "a < b"),
+    # found by review: inf points (f blamed for their NaN), a ZeroDivisionError
+    (lambda: mc.uniform(np.sin, -1e308, 1e308, 10), "b - a .* must be finite"),
+    (lambda: mc.antithetic(np.sum, [0.0] * 3, [1e200] * 3, 10), "volume"),
+    (lambda: mc.stratified(np.sum, [], [], 10), "empty bounds"),
+    (lambda: mc.uniform(np.sum, [], [], 10), "empty bounds"),
     (lambda: mc.uniform(np.sin, 0.0, 1.0, 0), "n=0"),
     (lambda: mc.rqmc(np.sin, 0.0, 1.0, 1000), "power of two"),
     # found by review: scipy's message, naming neither n nor the dimension
@@ -184,7 +189,8 @@ def test_stratified_and_rqmc_converge_faster():
     (lambda: mc.uniform(lambda x: np.exp(1j * x), 0.0, 1.0, 10), "f returned complex"),
     (lambda: mc.uniform(lambda x: ["a"] * len(x), 0.0, 1.0, 10),
      "f returned list that is no array of real numbers"),
-], ids=["bounds", "n", "sobol-n", "sobol-n-2^31", "sobol-n-2^64", "sobol-d",
+], ids=["bounds", "width-overflows", "volume-overflows", "stratified-0-d", "uniform-0-d",
+        "n", "sobol-n", "sobol-n-2^31", "sobol-n-2^64", "sobol-d",
         "no-techniques", "heuristic", "q", "q-string",
         "f-scalar", "f-2-columns", "pdf-scalar", "beta-0", "beta-nan", "technique-3",
         "mis-not-callable", "mis-pdf-not-callable", "importance-short-sample",
