@@ -476,8 +476,8 @@ def _unit_scale(a, b, c=0.0, d=0.0):
 
 @_jit
 def _sample_linear_1d(u, a, b):
-    if u == 0.0 and a == 0.0:
-        return 0.0
+    if u == 0.0:     # x = 0; a weight that the scaling below rounds to 0 made it 0/0
+        return 0.0   # (a = 1e-170, b = 1e170: NaN), as a = 0 had before
     # the weights over the larger, always: with a = 0, u·b² underflowed for tiny u
     # (a = 0, b = 1e-60, u = 1e-250 sampled 1 - 2⁻⁵³, not 1e-125; smaller, 0/0 = NaN)
     s = max(a, b)

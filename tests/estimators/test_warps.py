@@ -572,3 +572,18 @@ def test_linear_warps_with_a_zero_weight_at_tiny_u():
     assert W.sample_linear(np.array([[1e-300]]), 0.0, 1e-149)[0, 0] == pytest.approx(1e-150)
     xy = W.sample_bilinear(np.array([[1e-300, 1e-300]]), 0.0, 0.0, 0.0, 1.0)[0]
     assert xy.tolist() == pytest.approx([1e-150, 1e-150])    # x, y = √u on this row
+
+
+def test_linear_warps_at_u_0_with_a_weight_ratio_below_float64s_range():
+    """a = 1e-170, b = 1e170: a / max(a, b) rounds to 0, and u = 0 gave 0 / 0 = NaN (the
+    shortcut for u = 0 looked at the unscaled a; found by review). x = 0 there, of a
+    finite density, and the bilinear warp's rows likewise."""
+    from estimators import warps as W
+
+    u = np.array([[0.0], [0.25], [1.0 - 2.0 ** -53]])
+    for a, b in ((1e-170, 1e170), (5e-324, 1.0), (1e-300, 1e10)):
+        x = W.sample_linear(u, a, b)
+        assert x[0, 0] == 0.0 and np.isfinite(x).all(), (a, b, x)
+        assert np.isfinite(W.linear_pdf(x, a, b)).all()
+    xy = W.sample_bilinear(np.array([[0.0, 0.0], [0.0, 0.5]]), 1e-170, 1e170, 1e-170, 1e170)
+    assert np.isfinite(xy).all() and xy[:, 0].tolist() == [0.0, 0.0], xy
