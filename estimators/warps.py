@@ -420,7 +420,10 @@ def _sample_exponential_kernel(u, p):
     """Distance sampling: pdf σ e^{-σx} / (1 - e^{-σ t}) on [0, t]; ``p = (σ, t)``,
     t may be inf."""
     c = -fast_expm1(-p[0] * p[1])
-    return (min(-fast_log1p(-u[0] * c) / p[0], p[1]),)
+    # u = 1 (a float32 u within 2^-25 of 1) as 1 - 2^-53: with t = inf, -log1p(-1) made
+    # the point inf; NaN stays NaN (min returns its first argument when it cannot compare)
+    v = min(u[0], ONE_MINUS_EPSILON)
+    return (min(-fast_log1p(-v * c) / p[0], p[1]),)
 
 
 @_jit

@@ -587,3 +587,24 @@ def test_linear_warps_at_u_0_with_a_weight_ratio_below_float64s_range():
         assert np.isfinite(W.linear_pdf(x, a, b)).all()
     xy = W.sample_bilinear(np.array([[0.0, 0.0], [0.0, 0.5]]), 1e-170, 1e170, 1e-170, 1e170)
     assert np.isfinite(xy).all() and xy[:, 0].tolist() == [0.0, 0.0], xy
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_exponential_without_a_far_end_samples_u_of_one_to_a_finite_distance(dtype):
+    """t_max = inf: u = 1 (float32's rounding of every u within 2^-25 of 1) gave the
+    point inf, of density 0, though u = 1 gives a finite point of the domain from every
+    warp (found by review: the test of that used t_max = 3). It is now the distance of
+    1 - 2^-53, -log(2^-53) / σ; NaN stays NaN."""
+    from estimators import warps as W
+
+    u = np.array([[1.0], [1.0 - 2.0 ** -53], [np.nan], [0.5]], dtype=dtype)
+    # (float32 holds 1e-38 to 3.4e38: σ = 1e-150 puts every point past that, σ = 1e150
+    # every density)
+    for sigma in (2.0, 1e-150, 1e150) if dtype == np.float64 else (2.0, 1e-20, 1e20):
+        x = W.sample_exponential(u, sigma, np.inf)
+        assert x.dtype == dtype and np.isfinite(x[[0, 1, 3]]).all() and np.isnan(x[2, 0])
+        assert x[0, 0] == x[1, 0] if dtype == np.float64 else x[0, 0] >= x[1, 0]
+        pdf = W.exponential_pdf(x, sigma, np.inf)
+        assert np.all(pdf[[0, 1, 3]] > 0) and np.isfinite(pdf[[0, 1, 3]]).all(), pdf
+    xs, ps = W.sample_exponential.with_pdf(u, 2.0, np.inf)
+    assert np.isfinite(xs[0, 0]) and ps[0] > 0
