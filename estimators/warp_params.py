@@ -24,8 +24,10 @@ _ALPHA_MIN, _ALPHA_MAX = 1e-30, 1e30
 
 #: name -> (parameter names, condition on their values, the condition in words).
 RULES = {
-    "uniform_interval": (("a", "b"), lambda a, b: a < b and math.isfinite(b - a),
-                         "a < b with b - a finite"),
+    # b - a >= 2^-1022 (normal): a = 0, b = 5e-324 put every point at a, of density inf
+    "uniform_interval": (("a", "b"), lambda a, b: a < b and math.isfinite(b - a)
+                         and b - a >= 2.0 ** -1022,
+                         "a < b with b - a finite and at least 2^-1022"),
     "uniform_cone": (("cos_theta_max",), lambda c: -1.0 <= c < 1.0,
                      "-1 <= cos_theta_max < 1"),
     "power_cosine": (("n",), lambda n: n >= 0.0, "n >= 0"),

@@ -409,6 +409,9 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
     (lambda W, u: W.sample_exponential(u[:, :1], 1e-200, 1e-200), "sigma·t_max >= 1e-150"),
     (lambda W, u: W.exponential_pdf(u[:, :1], 1e-310, np.inf), "sigma >= 1e-150"),
     (lambda W, u: W.sample_uniform_interval(u[:, :1], -1e308, 1e308), "b - a finite"),
+    # found by review: every point a, of density 1 / 5e-324 = inf
+    (lambda W, u: W.uniform_interval_pdf(u[:, :1], 0.0, 5e-324), "at least 2^-1022"),
+    (lambda W, u: W.sample_uniform_interval(u[:, :1], 1.0, 1.0 + 2.0 ** -52), None),
     (lambda W, u: W.sample_ggx(u, 10 ** 400), "sample_ggx: alpha=1000"),
     (lambda W, u: W.sample_cosine_hemisphere(u + 0.1j), "sample_cosine_hemisphere: expected "
                                                         "real numbers"),
@@ -418,7 +421,8 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
         "beckmann-huge-alpha", "vndf-tiny-alpha", "nan", "string", "cone-1.5",
         "power-negative", "vndf-not-unit", "sigma-0", "tent-negative", "interval-reversed",
         "linear-zero", "exponential-sigma-t-underflows", "exponential-tiny-sigma",
-        "interval-span-overflows", "int-beyond-float", "complex-points", "object-points",
+        "interval-span-overflows", "interval-span-subnormal", "interval-one-ulp-is-fine",
+        "int-beyond-float", "complex-points", "object-points",
         "string-points"])
 def test_warp_parameters_are_checked_by_name(call, needle):
     """The kernels read their parameters by position: a missing one was read past its
@@ -427,6 +431,9 @@ def test_warp_parameters_are_checked_by_name(call, needle):
     from estimators import warps as W
 
     u = np.random.default_rng(0).random((8, 2))
+    if needle is None:               # a value at the edge of the rule, accepted
+        assert np.isfinite(call(W, u)).all()
+        return
     with pytest.raises(ValueError) as e:
         call(W, u)
     assert needle in str(e.value), str(e.value)
