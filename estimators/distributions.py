@@ -341,14 +341,27 @@ class DiscreteDistribution:
         return i, p, np.clip(r, 0.0, ONE_MINUS_EPSILON)
 
     def invert(self, index, u_remapped):
-        """Inverse of ``sample``: (index, remapped u) -> u."""
-        index = np.asarray(index, dtype=np.int64)
+        """Inverse of ``sample``: (index, remapped u) -> u. ``index`` holds integers
+        (a float 0.7 was read as entry 0); the two arrays have one shape (or one of them
+        is a single value)."""
+        idx = _reals(index, "index")
+        if not np.all(np.isfinite(idx) & (idx == np.floor(idx))):
+            bad = idx.ravel()[np.argmax(~(np.isfinite(idx) & (idx == np.floor(idx))).ravel())]
+            raise ValueError(f"index: {float(bad)!r} is not an integer (an entry of the "
+                             "distribution)")
+        index = idx.astype(np.int64)
+        u_remapped = _reals(u_remapped, "u_remapped")
+        try:
+            index, u_remapped = np.broadcast_arrays(index, u_remapped)
+        except ValueError:
+            raise ValueError(f"index (shape {index.shape}) and u_remapped (shape "
+                             f"{u_remapped.shape}): expected one shape") from None
         n = self.cdf.size - 1
         if index.size and (index.min() < 0 or index.max() >= n):
             bad = index.ravel()[np.argmax((index.ravel() < 0) | (index.ravel() >= n))]
             raise ValueError(f"index: {bad} is not an entry of the distribution (0 to "
                              f"{n - 1}); -1 wrapped to the last one before")
-        return np.clip(self.cdf[index] + np.asarray(u_remapped) * self.pmf[index], 0.0,
+        return np.clip(self.cdf[index] + u_remapped * self.pmf[index], 0.0,
                        ONE_MINUS_EPSILON)
 
 

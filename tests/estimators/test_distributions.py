@@ -404,3 +404,20 @@ def test_tables_that_are_not_real_numbers_are_refused_by_name(table, needle):
                        (PiecewiseConstant2D, "values")):
         with pytest.raises(ValueError, match=f"^{name}: " + needle.replace("(", r"\(")):
             make(table)
+
+
+def test_discrete_invert_refuses_a_fractional_index_or_mismatched_shapes():
+    """invert([0.7], [0.5]) read 0.7 as entry 0, a string index raised int()'s message
+    and arrays of two lengths numpy's broadcasting message (found by review)."""
+    d = DiscreteDistribution([1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match=r"index: 0.7 is not an integer"):
+        d.invert([0.7], [0.5])
+    with pytest.raises(ValueError, match="index: expected real numbers"):
+        d.invert(["a"], [0.5])
+    with pytest.raises(ValueError, match=r"index \(shape \(2,\)\) and u_remapped \(shape "
+                                         r"\(3,\)\): expected one shape"):
+        d.invert([0, 1], [0.5, 0.5, 0.5])
+    i, _, r = d.sample(np.array([0.1, 0.4, 0.9]))
+    assert d.invert(i, r).tolist() == pytest.approx([0.1, 0.4, 0.9])
+    assert d.invert(i.astype(float), r).tolist() == d.invert(i, r).tolist()
+    assert d.invert(2, 0.5) == pytest.approx(0.75)
