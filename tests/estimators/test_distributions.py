@@ -421,3 +421,26 @@ def test_discrete_invert_refuses_a_fractional_index_or_mismatched_shapes():
     assert d.invert(i, r).tolist() == pytest.approx([0.1, 0.4, 0.9])
     assert d.invert(i.astype(float), r).tolist() == d.invert(i, r).tolist()
     assert d.invert(2, 0.5) == pytest.approx(0.75)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: PiecewiseConstant1D([1.0, 2.0], "0", 1.0), r"a must be a real number"),
+    (lambda: PiecewiseConstant1D([1.0, 2.0], 0.0, None), r"b must be a real number"),
+    (lambda: PiecewiseConstant1D([1.0, 2.0], np.array([0.0]), 1.0), "a must be a real"),
+    (lambda: PiecewiseConstant1D([1.0, 2.0], 0.0, 5e-324), "at least 2\\^-1022"),
+    (lambda: InvertedCDF(np.exp, "0", 1), r"InvertedCDF\(a='0', b=1\): a must be"),
+    (lambda: InvertedCDF(np.exp, -1e308, 1e308), "b - a finite"),
+    (lambda: InvertedCDF(np.exp, 0.0, 1e-320), "at least 2\\^-1022"),
+], ids=["pc1d-string", "pc1d-none", "pc1d-array", "pc1d-subnormal-width", "icdf-string",
+        "icdf-width-overflows", "icdf-subnormal-width"])
+def test_interval_bounds_are_checked_by_name(make, match):
+    """A string or None for a or b raised numpy's TypeError from isfinite, naming
+    nothing; InvertedCDF on -1e308..1e308 built NaN nodes and blamed the pdf for them;
+    a width of 5e-324 gave PiecewiseConstant1D a density of inf (found by review)."""
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_interval_bounds_may_be_numpy_scalars_and_integers():
+    p = PiecewiseConstant1D([1.0, 3.0], np.float32(0), np.array(2))
+    assert (p.a, p.b) == (0.0, 2.0) and p.pdf([0.5, 1.5]).tolist() == [0.25, 0.75]
