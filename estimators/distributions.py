@@ -303,8 +303,9 @@ def _interval(who: str, a, b) -> tuple[float, float]:
 
 def _unit(u, name="u") -> np.ndarray:
     """A 1-D distribution's points as (n,): (n,), (n, 1) or a scalar; any other shape is
-    refused (an (n, 2) array was flattened into 2n points)."""
-    a = np.asarray(u, dtype=np.float64)
+    refused (an (n, 2) array was flattened into 2n points), and so are numbers that are
+    not real (strings and complex numbers raised numpy's or Python's message)."""
+    a = _reals(u, name)
     if a.ndim > 2 or (a.ndim == 2 and a.shape[1] != 1):
         raise ValueError(f"{name}: expected shape (n,) or (n, 1), got {a.shape}")
     return np.ascontiguousarray(a.reshape(-1))
@@ -326,8 +327,9 @@ def _nan_rows(x, values) -> np.ndarray:
 
 def _pairs(u, name="u") -> np.ndarray:
     """A 2-D distribution's points as (n, 2): (n, 2) or one pair (2,); any other shape
-    is refused ((4, 3) was read as six pairs, (4,) as two)."""
-    a = np.asarray(u, dtype=np.float64)
+    is refused ((4, 3) was read as six pairs, (4,) as two), and so are numbers that are
+    not real."""
+    a = _reals(u, name)
     if a.shape == (2,):
         a = a.reshape(1, 2)
     if a.ndim != 2 or a.shape[1] != 2:
@@ -433,11 +435,11 @@ class PiecewiseConstant1D:
         return x
 
     def pdf(self, x):
-        t = (_unit(x) - self.a) / (self.b - self.a)
+        t = (_unit(x, "x") - self.a) / (self.b - self.a)
         return _nan_where_nan(t, _pc1d_batch_kernel(self.table, t, 1)[:, 0] / (self.b - self.a))
 
     def invert(self, x):
-        t = (_unit(x) - self.a) / (self.b - self.a)
+        t = (_unit(x, "x") - self.a) / (self.b - self.a)
         return _pc1d_batch_kernel(self.table, t, 2)[:, :1]
 
 
@@ -508,7 +510,8 @@ class InvertedCDF:
     Parameters
     ----------
     pdf : callable
-        Vectorised ``pdf(x: (n,)) -> (n,)``, non-negative; need not be normalised.
+        Vectorised ``pdf(x: (n,)) -> (n,)`` (that shape, real numbers), non-negative;
+        need not be normalised.
     a, b : float
         Finite support.
     pieces : int
@@ -611,9 +614,13 @@ class InvertedCDF:
         self._table = _Table(np.concatenate([lo, [hi[-1]]]), cdf, error)
 
     def _eval(self, x):
-        v = np.asarray(self._f(x), dtype=np.float64).reshape(-1)
-        if v.shape != np.shape(x) and v.size != np.size(x):
-            raise ValueError(f"pdf returned {v.size} values for {np.size(x)} points")
+        """``pdf(x)`` for x (n,): (n,) real numbers, or a ValueError (complex values and
+        strings were read as numbers, the imaginary part dropped with a warning, and any
+        shape of n values was flattened: an (n/2, 2) array as if it were (n,))."""
+        v = _reals(self._f(x), "pdf")
+        if v.shape != np.shape(x):
+            raise ValueError(f"pdf returned shape {v.shape} for {np.size(x)} points: expected "
+                             f"({np.size(x)},), one value a point")
         return v
 
     def _piece_rules(self, lo, hi):
@@ -650,13 +657,13 @@ class InvertedCDF:
         return h * (self._f_norm(t.ravel()).reshape(t.shape) @ _GL_W)
 
     def cdf(self, x):
-        x = np.clip(_unit(x), self.a, self.b)
+        x = np.clip(_unit(x, "x"), self.a, self.b)
         k = np.clip(np.searchsorted(self._table.knots, x, side="right") - 1, 0,
                     self._table.knots.size - 2)
         return np.clip(self._table.cdf[k] + self._partial(self._table.knots[k], x), 0.0, 1.0)
 
     def pdf(self, x):
-        x = _unit(x)
+        x = _unit(x, "x")
         inside = (x >= self.a) & (x <= self.b)
         return _nan_where_nan(x, np.where(inside, self._f_norm(np.clip(x, self.a, self.b)), 0.0))
 

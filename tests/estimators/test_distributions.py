@@ -444,3 +444,27 @@ def test_interval_bounds_are_checked_by_name(make, match):
 def test_interval_bounds_may_be_numpy_scalars_and_integers():
     p = PiecewiseConstant1D([1.0, 3.0], np.float32(0), np.array(2))
     assert (p.a, p.b) == (0.0, 2.0) and p.pdf([0.5, 1.5]).tolist() == [0.25, 0.75]
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: PiecewiseConstant1D([1.0, 2.0]).sample(["a"]), "u: expected real numbers"),
+    (lambda: PiecewiseConstant1D([1.0, 2.0]).pdf([0.5 + 1j]), "x: expected real numbers"),
+    (lambda: PiecewiseConstant2D([[1.0, 2.0]]).sample([["a", "b"]]), "u: expected real"),
+    (lambda: PiecewiseConstant2D([[1.0, 2.0]]).invert([[0.5, 0.5j]]), "x: expected real"),
+    (lambda: InvertedCDF(np.exp, 0.0, 1.0).cdf([None]), "x: expected real numbers"),
+    (lambda: InvertedCDF(lambda x: x + 0j, 0.0, 1.0), "pdf: expected real numbers"),
+    (lambda: InvertedCDF(lambda x: np.array(["1"] * len(x)), 0.0, 1.0), "pdf: expected real"),
+    (lambda: InvertedCDF(lambda x: np.exp(x)[:, None], 0.0, 1.0),
+     r"pdf returned shape \(2560, 1\) for 2560 points: expected \(2560,\)"),
+    (lambda: InvertedCDF(lambda x: np.exp(x).reshape(-1, 2), 0.0, 1.0),
+     r"pdf returned shape \(1280, 2\)"),
+], ids=["pc1d-string-u", "pc1d-complex-x", "pc2d-string-u", "pc2d-complex-x",
+        "icdf-none-x", "icdf-complex-pdf", "icdf-string-pdf", "icdf-pdf-n-1", "icdf-pdf-n/2-2"])
+def test_points_and_pdf_values_that_are_not_real_numbers_of_the_documented_shape(call, match):
+    """Strings and complex numbers as u or x raised numpy's or Python's message (naming
+    neither); an InvertedCDF pdf returning complex values or strings was read as
+    numbers (the imaginary part dropped with a warning), and one of any shape holding n
+    values was flattened, (n, 1) and (n/2, 2) alike, where (n,) is documented (found
+    by review)."""
+    with pytest.raises(ValueError, match=match):
+        call()
