@@ -49,9 +49,22 @@ def _from_terms(terms, n_evals=None) -> Estimate:
     return Estimate(float(np.mean(terms)), se, int(n_evals or terms.size), terms)
 
 
+def _bound(name: str, v) -> np.ndarray:
+    """A bound as a 1-D float64 array, or a ValueError naming it: strings were read as
+    numbers ("0" as 0), None as NaN, booleans as 0 and 1, and complex numbers or
+    ragged lists raised Python's or numpy's message."""
+    try:
+        raw = np.asarray(v)
+    except ValueError as e:
+        raise ValueError(f"{name}={v!r:.60}: not an array of numbers ({e})") from None
+    if raw.dtype.kind not in "iuf":
+        raise ValueError(f"{name}={v!r:.60}: expected real numbers, got an array of "
+                         f"{raw.dtype}")
+    return np.atleast_1d(raw.astype(np.float64))
+
+
 def _box(a, b):
-    a = np.atleast_1d(np.asarray(a, dtype=np.float64))
-    b = np.atleast_1d(np.asarray(b, dtype=np.float64))
+    a, b = _bound("a", a), _bound("b", b)
     if a.shape != b.shape or a.ndim != 1:
         raise ValueError(f"a, b: expected scalars or 1-D arrays of one shape, got "
                          f"{a.shape} and {b.shape}")

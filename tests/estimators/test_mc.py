@@ -150,6 +150,12 @@ def test_stratified_and_rqmc_converge_faster():
 
 @pytest.mark.parametrize("call,match", [
     (lambda: mc.uniform(np.sin, 1.0, 0.0, 10), "a < b"),
+    # found by review: "0" read as 0, None as NaN, True as 1; numpy's or Python's message
+    (lambda: mc.uniform(np.sin, "0", "1", 10), "a='0': expected real numbers"),
+    (lambda: mc.stratified(np.sin, 0.0, None, 10), "b=None: expected real numbers"),
+    (lambda: mc.uniform(np.sin, False, True, 10), "a=False: expected real numbers"),
+    (lambda: mc.rqmc(np.sin, 0j, 1.0, 16), "a=0j: expected real numbers"),
+    (lambda: mc.antithetic(np.sum, [0.0, [1.0]], [1.0, 2.0], 10), "a=.*not an array"),
     # found by review: inf points (f blamed for their NaN), a ZeroDivisionError
     (lambda: mc.uniform(np.sin, -1e308, 1e308, 10), "b - a .* must be finite"),
     (lambda: mc.antithetic(np.sum, [0.0] * 3, [1e200] * 3, 10), "volume"),
@@ -189,7 +195,8 @@ def test_stratified_and_rqmc_converge_faster():
     (lambda: mc.uniform(lambda x: np.exp(1j * x), 0.0, 1.0, 10), "f returned complex"),
     (lambda: mc.uniform(lambda x: ["a"] * len(x), 0.0, 1.0, 10),
      "f returned list that is no array of real numbers"),
-], ids=["bounds", "width-overflows", "volume-overflows", "stratified-0-d", "uniform-0-d",
+], ids=["bounds", "bound-string", "bound-none", "bound-bool", "bound-complex",
+        "bound-ragged", "width-overflows", "volume-overflows", "stratified-0-d", "uniform-0-d",
         "n", "sobol-n", "sobol-n-2^31", "sobol-n-2^64", "sobol-d",
         "no-techniques", "heuristic", "q", "q-string",
         "f-scalar", "f-2-columns", "pdf-scalar", "beta-0", "beta-nan", "technique-3",
