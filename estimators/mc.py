@@ -93,13 +93,15 @@ def _values(name: str, v, n: int, x=None) -> np.ndarray:
     wrong length had been averaged as if it were n values (``lambda x: 2.0`` gave n = 1).
     A NaN is refused, naming the first point ``x[i]`` that gave it: it made the value and
     the standard error NaN without saying where."""
-    if np.iscomplexobj(v):       # numpy drops the imaginary part with a warning only
-        raise ValueError(f"{name} returned complex values: expected real numbers")
     try:
-        a = np.asarray(v, dtype=np.float64)
+        # (inside: a ragged list raised numpy's message from iscomplexobj, naming nothing)
+        complex_ = np.iscomplexobj(v)
+        a = None if complex_ else np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{name} returned {type(v).__name__} that is no array of real "
                          f"numbers ({e})") from None
+    if complex_:                 # numpy drops the imaginary part with a warning only
+        raise ValueError(f"{name} returned complex values: expected real numbers")
     if a.shape not in ((n,), (n, 1)):     # (n, 1): one value a row, as check_sampler reads it
         raise ValueError(f"{name} returned shape {a.shape} for {n} points: expected ({n},) "
                          f"or ({n}, 1)")
@@ -134,8 +136,17 @@ def _density(name: str, v, n: int, x=None) -> np.ndarray:
 def _points(name: str, x, n: int):
     """What ``sample`` returned for n uniforms: n points (a shorter array had been
     reported as f's wrong shape)."""
-    if np.shape(x)[:1] != (n,):
-        raise ValueError(f"{name} returned shape {np.shape(x)} for {n} uniforms: expected "
+    try:
+        a = np.asarray(x)
+    except ValueError as e:       # a ragged list: numpy's message, naming nothing
+        raise ValueError(f"{name} returned {type(x).__name__} that is no array of points "
+                         f"({e})") from None
+    if a.dtype.kind not in "biuf":
+        # strings or complex points reached f, whose error named neither (np.sin's
+        # "ufunc 'sin' not supported for the input types")
+        raise ValueError(f"{name} returned points of dtype {a.dtype}: expected real numbers")
+    if a.shape[:1] != (n,):
+        raise ValueError(f"{name} returned shape {a.shape} for {n} uniforms: expected "
                          f"{n} points (rows)")
     return x
 

@@ -195,6 +195,15 @@ def test_stratified_and_rqmc_converge_faster():
     (lambda: mc.uniform(lambda x: np.exp(1j * x), 0.0, 1.0, 10), "f returned complex"),
     (lambda: mc.uniform(lambda x: ["a"] * len(x), 0.0, 1.0, 10),
      "f returned list that is no array of real numbers"),
+    # found by review: numpy's message from f's ragged list, np.sin's from string points
+    (lambda: mc.uniform(lambda x: [[1.0], [1.0, 2.0]] * 5, 0.0, 1.0, 10),
+     "f returned list that is no array of real numbers"),
+    (lambda: mc.importance(np.sin, lambda u: np.array(["a"] * len(u)), sin_pdf, 10),
+     r"sample returned points of dtype <U1: expected real numbers"),
+    (lambda: mc.russian_roulette(np.sin, lambda u: u + 1j, sin_pdf, 10, 1.0),
+     r"sample returned points of dtype complex128"),
+    (lambda: mc.mis(np.sin, [(lambda u: [[0.5], [0.5, 0.5]] * 5, sin_pdf, 10, 1)]),
+     r"techniques\[0\] sample returned list that is no array of points"),
 ], ids=["bounds", "bound-string", "bound-none", "bound-bool", "bound-complex",
         "bound-ragged", "width-overflows", "volume-overflows", "stratified-0-d", "uniform-0-d",
         "n", "sobol-n", "sobol-n-2^31", "sobol-n-2^64", "sobol-d",
@@ -202,7 +211,7 @@ def test_stratified_and_rqmc_converge_faster():
         "f-scalar", "f-2-columns", "pdf-scalar", "beta-0", "beta-nan", "technique-3",
         "mis-not-callable", "mis-pdf-not-callable", "importance-short-sample",
         "importance-negative-pdf", "roulette-negative-pdf", "mis-negative-pdf", "f-complex",
-        "f-strings"])
+        "f-strings", "f-ragged", "sample-strings", "sample-complex", "mis-sample-ragged"])
 def test_bad_input(call, match):
     with pytest.raises(ValueError, match=match):
         call()
