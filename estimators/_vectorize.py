@@ -123,6 +123,44 @@ def _nan_or3(x, v):
     return v if (x[0] == x[0]) & (x[1] == x[1]) & (x[2] == x[2]) else np.nan
 
 
+@exact(inline="always")
+def _row_ok1(x):
+    return x[0] == x[0]
+
+
+@exact(inline="always")
+def _row_ok2(x):
+    return (x[0] == x[0]) & (x[1] == x[1])
+
+
+@exact(inline="always")
+def _row_ok3(x):
+    return (x[0] == x[0]) & (x[1] == x[1]) & (x[2] == x[2])
+
+
+@exact(inline="always")
+def _nan_row1(ok, r):
+    return r if ok else (np.nan,)
+
+
+@exact(inline="always")
+def _nan_row2(ok, r):
+    return r if ok else (np.nan, np.nan)
+
+
+@exact(inline="always")
+def _nan_row3(ok, r):
+    return r if ok else (np.nan, np.nan, np.nan)
+
+
+#: A point (or an inverse's u) from an input with a NaN coordinate is NaN in every
+#: coordinate: half of one (the sphere's (NaN, NaN, z) of u = (0.3, NaN), the triangle's
+#: (NaN, y)) looked like a coordinate the NaN had not touched, and the cosine
+#: hemisphere's inverse of (x, y, NaN) was a finite u. Applied by the front ends' loops,
+#: as ``_NAN_OR``.
+_ROW_OK = {1: "_row_ok1", 2: "_row_ok2", 3: "_row_ok3"}
+_NAN_ROW = {1: "_nan_row1", 2: "_nan_row2", 3: "_nan_row3"}
+
 _COLUMNS = {1: "_column1", 2: "_column2", 3: "_column3"}
 #: A density's value at a point with a NaN coordinate is NaN, whatever the kernel's
 #: tests make of it (``x >= 0`` is false for NaN, so most would say 0, the sphere's
@@ -143,6 +181,7 @@ from estimators._transpose import (LANES, load_rows{n_in} as load, store_fence,
                                    store_rows{n_out} as store, stream_rows{n_out} as stream)
 from estimators._vectorize import _BLOCK, {column} as column, {put} as put
 from estimators._vectorize import {nan_or} as nan_or
+from estimators._vectorize import {row_ok} as row_ok, {nan_row} as nan_row
 {inline}
 '''
 
@@ -251,11 +290,14 @@ def _loop(kernel, n_in: int, put: str, inline: bool, n_params: int):
     # 1e6 points on two threads)
     n_out = 1 if put == "_put_value" else next(k for k, v in _PUTS.items() if v == put)
     call = "kernel(column(c, t), pt)"
+    if put == "_put_value":
+        call = f"nan_or(column(c, t), {call})"
+    elif n_in > 1 or n_out > 1:       # a 1-D warp's NaN u is its NaN point already
+        call = f"nan_row(row_ok(column(c, t)), {call})"
     source = _LOOP_SOURCE.format(module=fn.__module__, kernel=fn.__name__, and_density="",
                                  column=_COLUMNS[n_in], put=put, n_in=n_in, n_out=n_out,
-                                 nan_or=_NAN_OR[n_in],
-                                 call=f"nan_or(column(c, t), {call})" if put == "_put_value"
-                                 else call,
+                                 nan_or=_NAN_OR[n_in], row_ok=_ROW_OK[n_in],
+                                 nan_row=_NAN_ROW[n_out], call=call,
                                  inline=_INLINE.format(name="kernel") if inline else "",
                                  params=_params(n_params), scratch="")
     return _module(f"estimators_loop_{fn.__name__.strip('_')}", source, [fn]).loop
@@ -271,7 +313,10 @@ def _fused_loop(kernel, density, n_in: int, n_out: int, inline: bool, inline_den
     source = _FUSED_SOURCE.format(
         module=fn.__module__, kernel=fn.__name__, and_density=f" and {fd.__name__}",
         column=_COLUMNS[n_in], put=_PUTS[n_out], n_in=n_in, n_out=n_out,
-        nan_or=_NAN_OR[n_out], call="kernel(column(c, t), pt)", params=_params(n_params),
+        nan_or=_NAN_OR[n_out], row_ok=_ROW_OK[n_in], nan_row=_NAN_ROW[n_out],
+        call=("nan_row(row_ok(column(c, t)), kernel(column(c, t), pt))"
+              if n_in > 1 or n_out > 1 else "kernel(column(c, t), pt)"),
+        params=_params(n_params),
         scratch="\n    q = np.empty((1, _BLOCK))",     # the densities' block
         inline=_INLINE.format(name="kernel") if inline else "",
         density_module=fd.__module__, density=fd.__name__, point=_COLUMNS[n_out],
