@@ -139,6 +139,16 @@ def _row_ok3(x):
 
 
 @exact(inline="always")
+def _unit_ok1(u):
+    return (u[0] >= 0.0) & (u[0] <= 1.0)
+
+
+@exact(inline="always")
+def _unit_ok2(u):
+    return (u[0] >= 0.0) & (u[0] <= 1.0) & (u[1] >= 0.0) & (u[1] <= 1.0)
+
+
+@exact(inline="always")
 def _nan_row1(ok, r):
     return r if ok else (np.nan,)
 
@@ -159,6 +169,10 @@ def _nan_row3(ok, r):
 #: hemisphere's inverse of (x, y, NaN) was a finite u. Applied by the front ends' loops,
 #: as ``_NAN_OR``.
 _ROW_OK = {1: "_row_ok1", 2: "_row_ok2", 3: "_row_ok3"}
+#: A sampler's u outside [0, 1] (NaN included) gives a NaN point: the warps extrapolated
+#: it to points off their domain (u = -0.5: the sphere's (0, 0, 2), the interval's a -
+#: (b - a) / 2), silently. u = 1 itself is kept (a float32 u rounds to it).
+_UNIT_OK = {1: "_unit_ok1", 2: "_unit_ok2"}
 _NAN_ROW = {1: "_nan_row1", 2: "_nan_row2", 3: "_nan_row3"}
 
 _COLUMNS = {1: "_column1", 2: "_column2", 3: "_column3"}
@@ -278,7 +292,7 @@ def _params(count: int) -> str:
 
 
 @functools.lru_cache(maxsize=None)
-def _loop(kernel, n_in: int, put: str, inline: bool, n_params: int):
+def _loop(kernel, n_in: int, put: str, inline: bool, n_params: int, unit: bool = False):
     """The compiled block loop ``loop(x, p, out, streaming, b0, b1)``: ``out[i] =
     kernel(x[i], p)`` for every row of blocks ``b0`` to ``b1`` of the (n, n_in)
     C-contiguous ``x``, ``p`` an array of ``n_params`` floats; ``out`` is (n, n_out) of
@@ -292,11 +306,12 @@ def _loop(kernel, n_in: int, put: str, inline: bool, n_params: int):
     call = "kernel(column(c, t), pt)"
     if put == "_put_value":
         call = f"nan_or(column(c, t), {call})"
-    elif n_in > 1 or n_out > 1:       # a 1-D warp's NaN u is its NaN point already
+    elif unit or n_in > 1 or n_out > 1:     # a 1-D warp's NaN u is its NaN point already
         call = f"nan_row(row_ok(column(c, t)), {call})"
     source = _LOOP_SOURCE.format(module=fn.__module__, kernel=fn.__name__, and_density="",
                                  column=_COLUMNS[n_in], put=put, n_in=n_in, n_out=n_out,
-                                 nan_or=_NAN_OR[n_in], row_ok=_ROW_OK[n_in],
+                                 nan_or=_NAN_OR[n_in],
+                                 row_ok=_UNIT_OK[n_in] if unit else _ROW_OK[n_in],
                                  nan_row=_NAN_ROW[n_out], call=call,
                                  inline=_INLINE.format(name="kernel") if inline else "",
                                  params=_params(n_params), scratch="")
@@ -313,9 +328,8 @@ def _fused_loop(kernel, density, n_in: int, n_out: int, inline: bool, inline_den
     source = _FUSED_SOURCE.format(
         module=fn.__module__, kernel=fn.__name__, and_density=f" and {fd.__name__}",
         column=_COLUMNS[n_in], put=_PUTS[n_out], n_in=n_in, n_out=n_out,
-        nan_or=_NAN_OR[n_out], row_ok=_ROW_OK[n_in], nan_row=_NAN_ROW[n_out],
-        call=("nan_row(row_ok(column(c, t)), kernel(column(c, t), pt))"
-              if n_in > 1 or n_out > 1 else "kernel(column(c, t), pt)"),
+        nan_or=_NAN_OR[n_out], row_ok=_UNIT_OK[n_in], nan_row=_NAN_ROW[n_out],
+        call="nan_row(row_ok(column(c, t)), kernel(column(c, t), pt))",
         params=_params(n_params),
         scratch="\n    q = np.empty((1, _BLOCK))",     # the densities' block
         inline=_INLINE.format(name="kernel") if inline else "",
@@ -389,20 +403,20 @@ def _run(loop, rows, *args):
 
 
 def _front_end(kernel, n_in: int, n_out: int, put, name: str, doc: str, squeeze: bool,
-               inline: bool):
+               inline: bool, unit: bool = False):
     count = param_count(name)
 
     def front(x, *params):
         p = check_params(name, params)
         rows = as_rows(name, x, n_in)
         out, streaming = _output(rows.shape[0], n_out, rows.dtype)
-        _run(_loop(kernel, n_in, put, inline, count), rows, p, out, streaming)
+        _run(_loop(kernel, n_in, put, inline, count, unit), rows, p, out, streaming)
         return out[:, 0] if squeeze else out
 
     front.__name__ = front.__qualname__ = name
     front.__doc__ = doc
     front.kernel = kernel
-    front.loop = functools.partial(_loop, kernel, n_in, put, inline, count)  # compiled loop
+    front.loop = functools.partial(_loop, kernel, n_in, put, inline, count, unit)  # compiled loop
     return front
 
 
@@ -434,10 +448,11 @@ def fused_front_end(kernel, density, n_in: int, n_out: int, name: str, doc: str 
 
 
 def point_front_end(kernel, n_in: int, n_out: int, name: str, doc: str = "", *,
-                    inline: bool = False):
+                    inline: bool = False, unit: bool = False):
     """Array function ``f(x, *params) -> (n, n_out)`` around a point kernel;
-    ``inline``: see ``_loop``."""
-    return _front_end(kernel, n_in, n_out, _PUTS[n_out], name, doc, False, inline)
+    ``inline``: see ``_loop``; ``unit``: x is a sampler's u, and a row outside [0, 1]
+    gives NaN (``_UNIT_OK``)."""
+    return _front_end(kernel, n_in, n_out, _PUTS[n_out], name, doc, False, inline, unit)
 
 
 def value_front_end(kernel, n_in: int, name: str, doc: str = "", *, inline: bool = False):

@@ -595,7 +595,7 @@ def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
     ``_fastmath`` (an azimuth's sin/cos or atan2 is enough), and GGX's visible normals
     (measured, one thread: 55 -> 19 ns a point to sample)."""
     s = point_front_end(sample_k, n_in, n_out, f"sample_{name}", doc,
-                        inline="sample" in inline)
+                        inline="sample" in inline, unit=True)
     p = value_front_end(pdf_k, n_out, f"{name}_pdf", f"Density of ``sample_{name}``.",
                         inline="pdf" in inline)
     i = None if invert_k is None else _below_one(point_front_end(

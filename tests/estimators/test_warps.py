@@ -643,3 +643,29 @@ def test_a_nan_in_one_coordinate_makes_the_whole_point_or_u_nan(dtype):
             pts[i, i] = np.nan
         back = w.invert(pts, *w.defaults)
         assert np.isnan(back[:-1]).all() and np.isfinite(back[-1]).all(), (name, back)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_a_u_outside_the_unit_interval_gives_a_nan_point(dtype):
+    """The warps extrapolated a u outside [0, 1] to points off their domain, silently:
+    u = -0.5 gave the uniform sphere (0, 0, 2), the cone z = 1.1, the interval a - (b -
+    a)/2 and a negative exponential distance (found by review). Such a row is NaN now
+    (sample and with_pdf), as a NaN u is; u = 0 and u = 1 stay points of the domain."""
+    from estimators.warps import WARPS
+
+    for name, w in WARPS.items():
+        k = w.sample_dim
+        rows = [np.full(k, v) for v in (-0.5, 1.5, -1e-30, 1.0 + 2.0 ** -23, np.inf)]
+        for v in (-0.5, 1.5):          # one coordinate out
+            r = np.full(k, 0.3)
+            r[-1] = v
+            rows.append(r)
+        rows += [np.zeros(k), np.ones(k), np.full(k, 0.3)]
+        u = np.array(rows, dtype=dtype)
+        bad = len(rows) - 3
+        x = w.sample(u, *w.defaults)
+        assert np.isnan(x[:bad]).all(), (name, x[:bad])
+        assert np.isfinite(x[bad:]).all(), (name, x[bad:])
+        xs, ps = w.sample.with_pdf(u, *w.defaults)
+        assert np.array_equal(xs, x, equal_nan=True) and np.isnan(ps[:bad]).all(), name
+        assert np.all(ps[bad:] >= 0), name
