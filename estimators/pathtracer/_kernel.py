@@ -468,7 +468,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     t_min = 0.0
     # Mitsuba's valid_ray: a path that only passed through null BSDF components (a mask's
     # transparent part, a thin dielectric's transmission) counts only if the environment
-    # is visible to camera rays, or it ends on an emitter (at max_depth) that is not hidden
+    # is visible to camera rays, or it ends on an emitter (at max_depth) that is not hidden,
+    # or the BSDF sample at its last vertex is not null (Mitsuba's llvm variant)
     valid = not (MASK & F_NULL_BSDFS) or (env >= 0 and not hide)
     if max_depth == 0:      # Mitsuba returns black, not even emitters seen directly
         return 0.0, 0.0, 0.0, state
@@ -513,6 +514,24 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
             if MASK & F_NULL_BSDFS and MASK & F_AREA_LIGHTS and shape_light[shape] >= 0 \
                     and not hide:
                 valid = True
+            if MASK & F_NULL_BSDFS and not valid:
+                # Mitsuba's JIT variants (llvm_ad_rgb: the references) still sample the
+                # BSDF at the last vertex and count the path as valid unless that sample
+                # is null: without it, a path whose only sample so far was a null event
+                # lost its emitter samples (a mask sphere without an environment,
+                # max_depth 2: 8 % dark where Mitsuba's llvm variant was the reference)
+                b = shape_bsdf[shape]
+                if MASK & F_FRAME and bi[b, BSDF_FRAME]:
+                    fs, ft = shading_frame(prims, info, j, px, py, pz, sx, sy, sz, b1, b2)
+                else:
+                    fs, ft = coordinate_system(sx, sy, sz)
+                wi = to_local(fs, ft, (sx, sy, sz), -dx, -dy, -dz)
+                u0, state = _next(state)
+                u1, u2, state = _next2(state)
+                null = bsdf_sample(BSDF_MASK, bf, bi, btex, tex_data, tex_info, b, wi, u0,
+                                   u1, u2, u, v, pdf_scale)[9]
+                if not null:
+                    valid = True
             break
         b = shape_bsdf[shape]
         if MASK & F_FRAME and bi[b, BSDF_FRAME]:
