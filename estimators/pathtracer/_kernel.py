@@ -469,8 +469,9 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     # Mitsuba's valid_ray: a path that only passed through null BSDF components (a mask's
     # transparent part, a thin dielectric's transmission) counts only if the environment
     # is visible to camera rays, or it ends on an emitter (at max_depth) that is not hidden,
-    # or the BSDF sample at its last vertex is not null (Mitsuba's llvm variant)
-    valid = not (MASK & F_NULL_BSDFS) or (env >= 0 and not hide)
+    # or the BSDF sample at its last vertex is not null (Mitsuba's llvm variant); Mitsuba's
+    # direct integrator has no valid_ray and keeps every path
+    valid = not (MASK & F_NULL_BSDFS) or (env >= 0 and not hide) or sc.keep_null_paths
     if max_depth == 0:      # Mitsuba returns black, not even emitters seen directly
         return 0.0, 0.0, 0.0, state
     while True:

@@ -43,6 +43,7 @@ class SceneArrays(NamedTuple):
     rr_depth: int               # Russian roulette from this depth on
     hide_emitters: bool         # camera rays do not see emitters
     env: int                    # light row of the environment, -1 if none
+    keep_null_paths: bool       # the direct integrator: no valid_ray (Mitsuba's has none)
 
 
 INFINITE_DEPTH = 1 << 40

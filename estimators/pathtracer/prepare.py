@@ -873,7 +873,8 @@ class _Builder:
             light_cdf=np.array(self.light_cdf, dtype=np.float64),
             env_marginal=self.env_marg, env_conditional=self.env_cond,
             max_depth=int(max_depth), rr_depth=int(rr_depth),
-            hide_emitters=bool(integ.get("hide_emitters", False)), env=int(self.env))
+            hide_emitters=bool(integ.get("hide_emitters", False)), env=int(self.env),
+            keep_null_paths=integ.type == "direct")
         spp = int(d.sampler.get("sample_count", 4))
         if spp < 1:
             self.fail(d.sampler, f"sample_count {spp}: must be at least 1")
