@@ -428,13 +428,16 @@ class _Loader:
                 if vkind not in spec[name]:
                     self.fail(child, f"property {name!r} takes {' or '.join(spec[name])}, "
                                      f"not {vkind}")
-                if kind == "bsdf" and vkind == "rgb" and name not in _UNBOUNDED_RGB and \
+                # a BSDF's colours and a checkerboard's (only a BSDF's colour properties
+                # take one) are reflectances
+                reflectance = kind == "bsdf" or (kind, ptype) == ("texture", "checkerboard")
+                if reflectance and vkind == "rgb" and name not in _UNBOUNDED_RGB and \
                         not np.all((val >= 0.0) & (val <= 1.0)):
                     # Mitsuba reads a BSDF's <rgb> as an sRGB reflectance
                     self.fail(child, f"an RGB reflectance must lie in [0, 1], got "
                                      f"{', '.join(f'{v:g}' for v in val)} (Mitsuba refuses "
                                      "it too; a <float> may exceed 1)")
-                if kind == "bsdf" and vkind == "float" and "rgb" in spec[name] and \
+                if reflectance and vkind == "float" and "rgb" in spec[name] and \
                         name not in _UNBOUNDED_RGB and val < 0.0:
                     # Mitsuba carries a negative albedo through the path (a sphere's
                     # block came out -0.15); the tracer ends such a path
