@@ -468,8 +468,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     t_min = 0.0
     # Mitsuba's valid_ray: a path that only passed through null BSDF components (a mask's
     # transparent part, a thin dielectric's transmission) counts only if the environment
-    # is visible to camera rays, or it ends on an emitter (at max_depth) that is not hidden,
-    # or the BSDF sample at its last vertex is not null (Mitsuba's llvm variant); Mitsuba's
+    # is visible to camera rays, or the BSDF sample at its last vertex (max_depth) is not
+    # null (Mitsuba's llvm variant); Mitsuba's
     # direct integrator has no valid_ray and keeps every path
     valid = not (MASK & F_NULL_BSDFS) or (env >= 0 and not hide) or sc.keep_null_paths
     if max_depth == 0:      # Mitsuba returns black, not even emitters seen directly
@@ -512,15 +512,14 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                     rg += tg * light_f[k, LIGHT_RADIANCE + 1] * w
                     rb += tb * light_f[k, LIGHT_RADIANCE + 2] * w
         if depth + 1 >= max_depth:
-            if MASK & F_NULL_BSDFS and MASK & F_AREA_LIGHTS and shape_light[shape] >= 0 \
-                    and not hide:
-                valid = True
             if MASK & F_NULL_BSDFS and not valid:
                 # Mitsuba's JIT variants (llvm_ad_rgb: the references) still sample the
                 # BSDF at the last vertex and count the path as valid unless that sample
                 # is null: without it, a path whose only sample so far was a null event
                 # lost its emitter samples (a mask sphere without an environment,
-                # max_depth 2: 8 % dark where Mitsuba's llvm variant was the reference)
+                # max_depth 2: 8 % dark where Mitsuba's llvm variant was the reference).
+                # An emitter's own BSDF decides too: a light seen through, or as, a mask
+                # at max_depth 1 shows as much of its radiance as the mask is opaque
                 b = shape_bsdf[shape]
                 if MASK & F_FRAME and bi[b, BSDF_FRAME]:
                     fs, ft = shading_frame(prims, info, j, px, py, pz, sx, sy, sz, b1, b2)
