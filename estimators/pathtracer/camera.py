@@ -97,9 +97,11 @@ class Camera:
         else:
             stddev, radius = 0.0, 0.5
         if not (math.isfinite(radius) and 0 < radius <= MAX_FILTER_RADIUS):
-            raise ValueError(f"{rfilter} filter: radius {radius} (stddev {stddev}) must be "
-                             f"finite and > 0 (and at most {MAX_FILTER_RADIUS:g} pixels: "
-                             "wider filters are not supported)")
+            given = f"stddev {stddev} (radius 4σ = {radius})" if rfilter == "gaussian" \
+                else f"radius {radius}"
+            raise ValueError(f"{rfilter} filter: {given}: the radius must be finite and > 0 "
+                             f"(and at most {MAX_FILTER_RADIUS:g} pixels: wider filters are "
+                             "not supported)")
         if np.float32(radius) == np.float32(0.5):
             rfilter, stddev = "box", 0.0      # Mitsuba's ImageBlock treats it as a box
         return dataclasses.replace(self, rfilter=rfilter, filter_radius=radius,

@@ -460,11 +460,15 @@ def test_reconstruction_filters_and_their_parameters(rfilter, expected):
     '<rfilter type="gaussian"><float name="stddev" value="1e6"/></rfilter>'],
     ids=["stddev-0", "radius-negative", "radius-huge"])
 def test_a_filter_without_a_positive_radius_is_refused(rfilter):
+    """The message names what the scene gave: a tent's radius (it spoke of a stddev of
+    0.0 too, a parameter the tent does not have), a gaussian's stddev."""
     d = parse_scene(f'<scene version="3.0.0"><sensor type="perspective"><float name="fov" '
                     f'value="45"/><film type="hdrfilm">{rfilter}</film></sensor></scene>',
                     path="s.xml")
-    with pytest.raises(SceneError, match=r"s\.xml:1: <rfilter type=.*must be finite and > 0"):
+    with pytest.raises(SceneError, match=r"s\.xml:1: <rfilter type=.*must be finite and > 0") \
+            as e:
         camera_from_scene(d)
+    assert ("stddev" in str(e.value)) == ("gaussian" in rfilter), str(e.value)
 
 
 @pytest.mark.parametrize("body,needle", [
