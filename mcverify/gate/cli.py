@@ -336,10 +336,6 @@ def _cmd_check(args) -> int:
         result = dataclasses.replace(result, provenance={
             **result.provenance,
             "budget": {**plan.to_dict(), "detectable_contamination": bought}})
-    if args.json:
-        write_json(result, args.json)
-    if args.junit:
-        write_junit(result, args.junit)
     failed = [r for r in result.results if not r.passed]
     if not args.quiet:  # the checks whose progress line said "pending", now judged
         for r in result.results:
@@ -377,6 +373,13 @@ def _cmd_check(args) -> int:
     print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
           f" (family-wise alpha={args.alpha} by {result.correction}; canaries "
           f"{'bitten' if result.canary_bitten else 'NOT bitten'}; {result.seconds:.1f}s)")
+    # written after the verdict is printed: a write that fails (exit 2) loses no result;
+    # flushed first, so that a --json /dev/stdout follows the text instead of cutting it
+    sys.stdout.flush()
+    if args.json:
+        write_json(result, args.json)
+    if args.junit:
+        write_junit(result, args.junit)
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
@@ -673,14 +676,15 @@ def _cmd_compare(args) -> int:
                                if correlated else {}),
                             **(dict(test_spp=args.test_spp, ref_spp=ref_spp)
                                if args.test_spp is not None else {}))
-    if args.json:
-        write_json(result, args.json, provenance=provenance(command="compare"))
     for note in test.notes + (() if ref_load is None else ref.notes):
         print(f"notice: {note}", file=sys.stderr)
     print(result.summary())
     for m in result.messages:
         print(f"    {m}")
     _print_visibility(result.details)
+    sys.stdout.flush()
+    if args.json:   # after the verdict is printed (and flushed), as in `check`
+        write_json(result, args.json, provenance=provenance(command="compare"))
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
@@ -731,9 +735,6 @@ def _cmd_render_check(args) -> int:
                               notice=None if args.quiet else
                               (lambda m: print(f"notice: {m}", file=sys.stderr)),
                               progress=show if tty else None, pool=pool)
-    if args.json:
-        write_json(result, args.json, provenance=provenance(
-            command="render-check", seed=args.seed, params=params))
     d = result.details
     print(result.summary())
     for m in result.messages:
@@ -742,6 +743,10 @@ def _cmd_render_check(args) -> int:
           f"({d['ours_samples_per_second'] / 1e6:.2f} M samples/s, {d['ours_kernel']}); "
           f"relMSE {d['relmse']:.3g}; found by: {', '.join(d['found_by']) or 'nothing'}")
     _print_visibility(d)
+    sys.stdout.flush()
+    if args.json:   # after the verdict is printed (and flushed), as in `check`
+        write_json(result, args.json, provenance=provenance(
+            command="render-check", seed=args.seed, params=params))
     return EXIT_OK if result.passed else EXIT_FAILED
 
 

@@ -294,3 +294,25 @@ def test_a_check_name_in_two_suites_of_the_table_exits_2(project):
     assert ("check 'sqrt' is in suite 'mine.checks:good' and in suite 'mine.checks:factory'"
             in r.stderr), r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_write_that_fails_at_the_end_still_prints_every_verdict(project):
+    """The outputs were written before the verdicts were printed: a --json write that
+    failed at the end (exit 2) left the run's failures and its summary line unprinted,
+    though the README promises that the results printed are complete."""
+    (project / "mine" / "sabotage.py").write_text(textwrap.dedent('''
+        from mcverify.gate.suites import Check
+        from mine.checks import bad
+
+        def _run(seed):
+            open("out", "w").close()     # the folder --json writes into is now a file
+            return bad[0].run(seed)
+
+        suite = [Check("sqrt*1.1", _run)]
+    '''))
+    r = _cli(["check", "-q", "--suite", "mine.sabotage:suite", "--json", "out/r.json",
+              "--junit", "r.xml"], cwd=project)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "FAIL sqrt*1.1" in r.stdout and "0 passed, 1 failed" in r.stdout, r.stdout
+    assert "out/r.json: cannot write it" in r.stderr and "Traceback" not in r.stderr
+    assert (project / "out").is_file() and not (project / "r.xml").exists()
