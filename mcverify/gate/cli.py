@@ -285,9 +285,13 @@ def _cmd_check(args) -> int:
         raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
                               "has its own spp and passes (use --budget without --scene)")
     args.suite, checks, skipped, extra = _suite_checks(args)
-    # the scene, the project's pyproject.toml and a user suite's module are inputs: an
-    # output path naming one of them would replace it
-    inputs = ([args.scene] if args.scene else []) + _suite_sources(args.suite, extra)
+    # the scene, its reference (the render check reads it), the project's pyproject.toml
+    # and a user suite's module are inputs: an output path naming one would replace it
+    inputs = _suite_sources(args.suite, extra)
+    if args.scene and os.path.isfile(args.scene):
+        from .reference import reference_files
+
+        inputs += reference_files(args.scene)
     _writable("--json", args.json, inputs)
     _writable("--junit", args.junit, inputs)
     _distinct_outputs(("--json", args.json), ("--junit", args.junit))

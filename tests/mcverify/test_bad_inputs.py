@@ -422,6 +422,11 @@ CLI = [
     ("json-socket", ["check", "--json", "{d}/sock"], "not a regular file, FIFO"),
     ("json-is-scene", ["check", "--scene", "{d}/ref-ok/scene.xml", "--json",
                        "{d}/ref-ok/scene.xml"], "is also an input"),
+    # the scene's reference is an input too (the JSON replaced its manifest, exit 0)
+    ("json-is-scene-manifest", ["check", "--scene", "{d}/ref-ok/scene.xml", "-k", "render",
+                                "--json", "{d}/ref-ok/ref/manifest.json"], "is also an input"),
+    ("junit-is-scene-var", ["check", "--scene", "{d}/ref-ok/scene.xml", "-k", "render",
+                               "--junit", "{d}/ref-ok/ref/var.exr"], "is also an input"),
     ("report-out-empty", ["report", "--out", ""], "--out ''"),
     # refused before any work, and the --out folders not yet there are not created
     ("report-renders-unknown", ["report", "--renders", "nosuch", "--out",
