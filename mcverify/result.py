@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import stat
 import tempfile
 import xml.etree.ElementTree as ET
@@ -238,27 +239,40 @@ def write_json(result, path: str, *, provenance: dict | None = None) -> None:
     atomic_write(path, json.dumps(d, indent=2, sort_keys=False) + "\n")
 
 
+#: Characters XML 1.0 cannot hold, not even as references: C0 controls but tab, LF and CR
+#: (an ANSI colour code in an exception's message), lone surrogates (a file name that is
+#: not UTF-8, decoded by Python), U+FFFE and U+FFFF.
+_NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+
+
+def _xml(text) -> str:
+    """``text`` with each character XML cannot hold written as its escape (``\\x1b``)."""
+    return _NOT_XML.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"),
+                        str(text))
+
+
 def write_junit(suite: SuiteResult, path: str) -> None:
-    """Write a suite as JUnit XML (one testcase per check, canaries as their own class)."""
+    """Write a suite as JUnit XML (one testcase per check, canaries as their own class).
+    Characters XML cannot hold are written as escapes (``_xml``): the file always parses."""
     if not isinstance(suite, SuiteResult):
         raise InvalidArgument(f"write_junit: expected a SuiteResult (what run_suite and "
                               f"`mcverify check` make), got {type(suite).__name__}; a single "
                               "CheckResult goes to write_json")
     cases = list(suite.results) + [replace(c, name="canary." + c.name, passed=not c.passed)
                                    for c in suite.canary]
-    root = ET.Element("testsuite", name=f"mcverify.{suite.name}", tests=str(len(cases)),
-                      failures=str(sum(not c.passed for c in cases)),
+    root = ET.Element("testsuite", name=_xml(f"mcverify.{suite.name}"),
+                      tests=str(len(cases)), failures=str(sum(not c.passed for c in cases)),
                       time=f"{suite.seconds:.3f}")
     props = ET.SubElement(root, "properties")
     for k, v in suite.provenance.items():
-        ET.SubElement(props, "property", name=str(k), value=json.dumps(_jsonable(v)))
+        ET.SubElement(props, "property", name=_xml(k), value=_xml(json.dumps(_jsonable(v))))
     for c in cases:
-        tc = ET.SubElement(root, "testcase", classname=f"mcverify.{suite.name}",
-                           name=c.name, time=f"{c.seconds:.3f}")
+        tc = ET.SubElement(root, "testcase", classname=_xml(f"mcverify.{suite.name}"),
+                           name=_xml(c.name), time=f"{c.seconds:.3f}")
         if not c.passed:
-            f = ET.SubElement(tc, "failure", message=c.summary())
-            f.text = "\n".join(c.failures + c.messages)
+            f = ET.SubElement(tc, "failure", message=_xml(c.summary()))
+            f.text = _xml("\n".join(c.failures + c.messages))
         elif c.messages:
-            ET.SubElement(tc, "system-out").text = "\n".join(c.messages)
+            ET.SubElement(tc, "system-out").text = _xml("\n".join(c.messages))
     ET.indent(root)
     atomic_write(path, ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n")

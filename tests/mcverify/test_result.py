@@ -36,3 +36,21 @@ def test_json_and_junit_writers(tmp_path):
     root = ET.parse(tmp_path / "r.xml").getroot()
     assert root.get("tests") == "2" and root.get("failures") == "1"
     assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_junit_parses_whatever_characters_a_check_reports(tmp_path):
+    """A check's name or message may hold characters XML 1.0 cannot (an ANSI colour code
+    in an exception's message, a non-UTF-8 file name decoded to a lone surrogate): the
+    writer put control characters in as they were (a file CI's parsers reject, "not
+    well-formed (invalid token)") and raised UnicodeEncodeError on a surrogate (exit 2,
+    no JUnit). They are written as escapes now."""
+    bad = _r("red\x1b[31m", 1e-9, ["raised OSError: \x00 in 'x\udcffy'"])
+    suite = SuiteResult.judge("s\x07", [bad, _r("ok", 0.5)], alpha=0.01, seconds=1.0,
+                              provenance={"seed": 0, "k\x01": "v"})
+    mv.write_junit(suite, str(tmp_path / "r.xml"))
+    root = ET.parse(tmp_path / "r.xml").getroot()
+    assert root.get("name") == "mcverify.s\\x07" and root.get("failures") == "1"
+    case = root.find("testcase")
+    assert case.get("name") == "red\\x1b[31m"
+    assert case.find("failure").text == "raised OSError: \\x00 in 'x\\udcffy'"
+    assert [p.get("name") for p in root.iter("property")] == ["seed", "k\\x01"]
