@@ -213,6 +213,9 @@ def _suite_checks(args):
     from . import suites
     from .usersuite import find_config
 
+    if args.suite is not None and not args.suite.strip():   # '' read as "not given"
+        raise InvalidArgument(f"--suite {args.suite!r}: empty; give one of "
+                              f"{', '.join(suites.SUITE_NAMES)} or MODULE:ATTR")
     config = find_config()
     names = (args.suite,) if args.suite else (config.suites if config and config.suites
                                               else ("default",))

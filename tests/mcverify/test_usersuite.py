@@ -276,7 +276,9 @@ def test_an_output_path_naming_the_suite_module_or_the_config_exits_2(project, o
     (["--suite", "mine.checks:empty"], "suite 'mine.checks:empty' has no checks"),
     (["--suite", "mine.checks:good", "-k", "nosuch"], "-k 'nosuch': matches no check"),
     (["--budget", "inf"], "--budget inf: must be a positive, finite number"),
-], ids=["empty-suite", "k-matches-nothing", "budget-inf"])
+    # an empty --suite ran the default suite, passing over the project's table
+    (["--suite", ""], "--suite '': empty"),
+], ids=["empty-suite", "k-matches-nothing", "budget-inf", "suite-empty-string"])
 def test_nothing_to_run_and_an_infinite_budget_exit_2_saying_why(project, args, needle):
     r = _cli(["check", "-q", *args], cwd=project)
     assert r.returncode == 2 and needle in r.stderr, r.stdout + r.stderr
