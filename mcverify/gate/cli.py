@@ -226,8 +226,11 @@ def _suite_checks(args):
     roots = [os.path.join(config.root, p) for p in config.path] if config else []
     roots.append(".")
     checks, skipped, origin = [], [], {}
+    # a suite the table names is reported by the file and key, not as --suite
+    option = ("--suite" if args.suite or not (config and config.suites) else
+              f"{config.file}: [tool.mcverify] suite")
     for n in names:
-        c, s = suites.resolve_suite(n, roots=roots)
+        c, s = suites.resolve_suite(n, roots=roots, option=option)
         for check in c:     # each check's seed derives from its name: two would share one
             if check.name in origin:
                 raise InvalidArgument(f"check {check.name!r} is in suite {origin[check.name]!r} "

@@ -381,12 +381,14 @@ def _sourced(checks_: list[Check], builder, *args) -> list[Check]:
     return [dataclasses.replace(c, source=(builder, args)) for c in checks_]
 
 
-def resolve_suite(name: str, *, roots=(".",)) -> tuple[list[Check], list[tuple[str, str]]]:
+def resolve_suite(name: str, *, roots=(".",), option: str = "--suite"
+                  ) -> tuple[list[Check], list[tuple[str, str]]]:
     """The checks of a suite given by name, and what it skips (name, reason).
 
     ``name``: ``"default"`` or ``"full"`` (``SUITES``), ``"mitsuba"`` (Mitsuba's own
     plugins, :mod:`mcverify.gate.mitsuba_suite`), or a user suite ``MODULE:ATTR``
     (:mod:`mcverify.gate.usersuite`, imported with ``roots`` on ``sys.path``).
+    ``option`` names where ``name`` was given, in errors.
     """
     from .usersuite import is_user_suite, load_user_suite
 
@@ -397,8 +399,8 @@ def resolve_suite(name: str, *, roots=(".",)) -> tuple[list[Check], list[tuple[s
 
         return mitsuba_suite(SUITES["default"].mitsuba_samples), []
     if is_user_suite(name):
-        return load_user_suite(name, roots=roots), []
-    raise InvalidArgument(f"--suite {name!r}: expected one of {', '.join(SUITE_NAMES)} or "
+        return load_user_suite(name, roots=roots, option=option), []
+    raise InvalidArgument(f"{option} {name!r}: expected one of {', '.join(SUITE_NAMES)} or "
                           "MODULE:ATTR (a list of Check, or a callable returning one)")
 
 

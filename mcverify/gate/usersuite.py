@@ -76,9 +76,13 @@ def _read_config(file: str) -> ProjectConfig | None:
     try:
         with open(file, "rb") as f:
             doc = tomllib.load(f)
-    except tomllib.TOMLDecodeError as e:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:   # TOML is UTF-8
         raise InvalidArgument(f"{file}: not valid TOML ({e})") from None
-    table = doc.get("tool", {}).get("mcverify")
+    tool = doc.get("tool", {})
+    if not isinstance(tool, dict):
+        raise InvalidArgument(f"{file}: tool = {tool!r}: must be a table ([tool.mcverify] "
+                              "is read from it)")
+    table = tool.get("mcverify")
     if table is None:
         return None
     if not isinstance(table, dict):
@@ -132,59 +136,61 @@ def _import_roots(roots) -> None:
             sys.path.insert(0, r)
 
 
-def load_user_suite(spec: str, *, roots=(".",)) -> list[Check]:
+def load_user_suite(spec: str, *, roots=(".",), option: str = "--suite") -> list[Check]:
     """The checks named by ``spec`` (``package.module:attribute``).
 
     ``roots`` are put on ``sys.path`` first (the current directory by default), as
     pytest does with a project's root. The attribute is a list or tuple of ``Check``,
     or a callable returning one. Names must be unique (each seed derives from its name).
+    ``option`` names where ``spec`` was given, in errors (``--suite``, or the file and
+    key of a ``[tool.mcverify]`` table).
     """
     module_name, _, attr = spec.partition(":")
     if not module_name or not attr:
-        raise InvalidArgument(f"--suite {spec!r}: expected MODULE:ATTR, e.g. "
+        raise InvalidArgument(f"{option} {spec!r}: expected MODULE:ATTR, e.g. "
                               "mypkg.checks:suite")
     _import_roots(roots)
     try:
         module = importlib.import_module(module_name)
     except ImportError as e:
-        raise InvalidArgument(f"--suite {spec!r}: cannot import {module_name!r} ({e}); "
+        raise InvalidArgument(f"{option} {spec!r}: cannot import {module_name!r} ({e}); "
                               f"import roots: {', '.join(roots)}") from None
     except (Exception, SystemExit) as e:   # noqa: BLE001 - the user's module failed
         where = ""
         if isinstance(e, SyntaxError) and e.filename:
             where = f" at {e.filename}:{e.lineno}"
-        raise InvalidArgument(f"--suite {spec!r}: importing {module_name!r} raised "
+        raise InvalidArgument(f"{option} {spec!r}: importing {module_name!r} raised "
                               f"{type(e).__name__}{where}: {e}") from None
     obj = module
     for part in attr.split("."):
         if not hasattr(obj, part):
-            raise InvalidArgument(f"--suite {spec!r}: {module_name} has no attribute "
+            raise InvalidArgument(f"{option} {spec!r}: {module_name} has no attribute "
                                   f"{attr!r}")
         obj = getattr(obj, part)
     if callable(obj) and not isinstance(obj, (list, tuple)):
         try:
             obj = obj()
         except (Exception, SystemExit) as e:   # noqa: BLE001 - the user's builder failed
-            raise InvalidArgument(f"--suite {spec!r}: {attr}() raised {type(e).__name__}: "
+            raise InvalidArgument(f"{option} {spec!r}: {attr}() raised {type(e).__name__}: "
                                   f"{e}") from None
     if not isinstance(obj, (list, tuple)):
-        raise InvalidArgument(f"--suite {spec!r}: expected a list of "
+        raise InvalidArgument(f"{option} {spec!r}: expected a list of "
                               f"mcverify.gate.suites.Check, got {type(obj).__name__}")
     seen = set()
     for i, c in enumerate(obj):
         if not isinstance(c, Check):
-            raise InvalidArgument(f"--suite {spec!r}: item {i} is a {type(c).__name__}, "
+            raise InvalidArgument(f"{option} {spec!r}: item {i} is a {type(c).__name__}, "
                                   "not a mcverify.gate.suites.Check(name, run, tags, "
                                   "verifies)")
         if not isinstance(c.name, str) or not c.name:
-            raise InvalidArgument(f"--suite {spec!r}: item {i} is named {c.name!r}: a "
+            raise InvalidArgument(f"{option} {spec!r}: item {i} is named {c.name!r}: a "
                                   "check's name must be a non-empty string (its seed "
                                   "derives from it)")
         if not callable(c.run):
-            raise InvalidArgument(f"--suite {spec!r}: check {c.name!r}: run={c.run!r} is "
+            raise InvalidArgument(f"{option} {spec!r}: check {c.name!r}: run={c.run!r} is "
                                   "not callable")
         if c.name in seen:
-            raise InvalidArgument(f"--suite {spec!r}: two checks are named {c.name!r} "
+            raise InvalidArgument(f"{option} {spec!r}: two checks are named {c.name!r} "
                                   "(seeds derive from names; make them unique)")
         seen.add(c.name)
     recipe = (_rebuild, (spec, tuple(os.path.abspath(r) for r in roots)))

@@ -137,10 +137,17 @@ def test_the_first_pyproject_decides_even_without_a_table(project):
     ('[tool.mcverify]\nsuite = "nightly"\n', "suite 'nightly': expected MODULE:ATTR"),
     ('[tool.mcverify]\nsuite = [1]\n', "suite: 1 is not a string"),
     ('[tool.mcverify\n', "not valid TOML"),
+    # these raised AttributeError and UnicodeDecodeError, naming no file
+    ('tool = 3\n', "tool = 3: must be a table"),
+    (b'[tool.mcverify]\nseed = 1 # \xff\n', "not valid TOML"),
 ], ids=["unknown-key", "alpha-range", "alpha-type", "seed-negative", "seed-beyond-2^63",
-        "empty-suite-list", "suite-twice", "seed-bool", "suite-name", "suite-type", "toml"])
+        "empty-suite-list", "suite-twice", "seed-bool", "suite-name", "suite-type", "toml",
+        "tool-not-a-table", "not-utf8"])
 def test_a_malformed_table_names_the_file_and_key(project, body, match):
-    _pyproject(project, body)
+    if isinstance(body, bytes):
+        (project / "pyproject.toml").write_bytes(body)
+    else:
+        _pyproject(project, body)
     with pytest.raises(mv.InvalidArgument, match=match) as e:
         find_config()
     assert str(project / "pyproject.toml") in str(e.value)
@@ -318,3 +325,17 @@ def test_a_write_that_fails_at_the_end_still_prints_every_verdict(project):
     assert "FAIL sqrt*1.1" in r.stdout and "0 passed, 1 failed" in r.stdout, r.stdout
     assert "out/r.json: cannot write it" in r.stderr and "Traceback" not in r.stderr
     assert (project / "out").is_file() and not (project / "r.xml").exists()
+
+
+@pytest.mark.parametrize("suite, needle", [
+    ("mine.nothere:x", "suite 'mine.nothere:x': cannot import 'mine.nothere'"),
+    ("mine.checks:missing", "suite 'mine.checks:missing': mine.checks has no attribute"),
+])
+def test_a_bad_suite_in_the_table_is_named_by_the_file_not_as_suite(project, suite, needle):
+    """The table's suite that cannot be loaded was reported as "--suite '...'", an option
+    the user never gave, and the file it came from was not named."""
+    _pyproject(project, f'[tool.mcverify]\nsuite = "{suite}"\n')
+    r = _cli(["list"], cwd=project / "sub")
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert f"{project / 'pyproject.toml'}: [tool.mcverify] {needle}" in r.stderr, r.stderr
+    assert "--suite" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
