@@ -507,14 +507,20 @@ def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
     seeds = ([check_seed(seed, c.name) for c in checks_]
              + [check_seed(seed, "canary:" + c.name) for c in bait])
     stops = [alpha / max(len(checks_), 1)] * len(checks_) + [None] * len(bait)
-    by_name = {c.name: c for c in checks_ + bait}
-    show = None if progress is None else (
-        lambda done, total, unit, r: progress(done, total, r, by_name[unit.key]))
+
+    def run_on(pool):
+        units = _units(checks_ + bait, seeds, stops, pool)
+        # by the unit, not its name: a check of the user's may share a canary's name
+        of = {id(u): c for u, c in zip(units, checks_ + bait)}
+        show = None if progress is None else (
+            lambda done, total, unit, r: progress(done, total, r, of[id(unit)]))
+        return pool.map(units, progress=show)
+
     if pool is None:
         with Pool() as pool:
-            out = pool.map(_units(checks_ + bait, seeds, stops, pool), progress=show)
+            out = run_on(pool)
     else:
-        out = pool.map(_units(checks_ + bait, seeds, stops, pool), progress=show)
+        out = run_on(pool)
     results, bitten = out[:len(checks_)], out[len(checks_):]
     prov = provenance(suite=name, seed=seed, alpha=alpha, correction=correction,
                       executor=pool.describe(), **(extra_provenance or {}))

@@ -339,3 +339,21 @@ def test_a_bad_suite_in_the_table_is_named_by_the_file_not_as_suite(project, sui
     assert r.returncode == 2, r.stdout + r.stderr
     assert f"{project / 'pyproject.toml'}: [tool.mcverify] {needle}" in r.stderr, r.stderr
     assert "--suite" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_check_named_like_a_canary_is_reported_as_itself():
+    """Progress looked checks up by name, so a user's check that shares a canary's name
+    ("cosine-pdf*1.03") was shown as that canary: "NOT bitten" when it passed."""
+    from mcverify.gate.cli import _verdict
+    from mcverify.gate.suites import canaries, run_suite
+
+    name = canaries()[2].name
+
+    def ok(seed):
+        return mv.CheckResult(name, True, 0.5, 1.0, 0.01, 10, 0.0)
+
+    seen = []
+    result = run_suite([Check(name, ok)], progress=lambda i, n, r, c: seen.append(
+        (r.name, c.tags, _verdict(r, c, 0.01))))
+    assert result.passed and seen[0] == (name, (), "ok"), seen
+    assert [v for _, tags, v in seen if "canary" in tags] == ["bitten"] * 3
