@@ -290,11 +290,13 @@ def _cmd_check(args) -> int:
     if args.budget is not None and args.scene:
         raise InvalidArgument("--budget with --scene: not supported; a scene's render check "
                               "has its own spp and passes (use --budget without --scene)")
+    if args.scene:
+        args.scene = _scene_file(args.scene)
     args.suite, checks, skipped, extra = _suite_checks(args)
     # the scene, its reference (the render check reads it), the project's pyproject.toml
     # and a user suite's module are inputs: an output path naming one would replace it
     inputs = _suite_sources(args.suite, extra)
-    if args.scene and os.path.isfile(args.scene):
+    if args.scene:
         from .reference import reference_files
 
         inputs += reference_files(args.scene)
@@ -393,6 +395,17 @@ def _cmd_check(args) -> int:
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
+def _scene_file(spec: str) -> str:
+    """The scene file ``check --scene`` and ``plan`` read: a file as given, else (as
+    ``render-check`` takes them) a folder holding scene.xml or a reference name, resolved
+    in ``--refs``/``$MCVERIFY_REFS``/the checkout's or installed reference scenes."""
+    if os.path.exists(spec) and not os.path.isdir(spec):
+        return spec
+    from .reference import resolve_scene
+
+    return resolve_scene(spec)[1]
+
+
 def _plan(scene, suite):
     from estimators.pathtracer import SceneError
 
@@ -407,7 +420,7 @@ def _plan(scene, suite):
 def _cmd_plan(args) -> int:
     if (args.scene is None) == (args.scene_option is None):
         raise InvalidArgument("plan: name one scene, as SCENE.xml or --scene SCENE.xml")
-    args.scene = args.scene if args.scene is not None else args.scene_option
+    args.scene = _scene_file(args.scene if args.scene is not None else args.scene_option)
     checks, skipped, features = _plan(args.scene, args.suite)
     print(f"scene {args.scene} uses: {', '.join(sorted(features))}")
     print(f"checks ({len(checks)}):")
@@ -794,8 +807,8 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="run a verification suite (the CI gate)", epilog=EPILOG)
     c.add_argument("--suite", metavar="SUITE", help=any_suite_help)
     c.add_argument("--scene", metavar="SCENE.xml",
-                   help="plan the checks from a scene (and run its render check); "
-                        "default: the whole suite")
+                   help="plan the checks from a scene (and run its render check): a scene "
+                        "file, its folder or a reference name; default: the whole suite")
     c.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
                    "(or matches it as a glob); default: all; no match exits 2")
     c.add_argument("--seed", type=int, help=seed_help + "; default: [tool.mcverify] seed, "
@@ -823,12 +836,14 @@ def build_parser() -> argparse.ArgumentParser:
     ls.set_defaults(func=_cmd_list)
 
     pl = sub.add_parser("plan", help="the checks a scene needs, and what is skipped")
-    pl.add_argument("scene", metavar="SCENE.xml", nargs="?", help="a Mitsuba XML scene")
+    pl.add_argument("scene", metavar="SCENE.xml", nargs="?",
+                    help="a Mitsuba XML scene, its folder or a reference name")
     pl.add_argument("--scene", dest="scene_option", metavar="SCENE.xml",
                     help="the same, spelt as for mcverify check --scene")
     pl.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
     pl.add_argument("-v", "--verbose", action="store_true",
                     help="also list the checks the scene does not need")
+    _add_refs_option(pl)
     pl.set_defaults(func=_cmd_plan)
 
     rp = sub.add_parser("report", help="convergence, efficiency and verification report")

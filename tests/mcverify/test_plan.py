@@ -106,3 +106,24 @@ def test_a_ply_area_light_plans_triangle_sampling(tmp_path):
     checks, skipped, features = plan(str(path))
     assert "emitter:area:ply" in features
     assert {"sampler:uniform_triangle", "inverse:uniform_triangle"} <= _names(checks)
+
+
+def test_plan_and_check_scene_take_a_folder_or_a_reference_name(tmp_path):
+    """As render-check does (and as --refs on check says): `plan cornell-box` and `check
+    --scene <folder>` failed with "cannot read cornell-box" / "is not a regular file"."""
+    r = subprocess.run(CMD + ["plan", CORNELL], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    for spec in ("cornell-box", os.path.dirname(CORNELL)):
+        by = subprocess.run(CMD + ["plan", spec], capture_output=True, text=True,
+                            timeout=120)
+        assert by.returncode == 0, by.stderr
+        assert by.stdout.splitlines()[1:] == r.stdout.splitlines()[1:]
+    # a reference of one's own, by name in --refs
+    (tmp_path / "lamp").mkdir()
+    (tmp_path / "lamp" / "scene.xml").write_text(DIFFUSE_POINT)
+    r = subprocess.run(CMD + ["check", "--refs", str(tmp_path), "--scene", "lamp", "-k",
+                              "inverse:", "-q"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = subprocess.run(CMD + ["plan", "nosuch-scene"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2 and "scene 'nosuch-scene'" in r.stderr
