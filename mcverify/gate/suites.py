@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import checks
 from ..domains import Interval
-from ..errors import InvalidArgument, interrupted
+from ..errors import EnvironmentProblem, InvalidArgument, interrupted
 from ..provenance import provenance
 from ..result import CheckResult, SuiteResult
 from .executors import Pool, Unit, same_source, source_fingerprint
@@ -419,7 +419,10 @@ def select(checks_: list[Check], pattern: str | None) -> list[Check]:
 
 def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> CheckResult:
     """Run a check; a subject that raises is a failed check naming the exception.
-    ``stop_alpha``: where a sequential check may stop early (None: its own level)."""
+    ``EnvironmentProblem`` (a stale or corrupt reference, Mitsuba missing) is not the
+    subject's failure: it stops the run (the CLI exits 2 naming it, as for the command's
+    own inputs). ``stop_alpha``: where a sequential check may stop early (None: its own
+    level)."""
     t0 = time.perf_counter()
 
     def failed(message: str, exception: str | None = None) -> CheckResult:
@@ -434,6 +437,8 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
             r = check.run(seed, stop_alpha=stop_alpha)
         else:
             r = check.run(seed)
+    except EnvironmentProblem:
+        raise
     except (Exception, SystemExit) as e:  # noqa: BLE001 - a subject error is a finding
         if interrupted(e):          # Ctrl-C inside a numba kernel arrives as SystemError
             raise KeyboardInterrupt from None

@@ -441,6 +441,12 @@ CLI = [
     ("check-scene-k-nomatch", ["check", "--scene", "{d}/ref-ok/scene.xml", "-k", "zzz"],
      "-k 'zzz': matches none of the"),
     # an option given twice: argparse kept the last one without a word
+    # a stale or corrupt reference is the environment, not the renderer: it failed the
+    # render check (exit 1, "raised EnvironmentProblem") until 6 December
+    ("check-scene-stale-reference", ["check", "--scene", "{d}/ref-stale/scene.xml", "-k",
+                                     "render:"], "stale"),
+    ("check-scene-corrupt-reference", ["check", "--scene", "{d}/ref-corrupt/scene.xml", "-k",
+                                       "render:"], "corrupt manifest"),
     ("check-suite-twice", ["check", "--suite", "default", "--suite", "full"],
      "--suite given twice ('default' and 'full')"),
     ("check-scene-twice", ["check", "--scene", "{d}/ref-ok/scene.xml", "--scene",
