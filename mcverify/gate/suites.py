@@ -446,6 +446,11 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
         return failed(f"raised {type(e).__name__}: {e}", type(e).__name__)
     if not isinstance(r, CheckResult):
         return failed(f"returned {type(r).__name__}, not a CheckResult")
+    p = r.p_value       # Holm counts every p-value: p = 7 raised the others' adjusted p
+    if p is not None and (isinstance(p, (bool, np.bool_)) or not isinstance(
+            p, (int, float, np.integer, np.floating)) or not 0.0 <= p <= 1.0):
+        r = dataclasses.replace(r, p_value=None, passed=False, failures=r.failures + (
+            f"returned p_value={p!r}, not a probability in [0, 1]",))
     if r.name != check.name:        # reported under the suite's name for it
         r = dataclasses.replace(r, name=check.name,
                                 details=dict(r.details, result_name=r.name))

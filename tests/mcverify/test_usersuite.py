@@ -357,3 +357,24 @@ def test_a_check_named_like_a_canary_is_reported_as_itself():
         (r.name, c.tags, _verdict(r, c, 0.01))))
     assert result.passed and seen[0] == (name, (), "ok"), seen
     assert [v for _, tags, v in seen if "canary" in tags] == ["bitten"] * 3
+
+
+def test_a_p_value_that_is_no_probability_fails_its_check_and_stays_out_of_holm():
+    """A user check's CheckResult with p_value 7, -0.5 or NaN was judged as given: p = 7
+    passed and counted in Holm's m (p = 0.004 among three checks then passed at 0.012),
+    p = -0.5 printed "p_adj=-1.5", NaN failed without a word why."""
+    from mcverify.gate.suites import run_suite
+
+    def check(name, p):
+        return Check(name, lambda seed: mv.CheckResult(name, True, p, 1.0, 0.01, 10, 0.0))
+
+    bad = [7.0, -0.5, float("nan"), "0.5", True]
+    result = run_suite([check(f"bad{i}", p) for i, p in enumerate(bad)]
+                       + [check("small", 0.004), check("mid", 0.5)], canary=False)
+    got = {r.name: r for r in result.results}
+    for i, p in enumerate(bad):
+        assert got[f"bad{i}"].failures == (f"returned p_value={p!r}, not a probability in "
+                                           "[0, 1]",)
+        assert got[f"bad{i}"].p_value is None
+    assert got["small"].details["p_adjusted"] == 0.008 and not got["small"].passed
+    assert got["mid"].passed
