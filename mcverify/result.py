@@ -40,7 +40,13 @@ def _jsonable(v):
         return f if math.isfinite(f) else str(f)
     if isinstance(v, np.bool_):
         return bool(v)
-    return v
+    if isinstance(v, (set, frozenset)):
+        return [_jsonable(x) for x in sorted(v, key=repr)]
+    if v is None or isinstance(v, (str, int)):
+        return v
+    # anything else a user's check put in its details (a Path, a complex): its text, not
+    # a TypeError at the end of the run that writes no JSON and names no check
+    return str(v)
 
 
 @dataclass(frozen=True)

@@ -54,3 +54,19 @@ def test_junit_parses_whatever_characters_a_check_reports(tmp_path):
     assert case.get("name") == "red\\x1b[31m"
     assert case.find("failure").text == "raised OSError: \\x00 in 'x\\udcffy'"
     assert [p.get("name") for p in root.iter("property")] == ["seed", "k\\x01"]
+
+
+def test_details_json_cannot_hold_are_written_as_text(tmp_path):
+    """A user check's details holding a set or a Path stopped the run at the very end with
+    "unexpected TypeError: Object of type set is not JSON serializable" (exit 2, no JSON,
+    no check named). Sets are written as lists, other objects as their text."""
+    import pathlib
+
+    r = CheckResult("d", True, 0.5, 1.0, 0.01, 10, 0.0,
+                    details={"cells": {3, 1}, "file": pathlib.Path("/x/y"), "z": 1 + 2j,
+                             "ok": [None, True, "s", 2]})
+    suite = SuiteResult.judge("s", [r], alpha=0.01, seconds=1.0)
+    mv.write_json(suite, str(tmp_path / "r.json"))
+    d = json.loads((tmp_path / "r.json").read_text())["results"][0]["details"]
+    assert d["cells"] == [1, 3] and d["file"] == "/x/y" and d["z"] == "(1+2j)"
+    assert d["ok"] == [None, True, "s", 2]
