@@ -183,14 +183,14 @@ def output_target(path) -> tuple[str, str]:
         raise InvalidArgument(f"path={path!r}: give a file path (an empty path writes nothing)")
     path = os.fspath(path)
     target = os.path.realpath(path)
-    try:
-        mode = os.stat(target).st_mode
+    try:    # the path itself, followed: /dev/stdout -> /proc/self/fd/1 -> "pipe:[N]", a
+        mode = os.stat(path).st_mode    # link whose text realpath cannot resolve
     except (FileNotFoundError, NotADirectoryError):   # new (its folder may not exist yet)
         return target, "replace"
     if stat.S_ISREG(mode):
         return target, "replace"
     if stat.S_ISFIFO(mode) or stat.S_ISCHR(mode):
-        return target, "stream"
+        return (target if os.path.exists(target) else os.path.abspath(path)), "stream"
     what = "a directory" if stat.S_ISDIR(mode) else "not a regular file, FIFO or character device"
     shown = path if target == os.path.abspath(path) else f"{path} (-> {target})"
     raise InvalidArgument(f"{shown}: is {what}; give a file path")

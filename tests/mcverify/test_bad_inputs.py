@@ -26,7 +26,7 @@ from estimators.pathtracer import SceneError, prepare_scene, load_scene, render
 from mcverify.errors import EnvironmentProblem, InvalidArgument, MissingReference
 from mcverify.gate import cli, reference
 from mcverify.gate.suites import Check
-from mcverify.result import CheckResult, SuiteResult, atomic_write, write_json
+from mcverify.result import CheckResult, SuiteResult, atomic_write, output_target, write_json
 
 ROOT = reference.REFERENCE_ROOT
 FURNACE = os.path.join(ROOT, "white-furnace", "scene.xml")
@@ -605,6 +605,30 @@ def test_write_into_fifo_and_dev_null(tmp_path):
     after = os.stat("/dev/null")
     assert stat.S_ISCHR(after.st_mode) and after.st_rdev == before.st_rdev
     assert after.st_ino == before.st_ino
+
+
+def test_json_to_dev_stdout_when_stdout_is_a_pipe(tmp_path):
+    """`mcverify check --json /dev/stdout | jq`: /dev/stdout links to /proc/self/fd/1,
+    which names "pipe:[N]", no path: the realpath did not exist, the write was taken for
+    a new file in /proc/PID/fd, and the run was refused ("cannot create a file in folder
+    /proc/PID/fd", exit 2). The pipe is written into now."""
+    r, w = os.pipe()
+    try:
+        link = f"/proc/self/fd/{w}"
+        assert output_target(link)[1] == "stream"
+        atomic_write(link, "through the pipe\n")
+        assert os.read(r, 100) == b"through the pipe\n"
+    finally:
+        os.close(r)
+        os.close(w)
+    out = subprocess.run(CMD + ["check", "-k", "inverse:cosine_hemisphere", "-q", "--json",
+                                "/dev/stdout"], capture_output=True, text=True, timeout=600,
+                         cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    text = out.stdout
+    assert text.startswith("mcverify check --suite default: 1 passed"), text[:300]
+    doc = json.loads(text[text.index("{"):])
+    assert [x["name"] for x in doc["results"]] == ["inverse:cosine_hemisphere"]
 
 
 @pytest.mark.parametrize("what", ["directory", "socket", "empty"])
