@@ -528,11 +528,12 @@ def _write(path: str, ref: Reference) -> str:
 
 
 def reference_files(spec: str) -> list[str]:
-    """The files a reference is made of (scene, manifest, images), for refusing to
-    write an output over one of them."""
+    """The files a reference is made of (scene, the files it names, manifest, images),
+    for refusing to write an output over one of them."""
     _, path = resolve_scene(spec)
     folder = ref_folder(path)
-    return [path] + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES + (PASSES,)]
+    return ([path] + list(scene_asset_files(path).values())
+            + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES + (PASSES,)])
 
 
 def load_reference(spec: str) -> Reference:

@@ -130,6 +130,11 @@ def sandbox(tmp_path_factory):
         '<shape type="sphere">',
         '<shape type="obj"><string name="filename" value="huge.obj"/></shape>'
         '<shape type="sphere">'))
+    (s / "card.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (s / "obj-card.xml").write_text(text.replace(
+        '<shape type="sphere">',
+        '<shape type="obj"><string name="filename" value="card.obj"/></shape>'
+        '<shape type="sphere">'))
     os.mkfifo(s / "sky.fifo")
     (s / "envmap-fifo.xml").write_text(text.replace(
         '<emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>',
@@ -427,6 +432,11 @@ CLI = [
                                 "--json", "{d}/ref-ok/ref/manifest.json"], "is also an input"),
     ("junit-is-scene-var", ["check", "--scene", "{d}/ref-ok/scene.xml", "-k", "render",
                                "--junit", "{d}/ref-ok/ref/var.exr"], "is also an input"),
+    # a file the scene names (a mesh, a texture) is an input too: it was replaced
+    ("json-is-scene-mesh", ["check", "--scene", "{d}/scenes/obj-card.xml", "-k", "zzz",
+                            "--json", "{d}/scenes/card.obj"], "is also an input"),
+    ("render-check-json-is-mesh", ["render-check", "{d}/scenes/obj-card.xml", "--json",
+                                   "{d}/scenes/card.obj"], "is also an input"),
     ("report-out-empty", ["report", "--out", ""], "--out ''"),
     # refused before any work, and the --out folders not yet there are not created
     ("report-renders-unknown", ["report", "--renders", "nosuch", "--out",
