@@ -87,19 +87,21 @@ UNLISTED_PREFIXES = ("shape:",)
 UNLISTED_NAMES = ("emitter:area",)
 
 
-def plan(scene_path: str, suite: str = "default") -> tuple[list[Check], list[tuple[str, str]],
-                                                          set[str]]:
+def plan(scene_path: str, suite: str = "default", checks: list[Check] | None = None
+         ) -> tuple[list[Check], list[tuple[str, str]], set[str]]:
     """The checks a scene needs, and the skipped ones with the reason.
 
     Reads the scene with the path tracer's loader (an unsupported element raises
     ``SceneError`` naming it), keeps the suite's checks whose ``verifies`` meets what the
-    scene's features need (``NEEDS``), and adds the scene's render check. Returns
+    scene's features need (``NEEDS``), and adds the scene's render check. ``checks``:
+    the suite's checks already resolved (``mcverify check``: those of a project's table,
+    possibly several suites), instead of resolving ``suite``. Returns
     (checks, skipped, features).
     """
     from estimators.pathtracer import load_scene
 
     desc = load_scene(scene_path)
-    all_checks, _ = resolve_suite(suite)
+    all_checks = resolve_suite(suite)[0] if checks is None else checks
     wanted: dict[str, str] = {}
     for feature in sorted(desc.features):
         needs, why = NEEDS.get(feature, (set(), ""))

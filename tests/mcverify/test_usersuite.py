@@ -378,3 +378,14 @@ def test_a_p_value_that_is_no_probability_fails_its_check_and_stays_out_of_holm(
         assert got[f"bad{i}"].p_value is None
     assert got["small"].details["p_adjusted"] == 0.008 and not got["small"].passed
     assert got["mid"].passed
+
+
+def test_check_scene_plans_from_the_tables_list_of_suites(project):
+    """With a [tool.mcverify] list of suites, `check --scene` planned from the joined name
+    'mine.checks:good+default' and exited 2 ("has no attribute 'good+default'")."""
+    scene = os.path.join(ROOT, "reference", "scenes", "white-furnace", "scene.xml")
+    _pyproject(project, '[tool.mcverify]\nsuite = ["mine.checks:good", "default"]\n')
+    r = _cli(["check", "-q", "--scene", scene, "-k", "inverse:cosine_hemisphere"],
+             cwd=project / "sub")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "1 passed, 0 failed" in r.stdout
