@@ -446,6 +446,18 @@ def _offset(px, py, pz, gx, gy, gz, dx, dy, dz):
 
 
 @fused(inline="always")
+def _local_frame(bi, prims, info, b, j, px, py, pz, sx, sy, sz, b1, b2, dx, dy, dz):
+    """The shading frame (s, t, n) at a hit on primitive j with BSDF b (Mitsuba's, from
+    the mesh's tangents, where the BSDF needs it) and the incoming direction -d in it."""
+    if MASK & F_FRAME and bi[b, BSDF_FRAME]:
+        fs, ft = shading_frame(prims, info, j, px, py, pz, sx, sy, sz, b1, b2)
+    else:
+        fs, ft = coordinate_system(sx, sy, sz)
+    fn = (sx, sy, sz)
+    return fs, ft, fn, to_local(fs, ft, fn, -dx, -dy, -dz)
+
+
+@fused(inline="always")
 def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     """Radiance along one camera ray: (r, g, b, rng state). ``sc`` is the scene's
     ``layout.SceneArrays``; ``pdf_scale`` is the wrong-pdf test hook (1: correct)."""
@@ -521,11 +533,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                 # An emitter's own BSDF decides too: a light seen through, or as, a mask
                 # at max_depth 1 shows as much of its radiance as the mask is opaque
                 b = shape_bsdf[shape]
-                if MASK & F_FRAME and bi[b, BSDF_FRAME]:
-                    fs, ft = shading_frame(prims, info, j, px, py, pz, sx, sy, sz, b1, b2)
-                else:
-                    fs, ft = coordinate_system(sx, sy, sz)
-                wi = to_local(fs, ft, (sx, sy, sz), -dx, -dy, -dz)
+                fs, ft, fn, wi = _local_frame(bi, prims, info, b, j, px, py, pz, sx, sy, sz,
+                                              b1, b2, dx, dy, dz)
                 u0, state = _next(state)
                 u1, u2, state = _next2(state)
                 null = bsdf_sample(BSDF_MASK, bf, bi, btex, tex_data, tex_info, b, wi, u0,
@@ -534,12 +543,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
                     valid = True
             break
         b = shape_bsdf[shape]
-        if MASK & F_FRAME and bi[b, BSDF_FRAME]:
-            fs, ft = shading_frame(prims, info, j, px, py, pz, sx, sy, sz, b1, b2)
-        else:
-            fs, ft = coordinate_system(sx, sy, sz)
-        fn = (sx, sy, sz)
-        wi = to_local(fs, ft, fn, -dx, -dy, -dz)
+        fs, ft, fn, wi = _local_frame(bi, prims, info, b, j, px, py, pz, sx, sy, sz, b1, b2,
+                                      dx, dy, dz)
         # ---- emitter sampling
         if n_lights > 0 and bsdf_is_smooth(bi, b):
             u0, state = _next(state)
