@@ -432,7 +432,7 @@ def variance_test(x, expected_variance: float, *, rounding: float = 0.0) -> Vari
 # -------------------------------------------------------------------- convergence
 @dataclass(frozen=True)
 class SlopeResult:
-    """Weighted least-squares slope of log RMSE against log N."""
+    """Least-squares slope of log RMSE against log N, its jackknife standard error."""
 
     slope: float
     std_error: float
@@ -444,43 +444,56 @@ class SlopeResult:
     alternative: str
 
 
+def _ols_slopes(x, y):
+    """Least-squares slopes of the rows of y against x (a column per row of y)."""
+    xc = x - x.mean()
+    return (y - y.mean(axis=-1, keepdims=True)) @ xc / np.sum(xc * xc)
+
+
 def loglog_slope(ns, sq_errors, *, expected: float, alternative: str = "two-sided",
                  confidence: float = 0.99) -> SlopeResult:
     """Slope of log RMSE(N) against log N, from squared errors over independent seeds.
 
     ``sq_errors`` has shape (len(ns), R): squared error of R independent estimates at
-    each N. The log of the mean squared error has delta-method variance
-    ``Var(e²) / (R · MSE²)``; the fit is weighted by its inverse, and the slope of log
-    RMSE is half the slope of log MSE.
+    each N (the estimates of one seed at different N may be correlated: a seed is the
+    unit of independence). The slope is the least-squares fit of ½ log MSE against
+    log N; its standard error is the jackknife's over the seeds (each refit with one
+    seed left out), and the test takes Student's t with R - 1 degrees of freedom.
+
+    Until 6 December the fit was weighted by each N's delta-method variance of log MSE,
+    Var(e²) / (R · MSE²), from that N's own sample variance of e²: with 64 seeds that is
+    noisy and moves with the MSE itself, so the standard error came out small. Correct
+    estimators failed 12 % of the time at a stated 10 % (normal errors, ns 64 ... 4096),
+    and 2.3 % to 2.7 % at 1 % (exponential and lognormal errors; an outside review).
+    The jackknife needs no model of the errors' distribution and counts the correlation
+    of one seed's estimates across N.
 
     ``alternative="two-sided"`` tests ``slope == expected``; ``"less"`` gives
-    ``P(Z <= z)``, small where the slope is significantly steeper than ``expected``
+    ``P(T <= t)``, small where the slope is significantly steeper than ``expected``
     (``check_convergence`` uses ``1 -`` that: its claim "at least as steep" fails where
     the slope is significantly shallower).
     """
     ns = np.asarray(ns, dtype=np.float64)
     e2 = np.asarray(sq_errors, dtype=np.float64)
     r = e2.shape[1]
-    mse = e2.mean(axis=1)
-    var_log = e2.var(axis=1, ddof=1) / (r * np.maximum(mse, 1e-300) ** 2)
-    var_log = np.maximum(var_log, 1e-12)
     x = np.log(ns)
-    y = 0.5 * np.log(np.maximum(mse, 1e-300))
-    w = 1.0 / (0.25 * var_log)
-    xm = np.sum(w * x) / np.sum(w)
-    ym = np.sum(w * y) / np.sum(w)
-    sxx = np.sum(w * (x - xm) ** 2)
-    slope = float(np.sum(w * (x - xm) * (y - ym)) / sxx)
-    se = float(np.sqrt(1.0 / sxx))
-    z = (slope - expected) / se
+    total = e2.sum(axis=1)
+    slope = float(_ols_slopes(x, 0.5 * np.log(np.maximum(total / r, 1e-300)))[()])
+    # leave-one-seed-out MSEs: one row per seed left out
+    loo = np.maximum((total[None, :] - e2.T) / (r - 1), 1e-300)
+    s = _ols_slopes(x, 0.5 * np.log(loo))
+    se = float(np.sqrt((r - 1) / r * np.sum((s - s.mean()) ** 2)))
+    se = max(se, 1e-12 * max(1.0, abs(slope)))
+    t = (slope - expected) / se
+    dist = _sps.t(r - 1)
     if alternative == "two-sided":
-        p = float(2.0 * _sps.norm.sf(abs(z)))
+        p = float(2.0 * dist.sf(abs(t)))
     elif alternative == "less":
-        p = float(_sps.norm.cdf(z))
+        p = float(dist.cdf(t))
     else:
         raise ValueError(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
-    h = _sps.norm.ppf(0.5 + confidence / 2.0) * se
-    return SlopeResult(slope, se, slope - h, slope + h, expected, float(z), p, alternative)
+    h = dist.ppf(0.5 + confidence / 2.0) * se
+    return SlopeResult(slope, se, slope - h, slope + h, expected, float(t), p, alternative)
 
 
 # ------------------------------------------------------------ multiple testing

@@ -276,8 +276,10 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
 
     Notes
     -----
-    Weighted least squares of :math:`\\log \\mathrm{RMSE}` on :math:`\\log N` with
-    delta-method weights; the confidence interval is at ``1 - alpha``.
+    Least squares of :math:`\\log \\mathrm{RMSE}` on :math:`\\log N`; the standard
+    error is the jackknife's over the seeds (``stats.loglog_slope``), the test Student's
+    t with ``n_seeds - 1`` degrees of freedom; the confidence interval is at
+    ``1 - alpha``.
 
     Examples
     --------
