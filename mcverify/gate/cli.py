@@ -2,7 +2,7 @@
 
 Exit codes: 0 all checks passed (images equal); 1 a check failed, a canary survived or
 images differ; 2 bad input or environment, with one line on stderr naming what and where;
-130 interrupted (Ctrl-C), with nothing written.
+130 interrupted (Ctrl-C), with nothing written; 141 the reader of stdout left.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import time
 from ..errors import EnvironmentProblem, InvalidArgument
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_BROKEN_PIPE = 141         # 128 + SIGPIPE, as a shell reports a command whose reader left
 #: Seeds must fit the path tracer's counter-based RNG (and numpy's SeedSequence).
 MAX_SEED = 2 ** 63 - 1
 
@@ -26,6 +27,7 @@ EPILOG = """exit codes:
   2    bad input or environment: one line on stderr names what and where; no output is
        written or replaced
   130  interrupted (Ctrl-C); output files are left as they were
+  141  the reader of stdout left (mcverify list | head): no message
 
 output files (--json, --junit) are written when the run ends: a regular file is replaced
 atomically, a symlink is followed to its target, a FIFO or device (/dev/stdout) is
@@ -1001,6 +1003,11 @@ def main(argv=None) -> int:
     except (InvalidArgument, EnvironmentProblem) as e:
         print(f"mcverify: error: {' '.join(str(e).split())}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        # the reader closed the pipe (mcverify list | head -3): stop without a message,
+        # as command-line tools do, and keep Python's exit-time flush from raising again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except OSError as e:
         where = f"{e.filename}: " if e.filename else ""
         print(f"mcverify: error: {where}{e.strerror or e}", file=sys.stderr)

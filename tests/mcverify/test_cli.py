@@ -51,3 +51,20 @@ def test_bad_input_is_one_line_exit_2(args, needle):
 def test_list_names_checks():
     r = run("list", "-k", "inverse:")
     assert r.returncode == 0 and "inverse:cosine_hemisphere" in r.stdout
+
+
+def test_a_reader_that_leaves_early_ends_the_run_quietly():
+    """``mcverify list | head -3``: the reader closes the pipe; the CLI stops with 141
+    (128 + SIGPIPE, as a shell reports it) and no message. It printed "mcverify: error:
+    Broken pipe" and exited 2, which reads as bad input (an outside review)."""
+    import os
+
+    read, write = os.pipe()
+    os.close(read)                  # the reader is gone before the first line
+    try:
+        r = subprocess.run(CMD + ["list"], stdout=write, stderr=subprocess.PIPE, text=True,
+                           timeout=120)
+    finally:
+        os.close(write)
+    assert r.returncode == 141, r.stderr
+    assert r.stderr == ""
