@@ -181,6 +181,26 @@ def _render_iv(spp, seed, passes, pdf_scale, params, variance, general=None,
         raise ValueError(f"progress={progress!r}: must be callable as progress(done, total)")
 
 
+#: Bytes a pixel of the film takes in the render's buffers, at least (mean, second
+#: moment, count and the non-finite count: 3 + 3 + 1 + 1 float64 or int64).
+_FILM_BYTES_PER_PIXEL = 64
+
+
+def _film_fits(cs) -> None:
+    """Refuse, naming the film, a render whose image buffers exceed this machine's
+    physical memory (a 100000 × 100000 film failed in numpy's allocation, naming an
+    array shape; an outside review)."""
+    need = cs.width * cs.height * _FILM_BYTES_PER_PIXEL
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):      # not POSIX: numpy decides
+        return
+    if need > have:
+        raise ValueError(f"film {cs.width} x {cs.height}: its image buffers need "
+                         f"{need / 2**30:.3g} GiB, more than this machine's "
+                         f"{have / 2**30:.3g} GiB of memory")
+
+
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
            general: bool | None = None, pdf_scale: float = 1.0, params: dict | None = None,
            progress=None, variance: bool = True) -> RenderResult:
@@ -218,6 +238,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
                                          if passes > 1 else "")
                          + ": a stratified or multijitter sampler takes fewer than 2^31 "
                          "samples a pixel (its strata are 31-bit)")
+    _film_fits(cs)
     if passes > 1:
         return _render_passes(cs, spp, seed, int(passes), general, pdf_scale, progress)
     if spp < 2 and variance:

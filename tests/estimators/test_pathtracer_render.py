@@ -572,3 +572,20 @@ def test_tiles_cover_the_image_once_dealt_to_threads_like_cards(width, height, t
     for x0, y0, x1, y1 in t:
         cover[y0:y1, x0:x1] += 1
     assert np.all(cover == 1)
+
+
+@pytest.mark.parametrize("passes", [1, 4])
+def test_a_film_larger_than_the_machines_memory_is_refused_by_its_size(tmp_path, passes):
+    """A 100000 × 100000 film (75 GiB of image buffers) is refused before any work,
+    naming the film; it failed in numpy's allocation, naming an array's shape (an
+    outside review)."""
+    side = 100_000
+    have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    assert side * side * 64 > have          # the premise: beyond this machine
+    path = tmp_path / "huge.xml"
+    path.write_text(f"""<scene version="3.0.0"><integrator type="path"/>
+  <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="{side}"/>
+    <integer name="height" value="{side}"/><rfilter type="box"/></film></sensor>
+  <emitter type="constant"/><shape type="sphere"/></scene>""")
+    with pytest.raises(ValueError, match=f"film {side} x {side}: its image buffers need"):
+        render(str(path), spp=4, passes=passes)
