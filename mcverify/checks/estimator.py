@@ -37,6 +37,19 @@ def _rounding(samples) -> float:
     return _ROUNDING
 
 
+def _takes(name: str, fn, args: tuple, takes: str) -> None:
+    """InvalidArgument naming ``name`` where ``fn`` cannot be called with ``args``: a
+    wrong signature is the caller's mistake, named before any work (it raised Python's
+    bare TypeError from inside the check). A callable without a signature to read (a
+    builtin) is called as it is."""
+    try:
+        inspect.signature(fn).bind(*args)
+    except TypeError:
+        raise InvalidArgument(f"{name}={validate._show(fn)}: must take {takes}") from None
+    except ValueError:
+        pass
+
+
 def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbiased",
                    batches: int | None = None, stop_alpha: float | None = None) -> CheckResult:
     """One-sample t-test that per-sample estimates ``f(X)/p(X)`` have mean ``expected``.
@@ -84,6 +97,8 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
 
         k = validate.integer("batches", 1 if batches is None else batches, minimum=1)
         alpha = validate.probability("alpha", alpha)
+        _takes("samples", samples, (0,), "(batch), the batch's index, and return its "
+               "estimates")
         drawn: list[np.ndarray] = []
 
         def look(b):
@@ -303,13 +318,8 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     if alternative not in ("two-sided", "less"):
         raise InvalidArgument(f"alternative={alternative!r}: expected 'two-sided' or 'less'")
     seeds = np.random.SeedSequence(validate.seed("seed", seed)).generate_state(r * len(ns))
-    try:        # a wrong signature is the caller's mistake, named before any estimate
-        inspect.signature(estimate).bind(1, 2)
-    except TypeError:
-        raise InvalidArgument(f"estimate={validate._show(estimate)}: must take (n, seed), "
-                              "the sample count and a seed, and return one estimate") from None
-    except ValueError:
-        pass                                    # no signature to read (a builtin): call it
+    _takes("estimate", estimate, (1, 2), "(n, seed), the sample count and a seed, and "
+           "return one estimate")
     e2 = np.empty((len(ns), r))
     for i, n in enumerate(ns):
         for j in range(r):

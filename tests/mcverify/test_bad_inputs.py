@@ -325,6 +325,13 @@ API = [
      InvalidArgument, "must take (n, seed)"),
     ("unbiased-complex", lambda: mv.check_unbiased(np.ones(10) + 1j, 1.0), InvalidArgument,
      "samples: complex values"),
+    # a draw function that cannot take the batch index raised Python's bare TypeError
+    # from inside the sequential test (an outside review)
+    ("unbiased-draw-no-argument", lambda: mv.check_unbiased(lambda: np.ones(10), 1.0,
+                                                            batches=4),
+     InvalidArgument, "must take (batch), the batch's index"),
+    ("unbiased-draw-two-arguments", lambda: mv.check_unbiased(lambda b, s: np.ones(10), 1.0),
+     InvalidArgument, "must take (batch)"),
     ("scene-missing", lambda: load_scene("/nonexistent/scene.xml"), SceneError,
      "/nonexistent/scene.xml"),
     ("scene-dev-zero", lambda: load_scene("/dev/zero"), SceneError,
