@@ -134,7 +134,8 @@ def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0
                                            n_min=n_min, n_max=n_max)
     if untimed:
         n_samples.update((name, n_min) for name in untimed)
-        notes += (f"calibration stopped when start-up and calibration had taken "
+        notes += (f"calibration stopped timing sampler checks when start-up and calibration "
+                  f"had taken "
                   f"{stopped_at:.1f}s, past two thirds of the {budget:g}s budget "
                   f"({_CALIBRATION_SHARE * budget:.1f}s"
                   + ("; the last timed check ran past it" if per else

@@ -378,13 +378,19 @@ def _cmd_check(args) -> int:
             print(f"note: {note}")
         ns = sorted(plan.n_samples.values())
         seen = {k: e for k, e in (bought or {}).items() if e is not None}
+        head = (f"budget {args.budget:g}s (took {_seconds_since_start():.1f}s, predicted "
+                f"{plan.predicted_seconds:.1f}s; start-up {plan.startup_seconds:.1f}s, "
+                f"calibration {plan.calibration_seconds:.1f}s with the fixed-size checks "
+                f"and canaries it also timed)")
         if ns and seen:
             worst = max(seen, key=seen.get)
-            print(f"budget {args.budget:g}s (took {_seconds_since_start():.1f}s, predicted "
-                  f"{plan.predicted_seconds:.1f}s; start-up {plan.startup_seconds:.1f}s, "
-                  f"calibration {plan.calibration_seconds:.1f}s): sampler checks at n = "
-                  f"{ns[0]:,} to {ns[-1]:,}; each catches uniform contamination of "
-                  f"{100 * seen[worst]:.2g} % or less at 95 % power (worst: {worst})")
+            print(f"{head}: sampler checks at n = {ns[0]:,} to {ns[-1]:,}; each catches "
+                  f"uniform contamination of {100 * seen[worst]:.2g} % or less at 95 % "
+                  f"power (worst: {worst})")
+        elif not ns:
+            # said, not left out: a -k without sampler checks has nothing to scale
+            print(f"{head}: no sampler check selected, nothing to scale; every check ran "
+                  "at its fixed size")
     n = len(result.results)
     print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
           f" (family-wise alpha={args.alpha} by {result.correction}; canaries "

@@ -125,6 +125,16 @@ def test_cli_budget_puts_the_chosen_n_and_the_power_into_the_json(tmp_path):
     assert 0 < budget["detectable_contamination"]["sampler:cosine_hemisphere"] < 1
 
 
+def test_cli_budget_without_a_sampler_check_says_so():
+    """A ``-k`` that selects no sampler check has nothing to scale: the budget line says
+    that instead of being left out (an outside review)."""
+    r = subprocess.run([sys.executable, "-m", "mcverify", "check", "--budget", "2", "-k",
+                        "inverse:cosine_hemisphere", "-q"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "budget 2s" in r.stdout and "no sampler check selected" in r.stdout, r.stdout
+
+
 def test_cli_budget_refuses_bad_values():
     for args, needle in ((["--budget", "0"], "positive"), (["--budget", "nan"], "positive"),
                          (["--budget", "5", "--scene", "x.xml"], "--scene")):
@@ -143,7 +153,8 @@ def test_calibration_stops_at_two_thirds_of_the_budget():
     assert plan.n_samples == {"sampler:cosine_hemisphere": 1 << 17}
     # the note gives the time at the stop and the share it passed (it called the time at
     # the end of calibration "two thirds of the budget": 14.1 s of 15 s)
-    assert any(n.startswith("calibration stopped when start-up and calibration had taken "
+    assert any(n.startswith("calibration stopped timing sampler checks when start-up and "
+                            "calibration had taken "
                             ) and "s, past two thirds of the 10s budget (6.7s" in n
                and "1 of 1 sampler checks" in n for n in plan.notes), plan.notes
     # no check was timed: the note does not speak of "the last timed check"
