@@ -12,6 +12,7 @@ inherit it instead of probing the same library again (about a second each).
 from __future__ import annotations
 
 import glob
+import numbers
 import os
 import re
 import subprocess
@@ -395,13 +396,13 @@ def mi():
 _ONE_MINUS_EPS32 = 1.0 - 2.0 ** -24   # float32 uniform numbers stay below 1
 
 
-def _point3(name: str, v) -> tuple[float, float, float]:
+def _point3(name: str, v, size: int = 3) -> tuple[float, ...]:
     try:
         a = np.asarray(v, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         a = np.empty(0)
-    if a.size != 3 or not np.all(np.isfinite(a)):
-        raise InvalidArgument(f"{name}={v!r}: expected a finite 3-vector")
+    if a.size != size or not np.all(np.isfinite(a)):
+        raise InvalidArgument(f"{name}={v!r}: expected a finite {size}-vector")
     return tuple(float(c) for c in a)
 
 
@@ -552,14 +553,18 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
     m = _mi()
     obj = _load(plugin, "plugin", ("BSDF",))
     w = _unit3("wi", wi)
-    if component is not None and not (isinstance(component, int)
-                                      and 0 <= component < obj.component_count()):
+    # uv reaches Mitsuba at the first draw, inside the check: a bad one raised a bare
+    # IndexError or ValueError there, and NaN was taken
+    uv = _point3("uv", uv, 2)
+    if component is not None and (isinstance(component, bool)
+                                  or not isinstance(component, numbers.Integral)
+                                  or not 0 <= component < obj.component_count()):
         raise InvalidArgument(f"component={component!r}: this BSDF has "
                               f"{obj.component_count()} components (0..."
                               f"{obj.component_count() - 1})")
     ctx = m.BSDFContext()
     if component is not None:
-        ctx.component = component
+        ctx.component = int(component)
     delta = int(m.BSDFFlags.Delta)
 
     def interaction(n):
@@ -567,7 +572,7 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
         si.wi = m.Vector3f(*w)
         si.n = m.Normal3f(0.0, 0.0, 1.0)
         si.sh_frame = m.Frame3f(m.Vector3f(0.0, 0.0, 1.0))
-        si.uv = m.Point2f(float(uv[0]), float(uv[1]))
+        si.uv = m.Point2f(*uv)
         return si
 
     def draw(cols, n):

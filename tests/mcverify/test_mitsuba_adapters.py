@@ -196,6 +196,11 @@ def test_float32_directions_near_the_pole_keep_their_angle():
     (lambda: mvm.bsdf("diffuse", wi=(0, 0, 1)), "plugin=.*must be Mitsuba XML"),
     (lambda: mvm.bsdf({"type": "constant"}, wi=(0, 0, 1)), "expected a mitsuba.BSDF"),
     (lambda: mvm.bsdf({"type": "roughplastic"}, wi=(0, 0, 1), component=2), "component=2"),
+    (lambda: mvm.bsdf({"type": "plastic"}, wi=(0, 0, 1), component=True), "component=True"),
+    (lambda: mvm.bsdf({"type": "diffuse"}, wi=(0, 0, 1), uv=(0.5,)), "uv=.*2-vector"),
+    (lambda: mvm.bsdf({"type": "diffuse"}, wi=(0, 0, 1), uv=0.5), "uv=.*2-vector"),
+    (lambda: mvm.bsdf({"type": "diffuse"}, wi=(0, 0, 1), uv=("a", 0)), "uv=.*2-vector"),
+    (lambda: mvm.bsdf({"type": "diffuse"}, wi=(0, 0, 1), uv=(np.nan, 0.5)), "uv=.*finite"),
     (lambda: mvm.emitter({"type": "point"}), "delta emitter"),
     (lambda: mvm.emitter({"type": "rectangle"}), "shape without an emitter"),
     (lambda: mvm.emitter({"type": "constant"}, ref=(0, 0)), "ref=.*3-vector"),
@@ -205,7 +210,8 @@ def test_float32_directions_near_the_pole_keep_their_angle():
     (lambda: mvm.microfacet("ggx", 0.1, wi=(0, 0, -1)), "above the horizon"),
     (lambda: mvm.phase({"type": "diffuse"}), "expected a mitsuba.PhaseFunction"),
 ], ids=["wi-length", "wi-size", "wi-nan", "unknown-plugin", "not-xml", "wrong-class",
-        "component", "delta-emitter", "no-emitter", "ref-size", "distribution", "alpha-zero",
+        "component", "component-bool", "uv-size", "uv-scalar", "uv-str", "uv-nan",
+        "delta-emitter", "no-emitter", "ref-size", "distribution", "alpha-zero",
         "alpha-v", "visible-below", "phase-class"])
 def test_bad_arguments_raise_invalid_argument(call, match):
     with pytest.raises(mv.InvalidArgument, match=match):
@@ -288,3 +294,10 @@ def test_seeds_above_32_bits_reach_mitsuba_reduced():
     assert np.array_equal(a, b)
     assert mvm.mitsuba_seed(2 ** 32 - 1) == 2 ** 32 - 1 and mvm.mitsuba_seed(2 ** 32) == 0
     assert _shifted(2 ** 63 - 1, 10) == 9 and _shifted(5, 10) == 15
+
+
+def test_a_numpy_integer_component_is_a_component():
+    """component=np.int64(1) was refused as out of range ("this BSDF has 2 components")."""
+    s, p, d, kw = mvm.bsdf({"type": "plastic"}, wi=(0, 0, 1), component=np.int64(1))
+    x = s(np.random.default_rng(0).random((1000, 3)))
+    assert np.all(np.isfinite(x)) and np.all(x[:, 2] > 0)    # the diffuse lobe only
