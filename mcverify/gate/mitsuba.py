@@ -23,6 +23,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from .. import _validate
 from ..errors import EnvironmentProblem, InvalidArgument
 
 __all__ = ["VariantChoice", "choose_variant", "mitsuba_warps", "mitsuba_version", "mi",
@@ -677,10 +678,23 @@ def microfacet(distribution: str, alpha, *, wi=(0.0, 0.0, 1.0),
     types = {"ggx": m.MicrofacetType.GGX, "beckmann": m.MicrofacetType.Beckmann}
     if distribution not in types:
         raise InvalidArgument(f"distribution={distribution!r}: expected 'ggx' or 'beckmann'")
-    au, av = (alpha, alpha) if np.ndim(alpha) == 0 else tuple(alpha)
+    if isinstance(alpha, np.ndarray) and alpha.ndim == 0:
+        alpha = alpha.item()
+    if isinstance(alpha, (list, tuple, np.ndarray)):
+        if len(alpha) != 2:     # was a bare "too many values to unpack"
+            raise InvalidArgument(f"alpha={alpha!r}: one roughness or a pair "
+                                  "(alpha_u, alpha_v)")
+        au, av = alpha
+    else:
+        au = av = alpha
     for name, a in (("alpha_u", au), ("alpha_v", av)):
-        if not (isinstance(a, (int, float)) and np.isfinite(a) and a > 0):
+        # numpy's floats are numbers too (np.float32(0.1) was refused); a bool is not
+        # (alpha=True was α = 1)
+        if (isinstance(a, bool) or not isinstance(a, numbers.Real) or not np.isfinite(a)
+                or not a > 0):
             raise InvalidArgument(f"alpha={alpha!r}: {name} must be a positive number")
+    # sample_visible="False" was true
+    sample_visible = _validate.boolean("sample_visible", sample_visible)
     w = _unit3("wi", wi)
     if sample_visible and w[2] <= 0:
         raise InvalidArgument(f"wi={wi!r}: visible normals need wi above the horizon (z > 0)")

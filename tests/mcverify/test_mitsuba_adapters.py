@@ -208,11 +208,18 @@ def test_float32_directions_near_the_pole_keep_their_angle():
     (lambda: mvm.microfacet("ggx", 0.0), "alpha=0.0: alpha_u must be a positive"),
     (lambda: mvm.microfacet("ggx", (0.1, -1.0)), "alpha_v must be a positive"),
     (lambda: mvm.microfacet("ggx", 0.1, wi=(0, 0, -1)), "above the horizon"),
+    (lambda: mvm.microfacet("ggx", (0.1, 0.2, 0.3)), "alpha=.*one roughness or a pair"),
+    (lambda: mvm.microfacet("ggx", [0.1]), "alpha=.*one roughness or a pair"),
+    (lambda: mvm.microfacet("ggx", True), "alpha=True: alpha_u must be a positive"),
+    (lambda: mvm.microfacet("ggx", "0.1"), "alpha='0.1': alpha_u must be a positive"),
+    (lambda: mvm.microfacet("ggx", 0.1, sample_visible="False"),
+     "sample_visible='False': must be True or False"),
     (lambda: mvm.phase({"type": "diffuse"}), "expected a mitsuba.PhaseFunction"),
 ], ids=["wi-length", "wi-size", "wi-nan", "unknown-plugin", "not-xml", "wrong-class",
         "component", "component-bool", "uv-size", "uv-scalar", "uv-str", "uv-nan",
         "delta-emitter", "no-emitter", "ref-size", "distribution", "alpha-zero",
-        "alpha-v", "visible-below", "phase-class"])
+        "alpha-v", "visible-below", "alpha-3", "alpha-1", "alpha-bool", "alpha-str",
+        "visible-str", "phase-class"])
 def test_bad_arguments_raise_invalid_argument(call, match):
     with pytest.raises(mv.InvalidArgument, match=match):
         call()
@@ -301,3 +308,13 @@ def test_a_numpy_integer_component_is_a_component():
     s, p, d, kw = mvm.bsdf({"type": "plastic"}, wi=(0, 0, 1), component=np.int64(1))
     x = s(np.random.default_rng(0).random((1000, 3)))
     assert np.all(np.isfinite(x)) and np.all(x[:, 2] > 0)    # the diffuse lobe only
+
+
+def test_numpy_roughnesses_are_roughnesses():
+    """np.float32(0.1) was refused ("alpha_u must be a positive number")."""
+    a = mvm.microfacet("ggx", np.float32(0.1))
+    b = mvm.microfacet("ggx", np.array([0.1, 0.1]))
+    c = mvm.microfacet("ggx", np.array(0.1))
+    u = np.random.default_rng(0).random((1000, 2))
+    assert np.allclose(a.sample(u), b.sample(u), atol=1e-6)
+    assert np.allclose(c.sample(u), b.sample(u), atol=1e-6)
