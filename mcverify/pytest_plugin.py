@@ -5,7 +5,10 @@ Fixtures:
 - ``mcverify_seed``: the seed for this run (``--mcverify-seed``, default 0), so a CI
   job can pin or vary it.
 - ``assert_check``: call it on a ``CheckResult``; it fails the test with the check's
-  failures and messages (p-value, worst cell, ``u -> x -> u'`` chain) when it did not pass.
+  failures and messages (p-value, worst cell, ``u -> x -> u'`` chain) and the seeds
+  (the check's, where it records one, and ``--mcverify-seed``) when it did not pass.
+
+The run's ``--mcverify-seed`` is in pytest's header.
 
 Under pytest-xdist (``-n N``), each worker's numba parallel loops get an equal share of
 the cores, ``NUMBA_NUM_THREADS // N`` threads (at least 1), as mcverify's own worker
@@ -70,13 +73,20 @@ def pytest_configure(config):
         os.environ["MCVERIFY_NUM_THREADS"] = str(threads)
 
 
+def pytest_report_header(config):
+    # the seed a failure reproduces with (a CI job that varies it printed it nowhere)
+    return f"mcverify: --mcverify-seed={config.getoption('mcverify_seed')}"
+
+
 @pytest.fixture
 def mcverify_seed(request) -> int:
     return request.config.getoption("--mcverify-seed")
 
 
 @pytest.fixture
-def assert_check():
+def assert_check(request):
+    run_seed = request.config.getoption("mcverify_seed")
+
     def check(result):
         __tracebackhide__ = True
         from mcverify.result import CheckResult
@@ -86,6 +96,9 @@ def assert_check():
                         f"{type(result).__name__} {result!r:.80}", pytrace=False)
         if not result.passed:
             lines = [result.summary(), *result.failures, *result.messages]
+            seed = result.details.get("seed")
+            lines.append(("" if seed is None else f"check seed={seed}; ")
+                         + f"run with --mcverify-seed={run_seed}")
             pytest.fail("\n".join(lines), pytrace=False)
         return result
 

@@ -77,3 +77,21 @@ def test_this_run_shares_the_cores_unless_told_not_to(pytestconfig):
         r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                            timeout=120, check=True)
         assert int(r.stdout) == share
+
+
+def test_the_seed_is_in_the_header_and_in_a_failure(tmp_path):
+    """A failing check said nothing of the seed it ran with, nor did pytest's header: a CI
+    job that varies --mcverify-seed could not say which one to rerun."""
+    (tmp_path / "test_x.py").write_text(
+        "import mcverify as mv\n"
+        "from estimators import warps as W\n"
+        "def test_x(assert_check, mcverify_seed):\n"
+        "    assert_check(mv.check_sampler(W.sample_cosine_hemisphere,\n"
+        "        lambda x: 1.05 * W.cosine_hemisphere_pdf(x), 'hemisphere',\n"
+        "        n_samples=20_000, seed=mcverify_seed + 1))\n")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
+                        "--mcverify-seed", "41", str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.TESTS_FAILED, (r.stdout, r.stderr)
+    assert "mcverify: --mcverify-seed=41" in r.stdout, r.stdout
+    assert "check seed=42; run with --mcverify-seed=41" in r.stdout, r.stdout
