@@ -6,6 +6,8 @@ Public API
 ==============================  ======================================================
 ``check_sampler``               χ² (+ marginals / KS) of a sampler against its pdf
 ``check_inverse``               CDF-inversion round trip ``inverse(sample(u)) ≈ u``
+``check_stability``             property-based search (hypothesis) for a u at which a
+                                sampler, its pdf or inverse breaks (edges, subnormals)
 ``check_same_distribution``     two-sample test of two samplers (regression checks)
 ``detectable_contamination``    the power a ``check_sampler`` result had: the mixture
                                 weight of uniform it would catch at 95 %
@@ -37,8 +39,8 @@ prefer_wide_vectors()       # before any numba function is defined: see mcnumba.
 
 from ._version import __version__
 from .checks import (check_convergence, check_inverse, check_same_distribution,
-                     check_sampler, check_unbiased, check_variance, compare_images,
-                     detectable_contamination)
+                     check_sampler, check_stability, check_unbiased, check_variance,
+                     compare_images, detectable_contamination)
 from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
 from .errors import EnvironmentProblem, InvalidArgument
 from .result import CheckResult, SuiteResult, write_json, write_junit
@@ -46,7 +48,7 @@ from .result import CheckResult, SuiteResult, write_json, write_junit
 __all__ = [
     "check_sampler", "check_inverse", "check_same_distribution", "detectable_contamination",
     "check_unbiased", "check_variance", "check_convergence", "compare_images",
-    "render_check", "CheckResult", "SuiteResult", "write_json", "write_junit",
+    "check_stability", "render_check", "CheckResult", "SuiteResult", "write_json", "write_junit",
     "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",
     "InvalidArgument", "EnvironmentProblem", "__version__",
 ]

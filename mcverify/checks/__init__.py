@@ -5,7 +5,9 @@ from .estimator import check_convergence, check_unbiased, check_variance
 from .image import compare_images
 from .sampler import (check_inverse, check_same_distribution, check_sampler,
                       detectable_contamination)
+from .stability import check_stability
 
 __all__ = ["check_sampler", "check_inverse", "check_same_distribution",
            "detectable_contamination",
-           "check_unbiased", "check_variance", "check_convergence", "compare_images"]
+           "check_unbiased", "check_variance", "check_convergence", "compare_images",
+           "check_stability"]

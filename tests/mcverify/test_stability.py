@@ -1,0 +1,94 @@
+"""check_stability: the property-based search for a u at which a sampler, its pdf or its
+inverse breaks. Fragile samplers of our own fail at the u that shows it; every warp of
+the subject passes; the search is reproducible by seed."""
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+from estimators.warps import WARPS
+
+
+def _sphere_from_z(z, u):
+    r = np.sqrt(1.0 - z * z)
+    phi = 2.0 * np.pi * u[:, 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def test_an_exponential_by_log_u_fails_at_u_zero():
+    r = mv.check_stability(lambda u: -np.log(u), mv.Interval(0, 800), sample_dim=1,
+                           max_examples=200)
+    assert not r.passed and r.details["u"] == [0.0]
+    assert "is not finite" in r.failures[0] and r.p_value is None
+
+
+def test_a_point_off_the_domain_a_density_at_the_horizon_and_an_inverse_past_one():
+    # z a hair above 1 at u = 0: sqrt of a negative number
+    r = mv.check_stability(lambda u: _sphere_from_z(1.0000000000000002 - 0.1 * u[:, 0], u),
+                           "sphere", max_examples=200)
+    assert not r.passed and r.details["u"][0] == 0.0
+    # the cosine lobe's "pdf" divided by cos θ: infinite where u reaches the horizon
+    cos = WARPS["cosine_hemisphere"]
+    r = mv.check_stability(cos.sample, "hemisphere", pdf=lambda x: 1.0 / (np.pi * x[:, 2]),
+                           max_examples=200)
+    assert not r.passed and "pdf" in r.details["problem"]
+    # an inverse that overshoots 1 near the top end
+    r = mv.check_stability(lambda u: u, mv.Interval(0, 1), sample_dim=1,
+                           inverse=lambda x: x * 1.0000001, max_examples=500)
+    assert not r.passed and "is not in [0, 1]" in r.details["problem"]
+    assert r.details["u"][0] > 0.99
+
+
+def test_a_sampler_that_raises_and_one_that_rounds_to_one_in_float32():
+    def raises(u):
+        if np.any(u == 0.0):
+            raise ZeroDivisionError("u = 0")
+        return u
+    r = mv.check_stability(raises, mv.Interval(0, 1), sample_dim=1, max_examples=50)
+    assert not r.passed and "sample raised ZeroDivisionError" in r.details["problem"]
+    # float64 u near 1 rounded to float32 becomes 1: log(1 - u) = -inf
+    r = mv.check_stability(lambda u: -np.log1p(-u.astype(np.float32)), mv.Interval(0, 200),
+                           sample_dim=1, max_examples=200)
+    assert not r.passed and r.details["u"][0] > 0.999
+
+
+def test_rejected_draws_pass_only_with_rejection():
+    half = lambda u: np.where(u[:, :1] < 0.5, np.nan, u[:, :1])     # noqa: E731
+    assert not mv.check_stability(half, "interval", sample_dim=1, max_examples=50).passed
+    assert mv.check_stability(half, "interval", sample_dim=1, rejection=True,
+                              max_examples=50).passed
+
+
+@pytest.mark.parametrize("name", sorted(WARPS))
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_every_warp_of_the_subject_is_stable(name, dtype):
+    """The corners of the edge values and 100 searched u each, float64 and float32 u."""
+    w = WARPS[name]
+    p = tuple(float(v) for v in w.defaults)
+    dom_name, args = w.domain_spec(*p)
+    dom = mv.Interval(*args) if dom_name == "interval" else dom_name
+    r = mv.check_stability(lambda u: w.sample(u, *p), dom, sample_dim=w.sample_dim,
+                           pdf=lambda x: w.pdf(x, *p),
+                           inverse=None if w.invert is None else (lambda x: w.invert(x, *p)),
+                           dtype=dtype, max_examples=100, seed=2)
+    assert r.passed, r.failures
+
+
+def test_the_search_is_reproducible_by_seed():
+    f = lambda u: np.where(u[:, :1] > 0.9999, np.inf, u[:, :1])   # noqa: E731
+    a = mv.check_stability(f, "interval", sample_dim=1, max_examples=300, seed=4)
+    b = mv.check_stability(f, "interval", sample_dim=1, max_examples=300, seed=4)
+    assert not a.passed and a.details == b.details
+
+
+@pytest.mark.parametrize("call, needle", [
+    (lambda: mv.check_stability(3, "interval"), "sample"),
+    (lambda: mv.check_stability(np.sqrt, "interval", dtype=np.float16), "dtype"),
+    (lambda: mv.check_stability(np.sqrt, "interval", max_examples=-1), "max_examples"),
+    (lambda: mv.check_stability(np.sqrt, "interval", rejection="yes"), "rejection"),
+    (lambda: mv.check_stability(np.sqrt, "interval", pdf=5), "pdf"),
+    (lambda: mv.check_stability(np.sqrt, "cube"), "cube"),
+])
+def test_bad_arguments_are_named(call, needle):
+    with pytest.raises(mv.InvalidArgument, match=needle):
+        call()
