@@ -45,45 +45,69 @@ def _u_strategy(dim: int, dtype):
     return st.tuples(*([one] * dim))
 
 
-def _first_problem(u, sample, pdf, inverse, domain, rejection, dtype) -> str | None:
-    """What is wrong at u (a tuple), or None: the contract of one sample."""
+def _first_problem(rows, sample, pdf, inverse, domain, rejection):
+    """(index, what is wrong) of the first row of u (k, d) that breaks the contract, or
+    None. The rows go to each callable together; where one raises, row by row, to name
+    the u it raised at."""
     with np.errstate(all="ignore"):     # the findings are reported, not warned about
-        return _problem_at(np.asarray([u], dtype=dtype), sample, pdf, inverse, domain,
-                           rejection)
+        found = _batch(rows, sample, pdf, inverse, domain, rejection)
+        if found is None or found[0] >= 0 or len(rows) == 1:
+            return found if found is None or found[0] >= 0 else (0, found[1])
+        for i in range(len(rows)):
+            one = _batch(rows[i:i + 1], sample, pdf, inverse, domain, rejection)
+            if one is not None:
+                return i, one[1]
+    return None
 
 
-def _problem_at(row, sample, pdf, inverse, domain, rejection) -> str | None:
+def _call(what, fn, arg):
     try:
-        x = np.asarray(sample(row))
-    except Exception as e:  # noqa: BLE001 - a sampler that raises at some u is the finding
-        return f"sample raised {type(e).__name__}: {e}"
+        return np.asarray(fn(arg)), None
+    except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
+        return None, f"{what} raised {type(e).__name__}: {e}"
+
+
+def _batch(rows, sample, pdf, inverse, domain, rejection):
+    """``_first_problem`` of one call per callable: (-1, message) where one raised."""
+    x, raised = _call("sample", sample, rows)
+    if raised:
+        return -1, raised
     try:
         x = domain.points(x)
     except (ValueError, TypeError) as e:
-        return f"sample returned {x!r}, not one point of the {domain!r}: {e}"
-    if x.shape[0] != 1:
-        return f"sample returned {x.shape[0]} points for one u"
-    if rejection and np.all(np.isnan(x)):
-        return None                                     # a rejected draw
-    if not np.all(np.isfinite(x)):
-        return f"point {x[0].tolist()} is not finite"
-    if not domain.inside(x)[0]:
-        return f"point {x[0].tolist()} lies outside the {domain!r}"
-    if pdf is not None:
-        try:
-            p = np.asarray(pdf(x), dtype=np.float64).reshape(-1)
-        except Exception as e:  # noqa: BLE001
-            return f"pdf raised {type(e).__name__}: {e} at x={x[0].tolist()}"
-        if p.size == 1 and not (np.isfinite(p[0]) and p[0] >= 0.0):
-            return f"pdf {p[0]!r} at x={x[0].tolist()} (must be finite and >= 0)"
-    if inverse is not None:
-        try:
-            back = np.asarray(inverse(x), dtype=np.float64).reshape(-1)
-        except Exception as e:  # noqa: BLE001
-            return f"inverse raised {type(e).__name__}: {e} at x={x[0].tolist()}"
-        if not (np.all(np.isfinite(back)) and np.all((back >= 0.0) & (back <= 1.0))):
-            return f"inverse {back.tolist()} of x={x[0].tolist()} is not in [0, 1]"
-    return None
+        return -1, f"sample returned {x!r}, not points of the {domain!r}: {e}"
+    if x.shape[0] != rows.shape[0]:
+        return -1, f"sample returned {x.shape[0]} points for {rows.shape[0]} u"
+    rejected = np.all(np.isnan(x), axis=1) if rejection else np.zeros(len(x), bool)
+    problems = {}                   # row -> the first thing wrong there
+    finite = np.all(np.isfinite(x), axis=1)
+    inside = domain.inside(x)
+    for i in np.flatnonzero(~rejected & ~(finite & inside)):
+        problems[i] = (f"point {x[i].tolist()} is not finite" if not finite[i] else
+                       f"point {x[i].tolist()} lies outside the {domain!r}")
+    good = np.flatnonzero(~rejected & finite & inside)
+    if pdf is not None and len(good):
+        p, raised = _call("pdf", pdf, x[good])
+        if raised:
+            return -1, raised
+        p = np.asarray(p, dtype=np.float64).reshape(-1)
+        if p.size == len(good):
+            for j in np.flatnonzero(~(np.isfinite(p) & (p >= 0.0))):
+                problems.setdefault(good[j], f"pdf {float(p[j])!r} at x={x[good[j]].tolist()} "
+                                             "(must be finite and >= 0)")
+    if inverse is not None and len(good):
+        back, raised = _call("inverse", inverse, x[good])
+        if raised:
+            return -1, raised
+        back = np.asarray(back, dtype=np.float64).reshape(len(good), -1)
+        ok = np.all(np.isfinite(back) & (back >= 0.0) & (back <= 1.0), axis=1)
+        for j in np.flatnonzero(~ok):
+            problems.setdefault(good[j], f"inverse {back[j].tolist()} of "
+                                         f"x={x[good[j]].tolist()} is not in [0, 1]")
+    if not problems:
+        return None
+    i = min(problems)
+    return int(i), problems[i]
 
 
 def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
@@ -130,16 +154,17 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
     name = validate.label(name, f"stability:{_name_of(sample, 'sample')}")
 
     def problem(u):
-        return _first_problem(u, sample, pdf, inverse, dom, rejection, dtype)
+        hit = _first_problem(np.asarray([u], dtype=dtype), sample, pdf, inverse, dom,
+                             rejection)
+        return None if hit is None else hit[1]
 
     edges = EDGES32 if dtype == np.float32 else EDGES
     corner_values = edges if k <= 3 else (0.0, 0.5, edges[-1])
-    tried, found = 0, None
-    for u in itertools.product(corner_values, repeat=k):
-        tried += 1
-        if problem(u) is not None:
-            found = u
-            break
+    corners = np.array(list(itertools.product(corner_values, repeat=k)), dtype=dtype)
+    hit = _first_problem(corners, sample, pdf, inverse, dom, rejection)
+    tried, found = len(corners), None
+    if hit is not None:
+        tried, found = hit[0] + 1, tuple(corners[hit[0]].tolist())
     if found is None and m > 0:
         from hypothesis import HealthCheck, Phase, errors, find, settings
 

@@ -80,6 +80,8 @@ class Profile:
     #: on a Python pdf, scipy's beta ppf): the judge's speed cannot buy them samples.
     costly_samples: int = 1_000_000
     n_overrides: tuple[tuple[str, int], ...] = ()
+    #: u searched by each warp's stability check after its corners of edge values
+    stability_examples: int = 200
 
     def n(self, name: str, default: int) -> int:
         return dict(self.n_overrides).get(name, default)
@@ -99,7 +101,7 @@ SUITES = {
     "default": Profile(n_samples=10_000_000, sweep=False, mitsuba_samples=1_000_000),
     # "full": nightly, parameter sweeps (extremes included) at 2e7 samples.
     "full": Profile(n_samples=20_000_000, sweep=True, mitsuba_samples=2_000_000,
-                    costly_samples=2_000_000),
+                    costly_samples=2_000_000, stability_examples=2000),
 }
 
 
@@ -159,6 +161,17 @@ def _warp_checks(profile: Profile) -> list[Check]:
 
                 out.append(Check("inverse:" + label, run_inverse, ("estimators", "inverse"),
                                  frozenset({("inverse", warp.name)})))
+
+            def run_stability(seed, w=warp, p=params, label=label):
+                return checks.check_stability(
+                    lambda u: w.sample(u, *p), _domain(w.domain_spec(*p)),
+                    sample_dim=w.sample_dim, pdf=lambda x: w.pdf(x, *p),
+                    inverse=None if w.invert is None else (lambda x: w.invert(x, *p)),
+                    max_examples=profile.stability_examples, seed=seed,
+                    name="stability:" + label)
+
+            out.append(Check("stability:" + label, run_stability, ("estimators", "stability"),
+                             frozenset({("stability", warp.name)})))
     return out
 
 
