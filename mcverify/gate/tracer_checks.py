@@ -8,7 +8,8 @@ checked as a whole (the mixture; the mask's null part is a rejected draw) and ea
 nested in it as its own row; and every emitter with a density
 (area lights, constant and envmap environments; not point, spot or directional lights)
 from ``reference_points``: the camera's position, the centre of the scene's bounds and
-the point half way between. The subject is ``estimators.pathtracer.sampling`` (the
+the point half way between (a mesh light whose vertex normals lean off its faces with
+its face normals: ``_face_normals``). The subject is ``estimators.pathtracer.sampling`` (the
 tracer's own kernels, with the parameters the scene gives: α (or α_u, α_v), η,
 distribution, weights, coat tables, blend weights and opacities). Draws can be rejected (zero pdf, a delta lobe, a light's back side), so the
 judge runs with ``rejection=True``: the pdf integrates to the acceptance probability.
@@ -105,6 +106,36 @@ def _both_sides(bi, b: int) -> bool:
     return bool(bi[b, layout.BSDF_TWOSIDED]) or kind == layout.ROUGHDIELECTRIC
 
 
+def _face_normals(scene, k: int):
+    """``scene``, or a copy whose area light ``k`` has its triangles' vertex normals
+    dropped where they are not all along the face normals. A mesh light's samples carry
+    the interpolated normal, and its pdf takes the cosine there, as Mitsuba's
+    ``Mesh::sample_position`` does: where that normal leans off the face's, the pdf is not
+    the density of the sampled directions (which is the face's cosine over the squared
+    distance), and the χ² check would fail a tracer that renders as Mitsuba. With face
+    normals the check still covers the choice of triangle, the triangle warp and the
+    change to solid angle."""
+    import dataclasses
+
+    from estimators.pathtracer import layout
+
+    a = scene.arrays
+    first = int(a.light_i[k, layout.LIGHT_PRIM])
+    if a.prim_info[first, layout.PRIM_KIND] != layout.TRIANGLE:
+        return scene
+    rows = np.arange(first, first + int(a.light_i[k, layout.LIGHT_PRIM_COUNT]))
+    v = a.prims[rows, :9].reshape(-1, 3, 3)
+    g = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    g /= np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
+    n = a.prims[rows, 9:18].reshape(-1, 3, 3)
+    along = np.abs(np.einsum("tvc,tc->tv", n, g)) >= (1.0 - 1e-9) * np.linalg.norm(n, axis=2)
+    if np.all(along | ~np.any(n != 0.0, axis=2)):
+        return scene
+    prims = a.prims.copy()
+    prims[rows, 9:18] = 0.0
+    return dataclasses.replace(scene, arrays=a._replace(prims=prims))
+
+
 def _fmt(p) -> str:
     return "(" + ",".join(f"{c:.3g}" for c in p) + ")"
 
@@ -139,6 +170,9 @@ def scene_instances(scene_path: str):
             continue
         area = scene.arrays.light_i[k, layout.LIGHT_KIND] == layout.AREA
         refs = reference_points(scene) if area else reference_points(scene)[:1]
+        light_scene = _face_normals(scene, k) if area else scene
+        if light_scene is not scene:
+            label += "(face normals)"
         # points that coincide (the camera at the bounds' centre) or print alike: one
         # check each, under a name of its own
         unique: dict[str, tuple] = {}
@@ -146,7 +180,7 @@ def scene_instances(scene_path: str):
             unique.setdefault(_fmt(p), p)
         for where, p in unique.items():
             entries.append(("emitter", label, f"ref={where}",
-                            lambda k=k, p=p: emitter_sampler(scene, k, p)))
+                            lambda k=k, p=p, s=light_scene: emitter_sampler(s, k, p)))
     return entries, skipped
 
 
