@@ -56,18 +56,19 @@ def _emitter_pdf_rows(light_f, light_i, prims, info, shape_flip, leaf, leaf_info
         if not area:
             out[i] = environment_pdf(light_f, light_i, env_marg, env_cond, k, dx, dy, dz)
             continue
-        best, hit, b1, b2 = np.inf, -1, 0.0, 0.0
+        # every point of the light along the ray, not only the nearest: the sampler
+        # draws points by area without testing visibility, so a part of the light
+        # behind another (a folded mesh) adds its density to the same direction
+        total = 0.0
         for r in rows:
-            t, c1, c2 = _hit_prim(leaf[r], leaf_info[r, LEAF_KIND], x, y, z, dx, dy, dz)
-            if t < best:
-                best, hit, b1, b2 = t, r, c1, c2
-        if hit < 0:
-            out[i] = 0.0
-            continue
-        j = leaf_info[hit, LEAF_PRIM]
-        s = surface(prims, info, j, x, y, z, dx, dy, dz, best, b1, b2)
-        cos_y = -(s[6] * dx + s[7] * dy + s[8] * dz)
-        if shape_flip[info[j, PRIM_SHAPE]]:
-            cos_y = -cos_y
-        out[i] = area_pdf(light_f, light_i, prims, info, k, x, y, z, best, cos_y) \
-            if cos_y > 0.0 else 0.0
+            t, b1, b2 = _hit_prim(leaf[r], leaf_info[r, LEAF_KIND], x, y, z, dx, dy, dz)
+            if t == np.inf:
+                continue
+            j = leaf_info[r, LEAF_PRIM]
+            s = surface(prims, info, j, x, y, z, dx, dy, dz, t, b1, b2)
+            cos_y = -(s[6] * dx + s[7] * dy + s[8] * dz)
+            if shape_flip[info[j, PRIM_SHAPE]]:
+                cos_y = -cos_y
+            if cos_y > 0.0:
+                total += area_pdf(light_f, light_i, prims, info, k, x, y, z, t, cos_y)
+        out[i] = total

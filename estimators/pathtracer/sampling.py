@@ -15,8 +15,12 @@ loop over rows (``_sampling_loops``), run on numba's threads: no second implemen
   ``sample(u (n, 3)) -> direction (n, 3)`` (NaN where the kernel's pdf is zero: the
   light's back side), ``pdf(direction)`` in solid angle without the choice of light: for
   an area light, the ray ``ref + t·d`` is intersected with the light's own primitives
-  (nothing else occludes) and ``area_pdf`` is evaluated at the hit, as the kernel does
-  when a BSDF-sampled ray hits the light. Delta lights have no density and are refused.
+  (nothing else occludes) and ``area_pdf`` is evaluated at each front-facing hit, as the
+  kernel does when a BSDF-sampled ray hits the light, and summed: the sampler draws
+  points by area without a visibility test, so where one part of a light hides another
+  (a folded mesh) both add to the direction's density (the kernel's MIS takes the
+  nearest hit, where the hidden draws are shadowed and add nothing). Delta lights have
+  no density and are refused.
 
 Textured BSDFs are evaluated at texture coordinates (0.5, 0.5) (textures change weights,
 never directions).

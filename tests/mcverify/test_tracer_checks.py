@@ -300,3 +300,18 @@ def test_a_bent_mesh_light_with_smooth_normals_passes(tmp_path):
     assert not bad, bad
     flat = _mesh_light_checks(tmp_path, bent, '<boolean name="face_normals" value="true"/>')
     assert not any("face normals" in c.name for c in flat)
+
+
+def test_a_mesh_light_hiding_part_of_itself_passes(tmp_path):
+    """An outside review: two stacked quads of one OBJ light, both facing down; from
+    below the lower one hides part of the upper one. The sampler draws points by area
+    without a visibility test, so both add to a direction's density, but the check's pdf
+    took the nearest hit only: the check failed (p = 0) on a correct tracer. The pdf now
+    sums every front-facing hit along the ray."""
+    stacked = ("v -0.5 2.5 -0.5\nv 0.5 2.5 -0.5\nv 0.5 2.5 0.5\nv -0.5 2.5 0.5\n"
+               "v -0.3 2.2 -0.3\nv 0.3 2.2 -0.3\nv 0.3 2.2 0.3\nv -0.3 2.2 0.3\n"
+               "f 1 2 3 4\nf 5 6 7 8\n")
+    checks = _mesh_light_checks(tmp_path, stacked)
+    assert len(checks) == 3
+    n, bad = _family_passes(checks, seed=5)
+    assert not bad, bad
