@@ -52,8 +52,8 @@ NEEDS: dict[str, tuple[set[tuple[str, str]], str]] = {
     "emitter:envmap": (_pairs("sampler", "piecewise_constant_2d")
                        | _pairs("inverse", "piecewise_constant_2d"),
                        "environment maps are sampled by a 2-D piecewise-constant pdf"),
-    "emitter:constant": (_pairs("sampler", "uniform_sphere", "cosine_hemisphere"),
-                         "a constant environment is sampled uniformly / by cosine"),
+    "emitter:constant": (_pairs("sampler", "uniform_sphere"),
+                         "a constant environment is sampled uniformly over the sphere"),
     "integrator:path": (_pairs("unbiased", "russian_roulette", "mis"),
                         "path tracing uses Russian roulette and MIS"),
     "integrator:direct": (_pairs("unbiased", "mis"),

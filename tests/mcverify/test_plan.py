@@ -127,3 +127,21 @@ def test_plan_and_check_scene_take_a_folder_or_a_reference_name(tmp_path):
     r = subprocess.run(CMD + ["plan", "nosuch-scene"], capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 2 and "scene 'nosuch-scene'" in r.stderr
+
+
+CONDUCTOR_SKY = """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm"><rfilter type="box"/></film></sensor>
+  <emitter type="constant"/>
+  <shape type="sphere"><bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf></shape>
+</scene>"""
+
+
+def test_a_constant_environment_plans_uniform_sphere_sampling_only(tmp_path):
+    """An outside review: a constant environment planned the cosine-hemisphere warp too
+    ("sampled uniformly / by cosine"), but the tracer samples it uniformly over the
+    sphere only: a rough conductor under a constant sky ran a warp the scene never uses."""
+    path = tmp_path / "scene.xml"
+    path.write_text(CONDUCTOR_SKY)
+    names = _names(plan(str(path))[0])
+    assert "sampler:uniform_sphere" in names
+    assert not any("cosine_hemisphere" in n for n in names), sorted(names)
