@@ -622,6 +622,9 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
         from .passes import ImageStats, read_radiance
 
         (m, a), (v, b) = read_radiance(image), read_radiance(var)
+        if v.shape != m.shape:  # named here by file (compare_images would say "test_var")
+            raise InvalidArgument(f"{var} ({opt}-var): shape {v.shape} differs from "
+                                  f"{image}'s {m.shape}; give the variance image of it")
         bad = negatives(v)
         if bad:       # named here by file (compare_images would name the side only)
             count, first, value = bad

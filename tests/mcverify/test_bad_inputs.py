@@ -521,6 +521,14 @@ CLI = [
                                    "{d}/negvar.exr", "--ref-n", "4"],
      "negvar.exr (--ref-var): 1 negative variance value(s), first at pixel (y, x, channel) "
      "= (0, 2, 1): -0.5"),
+    # a variance image of another size: named by internal names ("ref_var: shape ...
+    # differs from test_mean's") until 6 December
+    ("compare-test-var-shape", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
+                                "{d}/big.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
+                                "--ref-n", "4"], "big.exr (--test-var): shape"),
+    ("compare-ref-var-shape", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
+                               "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/big.exr",
+                               "--ref-n", "4"], "big.exr (--ref-var): shape"),
     ("compare-no-ref-var", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
                             "{d}/var.exr", "--test-n", "4"], "needs --ref-var and --ref-n"),
     ("compare-test-n-1", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
@@ -530,7 +538,7 @@ CLI = [
     ("compare-swapped", ["compare", "{d}/good.exr", "{d}/ref-swapped", "--test-var",
                          "{d}/var.exr", "--test-n", "4"], "SHA-256"),
     ("compare-shape", ["compare", "{d}/big.exr", "{d}/good.exr", "--test-var",
-                       "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
+                       "{d}/big.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
                        "--ref-n", "4"], "big.exr: shape"),
     ("compare-unknown-ref", ["compare", "{d}/good.exr", "nosuch-ref", "--test-var",
                              "{d}/var.exr", "--test-n", "4"], "scene 'nosuch-ref'"),
