@@ -467,7 +467,8 @@ def _cmd_report(args) -> int:
     out = args.out
     if not out.strip():
         raise InvalidArgument(f"--out {out!r}: empty path; give a folder")
-    _writable("--out", os.path.join(out, "report.json"))
+    for name in ("report.json", "report.html"):     # before the suite's minutes of work
+        _writable("--out", os.path.join(out, name))
     scenes = []
     if args.renders != "none":
         from .reference import list_scenes, resolve_scene

@@ -63,6 +63,31 @@ def test_a_report_over_an_old_one_removes_the_old_ones_images_only(tmp_path):
     assert (tmp_path / "report.html").exists()
 
 
+@pytest.mark.parametrize("blocked", ["report.html", "convergence.png"])
+def test_a_folder_in_the_way_is_refused_before_any_file_is_written(tmp_path, blocked):
+    """A folder where a report file goes (report.html, a PNG) is refused, naming it,
+    before anything is written: report.json and the PNGs were written first, then the
+    page failed, leaving a new report.json beside no report.html."""
+    from mcverify.errors import InvalidArgument
+
+    out = tmp_path / "rep"
+    (out / blocked).mkdir(parents=True)
+    study = run_study(ns=(64, 128, 256), n_seeds=4)
+    with pytest.raises(InvalidArgument, match=f"{blocked}: is a directory"):
+        build_report(str(out), suite=None, study=study, extra_provenance={})
+    assert sorted(p.name for p in out.iterdir()) == [blocked]
+
+
+def test_cli_report_refuses_a_folder_named_report_html_before_any_work(tmp_path, capsys):
+    from mcverify.gate.cli import main
+
+    (tmp_path / "report.html").mkdir()
+    rc = main(["report", "--no-suite", "--renders", "none", "-q", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "report.html: is a directory" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]
+
+
 def test_failed_checks_come_first(report):
     out, _ = report
     page = (out / "report.html").read_text()

@@ -3,7 +3,8 @@ self-contained HTML page rendered from the JSON.
 
 ``build_report(out_dir, suite=..., study=...)`` writes ``report.json``, the PNGs and
 ``report.html`` (plots embedded as data URIs, so the page is one portable file). Every
-file goes through a temporary name and a rename; nothing is half-written.
+file goes through a temporary name and a rename; nothing is half-written, and a path that
+cannot be written (a folder named ``report.html``) is refused before any file is.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import json
 import os
 
 from ...provenance import provenance
-from ...result import SuiteResult, atomic_write
+from ...result import SuiteResult, atomic_write, output_target
 from . import plots
 
 __all__ = ["build_report", "render_html"]
@@ -25,7 +26,6 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
                  extra_provenance: dict | None = None) -> dict:
     """Write the report into ``out_dir``; returns the JSON document. ``renders`` is
     ``report.renders.run_renders``'s result."""
-    os.makedirs(out_dir, exist_ok=True)
     doc = {
         "provenance": provenance(**(extra_provenance or {})),
         "verification": suite.to_dict() if suite is not None else None,
@@ -48,6 +48,9 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
                 png = plots.histogram(r.to_dict(arrays=True))
                 if png:
                     images[f"failed_{_safe(r.name)}.png"] = png
+    for name in (*images, "report.json", "report.html"):   # all or nothing: a folder
+        output_target(os.path.join(out_dir, name))       # in the way is refused first
+    os.makedirs(out_dir, exist_ok=True)
     stale = set(_previous_images(out_dir)) - set(images)
     for name, data in images.items():
         atomic_write(os.path.join(out_dir, name), data)
