@@ -7,6 +7,7 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from mcverify.gate import suites
@@ -86,6 +87,50 @@ def test_cli_report_refuses_a_folder_named_report_html_before_any_work(tmp_path,
     err = capsys.readouterr().err
     assert rc == 2 and "report.html: is a directory" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]
+
+
+def _render_row(scene, level):
+    rng = np.random.default_rng(int(level * 100))
+    ours = np.full((4, 4, 3), level) + 0.01 * rng.random((4, 4, 3))
+    arrays = {"ours": ours, "mitsuba": np.full((4, 4, 3), level), "p_map": np.ones((4, 4)),
+              "delta_e": None, "delta_itp": None, "flip": None}
+    row = {"scene": scene, "passed": True, "p_value": 1.0, "found_by": [], "relmse": 0.0,
+           "delta_e2000_mean": None, "delta_e_itp_mean": None, "flip_mean": None,
+           "ours_spp": 64, "ours_passes": 16, "ours_seconds": 0.1, "kernel": "general",
+           "reference": {"spp": 16, "passes": 4, "mitsuba_version": "3",
+                         "mitsuba_variant": "v"},
+           "curve": {"spp": [4, 16], "ours_rmse": [0.2, 0.1], "ours_seconds": [0.1, 0.2],
+                     "mitsuba_rmse": [0.2, 0.1], "mitsuba_seconds": [0.1, 0.2]}}
+    return row, arrays
+
+
+def test_each_render_has_its_own_image(tmp_path):
+    """Scenes whose names agree in their first 80 characters (two scene files in one
+    long folder), or differ only in punctuation, or a scene named ``error``, each get
+    their own panel image, named in their row: the second overwrote the first, and the
+    page showed it for both (the scene ``error`` replaced the error plot)."""
+    import base64
+    import re
+
+    folder = "/home/me/renderer/tests/regression-scenes/for-the-continuous-integration-gate"
+    scenes = [f"{folder}/sphere_a.xml", f"{folder}/sphere_b.xml", "my-scene", "my_scene",
+              "error"]
+    made = [_render_row(s, 0.1 * (i + 1)) for i, s in enumerate(scenes)]
+    renders = ([r for r, _ in made], {r["scene"]: a for r, a in made})
+    doc = build_report(str(tmp_path), suite=None, study=None, renders=renders,
+                       extra_provenance={})
+    names = [r["image"] for r in doc["renders"]]
+    assert len(set(names)) == len(scenes) and "render_error.png" not in names, names
+    on_disk = json.loads((tmp_path / "report.json").read_text())
+    assert [r["image"] for r in on_disk["renders"]] == names
+    assert set(on_disk["images"]) == {*names, "render_error.png"}
+    panels = {(tmp_path / n).read_bytes() for n in names}
+    assert len(panels) == len(scenes)
+    page = (tmp_path / "report.html").read_text()
+    shown = re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,([^"]*)"', page)
+    by_alt = {alt: base64.b64decode(data) for alt, data in shown}
+    for scene, name in zip(scenes, names):
+        assert by_alt[scene] == (tmp_path / name).read_bytes(), scene
 
 
 def test_failed_checks_come_first(report):

@@ -35,10 +35,11 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
     }
     images = {}
     if renders and renders[0]:
-        for row in renders[0]:
-            images[f"render_{_safe(row['scene'])}.png"] = plots.render_panels(
-                row["scene"], renders[1][row["scene"]])
         images["render_error.png"] = plots.render_error(renders[0])
+        for row in renders[0]:      # each scene its own file, named in its row
+            row["image"] = _unique("render", row["scene"], images)
+            images[row["image"]] = plots.render_panels(row["scene"],
+                                                       renders[1][row["scene"]])
     if study:
         images["convergence.png"] = plots.convergence(study)
         images["efficiency.png"] = plots.efficiency(study)
@@ -47,7 +48,7 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
             if not r.passed and "histogram" in r.artifacts:
                 png = plots.histogram(r.to_dict(arrays=True))
                 if png:
-                    images[f"failed_{_safe(r.name)}.png"] = png
+                    images[_unique("failed", r.name, images)] = png
     for name in (*images, "report.json", "report.html"):   # all or nothing: a folder
         output_target(os.path.join(out_dir, name))       # in the way is refused first
     os.makedirs(out_dir, exist_ok=True)
@@ -79,6 +80,17 @@ def _previous_images(out_dir: str) -> list[str]:
 
 def _safe(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name)[:80]
+
+
+def _unique(prefix: str, name: str, taken) -> str:
+    """``PREFIX_NAME.png`` for a scene or check name, numbered where another image
+    already has that file name: names cut at 80 characters (two scene paths in one long
+    folder) or differing only in punctuation kept one image for both, shown twice."""
+    stem = f"{prefix}_{_safe(name)}"
+    file, k = f"{stem}.png", 2
+    while file in taken:
+        file, k = f"{stem}_{k}.png", k + 1
+    return file
 
 
 def _e(v) -> str:
@@ -185,7 +197,7 @@ def render_html(doc: dict, images: dict[str, bytes]) -> str:
                 f" {ref['passes']} × {ref['spp']} spp</td></tr>")
         parts.append("</table>")
         for r in rrows:
-            name = f"render_{_safe(r['scene'])}.png"
+            name = r.get("image") or f"render_{_safe(r['scene'])}.png"  # older JSON: none
             parts.append(f"<figure>{_img(images, name, r['scene'])}</figure>")
         parts.append("<h3>Error against samples and time</h3><p>RMSE against the reference "
                      "(its own noise subtracted), ours and Mitsuba, against spp and against "
