@@ -536,6 +536,16 @@ def reference_files(spec: str) -> list[str]:
             + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES + (PASSES,)])
 
 
+def _count(manifest: dict, key: str, minimum: int) -> int:
+    """A manifest's count (``passes``, ``spp``): an integer of at least ``minimum``
+    (ValueError naming the field otherwise; -1 passes blamed passes.exr, "x" spp raised
+    a bare ValueError from the comparison)."""
+    value = manifest[key]
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{key}: {value!r}, expected an integer >= {minimum}")
+    return value
+
+
 def load_reference(spec: str) -> Reference:
     """Load a built reference; a missing, stale (scene changed) or corrupt one raises
     ``EnvironmentProblem`` naming the file and saying how to rebuild it."""
@@ -552,7 +562,9 @@ def load_reference(spec: str) -> Reference:
     try:
         with open(mpath, encoding="utf-8") as f:
             manifest = json.load(f)
-        n = int(manifest["passes"])
+        n = _count(manifest, "passes", 2)
+        if "spp" in manifest:
+            _count(manifest, "spp", 1)
         digest = manifest["scene_sha256"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise EnvironmentProblem(f"{mpath}: corrupt manifest ({e}); {rebuild}") from None

@@ -91,7 +91,8 @@ def sandbox(tmp_path_factory):
     (d / "notes.txt").write_text("a file, not a folder\n")
     (d / "adir").mkdir()
     # references: a fresh copy of white-furnace per variant
-    for variant in ("ok", "stale", "swapped", "unhashed", "corrupt", "missing"):
+    for variant in ("ok", "stale", "swapped", "unhashed", "corrupt", "missing",
+                    "passes-0", "passes-text", "spp-text", "spp-negative"):
         shutil.copytree(os.path.dirname(FURNACE), d / f"ref-{variant}")
     ref = d / "ref-stale"
     (ref / "scene.xml").write_text((ref / "scene.xml").read_text().replace('"0.8"', '"0.9"'))
@@ -104,6 +105,12 @@ def sandbox(tmp_path_factory):
     del doc["mean_sha256"], doc["var_sha256"]
     m.write_text(json.dumps(doc, indent=2))
     (d / "ref-corrupt" / "ref" / "manifest.json").write_text("{ not json")
+    for variant, key, value in (("passes-0", "passes", 0), ("passes-text", "passes", "16"),
+                                ("spp-text", "spp", "x"), ("spp-negative", "spp", -5)):
+        m = d / f"ref-{variant}" / "ref" / "manifest.json"
+        doc = json.loads(m.read_text())
+        doc[key] = value
+        m.write_text(json.dumps(doc, indent=2))
     shutil.rmtree(d / "ref-missing" / "ref")
     # scenes
     text = open(FURNACE).read()
@@ -379,6 +386,16 @@ REFS = [
     ("unhashed-manifest", "ref-unhashed", EnvironmentProblem, "records no mean_sha256"),
     ("corrupt-manifest", "ref-corrupt", EnvironmentProblem, "corrupt manifest"),
     ("missing", "ref-missing", MissingReference, "no reference built"),
+    # a hand-edited count: the bad field named (spp "x" was a bare ValueError in compare,
+    # passes 0 divided the variance by zero, -1 blamed passes.exr)
+    ("passes-0", "ref-passes-0", EnvironmentProblem,
+     "corrupt manifest (passes: 0, expected an integer >= 2)"),
+    ("passes-text", "ref-passes-text", EnvironmentProblem,
+     "corrupt manifest (passes: '16', expected an integer >= 2)"),
+    ("spp-text", "ref-spp-text", EnvironmentProblem,
+     "corrupt manifest (spp: 'x', expected an integer >= 1)"),
+    ("spp-negative", "ref-spp-negative", EnvironmentProblem,
+     "corrupt manifest (spp: -5, expected an integer >= 1)"),
 ]
 
 
@@ -533,6 +550,8 @@ CLI = [
                             "{d}/var.exr", "--test-n", "4"], "needs --ref-var and --ref-n"),
     ("compare-test-n-1", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
                           "{d}/var.exr", "--test-n", "1"], "--test-n 1"),
+    ("compare-spp-text", ["compare", "--test-passes", "{d}/good*.exr", "{d}/ref-spp-text",
+                          "--test-spp", "64"], "corrupt manifest (spp: 'x'"),
     ("compare-stale", ["compare", "{d}/good.exr", "{d}/ref-stale", "--test-var",
                        "{d}/var.exr", "--test-n", "4"], "stale"),
     ("compare-swapped", ["compare", "{d}/good.exr", "{d}/ref-swapped", "--test-var",
