@@ -142,8 +142,12 @@ def scene_assets(scene_path: str) -> dict[str, str | None]:
 
 
 def scene_asset_files(scene_path: str) -> dict[str, str]:
-    """The file each name of ``scene_assets`` resolves to (its key: the name as written)."""
-    defaults, names = {}, []
+    """The file each name of ``scene_assets`` resolves to (its key: the name as written).
+
+    The files an ``<include>``d file names count too (a texture named only there changed
+    without the reference going stale): included files are read in turn, each once, and
+    their names resolved, as Mitsuba resolves them, against the scene's own folder."""
+    defaults, names, includes = {}, [], set()
 
     def start(tag, attrib):
         if tag == "default" and "name" in attrib:
@@ -152,15 +156,25 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
             names.append(attrib["value"])
         elif tag == "include" and "filename" in attrib:
             names.append(attrib["filename"])
+            includes.add(attrib["filename"])
 
     _parse_scene(scene_path, start)
     folder = os.path.dirname(os.path.abspath(scene_path))
     out: dict[str, str] = {}
-    for name in names:
+    read = {os.path.realpath(scene_path)}
+    i = 0
+    while i < len(names):           # grows as included files are read
+        name = names[i]
+        i += 1
+        if name in out:
+            continue
         real = name
         for key in sorted(defaults, key=len, reverse=True):
             real = real.replace("$" + key, defaults[key])
-        out[name] = real if os.path.isabs(real) else os.path.join(folder, real)
+        out[name] = full = real if os.path.isabs(real) else os.path.join(folder, real)
+        if name in includes and os.path.isfile(full) and os.path.realpath(full) not in read:
+            read.add(os.path.realpath(full))
+            _parse_scene(full, start)
     return out
 
 

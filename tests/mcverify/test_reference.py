@@ -223,6 +223,54 @@ def test_scene_assets_resolve_defaults_and_relative_paths(tmp_path):
                       "gone.png": None}
 
 
+def test_files_named_by_an_included_file_count_too(tmp_path):
+    """A texture named only inside an ``<include>``d file (resolved, as Mitsuba does,
+    against the scene's folder; includes of includes too, each read once) is hashed:
+    the manifest recorded the included file alone, and a changed texture left the
+    reference in use, a render of the new texture compared with Mitsuba's of the old."""
+    (tmp_path / "t.png").write_bytes(b"png")
+    (tmp_path / "m.obj").write_text("v 0 0 0\n")
+    (tmp_path / "inc").mkdir()
+    (tmp_path / "inc" / "mat.xml").write_text(
+        '<scene version="3.0.0"><include filename="inc/mesh.xml"/>'
+        '<include filename="s.xml"/>'                                   # a cycle
+        '<texture type="bitmap" id="t"><string name="filename" value="t.png"/></texture>'
+        '</scene>')
+    (tmp_path / "inc" / "mesh.xml").write_text(
+        '<scene version="3.0.0"><shape type="obj"><string name="filename" '
+        'value="$mesh"/></shape><include filename="inc/mat.xml"/></scene>')
+    (tmp_path / "s.xml").write_text(
+        '<scene version="3.0.0"><default name="mesh" value="m.obj"/>'
+        '<include filename="inc/mat.xml"/></scene>')
+    assets = reference.scene_assets(str(tmp_path / "s.xml"))
+    h = reference.file_hash
+    assert assets == {"inc/mat.xml": h(str(tmp_path / "inc" / "mat.xml")),
+                      "inc/mesh.xml": h(str(tmp_path / "inc" / "mesh.xml")),
+                      "s.xml": h(str(tmp_path / "s.xml")),
+                      "t.png": h(str(tmp_path / "t.png")),
+                      "$mesh": h(str(tmp_path / "m.obj"))}
+
+
+def test_a_texture_changed_in_an_included_file_makes_the_reference_stale(tmp_path):
+    shutil.copy(os.path.join(SCENES, "textures", "checker.exr"), tmp_path / "t.exr")
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    src = src.replace('<default name="res" value="64"/>', '<default name="res" value="4"/>')
+    src = src.replace('<bsdf type="diffuse"><rgb name="reflectance" value="1, 1, 1"/></bsdf>',
+                      '<ref id="mat"/>')
+    src = src.replace("<integrator", '<include filename="mat.xml"/><integrator', 1)
+    assert '<ref id="mat"/>' in src
+    (tmp_path / "mat.xml").write_text(
+        '<scene version="3.0.0"><bsdf type="diffuse" id="mat"><texture type="bitmap" '
+        'name="reflectance"><string name="filename" value="t.exr"/></texture></bsdf></scene>')
+    (tmp_path / "scene.xml").write_text(src)
+    reference.build_reference(str(tmp_path), spp=4, passes=2)
+    assert set(reference.load_reference(str(tmp_path)).manifest["assets_sha256"]) == {
+        "mat.xml", "t.exr"}
+    (tmp_path / "t.exr").write_bytes((tmp_path / "t.exr").read_bytes() + b"\0")
+    with pytest.raises(EnvironmentProblem, match=r"stale: t.exr \(named by .*\) changed"):
+        reference.load_reference(str(tmp_path))
+
+
 def test_build_refuses_to_replace_what_is_not_a_reference(scene_copy, monkeypatch):
     """A file named ``ref`` beside the scene was deleted by the build (exit 0), as was a
     user's folder of that name; both are refused before anything renders, and kept."""
