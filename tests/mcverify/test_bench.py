@@ -90,3 +90,23 @@ def test_equal_time_rmse_of_our_tracer_against_itself_is_one():
     assert 0.8 < row["ratio"] < 1.25, row
     assert row["ours_rmse"] > 0 and "mean MSE of 4 renders" in row["workload"]
     assert len(seeds) == 8 and len(set(seeds[4:])) == 4     # warm-up, 3 timed, 4 measured
+
+
+def test_cli_prints_microsecond_timings_as_numbers(monkeypatch, capsys):
+    """A workload of microseconds (``--n 1000``) printed as 0.0000 on both sides, beside
+    a ratio of 0.33 that its printed times could not give; now 4 significant digits."""
+    from mcverify.gate import cli
+
+    rows = [{"group": "warp:cosine_hemisphere", "workload": "w", "ours_s": 1.394e-05,
+             "mitsuba_s": 4.2774e-05, "against": "mitsuba", "ratio": 1.394 / 4.2774,
+             "note": None},
+            {"group": "chi2:cosine_hemisphere", "workload": "w", "ours_s": 2.5,
+             "mitsuba_s": None, "against": "mitsuba", "ratio": None, "note": None}]
+    monkeypatch.setattr(bench, "run_bench", lambda **kw: rows)
+    assert cli.main(["bench", "--no-render", "--n", "1000", "-q"]) == 0
+    machine, header, *lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[1:4] == ["1.394e-05", "4.277e-05", "0.33"], lines[0]
+    assert lines[1].split()[1:4] == ["2.5", "n/a", "n/a"], lines[1]
+    end = header.index("ours/theirs") + len("ours/theirs")
+    for line in lines:          # the ratio column still ends under its header
+        assert line[end - 1] != " " and line[end:end + 2] == "  ", (header, line)
