@@ -38,12 +38,18 @@ from ..result import shared_mode
 from .executors import Pool, Unit, same_source, source_fingerprint
 
 def _reference_root() -> str:
-    """Where the reference scenes are: ``$MCVERIFY_REFS`` if set; else this checkout's
-    ``reference/scenes``; else, for an installed (non-editable) mcverify, the copy
-    installed with it under ``<prefix>/share/mcverify/scenes`` (pyproject's data-files)."""
+    """Where the reference scenes are: ``$MCVERIFY_REFS`` if set; else the scenes that
+    come with mcverify (``_bundled_root``)."""
     forced = os.environ.get("MCVERIFY_REFS")
     if forced:
         return os.path.abspath(forced)
+    return _bundled_root()
+
+
+def _bundled_root() -> str:
+    """The scenes that come with mcverify: this checkout's ``reference/scenes``; else, for
+    an installed (non-editable) mcverify, the copy installed with it under
+    ``<prefix>/share/mcverify/scenes`` (pyproject's data-files)."""
     checkout = os.path.join(
         os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
         "reference", "scenes")
@@ -60,6 +66,10 @@ def _reference_root() -> str:
 
 
 REFERENCE_ROOT = _reference_root()
+#: The scenes that come with mcverify, whatever ``--refs``/``$MCVERIFY_REFS`` say: the
+#: fixed workloads of ``mcverify bench`` (the Cornell box's gate, the white furnace's
+#: kernels) are these.
+BUNDLED_ROOT = _bundled_root()
 
 
 def set_reference_root(path: str) -> str:

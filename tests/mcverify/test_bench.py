@@ -1,6 +1,9 @@
 """``mcverify bench``'s render rows: Mitsuba's scenes are loaded one at a time."""
 
+import os
+
 import numpy as np
+import pytest
 
 from mcverify.gate import bench
 
@@ -110,3 +113,40 @@ def test_cli_prints_microsecond_timings_as_numbers(monkeypatch, capsys):
     end = header.index("ours/theirs") + len("ours/theirs")
     for line in lines:          # the ratio column still ends under its header
         assert line[end - 1] != " " and line[end:end + 2] == "  ", (header, line)
+
+
+def _own_scenes(tmp_path, monkeypatch, *, with_reference=True):
+    """A --refs folder of the user's own: one scene (a copy of the white furnace under
+    another name), with or without its reference."""
+    import shutil
+
+    from mcverify.gate import reference
+
+    src = os.path.join(os.path.dirname(__file__), "..", "..", "reference", "scenes",
+                       "white-furnace")
+    shutil.copytree(src, tmp_path / "mine",
+                    ignore=None if with_reference else shutil.ignore_patterns("ref"))
+    monkeypatch.setattr(reference, "REFERENCE_ROOT", str(tmp_path))
+
+
+def test_own_scenes_folder_keeps_the_fixed_workloads(tmp_path, monkeypatch):
+    """`mcverify bench --refs MYDIR` with the user's own scenes: the rows of every scene
+    are theirs, and the fixed workloads (the Cornell box's gate, the white furnace's
+    kernels) still come with mcverify; it exited 2 with "scene 'white-furnace': no such
+    file ... (known: mine)"."""
+    _own_scenes(tmp_path, monkeypatch)
+    rows = {r[0]: r for r in bench._render_pairs(_FakeMitsuba(), spp=4)}
+    assert {"render:mine", "render-check:cornell-box",
+            "kernel:specialised/general"} <= set(rows), sorted(rows)
+    assert not any(name in rows for name in ("render:cornell-box", "render:white-furnace"))
+
+
+def test_a_scene_without_reference_is_refused_before_any_timing(tmp_path, monkeypatch):
+    """The equal-time rows need each scene's reference: a missing one is refused, naming
+    it, before anything is timed (it failed after all the timings)."""
+    from mcverify.errors import MissingReference
+
+    _own_scenes(tmp_path, monkeypatch, with_reference=False)
+    monkeypatch.setattr(bench, "_best", lambda *a, **k: pytest.fail("timed"))
+    with pytest.raises(MissingReference, match="no reference built for 'mine'"):
+        bench.run_bench(repeats=1, n=1000, spp=4)
