@@ -14,7 +14,7 @@ import os
 import sys
 import time
 
-from ..errors import EnvironmentProblem, InvalidArgument
+from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_BROKEN_PIPE = 141         # 128 + SIGPIPE, as a shell reports a command whose reader left
@@ -471,12 +471,16 @@ def _cmd_report(args) -> int:
         _writable("--out", os.path.join(out, name))
     scenes = []
     if args.renders != "none":
-        from .reference import list_scenes, resolve_scene
+        from .reference import list_scenes, load_reference, resolve_scene
 
         scenes = list_scenes() if args.renders == "all" else \
             list(dict.fromkeys(args.renders.split(",")))        # each scene once
         for s in scenes:
             resolve_scene(s)            # before any work (it was checked after the suite)
+            try:                        # a stale or corrupt reference too, before any work
+                load_reference(s)
+            except MissingReference:
+                pass                    # built by the render check, with a notice
     if args.no_suite and args.k:
         raise InvalidArgument(f"-k {args.k!r}: selects checks of the suite, which "
                               "--no-suite leaves out")

@@ -133,6 +133,27 @@ def test_each_render_has_its_own_image(tmp_path):
         assert by_alt[scene] == (tmp_path / name).read_bytes(), scene
 
 
+def test_cli_report_refuses_a_stale_reference_before_any_work(tmp_path, capsys,
+                                                              monkeypatch):
+    """A scene of --renders whose reference is stale is refused before the suite and the
+    study run (it failed after them, minutes into a run); a missing one is still built
+    by the render check."""
+    from mcverify.gate import cli
+    from mcverify.gate.report import study
+
+    scene = tmp_path / "furnace"
+    shutil.copytree(os.path.join(os.path.dirname(__file__), "..", "..", "reference",
+                                 "scenes", "white-furnace"), scene)
+    (scene / "scene.xml").write_text((scene / "scene.xml").read_text().replace('"0.8"',
+                                                                               '"0.9"'))
+    monkeypatch.setattr(study, "run_study", lambda **k: pytest.fail("the study ran"))
+    rc = cli.main(["report", "--no-suite", "--renders", str(scene), "-q", "--out",
+                   str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "stale" in err and "manifest.json" in err, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_failed_checks_come_first(report):
     out, _ = report
     page = (out / "report.html").read_text()
