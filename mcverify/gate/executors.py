@@ -181,7 +181,8 @@ class Pool:
             except ImportError:
                 raise EnvironmentProblem("--dask needs dask.distributed: pip install "
                                          "'dask[distributed]'") from None
-            where = self.dask or self.dask_scheduler_file
+            where = (f"--dask {self.dask}" if self.dask else
+                     f"--dask-scheduler-file {self.dask_scheduler_file}")
             try:
                 if self.dask:
                     self._client = Client(self.dask, timeout=DASK_CONNECT_TIMEOUT)
@@ -189,9 +190,11 @@ class Pool:
                     self._client = Client(scheduler_file=self.dask_scheduler_file,
                                           timeout=DASK_CONNECT_TIMEOUT)
             except (OSError, TimeoutError, ValueError, AssertionError, KeyError) as e:
-                # AssertionError/KeyError: a scheduler file without an address in it
-                raise EnvironmentProblem(f"--dask {where}: cannot connect to the scheduler "
-                                         f"({type(e).__name__}: {e or 'no address'})") \
+                # AssertionError/KeyError: a scheduler file without an address in it (an
+                # AssertionError's text is empty: it said "(AssertionError: )")
+                why = (f"{type(e).__name__}: {e}" if str(e) and not isinstance(e, KeyError)
+                       else "the file holds no scheduler address")
+                raise EnvironmentProblem(f"{where}: cannot connect to the scheduler ({why})") \
                     from None
             try:
                 # a scheduler without workers would take the units and never run them
@@ -199,7 +202,7 @@ class Pool:
             except (TimeoutError, OSError) as e:
                 self._client.close()
                 self._client = None
-                raise EnvironmentProblem(f"--dask {where}: the scheduler has no workers "
+                raise EnvironmentProblem(f"{where}: the scheduler has no workers "
                                          f"(none joined within {DASK_WORKER_WAIT} s: {e}); "
                                          "start some with `dask worker ADDRESS`") from None
             # pure=False: a unit rerun after a lost worker is a new task, never a cached

@@ -200,6 +200,16 @@ def test_a_scheduler_without_workers_is_refused_not_waited_on(monkeypatch, tmp_p
     bad = tmp_path / "scheduler.json"
     bad.write_text("{}")
     monkeypatch.setattr(executors, "DASK_CONNECT_TIMEOUT", "2s")
-    with pytest.raises(EnvironmentProblem, match="cannot connect to the scheduler"):
+    with pytest.raises(EnvironmentProblem, match="cannot connect to the scheduler") as info:
         with Pool(dask_scheduler_file=str(bad)) as pool:
             pool.width
+    # the option given, and why: it said "--dask FILE: ... (AssertionError: )"
+    assert str(info.value).startswith(f"--dask-scheduler-file {bad}: "), str(info.value)
+    assert str(info.value).endswith("(the file holds no scheduler address)"), str(info.value)
+    bad.write_text("{not json")
+    with pytest.raises(EnvironmentProblem) as info:
+        with Pool(dask_scheduler_file=str(bad)) as pool:
+            pool.width
+    assert str(info.value).startswith(f"--dask-scheduler-file {bad}: cannot connect to the "
+                                      "scheduler ("), str(info.value)
+    assert not str(info.value).endswith(": )"), str(info.value)
