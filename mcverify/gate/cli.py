@@ -517,7 +517,14 @@ def _cmd_bench(args) -> int:
     from ..provenance import describe_cpu, provenance
     from ..result import atomic_write
 
-    _writable("--json", args.json)
+    inputs = []
+    if not args.no_render:  # the scenes and references the render rows read
+        from .reference import BUNDLED_ROOT, list_scenes, reference_files
+
+        scenes = list_scenes() + [os.path.join(BUNDLED_ROOT, s, "scene.xml")
+                                  for s in ("cornell-box", "white-furnace")]
+        inputs = [f for s in scenes for f in reference_files(s)]
+    _writable("--json", args.json, inputs)
     if args.repeats < 1:
         raise InvalidArgument(f"--repeats {args.repeats}: must be >= 1")
     if args.spp < 4:

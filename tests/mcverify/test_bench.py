@@ -150,3 +150,18 @@ def test_a_scene_without_reference_is_refused_before_any_timing(tmp_path, monkey
     monkeypatch.setattr(bench, "_best", lambda *a, **k: pytest.fail("timed"))
     with pytest.raises(MissingReference, match="no reference built for 'mine'"):
         bench.run_bench(repeats=1, n=1000, spp=4)
+
+
+def test_cli_json_over_a_reference_it_reads_is_refused(tmp_path, monkeypatch, capsys):
+    """`bench --json` naming a file the render rows read (a scene's reference manifest)
+    is refused before anything runs, as every other command refuses its inputs; it was
+    replaced after the run, leaving a corrupt reference."""
+    from mcverify.gate import cli
+
+    _own_scenes(tmp_path, monkeypatch)
+    manifest = tmp_path / "mine" / "ref" / "manifest.json"
+    before = manifest.read_bytes()
+    monkeypatch.setattr(bench, "run_bench", lambda **kw: pytest.fail("ran"))
+    assert cli.main(["bench", "--json", str(manifest), "-q"]) == 2
+    assert "is also an input" in capsys.readouterr().err
+    assert manifest.read_bytes() == before
