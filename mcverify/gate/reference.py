@@ -328,7 +328,13 @@ def resolve_scene(spec: str, root: str | None = None) -> tuple[str, str]:
     ``REFERENCE_ROOT``) or a path to a scene file/folder. The name is the folder's for a
     ``scene.xml``, else the file's own without its extension."""
     root = REFERENCE_ROOT if root is None else root
-    if os.path.isfile(spec):
+    if (os.sep not in spec and spec not in (".", "..")
+            and os.path.isfile(os.path.join(root, spec, "scene.xml"))):
+        # a bare name of a scene under the root is that scene, whatever folder of that
+        # name the working directory has (`reference build --refs DIR` rebuilt ./NAME
+        # instead of DIR/NAME); ./NAME is the folder here
+        path = os.path.join(root, spec, "scene.xml")
+    elif os.path.isfile(spec):
         path = os.path.abspath(spec)
     elif os.path.isdir(spec) and os.path.isfile(os.path.join(spec, "scene.xml")):
         path = os.path.abspath(os.path.join(spec, "scene.xml"))

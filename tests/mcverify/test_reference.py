@@ -271,6 +271,32 @@ def test_a_texture_changed_in_an_included_file_makes_the_reference_stale(tmp_pat
         reference.load_reference(str(tmp_path))
 
 
+def test_a_scene_name_resolves_under_the_root_not_in_the_working_directory(
+        tmp_path, monkeypatch):
+    """`mcverify reference build --refs DIR` (every scene of DIR, by name) run in a folder
+    that holds a folder of the same name as one of DIR's scenes rebuilt that folder's
+    reference, not DIR's. A bare name under the root is the root's scene; ./NAME (or a
+    name the root lacks) the folder here."""
+    from mcverify.gate import cli
+
+    root, here = tmp_path / "refs", tmp_path / "here"
+    for base in (root, here):
+        shutil.copytree(os.path.join(SCENES, "white-furnace"), base / "mine",
+                        ignore=shutil.ignore_patterns("ref"))
+    (here / "other").mkdir()
+    shutil.copy(here / "mine" / "scene.xml", here / "other" / "scene.xml")
+    monkeypatch.chdir(here)
+    monkeypatch.setattr(reference, "REFERENCE_ROOT", str(root))
+    assert reference.resolve_scene("mine")[1] == str(root / "mine" / "scene.xml")
+    assert reference.resolve_scene("./mine")[1] == str(here / "mine" / "scene.xml")
+    assert reference.resolve_scene("other")[1] == str(here / "other" / "scene.xml")
+    monkeypatch.setenv("MCVERIFY_REFS", str(root))        # --refs sets it: restored after
+    assert cli.main(["reference", "build", "--refs", str(root), "--spp", "4",
+                     "--passes", "2", "-q"]) == 0
+    assert (root / "mine" / "ref" / "manifest.json").exists()
+    assert not (here / "mine" / "ref").exists()
+
+
 def test_build_refuses_to_replace_what_is_not_a_reference(scene_copy, monkeypatch):
     """A file named ``ref`` beside the scene was deleted by the build (exit 0), as was a
     user's folder of that name; both are refused before anything renders, and kept."""
