@@ -620,6 +620,10 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
         return (lambda keep=False: pass_stats(passes, option=f"{opt}-passes", keep=keep)), files
     if reference_ok and (not os.path.isfile(image) or image.lower().endswith(".xml")):
         # a reference name, its folder or its scene file (never an image)
+        for o, v in ((f"{opt}-var", var), (f"{opt}-n", n)):
+            if v is not None:   # silently ignored until 6 December
+                raise InvalidArgument(f"{o}: not with a reference ({image}), which gives "
+                                      "its own variance and passes; give REF.exr with it")
         return None, reference.reference_files(image)
     if var is None or n is None:
         raise InvalidArgument(f"{image}: an image needs {opt}-var and {opt}-n (or give "
