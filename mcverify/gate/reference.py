@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import stat
@@ -576,6 +577,16 @@ def _count(manifest: dict, key: str, minimum: int) -> int:
     return value
 
 
+def _radius(manifest: dict) -> float:
+    """A manifest's ``rfilter_radius``: a positive finite number (ValueError naming the
+    field otherwise; "x" raised a bare ValueError from ``pixels_correlated``)."""
+    value = manifest["rfilter_radius"]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"rfilter_radius: {value!r}, expected a positive number")
+    return float(value)
+
+
 def load_reference(spec: str) -> Reference:
     """Load a built reference; a missing, stale (scene changed) or corrupt one raises
     ``EnvironmentProblem`` naming the file and saying how to rebuild it."""
@@ -595,6 +606,8 @@ def load_reference(spec: str) -> Reference:
         n = _count(manifest, "passes", 2)
         if "spp" in manifest:
             _count(manifest, "spp", 1)
+        if "rfilter_radius" in manifest:
+            _radius(manifest)
         digest = manifest["scene_sha256"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise EnvironmentProblem(f"{mpath}: corrupt manifest ({e}); {rebuild}") from None

@@ -92,7 +92,7 @@ def sandbox(tmp_path_factory):
     (d / "adir").mkdir()
     # references: a fresh copy of white-furnace per variant
     for variant in ("ok", "stale", "swapped", "unhashed", "corrupt", "missing",
-                    "passes-0", "passes-text", "spp-text", "spp-negative"):
+                    "passes-0", "passes-text", "spp-text", "spp-negative", "radius-text"):
         shutil.copytree(os.path.dirname(FURNACE), d / f"ref-{variant}")
     ref = d / "ref-stale"
     (ref / "scene.xml").write_text((ref / "scene.xml").read_text().replace('"0.8"', '"0.9"'))
@@ -106,7 +106,8 @@ def sandbox(tmp_path_factory):
     m.write_text(json.dumps(doc, indent=2))
     (d / "ref-corrupt" / "ref" / "manifest.json").write_text("{ not json")
     for variant, key, value in (("passes-0", "passes", 0), ("passes-text", "passes", "16"),
-                                ("spp-text", "spp", "x"), ("spp-negative", "spp", -5)):
+                                ("spp-text", "spp", "x"), ("spp-negative", "spp", -5),
+                                ("radius-text", "rfilter_radius", "x")):
         m = d / f"ref-{variant}" / "ref" / "manifest.json"
         doc = json.loads(m.read_text())
         doc[key] = value
@@ -396,6 +397,8 @@ REFS = [
      "corrupt manifest (spp: 'x', expected an integer >= 1)"),
     ("spp-negative", "ref-spp-negative", EnvironmentProblem,
      "corrupt manifest (spp: -5, expected an integer >= 1)"),
+    ("radius-text", "ref-radius-text", EnvironmentProblem,
+     "corrupt manifest (rfilter_radius: 'x', expected a positive number)"),
 ]
 
 
