@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -33,16 +32,6 @@ def variants(text: str):
             yield f"-{child.tag} {i} ({child.get('type')})", ET.tostring(copy, encoding="unicode")
 
 
-def _best(fn, repeats: int) -> float:
-    fn()                                    # compile or load; not timed
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scene", help="a reference scene's name or a scene file")
@@ -51,6 +40,7 @@ def main() -> None:
     args = ap.parse_args()
     from estimators.pathtracer import prepare_scene, render
     from mcverify.gate import mitsuba as mvm
+    from mcverify.gate.bench import _best      # best of the repeats after a warm-up
     from mcverify.gate.reference import resolve_scene
 
     mi = mvm.mi()
