@@ -95,7 +95,9 @@ def assert_check(request):
             pytest.fail(f"assert_check expects the CheckResult of a mcverify check, got "
                         f"{type(result).__name__} {result!r:.80}", pytrace=False)
         if not result.passed:
-            lines = [result.summary(), *result.failures, *result.messages]
+            # the summary line carries the failures already; messages not repeated
+            lines = [result.summary(), *dict.fromkeys(m for m in result.messages
+                                                      if m not in result.failures)]
             seed = result.details.get("seed")
             lines.append(("" if seed is None else f"check seed={seed}; ")
                          + f"run with --mcverify-seed={run_seed}")

@@ -20,8 +20,15 @@ def test_assert_check_passes_through_and_fails_with_the_reason(assert_check):
     bad = mv.check_sampler(W.sample_cosine_hemisphere,
                            lambda x: 1.05 * W.cosine_hemisphere_pdf(x), "hemisphere",
                            n_samples=50_000)
-    with pytest.raises(pytest.fail.Exception, match="integrates to 1.05"):
+    with pytest.raises(pytest.fail.Exception, match="integrates to 1.05") as failed:
         assert_check(bad)
+    # each failure once: the summary line carries them (they were printed twice)
+    text = str(failed.value)
+    assert all(text.count(f) == 1 for f in bad.failures), text
+    inverse = mv.check_inverse(lambda u: u, lambda x: x * 1.1, 1, n_samples=100)
+    with pytest.raises(pytest.fail.Exception) as failed:
+        assert_check(inverse)
+    assert str(failed.value).count(inverse.failures[0]) == 1, str(failed.value)
     with pytest.raises(pytest.fail.Exception, match="expects the CheckResult of a mcverify "
                                                    "check, got bool True"):
         assert_check(True)
