@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numbers
 import os
+import re
 
 import numpy as np
 
@@ -225,3 +226,15 @@ def samples_1d(name: str, v, *, minimum: int = 2) -> np.ndarray:
     if a.size < minimum:
         raise InvalidArgument(f"{name}: needs at least {minimum} values, got {a.size}")
     return a
+
+
+def decimal_int(text: str) -> int:
+    """An integer option's value (argparse ``type=``): ASCII decimal digits with an
+    optional sign. Python's ``int`` also reads ``1_0`` and other scripts' digits
+    (``１``), which a command line's seed or count should not accept silently."""
+    t = str(text).strip()
+    if not re.fullmatch(r"[+-]?[0-9]+", t):
+        import argparse
+
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r} (decimal digits)")
+    return int(t)

@@ -36,9 +36,17 @@ import os
 import pytest
 
 
+def _decimal_int(text):
+    """``--mcverify-seed``'s type: decimal digits only (``_validate.decimal_int``; imported
+    when the option is given, so that loading the plugin stays light)."""
+    from ._validate import decimal_int
+
+    return decimal_int(text)
+
+
 def pytest_addoption(parser):
     group = parser.getgroup("mcverify")
-    group.addoption("--mcverify-seed", type=int, default=0,
+    group.addoption("--mcverify-seed", type=_decimal_int, default=0,
                     help="seed passed to mcverify checks through the mcverify_seed fixture")
     group.addoption("--mcverify-all-threads", action="store_true",
                     help="under pytest-xdist, let every worker's numba loops use all the "

@@ -14,6 +14,7 @@ import os
 import sys
 import time
 
+from .._validate import decimal_int
 from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -177,7 +178,7 @@ def _pool(args):
 
 
 def _add_pool_options(parser) -> None:
-    parser.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
+    parser.add_argument("-j", "--jobs", type=decimal_int, default=1, metavar="N",
                         help="run independent units (checks, passes) on N local worker "
                              "processes; default 1: in this process. Results are identical")
     parser.add_argument("--dask", metavar="tcp://HOST:PORT",
@@ -841,7 +842,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "file, its folder or a reference name; default: the whole suite")
     c.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
                    "(or matches it as a glob); default: all; no match exits 2")
-    c.add_argument("--seed", type=int, help=seed_help + "; default: [tool.mcverify] seed, "
+    c.add_argument("--seed", type=decimal_int, help=seed_help + "; default: [tool.mcverify] seed, "
                    "else 0")
     c.add_argument("--alpha", type=float,
                    help="family-wise significance level (Holm across checks); default: "
@@ -887,7 +888,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--renders", default="all", metavar="SCENES",
                     help="reference scenes to render and compare (comma-separated), "
                          "'all' or 'none'")
-    rp.add_argument("--seed", type=int, default=0, help=seed_help)
+    rp.add_argument("--seed", type=decimal_int, default=0, help=seed_help)
     rp.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(rp)
     _add_refs_option(rp)
@@ -895,11 +896,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios")
     b.add_argument("--json", metavar="PATH", help="write the timings as JSON; default: none")
-    b.add_argument("--repeats", type=int, default=5,
+    b.add_argument("--repeats", type=decimal_int, default=5,
                    help="timed repetitions per workload, at least (a workload is also "
                         "repeated for at least 0.25 s; the minimum is reported)")
-    b.add_argument("--n", type=int, default=1_000_000, help="points per workload (>= 1000)")
-    b.add_argument("--spp", type=int, default=64,
+    b.add_argument("--n", type=decimal_int, default=1_000_000, help="points per workload (>= 1000)")
+    b.add_argument("--spp", type=decimal_int, default=64,
                    help="samples per pixel of the renders (in all, one pass)")
     b.add_argument("--no-render", action="store_true", help="skip the path-tracer rows")
     b.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
@@ -912,13 +913,13 @@ def build_parser() -> argparse.ArgumentParser:
     rb = rsub.add_parser("build", help="(re)render references with per-pixel variance")
     rb.add_argument("scenes", nargs="*", metavar="SCENE",
                     help="reference names or scene.xml paths (default: all)")
-    rb.add_argument("--spp", type=int, default=256,
+    rb.add_argument("--spp", type=decimal_int, default=256,
                     help="samples per pixel of EACH pass (a reference has passes × spp "
                          "samples per pixel; its own noise sets a floor under the gate's "
                          "sensitivity)")
-    rb.add_argument("--passes", type=int, default=16,
+    rb.add_argument("--passes", type=decimal_int, default=16,
                     help="independent passes (>= 2), whose spread is the variance")
-    rb.add_argument("--seed", type=int, default=0, help=seed_help)
+    rb.add_argument("--seed", type=decimal_int, default=0, help=seed_help)
     rb.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(rb)
     _add_refs_option(rb)
@@ -934,7 +935,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--test-var", metavar="VAR.exr",
                     help="per-pixel variance of the --test-n values averaged into TEST.exr "
                          "(float OpenEXR); required with TEST.exr")
-    cp.add_argument("--test-n", type=int, metavar="N",
+    cp.add_argument("--test-n", type=decimal_int, metavar="N",
                     help="values per pixel behind TEST.exr (samples or passes, >= 2); "
                          "required with TEST.exr")
     cp.add_argument("--test-passes", metavar="GLOB",
@@ -944,7 +945,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--ref-var", metavar="VAR.exr",
                     help="variance image of REF.exr; required with an image REF, read from "
                          "the reference otherwise")
-    cp.add_argument("--ref-n", type=int, metavar="M",
+    cp.add_argument("--ref-n", type=decimal_int, metavar="M",
                     help="values per pixel behind REF.exr; required with an image REF, the "
                          "reference's passes otherwise")
     cp.add_argument("--ref-passes", metavar="GLOB",
@@ -956,12 +957,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "use the pass images of both sides (--test-passes, and "
                          "--ref-passes or a reference); implied by a reference whose "
                          "filter splats")
-    cp.add_argument("--test-spp", type=int, metavar="N",
+    cp.add_argument("--test-spp", type=decimal_int, metavar="N",
                     help="samples per pixel behind each test value (per pass): floors the "
                          "test side's variance at the reference's scaled to N, so that "
                          "passes which missed a rare bright path (a caustic) cannot look "
                          "overconfident; default: no floor")
-    cp.add_argument("--ref-spp", type=int, metavar="M",
+    cp.add_argument("--ref-spp", type=decimal_int, metavar="M",
                     help="samples per pixel behind each reference value, with --test-spp; "
                          "default: a committed reference's own")
     cp.add_argument("--alpha", type=float, default=0.01,
@@ -974,12 +975,12 @@ def build_parser() -> argparse.ArgumentParser:
     rc = sub.add_parser("render-check", help="our path tracer against the scene's Mitsuba "
                         "reference, pixel by pixel", epilog=EPILOG)
     rc.add_argument("scene", metavar="SCENE", help="scene.xml path or reference name")
-    rc.add_argument("--spp", type=int, default=1024,
+    rc.add_argument("--spp", type=decimal_int, default=1024,
                     help="samples per pixel IN ALL, split over --passes (at least "
                          f"{MIN_SPP_PER_PASS} per pass); unlike `reference build --spp`, "
                          "which is per pass")
-    rc.add_argument("--passes", type=int, default=16, help="independent passes (>= 2)")
-    rc.add_argument("--seed", type=int, default=0, help=f"seed of our renders, 0 to {MAX_SEED}")
+    rc.add_argument("--passes", type=decimal_int, default=16, help="independent passes (>= 2)")
+    rc.add_argument("--seed", type=decimal_int, default=0, help=f"seed of our renders, 0 to {MAX_SEED}")
     rc.add_argument("--alpha", type=float, default=0.01,
                     help="significance level of the image comparison")
     rc.add_argument("--param", action="append", metavar="NAME=VALUE",

@@ -35,13 +35,16 @@ def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
                                        "'default'"),
     (["check", "--alpha", "2"], "--alpha 2.0"),
     (["check", "--seed", "-3"], "--seed -3"),
+    # Python's int() reads these; a seed on a command line is decimal digits only
+    (["check", "--seed", "1_0"], "invalid int value: '1_0'"),
+    (["check", "--seed", "\uff11"], "invalid int value"),
     (["check", "--json", "/proc/forbidden/x.json"], "--json /proc/forbidden/x.json"),
     (["frobnicate"], "invalid choice"),
     (["report", "--out", "/proc/forbidden/rep"], "--out /proc/forbidden/rep"),
     (["bench", "--repeats", "0"], "--repeats 0"),
     (["bench", "--n", "10"], "--n 10"),
-], ids=["suite", "pattern", "list-pattern", "alpha", "seed", "json-path", "command",
-        "report-out", "bench-repeats", "bench-n"])
+], ids=["suite", "pattern", "list-pattern", "alpha", "seed", "seed-underscore",
+        "seed-fullwidth", "json-path", "command", "report-out", "bench-repeats", "bench-n"])
 def test_bad_input_is_one_line_exit_2(args, needle):
     r = run(*args)
     assert r.returncode == 2

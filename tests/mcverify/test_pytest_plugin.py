@@ -44,6 +44,17 @@ def test_a_negative_seed_is_refused_before_any_test_runs(tmp_path):
     assert "--mcverify-seed=-1: must be in [0, 2**63 - 1]" in r.stderr, r.stderr
 
 
+def test_a_seed_that_is_not_decimal_digits_is_refused(tmp_path):
+    """``--mcverify-seed=1_0`` was read as 10 (Python's int() takes underscores and other
+    scripts' digits; an outside review)."""
+    (tmp_path / "test_x.py").write_text("def test_x(mcverify_seed):\n    pass\n")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        "--mcverify-seed=1_0", str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.USAGE_ERROR, (r.stdout, r.stderr)
+    assert "invalid int value: '1_0'" in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("env, total, want", [
     ({}, 2, None),                                                        # no xdist
     ({"PYTEST_XDIST_WORKER_COUNT": "2"}, 2, None),                        # the controller
