@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._memory import physical_bytes
+
 __all__ = ["Estimate", "uniform", "importance", "stratified", "rqmc", "mis",
            "russian_roulette", "antithetic"]
 
@@ -85,6 +87,12 @@ def _box(a, b):
 def _count(n, name="n", minimum=1):
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < minimum:
         raise ValueError(f"{name}={n!r}: must be an integer >= {minimum}")
+    have = physical_bytes()
+    if have is not None and 8 * int(n) > have:
+        # one float64 a point is more than the machine holds (10**13 ended in numpy's
+        # "Unable to allocate 72.8 TiB", naming no argument)
+        raise ValueError(f"{name}={n!r}: {8 * int(n) / 2**30:.3g} GiB for one float64 a "
+                         f"point, more than this machine's {have / 2**30:.3g} GiB")
     return int(n)
 
 

@@ -23,6 +23,7 @@ from numba import get_num_threads
 
 from mcnumba.threads import run_split
 
+from .. import _memory
 from . import _kernel
 from .camera import SPLAT_CHANNELS, SPLAT_VALUE_CHANNELS
 from .layout import F_STRATIFIED
@@ -191,11 +192,8 @@ def _film_fits(cs) -> None:
     physical memory (a 100000 × 100000 film failed in numpy's allocation, naming an
     array shape; an outside review)."""
     need = cs.width * cs.height * _FILM_BYTES_PER_PIXEL
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):      # not POSIX: numpy decides
-        return
-    if need > have:
+    have = _memory.physical_bytes()
+    if have is not None and need > have:
         raise ValueError(f"film {cs.width} x {cs.height}: its image buffers need "
                          f"{need / 2**30:.3g} GiB, more than this machine's "
                          f"{have / 2**30:.3g} GiB of memory")

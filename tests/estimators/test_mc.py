@@ -315,3 +315,15 @@ def test_mis_term_at_a_sample_where_its_own_pdf_is_0_is_its_limit(heuristic, bet
         wf_over_p = np.where(own > 0, own ** (ex - 1.0), 1.0 if ex == 1.0 else 0.0) / denom
         want += np.mean(wf_over_p * f(x))
     assert e.value == pytest.approx(want, rel=1e-12)
+
+
+def test_a_sample_count_beyond_the_machines_memory_is_refused_by_name():
+    """n = 10**13 ended in numpy's "Unable to allocate 72.8 TiB", naming no argument (an
+    outside review)."""
+    import os
+
+    have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    n = 10 ** 13
+    assert 8 * n > have                     # the premise: beyond this machine
+    with pytest.raises(ValueError, match=r"n=10000000000000: .* GiB for one float64 a point"):
+        mc.uniform(np.sin, 0.0, 1.0, n)
