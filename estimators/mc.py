@@ -84,10 +84,10 @@ def _box(a, b):
     return a, b
 
 
-def _count(n, name="n", minimum=1):
+def _count(n, name="n", minimum=1, memory=True):
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < minimum:
         raise ValueError(f"{name}={n!r}: must be an integer >= {minimum}")
-    have = physical_bytes()
+    have = physical_bytes() if memory else None
     if have is not None and 8 * int(n) > have:
         # one float64 a point is more than the machine holds (10**13 ended in numpy's
         # "Unable to allocate 72.8 TiB", naming no argument)
@@ -275,14 +275,16 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     from scipy.stats import qmc   # here: importing scipy.stats costs ~1.2 s (Zen 1)
 
     lo, hi = _box(a, b)
-    n = _count(n)
+    # scipy's own messages named neither n nor the dimension ("At most 2**30=... distinct
+    # points can be generated", "Maximum allowed dimension exceeded" for n = 2^64); the
+    # Sobol limit, the more specific, before the memory bound of _count
+    n = _count(n, memory=False)
     if n & (n - 1):
         raise ValueError(f"n={n}: must be a power of two for Sobol points")
-    # scipy's own messages named neither n nor the dimension ("At most 2**30=... distinct
-    # points can be generated", "Maximum allowed dimension exceeded" for n = 2^64)
     if n > 2 ** 30:
         raise ValueError(f"n={n}: at most 2^30 = {2 ** 30} Sobol points a replicate (scipy's "
                          "30-bit Sobol sequence); raise replicates instead")
+    n = _count(n)
     if lo.size > qmc.Sobol.MAXDIM:
         raise ValueError(f"a, b: {lo.size} dimensions, Sobol points have at most "
                          f"{qmc.Sobol.MAXDIM}")
