@@ -29,8 +29,9 @@ import numpy as np
 
 from estimators._compile_options import THREADED, fused
 from estimators.pathtracer.bsdfs import bsdf_eval, bsdf_is_smooth, bsdf_sample
-from estimators.pathtracer.camera import (ORTHOGRAPHIC, SPLAT_CHANNELS, _orthographic_ray,
-                                          _perspective_ray, splat_kernel, splat_scratch)
+from estimators.pathtracer.camera import (CAMERA_KIND, ORTHOGRAPHIC, SPLAT_CHANNELS,
+                                          _orthographic_ray, _perspective_ray, splat_kernel,
+                                          splat_scratch)
 from estimators.pathtracer.emitters import area_pdf, eval_environment, is_delta, sample_emitter
 from estimators.pathtracer.geometry import (coordinate_system, intersect, new_stack, occluded,
                                             shading_frame, surface, to_local, to_world)
@@ -481,8 +482,8 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
     # Mitsuba's valid_ray: a path that only passed through null BSDF components (a mask's
     # transparent part, a thin dielectric's transmission) counts only if the environment
     # is visible to camera rays, or the BSDF sample at its last vertex (max_depth) is not
-    # null (Mitsuba's llvm variant); Mitsuba's
-    # direct integrator has no valid_ray and keeps every path
+    # null (Mitsuba's llvm variant); Mitsuba's direct integrator has no valid_ray and
+    # keeps every path
     valid = not (MASK & F_NULL_BSDFS) or (env >= 0 and not hide) or sc.keep_null_paths
     if max_depth == 0:      # Mitsuba returns black, not even emitters seen directly
         return 0.0, 0.0, 0.0, state
@@ -638,13 +639,13 @@ def _camera_rays(cam, seed, s0, s1, n, tab, x0, x1, y, width, height, fx, fy, ox
     inside, its loads became gathers. Zen 4, one thread, 512-bit vectors: 8.7 -> 2.4 ns
     a sample on its own; the white furnace at max_depth 0 and 16 spp 4.2 -> 3.6 ms."""
     if MASK & F_STRATIFIED and n != np.uint64(0):
-        if cam[16] == ORTHOGRAPHIC:
+        if cam[CAMERA_KIND] == ORTHOGRAPHIC:
             _camera_ray_loop(cam, seed, s0, s1, n, tab, x0, x1, y, width, height, fx, fy, ox,
                              oy, oz, dx, dy, dz, tm, rng, True, True)
         else:
             _camera_ray_loop(cam, seed, s0, s1, n, tab, x0, x1, y, width, height, fx, fy, ox,
                              oy, oz, dx, dy, dz, tm, rng, False, True)
-    elif cam[16] == ORTHOGRAPHIC:
+    elif cam[CAMERA_KIND] == ORTHOGRAPHIC:
         _camera_ray_loop(cam, seed, s0, s1, n, tab, x0, x1, y, width, height, fx, fy, ox, oy,
                          oz, dx, dy, dz, tm, rng, True, False)
     else:

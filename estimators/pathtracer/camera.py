@@ -35,6 +35,8 @@ from .text_numbers import SPACE, parse_float
 
 
 PERSPECTIVE, ORTHOGRAPHIC = 0, 1
+#: where ``Camera.params`` holds the camera's kind (PERSPECTIVE or ORTHOGRAPHIC)
+CAMERA_KIND = 16
 #: Reconstruction filters, in the order of their codes in ``Camera.params``.
 RFILTERS = ("box", "gaussian", "tent")
 #: Mitsuba's defaults: gaussian stddev 0.5 (radius 4σ), tent radius 1.
@@ -378,7 +380,7 @@ def _generate_ray_kernel(c, u, v):
     """Ray through film position (u, v): (ox, oy, oz, dx, dy, dz, t_max), unit d. A
     perspective camera's principal point offset shifts (u, v) as Mitsuba's does (0 for
     an orthographic one, which has none)."""
-    if c[16] == ORTHOGRAPHIC:
+    if c[CAMERA_KIND] == ORTHOGRAPHIC:
         return _orthographic_ray(c, u, v)
     return _perspective_ray(c, u, v)
 
