@@ -51,8 +51,10 @@ def _first_problem(rows, sample, pdf, inverse, domain, rejection):
     the u it raised at."""
     with np.errstate(all="ignore"):     # the findings are reported, not warned about
         found = _batch(rows, sample, pdf, inverse, domain, rejection)
-        if found is None or found[0] >= 0 or len(rows) == 1:
-            return found if found is None or found[0] >= 0 else (0, found[1])
+        if found is None or found[0] >= 0:
+            return found
+        if len(rows) == 1:
+            return 0, found[1]
         for i in range(len(rows)):
             one = _batch(rows[i:i + 1], sample, pdf, inverse, domain, rejection)
             if one is not None:
@@ -61,10 +63,18 @@ def _first_problem(rows, sample, pdf, inverse, domain, rejection):
 
 
 def _call(what, fn, arg):
+    """(what ``fn(arg)`` returned as an array, None), or (None, why that is a finding):
+    it raised, or (pdf, inverse) returned something that is not real numbers."""
     try:
-        return np.asarray(fn(arg)), None
+        v = fn(arg)
     except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
         return None, f"{what} raised {type(e).__name__}: {e}"
+    if what == "sample":
+        return np.asarray(v), None          # the domain's own conversion judges points
+    try:
+        return np.asarray(v, dtype=np.float64).reshape(-1), None
+    except (TypeError, ValueError):
+        return None, f"{what} returned {v!r:.80}, not real numbers"
 
 
 def _batch(rows, sample, pdf, inverse, domain, rejection):
@@ -90,16 +100,21 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
         p, raised = _call("pdf", pdf, x[good])
         if raised:
             return -1, raised
-        p = np.asarray(p, dtype=np.float64).reshape(-1)
-        if p.size == len(good):
-            for j in np.flatnonzero(~(np.isfinite(p) & (p >= 0.0))):
-                problems.setdefault(good[j], f"pdf {float(p[j])!r} at x={x[good[j]].tolist()} "
-                                             "(must be finite and >= 0)")
+        if p.size == 1:             # one number: that density everywhere (a constant pdf)
+            p = np.broadcast_to(p, len(good))
+        if p.size != len(good):
+            return -1, f"pdf returned {p.size} values for {len(good)} points"
+        for j in np.flatnonzero(~(np.isfinite(p) & (p >= 0.0))):
+            problems.setdefault(good[j], f"pdf {float(p[j])!r} at x={x[good[j]].tolist()} "
+                                         "(must be finite and >= 0)")
     if inverse is not None and len(good):
         back, raised = _call("inverse", inverse, x[good])
         if raised:
             return -1, raised
-        back = np.asarray(back, dtype=np.float64).reshape(len(good), -1)
+        if back.size != len(good) * rows.shape[1]:
+            return -1, (f"inverse returned {back.size} values for {len(good)} points of "
+                        f"{rows.shape[1]} uniform numbers each")
+        back = back.reshape(len(good), rows.shape[1])
         ok = np.all(np.isfinite(back) & (back >= 0.0) & (back <= 1.0), axis=1)
         for j in np.flatnonzero(~ok):
             problems.setdefault(good[j], f"inverse {back[j].tolist()} of "
@@ -127,7 +142,8 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
     the simplest u that shows it and reported in ``failures`` and ``details["u"]``.
 
     Not a statistical test: ``p_value`` is None, and a pass says only that no such u
-    was found among those tried. ``sample`` is called with one row at a time.
+    was found among those tried. The corners go to each callable in one call (row by
+    row only where one raises, to name the u), the searched u one row at a time.
 
     Examples
     --------
@@ -162,9 +178,9 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
     corner_values = edges if k <= 3 else (0.0, 0.5, edges[-1])
     corners = np.array(list(itertools.product(corner_values, repeat=k)), dtype=dtype)
     hit = _first_problem(corners, sample, pdf, inverse, dom, rejection)
-    tried, found = len(corners), None
+    tried, found, what = len(corners), None, None
     if hit is not None:
-        tried, found = hit[0] + 1, tuple(corners[hit[0]].tolist())
+        tried, found, what = hit[0] + 1, tuple(corners[hit[0]].tolist()), hit[1]
     if found is None and m > 0:
         from hypothesis import HealthCheck, Phase, errors, find, settings
 
@@ -180,13 +196,13 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
         try:
             found = find(_u_strategy(k, dtype), fails, settings=rules,
                          random=random.Random(seed))
+            what = problem(found)
         except errors.NoSuchExample:
             pass
         tried += count[0]
     failures, details = [], {"examples": tried, "seed": seed, "sample_dim": k,
                              "dtype": np.dtype(dtype).name, "u": None, "problem": None}
     if found is not None:
-        what = problem(found)
         u = [float(v) for v in found]
         details.update(u=u, problem=what)
         failures.append(f"u={u}: {what}")

@@ -92,3 +92,20 @@ def test_the_search_is_reproducible_by_seed():
 def test_bad_arguments_are_named(call, needle):
     with pytest.raises(mv.InvalidArgument, match=needle):
         call()
+
+
+def test_what_a_pdf_or_inverse_returns_is_judged_too():
+    """A pdf of strings or of the wrong length, an inverse of the wrong width, fail with
+    what they returned; a constant pdf (one number) is that density everywhere."""
+    same = lambda u: u                                        # noqa: E731
+    r = mv.check_stability(same, "interval", sample_dim=1, max_examples=5,
+                           pdf=lambda x: np.array(["a"] * len(x)))
+    assert not r.passed and "not real numbers" in r.details["problem"]
+    r = mv.check_stability(same, "interval", sample_dim=1, max_examples=5,
+                           pdf=lambda x: np.ones(3))
+    assert not r.passed and "pdf returned 3 values" in r.details["problem"]
+    assert mv.check_stability(same, "interval", sample_dim=1, max_examples=5,
+                              pdf=lambda x: 1.0).passed
+    r = mv.check_stability(same, "interval", sample_dim=1, max_examples=5,
+                           inverse=lambda x: np.ones(len(x) + 1))
+    assert not r.passed and "inverse returned" in r.details["problem"]
