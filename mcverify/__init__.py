@@ -8,6 +8,8 @@ Public API
 ``check_inverse``               CDF-inversion round trip ``inverse(sample(u)) ≈ u``
 ``check_stability``             property-based search (hypothesis) for a u at which a
                                 sampler, its pdf or inverse breaks (edges, subnormals)
+``check_pdf_consistency``       the pdf (and weight) a sampler returns with each draw
+                                against ``pdf(x)`` (and ``f(x) / pdf(x)``): MIS's contract
 ``check_same_distribution``     two-sample test of two samplers (regression checks)
 ``detectable_contamination``    the power a ``check_sampler`` result had: the mixture
                                 weight of uniform it would catch at 95 %
@@ -38,7 +40,8 @@ from mcnumba.vector_width import prefer_wide_vectors
 prefer_wide_vectors()       # before any numba function is defined: see mcnumba.vector_width
 
 from ._version import __version__
-from .checks import (check_convergence, check_inverse, check_same_distribution,
+from .checks import (check_convergence, check_inverse, check_pdf_consistency,
+                     check_same_distribution,
                      check_sampler, check_stability, check_unbiased, check_variance,
                      compare_images, detectable_contamination)
 from .domains import Disk, Domain, Hemisphere, Interval, Sphere, Square
@@ -48,7 +51,7 @@ from .result import CheckResult, SuiteResult, write_json, write_junit
 __all__ = [
     "check_sampler", "check_inverse", "check_same_distribution", "detectable_contamination",
     "check_unbiased", "check_variance", "check_convergence", "compare_images",
-    "check_stability", "render_check", "CheckResult", "SuiteResult", "write_json", "write_junit",
+    "check_stability", "check_pdf_consistency", "render_check", "CheckResult", "SuiteResult", "write_json", "write_junit",
     "Domain", "Interval", "Square", "Disk", "Sphere", "Hemisphere",
     "InvalidArgument", "EnvironmentProblem", "__version__",
 ]

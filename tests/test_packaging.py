@@ -62,7 +62,7 @@ def test_a_non_editable_install_runs_check_render_check_and_report(tmp_path):
     module, root = where.stdout.split()
     assert module.startswith(str(venv)) and root == str(venv / "share" / "mcverify" / "scenes")
     r = run("check", "-q", "-k", "uniform_disk_polar")
-    assert r.returncode == 0 and "2 passed, 0 failed" in r.stdout, r.stdout + r.stderr
+    assert r.returncode == 0 and "4 passed, 0 failed" in r.stdout, r.stdout + r.stderr
     r = run("render-check", "cornell-box", "-q")
     assert r.returncode == 0 and "PASS" in r.stdout, r.stdout + r.stderr
     r = run("report", "-q", "--out", "rep", "-k", "uniform_disk_polar", "--renders",

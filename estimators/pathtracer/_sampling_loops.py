@@ -21,18 +21,20 @@ def _bsdf_sample_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, u, 
     for i in range(i0, i1):
         r = bsdf_sample(mask, bf, bi, btex, tex_data, tex_info, b, wi, u[i, 0], u[i, 1],
                         u[i, 2], _UV, _UV, 1.0)
-        if r[6] > 0.0 and not r[7]:
+        if r[6] > 0.0 and not r[7]:     # direction, weight (rgb), pdf
             out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
+            out[i, 3], out[i, 4], out[i, 5], out[i, 6] = r[3], r[4], r[5], r[6]
         else:
-            out[i, 0], out[i, 1], out[i, 2] = np.nan, np.nan, np.nan
+            out[i, :] = np.nan
 
 
 @fused(**THREADED)
-def _bsdf_pdf_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, out, i0, i1):
+def _bsdf_eval_rows(mask, bf, bi, btex, tex_data, tex_info, b, wx, wy, wz, wo, out, i0, i1):
     wi = (wx, wy, wz)
-    for i in range(i0, i1):
-        out[i] = bsdf_eval(mask, bf, bi, btex, tex_data, tex_info, b, wi,
-                           (wo[i, 0], wo[i, 1], wo[i, 2]), _UV, _UV)[3]
+    for i in range(i0, i1):     # value (f · cos, rgb), pdf
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = bsdf_eval(
+            mask, bf, bi, btex, tex_data, tex_info, b, wi, (wo[i, 0], wo[i, 1], wo[i, 2]),
+            _UV, _UV)
 
 
 @fused(**THREADED)

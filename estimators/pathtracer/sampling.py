@@ -10,7 +10,9 @@ loop over rows (``_sampling_loops``), run on numba's threads: no second implemen
   "end the path" answer: below the horizon, outside the support) or went to a delta lobe
   (no density: its probability is the mass the continuous part lacks).
   ``pdf(wo (n, 3)) -> (n,)``: the density of the non-delta part per unit solid angle,
-  as the kernel's MIS weights read it.
+  as the kernel's MIS weights read it. :func:`bsdf_sampler_with_weight` adds what the
+  kernel's draw returns with each direction (its pdf and weight) and ``bsdf_eval``'s
+  value, for ``mcverify.check_pdf_consistency``.
 - :func:`emitter_sampler` (light row ``k``, reference point ``ref`` in world space):
   ``sample(u (n, 3)) -> direction (n, 3)`` (NaN where the kernel's pdf is zero: the
   light's back side), ``pdf(direction)`` in solid angle without the choice of light: for
@@ -43,7 +45,7 @@ from .emitters import is_delta
 from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
 from .render import _dependency_digest, load_cached
 
-__all__ = ["bsdf_sampler", "emitter_sampler", "bsdf_has_density", "emitter_has_density"]
+__all__ = ["bsdf_sampler", "bsdf_sampler_with_weight", "emitter_sampler", "bsdf_has_density", "emitter_has_density"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -105,6 +107,28 @@ def emitter_has_density(scene, k: int) -> bool:
 def bsdf_sampler(scene, b: int, wi):
     """``(sample, pdf)`` of BSDF row ``b`` of the prepared ``scene`` at incident ``wi``
     (a unit vector in the local frame; see the module docstring)."""
+    draw, evaluate = _bsdf_rows(scene, b, wi)
+    return (lambda u: draw(u)[:, :3]), (lambda wo: evaluate(wo)[:, 3])
+
+
+def bsdf_sampler_with_weight(scene, b: int, wi):
+    """``(sample, pdf, f)`` of BSDF row ``b`` at incident ``wi``, for
+    ``mcverify.check_pdf_consistency``: ``sample(u) -> (wo, pdf, weight)`` as the kernel's
+    ``bsdf_sample`` returns them (weight: ``f · cos / pdf``, rgb; rows as
+    :func:`bsdf_sampler`'s, NaN where it draws nothing), ``pdf(wo)`` and
+    ``f(wo) -> (n, 3)`` (``f · cos``) as ``bsdf_eval`` returns them."""
+    draw, evaluate = _bsdf_rows(scene, b, wi)
+
+    def sample(u):
+        out = draw(u)
+        return out[:, :3], out[:, 6], out[:, 3:6]
+
+    return sample, (lambda wo: evaluate(wo)[:, 3]), (lambda wo: evaluate(wo)[:, :3])
+
+
+def _bsdf_rows(scene, b: int, wi):
+    """(draw, evaluate): u (n, 3) -> (n, 7) rows of (wo, weight, pdf) from
+    ``bsdf_sample``; wo (n, 3) -> (n, 4) rows of (f · cos, pdf) from ``bsdf_eval``."""
     a = scene.arrays
     b = _index("b", b, len(a.bsdf_i))
     w = _vector("wi", wi)
@@ -113,19 +137,19 @@ def bsdf_sampler(scene, b: int, wi):
     mask = int(scene.features)
     tables = (mask, a.bsdf_f, a.bsdf_i, a.bsdf_tex, a.tex_data, a.tex_info, b) + w
 
-    def sample(u):
+    def draw(u):
         u = _rows("u", u)
-        out = np.empty_like(u)
+        out = np.empty((u.shape[0], 7))
         _run("_bsdf_sample_rows", *tables, u, out)
         return out
 
-    def pdf(wo):
+    def evaluate(wo):
         wo = _rows("wo", wo)
-        out = np.empty(wo.shape[0])
-        _run("_bsdf_pdf_rows", *tables, wo, out)
+        out = np.empty((wo.shape[0], 4))
+        _run("_bsdf_eval_rows", *tables, wo, out)
         return out
 
-    return sample, pdf
+    return draw, evaluate
 
 
 def _light_leaf_rows(a, k: int) -> np.ndarray:

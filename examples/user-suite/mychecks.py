@@ -1,10 +1,15 @@
 """A user's Mitsuba BSDF, registered from Python, and the checks that gate it.
 
 ``powercosine`` is a glossy lobe around the normal, p(ω) = (e + 1)/(2π) cos^e θ,
-sampled by inversion: cos θ = u^(1/(e+1)). With ``bug=True`` it carries a planted,
-realistic bug: the sampler uses the exponent e + 1 (an off-by-one between the sampler and
-its pdf). ``suite`` checks the correct plugin (`mcverify check` passes); ``planted``
-checks the buggy one (`mcverify check --suite mychecks:planted` fails).
+sampled by inversion: cos θ = u^(1/(e+1)). Each θ_i gets two checks: χ² of the draws
+against ``pdf`` (``check_sampler``), and the pdf and weight ``sample`` returns with each
+draw against ``pdf`` and ``eval / pdf`` (``check_pdf_consistency``). Two planted,
+realistic bugs: with ``bug=True`` the sampler uses the exponent e + 1 (an off-by-one
+between the sampler and its pdf: χ² fails); with ``pdf_bug=True`` ``sample`` returns the
+density of (cos θ, φ/2π), (e + 1) cos^e θ, without the Jacobian 1/(2π), while its draws
+and weight stay right (only the consistency check fails: an integrator's MIS weights
+would read the wrong pdf). ``suite`` checks the correct plugin (`mcverify check`
+passes); ``planted`` and ``planted_pdf`` check the buggy ones (exit 1).
 """
 
 import drjit as dr
@@ -20,6 +25,7 @@ class PowerCosine(mi.BSDF):
         mi.BSDF.__init__(self, props)
         self.e = props.get("exponent", 4.0)
         self.bug = props.get("bug", False)
+        self.pdf_bug = props.get("pdf_bug", False)
         self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
         self.m_components = [self.m_flags]
 
@@ -36,6 +42,8 @@ class PowerCosine(mi.BSDF):
         bs = dr.zeros(mi.BSDFSample3f)
         bs.wo = mi.Vector3f(sin_t * c, sin_t * s, cos_t)
         bs.pdf = self._pdf(si, bs.wo)
+        if self.pdf_bug:                                  # the other planted bug
+            bs.pdf = bs.pdf * (2.0 * dr.pi)
         bs.eta = 1.0
         bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
         bs.sampled_component = mi.UInt32(0)
@@ -59,19 +67,26 @@ class PowerCosine(mi.BSDF):
 mi.register_bsdf("powercosine", lambda props: PowerCosine(props))
 
 
-def _checks(bug: bool) -> list[Check]:
+def _checks(bug: bool = False, pdf_bug: bool = False) -> list[Check]:
+    plugin = {"type": "powercosine", "exponent": 4.0, "bug": bug, "pdf_bug": pdf_bug}
+    tag = "".join([",bug" if bug else "", ",pdf_bug" if pdf_bug else ""])
     out = []
     for theta in (0.0, 60.0):
         wi = _direction(theta)
-        name = f"powercosine(exponent=4{',bug' if bug else ''})@wi={theta:g}°"
+        name = f"powercosine(exponent=4{tag})@wi={theta:g}°"
 
         def run(seed, wi=wi, name=name):
-            sample, pdf, domain, kw = mvm.bsdf(
-                {"type": "powercosine", "exponent": 4.0, "bug": bug}, wi=wi)
+            sample, pdf, domain, kw = mvm.bsdf(plugin, wi=wi)
             return mv.check_sampler(sample, pdf, domain, n_samples=200_000, seed=seed,
                                     **dict(kw, name=name))
 
+        def run_consistency(seed, wi=wi, name="pdf_consistency:" + name):
+            sample, pdf, f, kw = mvm.bsdf_weighted(plugin, wi=wi)
+            return mv.check_pdf_consistency(sample, pdf, f=f, seed=seed,
+                                            **dict(kw, name=name))
+
         out.append(Check(name, run, tags=("mitsuba", "mine")))
+        out.append(Check("pdf_consistency:" + name, run_consistency, tags=("mitsuba", "mine")))
     return out
 
 
@@ -88,5 +103,11 @@ def suite() -> list[Check]:
 
 
 def planted() -> list[Check]:
-    """The same checks of the plugin with its planted bug: the gate must fail."""
+    """The same checks of the plugin with its planted exponent bug: χ² fails."""
     return _checks(bug=True)
+
+
+def planted_pdf() -> list[Check]:
+    """The same checks of the plugin returning a pdf without its Jacobian: the
+    consistency checks fail."""
+    return _checks(pdf_bug=True)

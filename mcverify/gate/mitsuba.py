@@ -27,7 +27,7 @@ from .. import _validate
 from ..errors import EnvironmentProblem, InvalidArgument
 
 __all__ = ["VariantChoice", "choose_variant", "mitsuba_warps", "mitsuba_version", "mi",
-           "Subject", "bsdf", "emitter", "microfacet", "phase"]
+           "Subject", "WeightedSubject", "bsdf", "bsdf_weighted", "emitter", "microfacet", "phase"]
 
 _LLVM_VARIANT = "llvm_ad_rgb"
 _SCALAR_VARIANT = "scalar_rgb"
@@ -538,19 +538,8 @@ def _nan_rejected(x, ok):
     return x
 
 
-def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
-    """A BSDF's ``sample``/``pdf`` pair at incident direction ``wi`` (local frame).
-
-    ``plugin``: a ``load_dict`` dict, an XML string or a loaded ``mi.BSDF`` (one
-    registered from Python with ``mi.register_bsdf`` included). The sample is 3-D: the
-    first number selects the lobe, as in Mitsuba's own χ² tests, so lobe selection is
-    part of what is checked. Draws with zero weight (Mitsuba's way of rejecting: below
-    the horizon, total internal reflection lost) or into a delta lobe come back as NaN
-    rows (see :class:`Subject`). ``component`` restricts sampling and pdf to one
-    component through ``BSDFContext.component``.
-
-    The domain is the sphere: reflection and transmission together.
-    """
+def _bsdf_setup(plugin, wi, uv, component):
+    """(plugin, wi, context, interaction(n)) of the BSDF adapters, arguments checked."""
     m = _mi()
     obj = _load(plugin, "plugin", ("BSDF",))
     w = _unit3("wi", wi)
@@ -566,7 +555,6 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
     ctx = m.BSDFContext()
     if component is not None:
         ctx.component = int(component)
-    delta = int(m.BSDFFlags.Delta)
 
     def interaction(n):
         si = _zeros(m.SurfaceInteraction3f, n)
@@ -575,6 +563,26 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
         si.sh_frame = m.Frame3f(m.Vector3f(0.0, 0.0, 1.0))
         si.uv = m.Point2f(*uv)
         return si
+
+    return obj, w, ctx, interaction
+
+
+def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
+    """A BSDF's ``sample``/``pdf`` pair at incident direction ``wi`` (local frame).
+
+    ``plugin``: a ``load_dict`` dict, an XML string or a loaded ``mi.BSDF`` (one
+    registered from Python with ``mi.register_bsdf`` included). The sample is 3-D: the
+    first number selects the lobe, as in Mitsuba's own χ² tests, so lobe selection is
+    part of what is checked. Draws with zero weight (Mitsuba's way of rejecting: below
+    the horizon, total internal reflection lost) or into a delta lobe come back as NaN
+    rows (see :class:`Subject`). ``component`` restricts sampling and pdf to one
+    component through ``BSDFContext.component``.
+
+    The domain is the sphere: reflection and transmission together.
+    """
+    m = _mi()
+    obj, w, ctx, interaction = _bsdf_setup(plugin, wi, uv, component)
+    delta = int(m.BSDFFlags.Delta)
 
     def draw(cols, n):
         bs, weight = obj.sample(ctx, interaction(n), _float(cols[0]),
@@ -595,6 +603,56 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
     return Subject(sample, pdf, "sphere",
                    {"sample_dim": 3, "name": f"mitsuba.bsdf:{_label(plugin, obj)}"
                                              f"@wi={_fmt(w)}"})
+
+
+class WeightedSubject(NamedTuple):
+    """A Mitsuba BSDF in the shape ``mcverify.check_pdf_consistency`` takes:
+    ``sample(u) -> (wo, pdf, weight)`` as ``BSDF.sample`` returns them (a row of NaN
+    where the draw went to a delta lobe), ``pdf(wo)`` and ``f(wo)`` (``BSDF.eval``:
+    f · cos, rgb). ``kwargs``: ``sample_dim``, ``rejection``, ``rtol`` (float32's, 1e-3)
+    and a ``name``. Use it as ``s, p, f, kw = mvm.bsdf_weighted(...);
+    mv.check_pdf_consistency(s, p, f=f, **kw)``."""
+
+    sample: Callable
+    pdf: Callable
+    f: Callable
+    kwargs: dict
+
+
+def bsdf_weighted(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None
+                  ) -> WeightedSubject:
+    """What ``BSDF.sample`` returns with each direction (its pdf and weight) and what
+    ``BSDF.pdf`` and ``BSDF.eval`` say of that direction, at incident ``wi`` (arguments
+    as :func:`bsdf`). The directions are Mitsuba's own float32 values, not recomputed,
+    so that ``pdf`` and ``eval`` see exactly what ``sample`` produced."""
+    m = _mi()
+    obj, w, ctx, interaction = _bsdf_setup(plugin, wi, uv, component)
+    delta = int(m.BSDFFlags.Delta)
+
+    def draw(cols, n):
+        bs, weight = obj.sample(ctx, interaction(n), _float(cols[0]),
+                                m.Point2f(_float(cols[1]), _float(cols[2])))
+        kind = np.asarray(bs.sampled_type).reshape(-1)
+        # a constant (thindielectric's weight) comes back as one value: broadcast
+        parts = [(bs.wo, 3), (bs.pdf, 1), (weight, 3)]
+        rows = np.concatenate([np.broadcast_to(np.asarray(v, dtype=np.float64).reshape(k, -1),
+                                               (k, n)) for v, k in parts])
+        return rows, (kind & delta) == 0
+
+    def sample(u):
+        out, ok = _rows(draw, _uniform(u), 7)
+        out[~ok] = np.nan
+        return out[:, :3], out[:, 3], out[:, 4:]
+
+    def pdf(x):
+        return _rows(lambda c, n: (obj.pdf(ctx, interaction(n), _vec3(c)), True), x, 1)[0]
+
+    def f(x):
+        return _rows(lambda c, n: (obj.eval(ctx, interaction(n), _vec3(c)), True), x, 3)[0]
+
+    return WeightedSubject(sample, pdf, f, {
+        "sample_dim": 3, "rejection": True, "rtol": 1e-3,
+        "name": f"mitsuba.bsdf_weighted:{_label(plugin, obj)}@wi={_fmt(w)}"})
 
 
 def _fmt(v) -> str:

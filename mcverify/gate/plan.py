@@ -5,7 +5,8 @@ integrator, as the path tracer's loader reports them) are looked up in ``NEEDS``
 table of what each feature relies on, as ``(kind, subject)`` pairs that checks declare
 in ``Check.verifies``. Delta features have nothing to sample and are listed in
 ``NOTHING_TO_SAMPLE`` with the reason. On top of these, the scene's own BSDF and emitter
-instances, with their parameters, are χ²-checked (``tracer_checks``).
+instances, with their parameters, are χ²-checked (``tracer_checks``), and each BSDF
+instance's returned pdf and weight are held to its evaluation (``consistency_checks``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 
 from .suites import Check, resolve_suite
-from .tracer_checks import tracer_checks
+from .tracer_checks import consistency_checks, tracer_checks
 
 __all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "plan"]
 
@@ -112,7 +113,7 @@ def plan(scene_path: str, suite: str = "default", checks: list[Check] | None = N
     skipped = [(c.name, "not needed by this scene") for c in all_checks if c.name not in wanted]
     skipped += [(f, why) for f, why in NOTHING_TO_SAMPLE.items() if f in desc.features]
     instances, delta = tracer_checks(scene_path)
-    keep += instances
+    keep += instances + consistency_checks(scene_path)
     skipped += delta
     keep.append(_render_check(scene_path))
     return keep, skipped, desc.features

@@ -172,6 +172,15 @@ def _warp_checks(profile: Profile) -> list[Check]:
 
             out.append(Check("stability:" + label, run_stability, ("estimators", "stability"),
                              frozenset({("stability", warp.name)})))
+
+            def run_consistency(seed, w=warp, p=params, label=label):
+                return checks.check_pdf_consistency(
+                    lambda u: w.sample.with_pdf(u, *p), lambda x: w.pdf(x, *p),
+                    sample_dim=w.sample_dim, seed=seed, name="pdf_consistency:" + label)
+
+            out.append(Check("pdf_consistency:" + label, run_consistency,
+                             ("estimators", "pdf_consistency"),
+                             frozenset({("pdf_consistency", warp.name)})))
     return out
 
 
@@ -353,7 +362,8 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
     Each is a known-wrong sampler whose rejection probability at 1e6 samples is 1 to
     many decimal places (see the slow power tests in tests/mcverify/test_calibration.py): contamination of a cosine
     sampler by 2 % uniform directions, GGX sampled at α = 0.30 against the pdf of
-    α = 0.32, and a cosine pdf scaled by 1.03.
+    α = 0.32, and a cosine pdf scaled by 1.03; and a cosine sampler that returns the
+    density of θ with each direction (``check_pdf_consistency``, exact row by row).
     """
     from estimators import warps
 
@@ -376,6 +386,19 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
                                         name=label, batches=BATCHES, stop_alpha=stop_alpha)
 
         out.append(Check(label, run, ("canary",), sequential=True))
+
+    def theta_density(u):
+        # draws cosine directions but returns the density of θ, cos θ sin θ · 2, for the
+        # direction: a Jacobian missed on one path (check_pdf_consistency's subject)
+        x, _ = warps.sample_cosine_hemisphere.with_pdf(u)
+        return x, 2.0 * x[:, 2] * np.sqrt(np.maximum(0.0, 1.0 - x[:, 2] ** 2))
+
+    def run_consistency(seed):
+        return checks.check_pdf_consistency(theta_density, warps.cosine_hemisphere_pdf,
+                                            sample_dim=2, seed=seed,
+                                            name="cosine-returns-pdf-of-theta")
+
+    out.append(Check("cosine-returns-pdf-of-theta", run_consistency, ("canary",)))
     return _sourced(out, canaries, n_samples)
 
 

@@ -26,12 +26,15 @@ from .. import checks
 from .reference import scene_name
 from .suites import Check
 
-__all__ = ["ANGLES", "TRACER_SAMPLES", "tracer_checks", "scene_instances"]
+__all__ = ["ANGLES", "TRACER_SAMPLES", "CONSISTENCY_SAMPLES", "tracer_checks",
+           "consistency_checks", "scene_instances"]
 
 #: Incident polar angles (degrees) of every BSDF instance; two-sided ones also at 180° - θ.
 ANGLES = (0.0, 45.0, 80.0)
 #: Samples per check in a scene's plan: 1e6, a few seconds per instance.
 TRACER_SAMPLES = 1_000_000
+#: Draws per consistency check (exact row by row, not statistical): 1e5, milliseconds.
+CONSISTENCY_SAMPLES = 100_000
 
 
 #: Azimuth (degrees) of the incident direction for anisotropic BSDFs, off both axes of
@@ -141,11 +144,14 @@ def _fmt(p) -> str:
 
 
 def scene_instances(scene_path: str):
-    """(entries, skipped): entries are (kind, label, where, make) with ``make()``
-    returning the (sample, pdf) pair; skipped are (label, why) for delta instances."""
+    """(entries, skipped): entries are (kind, label, where, make, make_weighted) with
+    ``make()`` returning the (sample, pdf) pair and ``make_weighted()`` (BSDFs; None for
+    emitters) the (sample, pdf, f) of ``sampling.bsdf_sampler_with_weight``; skipped
+    are (label, why) for delta instances."""
     from estimators.pathtracer import layout, prepare_scene
     from estimators.pathtracer.sampling import (bsdf_has_density, bsdf_sampler,
-                                                emitter_has_density, emitter_sampler)
+                                                bsdf_sampler_with_weight, emitter_has_density,
+                                                emitter_sampler)
 
     scene = prepare_scene(scene_path)
     tag = scene_name(scene_path)
@@ -162,7 +168,9 @@ def scene_instances(scene_path: str):
         where = "" if phi == 0.0 else f",phi={phi:g}°"
         for t in angles:
             entries.append(("bsdf", label, f"wi={t:g}°{where}",
-                            lambda b=b, t=t: bsdf_sampler(scene, b, _direction(t, phi))))
+                            lambda b=b, t=t: bsdf_sampler(scene, b, _direction(t, phi)),
+                            lambda b=b, t=t: bsdf_sampler_with_weight(scene, b,
+                                                                      _direction(t, phi))))
     for k in range(len(scene.arrays.light_i)):
         label = _emitter_label(scene, tag, k)
         if not emitter_has_density(scene, k):
@@ -180,7 +188,7 @@ def scene_instances(scene_path: str):
             unique.setdefault(_fmt(p), p)
         for where, p in unique.items():
             entries.append(("emitter", label, f"ref={where}",
-                            lambda k=k, p=p, s=light_scene: emitter_sampler(s, k, p)))
+                            lambda k=k, p=p, s=light_scene: emitter_sampler(s, k, p), None))
     return entries, skipped
 
 
@@ -190,7 +198,7 @@ def tracer_checks(scene_path: str, n_samples: int = TRACER_SAMPLES
     (delta instances) with the reason. Each check rebuilds in a worker from its source."""
     entries, skipped = scene_instances(scene_path)
     out = []
-    for kind, label, where, make in entries:
+    for kind, label, where, make, _ in entries:
         name = f"sampler:tracer.{kind}:{label}@{where}"
 
         def run(seed, make=make, name=name):
@@ -205,3 +213,27 @@ def tracer_checks(scene_path: str, n_samples: int = TRACER_SAMPLES
 
 def _rebuild(scene_path: str, n_samples: int) -> list[Check]:
     return tracer_checks(scene_path, n_samples)[0]
+
+
+def consistency_checks(scene_path: str, n_samples: int = CONSISTENCY_SAMPLES) -> list[Check]:
+    """Each BSDF instance's draws, at the χ² checks' incident directions, held to
+    ``bsdf_eval``: the pdf ``bsdf_sample`` returns with a direction (the path's
+    throughput and its MIS weight divide by it) must be the pdf ``bsdf_eval`` gives that
+    direction (what light sampling's MIS weight reads), and the weight must be
+    ``f · cos / pdf`` (``mcverify.check_pdf_consistency``; exact row by row, float64)."""
+    out = []
+    for kind, label, where, _, make_weighted in scene_instances(scene_path)[0]:
+        if make_weighted is None:
+            continue
+        name = f"pdf_consistency:tracer.{kind}:{label}@{where}"
+
+        def run(seed, make=make_weighted, name=name):
+            sample, pdf, f = make()
+            return checks.check_pdf_consistency(sample, pdf, f=f, sample_dim=3,
+                                                n_samples=n_samples, rejection=True,
+                                                seed=seed, name=name)
+
+        out.append(Check(name, run, ("tracer", "pdf_consistency"),
+                         frozenset({("pdf_consistency", label)}),
+                         source=(consistency_checks, (scene_path, n_samples))))
+    return out

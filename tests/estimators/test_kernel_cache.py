@@ -144,4 +144,4 @@ def test_a_sampling_loop_takes_the_lock_on_its_first_call_only(monkeypatch):
     np.testing.assert_array_equal(a, b)
     pdf(a)
     assert len(taken) == 2 and taken[0].endswith("._bsdf_sample_rows") \
-        and taken[1].endswith("._bsdf_pdf_rows"), taken
+        and taken[1].endswith("._bsdf_eval_rows"), taken

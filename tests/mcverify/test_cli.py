@@ -18,8 +18,8 @@ def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
     r = run("check", "-k", "uniform_disk_polar", "--json", str(a), "--junit",
             str(tmp_path / "r.xml"), "-q")
     assert r.returncode == 0, r.stdout + r.stderr
-    # sampler, inverse and stability checks
-    assert "3 passed, 0 failed" in r.stdout and "canaries bitten" in r.stdout
+    # sampler, inverse, stability and pdf-consistency checks
+    assert "4 passed, 0 failed" in r.stdout and "canaries bitten" in r.stdout
     run("check", "-k", "uniform_disk_polar", "--json", str(b), "-q")
     ra, rb = (json.loads(p.read_text()) for p in (a, b))
     assert [x["p_value"] for x in ra["results"]] == [x["p_value"] for x in rb["results"]]

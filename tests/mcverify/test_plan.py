@@ -38,9 +38,9 @@ def test_diffuse_scene_with_a_point_light(tmp_path):
     path = tmp_path / "scene.xml"
     path.write_text(DIFFUSE_POINT)
     checks, skipped, _ = plan(str(path))
-    tracer = {n for n in _names(checks) if n.startswith("sampler:tracer.")}
-    assert tracer == {f"sampler:tracer.bsdf:{tmp_path.name}/bsdf0:diffuse@wi={t}°"
-                      for t in (0, 45, 80)}
+    tracer = {n for n in _names(checks) if ":tracer." in n}
+    assert tracer == {f"{kind}:tracer.bsdf:{tmp_path.name}/bsdf0:diffuse@wi={t}°"
+                      for t in (0, 45, 80) for kind in ("sampler", "pdf_consistency")}
     assert _names(checks) - tracer == {
         "sampler:cosine_hemisphere", "inverse:cosine_hemisphere",
         "unbiased:russian_roulette(q=0.3)", "unbiased:mis(balance)", "unbiased:mis(power)",

@@ -194,6 +194,8 @@ def test_canaries_are_rejected_on_at_most_a_quarter_of_their_samples():
     from mcverify.gate import suites
 
     for c in suites.canaries():
+        if not c.sequential:        # check_pdf_consistency's canary: exact, not sequential
+            continue
         r = suites._run_guarded(c, suites.check_seed(0, "canary:" + c.name))
         s = r.details["sequential"]
         assert not r.passed and s["batches"] == 16 and s["batch"] <= 4, (c.name, s)

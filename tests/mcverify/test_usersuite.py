@@ -180,7 +180,7 @@ def test_mcverify_check_runs_the_projects_suite_with_its_alpha_and_seed(project,
     assert doc["provenance"]["config"] == str(project / "pyproject.toml")
     assert [x["name"] for x in doc["results"]] == ["sqrt", "sqrt-again"]
     assert doc["canary_bitten"]
-    assert 'tests="5"' in (tmp_path / "r.xml").read_text()      # 2 checks + 3 canaries
+    assert 'tests="6"' in (tmp_path / "r.xml").read_text()      # 2 checks + 4 canaries
     # the command line wins over the table
     r2 = _cli(["check", "-q", "--suite", "mine.checks:bad", "--alpha", "0.01", "--json",
                str(out)], cwd=project / "sub" / "deeper")
@@ -207,10 +207,17 @@ def test_the_readme_example_passes_and_its_planted_bug_fails():
     pyproject.toml; the same checks on the planted off-by-one exponent fail."""
     ok = _cli(["check", "-q"], cwd=EXAMPLE)
     assert ok.returncode == 0, ok.stdout + ok.stderr
-    assert "mychecks:suite: 2 passed, 0 failed" in ok.stdout
+    assert "mychecks:suite: 4 passed, 0 failed" in ok.stdout
     bad = _cli(["check", "-q", "--suite", "mychecks:planted"], cwd=EXAMPLE)
     assert bad.returncode == 1, bad.stdout + bad.stderr
     assert bad.stdout.count("FAIL powercosine(exponent=4,bug)") == 2
+    assert "FAIL pdf_consistency" not in bad.stdout     # its returned pdfs are pdf(x)
+    # the other planted bug: draws right, returned pdf without its Jacobian 1/(2π)
+    bad = _cli(["check", "-q", "--suite", "mychecks:planted_pdf"], cwd=EXAMPLE)
+    assert bad.returncode == 1, bad.stdout + bad.stderr
+    assert bad.stdout.count("FAIL pdf_consistency:powercosine(exponent=4,pdf_bug)") == 2
+    assert "(ratio 6.28319)" in bad.stdout
+    assert "FAIL powercosine" not in bad.stdout         # χ² cannot see it
 
 
 def test_a_user_suite_runs_in_worker_processes_with_the_same_results(project):
@@ -356,7 +363,7 @@ def test_a_check_named_like_a_canary_is_reported_as_itself():
     result = run_suite([Check(name, ok)], progress=lambda i, n, r, c: seen.append(
         (r.name, c.tags, _verdict(r, c, 0.01))))
     assert result.passed and seen[0] == (name, (), "ok"), seen
-    assert [v for _, tags, v in seen if "canary" in tags] == ["bitten"] * 3
+    assert [v for _, tags, v in seen if "canary" in tags] == ["bitten"] * len(canaries())
 
 
 def test_a_p_value_that_is_no_probability_fails_its_check_and_stays_out_of_holm():

@@ -1,0 +1,237 @@
+"""``check_pdf_consistency``: the pdf and weight a sampler returns with each draw, held
+to ``pdf(x)`` and ``f(x) / pdf(x)``. Not statistical (no significance level): every row
+is compared within a relative tolerance; seeds are fixed."""
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+from estimators import warps
+from estimators.warps import WARPS
+
+
+def _cosine(u):
+    r, phi = np.sqrt(u[:, 0]), 2.0 * np.pi * u[:, 1]
+    z = np.sqrt(1.0 - u[:, 0])
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _cos_pdf(x):
+    return x[:, 2] / np.pi
+
+
+def _good(u):
+    x = _cosine(u)
+    return x, _cos_pdf(x)
+
+
+ALBEDO = np.array([0.8, 0.5, 0.2])
+
+
+def _f(x):                                  # a diffuse BSDF's f · cos
+    return ALBEDO[None, :] / np.pi * x[:, 2:3]
+
+
+def _weighted(u):
+    x, p = _good(u)
+    return x, p, np.broadcast_to(ALBEDO, (len(x), 3))
+
+
+@pytest.mark.parametrize("name", sorted(WARPS))
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_every_warps_with_pdf_agrees_with_its_pdf(name, dtype):
+    w = WARPS[name]
+    r = mv.check_pdf_consistency(
+        lambda u: w.sample.with_pdf(np.asarray(u, dtype=dtype), *w.defaults),
+        lambda x: w.pdf(x, *w.defaults), sample_dim=w.sample_dim, n_samples=20_000, seed=1)
+    assert r.passed, r.failures
+    assert r.details["rtol"] == (1e-3 if dtype == np.float32 else 1e-6)
+    assert r.details["n_compared"] + r.details["no_sample"] == 20_000
+
+
+def test_a_returned_density_of_theta_fails_naming_the_ratio():
+    def theta(u):
+        x = _cosine(u)
+        return x, 2.0 * x[:, 2] * np.sqrt(1.0 - x[:, 2] ** 2)
+
+    r = mv.check_pdf_consistency(theta, _cos_pdf, sample_dim=2, n_samples=5000, seed=2)
+    assert not r.passed and r.p_value is None
+    assert r.failures[0].startswith("5000 of 5000 returned pdfs differ from pdf(x)")
+    assert "ratio" in r.failures[0] and "u=[" in r.failures[0]
+    worst = r.details["worst_pdf"]
+    assert worst["returned"] != pytest.approx(worst["pdf"], rel=0.1)
+
+
+def test_a_jacobian_missed_near_the_horizon_only_fails_with_its_count():
+    def grazing(u):
+        x, p = _good(u)
+        return x, np.where(x[:, 2] < 0.1, 2.0 * p, p)
+
+    r = mv.check_pdf_consistency(grazing, _cos_pdf, sample_dim=2, n_samples=100_000, seed=3)
+    bad = int(r.failures[0].split(" of ")[0])
+    assert not r.passed and 700 < bad < 1300        # P(z < 0.1) = 0.01 for cosine draws
+
+
+def test_weights_are_checked_against_f_over_pdf():
+    r = mv.check_pdf_consistency(_weighted, _cos_pdf, f=_f, sample_dim=2, n_samples=5000)
+    assert r.passed and r.details["max_weight_rel_error"] < 1e-12, r.failures
+
+    def cos_missed(u):                     # the weight keeps a cosine the pdf cancelled
+        x, p, w = _weighted(u)
+        return x, p, w * x[:, 2:3]
+
+    r = mv.check_pdf_consistency(cos_missed, _cos_pdf, f=_f, sample_dim=2, n_samples=5000)
+    assert not r.passed and "returned weights differ from f(x) / pdf(x)" in r.failures[0]
+    assert "worst_weight" in r.details and "worst_pdf" not in r.details
+
+
+def test_one_channel_weights_and_values():
+    def mono(u):
+        x, p = _good(u)
+        return x, p, np.full(len(x), 0.5)
+
+    ok = mv.check_pdf_consistency(mono, _cos_pdf, f=lambda x: 0.5 * _cos_pdf(x),
+                                  sample_dim=2, n_samples=1000)
+    bad = mv.check_pdf_consistency(mono, _cos_pdf, f=lambda x: 0.6 * _cos_pdf(x),
+                                   sample_dim=2, n_samples=1000)
+    assert ok.passed and not bad.passed
+
+
+def test_weights_without_f_are_not_compared_and_say_so():
+    r = mv.check_pdf_consistency(_weighted, _cos_pdf, sample_dim=2, n_samples=1000)
+    assert r.passed and "max_weight_rel_error" not in r.details
+    assert any("pass f" in m for m in r.messages)
+
+
+def test_the_tolerance_follows_rtol_and_float32():
+    def off(u):                                    # 1e-4 relative: rounding for float32
+        x, p = _good(u)
+        return x, p * (1.0 + 1e-4)
+
+    assert not mv.check_pdf_consistency(off, _cos_pdf, sample_dim=2, n_samples=1000).passed
+    assert mv.check_pdf_consistency(off, _cos_pdf, sample_dim=2, n_samples=1000,
+                                    rtol=1e-3).passed
+
+    def off32(u):
+        x, p = off(u)
+        return x.astype(np.float32), p.astype(np.float32)
+
+    r = mv.check_pdf_consistency(off32, _cos_pdf, sample_dim=2, n_samples=1000)
+    assert r.passed and r.details["rtol"] == 1e-3
+    r = mv.check_pdf_consistency(off32, _cos_pdf, sample_dim=2, n_samples=1000, rtol=1e-5)
+    assert not r.passed
+
+
+def test_rejected_and_no_sample_rows_are_skipped_and_counted():
+    def rejecting(u):
+        x, p, w = _weighted(u)
+        x, p, w = x.copy(), p.copy(), w.copy()
+        x[u[:, 0] < 0.25] = np.nan                 # rejected draws
+        p[(u[:, 0] >= 0.25) & (u[:, 1] < 0.1)] = 0.0     # "no sample": pdf 0
+        w[(u[:, 0] >= 0.25) & (u[:, 1] > 0.9)] = 0.0     # "no sample": weight 0
+        p[(u[:, 0] >= 0.25) & (u[:, 1] > 0.9)] = 123.0   # ... whatever pdf it keeps
+        return x, p, w
+
+    r = mv.check_pdf_consistency(rejecting, _cos_pdf, f=_f, sample_dim=2, n_samples=20_000,
+                                 rejection=True, seed=4)
+    d = r.details
+    assert r.passed, r.failures
+    assert d["rejected"] + d["no_sample"] + d["n_compared"] == 20_000
+    assert 4500 < d["rejected"] < 5500 and 2500 < d["no_sample"] < 3500
+    r = mv.check_pdf_consistency(rejecting, _cos_pdf, f=_f, sample_dim=2, n_samples=20_000,
+                                 seed=4)
+    assert not r.passed and "rejection=True" in r.failures[0]
+
+
+def test_nan_or_inf_returned_pdfs_fail():
+    def nan_pdf(u):
+        x, p = _good(u)
+        p = p.copy()
+        p[::100] = np.nan
+        return x, p
+
+    r = mv.check_pdf_consistency(nan_pdf, _cos_pdf, sample_dim=2, n_samples=1000)
+    assert not r.passed and r.failures[0].startswith("10 of 1000")
+    r = mv.check_pdf_consistency(_good, lambda x: np.full(len(x), np.inf), sample_dim=2,
+                                 n_samples=100)
+    assert not r.passed
+
+
+def test_the_same_seed_gives_the_same_finding():
+    def theta(u):
+        x = _cosine(u)
+        return x, x[:, 2] * 0.9 + 0.01 * u[:, 1]
+
+    a, b, c = (mv.check_pdf_consistency(theta, _cos_pdf, sample_dim=2, n_samples=2000,
+                                        seed=s) for s in (7, 7, 8))
+    assert a.details["worst_pdf"] == b.details["worst_pdf"] != c.details["worst_pdf"]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(sample=lambda u: _cosine(u)), "check_sampler's subject"),
+    (dict(sample=lambda u: (_cosine(u),)), r"\(points, pdf\)"),
+    (dict(sample=_good, f=_f), "f given, but sample returns no weight"),
+    (dict(sample=_weighted, f=lambda x: np.ones((len(x), 2))), "2 channels, the weight has 3"),
+    (dict(sample=_good, pdf=lambda x: np.ones((len(x), 2))), "pdf returned shape"),
+    (dict(sample=lambda u: (_cosine(u), np.ones(3))), "sample's pdf returned shape"),
+    (dict(sample=lambda u: (_cosine(u)[:5], np.ones(5))), "sample returned shape"),
+    (dict(sample=lambda u: (_cosine(u), ["a"] * len(u))), "dtype"),
+    (dict(rtol=-1.0), "rtol=-1.0"),
+    (dict(rtol=np.nan), "rtol=nan"),
+    (dict(n_samples=0), "n_samples=0"),
+    (dict(sample_dim=0), "sample_dim=0"),
+    (dict(rejection="yes"), "rejection="),
+    (dict(pdf="x"), "pdf="),
+])
+def test_bad_input_is_refused_naming_it(kwargs, match):
+    args = dict(sample=_good, pdf=_cos_pdf, sample_dim=2, n_samples=100)
+    args.update(kwargs)
+    with pytest.raises(mv.InvalidArgument, match=match):
+        mv.check_pdf_consistency(args.pop("sample"), args.pop("pdf"), **args)
+
+
+def test_the_default_suite_checks_every_warp_and_bites_its_canary():
+    from mcverify.gate.suites import build_suite, canaries
+
+    names = {c.name.split("(")[0] for c in build_suite("default")
+             if c.name.startswith("pdf_consistency:")}
+    assert names == {f"pdf_consistency:{w}" for w in WARPS}
+    canary = next(c for c in canaries() if c.name == "cosine-returns-pdf-of-theta")
+    assert not canary.run(0).passed
+
+
+def test_the_tracer_s_bsdf_draws_agree_with_its_evaluation():
+    """Every BSDF instance of a reference scene: bsdf_sample's pdf and weight against
+    bsdf_eval (the scene plan's ``pdf_consistency:tracer.bsdf`` checks)."""
+    import os
+
+    from mcverify.gate.reference import REFERENCE_ROOT
+    from mcverify.gate.tracer_checks import consistency_checks
+
+    checks = consistency_checks(os.path.join(REFERENCE_ROOT, "vocabulary-glass", "scene.xml"),
+                                20_000)
+    assert len(checks) >= 30
+    results = [c.run(3) for c in checks]
+    assert all(r.passed for r in results), [r.failures for r in results if not r.passed]
+    assert sum(r.details["n_compared"] for r in results) > 20_000 * len(checks) // 2
+
+
+def test_a_tracer_weight_planted_off_its_evaluation_fails():
+    """A planted bug: the tracer's draws with their weight scaled (a lost Fresnel factor,
+    say) against its evaluation."""
+    import os
+
+    from estimators.pathtracer import prepare_scene
+    from estimators.pathtracer.sampling import bsdf_sampler_with_weight
+    from mcverify.gate.reference import REFERENCE_ROOT
+
+    scene = prepare_scene(os.path.join(REFERENCE_ROOT, "rough-conductors", "scene.xml"))
+    sample, pdf, f = bsdf_sampler_with_weight(scene, 2, (0.6, 0.0, 0.8))
+    assert mv.check_pdf_consistency(sample, pdf, f=f, sample_dim=3, rejection=True).passed
+
+    def scaled(u):
+        x, p, w = sample(u)
+        return x, p, w * 0.98
+
+    r = mv.check_pdf_consistency(scaled, pdf, f=f, sample_dim=3, rejection=True)
+    assert not r.passed and "returned weights" in r.failures[0]
