@@ -23,7 +23,7 @@ __all__ = [
     "TTestResult", "ttest_mean",
     "TailResult", "hill_tail_index",
     "VarianceTestResult", "variance_test",
-    "SlopeResult", "loglog_slope", "z_test_beyond", "welch_t_beyond", "welch_dof",
+    "SlopeResult", "loglog_slope", "welch_t_beyond", "welch_t_pooled_beyond", "welch_dof",
     "holm", "sidak", "benjamini_hochberg", "bonferroni_min",
     "binomial_upper_bound",
     "obrien_fleming_spending", "power_spending", "spending_function", "spending_weights",
@@ -503,17 +503,6 @@ def _beyond(diff, tol):
     return np.maximum(np.abs(diff) - tol, 0.0)
 
 
-def z_test_beyond(diff, var, tol) -> np.ndarray:
-    """Two-sided normal p-values of differences ``diff`` with variance ``var``, counting
-    only the part of ``|diff|`` beyond ``tol``. Where the variance is 0 the comparison is
-    exact: equal (p = 1) when ``|diff| <= tol``, else different (p = 0). Elementwise."""
-    excess = _beyond(diff, tol)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = excess / np.sqrt(var)
-    p = 2.0 * _sps.norm.sf(z)
-    return np.where(var <= 0, np.where(excess == 0, 1.0, 0.0), p)
-
-
 #: The lower quantile of a sample variance's chi-square law at which ``welch_t_beyond``
 #: takes each side's variance when it chooses the degrees of freedom.
 WELCH_DOF_QUANTILE = 1e-5
@@ -528,22 +517,29 @@ def welch_dof(var_a, n_a, var_b, n_b) -> np.ndarray:
     (8 times); q = 1e-5 held down to 1e-7 in simulation. Elementwise."""
     a = np.asarray(var_a, dtype=np.float64) / n_a
     b = np.asarray(var_b, dtype=np.float64) / n_b
-    qa = (n_a - 1) / _sps.chi2.ppf(WELCH_DOF_QUANTILE, n_a - 1)
-    qb = (n_b - 1) / _sps.chi2.ppf(WELCH_DOF_QUANTILE, n_b - 1)
+    dof = _tail_dof(a, np.float64(n_a - 1), b, np.float64(n_b - 1))
+    return np.where(np.isfinite(dof), dof, float(min(n_a, n_b) - 1))
+
+
+def _tail_dof(a, nu_a, b, nu_b):
+    """``welch_dof`` for two independent variance estimates ``a``, ``b`` (of the two
+    means) with ``nu_a``, ``nu_b`` degrees of freedom each (elementwise arrays)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        qa = nu_a / _sps.chi2.ppf(WELCH_DOF_QUANTILE, nu_a)
+        qb = nu_b / _sps.chi2.ppf(WELCH_DOF_QUANTILE, nu_b)
 
     def satterthwaite(x, y):
         with np.errstate(divide="ignore", invalid="ignore"):
-            return (x + y) ** 2 / (x * x / (n_a - 1) + y * y / (n_b - 1))
+            return (x + y) ** 2 / (x * x / nu_a + y * y / nu_b)
 
-    dof = np.minimum(satterthwaite(a * qa, b), satterthwaite(a, b * qb))
-    return np.where(np.isfinite(dof), dof, float(min(n_a, n_b) - 1))
+    return np.minimum(satterthwaite(a * qa, b), satterthwaite(a, b * qb))
 
 
 def welch_t_beyond(diff, var_a, n_a, var_b, n_b, tol) -> np.ndarray:
     """Two-sided p-values of Welch's t for mean differences ``diff`` of two samples
     (per-element sample variances ``var_a``, ``var_b`` of ``n_a``, ``n_b`` values),
-    counting only ``|diff|`` beyond ``tol``; exact where both variances are 0 (as
-    ``z_test_beyond``). Elementwise; degrees of freedom from :func:`welch_dof`.
+    counting only ``|diff|`` beyond ``tol`` (differences within it are no evidence);
+    exact where both variances are 0: equal (p = 1) within ``tol``, else p = 0. Elementwise; degrees of freedom from :func:`welch_dof`.
 
     Why not the Welch–Satterthwaite estimate itself: it uses the same variances as the
     statistic, so when the side with fewer values has its variance caught low, t grows
@@ -558,8 +554,22 @@ def welch_t_beyond(diff, var_a, n_a, var_b, n_b, tol) -> np.ndarray:
     a side and every variance share from 5 % to 99 % (``tests/mcverify/test_stats.py``).
     The price is power with few values: 4 values against 64 reject at about the rate
     of Student's t with 3 dof."""
-    se2 = var_a / n_a + var_b / n_b
     dof = welch_dof(var_a, n_a, var_b, n_b)
+    return _t_beyond(diff, var_a / n_a + var_b / n_b, dof, tol)
+
+
+def welch_t_pooled_beyond(diff, se2_a, dof_a, se2_b, dof_b, tol) -> np.ndarray:
+    """``welch_t_beyond`` for differences of sums (or means) of many independent values
+    a side, each side's variance ``se2_a``/``se2_b`` a sum of per-value estimates with
+    ``dof_a``/``dof_b`` Satterthwaite degrees of freedom: an image's or a block's mean
+    over its pixels, each pixel's variance estimated from its n values. With many values a side it is the z-test; with few (a reference of 2
+    passes) it is Student's t with the degrees of freedom the variance estimate has."""
+    dof = _tail_dof(np.asarray(se2_a, np.float64), dof_a, np.asarray(se2_b, np.float64), dof_b)
+    dof = np.where(np.isfinite(dof), dof, np.minimum(dof_a, dof_b))
+    return _t_beyond(diff, se2_a + se2_b, dof, tol)
+
+
+def _t_beyond(diff, se2, dof, tol):
     with np.errstate(divide="ignore", invalid="ignore"):
         t = _beyond(diff, tol) / np.sqrt(se2)
     return np.where(se2 > 0, 2.0 * _sps.t.sf(t, dof),

@@ -32,7 +32,8 @@ def _small_suite():
 
 def test_suite_json_is_identical_in_process_on_2_processes_and_on_a_dask_cluster():
     checks = _small_suite()
-    assert len(checks) == 13         # 10 estimators; the polar disk's sampler, inverse, stability
+    assert len(checks) == 14         # 10 estimators; the polar disk's sampler, inverse, stability,
+    #                                  pdf consistency
     serial = suites.run_suite(checks, seed=3, canary=False).to_dict()
     with Pool(jobs=2) as pool:
         calls = []

@@ -25,15 +25,18 @@ def test_planted_bugs_are_decided_early(plant, pdf_scale):
 def test_a_subtle_planted_bug_is_decided_on_a_quarter_of_the_passes_on_most_seeds():
     """Light +2 %: z ≈ 8.7 on all 16 passes, about 4.4 on the first quarter, but image
     means are heavy-tailed (caustics), so the first look's evidence scatters between
-    seeds. The claim is about the typical run: decided at batch 1 on at least half of 8
-    seeds (the median run stops at a quarter of the samples), never later than batch 2,
-    and never passed."""
+    seeds. The claim is about the typical run: decided at batch 1 on at least 3 of 8
+    seeds, never later than batch 2, and never passed. (5 of 8 until the image and block
+    tests took the variance estimates' degrees of freedom into account: the first look's
+    image mean has 80-110 from 4 passes, where firefly pixels dominate its variance, and
+    Student's t there moves seeds 23 and 24 to batch 2. The z-test that treated those variances as known raised false alarms against
+    2-pass references: ``test_images``.)"""
     batches = []
     for seed in range(20, 28):
         r = mv.render_check("cornell-box", seed=seed, plant={"light_scale": 1.02})
         assert not r.passed, seed
         batches.append(r.details["sequential"]["batch"])
-    assert batches.count(1) >= 4 and max(batches) <= 2, batches
+    assert batches.count(1) >= 3 and max(batches) <= 2, batches
 
 
 def test_a_correct_render_runs_every_pass_and_ends_with_the_pixel_tests():

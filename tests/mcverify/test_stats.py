@@ -123,7 +123,7 @@ def test_loglog_slope_counts_a_seed_as_the_unit():
     assert np.mean(np.array(wrong) <= 0.01) > 0.6
 
 
-def test_welch_and_z_tests_beyond_a_tolerance():
+def test_welch_tests_beyond_a_tolerance():
     rng = np.random.default_rng(4)
     a, b = rng.normal(0.0, 1.0, (8, 16)), rng.normal(0.3, 2.0, (8, 24))
     diff = a.mean(1) - b.mean(1)
@@ -138,10 +138,17 @@ def test_welch_and_z_tests_beyond_a_tolerance():
     # the tolerance is subtracted before testing; zero variance compares exactly
     assert stats.welch_t_beyond(np.array([0.5]), np.array([1.0]), 4, np.array([1.0]), 4,
                                 0.5)[0] == 1.0
-    np.testing.assert_array_equal(
-        stats.z_test_beyond(np.array([1e-9, 1e-6]), np.zeros(2), 1e-8), [1.0, 0.0])
-    np.testing.assert_allclose(stats.z_test_beyond(np.array([1.96]), np.array([1.0]), 0.0),
-                               0.05, rtol=1e-3)
+    np.testing.assert_array_equal(stats.welch_t_pooled_beyond(
+        np.array([1e-9, 1e-6]), np.zeros(2), 5.0, np.zeros(2), 5.0, 1e-8), [1.0, 0.0])
+    # many degrees of freedom: the z-test; few: Student's t with the fewer-dof side's
+    np.testing.assert_allclose(stats.welch_t_pooled_beyond(
+        np.array([1.96]), np.array([0.5]), 1e6, np.array([0.5]), 1e6, 0.0), 0.05, rtol=1e-3)
+    p1 = stats.welch_t_pooled_beyond(np.array([3.0]), np.array([1.0]), 1.0, np.array([0.0]),
+                                     100.0, 0.0)
+    np.testing.assert_allclose(p1, 2 * sps.t.sf(3.0, 1.0), rtol=1e-12)
+    # the pooled form with n - 1 dof a side is welch_t_beyond itself
+    np.testing.assert_allclose(
+        stats.welch_t_pooled_beyond(diff, va / 16, 15.0, vb / 24, 23.0, 0.0), p, rtol=1e-12)
 
 
 @pytest.mark.parametrize("n_a,n_b,share", [(4, 64, 0.95), (4, 64, 0.5), (8, 64, 0.95),
