@@ -22,7 +22,10 @@ loop over rows (``_sampling_loops``), run on numba's threads: no second implemen
   points by area without a visibility test, so where one part of a light hides another
   (a folded mesh) both add to the direction's density (the kernel's MIS takes the
   nearest hit, where the hidden draws are shadowed and add nothing). Delta lights have
-  no density and are refused.
+  no density and are refused. :func:`emitter_sampler_with_weight` adds what the
+  kernel's draw returns (its pdf and radiance) and what a BSDF-sampled ray meeting the
+  light reads (the density and radiance at its nearest point), for
+  ``mcverify.check_pdf_consistency``.
 
 Textured BSDFs are evaluated at texture coordinates (0.5, 0.5) (textures change weights,
 never directions).
@@ -42,10 +45,12 @@ from mcnumba.threads import run_ranges
 from .._generated import first_call
 from .bsdfs import bsdf_is_smooth
 from .emitters import is_delta
-from .layout import AREA, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT, PRIM_KIND, TRIANGLE
+from .layout import (AREA, ENVMAP, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT,
+                     PRIM_KIND, TRIANGLE)
 from .render import _dependency_digest, load_cached
 
-__all__ = ["bsdf_sampler", "bsdf_sampler_with_weight", "emitter_sampler", "bsdf_has_density", "emitter_has_density"]
+__all__ = ["bsdf_sampler", "bsdf_sampler_with_weight", "emitter_sampler",
+           "emitter_sampler_with_weight", "bsdf_has_density", "emitter_has_density"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -164,6 +169,48 @@ def _light_leaf_rows(a, k: int) -> np.ndarray:
 def emitter_sampler(scene, k: int, ref):
     """``(sample, pdf)`` of light row ``k`` of the prepared ``scene`` seen from the world
     point ``ref`` (see the module docstring). Delta lights raise ``ValueError``."""
+    draw, evaluate = _emitter_rows(scene, k, ref)
+    return (lambda u: draw(u)[:, :3]), (lambda d: evaluate(d)[:, 0])
+
+
+def emitter_sampler_with_weight(scene, k: int, ref):
+    """``(sample, pdf, f)`` of light row ``k`` seen from ``ref``, for
+    ``mcverify.check_pdf_consistency``: ``sample(u) -> (d, pdf, weight)`` as the kernel's
+    ``sample_emitter`` returns them (weight: the radiance it returns over its pdf), and
+    ``pdf(d)``, ``f(d)`` (radiance, rgb) at the light's nearest point along d, as the
+    kernel reads them when a BSDF-sampled ray meets the light. A draw whose point is not
+    the light's nearest along its direction (hidden by another part of the light, which
+    the kernel's shadow ray would meet) is a NaN row: the two strategies then see
+    different points, and no estimator combines them. For an environment map, ``f`` is
+    None and ``sample`` returns (d, pdf): its radiance is not compared (see below)."""
+    draw, evaluate = _emitter_rows(scene, k, ref)
+
+    def sample(u):
+        out = draw(u)
+        drawn = ~np.isnan(out[:, 0])
+        near = np.full(len(out), np.nan)
+        near[drawn] = evaluate(out[drawn, :3])[:, 1]
+        dist = out[:, 3]
+        with np.errstate(invalid="ignore"):
+            hidden = ~((near == dist) | (np.abs(near - dist) <= 1e-9 * dist))
+        out[hidden] = np.nan
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return out[:, :3], out[:, 7], out[:, 4:7] / out[:, 7:8]
+
+    if scene.arrays.light_i[k, LIGHT_KIND] == ENVMAP:
+        # its radiance is looked up bilinearly at the (u, v) of the direction, which the
+        # arc tangents give back within ~1e-10 of the drawn (u, v): beside a sharp texel
+        # edge the two lookups differ by that much times the map's gradient (3.7e-5 on
+        # lognormal(0, 2.5) noise at 2048 × 1024). Rounding, not a bug: the density
+        # (piecewise constant) is compared alone
+        return (lambda u: sample(u)[:2]), (lambda d: evaluate(d)[:, 2]), None
+    return sample, (lambda d: evaluate(d)[:, 2]), (lambda d: evaluate(d)[:, 3:6])
+
+
+def _emitter_rows(scene, k: int, ref):
+    """(draw, evaluate): u (n, 3) -> (n, 8) rows of (direction, distance, Le, pdf) from
+    ``sample_emitter``; d (n, 3) -> (n, 6) rows of ``_emitter_eval_rows`` (summed
+    density, nearest distance, density and radiance there)."""
     a = scene.arrays
     k = _index("k", k, len(a.light_i))
     x, y, z = _vector("ref", ref)
@@ -171,20 +218,20 @@ def emitter_sampler(scene, k: int, ref):
         raise ValueError(f"k={k}: a delta light (point, spot, directional) has no density")
     rows = _light_leaf_rows(a, k) if a.light_i[k, LIGHT_KIND] == AREA else np.zeros(0, np.int64)
 
-    def sample(u):
+    def draw(u):
         u = _rows("u", u)
-        out = np.empty_like(u)
+        out = np.empty((u.shape[0], 8))
         _run("_emitter_sample_rows", a.light_f, a.light_i, a.light_cdf, a.prims, a.prim_info,
              a.shape_flip, a.tex_data, a.tex_info, a.env_marginal, a.env_conditional, k, x,
              y, z, u, out)
         return out
 
-    def pdf(d):
+    def evaluate(d):
         d = _rows("direction", d)
-        out = np.empty(d.shape[0])
-        _run("_emitter_pdf_rows", a.light_f, a.light_i, a.prims, a.prim_info, a.shape_flip,
-             a.leaf_prims, a.leaf_info, rows, a.env_marginal, a.env_conditional, k, x, y, z,
-             d, out)
+        out = np.empty((d.shape[0], 6))
+        _run("_emitter_eval_rows", a.light_f, a.light_i, a.prims, a.prim_info, a.shape_flip,
+             a.leaf_prims, a.leaf_info, rows, a.tex_data, a.tex_info, a.env_marginal,
+             a.env_conditional, k, x, y, z, d, out)
         return out
 
-    return sample, pdf
+    return draw, evaluate

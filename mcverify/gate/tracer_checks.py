@@ -16,6 +16,11 @@ judge runs with ``rejection=True``: the pdf integrates to the acceptance probabi
 
 Each check ``verifies`` ``("bsdf", label)`` or ``("emitter", label)``, the label naming
 the instance (``rough-conductors/bsdf2:roughconductor(ggx,alpha=0.01)``).
+
+``consistency_checks`` adds, per instance, ``mcverify.check_pdf_consistency`` of what the
+kernel's draw returns (its pdf, and weight or radiance) against what the other strategy
+reads at the drawn direction (``bsdf_eval``; the light's density and radiance where a ray
+along it meets the light): ``pdf_consistency:tracer.bsdf:…`` and ``…emitter:…``.
 """
 
 from __future__ import annotations
@@ -145,13 +150,15 @@ def _fmt(p) -> str:
 
 def scene_instances(scene_path: str):
     """(entries, skipped): entries are (kind, label, where, make, make_weighted) with
-    ``make()`` returning the (sample, pdf) pair and ``make_weighted()`` (BSDFs; None for
-    emitters) the (sample, pdf, f) of ``sampling.bsdf_sampler_with_weight``; skipped
-    are (label, why) for delta instances."""
+    ``make()`` returning the (sample, pdf) pair and ``make_weighted()`` the (sample, pdf,
+    f) of ``sampling.bsdf_sampler_with_weight`` or ``emitter_sampler_with_weight`` (an
+    emitter's with the scene's own normals: the consistency check compares a drawn
+    point's density with the density at that same point); skipped are (label, why) for
+    delta instances."""
     from estimators.pathtracer import layout, prepare_scene
     from estimators.pathtracer.sampling import (bsdf_has_density, bsdf_sampler,
                                                 bsdf_sampler_with_weight, emitter_has_density,
-                                                emitter_sampler)
+                                                emitter_sampler, emitter_sampler_with_weight)
 
     scene = prepare_scene(scene_path)
     tag = scene_name(scene_path)
@@ -188,7 +195,8 @@ def scene_instances(scene_path: str):
             unique.setdefault(_fmt(p), p)
         for where, p in unique.items():
             entries.append(("emitter", label, f"ref={where}",
-                            lambda k=k, p=p, s=light_scene: emitter_sampler(s, k, p), None))
+                            lambda k=k, p=p, s=light_scene: emitter_sampler(s, k, p),
+                            lambda k=k, p=p: emitter_sampler_with_weight(scene, k, p)))
     return entries, skipped
 
 
@@ -216,15 +224,17 @@ def _rebuild(scene_path: str, n_samples: int) -> list[Check]:
 
 
 def consistency_checks(scene_path: str, n_samples: int = CONSISTENCY_SAMPLES) -> list[Check]:
-    """Each BSDF instance's draws, at the χ² checks' incident directions, held to
-    ``bsdf_eval``: the pdf ``bsdf_sample`` returns with a direction (the path's
-    throughput and its MIS weight divide by it) must be the pdf ``bsdf_eval`` gives that
-    direction (what light sampling's MIS weight reads), and the weight must be
-    ``f · cos / pdf`` (``mcverify.check_pdf_consistency``; exact row by row, float64)."""
+    """Each BSDF and emitter instance's draws, at the χ² checks' incident directions and
+    reference points, held to what the other strategy reads
+    (``mcverify.check_pdf_consistency``; row by row, float64, rtol 1e-6): the pdf
+    ``bsdf_sample`` returns with a direction (the path's throughput and its MIS weight
+    divide by it) must be the pdf ``bsdf_eval`` gives that direction (what light
+    sampling's MIS weight reads), and its weight ``f · cos / pdf``; the pdf
+    ``sample_emitter`` returns must be the light's density where a BSDF-sampled ray
+    meets the same point, and its radiance the radiance there."""
     out = []
     for kind, label, where, _, make_weighted in scene_instances(scene_path)[0]:
-        if make_weighted is None:
-            continue
+        label = label.removesuffix("(face normals)")
         name = f"pdf_consistency:tracer.{kind}:{label}@{where}"
 
         def run(seed, make=make_weighted, name=name):
