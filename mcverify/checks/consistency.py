@@ -66,6 +66,24 @@ def _relative(a, b):
     return np.where(np.isfinite(a) & np.isfinite(b), r, np.inf)
 
 
+def _report(rel, tol, rows, u, x, what, differ, returned, expected, failures, details):
+    """A failure (and ``details["worst_<what>"]``) for the rows whose relative error
+    ``rel`` exceeds ``tol``, naming the worst with its u, x and both values."""
+    bad = np.flatnonzero(rel > tol)
+    if not bad.size:
+        return
+    j = int(bad[np.argmax(rel[bad])])
+    i = int(rows[j])
+    got, want = returned[j], expected[j]
+    ratio = (f" (ratio {got[0] / want[0] if want[0] else np.inf:.6g})"
+             if got.size == 1 else "")
+    failures.append(f"{bad.size} of {rows.size} {differ} by more than rtol={tol:g}; worst "
+                    f"at u={_show(u[i])}: x={_show(x[i])}, returned {_show(got)}, "
+                    f"expected {_show(want)}{ratio}")
+    details[f"worst_{what}"] = {"u": u[i].tolist(), "x": x[i].tolist(),
+                                "returned": got.tolist(), "expected": want.tolist()}
+
+
 def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: int = 100_000,
                           rtol: float | None = None, rejection: bool = False, seed: int = 0,
                           name: str | None = None) -> CheckResult:
@@ -171,16 +189,8 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
         rel = _relative(p[rows], q)
         statistic = float(np.max(rel))
         details["max_pdf_rel_error"] = statistic
-        bad = np.flatnonzero(rel > tol)
-        if bad.size:
-            j = int(bad[np.argmax(rel[bad])])
-            i = int(rows[j])
-            failures.append(
-                f"{bad.size} of {rows.size} returned pdfs differ from pdf(x) by more than "
-                f"rtol={tol:g}; worst at u={_show(u[i])}: x={_show(x[i])}, returned "
-                f"{p[i]:.9g}, pdf(x) {q[j]:.9g} (ratio {p[i] / q[j] if q[j] else np.inf:.6g})")
-            details["worst_pdf"] = {"u": u[i].tolist(), "x": x[i].tolist(),
-                                    "returned": float(p[i]), "pdf": float(q[j])}
+        _report(rel, tol, rows, u, x, "pdf", "returned pdfs differ from pdf(x)",
+                p[rows][:, None], q[:, None], failures, details)
         if value is not None:
             with np.errstate(all="ignore"):
                 expected = value / q[:, None]
@@ -188,18 +198,9 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
             relw = np.where(q > 0.0, relw, 0.0)     # pdf(x) = 0: a pdf failure above
             details["max_weight_rel_error"] = float(np.max(relw))
             statistic = max(statistic, float(np.max(relw)))
-            bad = np.flatnonzero(relw > tol)
-            if bad.size:
-                j = int(bad[np.argmax(relw[bad])])
-                i = int(rows[j])
-                failures.append(
-                    f"{bad.size} of {rows.size} returned weights differ from f(x) / pdf(x) "
-                    f"by more than rtol={tol:g}; worst at u={_show(u[i])}: "
-                    f"x={_show(x[i])}, returned {_show(w[i])}, f(x) / pdf(x) "
-                    f"{_show(expected[j])}")
-                details["worst_weight"] = {"u": u[i].tolist(), "x": x[i].tolist(),
-                                           "returned": w[i].tolist(),
-                                           "expected": expected[j].tolist()}
+            _report(relw, tol, rows, u, x, "weight",
+                    "returned weights differ from f(x) / pdf(x)", w[rows], expected,
+                    failures, details)
         elif w is not None:
             messages.append("weights returned but not compared: pass f to check them")
     else:

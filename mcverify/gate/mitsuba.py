@@ -539,7 +539,8 @@ def _nan_rejected(x, ok):
 
 
 def _bsdf_setup(plugin, wi, uv, component):
-    """(plugin, wi, context, interaction(n)) of the BSDF adapters, arguments checked."""
+    """(plugin, wi, context, interaction(n), draw(columns, n)) of the BSDF adapters,
+    arguments checked."""
     m = _mi()
     obj = _load(plugin, "plugin", ("BSDF",))
     w = _unit3("wi", wi)
@@ -564,7 +565,15 @@ def _bsdf_setup(plugin, wi, uv, component):
         si.uv = m.Point2f(*uv)
         return si
 
-    return obj, w, ctx, interaction
+    delta = int(m.BSDFFlags.Delta)
+
+    def draw(cols, n):
+        """``BSDF.sample`` of uniform columns: (BSDFSample, weight, not into a delta lobe)."""
+        bs, weight = obj.sample(ctx, interaction(n), _float(cols[0]),
+                                m.Point2f(_float(cols[1]), _float(cols[2])))
+        return bs, weight, (np.asarray(bs.sampled_type).reshape(-1) & delta) == 0
+
+    return obj, w, ctx, interaction, draw
 
 
 def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
@@ -580,17 +589,12 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
 
     The domain is the sphere: reflection and transmission together.
     """
-    m = _mi()
-    obj, w, ctx, interaction = _bsdf_setup(plugin, wi, uv, component)
-    delta = int(m.BSDFFlags.Delta)
+    obj, w, ctx, interaction, bsdf_draw = _bsdf_setup(plugin, wi, uv, component)
 
     def draw(cols, n):
-        bs, weight = obj.sample(ctx, interaction(n), _float(cols[0]),
-                                m.Point2f(_float(cols[1]), _float(cols[2])))
+        bs, weight, smooth = bsdf_draw(cols, n)
         wt = np.asarray(weight, dtype=np.float64).reshape(3, -1)
-        kind = np.asarray(bs.sampled_type).reshape(-1)
-        ok = (np.any(wt != 0, axis=0) & (np.asarray(bs.pdf).reshape(-1) > 0)
-              & ((kind & delta) == 0))
+        ok = np.any(wt != 0, axis=0) & (np.asarray(bs.pdf).reshape(-1) > 0) & smooth
         return bs.wo, ok
 
     def sample(u):
@@ -625,19 +629,15 @@ def bsdf_weighted(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None
     ``BSDF.pdf`` and ``BSDF.eval`` say of that direction, at incident ``wi`` (arguments
     as :func:`bsdf`). The directions are Mitsuba's own float32 values, not recomputed,
     so that ``pdf`` and ``eval`` see exactly what ``sample`` produced."""
-    m = _mi()
-    obj, w, ctx, interaction = _bsdf_setup(plugin, wi, uv, component)
-    delta = int(m.BSDFFlags.Delta)
+    obj, w, ctx, interaction, bsdf_draw = _bsdf_setup(plugin, wi, uv, component)
 
     def draw(cols, n):
-        bs, weight = obj.sample(ctx, interaction(n), _float(cols[0]),
-                                m.Point2f(_float(cols[1]), _float(cols[2])))
-        kind = np.asarray(bs.sampled_type).reshape(-1)
+        bs, weight, smooth = bsdf_draw(cols, n)
         # a constant (thindielectric's weight) comes back as one value: broadcast
         parts = [(bs.wo, 3), (bs.pdf, 1), (weight, 3)]
         rows = np.concatenate([np.broadcast_to(np.asarray(v, dtype=np.float64).reshape(k, -1),
                                                (k, n)) for v, k in parts])
-        return rows, (kind & delta) == 0
+        return rows, smooth
 
     def sample(u):
         out, ok = _rows(draw, _uniform(u), 7)

@@ -279,6 +279,12 @@ _MESH_LIGHT = """<scene version="3.0.0">
 </scene>"""
 
 
+#: Two quads of one OBJ light, both facing down, the lower one smaller.
+STACKED_QUADS = ("v -0.5 2.5 -0.5\nv 0.5 2.5 -0.5\nv 0.5 2.5 0.5\nv -0.5 2.5 0.5\n"
+                 "v -0.3 2.2 -0.3\nv 0.3 2.2 -0.3\nv 0.3 2.2 0.3\nv -0.3 2.2 0.3\n"
+                 "f 1 2 3 4\nf 5 6 7 8\n")
+
+
 def _mesh_light_checks(tmp_path, obj, extra=""):
     (tmp_path / "lamp.obj").write_text(obj)
     scene = tmp_path / "lamp.xml"
@@ -308,10 +314,7 @@ def test_a_mesh_light_hiding_part_of_itself_passes(tmp_path):
     without a visibility test, so both add to a direction's density, but the check's pdf
     took the nearest hit only: the check failed (p = 0) on a correct tracer. The pdf now
     sums every front-facing hit along the ray."""
-    stacked = ("v -0.5 2.5 -0.5\nv 0.5 2.5 -0.5\nv 0.5 2.5 0.5\nv -0.5 2.5 0.5\n"
-               "v -0.3 2.2 -0.3\nv 0.3 2.2 -0.3\nv 0.3 2.2 0.3\nv -0.3 2.2 0.3\n"
-               "f 1 2 3 4\nf 5 6 7 8\n")
-    checks = _mesh_light_checks(tmp_path, stacked)
+    checks = _mesh_light_checks(tmp_path, STACKED_QUADS)
     assert len(checks) == 3
     n, bad = _family_passes(checks, seed=5)
     assert not bad, bad
