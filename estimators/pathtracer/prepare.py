@@ -540,8 +540,9 @@ class _Builder:
         """A PLY mesh as (vertices, faces, the file's normals or None, uvs, the position
         index of each vertex): per vertex when the file has uv, else one vertex per face
         corner with Mitsuba's barycentric uv."""
+        path = self._mesh_path(s)      # refuses a missing file naming the shape itself
         try:
-            mesh = read_ply(self._mesh_path(s))
+            mesh = read_ply(path)
         except SceneError as e:
             self.fail(s, str(e))
         verts, faces, normals, uvs = mesh.vertices, mesh.faces, mesh.normals, mesh.uvs

@@ -158,6 +158,20 @@ def test_a_ply_shape_names_the_scene_line_and_the_file(tmp_path):
     assert f"{scene}:8" in str(e.value) and '<shape type="ply">' in str(e.value)
 
 
+@pytest.mark.parametrize("mesh", ["ply", "obj"])
+def test_a_missing_mesh_file_is_named_once(tmp_path, mesh):
+    # a missing PLY said "s.xml:8: <shape type="ply">: s.xml:8: <shape type="ply">:
+    # cannot read ...": the path check's own SceneError was caught and prefixed again
+    scene = tmp_path / "s.xml"
+    scene.write_text(_SCENE.format(mesh=f'<shape type="{mesh}"><string name="filename" '
+                                        f'value="gone.{mesh}"/></shape>'))
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(scene))
+    message = str(e.value)
+    assert message.startswith(f'{scene}:8: <shape type="{mesh}">: ')
+    assert message.count(str(scene)) == 1 and "gone." + mesh in message
+
+
 _SCENE = """<scene version="3.0.0">
   <integrator type="path"><integer name="max_depth" value="3"/></integrator>
   <sensor type="perspective"><float name="fov" value="50"/>
