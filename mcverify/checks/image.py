@@ -256,7 +256,8 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     test_spp, ref_spp : int, optional
         Samples per pixel behind each of a side's values (samples per pass). Given both,
         the test side's per-pixel variance is taken as at least the reference's scaled
-        to the test side's samples, ``ref_var * ref_spp / test_spp``: a few passes can
+        to the test side's samples, ``ref_var * ref_spp / test_spp``, and the
+        reference's at least the test side's likewise: a few passes can
         miss rare bright paths altogether (a caustic), and then their mean and their
         variance both come out low, while the reference, with many more samples, has
         seen them. Where the tested renderer has the lower variance this costs power,
@@ -338,10 +339,14 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     if test_spp is not None:
         ts = validate.integer("test_spp", test_spp, minimum=1)
         rs = validate.integer("ref_spp", ref_spp, minimum=1)
-        floor = rv * (rs / ts)
+        # both ways: a reference of few passes misses rare paths as well (16 passes of
+        # 64 spp against 2 of Mitsuba's own: 10 false alarms in 200 seeds on the Cornell
+        # box, pixels whose 2 reference passes were both 0; none with the floor)
+        floor, ref_floor = rv * (rs / ts), tv * (ts / rs)
         floor_info = {"test_spp": ts, "ref_spp": rs,
-                      "raised_fraction": float(np.mean(tv < floor))}
-        tv = np.maximum(tv, floor)
+                      "raised_fraction": float(np.mean(tv < floor)),
+                      "ref_raised_fraction": float(np.mean(rv < ref_floor))}
+        tv, rv = np.maximum(tv, floor), np.maximum(rv, ref_floor)
     tp = _as_passes("test_passes", test_passes, nt, tm.shape)
     rp = _as_passes("ref_passes", ref_passes, nr, tm.shape)
     correlated = tp is not None

@@ -127,11 +127,29 @@ def test_the_variance_floor_scales_the_references_variance():
     assert bare.details["variance_floor"] is None
     r = mv.compare_images(test, ref, **kw, test_spp=64, ref_spp=256)
     assert r.passed and r.details["variance_floor"] == {"test_spp": 64, "ref_spp": 256,
-                                                        "raised_fraction": 0.25}
+                                                        "raised_fraction": 0.25,
+                                                        "ref_raised_fraction": 0.0}
     with pytest.raises(mv.InvalidArgument, match="test_spp/ref_spp: give both"):
         mv.compare_images(test, ref, **kw, test_spp=64)
     with pytest.raises(mv.InvalidArgument, match="ref_spp"):
         mv.compare_images(test, ref, **kw, test_spp=64, ref_spp=0)
+
+
+def test_the_variance_floor_also_raises_a_reference_whose_few_passes_missed_a_path():
+    """A reference of 2 passes whose pixel saw a rare path in neither (both 0, variance
+    0) against 16 test passes that saw it (mean 0.006): the pixel t-test took the
+    reference as exact and rejected (Mitsuba against itself on the Cornell box, 16
+    passes of 64 spp against 2: 10 false alarms in 200 seeds). With ``test_spp`` and
+    ``ref_spp`` the reference's variance is floored at the test side's scaled as well."""
+    rng = np.random.default_rng(0)
+    a = rng.gamma(4.0, 0.0015, (16, 8, 8))
+    b = rng.gamma(4.0, 0.0015, (2, 8, 8))
+    b[:, 3, 3] = 0.0
+    kw = dict(test_var=a.var(0, ddof=1), ref_var=b.var(0, ddof=1), test_n=16, ref_n=2,
+              perceptual=False)
+    assert not mv.compare_images(a.mean(0), b.mean(0), **kw).passed
+    r = mv.compare_images(a.mean(0), b.mean(0), **kw, test_spp=64, ref_spp=64)
+    assert r.passed and r.details["variance_floor"]["ref_raised_fraction"] > 0
 
 
 @pytest.mark.parametrize("scale_b", [1.02, 0.98])
