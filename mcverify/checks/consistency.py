@@ -109,7 +109,8 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
         Draws (1e5 by default; the check is exact per row, not statistical).
     rtol : float, optional
         Relative tolerance of each comparison, ``|a - b| <= rtol · max(|a|, |b|)``. By
-        default 1e-6, or 1e-3 where any array returned is float32.
+        default 1e-6, or 1e-3 where any array ``sample``, ``pdf`` or ``f``
+        returns is float32.
     rejection : bool
         A row of NaN points is a rejected draw and skipped (otherwise a failure).
     seed, name
@@ -176,7 +177,10 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     statistic = 0.0
     if rows.size:
         xs = x[rows]
-        q = validate.values("pdf", pdf(xs), rows.size)
+        q_raw = pdf(xs)
+        q_raw = validate.as_array(f"pdf returned {validate._show(q_raw)}", q_raw)
+        q = validate.values("pdf", q_raw, rows.size)
+        dtypes.append(q_raw.dtype)      # a float32 pdf(x) is float32's rounding too
         value = None
         if f is not None:
             value = _channels("f", f(xs), rows.size, dtypes)

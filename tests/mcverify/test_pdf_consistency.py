@@ -123,6 +123,30 @@ def test_the_tolerance_follows_rtol_and_float32():
     assert not r.passed
 
 
+def test_a_float32_pdf_of_x_takes_float32_s_tolerance():
+    """pdf(x) computed in float32 against float64 draws: float32's rounding (here about
+    5e-6 at cos θ = 0.1, where 1 - x² - y² cancels), not a disagreement."""
+    def cos_pdf32(x):
+        x = x.astype(np.float32)
+        z2 = np.maximum(np.float32(0.0), 1 - x[:, 0] ** 2 - x[:, 1] ** 2)
+        return np.sqrt(z2) / np.float32(np.pi)
+
+    def near_pole(u):                   # cos θ >= 0.1: float32 rounding below 1e-4
+        return _good(np.stack([0.99 * u[:, 0], u[:, 1]], axis=1))
+
+    r = mv.check_pdf_consistency(near_pole, cos_pdf32, sample_dim=2, n_samples=20_000,
+                                 seed=5)
+    assert r.passed and r.details["rtol"] == 1e-3, r.failures
+    assert r.details["max_pdf_rel_error"] > 1e-6    # would have failed float64's rtol
+
+    def doubled(u):
+        x, p = near_pole(u)
+        return x, np.where(x[:, 2] < 0.6, 2.0 * p, p)
+
+    r = mv.check_pdf_consistency(doubled, cos_pdf32, sample_dim=2, n_samples=20_000, seed=5)
+    assert not r.passed
+
+
 def test_rejected_and_no_sample_rows_are_skipped_and_counted():
     def rejecting(u):
         x, p, w = _weighted(u)
