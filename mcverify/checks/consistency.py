@@ -116,11 +116,14 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     seed, name
         As in every check.
 
-    Rows whose returned pdf is 0, or whose returned weight is 0 in every channel, are
-    the sampler's "no sample" answer (Mitsuba's BSDFs below the horizon keep a pdf there
-    and return weight 0): no estimator reads their pdf, so they are skipped and counted
-    in ``details["no_sample"]``. That such answers come at the right rate is
-    ``check_sampler``'s question (with ``rejection=True``), not this one's.
+    Rows whose returned weight is 0 in every channel, or (no weight returned) whose
+    returned pdf is 0, are the sampler's "no sample" answer (Mitsuba's BSDFs below the
+    horizon keep a pdf there and return weight 0): no estimator reads their pdf, so they
+    are skipped and counted in ``details["no_sample"]``. A pdf of 0 returned with a
+    non-zero weight is compared (and fails where ``pdf(x)`` is not 0): the path goes on
+    with that weight while MIS reads no density for the draw. That such answers come at
+    the right rate is ``check_sampler``'s question (with ``rejection=True``), not this
+    one's.
 
     Not a statistical test: ``p_value`` is None; the check fails on any row out of
     tolerance and reports how many, the worst, and its ``u``.
@@ -170,7 +173,9 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
                         f"u={_show(u[i])})" + ("" if rejection else
                                                  "; rejection=True reads NaN rows as "
                                                  "rejected draws"))
-    no_sample = finite & ((p == 0.0) if w is None else ((p == 0.0) | np.all(w == 0.0, axis=1)))
+    # with a weight, the weight says "no sample": a pdf of 0 returned with a non-zero
+    # weight is a draw the path goes on with while MIS reads no density for it
+    no_sample = finite & ((p == 0.0) if w is None else np.all(w == 0.0, axis=1))
     rows = np.flatnonzero(finite & ~no_sample)
     details = {"n_compared": int(rows.size), "rejected": int(np.count_nonzero(rejected)),
                "no_sample": int(np.count_nonzero(no_sample)), "seed": seed}
@@ -199,7 +204,8 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
             with np.errstate(all="ignore"):
                 expected = value / q[:, None]
             relw = np.max(_relative(w[rows], expected), axis=1)
-            relw = np.where(q > 0.0, relw, 0.0)     # pdf(x) = 0: a pdf failure above
+            # pdf(x) = 0 where the returned pdf is not: a pdf failure above
+            relw = np.where((q > 0.0) | (p[rows] == 0.0), relw, 0.0)
             details["max_weight_rel_error"] = float(np.max(relw))
             statistic = max(statistic, float(np.max(relw)))
             _report(relw, tol, rows, u, x, "weight",

@@ -152,7 +152,8 @@ def test_rejected_and_no_sample_rows_are_skipped_and_counted():
         x, p, w = _weighted(u)
         x, p, w = x.copy(), p.copy(), w.copy()
         x[u[:, 0] < 0.25] = np.nan                 # rejected draws
-        p[(u[:, 0] >= 0.25) & (u[:, 1] < 0.1)] = 0.0     # "no sample": pdf 0
+        p[(u[:, 0] >= 0.25) & (u[:, 1] < 0.1)] = 0.0     # "no sample": pdf 0 ...
+        w[(u[:, 0] >= 0.25) & (u[:, 1] < 0.1)] = 0.0     # ... and its weight 0
         w[(u[:, 0] >= 0.25) & (u[:, 1] > 0.9)] = 0.0     # "no sample": weight 0
         p[(u[:, 0] >= 0.25) & (u[:, 1] > 0.9)] = 123.0   # ... whatever pdf it keeps
         return x, p, w
@@ -163,9 +164,38 @@ def test_rejected_and_no_sample_rows_are_skipped_and_counted():
     assert r.passed, r.failures
     assert d["rejected"] + d["no_sample"] + d["n_compared"] == 20_000
     assert 4500 < d["rejected"] < 5500 and 2500 < d["no_sample"] < 3500
+    r = mv.check_pdf_consistency(lambda u: rejecting(u)[:2], _cos_pdf, sample_dim=2,
+                                 n_samples=20_000, rejection=True, seed=4)
+    assert not r.passed and r.details["no_sample"] < 2000   # without a weight: pdf 0 only
+    assert "123" in r.failures[0]
     r = mv.check_pdf_consistency(rejecting, _cos_pdf, f=_f, sample_dim=2, n_samples=20_000,
                                  seed=4)
     assert not r.passed and "rejection=True" in r.failures[0]
+
+
+def test_a_zero_pdf_returned_with_a_weight_is_compared_not_skipped():
+    """A lobe that sets the weight but leaves the pdf 0: the path goes on with the
+    weight while MIS reads no density. Only a weight of 0 is a "no sample" answer."""
+    def pdf_forgotten(u):
+        x, p, w = _weighted(u)
+        return x, np.where(x[:, 2] < 0.1, 0.0, p), w
+
+    r = mv.check_pdf_consistency(pdf_forgotten, _cos_pdf, f=_f, sample_dim=2,
+                                 n_samples=100_000, seed=6)
+    assert not r.passed and r.details["no_sample"] == 0
+    bad = int(r.failures[0].split(" of ")[0])
+    assert 700 < bad < 1300                         # P(z < 0.1) = 0.01 for cosine draws
+    assert r.details["worst_pdf"]["returned"] == 0.0
+
+    def outside(u):                     # a weight for a point neither pdf gives density
+        x, p, w = _weighted(u)
+        x = np.where(u[:, :1] < 0.01, -x, x)
+        return x, np.where(x[:, 2] < 0.0, 0.0, p), w
+
+    r = mv.check_pdf_consistency(outside, lambda x: np.maximum(_cos_pdf(x), 0.0),
+                                 f=lambda x: np.maximum(_f(x), 0.0), sample_dim=2,
+                                 n_samples=10_000, seed=6)
+    assert not r.passed and "returned weights differ" in r.failures[0]
 
 
 def test_nan_or_inf_returned_pdfs_fail():
