@@ -126,7 +126,8 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     one's.
 
     Not a statistical test: ``p_value`` is None; the check fails on any row out of
-    tolerance and reports how many, the worst, and its ``u``.
+    tolerance, or with a negative pdf on either side, and reports how many, the worst,
+    and its ``u``.
 
     Examples
     --------
@@ -195,6 +196,15 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
         tol = rtol if rtol is not None else (
             RTOL32 if any(d == np.float32 for d in dtypes) else RTOL64)
         details["rtol"] = tol
+        negative = np.flatnonzero((p[rows] < 0.0) | (q < 0.0))
+        if negative.size:           # equal on both sides, yet no density
+            j = int(negative[0])
+            i = int(rows[j])
+            failures.append(
+                f"{negative.size} of {rows.size} draws have a negative pdf (returned or "
+                f"pdf(x)); first at u={_show(u[i])}: x={_show(x[i])}, returned "
+                f"{p[i]:.9g}, pdf(x) {q[j]:.9g}")
+            details["negative_pdf"] = int(negative.size)
         rel = _relative(p[rows], q)
         statistic = float(np.max(rel))
         details["max_pdf_rel_error"] = statistic

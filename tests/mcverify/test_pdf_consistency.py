@@ -212,6 +212,25 @@ def test_nan_or_inf_returned_pdfs_fail():
     assert not r.passed
 
 
+def test_negative_pdfs_fail_even_where_both_sides_agree():
+    """A negative density is no density: the same negative value returned and given by
+    pdf(x) (a sign lost in both, say) passed, and pdf(x) < 0 turned the weight check off."""
+    def signed(x):
+        return np.where(x[:, 2] < 0.1, -1.0, 1.0) * _cos_pdf(x)
+
+    def sample(u):
+        x, _, w = _weighted(u)
+        return x, signed(x), w
+
+    r = mv.check_pdf_consistency(sample, signed, f=_f, sample_dim=2, n_samples=100_000,
+                                 seed=8)
+    assert not r.passed and 700 < r.details["negative_pdf"] < 1300
+    assert "negative pdf" in r.failures[0]
+    assert mv.check_pdf_consistency(lambda u: sample(u)[:2], lambda x: -_cos_pdf(x),
+                                    sample_dim=2, n_samples=100).failures[0].startswith(
+        "100 of 100 draws have a negative pdf")
+
+
 def test_the_same_seed_gives_the_same_finding():
     def theta(u):
         x = _cosine(u)
