@@ -25,6 +25,16 @@ from .sampler import _name_of
 RTOL64, RTOL32 = 1e-6, 1e-3
 
 
+def _not_half(what: str, a: np.ndarray) -> np.ndarray:
+    """``a``, or InvalidArgument where it is float16: its rounding (5e-4) is neither
+    float64's tolerance nor safely inside float32's."""
+    if a.dtype == np.float16:
+        raise InvalidArgument(f"{what}: float16 values; judge a float32 or float64 version "
+                              "(float16's 11-bit significand rounds by up to 5e-4, which "
+                              "the default tolerances would read as disagreement)")
+    return a
+
+
 def _parts(out, n: int):
     """(x, pdf, weight or None) from what ``sample`` returned, or InvalidArgument."""
     if not isinstance(out, (tuple, list)) or len(out) not in (2, 3):
@@ -34,7 +44,7 @@ def _parts(out, n: int):
             "subject")
     x = validate.as_array(f"sample's points {validate._show(out[0])}", out[0])
     x = validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
-    p_raw = validate.as_array("sample's pdf", out[1])
+    p_raw = _not_half("sample's pdf", validate.as_array("sample's pdf", out[1]))
     p = validate.values("sample's pdf", p_raw, n)
     w_raw = None if len(out) == 2 else validate.as_array("sample's weight", out[2])
     return x, p, p_raw.dtype, w_raw
@@ -42,7 +52,7 @@ def _parts(out, n: int):
 
 def _channels(what: str, v, n: int, dtypes: list) -> np.ndarray:
     """A weight or value as (n, c) float64: (n,) is one channel."""
-    a = validate.as_array(what, v)
+    a = _not_half(what, validate.as_array(what, v))
     if not validate.real_dtype(a.dtype):
         raise InvalidArgument(f"{what}: dtype {a.dtype}, expected real numbers")
     dtypes.append(a.dtype)
@@ -110,7 +120,7 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     rtol : float, optional
         Relative tolerance of each comparison, ``|a - b| <= rtol · max(|a|, |b|)``. By
         default 1e-6, or 1e-3 where any array ``sample``, ``pdf`` or ``f``
-        returns is float32.
+        returns is float32 (float16 is refused).
     rejection : bool
         A row of NaN points is a rejected draw and skipped (otherwise a failure).
     seed, name
@@ -184,7 +194,8 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     if rows.size:
         xs = x[rows]
         q_raw = pdf(xs)
-        q_raw = validate.as_array(f"pdf returned {validate._show(q_raw)}", q_raw)
+        q_raw = _not_half("pdf", validate.as_array(f"pdf returned {validate._show(q_raw)}",
+                                                   q_raw))
         q = validate.values("pdf", q_raw, rows.size)
         dtypes.append(q_raw.dtype)      # a float32 pdf(x) is float32's rounding too
         value = None
