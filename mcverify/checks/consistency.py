@@ -43,6 +43,12 @@ def _parts(out, n: int):
             "(points, pdf, weight); a sampler that returns points only is check_sampler's "
             "subject")
     x = validate.as_array(f"sample's points {validate._show(out[0])}", out[0])
+    if x.ndim not in (1, 2) or x.shape[0] != n or x.shape[1:] == (0,):
+        # the width is read from the array: a transposed (d, n) one was "expected (n, n)"
+        raise InvalidArgument(
+            f"sample's points: shape {x.shape}, expected ({n}, d), a row of d >= 1 "
+            f"coordinates per draw, or ({n},) on an interval"
+            + ("; transposed? return points.T" if x.ndim == 2 and x.shape[1] == n else ""))
     x = validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
     p_raw = _not_half("sample's pdf", validate.as_array("sample's pdf", out[1]))
     p = validate.values("sample's pdf", p_raw, n)
