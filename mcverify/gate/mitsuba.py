@@ -84,10 +84,20 @@ def choose_variant() -> VariantChoice:
     """Pick the Mitsuba variant for this process (probed once, in a subprocess)."""
     forced = os.environ.get("MCVERIFY_MITSUBA_VARIANT")
     try:
-        import mitsuba  # noqa: F401
+        import mitsuba
     except ImportError as e:  # pragma: no cover - mitsuba is a dependency
         raise EnvironmentProblem(f"mitsuba is not importable ({e}); run `make setup`") from e
     if forced:
+        # the adapters read weights and values as RGB (3 channels): a mono or spectral
+        # variant failed every check with numpy's "cannot reshape", a misspelt one with
+        # Mitsuba's ImportError, both raised inside each check
+        usable = [v for v in mitsuba.variants() if v.endswith("_rgb")]
+        if forced not in usable:
+            raise EnvironmentProblem(
+                f"MCVERIFY_MITSUBA_VARIANT={forced!r}: "
+                + ("not a variant of this Mitsuba" if forced not in mitsuba.variants()
+                   else "the Mitsuba adapters read RGB weights and values")
+                + f"; use one of {', '.join(usable)}, or unset it to choose automatically")
         return VariantChoice(forced, None)
     lib = os.environ.get("DRJIT_LIBLLVM_PATH") or _find_libllvm()
     if lib is None:

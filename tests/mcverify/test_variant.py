@@ -57,6 +57,19 @@ def test_a_forced_variant_is_not_probed(fresh):
     assert mvm.choose_variant() == mvm.VariantChoice("scalar_rgb", None)
 
 
+@pytest.mark.parametrize("variant, match", [
+    ("llvm_ad_mono", "the Mitsuba adapters read RGB"),
+    ("scalar_spectral", "the Mitsuba adapters read RGB"),
+    ("llvm_rgb", "not a variant of this Mitsuba")])
+def test_a_forced_variant_the_adapters_cannot_use_is_refused_naming_it(fresh, variant, match):
+    """A mono or spectral variant failed every Mitsuba check with numpy's "cannot
+    reshape" (the adapters read RGB), a misspelt one with Mitsuba's ImportError."""
+    fresh.setenv("MCVERIFY_MITSUBA_VARIANT", variant)
+    with pytest.raises(mvm.EnvironmentProblem, match=f"MCVERIFY_MITSUBA_VARIANT='{variant}': "
+                       f"{match}.*scalar_rgb"):
+        mvm.choose_variant()
+
+
 @pytest.mark.skipif(mvm._find_libllvm() is None, reason="needs a libLLVM >= 16 (libllvm19)")
 def test_a_child_process_inherits_the_verdict(fresh):
     """The parent probes once; a child started after it finds the verdict and does not
