@@ -445,6 +445,13 @@ def _load(plugin, what: str, classes: tuple):
         except Exception as e:  # Mitsuba raises RuntimeError with its parser's message
             raise InvalidArgument(f"{what}: Mitsuba cannot load it ({e})") from None
     if not isinstance(plugin, tuple(getattr(m, c) for c in classes)):
+        if type(plugin).__module__ == "mitsuba" and any(
+                t.__name__ in classes for t in type(plugin).__mro__):
+            # a plugin loaded under another variant: "got BSDF, expected a mitsuba.BSDF"
+            raise InvalidArgument(
+                f"{what}: a mitsuba.{type(plugin).__name__} of another variant than the "
+                f"adapters' {m.variant()} (loaded before mvm.mi() set it, or under "
+                "mi.set_variant); load it after mvm.mi(), or pass a dict or XML string")
         raise InvalidArgument(f"{what}: got {type(plugin).__name__}, expected a "
                               f"{' or '.join('mitsuba.' + c for c in classes)} (a dict, an "
                               "XML string or a loaded plugin)")

@@ -225,6 +225,24 @@ def test_bad_arguments_raise_invalid_argument(call, match):
         call()
 
 
+def test_a_plugin_of_another_variant_is_refused_naming_the_variants():
+    """A BSDF loaded under another variant was refused as "got BSDF, expected a
+    mitsuba.BSDF", naming no difference."""
+    import mitsuba
+
+    mi = mvm.mi()
+    other = "scalar_rgb" if mi.variant() != "scalar_rgb" else "llvm_ad_rgb"
+    if other not in mitsuba.variants():
+        pytest.skip(f"{other} not built")
+    with mitsuba.variant_context(other):
+        plugin = mitsuba.load_dict({"type": "diffuse"})
+    for adapter in (mvm.bsdf, mvm.bsdf_weighted):
+        with pytest.raises(mv.InvalidArgument, match=f"plugin: a mitsuba.BSDF of another "
+                           f"variant than the adapters' {mi.variant()}.*load it after"):
+            adapter(plugin, (0.0, 0.0, 1.0))
+    assert mi.variant() != other
+
+
 def _scalar_subjects():
     """Subjects compared between scalar_rgb and the vectorised variant."""
     return [
