@@ -78,15 +78,24 @@ def _run(name: str, *args) -> None:
         run_ranges(fn, args[-1].shape[0], *args, grain=_GRAIN)
 
 
+def _floats(name: str, v) -> np.ndarray:
+    """``v`` as float64, or ValueError naming ``name`` (numpy's "could not convert string
+    to float: 'abc'" named nothing)."""
+    try:
+        return np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name}={v!r}: not numbers ({e})") from None
+
+
 def _rows(name: str, x) -> np.ndarray:
-    a = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    a = np.ascontiguousarray(_floats(name, x))
     if a.ndim != 2 or a.shape[1] != 3:
         raise ValueError(f"{name}: expected an array of shape (n, 3), got {a.shape}")
     return a
 
 
 def _vector(name: str, v) -> tuple[float, float, float]:
-    a = np.asarray(v, dtype=np.float64)
+    a = _floats(name, v)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{name}={v!r}: expected 3 finite numbers")
     return float(a[0]), float(a[1]), float(a[2])

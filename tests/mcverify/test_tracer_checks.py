@@ -16,7 +16,8 @@ import pytest
 
 import mcverify
 from estimators.pathtracer import layout, prepare_scene
-from estimators.pathtracer.sampling import bsdf_sampler, emitter_sampler
+from estimators.pathtracer.sampling import (bsdf_sampler, bsdf_sampler_with_weight,
+                                            emitter_sampler)
 from mcverify.gate.reference import REFERENCE_ROOT
 from mcverify.gate.tracer_checks import tracer_checks
 from mcverify.stats import holm
@@ -156,6 +157,13 @@ def test_front_ends_refuse_bad_input():
     sample, _ = bsdf_sampler(scene, 2, (0.0, 0.0, 1.0))
     with pytest.raises(ValueError, match=r"\(n, 3\)"):
         sample(np.zeros((4, 2)))
+    # numpy's own "could not convert string to float" named no parameter
+    with pytest.raises(ValueError, match="wi='abc': not numbers"):
+        bsdf_sampler_with_weight(scene, 2, "abc")
+    with pytest.raises(ValueError, match="ref=.*: not numbers"):
+        emitter_sampler(scene, 0, ("a", 0, 0))
+    with pytest.raises(ValueError, match="u=.*: not numbers"):
+        sample([["a", "b", "c"]])
 
 
 def test_cli_plan_lists_the_four_rough_conductors():
