@@ -402,3 +402,22 @@ def test_an_environment_map_is_compared_by_its_density_alone(tmp_path):
     wrong = mv.check_pdf_consistency(sample, lambda d: pdf(d[:, [0, 2, 1]]), sample_dim=3,
                                      n_samples=20_000)
     assert not wrong.passed         # the density of another direction: found
+
+
+def test_subnormal_pdfs_are_compared_within_their_rounding():
+    """An outside review: two correct computations of a pdf near 1e-318 (subnormal, a few
+    significant digits) differ by 5e-6 relative and failed at rtol 1e-6. Differences
+    within 16 smallest subnormals are rounding; a factor of 2 among subnormals, and any
+    error of normal values, is still found."""
+    scale = 1e-318
+
+    def tiny(u):
+        x = _cosine(u)
+        return x, (x[:, 2] / np.pi) * scale
+
+    r = mv.check_pdf_consistency(tiny, lambda x: x[:, 2] * (scale / np.pi), sample_dim=2,
+                                 n_samples=5000)
+    assert r.passed, r.failures
+    r = mv.check_pdf_consistency(tiny, lambda x: 2 * x[:, 2] * (scale / np.pi),
+                                 sample_dim=2, n_samples=5000)
+    assert not r.passed
