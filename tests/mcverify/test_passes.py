@@ -86,6 +86,23 @@ def test_compare_two_renderers_pass_folders_end_to_end(tmp_path):
     assert r.returncode == 2 and "is on both sides of the comparison" in r.stderr, r.stderr
 
 
+def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
+    """A reference of 2 passes compared without --test-spp: the variance floor is off,
+    and passes that all missed a rare path read as confident evidence; ``compare`` says
+    so (a notice; the verdict is the test's). With --test-spp and --ref-spp it does
+    not."""
+    ref = _write(tmp_path / "ref", _mitsuba_passes(0, k=2))
+    test = _write(tmp_path / "test", _mitsuba_passes(1000, k=4))
+    r = subprocess.run(CMD + ["compare", "--test-passes", test, "--ref-passes", ref],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode in (0, 1) and "notice: 2 passes on one side and no --test-spp" \
+        in r.stderr, r.stdout + r.stderr
+    r = subprocess.run(CMD + ["compare", "--test-passes", test, "--ref-passes", ref,
+                              "--test-spp", "64", "--ref-spp", "64"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode in (0, 1) and "no --test-spp" not in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("args, needle", [
     (["compare", "--test-passes", "p_*.exr"], "expected 1: REF"),
     (["compare", "a.exr", "b.exr", "--test-passes", "p_*.exr"], "expected 1: REF"),
