@@ -52,11 +52,12 @@ def test_a_reference_of_two_or_three_passes_stays_calibrated(n_ref, n_test):
     and block tests treated their summed variances as known (a z-test): where a few
     pixels of a block carry most of its variance (bright and dark pixels side by side:
     pixel scales lognormal(0, 1.5)), that sum has few degrees of freedom too, and the
-    z-test raised 108 false alarms in 200 seeds (2 passes against 16), 55 (2 against 4)
-    and 39 (3 against 64); an outside review met one on a real scene (``reference build
+    z-test raised 147 false alarms in 200 seeds (2 passes against 16), 104 (2 against 4)
+    and 125 (3 against 64); an outside review met one on a real scene (``reference build
     --passes 2``). They now take Student's t with the sum's Satterthwaite degrees of
-    freedom: 0, 0 and 1, within the binomial bound (near-normal pass values: gamma
-    shape 30, a 64-spp mean of samples with skewness 1.4)."""
+    freedom (the smaller side's count of pixels): 0, 1 and 1, within the binomial bound
+    (near-normal pass values: gamma shape 30, a 64-spp mean of samples with skewness
+    1.4)."""
     def pair(rng):
         scale = rng.lognormal(0.0, 1.5, (32, 32, 1, 1))
         a = rng.gamma(30.0, 1.0, (32, 32, 3, n_test)) * scale
