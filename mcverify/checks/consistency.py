@@ -57,11 +57,14 @@ def _parts(out, n: int):
 
 
 def _channels(what: str, v, n: int, dtypes: list) -> np.ndarray:
-    """A weight or value as (n, c) float64: (n,) is one channel."""
+    """A weight or value as (n, c) float64: (n,) is one channel, one number that value
+    for every row (a constant, as a constant pdf is)."""
     a = _not_half(what, validate.as_array(what, v))
     if not validate.real_dtype(a.dtype):
         raise InvalidArgument(f"{what}: dtype {a.dtype}, expected real numbers")
     dtypes.append(a.dtype)
+    if a.shape == ():
+        a = np.full(n, a)
     if a.shape == (n,):
         a = a.reshape(n, 1)
     if a.ndim != 2 or a.shape[0] != n:

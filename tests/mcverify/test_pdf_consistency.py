@@ -98,6 +98,21 @@ def test_one_channel_weights_and_values():
     assert ok.passed and not bad.passed
 
 
+def test_a_constant_weight_or_value_is_that_number_for_every_row():
+    """One number as a weight or as f's value means that value everywhere, as one number
+    from pdf does (it was refused; an outside review)."""
+    def half(u):
+        x, p = _good(u)
+        return x, p, 0.5
+
+    ok = mv.check_pdf_consistency(half, _cos_pdf, f=lambda x: 0.5 * _cos_pdf(x),
+                                  sample_dim=2, n_samples=1000)
+    assert ok.passed, ok.failures
+    bad = mv.check_pdf_consistency(half, _cos_pdf, f=lambda x: 0.25, sample_dim=2,
+                                   n_samples=1000)
+    assert not bad.passed and "returned weights differ" in bad.failures[0]
+
+
 def test_weights_without_f_are_not_compared_and_say_so():
     r = mv.check_pdf_consistency(_weighted, _cos_pdf, sample_dim=2, n_samples=1000)
     assert r.passed and "max_weight_rel_error" not in r.details
