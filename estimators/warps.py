@@ -666,6 +666,49 @@ sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone = _triple(
     _invert_uniform_cone_kernel,
     "Uniform on the spherical cap θ <= θ_max: ``sample_uniform_cone(u, cos_theta_max)``.",
     inline=("sample", "invert"))
+
+
+def _in_cap(sample, pdf):
+    """The cone's sampler with float32 points kept inside the cap: a point computed with
+    z >= cos θ_max can round to a float32 z just below it (cos θ_max = 0.9999: 310 of 2M
+    float32 u), a point of density 0 as stored, whose f / pdf is inf. Such a z is moved
+    one float32 ulp up, past the float64 z it was rounded from and so into the cap (the
+    point then within one float32 ulp of the float64 one, not half); ``with_pdf`` gives
+    the density of the point as stored, as before."""
+    def lift(x, params):
+        """Moves the float32 rows of ``x`` below the cap up; returns which moved."""
+        if x.dtype != np.float32 or x.ndim != 2:
+            return None
+        c = float(np.asarray(params[0]))
+        z = x[:, 2]
+        low = z.astype(np.float64) < c            # NaN: False, stays NaN
+        moved = low.copy()
+        while low.any():
+            z[low] = np.nextafter(z[low], np.float32(2.0))
+            low &= z.astype(np.float64) < c
+        return moved
+
+    def front(u, *params):
+        x = sample(u, *params)
+        lift(x, params)
+        return x
+
+    def with_pdf(u, *params):
+        x, density = sample.with_pdf(u, *params)
+        moved = lift(x, params)
+        if moved is not None and moved.any():
+            density[moved] = pdf(x[moved], *params)
+        return x, density
+
+    functools.update_wrapper(front, sample)
+    functools.update_wrapper(with_pdf, sample.with_pdf)
+    front.kernel, front.loop = sample.kernel, sample.loop
+    with_pdf.loop = sample.with_pdf.loop
+    front.with_pdf = with_pdf
+    return front
+
+
+sample_uniform_cone = _in_cap(sample_uniform_cone, uniform_cone_pdf)
 sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
     "power_cosine", 2, 3, _sample_power_cosine_kernel, _power_cosine_pdf_kernel,
     _invert_power_cosine_kernel,
