@@ -17,6 +17,7 @@ References: M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th 
 
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass
 
@@ -671,7 +672,18 @@ class InvertedCDF:
         return np.clip(self.cdf(x), 0.0, ONE_MINUS_EPSILON).reshape(-1, 1)
 
     def sample(self, u, *, max_iter: int = 60, xtol: float = 1e-14):
-        """``u`` (n,) or (n, 1) -> points (n, 1): ``F⁻¹(u)``."""
+        """``u`` (n,) or (n, 1) -> points (n, 1): ``F⁻¹(u)``. ``max_iter`` (an integer
+        >= 1) Newton-bisection steps at most, stopping where a step moves x by at most
+        ``xtol`` (a number >= 0) times max(1, |a|, |b|)."""
+        # max_iter = 0 or -3 returned the table's linear interpolation (off by 1e-4) and
+        # xtol = NaN stopped after one step, without a word; max_iter = 2.5 raised a
+        # TypeError from range()
+        if (isinstance(max_iter, bool) or not isinstance(max_iter, numbers.Integral)
+                or max_iter < 1):
+            raise ValueError(f"max_iter={max_iter!r}: must be an integer >= 1")
+        if (isinstance(xtol, bool) or not isinstance(xtol, numbers.Real)
+                or not (math.isfinite(xtol) and xtol >= 0)):
+            raise ValueError(f"xtol={xtol!r}: must be a finite number >= 0")
         u = _unit(u)
         tab = self._table
         k = np.clip(np.searchsorted(tab.cdf, u, side="right") - 1, 0, tab.knots.size - 2)

@@ -159,6 +159,25 @@ def test_bad_input(call, match):
         call()
 
 
+@pytest.mark.parametrize("kw,match", [
+    (dict(max_iter=0), "max_iter=0: must be an integer >= 1"),
+    (dict(max_iter=-3), "max_iter=-3: must be an integer >= 1"),
+    (dict(max_iter=2.5), "max_iter=2.5: must be an integer >= 1"),
+    (dict(max_iter=True), "max_iter=True: must be an integer >= 1"),
+    (dict(xtol=float("nan")), "xtol=nan: must be a finite number >= 0"),
+    (dict(xtol=-1.0), "xtol=-1.0: must be a finite number >= 0"),
+    (dict(xtol="1e-9"), "xtol='1e-9': must be a finite number >= 0"),
+])
+def test_inverted_cdf_sample_refuses_bad_iteration_settings(kw, match):
+    """max_iter = 0 or -3 returned the table's linear interpolation (off by 1e-4 for a
+    wavy pdf) and xtol = NaN stopped after one step, silently; max_iter = 2.5 raised
+    range()'s TypeError (found by review)."""
+    d = InvertedCDF(lambda t: np.exp(-3 * t) * (1 + np.sin(20 * t) ** 2), 0.0, 2.0)
+    with pytest.raises(ValueError, match=match):
+        d.sample(np.array([0.3]), **kw)
+    assert d.sample(np.array([0.3]), max_iter=60, xtol=0.0).shape == (1, 1)
+
+
 def test_wrongly_shaped_points_are_refused_not_reshaped():
     """A 1-D distribution flattened (n, 2) into 2n points and the 2-D one read (4, 3) as
     six pairs and (4,) as two; (n,), (n, 1) and one pair (2,) still work."""
