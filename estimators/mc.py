@@ -96,6 +96,17 @@ def _count(n, name="n", minimum=1, memory=True):
     return int(n)
 
 
+def _fits(n: int, d: int, names: str) -> None:
+    """A ValueError naming ``names`` where n points of d float64 coordinates are more than
+    the machine holds: ``_count`` bounds n alone, and n = 1000 with sample_dim = 10**9
+    (or a box of 10**6 dimensions) ended in numpy's "Unable to allocate 7.28 TiB",
+    naming no argument."""
+    have = physical_bytes()
+    if have is not None and 8 * n * d > have:
+        raise ValueError(f"{names}: {n} points of {d} coordinates, {8 * n * d / 2**30:.3g} "
+                         f"GiB of float64, more than this machine's {have / 2**30:.3g} GiB")
+
+
 def _values(name: str, v, n: int, x=None) -> np.ndarray:
     """What ``name`` returned for n points as (n,) float64, or ValueError: a scalar or a
     wrong length had been averaged as if it were n values (``lambda x: 2.0`` gave n = 1).
@@ -200,6 +211,7 @@ def uniform(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     """
     lo, hi = _box(a, b)
     n = _count(n)
+    _fits(n, lo.size, f"n={n}, a, b ({lo.size} dimensions)")
     x = lo + (hi - lo) * np.random.default_rng(seed).random((n, lo.size))
     return _from_terms(np.prod(hi - lo) * _call_f(f, x, np.ndim(a) == 0))
 
@@ -216,7 +228,9 @@ def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) ->
     ``mcverify.check_unbiased`` reports.
     """
     n = _count(n)
-    u = np.random.default_rng(seed).random((n, _count(sample_dim, "sample_dim")))
+    k = _count(sample_dim, "sample_dim")
+    _fits(n, k, f"n={n}, sample_dim={k}")
+    u = np.random.default_rng(seed).random((n, k))
     x = _points("sample", sample(u), n)
     fx = _values("f", f(x), n, x)
     px = _density("pdf", pdf(x), n, x)
@@ -244,6 +258,7 @@ def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     lo, hi = _box(a, b)
     n = _count(n, minimum=2)
     d = lo.size
+    _fits(2 * n, d, f"n={n}, a, b ({d} dimensions)")     # the grid: at most 2n strata
     m = max(1, int(n ** (1.0 / d) + 1e-9))       # + 1e-9: 1000 ** (1/3) is 9.999...
     m0 = max(2, int(round(n / m ** (d - 1))))
     m0 += m0 % 2
@@ -289,6 +304,7 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
         raise ValueError(f"a, b: {lo.size} dimensions, Sobol points have at most "
                          f"{qmc.Sobol.MAXDIM}")
     r = _count(replicates, "replicates", minimum=2)
+    _fits(n, lo.size, f"n={n}, a, b ({lo.size} dimensions)")
     seqs = np.random.SeedSequence(seed).spawn(r)
     reps = []
     for s in seqs:
@@ -336,6 +352,9 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
     ex = 1.0 if heuristic == "balance" else float(beta)
     seqs = np.random.SeedSequence(seed).spawn(len(techniques))
     counts = [_count(t[2], "n_i") for t in techniques]
+    for i, (t, c) in enumerate(zip(techniques, counts)):
+        k = _count(t[3], "sample_dim")
+        _fits(c, k, f"techniques[{i}]: n_i={c}, sample_dim={k}")
     value, var, cols = 0.0, 0.0, []
     for (sample, _pdf, n_i, k), s in zip(techniques, seqs):
         x = _points(f"techniques[{len(cols)}] sample",
@@ -372,8 +391,10 @@ def russian_roulette(f, sample, pdf, n: int, q: float, *, seed: int = 0,
     if isinstance(q, bool) or not isinstance(q, numbers.Real) or not 0.0 < q <= 1.0:
         raise ValueError(f"q={q!r}: survival probability must be a number in (0, 1]")
     n = _count(n)
+    k = _count(sample_dim, "sample_dim")
+    _fits(n, k, f"n={n}, sample_dim={k}")
     rng = np.random.default_rng(seed)
-    u = rng.random((n, _count(sample_dim, "sample_dim")))
+    u = rng.random((n, k))
     alive = rng.random(n) < q
     terms = np.zeros(n)
     if alive.any():
@@ -392,6 +413,7 @@ def antithetic(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     lo, hi = _box(a, b)
     n = _count(n, minimum=2)
     half = n // 2
+    _fits(half, lo.size, f"n={n}, a, b ({lo.size} dimensions)")
     t = np.random.default_rng(seed).random((half, lo.size))
     scalar = np.ndim(a) == 0
     vol = np.prod(hi - lo)

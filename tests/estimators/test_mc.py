@@ -327,3 +327,30 @@ def test_a_sample_count_beyond_the_machines_memory_is_refused_by_name():
     assert 8 * n > have                     # the premise: beyond this machine
     with pytest.raises(ValueError, match=r"n=10000000000000: .* GiB for one float64 a point"):
         mc.uniform(np.sin, 0.0, 1.0, n)
+
+
+def test_points_times_dimensions_beyond_the_machines_memory_are_refused_by_name():
+    """The memory bound counted n alone: n = 1000 with sample_dim = 10**9, or a box of
+    10**6 dimensions, ended in numpy's "Unable to allocate 7.28 TiB", naming no argument
+    (found by review). Every estimator now bounds its n × d array of uniforms."""
+    one = lambda x: np.ones(len(x))
+    big = 10 ** 6
+    calls = [
+        (lambda: mc.importance(one, lambda u: u, one, 1000, sample_dim=10 ** 9),
+         r"n=1000, sample_dim=1000000000: .* GiB of float64"),
+        (lambda: mc.russian_roulette(one, lambda u: u, one, 1000, 0.5, sample_dim=10 ** 9),
+         r"n=1000, sample_dim=1000000000: .* GiB of float64"),
+        (lambda: mc.mis(one, [(lambda u: u, one, 10, 1), (lambda u: u, one, 1000, 10 ** 9)]),
+         r"techniques\[1\]: n_i=1000, sample_dim=1000000000: .* GiB"),
+        (lambda: mc.uniform(one, np.zeros(big), np.ones(big), 10 ** 7),
+         r"n=10000000, a, b \(1000000 dimensions\): .* GiB"),
+        (lambda: mc.antithetic(one, np.zeros(big), np.ones(big), 10 ** 7),
+         r"n=10000000, a, b \(1000000 dimensions\): .* GiB"),
+        (lambda: mc.stratified(one, np.zeros(big), np.ones(big), 10 ** 7),
+         r"n=10000000, a, b \(1000000 dimensions\): .* GiB"),
+        (lambda: mc.rqmc(one, np.zeros(20000), np.ones(20000), 2 ** 30),
+         r"n=1073741824, a, b \(20000 dimensions\): .* GiB"),
+    ]
+    for call, match in calls:
+        with pytest.raises(ValueError, match=match):
+            call()
