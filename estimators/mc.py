@@ -263,8 +263,13 @@ def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     m0 = max(2, int(round(n / m ** (d - 1))))
     m0 += m0 % 2
     sizes = np.array([m0] + [m] * (d - 1))
-    grid = np.stack(np.meshgrid(*[np.arange(k) for k in sizes], indexing="ij"),
-                    -1).reshape(-1, d)
+    # each stratum's index on every axis, the last axis fastest (meshgrid's "ij" order,
+    # which pairs strata along the first axis below); np.meshgrid took at most 32 axes
+    # (RuntimeError in 33 to 64 dimensions, numpy's 64-dimension limit above)
+    flat = np.arange(int(np.prod(sizes)))
+    grid = np.empty((flat.size, d), dtype=np.int64)
+    for k in range(d - 1, -1, -1):
+        flat, grid[:, k] = np.divmod(flat, sizes[k])
     rng = np.random.default_rng(seed)
     t = (grid + rng.random(grid.shape)) / sizes
     vals = np.prod(hi - lo) * _call_f(f, lo + (hi - lo) * t, np.ndim(a) == 0)
