@@ -611,6 +611,53 @@ def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
     return s, p, i
 
 
+def _kept_within(sample, pdf, coord, bounds):
+    """The sampler with float32 points kept inside their support, ``bounds(*params) =
+    (lo, hi)`` on coordinate ``coord``: a point computed inside can round to a float32
+    just outside (the cone's z below cos θ_max = 0.9999: 310 of 2M float32 u; the
+    interval's a = -0.3 at u = 0, as Sobol's first point gives), a point of density 0 as
+    stored, whose f / pdf is inf. Such a coordinate becomes the float32 nearest it inside
+    [lo, hi] (one ulp from where it was, within one float32 ulp of the float64 point,
+    not half), where [lo, hi] holds a float32; ``with_pdf`` gives the density of the
+    point as stored, as before."""
+    def lift(x, params):
+        """Moves the float32 rows of ``x`` outside [lo, hi] in; returns which moved."""
+        if x.dtype != np.float32 or x.ndim != 2:
+            return None
+        lo, hi = (float(np.asarray(v)) for v in bounds(*params))
+        first, last = np.float32(lo), np.float32(hi)
+        if float(first) < lo:                               # the least float32 >= lo
+            first = np.nextafter(first, np.float32(np.inf))
+        if float(last) > hi:                                # the largest float32 <= hi
+            last = np.nextafter(last, np.float32(-np.inf))
+        if not float(first) <= float(last):    # no float32 inside: as rounded
+            return None
+        v = x[:, coord]
+        wide = v.astype(np.float64)     # (numpy compares float32 with a float in float32)
+        low, high = wide < lo, wide > hi        # NaN: neither
+        v[low], v[high] = first, last
+        return low | high
+
+    def front(u, *params):
+        x = sample(u, *params)
+        lift(x, params)
+        return x
+
+    def with_pdf(u, *params):
+        x, density = sample.with_pdf(u, *params)
+        moved = lift(x, params)
+        if moved is not None and moved.any():
+            density[moved] = pdf(x[moved], *params)
+        return x, density
+
+    functools.update_wrapper(front, sample)
+    functools.update_wrapper(with_pdf, sample.with_pdf)
+    front.kernel, front.loop = sample.kernel, sample.loop
+    with_pdf.loop = sample.with_pdf.loop
+    front.with_pdf = with_pdf
+    return front
+
+
 _BELOW_ONE_F32 = np.float32(1.0 - 2.0 ** -24)
 
 
@@ -635,6 +682,8 @@ _ALL = ("sample", "pdf", "invert")
 sample_uniform_interval, uniform_interval_pdf, invert_uniform_interval = _triple(
     "uniform_interval", 1, 1, _sample_uniform_interval_kernel, _uniform_interval_pdf_kernel,
     _invert_uniform_interval_kernel, "Uniform on [a, b]: ``sample_uniform_interval(u, a, b)``.")
+sample_uniform_interval = _kept_within(sample_uniform_interval, uniform_interval_pdf, 0,
+                                       lambda a, b: (a, b))
 sample_uniform_square, uniform_square_pdf, _ = _triple(
     "uniform_square", 2, 2, _sample_uniform_square_kernel, _uniform_square_pdf_kernel, None,
     "Identity map of the unit square.")
@@ -670,47 +719,8 @@ sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone = _triple(
     inline=("sample", "invert"))
 
 
-def _in_cap(sample, pdf):
-    """The cone's sampler with float32 points kept inside the cap: a point computed with
-    z >= cos θ_max can round to a float32 z just below it (cos θ_max = 0.9999: 310 of 2M
-    float32 u), a point of density 0 as stored, whose f / pdf is inf. Such a z is moved
-    one float32 ulp up, past the float64 z it was rounded from and so into the cap (the
-    point then within one float32 ulp of the float64 one, not half); ``with_pdf`` gives
-    the density of the point as stored, as before."""
-    def lift(x, params):
-        """Moves the float32 rows of ``x`` below the cap up; returns which moved."""
-        if x.dtype != np.float32 or x.ndim != 2:
-            return None
-        c = float(np.asarray(params[0]))
-        z = x[:, 2]
-        low = z.astype(np.float64) < c            # NaN: False, stays NaN
-        moved = low.copy()
-        while low.any():
-            z[low] = np.nextafter(z[low], np.float32(2.0))
-            low &= z.astype(np.float64) < c
-        return moved
-
-    def front(u, *params):
-        x = sample(u, *params)
-        lift(x, params)
-        return x
-
-    def with_pdf(u, *params):
-        x, density = sample.with_pdf(u, *params)
-        moved = lift(x, params)
-        if moved is not None and moved.any():
-            density[moved] = pdf(x[moved], *params)
-        return x, density
-
-    functools.update_wrapper(front, sample)
-    functools.update_wrapper(with_pdf, sample.with_pdf)
-    front.kernel, front.loop = sample.kernel, sample.loop
-    with_pdf.loop = sample.with_pdf.loop
-    front.with_pdf = with_pdf
-    return front
-
-
-sample_uniform_cone = _in_cap(sample_uniform_cone, uniform_cone_pdf)
+sample_uniform_cone = _kept_within(sample_uniform_cone, uniform_cone_pdf, 2,
+                                   lambda cos_theta_max: (cos_theta_max, 1.0))
 sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
     "power_cosine", 2, 3, _sample_power_cosine_kernel, _power_cosine_pdf_kernel,
     _invert_power_cosine_kernel,

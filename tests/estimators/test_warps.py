@@ -412,6 +412,27 @@ def test_float32_cone_samples_stay_inside_the_cap():
     assert W.sample_uniform_cone(np.float32([[1.0, 0.0]]), 0.9999)[0, 2] >= 0.9999
 
 
+def test_float32_interval_samples_stay_inside_the_interval():
+    """u = 0 (Sobol's first point; a float32 u from [0, 1) once in 2^24) on [-0.3, 0.1]
+    stored float32(-0.3) = -0.30000001, outside the interval, of density 0, and u = 1
+    float32(0.1) > 0.1 (found by review): each is now the float32 nearest inside, of
+    the interval's density, and with_pdf agrees bit for bit."""
+    from estimators import warps as W
+
+    u = np.concatenate([np.float32([[0.0], [1.0], [np.nan]]),
+                        np.random.default_rng(1).random((100_000, 1), dtype=np.float32)])
+    for a, b in ((-0.3, 0.1), (0.1, 0.7), (-1e-30, 1e-30), (-7.3, -1.1)):
+        x = W.sample_uniform_interval(u, a, b)
+        inside = x[:2, 0].astype(np.float64)
+        assert x.dtype == np.float32 and np.all((inside >= a) & (inside <= b)), (a, b, x[:2])
+        assert np.all(np.abs(inside - [a, b]) <= np.abs(np.spacing(np.float32([a, b])))), (a, b)
+        assert np.isnan(x[2, 0])
+        pdf = W.uniform_interval_pdf(x, a, b)
+        assert np.all(pdf[3:] > 0) and np.all(pdf[:2] == np.float32(1.0 / (b - a)))
+        xf, pf = W.sample_uniform_interval.with_pdf(u, a, b)
+        assert np.array_equal(xf, x, equal_nan=True) and np.array_equal(pf, pdf, equal_nan=True)
+
+
 def test_the_concentric_disks_rim_points_have_the_disks_density():
     """u on the square's edge (u0 or u1 exactly 0, common in QMC) maps to r = 1, where
     x² + y² rounds up to 2 ulps above 1: uniform_disk_pdf gave 0 there (4 % of that edge)."""
