@@ -742,6 +742,8 @@ sample_exponential, exponential_pdf, invert_exponential = _triple(
     _invert_exponential_kernel,
     "Truncated exponential (distance sampling): ``sample_exponential(u, sigma, t_max)``.",
     inline=_ALL)
+sample_exponential = _kept_within(sample_exponential, exponential_pdf, 0,
+                                  lambda sigma, t_max: (0.0, t_max))
 sample_tent, tent_pdf, invert_tent = _triple(
     "tent", 1, 1, _sample_tent_kernel, _tent_pdf_kernel, _invert_tent_kernel,
     "Tent on [-r, r]: ``sample_tent(u, r)``.")

@@ -433,6 +433,20 @@ def test_float32_interval_samples_stay_inside_the_interval():
         assert np.array_equal(xf, x, equal_nan=True) and np.array_equal(pf, pdf, equal_nan=True)
 
 
+def test_float32_exponential_at_u_one_stays_within_t_max():
+    """u = 1 (a float32 u that rounded to it) gave t_max = 0.1 itself, stored as float32
+    0.10000000149 > t_max, density 0 (found by review; the README promises a point of
+    the domain at u = 1 in float32): now the largest float32 <= t_max."""
+    from estimators import warps as W
+
+    u = np.float32([[1.0], [0.0], [0.5]])
+    for sigma, t_max in ((1.0, 0.1), (5.0, 0.3), (0.27, 0.01), (2.0, np.inf)):
+        x, pdf = W.sample_exponential.with_pdf(u, sigma, t_max)
+        assert np.all((x.astype(np.float64) >= 0) & (x.astype(np.float64) <= t_max))
+        assert np.all(pdf > 0) and np.array_equal(W.sample_exponential(u, sigma, t_max), x)
+        assert np.array_equal(W.exponential_pdf(x, sigma, t_max), pdf)
+
+
 def test_the_concentric_disks_rim_points_have_the_disks_density():
     """u on the square's edge (u0 or u1 exactly 0, common in QMC) maps to r = 1, where
     x² + y² rounds up to 2 ulps above 1: uniform_disk_pdf gave 0 there (4 % of that edge)."""
