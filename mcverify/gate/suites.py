@@ -487,6 +487,11 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
             p, (int, float, np.integer, np.floating)) or not 0.0 <= p <= 1.0):
         r = dataclasses.replace(r, p_value=None, passed=False, failures=r.failures + (
             f"returned p_value={p!r}, not a probability in [0, 1]",))
+    elif p is None and not r.passed and not r.failures:
+        # judged by its failures alone (no p-value): a check of the user's that said
+        # passed=False without a failure was re-judged as passed
+        r = dataclasses.replace(r, failures=("returned passed=False without a failure or "
+                                             "a p-value",))
     if r.name != check.name:        # reported under the suite's name for it
         r = dataclasses.replace(r, name=check.name,
                                 details=dict(r.details, result_name=r.name))

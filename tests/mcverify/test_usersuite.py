@@ -396,3 +396,23 @@ def test_check_scene_plans_from_the_tables_list_of_suites(project):
              cwd=project / "sub")
     assert r.returncode == 0, r.stdout + r.stderr
     assert "1 passed, 0 failed" in r.stdout
+
+
+def test_a_failed_result_without_p_value_or_failures_stays_failed():
+    """A user check returning CheckResult(passed=False, p_value=None) with only messages
+    (its own deterministic test, e.g. a round trip) was re-judged by Holm from its
+    (empty) failures and passed: the gate exited 0 on a check that said it failed."""
+    from mcverify.gate.suites import run_suite
+
+    def check(name, passed, p=None):
+        return Check(name, lambda seed: mv.CheckResult(name, passed, p, None, 0.01, 10, 0.0,
+                                                       messages=("round trip off",)))
+
+    result = run_suite([check("det-bad", False), check("det-ok", True),
+                        check("stat", False, 0.5)], canary=False)
+    got = {r.name: r for r in result.results}
+    assert not result.passed
+    assert not got["det-bad"].passed
+    assert got["det-bad"].failures == ("returned passed=False without a failure or a "
+                                       "p-value",)
+    assert got["det-ok"].passed and got["stat"].passed     # a p-value is re-judged by Holm
