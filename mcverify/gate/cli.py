@@ -508,7 +508,17 @@ def _cmd_report(args) -> int:
     build_report(out, suite=suite, study=study, renders=renders,
                  extra_provenance=dict(extra, seed=args.seed))
     print(f"mcverify report: wrote {os.path.join(out, 'report.html')} and report.json")
-    return EXIT_OK
+    # the report is written either way; its verdicts decide the exit code, as check's do
+    failed = ([r.name for r in suite.results if not r.passed] if suite is not None else [])
+    if suite is not None and not suite.canary_bitten:
+        failed += [f"canary {c.name} (not bitten)" for c in suite.canary if c.passed]
+    failed += [f"convergence:{row['estimator']}:{row['integrand']}" for row in study
+               if not row.get("passed", True)]
+    failed += [f"render:{row['scene']}" for row in (renders[0] if renders else ())
+               if not row.get("passed", True)]
+    for name in failed:
+        print(f"FAIL {name}")
+    return EXIT_FAILED if failed else EXIT_OK
 
 
 def _cmd_bench(args) -> int:

@@ -226,3 +226,22 @@ def test_cli_bench_reports_ratios(tmp_path):
             "render:bunny", "render-check:cornell-box",
             "kernel:specialised/general", "equal-time-rmse:cornell-box"} <= set(rows)
     assert rows["kernel:specialised/general"]["against"] == "general kernel"
+
+
+def test_cli_report_exits_1_when_a_check_in_it_failed(tmp_path, capsys, monkeypatch):
+    """`mcverify report` exited 0 whatever its verification part found (a failed check, a
+    canary not bitten), against the exit codes `mcverify --help` states: a CI job that
+    publishes the report saw it pass. The report is still written; the exit is 1."""
+    from mcverify.gate import cli
+    from mcverify.gate.report import study as study_mod
+
+    planted = suites.canaries(200_000)[:1]     # a cosine sampler + 2 % uniform: fails
+    monkeypatch.setattr(suites, "build_suite", lambda name, *a, **kw: planted)
+    monkeypatch.setattr(study_mod, "run_study", lambda **kw: run_study(
+        ns=(64, 128, 256), n_seeds=4, seed=kw.get("seed", 0)))
+    rc = cli.main(["report", "--renders", "none", "-q", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 1, out
+    assert f"FAIL {planted[0].name}" in out
+    doc = json.loads((tmp_path / "report.json").read_text())
+    assert doc["verification"]["n_failed"] == 1 and (tmp_path / "report.html").is_file()
