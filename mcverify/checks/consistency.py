@@ -248,8 +248,15 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
                     failures, details)
         elif w is not None:
             messages.append("weights returned but not compared: pass f to check them")
+    elif details["no_sample"] and w is None:
+        # (points, pdf) with every pdf 0 (an array left unfilled) never samples: no
+        # evidence of agreement. Weights all 0 are a black BSDF's answer; draws all
+        # rejected (a delta lobe's NaN rows) have nothing to agree on
+        failures.append(f"no row to compare: {details['no_sample']} of {n} draws returned "
+                        f"a pdf of 0 (no-sample answers) and {details['rejected']} were "
+                        "rejected; a sampler that never samples fails")
     else:
-        messages.append("no row to compare: every draw was rejected or a no-sample answer")
+        messages.append("no row to compare: every draw was rejected")
     messages.append(f"compared {rows.size} of {n} draws ({details['no_sample']} no-sample "
                     f"answers, {details['rejected']} rejected)")
     return CheckResult(name=name, passed=not failures, p_value=None, statistic=statistic,

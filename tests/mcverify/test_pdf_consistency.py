@@ -188,6 +188,36 @@ def test_rejected_and_no_sample_rows_are_skipped_and_counted():
     assert not r.passed and "rejection=True" in r.failures[0]
 
 
+def test_a_sampler_that_never_samples_fails_but_all_rejected_draws_pass():
+    """A sampler returning (points, pdf) whose pdf array is never filled (every draw
+    returns pdf 0) compared no row and passed ("no row to compare"): a vacuous pass.
+    Draws that are all rejected (a delta lobe's NaN rows), or weights all 0 (a black
+    BSDF), still pass: there is nothing to agree on."""
+    def unfilled(u):
+        x = _cosine(u)
+        return x, np.zeros(len(u))
+
+    r = mv.check_pdf_consistency(unfilled, _cos_pdf, sample_dim=2, n_samples=1000, seed=1)
+    assert not r.passed and r.details["n_compared"] == 0
+    assert r.failures[0].startswith("no row to compare: 1000 of 1000 draws returned a pdf "
+                                    "of 0"), r.failures
+
+    def black(u):
+        x, p, w = _weighted(u)
+        return x, p, np.zeros_like(w)
+
+    r = mv.check_pdf_consistency(black, _cos_pdf, f=lambda x: 0.0 * _f(x), sample_dim=2,
+                                 n_samples=1000, seed=1)
+    assert r.passed and r.details["no_sample"] == 1000, r.failures
+
+    def delta(u):
+        return np.full((len(u), 3), np.nan), np.zeros(len(u))
+
+    r = mv.check_pdf_consistency(delta, _cos_pdf, sample_dim=2, n_samples=1000,
+                                 rejection=True, seed=1)
+    assert r.passed and r.details["rejected"] == 1000, r.failures
+
+
 def test_a_zero_pdf_returned_with_a_weight_is_compared_not_skipped():
     """A lobe that sets the weight but leaves the pdf 0: the path goes on with the
     weight while MIS reads no density. Only a weight of 0 is a "no sample" answer."""
