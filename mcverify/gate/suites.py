@@ -445,11 +445,13 @@ SUITE_NAMES = (*SUITES, "mitsuba")
 
 
 def select(checks_: list[Check], pattern: str | None) -> list[Check]:
-    """Checks whose name contains ``pattern`` (or matches it as a glob with * ? [ ])."""
+    """Checks whose name contains ``pattern`` or matches it as a glob with * ? [ ] (a
+    name such as ``bsdf[ggx]`` contains itself, though its glob is a character class)."""
     if not pattern:
         return checks_
     if any(c in pattern for c in "*?["):
-        return [c for c in checks_ if fnmatch.fnmatch(c.name, pattern)]
+        return [c for c in checks_
+                if pattern in c.name or fnmatch.fnmatch(c.name, pattern)]
     return [c for c in checks_ if pattern in c.name]
 
 

@@ -72,3 +72,19 @@ def test_a_reader_that_leaves_early_ends_the_run_quietly():
         os.close(write)
     assert r.returncode == 141, r.stderr
     assert r.stderr == ""
+
+
+def test_k_selects_a_name_that_contains_glob_characters():
+    """-k's help says "checks whose name contains PATTERN (or matches it as a glob)", but a
+    pattern with [ ] was read as a glob alone: a user's check named 'bsdf[ggx]' could not
+    be selected by its own name (the glob's [ggx] is one character), exit 2."""
+    from mcverify.gate.suites import Check, select
+
+    checks = [Check(n, lambda seed: None) for n in ("bsdf[ggx]", "bsdf[beckmann]",
+                                                    "bsdfy", "light*2", "light-2")]
+    names = lambda k: [c.name for c in select(checks, k)]     # noqa: E731
+    assert names("bsdf[ggx]") == ["bsdf[ggx]"]
+    assert names("[ggx]") == ["bsdf[ggx]"]
+    assert names("bsdf[y]") == ["bsdfy"]                # still a glob too
+    assert names("light*2") == ["light*2", "light-2"]
+    assert names("light?2") == ["light*2", "light-2"]
