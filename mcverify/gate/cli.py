@@ -476,6 +476,9 @@ def _cmd_report(args) -> int:
 
         scenes = list_scenes() if args.renders == "all" else \
             list(dict.fromkeys(args.renders.split(",")))        # each scene once
+        if "" in [s.strip() for s in scenes]:   # was refused as "scene ''", not naming it
+            raise InvalidArgument(f"--renders {args.renders!r}: an empty scene name; give "
+                                  "comma-separated reference scenes, 'all' or 'none'")
         for s in scenes:
             resolve_scene(s)            # before any work (it was checked after the suite)
             try:                        # a stale or corrupt reference too, before any work

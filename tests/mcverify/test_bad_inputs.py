@@ -468,6 +468,11 @@ CLI = [
     # refused before any work, and the --out folders not yet there are not created
     ("report-renders-unknown", ["report", "--renders", "nosuch", "--out",
                                 "{d}/new/report"], "scene 'nosuch'"),
+    # an empty name in the list was refused as "scene ''", not naming --renders
+    ("report-renders-empty", ["report", "--renders", "", "--out", "{d}/new/report"],
+     "--renders '': an empty scene name"),
+    ("report-renders-trailing-comma", ["report", "--renders", "cornell-box,", "--out",
+                                       "{d}/new/report"], "--renders 'cornell-box,'"),
     ("report-no-suite-k", ["report", "--no-suite", "-k", "disk", "--renders", "none",
                            "--out", "{d}/new/report"], "--no-suite leaves out"),
     ("check-json-new-folder", ["check", "-k", "zzz", "--json", "{d}/new/sub/x.json"],
