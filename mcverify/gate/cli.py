@@ -1046,11 +1046,22 @@ def _thread_limit() -> None:
     numba.set_num_threads(min(int(value), numba.config.NUMBA_NUM_THREADS))
 
 
+def _hypothesis_home() -> None:
+    """``check_stability`` runs hypothesis, which caches the constants of the user's modules
+    in ``./.hypothesis``: a gate run left that folder in the project it was started in
+    (an untracked folder in a CI checkout). Its storage goes to
+    ``~/.cache/mcverify/hypothesis`` unless ``HYPOTHESIS_STORAGE_DIRECTORY`` says where;
+    worker processes inherit the setting."""
+    os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(
+        os.path.expanduser("~"), ".cache", "mcverify", "hypothesis"))
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         _validate_common(args)
         _thread_limit()
+        _hypothesis_home()
         return args.func(args)
     except (InvalidArgument, EnvironmentProblem) as e:
         print(f"mcverify: error: {' '.join(str(e).split())}", file=sys.stderr)

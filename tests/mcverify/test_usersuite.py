@@ -416,3 +416,30 @@ def test_a_failed_result_without_p_value_or_failures_stays_failed():
     assert got["det-bad"].failures == ("returned passed=False without a failure or a "
                                        "p-value",)
     assert got["det-ok"].passed and got["stat"].passed     # a p-value is re-judged by Holm
+
+
+def test_a_stability_check_leaves_no_hypothesis_folder_in_the_project(project, tmp_path):
+    """check_stability runs hypothesis, which cached the constants of the user's module in
+    ./.hypothesis/constants: `mcverify check` left that folder in the user's project."""
+    (project / "mine" / "stab.py").write_text(textwrap.dedent('''
+        import numpy as np
+        import mcverify as mv
+        from mcverify.gate.suites import Check
+
+        def run(seed):
+            return mv.check_stability(lambda u: np.sqrt(u), "interval", sample_dim=1,
+                                      max_examples=20, seed=seed, name="stab")
+
+        suite = [Check("stab", run)]
+    '''))
+    env = {k: v for k, v in os.environ.items() if k != "HYPOTHESIS_STORAGE_DIRECTORY"}
+    from estimators._generated import cache_dir
+
+    env.setdefault("MCVERIFY_CACHE", cache_dir())       # the kernels, not in the new HOME
+    env.update(PYTHONPATH=ROOT, HOME=str(tmp_path / "home"))
+    r = subprocess.run([sys.executable, "-m", "mcverify", "check", "-q", "--suite",
+                        "mine.stab:suite"], cwd=project, env=env, capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert not (project / ".hypothesis").exists()
+    assert (tmp_path / "home" / ".cache" / "mcverify" / "hypothesis").is_dir()
