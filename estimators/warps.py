@@ -717,8 +717,6 @@ sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone = _triple(
     _invert_uniform_cone_kernel,
     "Uniform on the spherical cap θ <= θ_max: ``sample_uniform_cone(u, cos_theta_max)``.",
     inline=("sample", "invert"))
-
-
 sample_uniform_cone = _kept_within(sample_uniform_cone, uniform_cone_pdf, 2,
                                    lambda cos_theta_max: (cos_theta_max, 1.0))
 sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
