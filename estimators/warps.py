@@ -611,33 +611,14 @@ def _triple(name, n_in, n_out, sample_k, pdf_k, invert_k, doc, inline=()):
     return s, p, i
 
 
-def _kept_within(sample, pdf, coord, bounds):
-    """The sampler with float32 points kept inside their support, ``bounds(*params) =
-    (lo, hi)`` on coordinate ``coord``: a point computed inside can round to a float32
-    just outside (the cone's z below cos θ_max = 0.9999: 310 of 2M float32 u; the
-    interval's a = -0.3 at u = 0, as Sobol's first point gives), a point of density 0 as
-    stored, whose f / pdf is inf. Such a coordinate becomes the float32 nearest it inside
-    [lo, hi] (one ulp from where it was, within one float32 ulp of the float64 point,
-    not half), where [lo, hi] holds a float32; ``with_pdf`` gives the density of the
-    point as stored, as before."""
-    def lift(x, params):
-        """Moves the float32 rows of ``x`` outside [lo, hi] in; returns which moved."""
-        if x.dtype != np.float32 or x.ndim != 2:
-            return None
-        lo, hi = (float(np.asarray(v)) for v in bounds(*params))
-        first, last = np.float32(lo), np.float32(hi)
-        if float(first) < lo:                               # the least float32 >= lo
-            first = np.nextafter(first, np.float32(np.inf))
-        if float(last) > hi:                                # the largest float32 <= hi
-            last = np.nextafter(last, np.float32(-np.inf))
-        if not float(first) <= float(last):    # no float32 inside: as rounded
-            return None
-        v = x[:, coord]
-        wide = v.astype(np.float64)     # (numpy compares float32 with a float in float32)
-        low, high = wide < lo, wide > hi        # NaN: neither
-        v[low], v[high] = first, last
-        return low | high
-
+def _kept_within(sample, pdf, lift):
+    """The sampler with float32 points kept inside their support: a point computed
+    inside can round to a float32 just outside (the cone's z below cos θ_max = 0.9999:
+    310 of 2M float32 u; the interval's a = -0.3 at u = 0, as Sobol's first point gives;
+    the disk's rim and the triangle's diagonal at u on the square's edge), a point of
+    density 0 as stored, whose f / pdf is inf. ``lift(x, params)`` moves such float32
+    rows of ``x`` in place by an ulp or two and says which it moved (None for float64
+    points, left as they are); ``with_pdf`` gives the density of the point as stored."""
     def front(u, *params):
         x = sample(u, *params)
         lift(x, params)
@@ -656,6 +637,63 @@ def _kept_within(sample, pdf, coord, bounds):
     with_pdf.loop = sample.with_pdf.loop
     front.with_pdf = with_pdf
     return front
+
+
+def _coordinate_lift(coord, bounds):
+    """``lift`` for a support [lo, hi] = ``bounds(*params)`` on coordinate ``coord``: a
+    coordinate outside becomes the float32 nearest it inside (one ulp from where it was,
+    within one float32 ulp of the float64 point, not half), where [lo, hi] holds one."""
+    def lift(x, params):
+        if x.dtype != np.float32 or x.ndim != 2:
+            return None
+        lo, hi = (float(np.asarray(v)) for v in bounds(*params))
+        first, last = np.float32(lo), np.float32(hi)
+        if float(first) < lo:                               # the least float32 >= lo
+            first = np.nextafter(first, np.float32(np.inf))
+        if float(last) > hi:                                # the largest float32 <= hi
+            last = np.nextafter(last, np.float32(-np.inf))
+        if not float(first) <= float(last):    # no float32 inside: as rounded
+            return None
+        v = x[:, coord]
+        wide = v.astype(np.float64)     # (numpy compares float32 with a float in float32)
+        low, high = wide < lo, wide > hi        # NaN: neither
+        v[low], v[high] = first, last
+        return low | high
+
+    return lift
+
+
+def _stepwise_lift(outside, step):
+    """``lift`` for a support that no one coordinate bounds: float32 rows where
+    ``outside(x in float64)`` holds are moved by ``step(x, rows)`` (an ulp towards the
+    inside), at most four times (one or two steps have always sufficed)."""
+    def lift(x, params):
+        if x.dtype != np.float32 or x.ndim != 2:
+            return None
+        moved = np.zeros(len(x), dtype=bool)
+        for _ in range(4):
+            rows = np.flatnonzero(outside(x.astype(np.float64)))      # NaN: never
+            if not rows.size:
+                break
+            step(x, rows)
+            moved[rows] = True
+        return moved
+
+    return lift
+
+
+def _disk_step(x, rows):
+    x[rows] = np.nextafter(x[rows], np.float32(0.0))         # both towards the centre
+
+
+def _triangle_step(x, rows):
+    col = np.argmax(x[rows], axis=1)                        # the larger barycentric
+    x[rows, col] = np.nextafter(x[rows, col], np.float32(0.0))
+
+
+_DISK_LIFT = _stepwise_lift(lambda w: w[:, 0] * w[:, 0] + w[:, 1] * w[:, 1] > _DISK_RIM,
+                            _disk_step)
+_TRIANGLE_LIFT = _stepwise_lift(lambda w: w[:, 0] + w[:, 1] > 1.0, _triangle_step)
 
 
 _BELOW_ONE_F32 = np.float32(1.0 - 2.0 ** -24)
@@ -682,8 +720,8 @@ _ALL = ("sample", "pdf", "invert")
 sample_uniform_interval, uniform_interval_pdf, invert_uniform_interval = _triple(
     "uniform_interval", 1, 1, _sample_uniform_interval_kernel, _uniform_interval_pdf_kernel,
     _invert_uniform_interval_kernel, "Uniform on [a, b]: ``sample_uniform_interval(u, a, b)``.")
-sample_uniform_interval = _kept_within(sample_uniform_interval, uniform_interval_pdf, 0,
-                                       lambda a, b: (a, b))
+sample_uniform_interval = _kept_within(sample_uniform_interval, uniform_interval_pdf,
+                                       _coordinate_lift(0, lambda a, b: (a, b)))
 sample_uniform_square, uniform_square_pdf, _ = _triple(
     "uniform_square", 2, 2, _sample_uniform_square_kernel, _uniform_square_pdf_kernel, None,
     "Identity map of the unit square.")
@@ -695,10 +733,16 @@ sample_uniform_disk_concentric, _, invert_uniform_disk_concentric = _triple(
     "uniform_disk_concentric", 2, 2, sample_uniform_disk_concentric_kernel,
     _uniform_disk_pdf_kernel, _invert_uniform_disk_concentric_kernel,
     "Uniform on the unit disk, Shirley–Chiu concentric map (low distortion).")
+sample_uniform_disk_polar = _kept_within(sample_uniform_disk_polar, uniform_disk_pdf,
+                                         _DISK_LIFT)
+sample_uniform_disk_concentric = _kept_within(sample_uniform_disk_concentric,
+                                              uniform_disk_pdf, _DISK_LIFT)
 sample_uniform_triangle, uniform_triangle_pdf, invert_uniform_triangle = _triple(
     "uniform_triangle", 2, 2, sample_uniform_triangle_kernel, _uniform_triangle_pdf_kernel,
     _invert_uniform_triangle_kernel,
     "Uniform barycentrics (b0, b1) on the triangle (0,0), (1,0), (0,1) (Heitz 2019).")
+sample_uniform_triangle = _kept_within(sample_uniform_triangle, uniform_triangle_pdf,
+                                       _TRIANGLE_LIFT)
 sample_uniform_sphere, uniform_sphere_pdf, invert_uniform_sphere = _triple(
     "uniform_sphere", 2, 3, sample_uniform_sphere_kernel, _uniform_sphere_pdf_kernel,
     _invert_uniform_sphere_kernel, "Uniform directions on the unit sphere.",
@@ -717,8 +761,9 @@ sample_uniform_cone, uniform_cone_pdf, invert_uniform_cone = _triple(
     _invert_uniform_cone_kernel,
     "Uniform on the spherical cap θ <= θ_max: ``sample_uniform_cone(u, cos_theta_max)``.",
     inline=("sample", "invert"))
-sample_uniform_cone = _kept_within(sample_uniform_cone, uniform_cone_pdf, 2,
-                                   lambda cos_theta_max: (cos_theta_max, 1.0))
+sample_uniform_cone = _kept_within(sample_uniform_cone, uniform_cone_pdf,
+                                   _coordinate_lift(2, lambda cos_theta_max: (cos_theta_max,
+                                                                              1.0)))
 sample_power_cosine, power_cosine_pdf, invert_power_cosine = _triple(
     "power_cosine", 2, 3, _sample_power_cosine_kernel, _power_cosine_pdf_kernel,
     _invert_power_cosine_kernel,
@@ -740,8 +785,8 @@ sample_exponential, exponential_pdf, invert_exponential = _triple(
     _invert_exponential_kernel,
     "Truncated exponential (distance sampling): ``sample_exponential(u, sigma, t_max)``.",
     inline=_ALL)
-sample_exponential = _kept_within(sample_exponential, exponential_pdf, 0,
-                                  lambda sigma, t_max: (0.0, t_max))
+sample_exponential = _kept_within(sample_exponential, exponential_pdf,
+                                  _coordinate_lift(0, lambda sigma, t_max: (0.0, t_max)))
 sample_tent, tent_pdf, invert_tent = _triple(
     "tent", 1, 1, _sample_tent_kernel, _tent_pdf_kernel, _invert_tent_kernel,
     "Tent on [-r, r]: ``sample_tent(u, r)``.")

@@ -447,6 +447,33 @@ def test_float32_exponential_at_u_one_stays_within_t_max():
         assert np.array_equal(W.exponential_pdf(x, sigma, t_max), pdf)
 
 
+def test_float32_disk_rims_and_triangle_diagonals_stay_inside():
+    """u on the square's edge (QMC's points; u = 1 a float32 u that rounded to it) put
+    float32 disk points just outside the rim (concentric at u = (0, 0.00434059): x² + y²
+    = 1 + 7.5e-9; polar at u = (1, 5.96e-8)) and triangle points past the diagonal
+    (u = (5.96e-8, 1): b0 + b1 = 1 + 3e-8), of density 0 as stored (found by review).
+    Such a point now moves an ulp towards the inside, with the support's density;
+    with_pdf agrees bit for bit, and float64 points are left as they are."""
+    from estimators import warps as W
+
+    edges = np.float32([[0.0, 0.00434059], [1.0, 5.96e-8], [5.96e-8, 1.0], [0.0, 0.0],
+                        [1.0, 1.0], [0.5, 1.0], [1.0, 0.5], [np.nan, 0.5]])
+    u = np.concatenate([edges, np.random.default_rng(2).random((100_000, 2),
+                                                               dtype=np.float32)])
+    for sample, pdf, density in ((W.sample_uniform_disk_concentric, W.uniform_disk_pdf, 1 / np.pi),
+                                 (W.sample_uniform_disk_polar, W.uniform_disk_pdf, 1 / np.pi),
+                                 (W.sample_uniform_triangle, W.uniform_triangle_pdf, 2.0)):
+        x = sample(u)
+        p = pdf(x)
+        assert x.dtype == np.float32 and np.isnan(x[7]).all()
+        assert np.all(p[:7] == np.float32(density)) and np.all(p[8:] == np.float32(density))
+        xf, pf = sample.with_pdf(u)
+        assert np.array_equal(xf, x, equal_nan=True) and np.array_equal(pf, p, equal_nan=True)
+        x64 = sample(u.astype(np.float64))
+        assert np.all(np.abs(x[8:] - x64[8:]) <= 2 * np.spacing(np.abs(x64[8:]).astype(np.float32)))
+        assert np.array_equal(sample(u[:7].astype(np.float64)), x64[:7])
+
+
 def test_the_concentric_disks_rim_points_have_the_disks_density():
     """u on the square's edge (u0 or u1 exactly 0, common in QMC) maps to r = 1, where
     x² + y² rounds up to 2 ulps above 1: uniform_disk_pdf gave 0 there (4 % of that edge)."""
