@@ -305,7 +305,9 @@ def _cmd_check(args) -> int:
         inputs += reference_files(args.scene)
     _writable("--json", args.json, inputs)
     _writable("--junit", args.junit, inputs)
-    _distinct_outputs(("--json", args.json), ("--junit", args.junit))
+    report_files = _report_files("--report", args.report, inputs)
+    _distinct_outputs(("--json", args.json), ("--junit", args.junit),
+                      *(("--report", f) for f in report_files))
     plan = None
     if args.budget is not None and args.suite not in suites.SUITES:
         raise InvalidArgument(f"--budget with --suite {args.suite}: only the built-in suites "
@@ -403,7 +405,26 @@ def _cmd_check(args) -> int:
         write_json(result, args.json)
     if args.junit:
         write_junit(result, args.junit)
+    if args.report is not None:
+        from .report import build_report
+
+        build_report(args.report, suite=result, study=None,
+                     extra_provenance=dict(extra, seed=args.seed))
+        print(f"mcverify check: wrote {report_files[1]} and report.json")
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+def _report_files(option: str, out: str | None, inputs=()) -> list[str]:
+    """``report.json`` and ``report.html`` in the folder ``out`` (``check --report``,
+    ``report --out``), checked writable before any work; none for None."""
+    if out is None:
+        return []
+    if not out.strip():
+        raise InvalidArgument(f"{option} {out!r}: empty path; give a folder")
+    files = [os.path.join(out, name) for name in ("report.json", "report.html")]
+    for f in files:
+        _writable(option, f, inputs)
+    return files
 
 
 def _scene_file(spec: str) -> str:
@@ -466,10 +487,7 @@ def _cmd_report(args) -> int:
     from .report.study import run_study
 
     out = args.out
-    if not out.strip():
-        raise InvalidArgument(f"--out {out!r}: empty path; give a folder")
-    for name in ("report.json", "report.html"):     # before the suite's minutes of work
-        _writable("--out", os.path.join(out, name))
+    _report_files("--out", out)     # before the suite's minutes of work
     scenes = []
     if args.renders != "none":
         from .reference import list_scenes, load_reference, resolve_scene
@@ -875,6 +893,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", metavar="PATH", help="write the results as JSON; default: none")
     c.add_argument("--junit", metavar="PATH",
                    help="write the results as JUnit XML; default: none")
+    c.add_argument("--report", metavar="DIR",
+                   help="also write the HTML report of these results into DIR "
+                        "(report.html, report.json and the histograms of failed checks; "
+                        "`mcverify report` adds the convergence study and renders); "
+                        "default: none")
     c.add_argument("--budget", type=float, metavar="SECONDS",
                    help="choose each sampler check's n so the run (with a short "
                         "calibration of this machine) takes about SECONDS, and say what "

@@ -13,6 +13,30 @@ def run(*args, timeout=600):
     return subprocess.run(CMD + list(args), capture_output=True, text=True, timeout=timeout)
 
 
+def test_check_writes_the_html_report_of_its_results(tmp_path):
+    """``check --report DIR`` (DESIGN.md's CLI contract; it did not exist): the same
+    results as ``--json``, in report.json and report.html; a path that cannot be a
+    report folder is refused before any work, naming --report."""
+    out, js = tmp_path / "rep", tmp_path / "r.json"
+    r = run("check", "-k", "uniform_disk_polar", "--json", str(js), "--report", str(out),
+            "-q")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert f"wrote {out / 'report.html'}" in r.stdout
+    doc = json.loads((out / "report.json").read_text())
+    plain = json.loads(js.read_text())
+    assert [x["name"] for x in doc["verification"]["results"]] == \
+        [x["name"] for x in plain["results"]]
+    assert [x["p_value"] for x in doc["verification"]["results"]] == \
+        [x["p_value"] for x in plain["results"]]
+    assert "uniform_disk_polar" in (out / "report.html").read_text()
+    (tmp_path / "file").write_text("x")
+    for bad, needle in (("", "--report '': empty path"),
+                        (str(tmp_path / "file"), "--report")):
+        r = run("check", "-k", "uniform_disk_polar", "--report", bad, "-q")
+        assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, \
+            r.stderr
+
+
 def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     r = run("check", "-k", "uniform_disk_polar", "--json", str(a), "--junit",
