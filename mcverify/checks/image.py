@@ -132,7 +132,7 @@ def _block_means(img, block):
     return sums / _block_sizes(h, w, block)
 
 
-def _block_variance(v, n, side):
+def _block_variance(v, side):
     """(variance of each ``side``-block's mean, its effective number of pixels) from
     per-pixel variances of the mean ``v`` (H, W, C): the block mean's variance is
     Σ v / k², and (Σ v)² / Σ v² counts the pixels that carry it, from 1 (one pixel
@@ -157,7 +157,7 @@ def _block_variances(v_a, n_a, v_b, n_b, side):
     seeds at α = 0.01 with each side's own count, 16 passes against a reference of 2 (13
     the other way round); none with the smaller. A block of zero variance on both sides
     gets n - 1."""
-    (se_a, px_a), (se_b, px_b) = _block_variance(v_a, n_a, side), _block_variance(v_b, n_b, side)
+    (se_a, px_a), (se_b, px_b) = _block_variance(v_a, side), _block_variance(v_b, side)
     pixels = np.minimum(px_a, px_b)
     return [(se, np.where(np.isfinite(pixels), (n - 1) * pixels, float(n - 1)))
             for se, n in ((se_a, n_a), (se_b, n_b))]
