@@ -242,7 +242,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         Block side in pixels for the block tests (8: 64 blocks on a 64 × 64 image); blocks
         of half and twice the side are tested too (``block_sides``), all under one Holm
         correction.
-    tests : sequence of {"global", "blocks", "pixels"}
+    tests : sequence of {"global", "blocks", "pixels"}, or one of them as a string
         The tests to run, each at α / len(tests) (all three by default). The render
         gate's early looks, on a few passes, leave out the pixel t-tests: a pixel's
         variance from 4 passes is too uncertain on caustic pixels, while image and block
@@ -326,7 +326,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     block = validate.integer("block", block, minimum=1)
     perceptual = validate.boolean("perceptual", perceptual)
     name = validate.label(name, "image")
-    tests = tuple(tests)
+    tests = (tests,) if isinstance(tests, str) else tuple(tests)
     if not tests or len(set(tests)) != len(tests) or not set(tests) <= set(TESTS):
         raise InvalidArgument(f"tests={tests}: a non-empty selection of {TESTS}")
     if (test_passes is None) != (ref_passes is None):

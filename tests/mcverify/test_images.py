@@ -303,19 +303,28 @@ def test_zero_variance_pixels_compare_exactly():
     assert bad.artifacts["p_map"][3, 3] == 0.0 and bad.artifacts["p_map"][5, 5] == 1.0
 
 
+def test_one_test_named_as_a_string_is_that_test_alone():
+    # tests="global" was read as the six "tests" g, l, o, b, a, l and refused
+    pair = _pair(np.random.default_rng(1), 2.0, 64, scale_b=1.02)
+    r = mv.compare_images(**pair, tests="global")
+    assert r.details["tests"] == ["global"] and r.details["found_by"] == ["global"]
+    assert mv.compare_images(**pair, tests="pixels").details["tests"] == ["pixels"]
+
+
 @pytest.mark.parametrize("kwargs,match", [
     (dict(ref_mean=np.zeros((4, 5))), "shape"),
     (dict(test_var=-np.ones((4, 4))), ">= 0"),
     (dict(test_mean=np.full((4, 4), np.nan)), "NaN"),
     (dict(test_n=1), "test_n=1"),
     (dict(block=0), "block=0"),
+    (dict(tests="blocs"), "tests=\\('blocs',\\)"),
     (dict(test_passes=np.zeros((4, 4, 4))), "test_passes/ref_passes: give both"),
     (dict(test_passes=np.zeros((3, 4, 4)), ref_passes=np.zeros((4, 4, 4))),
      r"test_passes: expected 4 pass images"),
     (dict(test_passes=np.zeros((4, 4, 4)), ref_passes=np.full((4, 4, 4), np.inf)),
      "ref_passes: contains NaN/Inf"),
-], ids=["shape", "negative-var", "nan", "n", "block", "one-side-passes", "passes-count",
-        "passes-inf"])
+], ids=["shape", "negative-var", "nan", "n", "block", "misspelt-test", "one-side-passes",
+        "passes-count", "passes-inf"])
 def test_bad_input(kwargs, match):
     base = dict(test_mean=np.zeros((4, 4)), ref_mean=np.zeros((4, 4)),
                 test_var=np.ones((4, 4)), ref_var=np.ones((4, 4)), test_n=4, ref_n=4)
