@@ -199,13 +199,20 @@ class _Builder:
                          f"type=\"{plugin.type}\">: {message}")
 
     # ---------------------------------------------------------------- textures
-    def _image(self, plugin: Plugin, filename: str | None, raw: bool = False) -> np.ndarray:
-        if not filename:
-            self.fail(plugin, "set <string name=\"filename\" .../> (the image file)")
-        path = filename if os.path.isabs(filename) else os.path.join(self.dir, filename)
+    def _asset_path(self, plugin: Plugin, what: str = "") -> str:
+        """The file the plugin's ``filename`` names (relative to the scene's folder),
+        checked to be a regular file within the cap; refused naming the plugin."""
+        name = plugin.get("filename")
+        if not name:
+            self.fail(plugin, f"set <string name=\"filename\" .../>{what}")
+        path = name if os.path.isabs(name) else os.path.join(self.dir, name)
         problem = file_problem(path, MAX_ASSET_BYTES)
         if problem:
             self.fail(plugin, problem)
+        return path
+
+    def _image(self, plugin: Plugin, raw: bool = False) -> np.ndarray:
+        path = self._asset_path(plugin, " (the image file)")
         try:
             return read_image(path, raw=raw)
         except OSError as e:
@@ -213,7 +220,7 @@ class _Builder:
 
     def _bitmap(self, tex: Plugin) -> int:
         """Store a ``bitmap`` texture with its filter, wrap mode and ``to_uv``."""
-        img = self._image(tex, tex.get("filename"), raw=bool(tex.get("raw", False)))
+        img = self._image(tex, raw=bool(tex.get("raw", False)))
         options = {}
         for name, names, default in (("filter_type", layout.FILTERS, "bilinear"),
                                      ("wrap_mode", layout.WRAPS, "repeat")):
@@ -496,7 +503,7 @@ class _Builder:
                     # shaded with a zero frame (a 2 % darker image, pixels at 0.44), and
                     # one of 1e300 (its length overflows) or one the transform shrinks
                     # below the smallest double became a zero or NaN normal again
-                    self.fail(s, f"{self._mesh_path(s)}: a vertex normal is zero or not "
+                    self.fail(s, f"{self._asset_path(s)}: a vertex normal is zero or not "
                                  "finite, or cannot be normalised in world space (too large "
                                  "or too small)")
                 normals = normals / length
@@ -525,22 +532,11 @@ class _Builder:
         self.info += [(kind, index)] * (len(self.prims) - n_before)
         return n_before, len(self.prims) - n_before, kind
 
-    def _mesh_path(self, s: Plugin) -> str:
-        """The mesh file a shape names, checked to be a regular file within the cap."""
-        name = s.get("filename")
-        if not name:
-            self.fail(s, "set <string name=\"filename\" .../>")
-        path = name if os.path.isabs(name) else os.path.join(self.dir, name)
-        problem = file_problem(path, MAX_ASSET_BYTES)
-        if problem:
-            self.fail(s, problem)
-        return path
-
     def _ply(self, s: Plugin):
         """A PLY mesh as (vertices, faces, the file's normals or None, uvs, the position
         index of each vertex): per vertex when the file has uv, else one vertex per face
         corner with Mitsuba's barycentric uv."""
-        path = self._mesh_path(s)      # refuses a missing file naming the shape itself
+        path = self._asset_path(s)      # refuses a missing file naming the shape itself
         try:
             mesh = read_ply(path)
         except SceneError as e:
@@ -560,7 +556,7 @@ class _Builder:
         each corner is: one vertex per distinct (position, vt, vn) triple, as Mitsuba's
         loader makes them, so that smooth normals are summed per such vertex), one
         vertex per face corner. What Mitsuba refuses is refused, naming the line."""
-        path = self._mesh_path(s)
+        path = self._asset_path(s)
         try:
             with open(path, encoding="utf-8") as fh:
                 lines = fh.readlines()
@@ -730,7 +726,7 @@ class _Builder:
                                  "not normalise a <rotate> axis, so give a unit one): Mitsuba's "
                                  "envmap then looks up and samples directions that are not "
                                  "unit vectors, which cannot be matched")
-                img = self._image(e, e.get("filename"))
+                img = self._image(e)
                 if img.shape[0] < 3 or img.shape[1] < 2:
                     # Mitsuba 3.9.1 renders a 2-row map with a lookup not matched (newer
                     # Mitsuba refuses maps under 2 x 3 pixels)
