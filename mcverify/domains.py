@@ -211,8 +211,18 @@ _BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}
 #: What the numba binning and quadrature passes decide by ``kind`` and ``args``, not by
 #: calling the method: a subclass that overrides one would be silently ignored.
 #: What the numba passes take from a built-in domain's class: an instance or subclass
-#: that changes one would be binned as the built-in one (or written past its arrays).
-_KERNEL_SHAPE = ("kind", "dim", "param_dim")
+#: that changes one would be binned as the built-in one (or written past its arrays);
+#: ``tolerance`` goes into every pass unvalidated (NaN or 0.5 let points far outside the
+#: square in, clamped to its edge without an "outside" failure; a string crashed numba).
+_KERNEL_SHAPE = ("kind", "dim", "param_dim", "tolerance")
+
+
+def _same(a, b) -> bool:
+    """``a == b`` as one bool, False where the comparison is not one (an array)."""
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return False
 _KERNEL_DECIDED = ("classify", "to_param", "inside", "to_point", "binning_edges", "points",
                    "args", "kind", "dim", "param_dim", "jacobian", "_azimuth_axis")
 
@@ -231,7 +241,7 @@ def _refuse_custom(domain: Domain) -> None:
             "(Interval, Square, Disk, Sphere, Hemisphere), which the checks bin and "
             "integrate in numba passes; Domain itself is only their base class")
     for name in _KERNEL_SHAPE:
-        if getattr(domain, name) != getattr(base, name):
+        if not _same(getattr(domain, name), getattr(base, name)):
             raise InvalidArgument(
                 f"domain={domain!r}: {cls.__name__} sets {name}={getattr(domain, name)!r}, "
                 f"but the checks bin it as the built-in {base.__name__} ({name}="

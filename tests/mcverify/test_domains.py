@@ -69,6 +69,16 @@ def _wide_interval():
     return d
 
 
+class _LooseSquare(mv.Square):
+    tolerance = 0.5         # points up to 1.5 "inside", clamped to the edge
+
+
+def _nan_tolerance_square():
+    d = mv.Square()
+    d.tolerance = float("nan")  # every comparison false: every point "inside"
+    return d
+
+
 def _rescaled_sphere():
     d = mv.Sphere()
     d.jacobian = 1.0        # the checks integrate by kind: the sphere's 4π stays
@@ -82,12 +92,18 @@ def _rescaled_sphere():
     (mv.Domain(), "Domain itself is only their base class"),
     (_ShiftedDisk(), "_ShiftedDisk overrides 'to_point'"),
     (_wide_interval(), "sets dim=2, but the checks bin it as the built-in Interval"),
+    (_LooseSquare(), "sets tolerance=0.5, but the checks bin it as the built-in Square"),
+    (_nan_tolerance_square(), "sets tolerance=nan, but the checks bin it as the built-in "
+                              "Square"),
 ], ids=["changed-jacobian", "own-geometry", "base-class", "overridden-kernel-method",
-        "changed-dim"])
+        "changed-dim", "changed-tolerance", "nan-tolerance"])
 def test_a_domain_the_kernels_would_ignore_is_refused(dom, needle):
     """The binning and quadrature passes branch on ``kind``: a subclass's own geometry or
     an overridden ``classify``/``to_point`` would be silently ignored, so checks refuse
-    it with the reason (before it was binned as the parent domain, or as nothing). The
+    it with the reason (before it was binned as the parent domain, or as nothing). A
+    tolerance of its own went into the passes unchecked: at 0.5 or NaN a sampler
+    scaled by 1.4 had its points outside the square clamped to the edge with no
+    "outside the domain" failure, and a string was a numba TypingError. The
     base class itself (kind -1) reached the point map, which wrote a sphere's three
     coordinates into rows of one and aborted the process (an outside review)."""
     with pytest.raises(mv.InvalidArgument, match=needle):
