@@ -256,7 +256,10 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
                         f"a pdf of 0 (no-sample answers) and {details['rejected']} were "
                         "rejected; a sampler that never samples fails")
     else:
-        messages.append("no row to compare: every draw was rejected")
+        # a black BSDF's weights all 0 land here too, not only rejected draws
+        messages.append(f"no row to compare: {details['no_sample']} of {n} draws returned "
+                        f"a weight of 0 (no-sample answers) and {details['rejected']} were "
+                        "rejected")
     messages.append(f"compared {rows.size} of {n} draws ({details['no_sample']} no-sample "
                     f"answers, {details['rejected']} rejected)")
     return CheckResult(name=name, passed=not failures, p_value=None, statistic=statistic,

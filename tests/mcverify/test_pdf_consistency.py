@@ -209,6 +209,9 @@ def test_a_sampler_that_never_samples_fails_but_all_rejected_draws_pass():
     r = mv.check_pdf_consistency(black, _cos_pdf, f=lambda x: 0.0 * _f(x), sample_dim=2,
                                  n_samples=1000, seed=1)
     assert r.passed and r.details["no_sample"] == 1000, r.failures
+    # it said "every draw was rejected", though none was (an outside review)
+    assert r.messages[0] == ("no row to compare: 1000 of 1000 draws returned a weight of 0 "
+                             "(no-sample answers) and 0 were rejected"), r.messages
 
     def delta(u):
         return np.full((len(u), 3), np.nan), np.zeros(len(u))
@@ -216,6 +219,7 @@ def test_a_sampler_that_never_samples_fails_but_all_rejected_draws_pass():
     r = mv.check_pdf_consistency(delta, _cos_pdf, sample_dim=2, n_samples=1000,
                                  rejection=True, seed=1)
     assert r.passed and r.details["rejected"] == 1000, r.failures
+    assert r.messages[0].endswith("and 1000 were rejected"), r.messages
 
 
 def test_a_zero_pdf_returned_with_a_weight_is_compared_not_skipped():
