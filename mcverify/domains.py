@@ -208,13 +208,15 @@ class Hemisphere(Sphere):
 _BY_NAME = {c.name: c for c in (Interval, Square, Disk, Sphere, Hemisphere)}
 
 
-#: What the numba binning and quadrature passes decide by ``kind`` and ``args``, not by
-#: calling the method: a subclass that overrides one would be silently ignored.
 #: What the numba passes take from a built-in domain's class: an instance or subclass
 #: that changes one would be binned as the built-in one (or written past its arrays);
 #: ``tolerance`` goes into every pass unvalidated (NaN or 0.5 let points far outside the
 #: square in, clamped to its edge without an "outside" failure; a string crashed numba).
 _KERNEL_SHAPE = ("kind", "dim", "param_dim", "tolerance")
+#: What the numba binning and quadrature passes decide by ``kind`` and ``args``, not by
+#: calling the method: a subclass that overrides one would be silently ignored.
+_KERNEL_DECIDED = ("classify", "to_param", "inside", "to_point", "binning_edges", "points",
+                   "args", "kind", "dim", "param_dim", "jacobian", "_azimuth_axis")
 
 
 def _same(a, b) -> bool:
@@ -223,8 +225,6 @@ def _same(a, b) -> bool:
         return bool(a == b)
     except (TypeError, ValueError):
         return False
-_KERNEL_DECIDED = ("classify", "to_param", "inside", "to_point", "binning_edges", "points",
-                   "args", "kind", "dim", "param_dim", "jacobian", "_azimuth_axis")
 
 
 def _refuse_custom(domain: Domain) -> None:
