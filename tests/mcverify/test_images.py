@@ -311,6 +311,25 @@ def test_one_test_named_as_a_string_is_that_test_alone():
     assert mv.compare_images(**pair, tests="pixels").details["tests"] == ["pixels"]
 
 
+def test_one_bright_pixel_does_not_hide_a_bias_everywhere_else():
+    """The rounding floor was 2^-24 of the image's largest value: one pixel at 1e6 (a
+    visible sun, a firefly on both sides) made every difference under 0.06 no evidence,
+    and a 3 % bias across the whole image passed. The floor's scale is now the median
+    magnitude, which no single pixel moves."""
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0.5, 1.5, (32, 32, 3))
+    var = np.full(ref.shape, 1e-4)
+    test = ref * 1.03 + rng.normal(0.0, 1e-3, ref.shape)
+    for bright in (None, 1e6):
+        t, r = test.copy(), ref.copy()
+        if bright is not None:
+            t[4, 4], r[4, 4] = bright, bright
+        res = mv.compare_images(t, r, test_var=var, ref_var=var, test_n=16, ref_n=16,
+                                alpha=ALPHA)
+        assert not res.passed, bright
+        assert {"global", "blocks", "pixels"} <= set(res.details["found_by"]), bright
+
+
 @pytest.mark.parametrize("kwargs,match", [
     (dict(ref_mean=np.zeros((4, 5))), "shape"),
     (dict(test_var=-np.ones((4, 4))), ">= 0"),
