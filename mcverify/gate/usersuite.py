@@ -186,6 +186,12 @@ def load_user_suite(spec: str, *, roots=(".",), option: str = "--suite") -> list
             raise InvalidArgument(f"{option} {spec!r}: item {i} is named {c.name!r}: a "
                                   "check's name must be a non-empty string (its seed "
                                   "derives from it)")
+        try:
+            c.name.encode()     # the seed derives from its UTF-8 bytes; JSON holds them
+        except UnicodeEncodeError:
+            raise InvalidArgument(f"{option} {spec!r}: item {i} is named {c.name!r}: not "
+                                  "encodable as UTF-8 (a lone surrogate, as a non-UTF-8 "
+                                  "file name decodes to); name it in text") from None
         if not callable(c.run):
             raise InvalidArgument(f"{option} {spec!r}: check {c.name!r}: run={c.run!r} is "
                                   "not callable")

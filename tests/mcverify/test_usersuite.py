@@ -34,6 +34,7 @@ CHECKS = textwrap.dedent('''
 
     not_checks = [1, 2]
     number_named = [Check(3, good[0].run)]
+    surrogate_named = [Check("scene_\\udcff.xml", good[0].run)]
     not_runnable = [Check("x", None)]
     duplicates = [good[0], good[0]]
     number = 3
@@ -98,6 +99,10 @@ def test_a_list_and_a_factory_load(project):
     ("mine.checks:number_named", "item 0 is named 3: a check's name must be a non-empty "
                                  "string"),
     ("mine.checks:not_runnable", "check 'x': run=None is not callable"),
+    # a name from a non-UTF-8 file name (surrogateescape): the seed's derivation raised
+    # "unexpected UnicodeEncodeError" without naming the check, and nothing was written
+    ("mine.checks:surrogate_named", r"item 0 is named 'scene_\\udcff.xml': not "
+                                    "encodable as UTF-8"),
     # the user's own code failing: named, not "unexpected ValueError"
     ("mine.broken:suite", "importing 'mine.broken' raised ValueError: at import"),
     ("mine.syntax:suite", "importing 'mine.syntax' raised SyntaxError at "),
