@@ -205,7 +205,9 @@ def atomic_write(path, data: str | bytes) -> None:
     file keeps its permission bits. A symlink is followed and its target written; a FIFO
     or character device is written into directly (see ``output_target``)."""
     target, how = output_target(path)
-    payload = data.encode("utf-8") if isinstance(data, str) else data
+    # a lone surrogate (a non-UTF-8 file name in a check's message) has no UTF-8 bytes:
+    # it is written as its escape, \udcff, rather than fail the write after the others
+    payload = data.encode("utf-8", "backslashreplace") if isinstance(data, str) else data
     try:
         _write(target, how, payload)
     except OSError as e:    # named by the path asked for, not a temporary file's name

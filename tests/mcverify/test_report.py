@@ -154,6 +154,24 @@ def test_cli_report_refuses_a_stale_reference_before_any_work(tmp_path, capsys,
     assert not (tmp_path / "out").exists()
 
 
+def test_a_message_with_a_lone_surrogate_is_written_into_the_page(tmp_path):
+    """A user check that raised on a non-UTF-8 file name ('scene_\\udcff.xml', as
+    surrogateescape decodes it) failed `check --report`: report.json was written, then
+    encoding report.html raised UnicodeEncodeError, the run exited 2 ("unexpected")
+    instead of 1 and left the folder without its page. The character is written as
+    the escape \\udcff, as the JUnit file writes what XML cannot hold."""
+    from mcverify.result import CheckResult, SuiteResult
+
+    failed = CheckResult("mine", False, None, None, 0.01, 1, 0.0,
+                         failures=("raised OSError: cannot open scene_\udcff.xml",))
+    build_report(str(tmp_path), suite=SuiteResult.judge("mine:suite", [failed], alpha=0.01,
+                                                         seconds=0.0),
+                 study=None)
+    assert "scene_\\udcff.xml" in (tmp_path / "report.html").read_text()
+    assert json.loads((tmp_path / "report.json").read_text())["verification"]["results"][0][
+        "failures"] == ["raised OSError: cannot open scene_\udcff.xml"]
+
+
 def test_failed_checks_come_first(report):
     out, _ = report
     page = (out / "report.html").read_text()
