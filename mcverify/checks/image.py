@@ -39,6 +39,9 @@ from ..result import CheckResult
 
 __all__ = ["compare_images", "perceptual_metrics"]
 
+#: Per-sample variances of the two sides further apart than this (in the median pixel)
+#: are noted as a likely wrong ``test_spp``/``ref_spp``.
+SPP_RATIO_LIMIT = 8.0
 #: The three tests of ``compare_images``.
 TESTS = ("global", "blocks", "pixels")
 
@@ -343,9 +346,15 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         # 64 spp against 2 of Mitsuba's own: 10 false alarms in 200 seeds on the Cornell
         # box, pixels whose 2 reference passes were both 0; none with the floor)
         floor, ref_floor = rv * (rs / ts), tv * (ts / rs)
+        # per-sample variances, test over reference, in the median pixel where both have
+        # one: near 1 for two renderers of the same scene, whatever their passes (ours
+        # against Mitsuba: 0.5-1.3 on the reference scenes)
+        both = (tv > 0) & (rv > 0)
+        ratio = float(np.median(tv[both] * ts / (rv[both] * rs))) if both.any() else None
         floor_info = {"test_spp": ts, "ref_spp": rs,
                       "raised_fraction": float(np.mean(tv < floor)),
-                      "ref_raised_fraction": float(np.mean(rv < ref_floor))}
+                      "ref_raised_fraction": float(np.mean(rv < ref_floor)),
+                      "per_sample_variance_ratio": ratio}
         tv, rv = np.maximum(tv, floor), np.maximum(rv, ref_floor)
     tp = _as_passes("test_passes", test_passes, nt, tm.shape)
     rp = _as_passes("ref_passes", ref_passes, nr, tm.shape)
@@ -447,6 +456,16 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                         f"{diff.mean():+.4g} ({diff.mean() / max(abs(rm.mean()), 1e-300):+.2%})"
                         f"; {len(rejected_blocks)} blocks and "
                         f"{rejected_px.any(axis=2).mean():.2%} of pixels rejected")
+    ratio = floor_info and floor_info["per_sample_variance_ratio"]
+    if ratio and not 1 / SPP_RATIO_LIMIT <= ratio <= SPP_RATIO_LIMIT:
+        # a wrong sample count (total spp given for spp per pass) scales one side's floor:
+        # raised by the factor, the other side's variance swamps the test (no power), a
+        # loss the verdict does not show
+        spps = f"test_spp={floor_info['test_spp']} and ref_spp={floor_info['ref_spp']}"
+        messages.append(f"note: per sample, the test side's variance is {ratio:.3g} times "
+                        f"the reference's in the median pixel: check {spps} (samples per "
+                        "value, e.g. per pass); the variance floor scales each side's "
+                        "variance by their ratio, and a wrong one takes the tests' power")
     seen, seen_maps = perceptual_metrics(tm, rm) if perceptual else \
         (dict.fromkeys(PERCEPTUAL_KEYS), {})
     maps = {"p_map": p_map, **seen_maps}

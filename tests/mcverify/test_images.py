@@ -129,11 +129,31 @@ def test_the_variance_floor_scales_the_references_variance():
     r = mv.compare_images(test, ref, **kw, test_spp=64, ref_spp=256)
     assert r.passed and r.details["variance_floor"] == {"test_spp": 64, "ref_spp": 256,
                                                         "raised_fraction": 0.25,
-                                                        "ref_raised_fraction": 0.0}
+                                                        "ref_raised_fraction": 0.0,
+                                                        "per_sample_variance_ratio": 1.0}
+    assert not any(m.startswith("note:") for m in r.messages)
     with pytest.raises(mv.InvalidArgument, match="test_spp/ref_spp: give both"):
         mv.compare_images(test, ref, **kw, test_spp=64)
     with pytest.raises(mv.InvalidArgument, match="ref_spp"):
         mv.compare_images(test, ref, **kw, test_spp=64, ref_spp=0)
+
+
+def test_a_sample_count_far_off_the_variances_is_noted():
+    """A test_spp 256 times too large (the total of 16 passes of 16 times the spp)
+    floors the reference's variance at 256 times the test's: a 10 % bias found at p =
+    1e-53 with the right counts is found at p = 1.6e-4 only, and a smaller one not at
+    all. The note names the counts, from the per-sample variances' ratio in the median
+    pixel (1 for two renderers of the same scene)."""
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.5, 1.5, (16, 16))
+    var = np.full(ref.shape, 0.01)
+    kw = dict(test_var=var, ref_var=var, test_n=16, ref_n=16, perceptual=False)
+    right = mv.compare_images(ref * 1.1, ref, **kw, test_spp=64, ref_spp=64)
+    assert not right.passed and not any(m.startswith("note:") for m in right.messages)
+    wrong = mv.compare_images(ref * 1.1, ref, **kw, test_spp=64 * 16 * 16, ref_spp=64)
+    assert wrong.details["variance_floor"]["per_sample_variance_ratio"] == 256.0
+    assert any("note: per sample, the test side's variance is 256 times" in m
+               and "test_spp=16384 and ref_spp=64" in m for m in wrong.messages)
 
 
 def test_the_variance_floor_also_raises_a_reference_whose_few_passes_missed_a_path():
