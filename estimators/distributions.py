@@ -569,9 +569,17 @@ class InvertedCDF:
                                  "not integrable, or a feature narrower than 1e-13 of the "
                                  "interval)")
             m10, m20, fmin, fmax = self._piece_rules(lo, hi)
+            with np.errstate(over="ignore"):
+                found = accepted + float(m20.sum())
+            if not math.isfinite(found):
+                # a pdf of finite values whose integral is beyond float64 (1e308 on
+                # [0, 100]): the CDF table was NaN, and sample returned any point
+                raise ValueError(f"pdf: its integral over [{self.a}, {self.b}] overflows "
+                                 f"float64 (values up to {float(fmax.max()):.3g}); scale "
+                                 "it down: it need not be normalised")
             # the budget scales with the mass found so far: a first round that saw only a
             # narrow peak's tails (mass ~0) no longer asks every piece for ~0 error
-            scale = max(scale, accepted + float(m20.sum()))
+            scale = max(scale, found)
             f_ends = self._eval(np.concatenate([lo, hi])).reshape(2, -1)
             err = np.abs(m20 - m10)
             budget = tol * scale * (hi - lo) / (self.b - self.a) + 1e-300

@@ -282,6 +282,17 @@ def test_inverted_cdf_refuses_what_it_cannot_tabulate_without_hanging(monkeypatc
         InvertedCDF(pdf, 0.0, 1.0, **kw)
 
 
+@pytest.mark.parametrize("value,b", [(1e308, 100.0), (1e307, 1e3)])
+def test_inverted_cdf_refuses_a_pdf_whose_integral_overflows(value, b):
+    """Finite pdf values whose integral is beyond float64: the total was inf, the CDF
+    table NaN, and sample(0.5) of a constant pdf on [0, 100] returned 1.95, not 50."""
+    with pytest.raises(ValueError, match=r"pdf: its integral over \[0.0, .*\] overflows"):
+        InvertedCDF(lambda x: np.full(x.shape, value), 0.0, b)
+    # the same shape scaled down is sampled (the pdf need not be normalised)
+    d = InvertedCDF(lambda x: np.full(x.shape, value / 1e10), 0.0, b)
+    assert d.sample([0.5])[0, 0] == pytest.approx(b / 2, rel=1e-12)
+
+
 def test_inverted_cdf_of_a_narrow_peak_alone_converges():
     """A Gaussian of σ = 3e-5 alone: the first round saw only its tails (mass ~0), and a
     budget fixed from that round asked every piece for ~0 error."""
