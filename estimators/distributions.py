@@ -522,6 +522,10 @@ class InvertedCDF:
     tol : float
         Relative tolerance of the tabulated CDF; ``cdf_error`` reports what was
         achieved (the sum of |GL10 − GL20| over pieces, relative to the total).
+    max_rounds : int
+        Rounds of halving at most; a CDF still above ``tol`` after them is refused,
+        naming ``max_rounds`` (the default always ends: pieces stop at 1e-13 of the
+        interval).
 
     Notes
     -----
@@ -595,8 +599,13 @@ class InvertedCDF:
             mid = 0.5 * (lo[bad] + hi[bad])
             lo, hi = np.concatenate([lo[bad], mid]), np.concatenate([mid, hi[bad]])
         else:
-            done_lo.append(lo), done_hi.append(hi)
-            done_m.append(self._piece_rules(lo, hi)[1]), done_e.append(np.full(lo.size, np.inf))
+            # only a lowered max_rounds ends here (pieces stop halving at 1e-13 of the
+            # interval within 45 rounds): the pieces left were given an error of inf, and a
+            # step at 1/π with max_rounds=10 was refused as "not integrable"
+            raise ValueError(f"max_rounds={max_rounds}: the CDF of pdf on [{self.a}, "
+                             f"{self.b}] did not reach tol={tol} within {max_rounds} rounds "
+                             f"of halving ({lo.size:,} pieces still above it); raise "
+                             "max_rounds (the default, 60, always ends)")
         lo, hi = np.concatenate(done_lo), np.concatenate(done_hi)
         masses, errors = np.concatenate(done_m), np.concatenate(done_e)
         order = np.argsort(lo)

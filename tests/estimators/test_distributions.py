@@ -293,6 +293,17 @@ def test_inverted_cdf_refuses_a_pdf_whose_integral_overflows(value, b):
     assert d.sample([0.5])[0, 0] == pytest.approx(b / 2, rel=1e-12)
 
 
+@pytest.mark.parametrize("max_rounds", [1, 10])
+def test_inverted_cdf_blames_a_low_max_rounds_not_the_pdf(max_rounds):
+    """A 1 : 3 step at 1/π needs more rounds of halving than these: it was refused as
+    "a pdf that is not integrable there, or a singularity too steep" (the pieces left
+    were given an error of inf); the default tabulates it."""
+    step = lambda x: np.where(x < 1 / np.pi, 1.0, 3.0)     # noqa: E731
+    with pytest.raises(ValueError, match=rf"max_rounds={max_rounds}: .* raise max_rounds"):
+        InvertedCDF(step, 0.0, 1.0, pieces=2, max_rounds=max_rounds)
+    assert InvertedCDF(step, 0.0, 1.0, pieces=2).cdf_error < 1e-9
+
+
 def test_inverted_cdf_of_a_narrow_peak_alone_converges():
     """A Gaussian of σ = 3e-5 alone: the first round saw only its tails (mass ~0), and a
     budget fixed from that round asked every piece for ~0 error."""
