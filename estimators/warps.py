@@ -459,10 +459,13 @@ def _tent_pdf_kernel(x, p):
 @_jit
 def _invert_tent_kernel(x, p):
     r = p[0]
-    if x[0] < 0.0:
-        t = (x[0] + r) / r
+    # a point beyond an end as that end, as the interval's inverse: t² of t < 0 folded
+    # the tails back (x = 5 with r = 1 gave u = 0, x = -5 gave 1 - 2^-53)
+    v = min(max(x[0], -r), r)
+    if v < 0.0:
+        t = (v + r) / r
         return (_clamp_u(0.5 * t * t),)
-    t = (r - x[0]) / r
+    t = (r - v) / r
     return (_clamp_u(1.0 - 0.5 * t * t),)
 
 
@@ -503,6 +506,10 @@ def _linear_pdf_1d(x, a, b):
 
 @_jit
 def _invert_linear_1d(x, a, b):
+    # a point beyond [0, 1] as its nearest end, as the interval's inverse: the CDF's
+    # quadratic turns back outside (a = 2, b = 0.01: x = 3 gave u = 0; a = 0.01, b = 2:
+    # x = -2 gave 1 - 2^-53)
+    x = min(max(x, 0.0), 1.0)
     a, b, _, _ = _unit_scale(a, b)
     return _clamp_u(x * (a * (2.0 - x) + b * x) / (a + b) if a + b > 0.0 else x)
 
@@ -545,7 +552,7 @@ def _bilinear_pdf_kernel(x, p):
 @_jit
 def _invert_bilinear_kernel(x, p):
     w00, w10, w01, w11 = _unit_scale(p[0], p[1], p[2], p[3])
-    y = x[1]
+    y = min(max(x[1], 0.0), 1.0)     # the row's weights are negative beyond [0, 1]
     return (_invert_linear_1d(x[0], (1.0 - y) * w00 + y * w01, (1.0 - y) * w10 + y * w11),
             _invert_linear_1d(y, w00 + w10, w01 + w11))
 

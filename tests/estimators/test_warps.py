@@ -376,6 +376,33 @@ def test_float32_inverses_stay_below_one_and_the_interval_inverse_clamps():
     assert v.tolist() == [1 - 2 ** -53, 0.0]
 
 
+@pytest.mark.parametrize("name,params,beyond,end", [
+    ("tent", (1.0,), [[5.0], [-5.0], [1.5], [-2.5]], [[1], [0], [1], [0]]),
+    ("linear", (2.0, 0.01), [[3.0], [-2.0]], [[1], [0]]),
+    ("linear", (0.01, 2.0), [[3.0], [-2.0]], [[1], [0]]),
+    ("bilinear", (1.0, 3.0, 0.5, 2.0), [[0.5, 2.0], [0.5, -1.0], [3.0, 0.5], [-2.0, 0.5]],
+     [[None, 1], [None, 0], [1, None], [0, None]]),
+])
+def test_points_beyond_the_support_invert_to_its_nearest_end(name, params, beyond, end):
+    """As invert_uniform_interval clamps: the tent's and the linear warps' CDFs are
+    quadratics that turn back outside the support, and a point beyond one end inverted
+    to the other (tent r = 1: x = 5 gave u = 0, x = -5 gave 1 - 2^-53; linear a = 2,
+    b = 0.01: x = 3 gave 0; the bilinear row weights went negative for y > 1)."""
+    from estimators.warps import WARPS
+
+    w = WARPS[name]
+    x = np.array(beyond, dtype=np.float64)
+    u = w.invert(x, *params)
+    for row, want, point in zip(u, end, x):
+        for ui, e in zip(row, want):
+            if e is not None:
+                assert ui == (1 - 2 ** -53 if e else 0.0), (name, point, row)
+    # the other coordinate of a bilinear point is inverted as at the nearest edge
+    if name == "bilinear":
+        edge = np.clip(x, 0.0, 1.0)
+        assert np.array_equal(u, w.invert(edge, *params)), (u, w.invert(edge, *params))
+
+
 def test_uniform_interval_at_u_one_stays_in_the_interval():
     """a + (b - a)·u at u = 1 rounded above b for about 1 in 6 random (a, b) in float64
     (a = -0.3, b = 0.1: 0.10000000000000003, density 0; found by review), where the
