@@ -365,8 +365,8 @@ class DiscreteDistribution:
 
     def invert(self, index, u_remapped):
         """Inverse of ``sample``: (index, remapped u) -> u. ``index`` holds integers
-        (a float 0.7 was read as entry 0); the two arrays have one shape (or one of them
-        is a single value)."""
+        (a float 0.7 was read as entry 0), ``u_remapped`` numbers in [0, 1]; the two
+        arrays have one shape (or one of them is a single value)."""
         idx = _reals(index, "index")
         if not np.all(np.isfinite(idx) & (idx == np.floor(idx))):
             bad = idx.ravel()[np.argmax(~(np.isfinite(idx) & (idx == np.floor(idx))).ravel())]
@@ -384,6 +384,12 @@ class DiscreteDistribution:
             bad = index.ravel()[np.argmax((index.ravel() < 0) | (index.ravel() >= n))]
             raise ValueError(f"index: {bad} is not an entry of the distribution (0 to "
                              f"{n - 1}); -1 wrapped to the last one before")
+        outside = (u_remapped < 0) | (u_remapped > 1)          # NaN: neither, stays NaN
+        if outside.any():
+            # cdf[i] + 1.5 p_i is a u of another entry, which sample maps to that entry
+            bad = u_remapped.ravel()[np.argmax(outside.ravel())]
+            raise ValueError(f"u_remapped: {float(bad)!r} is outside [0, 1] (what sample "
+                             "returns is in [0, 1)); it gave a u of another entry")
         return np.clip(self.cdf[index] + u_remapped * self.pmf[index], 0.0,
                        ONE_MINUS_EPSILON)
 

@@ -206,6 +206,17 @@ def test_a_discrete_inverse_refuses_an_index_outside_the_distribution():
     np.testing.assert_allclose(d.invert(i, r), [0.1, 0.5, 0.9], rtol=1e-12)
 
 
+def test_a_discrete_inverse_refuses_a_remapped_u_outside_the_unit_interval():
+    """u_remapped = 1.5 of entry 0 gave cdf[0] + 1.5 p_0, a u of entry 1 (which sample
+    maps to entry 1), and -3 a u clamped to 0, silently."""
+    d = DiscreteDistribution([1.0, 2.0, 1.0])
+    for r in ([1.5], [-3.0], [0.5, 1.0000001]):
+        with pytest.raises(ValueError, match=r"u_remapped: .* is outside \[0, 1\]"):
+            d.invert([0] * len(r), r)
+    assert d.invert([0, 1, 2], [0.0, 0.5, 1.0]).tolist() == pytest.approx([0.0, 0.5, 1.0])
+    assert np.isnan(d.invert([1], [np.nan])).all()
+
+
 def test_an_integrable_singularity_is_kept():
     """1/sqrt(x) on (0, 1): its error bound, 2e-9, is within the refusal's 1e-6 floor."""
     d = InvertedCDF(lambda t: 1.0 / np.sqrt(np.maximum(t, 1e-300)), 0.0, 1.0)
