@@ -356,15 +356,15 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
                 raise ValueError(f"techniques[{i}] {what}={t[j]!r:.60}: must be callable")
     ex = 1.0 if heuristic == "balance" else float(beta)
     seqs = np.random.SeedSequence(seed).spawn(len(techniques))
-    counts = [_count(t[2], "n_i") for t in techniques]
+    # each named with its technique ("n_i=0" alone did not say which of them)
+    counts = [_count(t[2], f"techniques[{i}] n_i") for i, t in enumerate(techniques)]
     for i, (t, c) in enumerate(zip(techniques, counts)):
-        k = _count(t[3], "sample_dim")
+        k = _count(t[3], f"techniques[{i}] sample_dim")
         _fits(c, k, f"techniques[{i}]: n_i={c}, sample_dim={k}")
     value, var, cols = 0.0, 0.0, []
     for (sample, _pdf, n_i, k), s in zip(techniques, seqs):
         x = _points(f"techniques[{len(cols)}] sample",
-                    sample(np.random.default_rng(s).random((n_i, _count(k, "sample_dim")))),
-                    n_i)
+                    sample(np.random.default_rng(s).random((n_i, int(k)))), n_i)
         fx = _values("f", f(x), n_i, x)
         pj = np.stack([_density(f"techniques[{j}] pdf", t[1](x), n_i, x) * c
                        for j, (t, c) in enumerate(zip(techniques, counts))])   # n_j p_j(x)

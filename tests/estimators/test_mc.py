@@ -269,6 +269,18 @@ def test_mis_takes_any_iterable_of_techniques():
             mc.mis(np.sin, bad)
 
 
+@pytest.mark.parametrize("bad, match", [
+    ((100, 0), r"techniques\[1\] sample_dim=0: must be an integer >= 1"),
+    ((0, 1), r"techniques\[1\] n_i=0: must be an integer >= 1"),
+    ((2.5, 1), r"techniques\[1\] n_i=2.5: must be an integer"),
+])
+def test_mis_names_the_technique_whose_count_is_wrong(bad, match):
+    """"n_i=0: must be an integer >= 1" did not say which technique had it."""
+    techs = [(sin_sampler, sin_pdf, 100, 1), (linear_sampler, linear_pdf) + bad]
+    with pytest.raises(ValueError, match=match):
+        mc.mis(np.sin, techs)
+
+
 def test_an_n_by_1_pdf_or_f_gives_the_estimate_of_n_values():
     """A pdf or f of shape (n, 1), one value a row, was accepted where the docstring said
     (n,) (found by review): it is the shape check_sampler accepts for a pdf of (n, 1)
