@@ -707,7 +707,10 @@ class InvertedCDF:
         if (isinstance(xtol, bool) or not isinstance(xtol, numbers.Real)
                 or not (math.isfinite(xtol) and xtol >= 0)):
             raise ValueError(f"xtol={xtol!r}: must be a finite number >= 0")
-        u = _unit(u)
+        # u outside [0, 1) as its nearest end, as PiecewiseConstant1D: u = 1 (which a
+        # float32 u rounds to) found the last piece even where the pdf is 0 there, and
+        # returned b, of density 0; NaN stays NaN
+        u = np.clip(_unit(u), 0.0, ONE_MINUS_EPSILON)
         tab = self._table
         k = np.clip(np.searchsorted(tab.cdf, u, side="right") - 1, 0, tab.knots.size - 2)
         lo, hi = tab.knots[k].copy(), tab.knots[k + 1].copy()

@@ -315,6 +315,19 @@ def test_inverted_cdf_blames_a_low_max_rounds_not_the_pdf(max_rounds):
     assert InvertedCDF(step, 0.0, 1.0, pieces=2).cdf_error < 1e-9
 
 
+def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive():
+    """u = 1 (a float32 u within 2^-25 of 1 rounds to it) found the table's last piece
+    even where the pdf is 0 there, and returned b = 1, of density 0 (f / p = inf), and
+    u = 1.5 did too; they are taken as 1 - 2^-53 now, as PiecewiseConstant1D takes them,
+    and u < 0 as 0."""
+    d = InvertedCDF(lambda x: np.where(x < 0.6, 1.0, 0.0), 0.0, 1.0)
+    x = d.sample(np.array([1.0, 1.5, np.float32(1 - 2 ** -26), 1 - 2 ** -53])).ravel()
+    assert np.all(np.abs(x - 0.6) < 1e-12) and np.all(d.pdf(x) > 0), x
+    z = InvertedCDF(lambda x: np.where(x > 0.4, 1.0, 0.0), -1.0, 1.0)
+    assert z.sample([-0.5])[0, 0] == z.sample([0.0])[0, 0] == pytest.approx(0.4, abs=1e-12)
+    assert np.isnan(d.sample([np.nan])).all()
+
+
 def test_inverted_cdf_of_a_narrow_peak_alone_converges():
     """A Gaussian of σ = 3e-5 alone: the first round saw only its tails (mass ~0), and a
     budget fixed from that round asked every piece for ~0 error."""
