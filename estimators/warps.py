@@ -252,7 +252,9 @@ def _invert_cosine_hemisphere_kernel(x, p):
 def sample_uniform_cone_kernel(u, p):
     """Uniform directions within θ_max of +z; ``p[0] = cos θ_max``."""
     one_minus_cos = u[0] * (1.0 - p[0])
-    cos_t = 1.0 - one_minus_cos
+    # at least cos θ_max: at u0 = 1, 1 - (1 - c) rounds below c for 1 in 10 random c
+    # (c = -0.3: -0.30000000000000004, of density 0); NaN stays NaN (max returns it first)
+    cos_t = max(1.0 - one_minus_cos, p[0])
     sin_t = _safe_sqrt(one_minus_cos * (2.0 - one_minus_cos))
     return _direction(sin_t, cos_t, u[1])
 

@@ -418,6 +418,22 @@ def test_uniform_interval_at_u_one_stays_in_the_interval():
         assert x[2, 0] == a and np.isnan(x[3, 0])
 
 
+def test_uniform_cone_at_u_one_stays_in_the_cap():
+    """z = 1 - u0 (1 - cos θ_max) at u0 = 1 rounded below cos θ_max for about 1 in 10
+    random cos θ_max in float64 (-0.3: z = -0.30000000000000004, density 0), where the
+    README promises a point of the domain at u = 1, as for the interval above. Seeded
+    draws of cos θ_max."""
+    from estimators import warps as W
+
+    rng = np.random.default_rng(0)
+    u = np.array([[1.0, 0.3], [1 - 2 ** -53, 0.7], [0.0, 0.1], [np.nan, 0.5]])
+    for c in np.concatenate([[-0.3, 0.1, -1.0], rng.uniform(-1.0, 0.999, 2000)]):
+        x, pdf = W.sample_uniform_cone.with_pdf(u, c)
+        assert np.all(x[:3, 2] >= c) and np.all(pdf[:3] > 0), (c, x)
+        assert np.allclose(np.linalg.norm(x[:3], axis=1), 1.0, atol=1e-15)
+        assert np.isnan(x[3]).all()
+
+
 def test_float32_cone_samples_stay_inside_the_cap():
     """A float32 point of a narrow cone (cos θ_max = 0.9999) whose z rounded below
     cos θ_max had density 0 as stored: 310 of 2M float32 u (u from [0, 1)), so f / pdf
