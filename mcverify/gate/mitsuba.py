@@ -33,7 +33,7 @@ _LLVM_VARIANT = "llvm_ad_rgb"
 _SCALAR_VARIANT = "scalar_rgb"
 _PROBE = (
     "import mitsuba as mi, drjit as dr, numpy as np\n"
-    f"mi.set_variant('{_LLVM_VARIANT}')\n"
+    "mi.set_variant({variant!r})\n"
     "x = mi.Float([0.25, 2.0])\n"
     "print(float(np.asarray(dr.sum(dr.minimum(x, 1.0))).ravel()[0]))\n"
 )
@@ -67,16 +67,25 @@ def _find_libllvm() -> str | None:
 _PROBED = "MCVERIFY_LLVM_PROBED"
 
 
-def _probe(lib: str) -> bool:
-    """Whether ``llvm_ad_rgb`` computes with ``lib``, tried in a subprocess (an LLVM that
-    Dr.Jit cannot use aborts the process that loads it)."""
-    env = dict(os.environ, DRJIT_LIBLLVM_PATH=lib)
+def _probe_variant(variant: str, lib: str | None) -> str | None:
+    """None where ``variant`` computes (with libLLVM ``lib``, if given), else why not:
+    tried in a subprocess (an LLVM that Dr.Jit cannot use aborts the process that
+    loads it)."""
+    env = dict(os.environ, **({"DRJIT_LIBLLVM_PATH": lib} if lib else {}))
     try:
-        r = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True,
-                           text=True, timeout=120, check=False)
-    except (OSError, subprocess.SubprocessError):
-        return False
-    return r.returncode == 0 and r.stdout.strip() == "1.25"
+        r = subprocess.run([sys.executable, "-c", _PROBE.format(variant=variant)], env=env,
+                           capture_output=True, text=True, timeout=120, check=False)
+    except (OSError, subprocess.SubprocessError) as e:
+        return str(e)
+    if r.returncode == 0 and r.stdout.strip() == "1.25":
+        return None
+    lines = [ln.strip() for ln in r.stderr.splitlines() if ln.strip()]
+    return lines[-1] if lines else f"exit status {r.returncode}"
+
+
+def _probe(lib: str) -> bool:
+    """Whether ``llvm_ad_rgb`` computes with ``lib`` (see :func:`_probe_variant`)."""
+    return _probe_variant(_LLVM_VARIANT, lib) is None
 
 
 @lru_cache(maxsize=1)
@@ -98,6 +107,23 @@ def choose_variant() -> VariantChoice:
                 + ("not a variant of this Mitsuba" if forced not in mitsuba.variants()
                    else "the Mitsuba adapters read RGB weights and values")
                 + f"; use one of {', '.join(usable)}, or unset it to choose automatically")
+        if not forced.startswith("scalar"):
+            # a JIT variant without its backend (cuda_ad_rgb without a GPU, llvm_ad_rgb
+            # without a libLLVM) failed every Mitsuba check with Dr.Jit's ImportError
+            # ("the CUDA backend hasn't been initialized"): exit 1, as if Mitsuba's
+            # plugins were wrong. Probed in a subprocess, the verdict passed on as above.
+            lib = os.environ.get("DRJIT_LIBLLVM_PATH", "")
+            key = f"{forced}@{lib}"
+            known = os.environ.get(_PROBED, "")
+            if known == "ok:" + key:
+                return VariantChoice(forced, None)
+            why = "it did not compute before" if known == "bad:" + key else \
+                _probe_variant(forced, lib or None)
+            os.environ[_PROBED] = ("ok:" if why is None else "bad:") + key
+            if why is not None:
+                raise EnvironmentProblem(
+                    f"MCVERIFY_MITSUBA_VARIANT={forced!r}: Mitsuba cannot compute in it here "
+                    f"({why}); use scalar_rgb, or unset it to choose automatically")
         return VariantChoice(forced, None)
     lib = os.environ.get("DRJIT_LIBLLVM_PATH") or _find_libllvm()
     if lib is None:

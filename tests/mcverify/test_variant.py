@@ -70,6 +70,28 @@ def test_a_forced_variant_the_adapters_cannot_use_is_refused_naming_it(fresh, va
         mvm.choose_variant()
 
 
+def test_a_forced_jit_variant_that_cannot_compute_is_refused_naming_it(fresh, tmp_path):
+    """Forcing llvm_ad_rgb without a usable libLLVM (or cuda_ad_rgb without a GPU) failed
+    every Mitsuba check with Dr.Jit's ImportError, exit 1 as if the plugins were wrong;
+    now the variant is probed in a subprocess and refused (exit 2), the verdict passed
+    on to child processes."""
+    fake = tmp_path / "libLLVM.so.19"
+    fake.write_bytes(b"not a shared library")
+    fresh.setenv("DRJIT_LIBLLVM_PATH", str(fake))
+    fresh.setenv("MCVERIFY_MITSUBA_VARIANT", "llvm_ad_rgb")
+    with pytest.raises(mvm.EnvironmentProblem, match="MCVERIFY_MITSUBA_VARIANT='llvm_ad_rgb': "
+                       "Mitsuba cannot compute in it here .*LLVM.*use scalar_rgb"):
+        mvm.choose_variant()
+    assert os.environ[mvm._PROBED] == f"bad:llvm_ad_rgb@{fake}"
+    mvm.choose_variant.cache_clear()
+    fresh.setattr(mvm, "_probe_variant", lambda *a: pytest.fail("probed again"))
+    with pytest.raises(mvm.EnvironmentProblem, match="llvm_ad_rgb"):
+        mvm.choose_variant()
+    mvm.choose_variant.cache_clear()
+    fresh.setenv(mvm._PROBED, f"ok:llvm_ad_rgb@{fake}")
+    assert mvm.choose_variant() == mvm.VariantChoice("llvm_ad_rgb", None)
+
+
 @pytest.mark.skipif(mvm._find_libllvm() is None, reason="needs a libLLVM >= 16 (libllvm19)")
 def test_a_child_process_inherits_the_verdict(fresh):
     """The parent probes once; a child started after it finds the verdict and does not
