@@ -552,9 +552,17 @@ def _float(col):
     return _mi().Float(col) if _vectorised() else float(col)
 
 
-def _uniform(u):
-    """Uniform numbers as float32-safe values (below 1 after rounding)."""
-    return np.minimum(np.asarray(u, dtype=np.float64), _ONE_MINUS_EPS32)
+def _uniform(u, dim: int):
+    """Uniform numbers as float32-safe values (below 1 after rounding), ``dim`` a row:
+    a check run with another ``sample_dim`` than the adapter's ``kwargs`` raised a bare
+    IndexError (too few) or dropped columns (too many)."""
+    u = np.asarray(u, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != dim:
+        got = f" (sample_dim={u.shape[1]})" if u.ndim == 2 else ""
+        raise InvalidArgument(f"u of shape {u.shape}{got}: this Mitsuba sampler takes {dim} "
+                              f"uniform numbers a draw; pass the adapter's kwargs "
+                              f"(sample_dim={dim})")
+    return np.minimum(u, _ONE_MINUS_EPS32)
 
 
 def _vec3(cols):
@@ -641,7 +649,7 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
         return bs.wo, ok
 
     def sample(u):
-        x, ok = _rows(draw, _uniform(u), 3)
+        x, ok = _rows(draw, _uniform(u, 3), 3)
         return _nan_rejected(x, ok)
 
     def pdf(x):
@@ -683,7 +691,7 @@ def bsdf_weighted(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None
         return rows, smooth
 
     def sample(u):
-        out, ok = _rows(draw, _uniform(u), 7)
+        out, ok = _rows(draw, _uniform(u, 3), 7)
         out[~ok] = np.nan
         return out[:, :3], out[:, 3], out[:, 4:]
 
@@ -744,7 +752,7 @@ def emitter(plugin, ref=(0.0, 0.0, 0.0)) -> Subject:
         return ds.d, ok
 
     def sample(u):
-        x, ok = _rows(draw, _uniform(u), 3)
+        x, ok = _rows(draw, _uniform(u, 2), 3)
         return _nan_rejected(x, ok)
 
     def density(cols, n):
@@ -807,7 +815,7 @@ def microfacet(distribution: str, alpha, *, wi=(0.0, 0.0, 1.0),
         return mm, np.asarray(pdf_).reshape(-1) > 0
 
     def sample(u):
-        x, ok = _rows(draw, _uniform(u), 3)
+        x, ok = _rows(draw, _uniform(u, 2), 3)
         return _nan_rejected(x, ok)
 
     def pdf(x):
@@ -845,7 +853,7 @@ def phase(plugin, wi=(0.0, 0.0, 1.0)) -> Subject:
         return wo, np.any(wt != 0, axis=0) & (np.asarray(pdf_).reshape(-1) > 0)
 
     def sample(u):
-        x, ok = _rows(draw, _uniform(u), 3)
+        x, ok = _rows(draw, _uniform(u, 3), 3)
         return _nan_rejected(x, ok)
 
     def pdf(x):

@@ -396,3 +396,24 @@ def test_bsdf_weighted_refuses_bad_arguments_like_bsdf():
         mvm.bsdf_weighted({"type": "diffuse"}, wi=(0.0, 0.0, 1.0), component=3)
     with pytest.raises(mv.InvalidArgument, match="uv="):
         mvm.bsdf_weighted({"type": "diffuse"}, wi=(0.0, 0.0, 1.0), uv=(0.5,))
+
+
+@pytest.mark.parametrize("make, dim", [
+    (lambda: mvm.bsdf({"type": "diffuse"}, wi=(0, 0, 1))[:3], 3),
+    (lambda: mvm.bsdf_weighted({"type": "diffuse"}, wi=(0, 0, 1))[:2], 3),
+    (lambda: mvm.emitter({"type": "constant"})[:3], 2),
+    (lambda: mvm.microfacet("ggx", 0.3)[:3], 2),
+    (lambda: mvm.phase({"type": "hg", "g": 0.3})[:3], 3),
+], ids=["bsdf", "bsdf_weighted", "emitter", "microfacet", "phase"])
+def test_a_check_with_another_sample_dim_is_refused_naming_it(make, dim):
+    """A check run with another sample_dim than the adapter's kwargs raised a bare
+    IndexError inside it (too few columns) or silently dropped columns (too many)."""
+    sample, pdf = make()[:2]
+    for wrong in (dim - 1, dim + 1):
+        with pytest.raises(mv.InvalidArgument,
+                           match=rf"sample_dim={wrong}\): this Mitsuba sampler takes {dim} "
+                                 rf"uniform numbers a draw.*\(sample_dim={dim}\)"):
+            if len(make()) == 3:
+                mv.check_sampler(sample, pdf, make()[2], n_samples=1000, sample_dim=wrong)
+            else:
+                mv.check_pdf_consistency(sample, pdf, n_samples=100, sample_dim=wrong)
