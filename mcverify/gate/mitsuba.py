@@ -143,7 +143,7 @@ def choose_variant() -> VariantChoice:
 
 
 @lru_cache(maxsize=1)
-def _mi():
+def _mitsuba():
     """Mitsuba in the chosen variant, its log at errors only: its warnings repeat at every
     load of a scene (a stratified sampler's rounded sample count: 64 lines in one
     render-check, coloured, whatever ``-q`` says); what they say that matters is
@@ -152,6 +152,19 @@ def _mi():
 
     mi = import_mitsuba(choose_variant().variant)
     mi.set_log_level(mi.LogLevel.Error)
+    return mi
+
+
+def _mi():
+    """:func:`_mitsuba`, its variant set again where code since set another: Mitsuba's
+    variant is one per process, and the adapters' ``mi.Vector3f`` and the like follow it,
+    so an ``mi.set_variant("scalar_rgb")`` after the adapters chose ``llvm_ad_rgb`` made
+    their next call fail with a bare TypeError ("only 0-dimensional arrays can be
+    converted to Python scalars")."""
+    mi = _mitsuba()
+    variant = choose_variant().variant
+    if mi.variant() != variant:
+        mi.set_variant(variant)
     return mi
 
 
@@ -220,6 +233,7 @@ def _wrap(fn, n_in, *params, uniforms=False):
     mi = _mi()
 
     def call(x):
+        _mi()          # in the adapters' variant, whatever was set since
         x = np.asarray(x, dtype=np.float64)
         if uniforms:
             x = np.minimum(x, _BELOW_ONE_F32)
@@ -512,6 +526,7 @@ def _label(plugin, obj) -> str:
 def _rows(fn, x: np.ndarray, d_out: int):
     """Run ``fn(columns, n)`` on (n, k) float64 rows: one vectorised call, or one call
     per row on a scalar variant. ``fn`` returns (points (d_out, n) or (n,), ok (n,))."""
+    _mi()              # in the adapters' variant, whatever was set since
     x = np.asarray(x, dtype=np.float64)
     n = x.shape[0]
     if _vectorised():

@@ -417,3 +417,32 @@ def test_a_check_with_another_sample_dim_is_refused_naming_it(make, dim):
                 mv.check_sampler(sample, pdf, make()[2], n_samples=1000, sample_dim=wrong)
             else:
                 mv.check_pdf_consistency(sample, pdf, n_samples=100, sample_dim=wrong)
+
+
+def test_the_adapters_keep_their_variant_when_user_code_sets_another():
+    """Mitsuba's variant is one per process: an ``mi.set_variant`` of the user's own code
+    after the adapters chose theirs made their next draw fail with a bare TypeError ("only
+    0-dimensional arrays can be converted to Python scalars"). The adapters now set
+    their variant again when they are made and when they are called."""
+    import mitsuba
+
+    ours = mvm.choose_variant().variant
+    other = "scalar_rgb" if ours != "scalar_rgb" else "llvm_ad_rgb"
+    if other not in mitsuba.variants():
+        pytest.skip(f"needs a second RGB variant beside {ours}")
+    u = np.random.default_rng(0).random((500, 3))
+    s, p, d, kw = mvm.bsdf({"type": "roughconductor", "alpha": 0.3}, wi=direction(40.0))
+    x0, p0 = s(u), p(np.array([[0.0, 0.6, 0.8]]))
+    try:
+        mitsuba.set_variant(other)                  # between making and calling
+        assert np.array_equal(s(u), x0, equal_nan=True)
+        mitsuba.set_variant(other)
+        assert np.array_equal(p(np.array([[0.0, 0.6, 0.8]])), p0)
+        mitsuba.set_variant(other)                  # before making
+        s2, p2, f2, kw2 = mvm.bsdf_weighted({"type": "diffuse"}, wi=direction(40.0))
+        mitsuba.set_variant(other)
+        assert mv.check_pdf_consistency(s2, p2, f=f2, n_samples=2000, seed=0, **kw2).passed
+        mitsuba.set_variant(other)
+        assert mvm.mi().variant() == ours
+    finally:
+        mitsuba.set_variant(ours)
