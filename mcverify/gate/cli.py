@@ -660,9 +660,9 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
     if var is None or n is None:
         raise InvalidArgument(f"{image}: an image needs {opt}-var and {opt}-n (or give "
                               f"{opt}-passes)")
-    if n < 2:
-        raise InvalidArgument(f"{opt}-n {n}: must be >= 2 (values per pixel behind the "
-                              "variance)")
+    if not 2 <= n <= 2 ** 53:    # compare_images' bounds, named as the option
+        raise InvalidArgument(f"{opt}-n {n}: must be from 2 to 2^53 (values per pixel "
+                              "behind the variance)")
     for path in (image, var):
         reference.exr_channel_types(path)
 
