@@ -9,7 +9,8 @@ nested in it as its own row; and every emitter with a density
 (area lights, constant and envmap environments; not point, spot or directional lights)
 from ``reference_points``: the camera's position, the centre of the scene's bounds and
 the point half way between (a mesh light whose vertex normals lean off its faces with
-its face normals: ``_face_normals``). The subject is ``estimators.pathtracer.sampling`` (the
+its face normals: ``_face_normals``; a point on the light's own surface is skipped for
+it: ``_on_light``). The subject is ``estimators.pathtracer.sampling`` (the
 tracer's own kernels, with the parameters the scene gives: α (or α_u, α_v), η,
 distribution, weights, coat tables, blend weights and opacities). Draws can be rejected (zero pdf, a delta lobe, a light's back side), so the
 judge runs with ``rejection=True``: the pdf integrates to the acceptance probability.
@@ -144,6 +145,43 @@ def _face_normals(scene, k: int):
     return dataclasses.replace(scene, arrays=a._replace(prims=prims))
 
 
+#: A reference point within this fraction of the scene's size of an area light's surface
+#: (a sphere's, or the plane of a disk or of any of a mesh's triangles) is not used for
+#: that light: it sees the light, or that part of it, edge-on, where the cosine at the
+#: light is rounding noise (draws accepted or rejected by its sign) and the pdf's rays
+#: run along the surface without meeting it.
+ON_LIGHT_TOLERANCE = 1e-10
+
+
+def _on_light(scene, k: int, p) -> bool:
+    """Whether the world point ``p`` lies on area light ``k``'s surface (a sphere) or in
+    the plane of one of its planar primitives (a disk, a triangle), within
+    ``ON_LIGHT_TOLERANCE`` of the scene's size."""
+    from estimators.pathtracer import layout
+    from estimators.pathtracer.geometry import bvh_bounds
+
+    a = scene.arrays
+    lo, hi = bvh_bounds(a.bvh_nodes)
+    tol = ON_LIGHT_TOLERANCE * max(float(np.linalg.norm(hi - lo)), 1e-300)
+    p = np.asarray(p, dtype=np.float64)
+    first = int(a.light_i[k, layout.LIGHT_PRIM])
+    kind = int(a.prim_info[first, layout.PRIM_KIND])
+    if kind == layout.SPHERE:
+        row = a.prims[first]
+        c = row[layout.SPHERE_CENTER:layout.SPHERE_CENTER + 3]
+        return abs(float(np.linalg.norm(p - c)) - float(row[layout.SPHERE_RADIUS])) <= tol
+    if kind == layout.DISK:
+        m = a.prims[first, layout.DISK_TO_LOCAL:layout.DISK_TO_LOCAL + 12].reshape(3, 4)
+        # local z is the plane's signed distance over the length of the matrix's z row
+        return abs(float(m[2, :3] @ p + m[2, 3])) <= tol * float(np.linalg.norm(m[2, :3]))
+    rows = np.arange(first, first + int(a.light_i[k, layout.LIGHT_PRIM_COUNT]))
+    v = a.prims[rows, :9].reshape(-1, 3, 3)
+    g = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    length = np.linalg.norm(g, axis=1)
+    g, v = g[length > 0.0] / length[length > 0.0, None], v[length > 0.0]
+    return bool(np.any(np.abs(np.einsum("tc,tc->t", p - v[:, 0], g)) <= tol))
+
+
 def _fmt(p) -> str:
     return "(" + ",".join(f"{c:.3g}" for c in p) + ")"
 
@@ -194,6 +232,12 @@ def scene_instances(scene_path: str):
         for p in refs:
             unique.setdefault(_fmt(p), p)
         for where, p in unique.items():
+            if area and _on_light(scene, k, p):
+                skipped.append((f"emitter {label}@ref={where}",
+                                "the reference point lies on the light's own surface (or "
+                                "in the plane of one of its faces), which it sees edge-on: "
+                                "the cosine there is rounding noise"))
+                continue
             entries.append(("emitter", label, f"ref={where}",
                             lambda k=k, p=p, s=light_scene: emitter_sampler(s, k, p),
                             lambda k=k, p=p: emitter_sampler_with_weight(scene, k, p)))
