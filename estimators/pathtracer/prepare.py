@@ -652,6 +652,12 @@ class _Builder:
             p = np.array(self.prims[first:first + count])
             p0, p1, p2 = (p[:, c:c + 3] for c in (layout.TRI_P0, layout.TRI_P1, layout.TRI_P2))
             areas = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+            if not areas.sum() > 0.0:
+                # Mitsuba refuses it too ("DiscreteDistribution: no probability mass
+                # found!"); a uniform choice of triangle would draw points of no area
+                self.fail(emitter, "the mesh it sits on has zero area (every triangle is "
+                                   "degenerate): nothing to emit from (Mitsuba refuses it "
+                                   "too)")
             dist = DiscreteDistribution(areas)
             i[layout.LIGHT_CDF], i[layout.LIGHT_PRIM_COUNT] = len(self.light_cdf), count
             self.light_cdf += list(dist.cdf)

@@ -286,6 +286,33 @@ def test_mitsuba_refuses_those_obj_files_too(mi, tmp_path, case):
         mi.load_dict({"type": "obj", "filename": str(tmp_path / "m.obj")})
 
 
+_COLLINEAR = "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n"
+
+
+def test_an_emitting_mesh_of_zero_area_is_refused(tmp_path):
+    """An outside review: an OBJ light whose every triangle is degenerate was accepted
+    (``plan`` exit 0, its checks passing on draws that were all rejected, a black light
+    rendered) where Mitsuba refuses it ("no probability mass found"). It is now refused
+    naming the file and the emitter's line; the same mesh without an emitter is fine."""
+    (tmp_path / "m.obj").write_text(_COLLINEAR)
+    lit = tmp_path / "lit.xml"
+    lit.write_text(_SCENE.format(mesh='<shape type="obj"><string name="filename" '
+                                      'value="m.obj"/>\n<emitter type="area"/></shape>'))
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(lit))
+    assert f"{lit}:9: <emitter type=\"area\">" in str(e.value), str(e.value)
+    assert "zero area" in str(e.value), str(e.value)
+    prepare_scene(str(_obj_scene(tmp_path, _COLLINEAR)))
+
+
+@pytest.mark.mitsuba
+def test_mitsuba_refuses_an_emitting_mesh_of_zero_area_too(mi, tmp_path):
+    (tmp_path / "m.obj").write_text(_COLLINEAR)
+    with pytest.raises(Exception, match="no probability mass"):
+        mi.load_dict({"type": "obj", "filename": str(tmp_path / "m.obj"),
+                      "emitter": {"type": "area"}})
+
+
 _CUBE_UV = ("".join(f"v {x} {y} {z}\n" for x in (-1, 1) for y in (-1, 1) for z in (-1, 1))
             + "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 0.5 0.5\n"
             + "f 2/1 4/2 3/3 1/4\nf 5/1 7/2 8/3 6/4 # a comment after a face\n"
