@@ -27,6 +27,9 @@ loop over rows (``_sampling_loops``), run on numba's threads: no second implemen
   light reads (the density and radiance at its nearest point), for
   ``mcverify.check_pdf_consistency``.
 
+A row of u with a coordinate outside [0, 1] (or NaN) draws a NaN row, as in the warps'
+front ends (until 6 December u = 1.5 gave a direction, the kernels reading any number).
+
 Textured BSDFs are evaluated at texture coordinates (0.5, 0.5) (textures change weights,
 never directions).
 """
@@ -94,6 +97,12 @@ def _rows(name: str, x) -> np.ndarray:
     return a
 
 
+def _outside_unit(u: np.ndarray) -> np.ndarray:
+    """Rows of ``u`` with a coordinate outside [0, 1] (or NaN): their draws are NaN rows,
+    as the warps' front ends give for such a u (the kernels read any number)."""
+    return ~np.all((u >= 0.0) & (u <= 1.0), axis=1)
+
+
 def _vector(name: str, v) -> tuple[float, float, float]:
     a = _floats(name, v)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
@@ -155,6 +164,7 @@ def _bsdf_rows(scene, b: int, wi):
         u = _rows("u", u)
         out = np.empty((u.shape[0], 7))
         _run("_bsdf_sample_rows", *tables, u, out)
+        out[_outside_unit(u)] = np.nan
         return out
 
     def evaluate(wo):
@@ -233,6 +243,7 @@ def _emitter_rows(scene, k: int, ref):
         _run("_emitter_sample_rows", a.light_f, a.light_i, a.light_cdf, a.prims, a.prim_info,
              a.shape_flip, a.tex_data, a.tex_info, a.env_marginal, a.env_conditional, k, x,
              y, z, u, out)
+        out[_outside_unit(u)] = np.nan
         return out
 
     def evaluate(d):

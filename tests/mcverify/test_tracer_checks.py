@@ -166,6 +166,27 @@ def test_front_ends_refuse_bad_input():
         sample([["a", "b", "c"]])
 
 
+def test_front_ends_draw_nan_rows_for_a_u_outside_the_unit_cube():
+    """An outside review: ``bsdf_sampler``'s sample(u) gave a direction for u = 1.5 or
+    -0.5 (the kernel reads any number), where the warps' front ends give NaN; now a row
+    with a coordinate outside [0, 1] is a NaN row (NaN already was), the others as
+    before, in the weighted front ends too."""
+    scene = prepare_scene(ROUGH)
+    u = np.array([[0.3, 0.4, 0.5], [1.5, 0.4, 0.5], [0.3, -0.5, 0.5], [0.3, 0.4, 1.0 + 1e-12],
+                  [0.6, 0.2, 0.7]])
+    ok = np.array([True, False, False, False, True])
+    for sample in (bsdf_sampler(scene, 2, (0.0, 0.6, 0.8))[0],
+                   bsdf_sampler_with_weight(scene, 2, (0.0, 0.6, 0.8))[0],
+                   emitter_sampler(scene, 0, (0.0, 1.2, 5.0))[0]):
+        out = sample(u)
+        wo = out[0] if isinstance(out, tuple) else out
+        assert np.all(np.isnan(wo[~ok])), wo
+        assert np.all(np.isfinite(wo[ok])), wo
+        again = sample(u[ok])
+        np.testing.assert_array_equal(again[0] if isinstance(again, tuple) else again,
+                                      wo[ok])
+
+
 def test_cli_plan_lists_the_four_rough_conductors():
     r = subprocess.run([sys.executable, "-m", "mcverify", "plan", ROUGH], capture_output=True,
                        text=True, timeout=300)
