@@ -30,6 +30,9 @@ loop over rows (``_sampling_loops``), run on numba's threads: no second implemen
 A row of u with a coordinate outside [0, 1] (or NaN) draws a NaN row, as in the warps'
 front ends (until 6 December u = 1.5 gave a direction, the kernels reading any number).
 
+``scene``: a ``PreparedScene``, or what ``prepare_scene`` takes (a path, a
+``SceneDescription``), as ``render`` does (a path raised AttributeError until 6 December).
+
 Textured BSDFs are evaluated at texture coordinates (0.5, 0.5) (textures change weights,
 never directions).
 """
@@ -50,6 +53,7 @@ from .bsdfs import bsdf_is_smooth
 from .emitters import is_delta
 from .layout import (AREA, ENVMAP, LEAF_PRIM, LIGHT_KIND, LIGHT_PRIM, LIGHT_PRIM_COUNT,
                      PRIM_KIND, TRIANGLE)
+from .prepare import prepare_scene
 from .render import _dependency_digest, load_cached
 
 __all__ = ["bsdf_sampler", "bsdf_sampler_with_weight", "emitter_sampler",
@@ -118,11 +122,13 @@ def _index(name: str, i, count: int) -> int:
 
 def bsdf_has_density(scene, b: int) -> bool:
     """Whether BSDF row ``b`` has a non-delta component (something to check)."""
+    scene = prepare_scene(scene)
     return bool(bsdf_is_smooth(scene.arrays.bsdf_i, _index("b", b, len(scene.arrays.bsdf_i))))
 
 
 def emitter_has_density(scene, k: int) -> bool:
     """Whether light row ``k`` has a density (not a point, spot or directional light)."""
+    scene = prepare_scene(scene)
     li = scene.arrays.light_i
     return not is_delta(int(li[_index("k", k, len(li)), LIGHT_KIND]))
 
@@ -152,6 +158,7 @@ def bsdf_sampler_with_weight(scene, b: int, wi):
 def _bsdf_rows(scene, b: int, wi):
     """(draw, evaluate): u (n, 3) -> (n, 7) rows of (wo, weight, pdf) from
     ``bsdf_sample``; wo (n, 3) -> (n, 4) rows of (f · cos, pdf) from ``bsdf_eval``."""
+    scene = prepare_scene(scene)
     a = scene.arrays
     b = _index("b", b, len(a.bsdf_i))
     w = _vector("wi", wi)
@@ -202,6 +209,7 @@ def emitter_sampler_with_weight(scene, k: int, ref):
     the kernel's shadow ray would meet) is a NaN row: the two strategies then see
     different points, and no estimator combines them. For an environment map, ``f`` is
     None and ``sample`` returns (d, pdf): its radiance is not compared (see below)."""
+    scene = prepare_scene(scene)
     draw, evaluate = _emitter_rows(scene, k, ref)
 
     def sample(u):
@@ -230,6 +238,7 @@ def _emitter_rows(scene, k: int, ref):
     """(draw, evaluate): u (n, 3) -> (n, 8) rows of (direction, distance, Le, pdf) from
     ``sample_emitter``; d (n, 3) -> (n, 6) rows of ``_emitter_eval_rows`` (summed
     density, nearest distance, density and radiance there)."""
+    scene = prepare_scene(scene)
     a = scene.arrays
     k = _index("k", k, len(a.light_i))
     x, y, z = _vector("ref", ref)

@@ -166,6 +166,26 @@ def test_front_ends_refuse_bad_input():
         sample([["a", "b", "c"]])
 
 
+def test_front_ends_take_a_scene_path_as_render_does():
+    """An outside review: ``bsdf_sampler(path, ...)`` raised a bare AttributeError ('str'
+    object has no attribute 'arrays'); the front ends now prepare what they are given, as
+    ``render`` does, with the same results as from the prepared scene, and a missing file
+    is a SceneError naming it."""
+    from estimators.pathtracer import SceneError
+    from estimators.pathtracer.sampling import emitter_sampler_with_weight
+
+    scene = prepare_scene(ROUGH)
+    u = np.random.default_rng(1).random((64, 3))
+    for make in (lambda s: bsdf_sampler(s, 2, (0.0, 0.6, 0.8))[0],
+                 lambda s: emitter_sampler_with_weight(s, 0, (0.0, 1.2, 5.0))[0]):
+        want, got = make(scene)(u), make(ROUGH)(u)
+        for w, g in zip(want if isinstance(want, tuple) else (want,),
+                        got if isinstance(got, tuple) else (got,)):
+            np.testing.assert_array_equal(g, w)
+    with pytest.raises(SceneError, match="nope.xml"):
+        emitter_sampler("nope.xml", 0, (0.0, 0.0, 0.0))
+
+
 def test_front_ends_draw_nan_rows_for_a_u_outside_the_unit_cube():
     """An outside review: ``bsdf_sampler``'s sample(u) gave a direction for u = 1.5 or
     -0.5 (the kernel reads any number), where the warps' front ends give NaN; now a row
