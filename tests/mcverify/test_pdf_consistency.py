@@ -453,6 +453,31 @@ def test_an_environment_map_is_compared_by_its_density_alone(tmp_path):
     assert not wrong.passed         # the density of another direction: found
 
 
+def test_an_environment_map_bright_at_its_pole_agrees_with_its_density(tmp_path):
+    """An outside review: an 8 × 16 map lit in its top row only, turned by its to_world.
+    Draws near the pole carried a pdf whose sin θ was sqrt(1 - y²), which cancels there
+    (a relative error ~1e-16 / θ²), and the density of the same direction took it from
+    the direction turned back: 3 of 1e5 draws differed by more than 1e-6 (p = 0, check
+    --scene failing on a correct map). Both now take sin θ from the other two
+    coordinates, as Mitsuba's pdf_direction does."""
+    from estimators.pathtracer import prepare_scene
+    from estimators.pathtracer.sampling import emitter_sampler_with_weight
+    from mcverify.gate import mitsuba as mvm
+
+    img = np.zeros((8, 16, 3), np.float32)
+    img[0] = 5.0
+    mvm.write_exr(str(tmp_path / "pole.exr"), img)
+    lamp = _MESH_LIGHT.index('  <shape type="obj">')
+    (tmp_path / "env.xml").write_text(
+        _MESH_LIGHT[:lamp] + '  <emitter type="envmap"><string name="filename" '
+        'value="pole.exr"/><transform name="to_world"><rotate x="1" angle="30"/>'
+        '<rotate y="1" angle="45"/></transform></emitter>\n</scene>')
+    scene = prepare_scene(str(tmp_path / "env.xml"))
+    sample, pdf, _ = emitter_sampler_with_weight(scene, 0, (0.0, 1.2, 5.0))
+    r = mv.check_pdf_consistency(sample, pdf, sample_dim=3, n_samples=200_000, seed=0)
+    assert r.passed, r.failures
+
+
 def test_subnormal_pdfs_are_compared_within_their_rounding():
     """An outside review: two correct computations of a pdf near 1e-318 (subnormal, a few
     significant digits) differ by 5e-6 relative and failed at rtol 1e-6. Differences
