@@ -577,6 +577,10 @@ def _features(desc: SceneDescription) -> set[str]:
     feats = {f"integrator:{desc.integrator.type}"}
     for s in desc.shapes:
         feats.add(f"shape:{s.type}")
+        if not any(c.kind == "bsdf" for c in s.children):
+            # Mitsuba's default BSDF (diffuse 0.5, black on an emitting shape), which the
+            # tracer samples as any diffuse
+            feats.add("bsdf:diffuse")
         for c in s.children:
             if c.kind == "bsdf":
                 stack = [c]

@@ -49,6 +49,21 @@ def test_diffuse_scene_with_a_point_light(tmp_path):
     assert "delta emitter" in dict(skipped)[f"emitter {tmp_path.name}/light0:point"]
 
 
+def test_a_shape_without_a_bsdf_plans_mitsubas_default_diffuse(tmp_path):
+    """An outside review: a shape with no <bsdf> is diffuse in Mitsuba and in the tracer
+    (its instance was checked as bsdf0:diffuse), but the scene's features did not name
+    bsdf:diffuse, so the cosine warp it samples by was skipped as "not needed by this
+    scene". It plans the same checks as an explicit <bsdf type="diffuse"/> now."""
+    explicit = tmp_path / "explicit.xml"
+    explicit.write_text(DIFFUSE_POINT)
+    default = tmp_path / "default.xml"
+    default.write_text(DIFFUSE_POINT.replace('<bsdf type="diffuse"/>', ""))
+    (want, _, want_features), (got, _, features) = plan(str(explicit)), plan(str(default))
+    assert "bsdf:diffuse" in features and features == want_features
+    assert {"sampler:cosine_hemisphere", "inverse:cosine_hemisphere"} <= _names(got)
+    assert {n.replace("explicit", "default") for n in _names(want)} == _names(got)
+
+
 def test_two_scene_files_in_one_folder_get_their_own_check_names(tmp_path):
     """A scene file other than scene.xml is named by its stem, as its reference is
     (``ref-FILE.xml/``) and as render-check names it; plan named both files of a folder
