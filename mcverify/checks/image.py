@@ -452,8 +452,12 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     denom = rm ** 2 + 1e-2
     messages = []
     if found:
+        # relative to the reference's mean, unless that is 0 (a black reference: the
+        # ratio to 1e-300 printed a 300-digit percentage)
+        rel = (f"{diff.mean() / abs(rm.mean()):+.2%}" if rm.mean() != 0
+               else "the reference's mean is 0")
         messages.append(f"found by {', '.join(found)}: image mean differs by "
-                        f"{diff.mean():+.4g} ({diff.mean() / max(abs(rm.mean()), 1e-300):+.2%})"
+                        f"{diff.mean():+.4g} ({rel})"
                         f"; {len(rejected_blocks)} blocks and "
                         f"{rejected_px.any(axis=2).mean():.2%} of pixels rejected")
     ratio = floor_info and floor_info["per_sample_variance_ratio"]

@@ -233,6 +233,25 @@ def test_a_black_reference_is_compared_without_hdr_flip(level):
                                                                 out.stderr)
 
 
+def test_a_black_reference_s_message_gives_no_percentage():
+    """An outside review: a scene whose Mitsuba reference rendered black (an envmap lit
+    in its top row only) failed with "image mean differs by +0.05494
+    (+5494475381993146...00%)", the difference over a 1e-300 floor printed in full. The
+    message now says the reference's mean is 0; a reference with light keeps its
+    percentage."""
+    ref = np.zeros((8, 8, 3))
+    v = np.full_like(ref, 1e-4)
+    r = mv.compare_images(ref + 0.05, ref, test_var=v, ref_var=v, test_n=4, ref_n=4,
+                          perceptual=False)
+    assert not r.passed
+    first = r.messages[0]
+    assert "image mean differs by +0.05 (the reference's mean is 0)" in first, first
+    assert len(first) < 200, first
+    lit = mv.compare_images(ref + 0.55, ref + 0.5, test_var=v, ref_var=v, test_n=4,
+                            ref_n=4, perceptual=False)
+    assert "(+10.00%)" in lit.messages[0], lit.messages
+
+
 def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
     local = (slice(16, 24), slice(8, 16), slice(None))
     r = mv.compare_images(**_pair(np.random.default_rng(2), 2.0, 64, local=local))
