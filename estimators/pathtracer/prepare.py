@@ -746,6 +746,14 @@ class _Builder:
                     self.fail(e, f"{e.get('filename')}: its luminance is nowhere positive; "
                                  "Mitsuba cannot importance-sample it (its sampling table "
                                  "has no mass), so its image is not matched")
+                if not np.any(lum[1:] > 0) and np.any(lum > 0):
+                    # Mitsuba weights row y of its sampling table by sin(y π / (h - 1)):
+                    # row 0 sits on the pole, weight 0, and a map lit there alone renders
+                    # black in Mitsuba 3.9.1 (0.055 mean here, p = 5e-161)
+                    self.fail(e, f"{e.get('filename')}: its luminance is positive in its top "
+                                 "row only, which Mitsuba's sampling table weights by "
+                                 "sin θ = 0 (the pole): its table has no mass and it renders "
+                                 "the map black, so its image is not matched")
                 i[layout.LIGHT_TEXTURE] = self.textures.add(img)
                 f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
                 f[layout.ENV_TO_LOCAL:layout.ENV_TO_LOCAL + 9] = np.linalg.inv(m[:3, :3]).ravel()
