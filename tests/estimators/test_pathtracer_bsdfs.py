@@ -219,6 +219,17 @@ def test_an_envmap_that_is_not_rotated_rigidly_is_refused(tmp_path, to_world):
         prepare_scene(str(path))
 
 
+def _envmap_scene(mi, tmp_path, img):
+    # written by the fixture's Mitsuba (mcverify.gate.mitsuba.write_exr would switch the
+    # module's scalar variant to its own)
+    mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(str(tmp_path / "e.exr"))
+    path = tmp_path / "s.xml"
+    path.write_text(_SCENE.format(bsdf="").replace(
+        "</scene>", '<emitter type="envmap"><string name="filename" value="e.exr"/>'
+                    '</emitter></scene>'))
+    return str(path)
+
+
 @pytest.mark.parametrize("shape, fill, match", [
     ((2, 3), 1.0, r"3 x 2 pixels; an envmap needs at least 2 columns and 3 rows"),
     ((5, 1), 1.0, r"1 x 5 pixels; an envmap needs at least 2 columns and 3 rows"),
@@ -234,12 +245,7 @@ def test_envmaps_mitsuba_cannot_render_consistently_are_refused(mi, tmp_path, sh
     from estimators.pathtracer.scene import SceneError
 
     def scene(img):
-        mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(str(tmp_path / "e.exr"))
-        path = tmp_path / "s.xml"
-        path.write_text(_SCENE.format(bsdf="").replace(
-            "</scene>", '<emitter type="envmap"><string name="filename" value="e.exr"/>'
-                        '</emitter></scene>'))
-        return str(path)
+        return _envmap_scene(mi, tmp_path, img)
 
     with pytest.raises(SceneError, match=r'<emitter type="envmap">: e\.exr: ' + match):
         prepare_scene(scene(np.broadcast_to(fill, (*shape, 3))))
@@ -247,17 +253,6 @@ def test_envmaps_mitsuba_cannot_render_consistently_are_refused(mi, tmp_path, sh
     half = np.ones((4, 6, 3))
     half[:, :3] = -1.0
     prepare_scene(scene(half))
-
-
-def _envmap_scene(mi, tmp_path, img):
-    # written by the fixture's Mitsuba (mcverify.gate.mitsuba.write_exr would switch the
-    # module's scalar variant to its own)
-    mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(str(tmp_path / "e.exr"))
-    path = tmp_path / "s.xml"
-    path.write_text(_SCENE.format(bsdf="").replace(
-        "</scene>", '<emitter type="envmap"><string name="filename" value="e.exr"/>'
-                    '</emitter></scene>'))
-    return str(path)
 
 
 def test_an_envmap_lit_in_its_top_row_only_is_refused(mi, tmp_path):
