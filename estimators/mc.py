@@ -310,10 +310,13 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
                          f"{qmc.Sobol.MAXDIM}")
     r = _count(replicates, "replicates", minimum=2)
     _fits(n, lo.size, f"n={n}, a, b ({lo.size} dimensions)")
-    seqs = np.random.SeedSequence(seed).spawn(r)
+    # the replicates' seeds one at a time: spawn(r) at once built r SeedSequence objects
+    # (~460 bytes each, where the memory check counts 8 a replicate: replicates=10**9 ran
+    # out of memory; an outside review); one at a time they are the same children
+    root = np.random.SeedSequence(seed)
     reps = []
-    for s in seqs:
-        rng = np.random.default_rng(s)
+    for _ in range(r):
+        rng = np.random.default_rng(root.spawn(1)[0])
         sobol = qmc.Sobol(lo.size, scramble=True, seed=rng)
         pts = sobol.random(n)
         pts = np.minimum(pts + rng.random(pts.shape) * 2.0 ** -getattr(sobol, "bits", 30),
