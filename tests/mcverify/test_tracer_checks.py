@@ -109,14 +109,20 @@ def test_delta_instances_are_skipped_with_a_reason():
     assert any("dielectric" in k and "delta BSDF" in why for k, why in skipped)
 
 
-_BACKLIT = """<scene version="3.0.0">
-  <integrator type="path"/>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="{cam}" target="0, 0, -2" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
-  </sensor>
-  <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-2"/></transform>
+def _scene_head(origin: str, target: str) -> str:
+    """A test scene's opening: the path integrator and a 4 × 4 camera at ``origin``
+    looking at ``target`` (which the plan's reference points derive from)."""
+    return ('<scene version="3.0.0">\n  <integrator type="path"/>\n'
+            '  <sensor type="perspective"><float name="fov" value="40"/>\n'
+            f'    <transform name="to_world"><lookat origin="{origin}" target="{target}" '
+            'up="0, 1, 0"/></transform>\n'
+            '    <sampler type="independent"><integer name="sample_count" value="4"/>'
+            '</sampler>\n'
+            '    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" '
+            'value="4"/></film>\n  </sensor>\n')
+
+
+_BACKLIT = _scene_head("{cam}", "0, 0, -2") + """  <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-2"/></transform>
     <bsdf type="diffuse"/></shape>
   <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate y="1" angle="180"/>
     <translate y="0.5" z="-1"/></transform>
@@ -314,14 +320,7 @@ def test_a_normal_map_ignored_only_in_the_pdf_fails():
     assert _wrong_pdf_is_rejected(scene, b, scene, held)
 
 
-_MESH_LIGHT = """<scene version="3.0.0">
-  <integrator type="path"/>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 1.2, 5" target="0, 0.3, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
-  </sensor>
-  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
+_MESH_LIGHT = _scene_head("0, 1.2, 5", "0, 0.3, 0") + """  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
     <translate y="-0.5"/></transform><bsdf type="diffuse"/></shape>
   <shape type="obj"><string name="filename" value="lamp.obj"/>{extra}
     <emitter type="area"><rgb name="radiance" value="5, 5, 5"/></emitter></shape>
@@ -369,14 +368,7 @@ def test_a_mesh_light_hiding_part_of_itself_passes(tmp_path):
     assert not bad, bad
 
 
-_EDGE_ON = """<scene version="3.0.0">
-  <integrator type="path"/>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0.3, 0.2, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
-  </sensor>
-  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="90"/></transform>
+_EDGE_ON = _scene_head("0.3, 0.2, 6", "0, 0, 0") + """  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="90"/></transform>
     <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
   <shape type="disk"><transform name="to_world"><rotate x="1" angle="90"/><translate y="-2"/>
     </transform><emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
