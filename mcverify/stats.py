@@ -539,7 +539,8 @@ def welch_t_beyond(diff, var_a, n_a, var_b, n_b, tol) -> np.ndarray:
     """Two-sided p-values of Welch's t for mean differences ``diff`` of two samples
     (per-element sample variances ``var_a``, ``var_b`` of ``n_a``, ``n_b`` values),
     counting only ``|diff|`` beyond ``tol`` (differences within it are no evidence);
-    exact where both variances are 0: equal (p = 1) within ``tol``, else p = 0. Elementwise; degrees of freedom from :func:`welch_dof`.
+    exact where both variances are 0: equal (p = 1) within ``tol``, else p = 0.
+    Elementwise; degrees of freedom from :func:`welch_dof`.
 
     Why not the Welch–Satterthwaite estimate itself: it uses the same variances as the
     statistic, so when the side with fewer values has its variance caught low, t grows
@@ -562,8 +563,9 @@ def welch_t_pooled_beyond(diff, se2_a, dof_a, se2_b, dof_b, tol) -> np.ndarray:
     """``welch_t_beyond`` for differences of sums (or means) of many independent values
     a side, each side's variance ``se2_a``/``se2_b`` a sum of per-value estimates with
     ``dof_a``/``dof_b`` Satterthwaite degrees of freedom: an image's or a block's mean
-    over its pixels, each pixel's variance estimated from its n values. With many values a side it is the z-test; with few (a reference of 2
-    passes) it is Student's t with the degrees of freedom the variance estimate has."""
+    over its pixels, each pixel's variance estimated from its n values. With many values
+    a side it is the z-test; with few (a reference of 2 passes) it is Student's t with
+    the degrees of freedom the variance estimate has."""
     dof = _tail_dof(np.asarray(se2_a, np.float64), dof_a, np.asarray(se2_b, np.float64), dof_b)
     dof = np.where(np.isfinite(dof), dof, np.minimum(dof_a, dof_b))
     return _t_beyond(diff, se2_a + se2_b, dof, tol)

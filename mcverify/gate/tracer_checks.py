@@ -192,7 +192,7 @@ def scene_instances(scene_path: str):
     f) of ``sampling.bsdf_sampler_with_weight`` or ``emitter_sampler_with_weight`` (an
     emitter's with the scene's own normals: the consistency check compares a drawn
     point's density with the density at that same point); skipped are (label, why) for
-    delta instances."""
+    delta instances and for reference points on a light's own surface (``_on_light``)."""
     from estimators.pathtracer import layout, prepare_scene
     from estimators.pathtracer.sampling import (bsdf_has_density, bsdf_sampler,
                                                 bsdf_sampler_with_weight, emitter_has_density,

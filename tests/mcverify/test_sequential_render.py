@@ -29,8 +29,8 @@ def test_a_subtle_planted_bug_is_decided_on_a_quarter_of_the_passes_on_most_seed
     seeds, never later than batch 2, and never passed. (5 of 8 until the image and block
     tests took the variance estimates' degrees of freedom into account: the first look's
     image mean has 80-110 from 4 passes, where firefly pixels dominate its variance, and
-    Student's t there moves seeds 23 and 24 to batch 2. The z-test that treated those variances as known raised false alarms against
-    2-pass references: ``test_images``.)"""
+    Student's t there moves seeds 23 and 24 to batch 2. The z-test that treated those
+    variances as known raised false alarms against 2-pass references: ``test_images``.)"""
     batches = []
     for seed in range(20, 28):
         r = mv.render_check("cornell-box", seed=seed, plant={"light_scale": 1.02})

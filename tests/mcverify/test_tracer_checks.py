@@ -122,7 +122,8 @@ def _scene_head(origin: str, target: str) -> str:
             'value="4"/></film>\n  </sensor>\n')
 
 
-_BACKLIT = _scene_head("{cam}", "0, 0, -2") + """  <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-2"/></transform>
+_BACKLIT = _scene_head("{cam}", "0, 0, -2") + """\
+  <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-2"/></transform>
     <bsdf type="diffuse"/></shape>
   <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate y="1" angle="180"/>
     <translate y="0.5" z="-1"/></transform>
@@ -320,7 +321,8 @@ def test_a_normal_map_ignored_only_in_the_pdf_fails():
     assert _wrong_pdf_is_rejected(scene, b, scene, held)
 
 
-_MESH_LIGHT = _scene_head("0, 1.2, 5", "0, 0.3, 0") + """  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
+_MESH_LIGHT = _scene_head("0, 1.2, 5", "0, 0.3, 0") + """\
+  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
     <translate y="-0.5"/></transform><bsdf type="diffuse"/></shape>
   <shape type="obj"><string name="filename" value="lamp.obj"/>{extra}
     <emitter type="area"><rgb name="radiance" value="5, 5, 5"/></emitter></shape>
@@ -368,7 +370,8 @@ def test_a_mesh_light_hiding_part_of_itself_passes(tmp_path):
     assert not bad, bad
 
 
-_EDGE_ON = _scene_head("0.3, 0.2, 6", "0, 0, 0") + """  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="90"/></transform>
+_EDGE_ON = _scene_head("0.3, 0.2, 6", "0, 0, 0") + """\
+  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="90"/></transform>
     <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
   <shape type="disk"><transform name="to_world"><rotate x="1" angle="90"/><translate y="-2"/>
     </transform><emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
