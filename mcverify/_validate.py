@@ -165,7 +165,13 @@ def real_dtype(dtype) -> bool:
 
 def as_array(what: str, v) -> np.ndarray:
     """``np.asarray(v)``, or InvalidArgument saying ``what`` is wrong: a ragged sequence
-    (``[[1, 2], [3]]``) raised numpy's bare ValueError, naming nothing."""
+    (``[[1, 2], [3]]``) raised numpy's bare ValueError, naming nothing. A masked array
+    with masked values is refused: ``np.asarray`` keeps the values under the mask
+    (``np.ma.sqrt(-1.0)``'s is -1.0) and the checks would read them as data."""
+    if np.ma.is_masked(v):
+        raise InvalidArgument(f"{what}: a masked array with {int(np.ma.count_masked(v))} "
+                              "masked values; the checks read every value (fill them, "
+                              "e.g. .filled(np.nan), or leave them out)")
     try:
         return np.asarray(v)
     except (ValueError, TypeError) as e:

@@ -92,6 +92,18 @@ CASES = [
      "pdf returned .*: not an array of numbers"),
     ("inverse-sample-returns-ragged", lambda: mv.check_inverse(
         lambda u: [[0.1, 0.2], [0.3]], S, 2, n_samples=2), "sample returned .*: not an array"),
+    # a masked array's values under its mask were read as data (np.asarray drops the
+    # mask): a pdf of np.ma.sqrt(-x) counted the negative x as densities
+    ("pdf-returns-masked", lambda: mv.check_sampler(
+        S, lambda x: np.ma.masked_less(np.ones(len(x)), 0.0) + np.ma.masked_array(
+            np.zeros(len(x)), mask=np.arange(len(x)) == 0), "square", n_samples=2),
+     "pdf returned .*: a masked array with 1 masked values"),
+    ("unbiased-masked", lambda: mv.check_unbiased(
+        np.ma.masked_invalid([1.0, np.nan, 3.0, 2.0]), 2.0),
+     "samples: a masked array with 1 masked values"),
+    ("images-masked-mean", lambda: mv.compare_images(
+        np.ma.masked_greater(np.eye(4), 0.5), np.ones((4, 4)), test_var=np.ones((4, 4)),
+        ref_var=np.ones((4, 4)), test_n=4, ref_n=4), "test_mean: a masked array with 4"),
     # a flag given as text was read as true (perceptual="no" measured ΔE and FLIP)
     ("images-perceptual-string", lambda: mv.compare_images(
         np.ones((4, 4)), np.ones((4, 4)), test_var=np.ones((4, 4)),
