@@ -11,6 +11,7 @@ import argparse
 import dataclasses
 import json
 import os
+import shlex
 import sys
 import time
 
@@ -741,7 +742,8 @@ def _cmd_compare(args) -> int:
         if correlated and ref_passes is None:
             raise EnvironmentProblem(f"{ref_image}: the reference has no pass images (built "
                                      "before passes.exr was stored), which correlated pixels "
-                                     f"need; run `mcverify reference build {ref_image}`")
+                                     "need; run `mcverify reference build "
+                                     f"{shlex.quote(ref_image)}`")
     elif correlated and args.ref_passes is None:
         raise InvalidArgument("--correlated: give the reference side's pass images "
                               "(--ref-passes GLOB) or a reference name")

@@ -23,6 +23,7 @@ import hashlib
 import json
 import math
 import os
+import shlex
 import shutil
 import stat
 import struct
@@ -198,10 +199,11 @@ def ref_folder(scene_path: str) -> str:
 
 def rebuild_command(name: str, scene_path: str) -> str:
     """The command that builds the reference of a scene: by its reference name when the
-    name resolves to it, else by its path."""
+    name resolves to it, else by its path, quoted for the shell (a path with a space was
+    split into several arguments when the command was pasted)."""
     named = os.path.join(REFERENCE_ROOT, name, "scene.xml")
     spec = name if os.path.abspath(named) == os.path.abspath(scene_path) else scene_path
-    return f"mcverify reference build {spec}"
+    return f"mcverify reference build {shlex.quote(spec)}"
 
 
 def _regular_file(path: str, what: str) -> None:

@@ -155,6 +155,21 @@ def test_scenes_sharing_a_folder_keep_a_reference_each(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["a.xml", "b.xml", "ref-a.xml", "ref-b.xml"]
 
 
+def test_rebuild_command_is_quoted_for_the_shell(tmp_path):
+    """A scene whose path holds a space (or another shell metacharacter): the rebuild
+    command the message names, pasted into a shell, builds that scene's reference (it
+    was printed unquoted, so the shell split the path into several arguments)."""
+    import shlex
+    folder = tmp_path / "my scenes"
+    folder.mkdir()
+    scene = folder / "furnace (v2).xml"
+    shutil.copy(os.path.join(SCENES, "white-furnace", "scene.xml"), scene)
+    with pytest.raises(MissingReference) as e:
+        reference.load_reference(str(scene))
+    command = str(e.value).split("run `", 1)[1].split("`", 1)[0]
+    assert shlex.split(command) == ["mcverify", "reference", "build", str(scene)]
+
+
 def test_a_changed_texture_or_mesh_makes_the_reference_stale(tmp_path):
     """The manifest records the SHA-256 of every file the scene names: a texture changed
     or removed after the build is refused as stale, naming it, instead of comparing a
