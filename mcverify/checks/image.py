@@ -66,6 +66,26 @@ def _as_image(name, a, shape=None):
     return a
 
 
+#: Relative differences that are rounding, not evidence, between inputs of float32 or finer
+#: (a renderer summing hundreds of float32 samples drifts that much on a constant pixel).
+ROUNDING = 2.0 ** -16
+
+
+def _rounding(*arrays) -> tuple[float, float]:
+    """(relative, absolute) rounding of the coarsest float type among the inputs: a half
+    image (OpenEXR's half, Mitsuba's default film format) rounds each value by up to
+    2^-11 of it and anything below 2^-25 to 0, far beyond ``ROUNDING``; a correct
+    renderer's half image of a directly seen emitter of radiance 0.7 (zero variance on
+    both sides) failed against a float reference with p = 0 (an outside review)."""
+    rel, tiny = ROUNDING, 0.0
+    for a in arrays:
+        dtype = getattr(a, "dtype", None)
+        if dtype is not None and np.issubdtype(dtype, np.floating):
+            info = np.finfo(dtype)
+            rel, tiny = max(rel, float(info.eps)), max(tiny, float(info.smallest_subnormal))
+    return rel, tiny
+
+
 def _display_scale(ref) -> float:
     """The reference's 99th-percentile luminance: the exposure both ΔE maps use."""
     lum = ref @ np.array([0.2126, 0.7152, 0.0722])
@@ -312,6 +332,8 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     True
     """
     t0 = time.perf_counter()
+    rel_rounding, tiny = _rounding(test_mean, ref_mean, test_var, ref_var, test_passes,
+                                   ref_passes)
     tm = _as_image("test_mean", test_mean)
     rm = _as_image("ref_mean", ref_mean, tm.shape)
     tv = _as_image("test_var", test_var, tm.shape)
@@ -322,6 +344,11 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
             count, first, value = bad
             raise InvalidArgument(f"{label}: {count} negative variance(s) (first at {first}: "
                                   f"{value:.6g}); variances must be >= 0")
+    # a variance stored as 0 in a coarse float type is only below half its smallest
+    # subnormal (half: 2^-25); as exactly 0 it made a faint pixel of a half image, whose
+    # variance underflowed, differ from a black reference pixel with certainty
+    tv = np.maximum(tv, _rounding(test_var)[1] / 2)
+    rv = np.maximum(rv, _rounding(ref_var)[1] / 2)
     # counts beyond 2^53 are not exact in float64 (10^30 reached scipy as an object)
     nt = validate.integer("test_n", test_n, minimum=2, maximum=2 ** 53)
     nr = validate.integer("ref_n", ref_n, minimum=2, maximum=2 ** 53)
@@ -364,16 +391,18 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     # Rounding is no evidence. A renderer that sums hundreds of samples in float32 drifts
     # on a constant pixel (Mitsuba at 512 spp: 0.899996 for 0.9, variance 0), and a
     # variance can underflow (one 1e-22 contribution among zeros). So differences within
-    # 2^-16 of the compared values (plus 2^-24 of the image's scale, for values near 0)
+    # 2^-16 of the compared values (half images: half's epsilon, 2^-10, and its smallest
+    # subnormal; ``_rounding``) (plus 2^-24 of the image's scale, for values near 0)
     # pass; zero-variance values compare exactly beyond that. The scale is the median
     # non-zero magnitude: the largest one let a single pixel at 1e6 (a visible sun, a
     # firefly) make every difference under 0.06 no evidence, and a 3 % bias passed.
     magnitudes = np.abs(np.concatenate([tm.ravel(), rm.ravel()]))
     magnitudes = magnitudes[magnitudes > 0]
-    floor = 2.0 ** -24 * max(float(np.median(magnitudes)) if magnitudes.size else 0.0, 1e-300)
+    floor = 2.0 ** -24 * max(float(np.median(magnitudes)) if magnitudes.size else 0.0,
+                             1e-300) + tiny
 
     def tol(a, b):
-        return 2.0 ** -16 * np.maximum(np.abs(a), np.abs(b)) + floor
+        return rel_rounding * np.maximum(np.abs(a), np.abs(b)) + floor
 
     # 1. global, per channel: the colour channels of one path are strongly correlated
     #    (identical on grey scenes), so they cannot be pooled as independent values;

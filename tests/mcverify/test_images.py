@@ -342,6 +342,29 @@ def test_zero_variance_pixels_compare_exactly():
     assert bad.artifacts["p_map"][3, 3] == 0.0 and bad.artifacts["p_map"][5, 5] == 1.0
 
 
+def test_half_images_round_within_half_s_precision():
+    """A correct renderer's half image (OpenEXR half, Mitsuba's default film format)
+    failed against a float reference with p = 0: a directly seen emitter of radiance 0.7
+    (zero variance on both sides) rounds to 0.69971 in half, beyond the 2^-16 rounding
+    allowance, and a faint pixel's variance underflowed to 0 against a black reference
+    pixel. Half's own rounding is no evidence now; a 0.3 % bias still is."""
+    rng = np.random.default_rng(0)
+    a, b = rng.gamma(2.0, 0.5, (2, 32, 32, 3, 64))
+    a[:8, :8] = b[:8, :8] = 0.7                     # an emitter seen directly
+    b[20, 20] = 0.0                                 # a path the reference never found
+    a[20, 20] = 0.0
+    a[20, 20, :, 0] = 1e-3                          # variance 6e-8 / 64: 0 in half
+    ref = dict(ref_mean=b.mean(-1), ref_var=b.var(-1, ddof=1), test_n=64, ref_n=64)
+    mean, var = a.mean(-1).astype(np.float16), a.var(-1, ddof=1).astype(np.float16)
+    assert var[20, 20, 0] == 0
+    ok = mv.compare_images(mean, test_var=var, **ref)
+    assert ok.passed, ok.messages
+    bright = mv.compare_images(mean * np.float16(1.003), test_var=var, **ref)
+    assert not bright.passed
+    # float32 keeps its own, finer allowance: 0.7 in half is a difference there
+    assert not mv.compare_images(np.float32(mean), test_var=np.float32(var), **ref).passed
+
+
 def test_one_test_named_as_a_string_is_that_test_alone():
     # tests="global" was read as the six "tests" g, l, o, b, a, l and refused
     pair = _pair(np.random.default_rng(1), 2.0, 64, scale_b=1.02)

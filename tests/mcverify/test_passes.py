@@ -169,3 +169,24 @@ def test_compare_floors_the_test_variance_at_the_references(tmp_path):
                               "--test-spp", "64"], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 2 and "give --ref-spp" in r.stderr, r.stderr
+
+
+def test_half_mean_and_variance_images_of_a_correct_render_agree(tmp_path):
+    """``compare TEST.exr REF.exr --test-var VAR.exr`` with half images (a renderer's
+    default output) of a correct render exited 1, p = 0: a zero-variance pixel of value
+    0.7 is 0.69971 in half (see test_images' test_half_images_round_within_half_s_
+    precision). The half files now reach compare_images as half."""
+    mi = mvm._mi()
+    rng = np.random.default_rng(3)
+    a, b = rng.gamma(2.0, 0.5, (2, 16, 16, 3, 32))
+    a[:4, :4] = b[:4, :4] = 0.7
+    paths = {}
+    for name, img, half in (("m", a.mean(-1), True), ("v", a.var(-1, ddof=1), True),
+                            ("rm", b.mean(-1), False), ("rv", b.var(-1, ddof=1), False)):
+        paths[name] = str(tmp_path / f"{name}.exr")
+        mi.Bitmap(img.astype(np.float16 if half else np.float32)).write(paths[name])
+    assert set(reference.exr_channel_types(paths["m"]).values()) == {"half"}
+    r = subprocess.run(CMD + ["compare", paths["m"], paths["rm"], "--test-var", paths["v"],
+                              "--test-n", "32", "--ref-var", paths["rv"], "--ref-n", "32"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
