@@ -608,6 +608,10 @@ def _cmd_reference_build(args) -> int:
     if args.spp < 1 or args.passes < 2:
         raise InvalidArgument(f"--spp {args.spp} --passes {args.passes}: need --spp >= 1 "
                               "(per pass) and --passes >= 2 (the variance needs two passes)")
+    if args.spp > reference.MAX_SPP_PER_PASS:   # reached Mitsuba, blamed on the scene
+        raise InvalidArgument(f"--spp {args.spp}: at most {reference.MAX_SPP_PER_PASS} "
+                              "(2^32 - 1) samples per pass, Mitsuba's limit; use more "
+                              "--passes")
     resolved = [reference.resolve_scene(s) for s in names]    # fail before any rendering
     for _, path in resolved:
         reference.precheck_scene(path)

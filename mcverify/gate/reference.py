@@ -33,6 +33,7 @@ from xml.parsers import expat
 
 import numpy as np
 
+from .. import _validate as validate
 from ..errors import (EnvironmentProblem, InvalidArgument, MissingReference, first_cause,
                       interrupted)
 from ..provenance import provenance
@@ -437,10 +438,23 @@ class _Job:
                          len(self.seeds), manifest, imgs)
 
 
+#: Most samples per pixel of one Mitsuba pass: ``mi.render`` takes a 32-bit unsigned spp
+#: (2^32 reached it as a binding error blamed on the scene).
+MAX_SPP_PER_PASS = 2 ** 32 - 1
+
+
 def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _Job:
+    # checked by type first: spp="8" raised a bare TypeError, spp=8.0 a Mitsuba binding
+    # error blamed on the scene, seed=-1 numpy's ValueError
+    for label, v in (("spp", spp), ("passes", passes), ("seed", seed)):
+        validate.integer(label, v)
     if spp < 1 or passes < 2:
         raise InvalidArgument(f"spp={spp}, passes={passes}: need spp >= 1 and passes >= 2 "
                               "(the variance needs two passes)")
+    if spp > MAX_SPP_PER_PASS:
+        raise InvalidArgument(f"spp={spp}: at most {MAX_SPP_PER_PASS} (2^32 - 1) samples per "
+                              "pass, Mitsuba's limit; use more passes")
+    validate.seed("seed", seed)
     name, path = resolve_scene(spec)
     precheck_scene(path)
     return _Job(name, path, spp, _pass_seeds(seed, passes), params, scene_assets(path))

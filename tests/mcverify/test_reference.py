@@ -416,3 +416,29 @@ def test_a_folder_without_a_scene_file_is_named_as_such(tmp_path, monkeypatch):
     (tmp_path / "cornell-box").mkdir()
     assert reference.resolve_scene("cornell-box")[1].endswith(
         os.path.join("cornell-box", "scene.xml"))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(spp="8"), "spp='8': must be an integer"),
+    (dict(spp=8.0), "spp=8.0: must be an integer"),
+    (dict(spp=2 ** 32), "spp=4294967296: at most 4294967295"),
+    (dict(passes=2.5), "passes=2.5: must be an integer"),
+    (dict(seed=-1), "seed=-1: must be >= 0"),
+    (dict(seed=1.5), "seed=1.5: must be an integer"),
+])
+def test_build_reference_names_a_bad_count_before_rendering(scene_copy, kwargs, match):
+    """spp="8" and passes=2.5 raised bare TypeErrors, seed=-1 numpy's ValueError, and
+    spp=8.0 or 2^32 reached Mitsuba's render() as a binding error blamed on the scene."""
+    from mcverify.errors import InvalidArgument
+
+    with pytest.raises(InvalidArgument, match=match):
+        reference.build_reference(str(scene_copy), **{"spp": 8, **kwargs})
+    assert not os.path.exists(scene_copy / "ref")
+
+
+def test_reference_build_cli_refuses_more_spp_than_mitsuba_takes(scene_copy):
+    r = subprocess.run(CMD + ["reference", "build", str(scene_copy), "--spp", str(2 ** 32)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "--spp 4294967296: at most 4294967295" in r.stderr, r.stderr
+    assert "Mitsuba cannot render" not in r.stderr
+    assert not os.path.exists(scene_copy / "ref")
