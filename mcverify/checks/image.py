@@ -385,6 +385,15 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         tv, rv = np.maximum(tv, floor), np.maximum(rv, ref_floor)
     tp = _as_passes("test_passes", test_passes, nt, tm.shape)
     rp = _as_passes("ref_passes", ref_passes, nr, tm.shape)
+    for label, passes, mean in (("test", tp, tm), ("ref", rp, rm)):
+        # the image and block tests read the passes, the pixel tests the mean: a mean
+        # that is not its passes' mean (1.5 times it) was compared without a word
+        if passes is not None and not np.allclose(
+                passes.mean(axis=0), mean, rtol=max(1e-4, rel_rounding),
+                atol=1e-6 * max(float(np.abs(mean).max()), 1e-300)):
+            worst = float(np.max(np.abs(passes.mean(axis=0) - mean)))
+            raise InvalidArgument(f"{label}_mean: not the mean of {label}_passes (largest "
+                                  f"difference {worst:.3g}); give the mean of the passes")
     correlated = tp is not None
     h, w, c = tm.shape
     diff = tm - rm

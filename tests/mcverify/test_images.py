@@ -404,8 +404,14 @@ def test_one_bright_pixel_does_not_hide_a_bias_everywhere_else():
      r"test_passes: expected 4 pass images"),
     (dict(test_passes=np.zeros((4, 4, 4)), ref_passes=np.full((4, 4, 4), np.inf)),
      "ref_passes: contains NaN/Inf"),
+    # the block and image tests read the passes, the pixel tests the mean: a mean 1.5
+    # times its passes' was compared without a word (an outside review)
+    (dict(test_passes=np.full((4, 4, 4), 1.5), ref_passes=np.zeros((4, 4, 4)),
+          test_mean=np.ones((4, 4))), "test_mean: not the mean of test_passes"),
+    (dict(test_passes=np.zeros((4, 4, 4)), ref_passes=np.ones((4, 4, 4))),
+     "ref_mean: not the mean of ref_passes"),
 ], ids=["shape", "negative-var", "nan", "n", "block", "misspelt-test", "one-side-passes",
-        "passes-count", "passes-inf"])
+        "passes-count", "passes-inf", "mean-not-of-test-passes", "mean-not-of-ref-passes"])
 def test_bad_input(kwargs, match):
     base = dict(test_mean=np.zeros((4, 4)), ref_mean=np.zeros((4, 4)),
                 test_var=np.ones((4, 4)), ref_var=np.ones((4, 4)), test_n=4, ref_n=4)
