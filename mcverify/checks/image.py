@@ -498,6 +498,21 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                         f"{diff.mean():+.4g} ({rel})"
                         f"; {len(rejected_blocks)} blocks and "
                         f"{rejected_px.any(axis=2).mean():.2%} of pixels rejected")
+        # where: the printed verdict said how many blocks, never which (only the JSON did)
+        if blocks_info:
+            b = blocks_info[0]
+            y, x = b["pixels"]
+            off = (f"{b['relative_difference']:+.1%}"
+                   if math.isfinite(b["relative_difference"]) else "against a reference of 0")
+            messages.append(f"clearest block: pixels y {y}-{min(y + b['side'], h) - 1}, "
+                            f"x {x}-{min(x + b['side'], w) - 1}, channel {b['channel']}, "
+                            f"{off}")
+        if rejected_px.any():
+            y, x = np.unravel_index(int(np.argmin(np.where(rejected_px.any(axis=2), p_map,
+                                                           np.inf))), p_map.shape)
+            messages.append(f"clearest pixel: (y, x) = ({y}, {x}), test "
+                            f"{np.array2string(tm[y, x], precision=4)} against reference "
+                            f"{np.array2string(rm[y, x], precision=4)}")
     ratio = floor_info and floor_info["per_sample_variance_ratio"]
     if ratio and not 1 / SPP_RATIO_LIMIT <= ratio <= SPP_RATIO_LIMIT:
         # a wrong sample count (total spp given for spp per pass) scales one side's floor:

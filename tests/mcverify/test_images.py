@@ -262,6 +262,12 @@ def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
     assert {(b["side"], *b["pixels"]) for b in rejected} <= \
         {(8, 16, 8), (16, 16, 0)} | {(4, y, x) for y in (16, 20) for x in (8, 12)}
     assert r.details["blocks"]["sides"] == [4, 8, 16]
+    # and the printed verdict says where (it said how many blocks, only the JSON where)
+    where = [m for m in r.messages if m.startswith("clearest block: ")]
+    assert len(where) == 1 and any(f"pixels y {y}-{y + s - 1}, x {x}-{x + s - 1}," in where[0]
+                                   for s, y, x in ((8, 16, 8), (16, 16, 0), (4, 16, 8),
+                                                   (4, 16, 12), (4, 20, 8), (4, 20, 12))), \
+        r.messages
 
 
 def test_a_small_patch_is_found_by_blocks_of_its_size():
