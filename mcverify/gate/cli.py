@@ -99,7 +99,10 @@ def _writable(option: str, path: str | None, inputs=()) -> None:
     except InvalidArgument as e:
         raise InvalidArgument(f"{option} {e}") from None
     for other in inputs:
-        if other and os.path.exists(target) and _same_file(target, other):
+        # by path too: an input the run makes (the reference a render check builds, its
+        # folder missing until then) does not exist yet, and the output would replace it
+        if other and (_same_file(target, other)
+                      or target == os.path.realpath(other)):
             raise InvalidArgument(f"{option} {path}: is also an input ({other}); writing "
                                   "it would replace the data being read; give another path")
     if how == "stream":

@@ -459,6 +459,16 @@ CLI = [
                                 "--json", "{d}/ref-ok/ref/manifest.json"], "is also an input"),
     ("junit-is-scene-var", ["check", "--scene", "{d}/ref-ok/scene.xml", "-k", "render",
                                "--junit", "{d}/ref-ok/ref/var.exr"], "is also an input"),
+    # a reference the run builds (none yet beside the scene) is an input too: the JSON
+    # replaced the manifest just built, and the next run exited 2 ("corrupt manifest")
+    ("json-is-manifest-to-build", ["check", "--scene", "{d}/scenes/obj-card.xml", "-k",
+                                   "zzz", "--json",
+                                   "{d}/scenes/ref-obj-card.xml/manifest.json"],
+     "is also an input"),
+    ("render-check-json-is-manifest-to-build", ["render-check", "{d}/scenes/obj-card.xml",
+                                                "--param", "nosuch=3", "--json",
+                                                "{d}/scenes/ref-obj-card.xml/mean.exr"],
+     "is also an input"),
     # a file the scene names (a mesh, a texture) is an input too: it was replaced
     ("json-is-scene-mesh", ["check", "--scene", "{d}/scenes/obj-card.xml", "-k", "zzz",
                             "--json", "{d}/scenes/card.obj"], "is also an input"),
