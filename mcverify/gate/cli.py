@@ -394,7 +394,11 @@ def _cmd_check(args) -> int:
             print(f"{head}: sampler checks at n = {ns[0]:,} to {ns[-1]:,}; each catches "
                   f"uniform contamination of {100 * seen[worst]:.2g} % or less at 95 % "
                   f"power (worst: {worst})")
-        elif not ns:
+        elif ns:
+            # said, not left out: a uniform pdf is what uniform contamination leaves alone
+            print(f"{head}: sampler checks at n = {ns[0]:,} to {ns[-1]:,}; their pdfs are "
+                  "uniform, which uniform contamination does not change: no power figure")
+        else:
             # said, not left out: a -k without sampler checks has nothing to scale
             print(f"{head}: no sampler check selected, nothing to scale; every check ran "
                   "at its fixed size")

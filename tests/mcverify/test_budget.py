@@ -135,6 +135,17 @@ def test_cli_budget_without_a_sampler_check_says_so():
     assert "budget 2s" in r.stdout and "no sampler check selected" in r.stdout, r.stdout
 
 
+def test_cli_budget_of_uniform_pdfs_says_what_it_took():
+    """Sampler checks whose pdf is uniform have no power figure (a uniform admixture is
+    invisible): the budget line (took, predicted, the chosen n) was left out altogether."""
+    r = subprocess.run([sys.executable, "-m", "mcverify", "check", "--budget", "2", "-k",
+                        "sampler:uniform_sphere", "-q"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "budget 2s (took" in r.stdout and "sampler checks at n = " in r.stdout, r.stdout
+    assert "no power figure" in r.stdout, r.stdout
+
+
 def test_cli_budget_refuses_bad_values():
     for args, needle in ((["--budget", "0"], "positive"), (["--budget", "nan"], "positive"),
                          (["--budget", "5", "--scene", "x.xml"], "--scene")):
