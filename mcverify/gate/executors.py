@@ -20,6 +20,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import hashlib
 import multiprocessing
+import multiprocessing.synchronize
 import os
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -36,6 +37,10 @@ __all__ = ["Unit", "Pool", "WorkerLost", "InProcessExecutor", "source_fingerprin
 DASK_CONNECT_TIMEOUT = "20s"
 #: Seconds to wait for a first worker of a Dask scheduler before refusing it.
 DASK_WORKER_WAIT = 30
+#: The most local workers: the process pool's call queue holds one more call than it has
+#: workers, in a semaphore that counts to ``SEM_VALUE_MAX`` (-j 99999999999 was an
+#: "unexpected OverflowError" naming no option).
+MAX_JOBS = multiprocessing.synchronize.SEM_VALUE_MAX - cf.process.EXTRA_QUEUED_CALLS
 
 
 class WorkerLost(EnvironmentProblem):
@@ -131,6 +136,9 @@ class Pool:
         if isinstance(self.jobs, bool) or not isinstance(self.jobs, int) or self.jobs < 1:
             raise InvalidArgument(f"-j {self.jobs!r}: the number of local worker processes "
                                   "must be an integer >= 1")
+        if self.jobs > MAX_JOBS:
+            raise InvalidArgument(f"-j {self.jobs}: more local worker processes than a "
+                                  f"process pool can have (at most {MAX_JOBS})")
         if self.dask and self.dask_scheduler_file:
             raise InvalidArgument("--dask and --dask-scheduler-file: give one of them")
         if (self.dask or self.dask_scheduler_file) and self.jobs != 1:

@@ -151,10 +151,12 @@ def test_the_source_fingerprint_reads_every_package_the_distribution_installs(mo
 
 @pytest.mark.parametrize("kwargs,needle", [
     (dict(jobs=0), "-j 0"),
+    # more than the pool's semaphore counts: an "unexpected OverflowError" at start
+    (dict(jobs=99999999999), "-j 99999999999: more local worker processes"),
     (dict(jobs=2, dask="tcp://localhost:1"), "-j 2 with a Dask cluster"),
     (dict(dask="tcp://a:1", dask_scheduler_file="f"), "give one of them"),
     (dict(dask_scheduler_file="/no/such/file.json"), "--dask-scheduler-file /no/such"),
-], ids=["jobs", "jobs-and-dask", "both-dask", "scheduler-file"])
+], ids=["jobs", "jobs-huge", "jobs-and-dask", "both-dask", "scheduler-file"])
 def test_bad_pool_arguments(kwargs, needle):
     with pytest.raises(InvalidArgument, match=needle):
         Pool(**kwargs)
