@@ -1070,6 +1070,10 @@ def _validate_common(args) -> None:
         raise InvalidArgument(f"--seed {seed}: must be in [0, 2^63 - 1]")
     if getattr(args, "alpha", None) is not None and not 0.0 < args.alpha < 1.0:
         raise InvalidArgument(f"--alpha {args.alpha}: must be strictly between 0 and 1")
+    if hasattr(args, "jobs"):
+        # -j 0, --dask with -j, a missing scheduler file: refused before the suite's
+        # imports, a scene's plan or --budget's calibration (it was refused after them)
+        _pool(args)
     if getattr(args, "refs", None) is not None:
         from . import reference
 

@@ -148,7 +148,10 @@ def test_cli_budget_of_uniform_pdfs_says_what_it_took():
 
 def test_cli_budget_refuses_bad_values():
     for args, needle in ((["--budget", "0"], "positive"), (["--budget", "nan"], "positive"),
-                         (["--budget", "5", "--scene", "x.xml"], "--scene")):
+                         (["--budget", "5", "--scene", "x.xml"], "--scene"),
+                         # was refused after the calibration
+                         (["--budget", "5", "-j", "0", "-k", "sampler:cosine_hemisphere"],
+                          "-j 0")):
         r = subprocess.run([sys.executable, "-m", "mcverify", "check", *args], text=True,
                            capture_output=True, timeout=600)
         assert r.returncode == 2 and needle in r.stderr, r.stderr
