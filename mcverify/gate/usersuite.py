@@ -126,8 +126,13 @@ def _read_config(file: str) -> ProjectConfig | None:
         raise InvalidArgument(f"{file}: [tool.mcverify] suite: "
                               f"{next(s for s in suites if suites.count(s) > 1)!r} is listed "
                               "twice")
+    path = strings("path") or (".",)
+    for p in path:      # a misspelt root was accepted without a word
+        if not os.path.isdir(os.path.join(os.path.dirname(file), p)):
+            raise InvalidArgument(f"{file}: [tool.mcverify] path {p!r}: no such folder "
+                                  "(import roots are relative to pyproject.toml)")
     return ProjectConfig(file=file, suites=suites, alpha=None if alpha is None else
-                         float(alpha), seed=seed, path=strings("path") or (".",))
+                         float(alpha), seed=seed, path=path)
 
 
 def _import_roots(roots) -> None:

@@ -145,9 +145,13 @@ def test_the_first_pyproject_decides_even_without_a_table(project):
     # these raised AttributeError and UnicodeDecodeError, naming no file
     ('tool = 3\n', "tool = 3: must be a table"),
     (b'[tool.mcverify]\nseed = 1 # \xff\n', "not valid TOML"),
+    # a misspelt import root was accepted without a word (the module may still import
+    # from the current directory, another copy of it)
+    ('[tool.mcverify]\npath = ["scr"]\n', "path 'scr': no such folder"),
+    ('[tool.mcverify]\npath = "pyproject.toml"\n', "path 'pyproject.toml': no such folder"),
 ], ids=["unknown-key", "alpha-range", "alpha-type", "seed-negative", "seed-beyond-2^63",
         "empty-suite-list", "suite-twice", "seed-bool", "suite-name", "suite-type", "toml",
-        "tool-not-a-table", "not-utf8"])
+        "tool-not-a-table", "not-utf8", "path-missing", "path-a-file"])
 def test_a_malformed_table_names_the_file_and_key(project, body, match):
     if isinstance(body, bytes):
         (project / "pyproject.toml").write_bytes(body)
