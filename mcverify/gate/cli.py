@@ -240,10 +240,10 @@ def _suite_checks(args):
         c, s = suites.resolve_suite(n, roots=roots, option=option)
         for check in c:     # each check's seed derives from its name: two would share one
             if check.name in origin:
-                raise InvalidArgument(f"check {check.name!r} is in suite {origin[check.name]!r} "
-                                      f"and in suite {n!r}; names must be unique across the "
-                                      "suites of one run (seeds derive from names): rename "
-                                      "one")
+                raise InvalidArgument(f"{option}: check {check.name!r} is in suite "
+                                      f"{origin[check.name]!r} and in suite {n!r}; names "
+                                      "must be unique across the suites of one run (seeds "
+                                      "derive from names): rename one")
             origin[check.name] = n
         checks += c
         skipped += s

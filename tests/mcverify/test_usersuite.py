@@ -318,6 +318,8 @@ def test_a_check_name_in_two_suites_of_the_table_exits_2(project):
     assert r.returncode == 2, r.stdout + r.stderr
     assert ("check 'sqrt' is in suite 'mine.checks:good' and in suite 'mine.checks:factory'"
             in r.stderr), r.stderr
+    # named by the file and key that listed the suites (it named neither)
+    assert f"{project / 'pyproject.toml'}: [tool.mcverify] suite: " in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
