@@ -109,8 +109,11 @@ def plan(scene_path: str, suite: str = "default", checks: list[Check] | None = N
         for c in all_checks:
             if c.verifies & needs:
                 wanted.setdefault(c.name, f"{feature}: {why}")
-    keep = [c for c in all_checks if c.name in wanted]
-    skipped = [(c.name, "not needed by this scene") for c in all_checks if c.name not in wanted]
+    # a check that names nothing it verifies (the user's own, Check's default) runs with
+    # any scene: it was skipped as "not needed", and a project's gate ran none of its own
+    keep = [c for c in all_checks if c.name in wanted or not c.verifies]
+    skipped = [(c.name, "not needed by this scene") for c in all_checks
+               if c.name not in wanted and c.verifies]
     skipped += [(f, why) for f, why in NOTHING_TO_SAMPLE.items() if f in desc.features]
     instances, delta = tracer_checks(scene_path)
     keep += instances + consistency_checks(scene_path)

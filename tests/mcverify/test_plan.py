@@ -34,6 +34,20 @@ def test_cornell_box_plan():
     assert "render:cornell-box" in names           # the scene's own render gate
 
 
+def test_a_check_that_names_nothing_it_verifies_runs_with_any_scene():
+    """A user suite's checks leave ``verifies`` empty (Check's default): with --scene they
+    were all skipped as "not needed by this scene" (printed nowhere), and a project's
+    `mcverify check --scene` passed without running any of its own checks."""
+    from mcverify.gate.suites import Check, build_suite
+
+    mine = Check("mine", lambda seed: None)
+    checks, skipped, _ = plan(CORNELL, checks=build_suite("default") + [mine])
+    assert "mine" in _names(checks)
+    assert "mine" not in {name for name, _ in skipped}
+    # the built-in checks are still planned by what they verify
+    assert "sampler:uniform_interval(a=-1,b=3)" in {name for name, _ in skipped}
+
+
 def test_diffuse_scene_with_a_point_light(tmp_path):
     path = tmp_path / "scene.xml"
     path.write_text(DIFFUSE_POINT)
