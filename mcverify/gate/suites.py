@@ -513,8 +513,15 @@ def _run_unit(check, name: str, seed: int, stop_alpha: float | None,
     ``source`` recipe (in a worker, which rebuilds the list once and looks the name up)."""
     same_source(fingerprint)
     if not isinstance(check, Check):
-        check = _rebuilt(check)[name]
-    return _run_guarded(check, seed, stop_alpha)
+        built = _rebuilt(check)
+        if name not in built:   # was a bare KeyError: "unexpected KeyError: 'my.cos.7031'"
+            builder, args = check
+            raise InvalidArgument(
+                f"check {name!r}: not among the {len(built)} checks that rebuilding its "
+                f"suite in a worker process gives ({getattr(builder, '__name__', builder)}"
+                f"{tuple(args)!r}); a check's name must not depend on the process (a pid, "
+                "the time, a random number)")
+    return _run_guarded(check if isinstance(check, Check) else built[name], seed, stop_alpha)
 
 
 def _units(checks_: list[Check], seeds: list[int], stops: list, pool: Pool) -> list[Unit]:

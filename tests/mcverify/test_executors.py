@@ -149,6 +149,15 @@ def test_the_source_fingerprint_reads_every_package_the_distribution_installs(mo
     assert sorted(walked) == sorted(p.rstrip("*") for p in include)
 
 
+def test_a_check_missing_from_its_rebuilt_suite_is_named():
+    """A worker rebuilds a check's suite from its recipe and looks the name up: a user
+    suite whose names depend on the process (a pid in the name) failed there with
+    "unexpected KeyError: 'my.cos.7031'"."""
+    with pytest.raises(InvalidArgument, match="check 'sampler:nosuch': not among the 95 "
+                                              "checks that rebuilding its suite"):
+        suites._run_unit((suites.build_suite, ("default",)), "sampler:nosuch", 0, None, None)
+
+
 @pytest.mark.parametrize("kwargs,needle", [
     (dict(jobs=0), "-j 0"),
     # more than the pool's semaphore counts: an "unexpected OverflowError" at start
