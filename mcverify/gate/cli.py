@@ -299,6 +299,7 @@ def _cmd_check(args) -> int:
                               "has its own spp and passes (use --budget without --scene)")
     if args.scene:
         args.scene = _scene_file(args.scene)
+    given_suite = args.suite
     args.suite, checks, skipped, extra = _suite_checks(args)
     # the scene, its reference (the render check reads it), the project's pyproject.toml
     # and a user suite's module are inputs: an output path naming one would replace it
@@ -314,7 +315,9 @@ def _cmd_check(args) -> int:
                       *(("--report", f) for f in report_files))
     plan = None
     if args.budget is not None and args.suite not in suites.SUITES:
-        raise InvalidArgument(f"--budget with --suite {args.suite}: only the built-in suites "
+        where = (f"--suite {args.suite}" if given_suite else   # else the table's
+                 f"{extra['config']}: [tool.mcverify] suite {args.suite!r}")
+        raise InvalidArgument(f"--budget with {where}: only the built-in suites "
                               f"{', '.join(suites.SUITES)} can be sized to a time budget")
     if args.scene:
         # from the suites already resolved: a table's list ran as 'a:b+default', a name

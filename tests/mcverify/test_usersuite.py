@@ -409,6 +409,18 @@ def test_check_scene_plans_from_the_tables_list_of_suites(project):
     assert "1 passed, 0 failed" in r.stdout
 
 
+def test_budget_with_the_tables_user_suite_names_the_table(project):
+    """--budget sizes built-in suites only: with the suite from [tool.mcverify] the
+    refusal said "--budget with --suite mine.checks:good", an option never given."""
+    _pyproject(project, '[tool.mcverify]\nsuite = "mine.checks:good"\n')
+    r = _cli(["check", "--budget", "5"], cwd=project)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert (f"--budget with {project / 'pyproject.toml'}: [tool.mcverify] suite "
+            "'mine.checks:good': only the built-in suites" in r.stderr), r.stderr
+    r = _cli(["check", "--budget", "5", "--suite", "mine.checks:good"], cwd=project)
+    assert r.returncode == 2 and "--budget with --suite mine.checks:good" in r.stderr
+
+
 def test_a_failed_result_without_p_value_or_failures_stays_failed():
     """A user check returning CheckResult(passed=False, p_value=None) with only messages
     (its own deterministic test, e.g. a round trip) was re-judged by Holm from its
