@@ -78,7 +78,14 @@ def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
 _POINT_FROM_RAY = ("sphere", "disk")
 
 
-def mitsuba_caveats(desc) -> list[str]:
+#: Mitsuba 3.9.1's ray offset: a ray leaving a surface starts ``(1 + max|p|)`` times this
+#: along the normal (interaction.h ``offset_p``: float32's 2^-24 times 1500).
+MITSUBA_RAY_EPSILON = 1500 * 2.0 ** -24
+#: The offset, as a share of the scene's extent, beyond which a failing gate notes it.
+SMALL_SCENE_OFFSET = 1e-3
+
+
+def mitsuba_caveats(desc, bounds=None) -> list[str]:
     """Where Mitsuba 3.9.1's own image of the scene (``desc``, our loader's description)
     is known to be wrong, so that a failing gate may be the reference's fault.
 
@@ -89,17 +96,36 @@ def mitsuba_caveats(desc) -> list[str]:
     from its (u, v), but a sphere or disk puts it at ``ray(pi.t)``, short of the true
     point by the camera's distance to the emitter (an outside review: a mirror sphere
     behind a hidden disk light, 0 in ours and in Mitsuba for a mesh sphere, 1.0 in
-    Mitsuba's llvm_ad_rgb, a third answer in its scalar_rgb)."""
+    Mitsuba's llvm_ad_rgb, a third answer in its scalar_rgb).
+
+    ``bounds`` (the scene's (lo, hi) corners): every ray Mitsuba spawns from a surface
+    starts ``(1 + max|p|) · MITSUBA_RAY_EPSILON`` (at least 8.9e-5) off it, however small
+    the scene; where that is over ``SMALL_SCENE_OFFSET`` of the scene's extent, its light
+    near contacts and corners moves (an outside review: a scene scaled by 1e-3 failed
+    the block test on three seeds, Mitsuba's image of it 15 standard errors from its own
+    image of the same scene at scale 1, which ours matched at both scales)."""
+    notes = []
+    if bounds is not None:
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+        extent = float(np.max(hi - lo))
+        offset = (1.0 + float(np.max(np.abs(np.concatenate([lo, hi]))))) \
+            * MITSUBA_RAY_EPSILON
+        if np.isfinite(extent) and extent > 0.0 and offset > SMALL_SCENE_OFFSET * extent:
+            notes.append(f"Mitsuba 3.9.1 may be wrong here: it starts each ray from a "
+                         f"surface {offset:.2g} off it (float32 ray epsilon times 1 + the "
+                         f"largest coordinate), {offset / extent:.2g} of this scene's "
+                         f"extent {extent:.3g}, which moves its light near contacts and "
+                         f"corners; render the scene at a scale near 1 to compare")
     if desc is None or not desc.integrator.get("hide_emitters", False):
-        return []
+        return notes
 
     def emits(shape):
         return any(c.kind == "emitter" for c in shape.children)
 
     types = sorted({s.type for s in desc.shapes if s.type in _POINT_FROM_RAY and not emits(s)})
     if not types or not any(emits(s) for s in desc.shapes):
-        return []
-    return [f"Mitsuba 3.9.1 may be wrong here: with hide_emitters, where a camera ray "
+        return notes
+    return notes + [f"Mitsuba 3.9.1 may be wrong here: with hide_emitters, where a camera ray "
             f"passes through a hidden area emitter onto a {' or '.join(types)}, Mitsuba "
             f"places that hit at the camera ray's origin plus the distance from the "
             f"emitter (its path and direct integrators after skip_area_emitters; sphere "
@@ -108,18 +134,22 @@ def mitsuba_caveats(desc) -> list[str]:
             f"{' or '.join(types)} renders right in both"]
 
 
-def _description(path: str, params: dict | None, subject):
-    """Our loader's description of the scene: the prepared subject's, or (a renderer of
-    one's own) the scene parsed; None where our loader refuses it."""
-    if subject is not None:
-        return subject.desc
-    from estimators.pathtracer import SceneError
-    from estimators.pathtracer.scene import load_scene
+def _caveats(path: str, params: dict | None, subject) -> list[str]:
+    """``mitsuba_caveats`` of the scene, from the prepared subject or (a renderer of one's
+    own) the scene prepared here; none where our loader refuses it."""
+    from estimators.pathtracer import SceneError, prepare_scene
+    from estimators.pathtracer.geometry import bvh_bounds
 
+    if subject is None:
+        try:
+            subject = prepare_scene(path, params=params)
+        except SceneError:
+            return []
     try:
-        return load_scene(path, params=params)
-    except SceneError:
-        return None
+        bounds = bvh_bounds(subject.arrays.bvh_nodes)
+    except (ValueError, IndexError):        # nothing in the hierarchy: no extent
+        bounds = None
+    return mitsuba_caveats(subject.desc, bounds)
 
 
 def _samples_kept(path, subject, spp: int, passes: int) -> None:
@@ -401,7 +431,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     mean, stats, seconds = shown["mean"], shown["stats"], shown["seconds"]
     if not result.passed:
         result = dataclasses.replace(result, messages=tuple(result.messages) + tuple(
-            f"note: {c}" for c in mitsuba_caveats(_description(path, params, subject))))
+            f"note: {c}" for c in _caveats(path, params, subject)))
     details = dict(result.details, scene=path, ours_spp=spp * shown["n"] // passes if ours
                    else spp, ours_passes=shown["n"], ours_seconds=seconds,
                    ours_kernel=stats.get("kernel"),
