@@ -478,8 +478,8 @@ def _guided_edges(lo, hi, values):
     return cuts if cuts.size >= 2 else np.array([lo, hi])
 
 
-def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
-    """2-D cells where the cubature found no mass but samples or pilot points fell, and
+def _pilot_guided(density, edges, counts, mass, error, n, pilot_s, leaves=None):
+    """Cells where the cubature found no mass but samples or pilot points fell, and
     cells whose χ² contribution, or their row's or column's in the marginals, is still
     above ``_SUSPICIOUS`` after ``_refine_suspicious`` (pooled as the test pools): each
     is re-integrated over the boxes ``_guided_edges`` cuts it
@@ -493,9 +493,14 @@ def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
     a wrong one keeps failing (the pilot is an independent sample; only the quadrature's
     partition depends on it). ``mass`` and ``error`` are updated in place, within about
     ``_REFINE_BUDGET`` evaluations (a cell started is finished); returns the evaluations
-    spent."""
+    spent and, in 1-D, ``leaves`` with those of the cells integrated again replaced (the
+    KS test's CDF reads them). 1-D too: a uniform density on [0.5, 0.5 + 1e-7] left
+    1.2e-12 of its support beyond the pilot's last point, an edge, in a cell 3.9e-3
+    wide, below the deepest leaf (``quadrature._RESOLVABLE`` ulps), and the correct
+    sampler failed, "2 samples fell in cells where the pdf integrates to 0" (until 6
+    December, an outside review)."""
     if pilot_s is None or pilot_s.shape[0] == 0:
-        return 0
+        return 0, leaves
     e = n * mass
     # pooled as the χ² test pools (a cell expecting under 5 weighs as a bin of 5): a
     # tail cell with one count where 0.03 were expected is no evidence, and scoring it
@@ -510,7 +515,7 @@ def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
     key = np.where((counts > 0) & (mass <= 0.0), np.inf, key)
     wanted = key > _SUSPICIOUS
     if not wanted.any():
-        return 0     # the usual case: no pilot binning paid (~8 ms a check at 1e6 samples)
+        return 0, leaves    # the usual case: no pilot binning paid (~8 ms a check at 1e6)
     shape = counts.shape
     idx = [np.clip(np.searchsorted(ed, pilot_s[:, j], side="right") - 1, 0, ed.size - 2)
            for j, ed in enumerate(edges)]
@@ -518,7 +523,7 @@ def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
     piloted = np.bincount(flat, minlength=counts.size) > 0
     cells = np.flatnonzero((wanted | (piloted.reshape(shape) & (mass <= 0.0))).ravel())
     if cells.size == 0:
-        return 0
+        return 0, leaves
     # the most damning first (a cell with samples and no mass is infinitely so)
     cells = cells[np.argsort(-key.ravel()[cells], kind="stable")]
     pos = np.stack(idx, axis=1)
@@ -537,10 +542,14 @@ def _pilot_guided(density, edges, counts, mass, error, n, pilot_s):
         boxes = int(np.prod([ed.size - 1 for ed in sub]))
         if 49 * boxes > budget - spent:      # a box's first level: 9 + 36 + 4 corners
             break
-        r = integrate_cells(density, sub, n_samples=n)
+        r = integrate_cells(density, sub, n_samples=n, keep_leaves=leaves is not None)
         mass.ravel()[c], error.ravel()[c] = r.mass.sum(), r.error.sum()
+        if leaves is not None:
+            keep = leaves[3] != c
+            new = r.leaves[:3] + (np.full(r.leaves[3].shape, c, dtype=np.int64),)
+            leaves = merge_leaves(*(np.concatenate([a[keep], b]) for a, b in zip(leaves, new)))
         spent += r.n_evals
-    return spent
+    return spent, leaves
 
 
 def _cdf_from_leaves(density, leaves, s, total):
@@ -791,8 +800,9 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         scale = max(n_valid, 1) / total0 if rejection and total0 > 0 else max(n_valid, 1)
         mass, error, n_evals, unconverged, leaves = _refine_suspicious(
             density, edges, counts, integral, scale, m)
-        if m == 2:
-            n_evals += _pilot_guided(density, edges, counts, mass, error, scale, pilot_s)
+        spent, leaves = _pilot_guided(density, edges, counts, mass, error, scale, pilot_s,
+                                      leaves)
+        n_evals += spent
         if density.negative or density.nonfinite:
             failures.append(f"pdf returned {density.negative} negative and {density.nonfinite} "
                             f"NaN/Inf values (first: pdf({density.example[0]}) = "
