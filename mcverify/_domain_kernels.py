@@ -36,6 +36,8 @@ _PARTS = 16
 #: another thread costs about 50 µs).
 _ROWS_PER_THREAD = 16384
 _S_MAX = 1.0 - 2.0 ** -52
+#: The largest double below 1: a point's z where 1 - w rounds to 1 with w > 0.
+_BELOW_ONE = 1.0 - 2.0 ** -53
 _INV_TWO_PI = 1.0 / (2.0 * math.pi)
 
 
@@ -181,7 +183,12 @@ def _to_point_rows(kind, args, s, out, i0, i1):
         r = math.sqrt(max(0.0, w * (2.0 - w)))
         out[i, 0] = r * c
         out[i, 1] = r * sn
-        out[i, 2] = 1.0 - w
+        # Within 2^-54 of the north pole 1 - w rounds to 1: the cubature's nodes and
+        # corners there read the pdf at the pole itself, where a correct pdf may be
+        # singular (uniform in θ: 1 / (2π² sin θ)), and the check failed with "pdf
+        # returned ... NaN/Inf values" (found by an outside review). Such a point
+        # rounds down to the largest double below 1 instead; only s0 = 0 is the pole.
+        out[i, 2] = min(1.0 - w, _BELOW_ONE) if w > 0.0 else 1.0
 
 
 def to_point_kernel(kind, args, s, out):
