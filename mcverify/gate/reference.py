@@ -443,6 +443,21 @@ class _Job:
 MAX_SPP_PER_PASS = 2 ** 32 - 1
 
 
+def _pass_bytes(path: str, params: dict | None) -> int:
+    """Bytes one pass of a reference holds: its float32 RGB image at the film size our
+    loader reads (Mitsuba's default 768 × 576 where the film says nothing, and where our
+    loader refuses the scene), and its seed."""
+    from estimators.pathtracer import SceneError
+    from estimators.pathtracer.scene import load_scene
+
+    try:
+        film = load_scene(path, params=params).film
+        width, height = int(film.get("width", 768)), int(film.get("height", 576))
+    except SceneError:
+        width, height = 768, 576
+    return 12 * width * height + 64
+
+
 def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _Job:
     # checked by type first: spp="8" raised a bare TypeError, spp=8.0 a Mitsuba binding
     # error blamed on the scene, seed=-1 numpy's ValueError
@@ -457,6 +472,10 @@ def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _J
     validate.seed("seed", seed)
     name, path = resolve_scene(spec)
     precheck_scene(path)
+    # the passes stay in memory until the reference is written: --passes 10^17 was an
+    # "unexpected MemoryError" naming no option (an outside review)
+    validate.memory("passes", passes, _pass_bytes(path, params),
+                    "its pass images, held until the reference is written")
     return _Job(name, path, spp, _pass_seeds(seed, passes), params, scene_assets(path))
 
 

@@ -425,6 +425,10 @@ def test_a_folder_without_a_scene_file_is_named_as_such(tmp_path, monkeypatch):
     (dict(passes=2.5), "passes=2.5: must be an integer"),
     (dict(seed=-1), "seed=-1: must be >= 0"),
     (dict(seed=1.5), "seed=1.5: must be an integer"),
+    # the passes are held in memory until the reference is written: 10^17 of them was an
+    # "unexpected MemoryError" naming no option (an outside review)
+    (dict(passes=10 ** 17), "passes=100000000000000000: needs about .* of memory .*pass "
+                            "images.*; use at most"),
 ])
 def test_build_reference_names_a_bad_count_before_rendering(scene_copy, kwargs, match):
     """spp="8" and passes=2.5 raised bare TypeErrors, seed=-1 numpy's ValueError, and
