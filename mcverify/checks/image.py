@@ -247,7 +247,8 @@ def perceptual_metrics(test, ref) -> tuple[dict, dict]:
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                    alpha: float = 0.01, block: int = 8, name: str = "image",
                    tests=TESTS, test_passes=None, ref_passes=None,
-                   perceptual: bool = True, test_spp=None, ref_spp=None) -> CheckResult:
+                   perceptual: bool = True, test_spp=None, ref_spp=None,
+                   precision=None) -> CheckResult:
     """Test that two renders have the same expected value in every pixel.
 
     Parameters
@@ -291,6 +292,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         Also measure how visible the difference is (:func:`perceptual_metrics`: ΔE2000,
         ΔE ITP, HDR-FLIP; 3-channel images). They decide nothing; the render gate computes
         them once, on its last look's image.
+    precision : numpy floating type, optional
+        The coarsest type the images were stored in before they were converted (half
+        EXR passes that ``mcverify compare`` averages in float64): its rounding is no
+        evidence, as for arrays of that type. Default: the arrays' own types.
 
     Returns
     -------
@@ -332,8 +337,17 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     True
     """
     t0 = time.perf_counter()
+    stored = ()
+    if precision is not None:
+        try:
+            stored = (np.empty(0, dtype=precision),)
+        except TypeError:
+            stored = (None,)
+        if stored[0] is None or not np.issubdtype(stored[0].dtype, np.floating):
+            raise InvalidArgument(f"precision={precision!r}: must be a numpy floating type "
+                                  "(np.float16, np.float32, np.float64)")
     rel_rounding, tiny = _rounding(test_mean, ref_mean, test_var, ref_var, test_passes,
-                                   ref_passes)
+                                   ref_passes, *stored)
     tm = _as_image("test_mean", test_mean)
     rm = _as_image("ref_mean", ref_mean, tm.shape)
     tv = _as_image("test_var", test_var, tm.shape)
@@ -346,9 +360,10 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                                   f"{value:.6g}); variances must be >= 0")
     # a variance stored as 0 in a coarse float type is only below half its smallest
     # subnormal (half: 2^-25); as exactly 0 it made a faint pixel of a half image, whose
-    # variance underflowed, differ from a black reference pixel with certainty
-    tv = np.maximum(tv, _rounding(test_var)[1] / 2)
-    rv = np.maximum(rv, _rounding(ref_var)[1] / 2)
+    # variance underflowed, differ from a black reference pixel with certainty (the
+    # type it was stored in: its own, or ``precision`` where that is coarser)
+    tv = np.maximum(tv, _rounding(test_var, *stored)[1] / 2)
+    rv = np.maximum(rv, _rounding(ref_var, *stored)[1] / 2)
     # counts beyond 2^53 are not exact in float64 (10^30 reached scipy as an object)
     nt = validate.integer("test_n", test_n, minimum=2, maximum=2 ** 53)
     nr = validate.integer("ref_n", ref_n, minimum=2, maximum=2 ** 53)

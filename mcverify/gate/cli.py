@@ -785,13 +785,17 @@ def _cmd_compare(args) -> int:
     if test.mean.shape != ref_mean.shape:
         raise InvalidArgument(f"{label}: shape {test.mean.shape} differs from the "
                               f"reference's {ref_mean.shape}")
+    # half pass images (``pass_stats``): their rounding is no evidence
+    stored = [s.precision for s in (test, ref if ref_load is not None else None)
+              if s is not None and s.precision is not None]
     result = compare_images(test.mean, ref_mean, test_var=test.var, ref_var=ref_var,
                             test_n=test.n, ref_n=ref_n, alpha=args.alpha,
                             name=f"compare:{label}",
                             **(dict(test_passes=test.passes, ref_passes=ref_passes)
                                if correlated else {}),
                             **(dict(test_spp=args.test_spp, ref_spp=ref_spp)
-                               if args.test_spp is not None else {}))
+                               if args.test_spp is not None else {}),
+                            precision=stored[0] if stored else None)
     for note in test.notes + (() if ref_load is None else ref.notes):
         print(f"notice: {note}", file=sys.stderr)
     if args.test_spp is None and min(test.n, ref_n) < FEW_PASSES:

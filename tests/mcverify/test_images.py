@@ -369,6 +369,12 @@ def test_half_images_round_within_half_s_precision():
     assert not bright.passed
     # float32 keeps its own, finer allowance: 0.7 in half is a difference there
     assert not mv.compare_images(np.float32(mean), test_var=np.float32(var), **ref).passed
+    # unless the caller says the images were stored as half before (``precision``)
+    assert mv.compare_images(np.float64(mean), test_var=np.float64(var), **ref,
+                             precision=np.float16).passed
+    for bad in ("half-ish", np.int32, 3):
+        with pytest.raises(mv.InvalidArgument, match="precision=.*numpy floating type"):
+            mv.compare_images(mean, test_var=var, **ref, precision=bad)
 
 
 def test_one_test_named_as_a_string_is_that_test_alone():

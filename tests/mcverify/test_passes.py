@@ -190,3 +190,30 @@ def test_half_mean_and_variance_images_of_a_correct_render_agree(tmp_path):
                               "--test-n", "32", "--ref-var", paths["rv"], "--ref-n", "32"],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_half_pass_images_of_a_correct_render_agree(tmp_path):
+    """``compare --test-passes 'T_*.exr' --ref-passes 'R_*.exr'`` with half passes (a
+    renderer's default output) of a correct render exited 1, p = 0: the passes' mean and
+    variance are computed in float64, so compare_images saw no half input, and a
+    zero-variance pixel of value 0.7 (0.69971 in half) was a certain difference (an
+    outside review). The passes' storage type now reaches it (``precision``); a 5 % bias
+    of the same half passes still fails."""
+    mi = mvm._mi()
+    rng = np.random.default_rng(4)
+    a, b = rng.gamma(2.0, 0.5, (2, 16, 16, 16, 3))
+    a[:, :4, :4] = b[:, :4, :4] = 0.7                   # an emitter seen directly
+
+    def write(stem, imgs, dtype):
+        for i, img in enumerate(imgs):
+            mi.Bitmap(img.astype(dtype)).write(str(tmp_path / f"{stem}_{i:02d}.exr"))
+        return str(tmp_path / f"{stem}_*.exr")
+
+    ref = write("r", b, np.float32)
+    for stem, scale, code in (("t", 1.0, 0), ("bright", 1.05, 1)):
+        test = write(stem, a * scale, np.float16)
+        assert pass_stats(test).precision == np.float16
+        r = subprocess.run(CMD + ["compare", "--test-passes", test, "--ref-passes", ref],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == code, r.stdout + r.stderr
+    assert pass_stats(ref).precision is None
