@@ -73,9 +73,14 @@ def _read_config(file: str) -> ProjectConfig | None:
         import tomllib
     except ImportError:  # Python 3.10
         import tomli as tomllib
+    with open(file, "rb") as f:
+        data = f.read()
+    if data.startswith(b"\xef\xbb\xbf"):   # was "Invalid statement (at line 1, column 1)"
+        raise InvalidArgument(f"{file}: starts with a UTF-8 byte-order mark, which TOML "
+                              "does not allow (pip cannot read it either); save it as "
+                              "UTF-8 without one")
     try:
-        with open(file, "rb") as f:
-            doc = tomllib.load(f)
+        doc = tomllib.loads(data.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:   # TOML is UTF-8
         raise InvalidArgument(f"{file}: not valid TOML ({e})") from None
     tool = doc.get("tool", {})

@@ -149,9 +149,11 @@ def test_the_first_pyproject_decides_even_without_a_table(project):
     # from the current directory, another copy of it)
     ('[tool.mcverify]\npath = ["scr"]\n', "path 'scr': no such folder"),
     ('[tool.mcverify]\npath = "pyproject.toml"\n', "path 'pyproject.toml': no such folder"),
+    # a Windows editor's byte-order mark was "Invalid statement (at line 1, column 1)"
+    (b'\xef\xbb\xbf[tool.mcverify]\nseed = 1\n', "starts with a UTF-8 byte-order mark"),
 ], ids=["unknown-key", "alpha-range", "alpha-type", "seed-negative", "seed-beyond-2^63",
         "empty-suite-list", "suite-twice", "seed-bool", "suite-name", "suite-type", "toml",
-        "tool-not-a-table", "not-utf8", "path-missing", "path-a-file"])
+        "tool-not-a-table", "not-utf8", "path-missing", "path-a-file", "bom"])
 def test_a_malformed_table_names_the_file_and_key(project, body, match):
     if isinstance(body, bytes):
         (project / "pyproject.toml").write_bytes(body)
