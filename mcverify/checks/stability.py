@@ -59,6 +59,10 @@ def _first_problem(rows, sample, pdf, inverse, domain, rejection):
             one = _batch(rows[i:i + 1], sample, pdf, inverse, domain, rejection)
             if one is not None:
                 return i, one[1]
+        # no single u shows it: the callable breaks on several rows at once (it returns
+        # one point whatever it is given, or cannot take a batch), which every other
+        # check hands it; reported at the first u, not dropped as a pass
+        return 0, f"{found[1]} (given {len(rows)} u in one call; one u at a time it does not)"
     return None
 
 

@@ -109,3 +109,17 @@ def test_what_a_pdf_or_inverse_returns_is_judged_too():
     r = mv.check_stability(same, "interval", sample_dim=1, max_examples=5,
                            inverse=lambda x: np.ones(len(x) + 1))
     assert not r.passed and "inverse returned" in r.details["problem"]
+
+
+def test_a_sampler_that_breaks_only_on_a_batch_of_u_fails():
+    """The corners go to the sampler in one call; where that call breaks but no single u
+    does (a sampler that returns one point whatever it is given), the batch's finding
+    is the failure: until 6 December it was dropped and such a sampler passed."""
+    first_only = lambda u: -np.log1p(-u[:1, :1])              # noqa: E731
+    r = mv.check_stability(first_only, mv.Interval(0, 1e4), sample_dim=1, max_examples=20)
+    assert not r.passed and "1 points for 9 u" in r.details["problem"]
+    assert "one u at a time it does not" in r.details["problem"]
+    # a pdf written for one point at a time
+    r = mv.check_stability(lambda u: u[:, :1], "interval", sample_dim=1, max_examples=20,
+                           pdf=lambda x: 2.0 * x.item())
+    assert not r.passed and "pdf raised ValueError" in r.details["problem"]
