@@ -73,10 +73,14 @@ def _call(what, fn, arg):
         v = fn(arg)
     except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
         return None, f"{what} raised {type(e).__name__}: {e}"
+    try:        # a ragged list (numpy's bare ValueError), masked values (read as data)
+        a = validate.as_array(f"{what} returned {v!r:.80}", v)
+    except InvalidArgument as e:
+        return None, str(e)
     if what == "sample":
-        return np.asarray(v), None          # the domain's own conversion judges points
+        return a, None                      # the domain's own conversion judges points
     try:
-        return np.asarray(v, dtype=np.float64).reshape(-1), None
+        return np.asarray(a, dtype=np.float64).reshape(-1), None
     except (TypeError, ValueError):
         return None, f"{what} returned {v!r:.80}, not real numbers"
 

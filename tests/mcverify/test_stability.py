@@ -123,3 +123,17 @@ def test_a_sampler_that_breaks_only_on_a_batch_of_u_fails():
     r = mv.check_stability(lambda u: u[:, :1], "interval", sample_dim=1, max_examples=20,
                            pdf=lambda x: 2.0 * x.item())
     assert not r.passed and "pdf raised ValueError" in r.details["problem"]
+
+
+def test_a_ragged_or_masked_return_is_a_finding_not_a_crash():
+    """A ragged list raised numpy's bare ValueError out of the check until 6 December,
+    and masked values were read as data: np.ma.sqrt of a negative number keeps the
+    negative number under its mask, a point inside Interval(-1, 1), and passed."""
+    r = mv.check_stability(lambda u: [[0.5, 0.5], [0.5]], "square", max_examples=5)
+    assert not r.passed and "not an array of numbers" in r.details["problem"]
+    r = mv.check_stability(lambda u: np.ma.sqrt(0.5 - u[:, :1]), mv.Interval(-1, 1),
+                           sample_dim=1, max_examples=20)
+    assert not r.passed and "masked" in r.details["problem"]
+    r = mv.check_stability(lambda u: u[:, :1], "interval", sample_dim=1, max_examples=20,
+                           pdf=lambda x: -np.ma.log(x[:, 0]))   # inf at 0, masked
+    assert not r.passed and "pdf returned" in r.details["problem"]
