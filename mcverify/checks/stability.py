@@ -29,6 +29,25 @@ EDGES = (0.0, 5e-324, 2.2250738585072014e-308, 1e-300, 2.0 ** -53, 2.0 ** -24, 0
          1.0 - 2.0 ** -24, 1.0 - 2.0 ** -53)
 #: float32: the values above that float32 holds (its subnormals and ends).
 EDGES32 = (0.0, 1e-45, 1.1754944e-38, 2.0 ** -24, 0.5, 1.0 - 2.0 ** -24)
+#: The most dimensions whose 3^d corners of 0, ½ and the largest float below 1 are all
+#: tried (59049 u); a path-space sampler's 30 would be 2e14, which exhausted the memory.
+MAX_CORNER_DIM = 10
+
+
+def _corners(edges, k: int):
+    """(u rows as tuples, how they were chosen): every combination of ``edges`` up to
+    d = 3, of 0, ½ and the top ones up to ``MAX_CORNER_DIM``; beyond it every coordinate
+    at one edge value, and each coordinate alone at each with the others at ½."""
+    if k <= 3:
+        return list(itertools.product(edges, repeat=k)), f"the {len(edges)}^{k} corners"
+    ends = (0.0, 0.5, edges[-1])
+    if k <= MAX_CORNER_DIM:
+        return list(itertools.product(ends, repeat=k)), f"the 3^{k} corners"
+    rows = [(e,) * k for e in edges]
+    rows += [tuple(e if j == i else 0.5 for j in range(k)) for i in range(k) for e in edges
+             if e != 0.5]
+    return rows, (f"{len(rows)} corners (each edge value on all {k} coordinates, and on "
+                  "each alone)")
 
 
 def _u_strategy(dim: int, dtype):
@@ -141,7 +160,9 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
 
     Every combination of the edge values ``EDGES`` (``EDGES32`` with ``dtype=np.float32``)
     across u's coordinates is tried (9^d: 9, 81, 729 for d = 1, 2, 3; for d > 3 the
-    corners of 0, ½ and the largest float below 1), then hypothesis searches
+    3^d corners of 0, ½ and the largest float below 1; beyond ``MAX_CORNER_DIM``, where
+    those would not fit in memory, every coordinate at one edge value, and each alone at
+    each edge value with the others at ½), then hypothesis searches
     ``max_examples`` more u in [0, 1)^d, weighted towards both ends, seeded by ``seed``
     (the same seed, the same examples). Each u must give a finite point inside
     ``domain`` (a row of NaN is a rejected draw with ``rejection=True``), a ``pdf``
@@ -183,8 +204,8 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
         return None if hit is None else hit[1]
 
     edges = EDGES32 if dtype == np.float32 else EDGES
-    corner_values = edges if k <= 3 else (0.0, 0.5, edges[-1])
-    corners = np.array(list(itertools.product(corner_values, repeat=k)), dtype=dtype)
+    rows, chosen = _corners(edges, k)
+    corners = np.array(rows, dtype=dtype)
     hit = _first_problem(corners, sample, pdf, inverse, dom, rejection)
     tried, found, what = len(corners), None, None
     if hit is not None:
@@ -214,8 +235,8 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
         u = [float(v) for v in found]
         details.update(u=u, problem=what)
         failures.append(f"u={u}: {what}")
-    messages = (f"{tried} values of u tried: the {len(corner_values)}^{k} corners of edge "
-                f"values, then a search of up to {m} (seed {seed})",)
+    messages = (f"{tried} values of u tried: {chosen} of edge values, then a search of "
+                f"up to {m} (seed {seed})",)
     return CheckResult(name=name, passed=not failures, p_value=None, statistic=None,
                        alpha=0.0, n_samples=tried, seconds=time.perf_counter() - t0,
                        details=details, messages=messages, failures=tuple(failures))

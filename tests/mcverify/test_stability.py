@@ -137,3 +137,18 @@ def test_a_ragged_or_masked_return_is_a_finding_not_a_crash():
     r = mv.check_stability(lambda u: u[:, :1], "interval", sample_dim=1, max_examples=20,
                            pdf=lambda x: -np.ma.log(x[:, 0]))   # inf at 0, masked
     assert not r.passed and "pdf returned" in r.details["problem"]
+
+
+def test_a_path_space_sampler_of_many_dimensions_is_checked_in_bounded_memory():
+    """3^d corners were built for every d until 6 December: sample_dim=30 (a path-space
+    sampler) asked for 2e14 rows and ran out of memory. Above MAX_CORNER_DIM each edge
+    value goes on every coordinate and on each alone; a log(u) in the 30th still fails."""
+    from mcverify.checks.stability import MAX_CORNER_DIM, _corners, EDGES
+    rows, _ = _corners(EDGES, 30)
+    assert len(rows) == 9 + 30 * 8 and MAX_CORNER_DIM < 30
+    r = mv.check_stability(lambda u: -np.log(u[:, 29:]), mv.Interval(0, 1e4), sample_dim=30,
+                           max_examples=20)
+    assert not r.passed and r.details["u"][29] == 0.0 and "not finite" in r.details["problem"]
+    ok = mv.check_stability(lambda u: -np.log1p(-u[:, 29:]), mv.Interval(0, 1e4),
+                            sample_dim=30, max_examples=20)
+    assert ok.passed and "249 corners" in ok.messages[0]
