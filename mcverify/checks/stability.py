@@ -96,8 +96,12 @@ def _call(what, fn, arg):
         a = validate.as_array(f"{what} returned {v!r:.80}", v)
     except InvalidArgument as e:
         return None, str(e)
-    if what == "sample":
-        return a, None                      # the domain's own conversion judges points
+    if what == "sample":                    # the domain's own conversion judges points,
+        if a.dtype == np.float16 or not validate.real_dtype(a.dtype):   # not these:
+            # None (object) became NaN, a rejected draw; float16 is refused everywhere
+            return None, (f"sample returned dtype {a.dtype} points, not float32 or "
+                          "float64 numbers")
+        return a, None
     try:
         return np.asarray(a, dtype=np.float64).reshape(-1), None
     except (TypeError, ValueError):

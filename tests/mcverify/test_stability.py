@@ -152,3 +152,14 @@ def test_a_path_space_sampler_of_many_dimensions_is_checked_in_bounded_memory():
     ok = mv.check_stability(lambda u: -np.log1p(-u[:, 29:]), mv.Interval(0, 1e4),
                             sample_dim=30, max_examples=20)
     assert ok.passed and "249 corners" in ok.messages[0]
+
+
+def test_points_of_none_or_float16_are_a_finding():
+    """Points of None became NaN, with rejection=True a rejected draw at every u, and
+    float16 points (refused by every other check) were judged: both passed until
+    6 December."""
+    r = mv.check_stability(lambda u: [None] * len(u), "interval", sample_dim=1,
+                           rejection=True, max_examples=20)
+    assert not r.passed and "dtype object" in r.details["problem"]
+    r = mv.check_stability(lambda u: u.astype(np.float16), "square", max_examples=20)
+    assert not r.passed and "dtype float16" in r.details["problem"]
