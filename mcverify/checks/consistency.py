@@ -82,9 +82,9 @@ def _relative(a, b, tiny):
     rounding: below the smallest normal number the relative precision shrinks, and
     two correct computations of a pdf near 1e-318 differ by 5e-6 relative), inf where
     either is not finite."""
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):     # inf - inf: NaN, the last line's inf
         r = np.abs(a - b) / np.maximum(np.abs(a), np.abs(b))
-    r = np.where((np.abs(a - b) <= tiny) & np.isfinite(a), 0.0, r)
+        r = np.where((np.abs(a - b) <= tiny) & np.isfinite(a), 0.0, r)
     return np.where(np.isfinite(a) & np.isfinite(b), r, np.inf)
 
 
@@ -230,10 +230,21 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
                 f"pdf(x)); first at u={_show(u[i])}: x={_show(x[i])}, returned "
                 f"{p[i]:.9g}, pdf(x) {q[j]:.9g}")
             details["negative_pdf"] = int(negative.size)
+        unbounded = np.flatnonzero(~(np.isfinite(p[rows]) & np.isfinite(q)))
+        if unbounded.size:          # inf on both sides was "differ", ratio nan
+            j = int(unbounded[0])
+            i = int(rows[j])
+            failures.append(
+                f"{unbounded.size} of {rows.size} draws have a pdf that is not finite "
+                f"(returned or pdf(x)); first at u={_show(u[i])}: x={_show(x[i])}, "
+                f"returned {p[i]:.9g}, pdf(x) {q[j]:.9g}")
+            details["nonfinite_pdf"] = int(unbounded.size)
         rel = _relative(p[rows], q, tiny)
         statistic = float(np.max(rel))
         details["max_pdf_rel_error"] = statistic
-        _report(rel, tol, rows, u, x, "pdf", "returned pdfs differ from pdf(x)",
+        rel_finite = rel.copy()
+        rel_finite[unbounded] = 0.0         # reported above, not as a difference
+        _report(rel_finite, tol, rows, u, x, "pdf", "returned pdfs differ from pdf(x)",
                 p[rows][:, None], q[:, None], failures, details)
         if value is not None:
             with np.errstate(all="ignore"):
