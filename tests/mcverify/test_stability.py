@@ -163,3 +163,20 @@ def test_points_of_none_or_float16_are_a_finding():
     assert not r.passed and "dtype object" in r.details["problem"]
     r = mv.check_stability(lambda u: u.astype(np.float16), "square", max_examples=20)
     assert not r.passed and "dtype float16" in r.details["problem"]
+
+
+def test_a_sampler_that_is_not_a_function_of_u_fails_with_its_first_finding():
+    """A sampler that fails at random, not at a u (one drawing its own random numbers),
+    escaped as hypothesis's FlakyFailure, or failed with the problem None, until
+    6 December."""
+    for seed in range(3):
+        rng = np.random.default_rng(5)
+
+        def flaky(u):
+            x = u[:, :1].copy()
+            if len(u) == 1 and rng.random() < 0.05:
+                x[:] = np.nan
+            return x
+        r = mv.check_stability(flaky, "interval", sample_dim=1, max_examples=500, seed=seed)
+        assert not r.passed and r.details["problem"].startswith("point [nan] is not finite")
+        assert "not a function of u" in r.details["problem"]
