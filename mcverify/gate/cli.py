@@ -1085,6 +1085,12 @@ def _validate_common(args) -> None:
         from . import reference
 
         reference.set_reference_root(args.refs)
+    elif hasattr(args, "refs") and os.environ.get("MCVERIFY_REFS"):
+        # checked as --refs is: a misspelt $MCVERIFY_REFS left every scene name unknown,
+        # "no such file ... (known: none)", without naming the variable
+        from . import reference
+
+        reference.set_reference_root(os.environ["MCVERIFY_REFS"], "$MCVERIFY_REFS")
 
 
 def _thread_limit() -> None:

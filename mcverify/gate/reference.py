@@ -75,14 +75,16 @@ REFERENCE_ROOT = _reference_root()
 BUNDLED_ROOT = _bundled_root()
 
 
-def set_reference_root(path: str) -> str:
+def set_reference_root(path: str, option: str = "--refs") -> str:
     """Make scene names resolve in ``path`` (``--refs DIR``): a folder of
     ``NAME/scene.xml`` (+ ``NAME/ref/``). Also exported as ``$MCVERIFY_REFS``, so worker
-    processes started from here resolve names the same way."""
+    processes started from here resolve names the same way. ``option`` names where
+    ``path`` came from in the error (``--refs`` or ``$MCVERIFY_REFS``)."""
     global REFERENCE_ROOT
     if not os.path.isdir(path):
         what = "does not exist" if not os.path.exists(path) else "is not a directory"
-        raise InvalidArgument(f"--refs {path}: {what} (a folder of NAME/scene.xml)")
+        sep = "=" if option.startswith("$") else " "
+        raise InvalidArgument(f"{option}{sep}{path}: {what} (a folder of NAME/scene.xml)")
     REFERENCE_ROOT = os.path.abspath(path)
     os.environ["MCVERIFY_REFS"] = REFERENCE_ROOT
     return REFERENCE_ROOT

@@ -446,3 +446,20 @@ def test_reference_build_cli_refuses_more_spp_than_mitsuba_takes(scene_copy):
     assert r.returncode == 2 and "--spp 4294967296: at most 4294967295" in r.stderr, r.stderr
     assert "Mitsuba cannot render" not in r.stderr
     assert not os.path.exists(scene_copy / "ref")
+
+
+def test_a_missing_mcverify_refs_is_named(tmp_path):
+    """``$MCVERIFY_REFS`` is checked as ``--refs`` is: a folder that does not exist (a
+    misspelt path in CI) exits 2 naming the variable; until 6 December every scene name
+    was "no such file ... (known: none)", the variable named nowhere."""
+    env = dict(os.environ, MCVERIFY_REFS=str(tmp_path / "nowhere"))
+    env["PYTHONPATH"] = os.path.dirname(os.path.dirname(os.path.dirname(
+        os.path.abspath(__file__))))
+    r = subprocess.run(CMD + ["plan", "cornell-box"], capture_output=True, text=True,
+                       timeout=120, cwd=tmp_path, env=env)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "$MCVERIFY_REFS=" in r.stderr and "does not exist" in r.stderr
+    # --refs wins over the variable, as the README says
+    r = subprocess.run(CMD + ["plan", "cornell-box", "--refs", SCENES], capture_output=True,
+                       text=True, timeout=120, cwd=tmp_path, env=env)
+    assert r.returncode == 0, r.stderr
