@@ -324,6 +324,8 @@ def _cmd_check(args) -> int:
         # that does not resolve, and its import roots were not passed on
         planned, skipped, _ = _plan(args.scene, args.suite, checks)
         selected = suites.select(planned, args.k)
+        if any(c.name == planned[-1].name for c in selected):
+            _precheck_render(args.scene)
         if planned and not selected:      # -k left nothing: no gate may pass on no check
             raise InvalidArgument(f"-k {args.k!r}: matches none of the {len(planned)} "
                                   f"checks the scene needs; `mcverify plan {args.scene}` "
@@ -460,11 +462,21 @@ def _plan(scene, suite, checks=None):
         raise InvalidArgument(str(e)) from None
 
 
+def _precheck_render(scene) -> None:
+    """The plan's render check (its last) has Mitsuba render the scene: one Mitsuba
+    refuses (no <integrator>, which our tracer defaults to path) was planned, every other
+    check ran, and its render check then failed, exit 1."""
+    from .reference import precheck_scene
+
+    precheck_scene(scene)
+
+
 def _cmd_plan(args) -> int:
     if (args.scene is None) == (args.scene_option is None):
         raise InvalidArgument("plan: name one scene, as SCENE.xml or --scene SCENE.xml")
     args.scene = _scene_file(args.scene if args.scene is not None else args.scene_option)
     checks, skipped, features = _plan(args.scene, args.suite)
+    _precheck_render(args.scene)
     print(f"scene {args.scene} uses: {', '.join(sorted(features))}")
     print(f"checks ({len(checks)}):")
     for c in checks:
@@ -845,6 +857,7 @@ def _cmd_render_check(args) -> int:
         load_scene(scene_path, params=params)
     except SceneError as e:
         raise InvalidArgument(str(e)) from None
+    reference.precheck_scene(scene_path)      # and Mitsuba's needs, before the notice
     tty = sys.stderr.isatty() and not args.quiet
 
     def show(done, total):

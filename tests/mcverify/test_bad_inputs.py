@@ -593,6 +593,16 @@ CLI = [
     # references and render checks: refused before Mitsuba or our kernel run
     ("reference-no-integrator", ["reference", "build", "{d}/scenes/no-integrator.xml"],
      "no-integrator.xml: no <integrator>"),
+    # Mitsuba cannot render it (our tracer defaults to path): plan listed it, check --scene
+    # ran every other check and failed its render check (exit 1), and render-check
+    # printed "building it with Mitsuba" first, until 6 December
+    ("plan-no-integrator", ["plan", "{d}/scenes/no-integrator.xml"],
+     "no-integrator.xml: no <integrator>"),
+    ("check-scene-no-integrator", ["check", "-q", "--scene", "{d}/scenes/no-integrator.xml"],
+     "no-integrator.xml: no <integrator>"),
+    ("render-check-no-integrator", ["render-check", "{d}/scenes/no-integrator.xml", "--spp",
+                                    "64", "--passes", "2"],
+     "no-integrator.xml: no <integrator>"),
     ("reference-passes-1", ["reference", "build", "{d}/ref-ok", "--passes", "1"],
      "--passes 1"),
     ("reference-unknown", ["reference", "build", "nosuch-scene"], "scene 'nosuch-scene'"),
