@@ -771,7 +771,13 @@ def _cmd_compare(args) -> int:
         r = reference.load_reference(ref_image)
         ref_mean, ref_var, ref_n, ref_passes = r.mean, r.var, r.n, r.passes
         correlated |= r.pixels_correlated
-        if ref_spp is None and r.manifest.get("spp"):
+        if r.manifest.get("spp"):
+            if ref_spp is not None and ref_spp != int(r.manifest["spp"]):
+                # it replaced what the manifest records, and the floor scaled the
+                # reference's variance by the wrong ratio without a word
+                raise InvalidArgument(f"--ref-spp {ref_spp}: the reference {ref_image} "
+                                      f"records {int(r.manifest['spp'])} samples per pass "
+                                      "(its manifest's spp); drop --ref-spp")
             ref_spp = int(r.manifest["spp"])
         if correlated and ref_passes is None:
             raise EnvironmentProblem(f"{ref_image}: the reference has no pass images (built "

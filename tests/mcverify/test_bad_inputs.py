@@ -572,6 +572,11 @@ CLI = [
     ("compare-ref-n-with-reference", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
                                       "{d}/var.exr", "--test-n", "4", "--ref-n", "4"],
      "--ref-n: not with a reference"),
+    # a committed reference knows its spp: another --ref-spp replaced it without a word,
+    # and the variance floor scaled by the wrong ratio, until 6 December
+    ("compare-ref-spp-with-reference", ["compare", "--test-passes", "{d}/good*.exr",
+                                        "{d}/ref-ok", "--test-spp", "64", "--ref-spp", "3"],
+     "--ref-spp 3: the reference"),
     ("compare-no-ref-var", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
                             "{d}/var.exr", "--test-n", "4"], "needs --ref-var and --ref-n"),
     ("compare-test-n-1", ["compare", "{d}/good.exr", "{d}/ref-ok", "--test-var",
