@@ -487,10 +487,15 @@ def _load(plugin, what: str, classes: tuple):
     if not isinstance(plugin, tuple(getattr(m, c) for c in classes)):
         if type(plugin).__module__ == "mitsuba" and any(
                 t.__name__ in classes for t in type(plugin).__mro__):
-            # a plugin loaded under another variant: "got BSDF, expected a mitsuba.BSDF"
+            # a plugin loaded under another variant: "got BSDF, expected a mitsuba.BSDF";
+            # its variant is the loaded variant module whose class it is an instance of
+            theirs = [v for v in m.variants()
+                      if (mod := sys.modules.get("mitsuba." + v)) is not None
+                      and isinstance(plugin, getattr(mod, type(plugin).__name__, ()))]
             raise InvalidArgument(
-                f"{what}: a mitsuba.{type(plugin).__name__} of another variant than the "
-                f"adapters' {m.variant()} (loaded before mvm.mi() set it, or under "
+                f"{what}: a mitsuba.{type(plugin).__name__} of another variant"
+                f"{' (' + theirs[0] + ')' if theirs else ''} than the adapters' "
+                f"{m.variant()} (loaded before mvm.mi() set it, or under "
                 "mi.set_variant); load it after mvm.mi(), or pass a dict or XML string")
         raise InvalidArgument(f"{what}: got {type(plugin).__name__}, expected a "
                               f"{' or '.join('mitsuba.' + c for c in classes)} (a dict, an "
