@@ -677,7 +677,7 @@ def bsdf(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None) -> Subject:
 
     return Subject(sample, pdf, "sphere",
                    {"sample_dim": 3, "name": f"mitsuba.bsdf:{_label(plugin, obj)}"
-                                             f"@wi={_fmt(w)}"})
+                                             f"{_at(w, uv, component)}"})
 
 
 class WeightedSubject(NamedTuple):
@@ -723,11 +723,20 @@ def bsdf_weighted(plugin, wi, *, uv=(0.5, 0.5), component: int | None = None
 
     return WeightedSubject(sample, pdf, f, {
         "sample_dim": 3, "rejection": True, "rtol": 1e-3,
-        "name": f"mitsuba.bsdf_weighted:{_label(plugin, obj)}@wi={_fmt(w)}"})
+        "name": f"mitsuba.bsdf_weighted:{_label(plugin, obj)}{_at(w, uv, component)}"})
 
 
 def _fmt(v) -> str:
     return "(" + ",".join(f"{c:.3g}" for c in v) + ")"
+
+
+def _at(w, uv, component) -> str:
+    """Where a BSDF adapter samples, for its check's name: ``@wi=(…)``, and the uv and
+    component where not the defaults (two components of one plastic, or two texels of
+    one textured BSDF, were checks of one name; an outside review)."""
+    return (f"@wi={_fmt(w)}"
+            + (f",uv={_fmt(uv)}" if tuple(float(c) for c in uv) != (0.5, 0.5) else "")
+            + (f",component={component}" if component is not None else ""))
 
 
 def emitter(plugin, ref=(0.0, 0.0, 0.0)) -> Subject:

@@ -457,3 +457,17 @@ def test_the_adapters_keep_their_variant_when_user_code_sets_another():
         assert mvm.mi().variant() == ours
     finally:
         mitsuba.set_variant(ours)
+
+
+def test_the_names_of_bsdf_checks_tell_components_and_texels_apart():
+    """``component`` and a non-default ``uv`` were left out of the name: two components of
+    one plastic were two checks of one name in a report (an outside review)."""
+    plastic = {"type": "plastic"}
+    names = [mvm.bsdf(plastic, wi=(0, 0, 1), component=c)[3]["name"] for c in (None, 0, 1)]
+    names += [mvm.bsdf_weighted(plastic, wi=(0, 0, 1), component=c).kwargs["name"]
+              for c in (None, 0, 1)]
+    names.append(mvm.bsdf(plastic, wi=(0, 0, 1), uv=(0.25, 0.5))[3]["name"])
+    assert len(set(names)) == len(names), names
+    assert names[0] == "mitsuba.bsdf:plastic@wi=(0,0,1)"     # the defaults' name as before
+    assert names[2].endswith("@wi=(0,0,1),component=1")
+    assert names[-1].endswith("@wi=(0,0,1),uv=(0.25,0.5)")
