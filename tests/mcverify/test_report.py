@@ -172,6 +172,31 @@ def test_a_message_with_a_lone_surrogate_is_written_into_the_page(tmp_path):
         "failures"] == ["raised OSError: cannot open scene_\udcff.xml"]
 
 
+def test_a_page_that_cannot_be_rendered_leaves_the_old_report_whole(tmp_path, monkeypatch):
+    """The page was rendered after the new report.json had replaced the old one: a
+    result it could not show (a user's check returning seconds=None, "unexpected
+    TypeError") left the new report.json beside the old report.html, or beside none.
+    Both documents are now made before any file is written."""
+    from mcverify.gate import report as report_mod
+    from mcverify.result import CheckResult, SuiteResult
+
+    def suite(name):
+        r = CheckResult(name, True, 0.5, None, 0.01, 1, 0.0)
+        return SuiteResult.judge("mine:suite", [r], alpha=0.01, seconds=0.0)
+
+    build_report(str(tmp_path), suite=suite("old"), study=None)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+
+    def broken(doc, images):
+        raise RuntimeError("page")
+
+    monkeypatch.setattr(report_mod, "render_html", broken)
+    study = run_study(ns=(64, 128, 256), n_seeds=4)
+    with pytest.raises(RuntimeError, match="page"):
+        build_report(str(tmp_path), suite=suite("new"), study=study)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
 def test_failed_checks_come_first(report):
     out, _ = report
     page = (out / "report.html").read_text()

@@ -51,13 +51,18 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
                     images[_unique("failed", r.name, images)] = png
     for name in (*images, "report.json", "report.html"):   # all or nothing: a folder
         output_target(os.path.join(out_dir, name))       # in the way is refused first
+    doc["images"] = {name: name for name in images}
+    # Both documents are made before any file is written: the page was rendered after
+    # report.json had replaced the old one, so a result the page could not show (a
+    # user's check with seconds=None) left a new report.json beside the old page, or none.
+    text = json.dumps(doc, indent=2) + "\n"
+    page = render_html(doc, images)
     os.makedirs(out_dir, exist_ok=True)
     stale = set(_previous_images(out_dir)) - set(images)
     for name, data in images.items():
         atomic_write(os.path.join(out_dir, name), data)
-    doc["images"] = {name: name for name in images}
-    atomic_write(os.path.join(out_dir, "report.json"), json.dumps(doc, indent=2) + "\n")
-    atomic_write(os.path.join(out_dir, "report.html"), render_html(doc, images))
+    atomic_write(os.path.join(out_dir, "report.json"), text)
+    atomic_write(os.path.join(out_dir, "report.html"), page)
     for name in stale:      # the last report's images this one does not have
         try:
             os.remove(os.path.join(out_dir, name))
