@@ -484,6 +484,7 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
         return failed(f"raised {type(e).__name__}: {e}", type(e).__name__)
     if not isinstance(r, CheckResult):
         return failed(f"returned {type(r).__name__}, not a CheckResult")
+    r = _plain_fields(r, time.perf_counter() - t0)
     p = r.p_value       # Holm counts every p-value: p = 7 raised the others' adjusted p
     if p is not None and (isinstance(p, (bool, np.bool_)) or not isinstance(
             p, (int, float, np.integer, np.floating)) or not 0.0 <= p <= 1.0):
@@ -498,6 +499,40 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
         r = dataclasses.replace(r, name=check.name,
                                 details=dict(r.details, result_name=r.name))
     return r
+
+
+def _plain_fields(r: CheckResult, seconds: float) -> CheckResult:
+    """A user's result with the field types the gate prints and writes: ``seconds``
+    and ``n_samples`` that are no numbers (None) become the call's measured time and
+    None; ``messages``/``failures`` given as a list or one string become tuples of
+    strings; ``details`` that is no dict fails the check, saying so. They ended the run
+    with "unexpected TypeError" (in the progress line, the JUnit file or the page of
+    ``check --report``, after its report.json was written), naming no check."""
+    def real(v):
+        return (not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer,
+                                                                     np.floating))
+                and bool(np.isfinite(v)) and v >= 0)
+
+    def texts(v):
+        v = (v,) if isinstance(v, str) else tuple(v or ())
+        return tuple(str(x) for x in v)
+
+    fix = {}
+    if not real(r.seconds):
+        fix["seconds"] = seconds
+    if r.n_samples is not None and not real(r.n_samples):
+        fix["n_samples"] = None
+    try:
+        fix["messages"], failures = texts(r.messages), texts(r.failures)
+    except TypeError:
+        fix["messages"], failures = (), (f"returned messages={r.messages!r:.60} or "
+                                         f"failures={r.failures!r:.60}, not strings",)
+    if not isinstance(r.details, dict):
+        failures += (f"returned details={r.details!r:.60}, not a dict",)
+        fix["details"] = {}
+    if failures != r.failures:
+        fix["failures"], fix["passed"] = failures, bool(r.passed) and not failures
+    return dataclasses.replace(r, **fix) if fix else r
 
 
 @lru_cache(maxsize=16)

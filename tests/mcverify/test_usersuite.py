@@ -400,6 +400,48 @@ def test_a_p_value_that_is_no_probability_fails_its_check_and_stays_out_of_holm(
     assert got["mid"].passed
 
 
+def test_a_result_with_fields_of_the_wrong_type_is_reported_not_a_crash(tmp_path, capsys):
+    """A user check's CheckResult with seconds=None, details=None or its messages and
+    failures as a list or one string ended `mcverify check` with "unexpected TypeError"
+    (exit 2, no check named) in its progress line, JUnit file or report page, the last
+    after report.json was written. Now seconds that is no number is the call's measured
+    time, messages and failures become tuples of strings, and details that is no dict
+    fails its check, saying so."""
+    from mcverify.gate import cli
+    from mcverify.gate.suites import run_suite
+
+    def check(name, **kw):
+        fields = dict(dict(name=name, passed=True, p_value=0.5, statistic=1.0, alpha=0.01,
+                           n_samples=10, seconds=0.0), **kw)
+        return Check(name, lambda seed: mv.CheckResult(**fields))
+
+    checks = [check("no-seconds", seconds=None), check("nan-seconds", seconds=float("nan")),
+              check("no-details", details=None),
+              check("listed", messages=["m"], failures=["bad"], passed=False, p_value=None),
+              check("one-string", failures="bad", passed=False, p_value=0.5)]
+    got = {r.name: r for r in run_suite(checks, canary=False).results}
+    for name in ("no-seconds", "nan-seconds"):
+        assert got[name].passed and got[name].seconds >= 0.0
+    assert not got["no-details"].passed and got["no-details"].details.get("p_adjusted") == 1.0
+    assert got["no-details"].failures == ("returned details=None, not a dict",)
+    assert got["listed"].failures == ("bad",) and got["listed"].messages == ("m",)
+    assert got["one-string"].failures == ("bad",) and not got["one-string"].passed
+
+    import types
+    mod = types.ModuleType("odd_results_suite")
+    mod.suite = checks
+    sys.modules[mod.__name__] = mod
+    try:
+        rc = cli.main(["check", "-q", "--suite", "odd_results_suite:suite", "--junit",
+                       str(tmp_path / "j.xml"), "--report", str(tmp_path / "rep")])
+    finally:
+        del sys.modules[mod.__name__]
+    out, err = capsys.readouterr()
+    assert rc == 1, out + err
+    assert "FAIL no-details" in out and "unexpected" not in err, out + err
+    assert (tmp_path / "rep" / "report.html").is_file() and (tmp_path / "j.xml").is_file()
+
+
 def test_check_scene_plans_from_the_tables_list_of_suites(project):
     """With a [tool.mcverify] list of suites, `check --scene` planned from the joined name
     'mine.checks:good+default' and exited 2 ("has no attribute 'good+default'")."""
