@@ -197,6 +197,28 @@ def test_a_page_that_cannot_be_rendered_leaves_the_old_report_whole(tmp_path, mo
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
+def test_every_study_estimator_evaluates_f_n_times_at_n():
+    """The convergence study plots RMSE against N; its RQMC estimate at N was two
+    replicates of N Sobol points each, 2N evaluations of f, plotted beside estimators
+    that make N (a sqrt(2) head start in the RMSE panel and in the table's N)."""
+    from mcverify.gate.report import study as study_mod
+
+    calls = {}
+
+    def counted(name):
+        def f(x):
+            calls[name] = calls.get(name, 0) + len(x)
+            return np.sin(x)
+        return f
+
+    for name, (est, _, _) in study_mod._estimators().items():
+        g = study_mod.Integrand("sin", counted(name), 0.0, np.pi, 2.0, "",
+                                study_mod._proposals()["sin"])
+        calls[name] = 0
+        est(g, 256, 0)
+    assert calls == {name: 256 for name in calls}, calls
+
+
 def test_failed_checks_come_first(report):
     out, _ = report
     page = (out / "report.html").read_text()
