@@ -513,10 +513,15 @@ def _cmd_report(args) -> int:
     _report_files("--out", out)     # before the suite's minutes of work
     scenes = []
     if args.renders != "none":
+        from . import reference
         from .reference import list_scenes, load_reference, resolve_scene
 
         scenes = list_scenes() if args.renders == "all" else \
             list(dict.fromkeys(args.renders.split(",")))        # each scene once
+        if not scenes:      # was a report without renders, exit 0 (a --refs one level off)
+            raise InvalidArgument(f"--renders all (the default): no reference scenes "
+                                  f"(NAME/scene.xml) under {reference.REFERENCE_ROOT}; "
+                                  "give --refs DIR, or --renders none")
         if "" in [s.strip() for s in scenes]:   # was refused as "scene ''", not naming it
             raise InvalidArgument(f"--renders {args.renders!r}: an empty scene name; give "
                                   "comma-separated reference scenes, 'all' or 'none'")

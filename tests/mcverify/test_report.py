@@ -154,6 +154,27 @@ def test_cli_report_refuses_a_stale_reference_before_any_work(tmp_path, capsys,
     assert not (tmp_path / "out").exists()
 
 
+def test_cli_report_refuses_renders_all_of_a_folder_without_scenes(tmp_path, capsys,
+                                                                    monkeypatch):
+    """`--renders all` (the default) with --refs naming a folder that holds no
+    NAME/scene.xml (one level off: the checkout's reference/ instead of
+    reference/scenes) wrote a report without a render and exited 0. It is refused,
+    naming the folder, before any work, as `reference build` refuses it."""
+    from mcverify.gate import cli, reference
+    from mcverify.gate.report import study
+
+    monkeypatch.setattr(reference, "REFERENCE_ROOT", reference.REFERENCE_ROOT)
+    monkeypatch.setenv("MCVERIFY_REFS", reference.REFERENCE_ROOT)
+    monkeypatch.setattr(study, "run_study", lambda **k: pytest.fail("the study ran"))
+    (tmp_path / "refs").mkdir()
+    rc = cli.main(["report", "--no-suite", "--refs", str(tmp_path / "refs"), "-q",
+                   "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--renders all (the default): no reference scenes" in err, err
+    assert str(tmp_path / "refs") in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_message_with_a_lone_surrogate_is_written_into_the_page(tmp_path):
     """A user check that raised on a non-UTF-8 file name ('scene_\\udcff.xml', as
     surrogateescape decodes it) failed `check --report`: report.json was written, then
