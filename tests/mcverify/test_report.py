@@ -331,3 +331,26 @@ def test_cli_report_exits_1_when_a_check_in_it_failed(tmp_path, capsys, monkeypa
     assert f"FAIL {planted[0].name}" in out
     doc = json.loads((tmp_path / "report.json").read_text())
     assert doc["verification"]["n_failed"] == 1 and (tmp_path / "report.html").is_file()
+
+
+@pytest.mark.parametrize("panel", ["convergence", "efficiency"])
+def test_an_estimator_has_one_colour_in_every_panel(monkeypatch, panel):
+    """Each panel coloured its own rows in turn: where an integrand lacked an estimator,
+    one colour meant different estimators in different panels (an outside review)."""
+    from mcverify.gate.report import plots
+
+    figs = []
+    monkeypatch.setattr(plots, "_png", lambda fig: figs.append(fig) or b"")
+    row = dict(ns=[64, 256], rmse=[0.1, 0.05], slope=-0.5, ci=[-0.6, -0.4],
+               seconds=[1e-3, 4e-3], efficiency=[1.0, 1.0])
+    rows = [dict(row, integrand=g, estimator=e) for g, es in
+            (("smooth", ("uniform", "rqmc", "stratified")), ("step", ("rqmc", "stratified")))
+            for e in es]
+    getattr(plots, panel)(rows)
+    colour = {}
+    for ax in figs[0].axes:
+        for line in ax.get_lines():
+            name = line.get_label().split(":")[0]
+            if name in ("uniform", "rqmc", "stratified"):
+                assert colour.setdefault(name, line.get_color()) == line.get_color(), name
+    assert len(colour) == 3 and len(set(colour.values())) == 3

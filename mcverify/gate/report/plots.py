@@ -24,14 +24,18 @@ def _png(fig) -> bytes:
 
 
 def _per_integrand(rows: list[dict], draw, xlabel: str) -> bytes:
-    """One log-log panel per integrand; ``draw(ax, row)`` plots one estimator's row."""
+    """One log-log panel per integrand; ``draw(ax, row, colour)`` plots one estimator's
+    row, in the colour of that estimator in every panel (each panel coloured its own
+    rows in turn, so one colour meant other estimators in other panels)."""
     plt = _plt()
     names = list(dict.fromkeys(r["integrand"] for r in rows))
+    colours = {e: f"C{i % 10}" for i, e in
+               enumerate(dict.fromkeys(r["estimator"] for r in rows))}
     fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False)
     for ax, name in zip(axes[0], names):
         mine = [r for r in rows if r["integrand"] == name]
         for r in mine:
-            draw(ax, r)
+            draw(ax, r, colours[r["estimator"]])
         if mine and "uniform" in {r["estimator"] for r in mine} and xlabel == "N":
             first = next(r for r in mine if r["estimator"] == "uniform")
             ns = np.asarray(first["ns"], dtype=float)
@@ -46,15 +50,15 @@ def _per_integrand(rows: list[dict], draw, xlabel: str) -> bytes:
 
 def convergence(rows: list[dict]) -> bytes:
     """RMSE against N, log-log, one panel per integrand, fitted slope in the legend."""
-    return _per_integrand(rows, lambda ax, r: ax.loglog(
-        r["ns"], r["rmse"], "o-", ms=3,
+    return _per_integrand(rows, lambda ax, r, c: ax.loglog(
+        r["ns"], r["rmse"], "o-", ms=3, color=c,
         label=f"{r['estimator']}: {r['slope']:.2f} [{r['ci'][0]:.2f}, {r['ci'][1]:.2f}]"), "N")
 
 
 def efficiency(rows: list[dict]) -> bytes:
     """RMSE against wall time per estimate (median), log-log, one panel per integrand."""
-    return _per_integrand(rows, lambda ax, r: ax.loglog(
-        r["seconds"], r["rmse"], "o-", ms=3,
+    return _per_integrand(rows, lambda ax, r, c: ax.loglog(
+        r["seconds"], r["rmse"], "o-", ms=3, color=c,
         label=f"{r['estimator']}: 1/(MSE·t) = {r['efficiency'][-1]:.2g}"),
         "seconds per estimate (median)")
 
