@@ -886,12 +886,13 @@ def splat_tiles(sc, cam, tiles, reach, width, height, spp, seed, stratified, pdf
 
 
 @fused()
-def add_splats(tiles, reach, buf, acc):
-    """Add the tile buffers of ``splat_tiles`` into ``acc`` (H, W, channels) in tile
-    order, so that the image is the same whatever the number of threads."""
+def add_splats(tiles, order, reach, buf, acc):
+    """Add the tile buffers of ``splat_tiles`` into ``acc`` (H, W, channels) in
+    ``order`` (row-major tiles, not the order they were dealt to the threads in), so
+    that the image is the same whatever the number of threads."""
     height, width, channels = acc.shape
     side = buf.shape[1]
-    for ti in range(tiles.shape[0]):
+    for ti in order:
         bx, by = tiles[ti, 0] - reach, tiles[ti, 1] - reach
         for j in range(max(0, -by), min(side, height - by)):
             for i in range(max(0, -bx), min(side, width - bx)):

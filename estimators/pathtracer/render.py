@@ -337,14 +337,17 @@ class _SplatFilm:
 
     def render(self, arrays, cam, tiles, spp, seed, stratified, pdf_scale, bad, threads):
         """Render ``tiles``, dealt to ``threads`` by ``_tiles``, on that many threads: each
-        tile into a buffer of its own, added up in tile order after."""
+        tile into a buffer of its own, added up in row-major tile order after."""
         r = self.reach
         extent = np.maximum(tiles[:, 2] - tiles[:, 0], tiles[:, 3] - tiles[:, 1])
         side = int(extent.max(initial=0)) + 2 * r
         buf = np.zeros((len(tiles), side, side, self.channels))
         run_split(self.module.splat_tiles, _dealt(len(tiles), threads), arrays, cam, tiles,
                   r, self.width, self.height, spp, seed, stratified, pdf_scale, buf, bad)
-        self.module.add_splats(tiles, r, buf, self.acc)
+        # added row by row (``tiles`` is dealt to the threads: its order depends on how
+        # many; until 6 December the sums, and so the variance, did too)
+        order = np.lexsort((tiles[:, 0], tiles[:, 1]))
+        self.module.add_splats(tiles, order, r, buf, self.acc)
 
     def develop(self, spp):
         a = self.acc

@@ -172,6 +172,26 @@ def test_same_seed_same_splatted_image_whatever_the_thread_count_and_banding(mon
     assert not np.array_equal(a.mean, render(scene, spp=2, seed=8).mean)
 
 
+@pytest.mark.parametrize("name", ["filters", "filters-tent"])
+def test_splatted_variance_is_the_same_whatever_the_number_of_threads_dealt(monkeypatch,
+                                                                           name):
+    """The tiles dealt to 2 or 3 threads (``_tiles`` orders them by thread) are added in
+    row-major order, as one thread's are: until 6 December they were added in the dealt
+    order, and the variance (which cancels Σw²L² against Σw²·value²) differed in its last
+    bits between NUMBA_NUM_THREADS=1 and 2. The thread count is patched, so the test
+    deals to several threads on any machine."""
+    from estimators.pathtracer import prepare_scene, render
+
+    render_module = importlib.import_module("estimators.pathtracer.render")
+    scene = prepare_scene(f"reference/scenes/{name}/scene.xml", params={"res": 24})
+    a = render(scene, spp=4, seed=3)
+    for threads in (2, 3):
+        monkeypatch.setattr(render_module, "get_num_threads", lambda t=threads: t)
+        b = render(scene, spp=4, seed=3)
+        assert np.array_equal(a.mean, b.mean)
+        assert np.array_equal(a.variance, b.variance), threads
+
+
 def test_a_reference_made_by_the_gate_for_a_splatting_scene_has_the_gates_spp_per_pass():
     """Splatting filters compare only at equal samples per pass; a reference the gate
     renders itself (here on the fly, for a parameter override) takes ours, so the gate
