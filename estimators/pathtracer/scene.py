@@ -257,6 +257,15 @@ _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "
 class _Loader:
     def __init__(self, path: str, params: dict):
         self.path = path
+        if not isinstance(params, dict):
+            raise SceneError(f"{path}: params={params!r}: must be a dict of scene "
+                             "parameters, {name: value}")
+        for k in params:
+            if not isinstance(k, str):
+                # a non-string name reached the sorting of unknown names as a TypeError
+                raise SceneError(f"{path}: params: the name {k!r} is not a string "
+                                 f"({type(k).__name__}); a scene parameter is named as its "
+                                 "<default name=...> is")
         self.params = {k: str(v) for k, v in params.items()}
         self.given = set(self.params)
         self.declared: set[str] = set()

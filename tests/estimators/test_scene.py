@@ -81,6 +81,20 @@ def test_cornell_box_parses_with_defaults_refs_and_features():
     assert parse_scene(CORNELL, params={"spp": "4"}).sampler.props["sample_count"] == 4
 
 
+def test_params_that_are_not_a_dict_of_named_values_are_refused_naming_the_file():
+    """A parameter named by a non-string (among string names) raised
+    "'<' not supported between instances of 'str' and 'int'" while the unknown
+    names were sorted, and a list of pairs "'list' object has no attribute 'items'",
+    neither naming the scene nor what was wrong (until 6 December)."""
+    with pytest.raises(SceneError, match=r"<string>: params: the name 1 is not a string"):
+        parse_scene(CORNELL, params={1: 2, "foo": 3})
+    with pytest.raises(SceneError, match=r"<string>: params=\[\('spp', 4\)\]: must be a "
+                                         "dict"):
+        parse_scene(CORNELL, params=[("spp", 4)])
+    with pytest.raises(SceneError, match=r"params \['foo'\]: the scene has no such"):
+        parse_scene(CORNELL, params={"foo": 3})
+
+
 def test_mitsuba_loads_the_same_text(mi):
     scene = mi.load_string(CORNELL)
     assert len(scene.shapes()) == 5 and len(scene.emitters()) == 1
