@@ -865,12 +865,17 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                     integrated[1:] = [cdf]
             sub["ks"] = stats.ks_binned(fine, cdf)
         p_value = stats.bonferroni_min([r.p_value for r in sub.values()]) if n_valid else 1.0
-        if n_valid == 0 and rejection and n_rejected == n and total <= slack:
-            # a sampler that rejects every draw where its pdf has no mass (an area
-            # light seen from behind): consistent, but nothing else is tested
+        if n_valid == 0 and rejection and n_rejected == n:
+            # every draw rejected: the acceptance test is the only one left. Where the pdf
+            # has no mass (an area light seen from behind), or so little that no draw was
+            # expected (a plastic's diffuse part at grazing incidence, 1e-16; until 6
+            # December "no valid samples to test"), consistent, but nothing else is tested
+            p_value = sub["acceptance"].p_value
             messages.append(f"every one of the {n} draws was rejected, and the pdf "
                             f"integrates to {total:.3g} (quadrature error bound "
-                            f"{err_bound:.2g}): consistent, nothing else to test")
+                            f"{err_bound:.2g}; binomial p = {p_value:.3g})"
+                            + (": consistent, nothing else to test" if p_value > alpha
+                               else ""))
         elif n_valid == 0:
             failures.append("no valid samples to test")
         if rejection and sub["acceptance"].p_value <= alpha / len(sub):

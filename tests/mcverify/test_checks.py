@@ -396,6 +396,29 @@ def test_a_low_acceptance_costs_the_cubature_no_more_than_none(t):
     assert runs[t].details["pdf_evaluations"] <= 1.5 * runs[1.0].details["pdf_evaluations"]
 
 
+@pytest.mark.parametrize("t", [0.0, 1e-16])
+def test_a_sampler_rejecting_every_draw_where_none_was_expected_passes(t):
+    """Every draw rejected where the pdf integrates to 0 or to so little that none of n
+    draws was expected (the tracer's plastic at θ_i = 90°: its diffuse lobe keeps 1e-16
+    of the mass, the rest a delta lobe's NaN rows). At 1e-16 the check failed with "no
+    valid samples to test" until 6 December, though the binomial test had p = 1."""
+    r = mv.check_sampler(*_accepting(t), "hemisphere", sample_dim=3, rejection=True,
+                         seed=5, n_samples=100_000)
+    assert r.passed, (r.summary(), r.failures, r.messages)
+    assert r.details["rejection"]["accepted"] == 0
+    assert any("nothing else to test" in m for m in r.messages), r.messages
+
+
+def test_a_sampler_rejecting_every_draw_where_some_were_expected_fails():
+    """A sampler rejecting every draw where its pdf says 1 draw in 1000 is accepted (100
+    expected of 1e5): the acceptance test fails it."""
+    r = mv.check_sampler(lambda u: np.full((len(u), 3), np.nan), _accepting(1e-3)[1],
+                         "hemisphere", sample_dim=3, rejection=True, seed=5,
+                         n_samples=100_000)
+    assert not r.passed and r.p_value < 1e-30, (r.summary(), r.messages)
+    assert any(m.startswith("acceptance: 0 of") for m in r.messages), r.messages
+
+
 def test_rejected_draws_are_failures_without_rejection():
     r = mv.check_sampler(_rejecting, _sub_density(), "hemisphere", sample_dim=3,
                          n_samples=50_000)

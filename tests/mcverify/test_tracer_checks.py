@@ -153,6 +153,21 @@ def test_emitters_seen_from_behind_or_from_one_point_plan_and_pass(tmp_path):
                for r in back), [r.summary() for r in back]
 
 
+def test_a_plastic_at_grazing_incidence_passes_though_every_draw_is_its_delta_lobe():
+    """At θ_i = 90° (wi_z = 6e-17) the plastic's Fresnel reflectance is 1: every draw
+    goes to its specular lobe (NaN rows) and its diffuse part keeps 1e-16 of the mass.
+    The check failed this correct BSDF with "no valid samples to test" until 6 December;
+    α = 0.01."""
+    scene = prepare_scene(os.path.join(REFERENCE_ROOT, "vocabulary-materials", "scene.xml"),
+                          params={"res": 8})
+    b = list(scene.bsdf_names).index("twosided(plastic)")
+    wi = (np.sin(np.pi / 2), 0.0, np.cos(np.pi / 2))
+    r = mcverify.check_sampler(*bsdf_sampler(scene, b, wi), "sphere", n_samples=2 ** 16,
+                               seed=1, rejection=True, sample_dim=3, alpha=ALPHA)
+    assert r.passed, (r.summary(), r.failures, r.messages)
+    assert r.details["rejection"]["accepted"] == 0
+
+
 def test_front_ends_refuse_bad_input():
     scene = prepare_scene(ROUGH)
     with pytest.raises(ValueError, match="b=99"):
