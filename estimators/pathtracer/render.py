@@ -372,8 +372,9 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
         raise ValueError(f"spp={spp} cannot be split into {passes} equal passes (spp must "
                          "be a multiple of passes)")
     means = []
-    seconds = 0.0
+    seconds = compile_seconds = 0.0
     stats = {}
+    nonfinite = 0
     for k in range(passes):
         r = render(cs, spp=per, seed=pass_seed(seed, k),
                    general=general, pdf_scale=pdf_scale, variance=False,
@@ -382,8 +383,12 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
         means.append(r.mean.astype(np.float64))
         seconds += r.seconds
         stats = r.stats
+        # the whole render's counts (until 6 December the last pass's alone)
+        nonfinite += stats["nonfinite_samples"]
+        compile_seconds += stats["compile_seconds"]
     m = np.stack(means)
-    stats = dict(stats, passes=passes, spp_per_pass=per,
+    stats = dict(stats, passes=passes, spp_per_pass=per, nonfinite_samples=nonfinite,
+                 compile_seconds=compile_seconds,
                  samples_per_second=cs.width * cs.height * per * passes / seconds)
     return RenderResult(m.mean(axis=0).astype(np.float32),
                         m.var(axis=0, ddof=1).astype(np.float32), passes, seconds, stats,
