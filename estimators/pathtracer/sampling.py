@@ -28,7 +28,9 @@ loop over rows (``_sampling_loops``), run on numba's threads: no second implemen
   ``mcverify.check_pdf_consistency``.
 
 A row of u with a coordinate outside [0, 1] (or NaN) draws a NaN row, as in the warps'
-front ends (until 6 December u = 1.5 gave a direction, the kernels reading any number).
+front ends (until 6 December u = 1.5 gave a direction, the kernels reading any number);
+a direction with a NaN coordinate has a NaN density and value, as a warp's pdf gives
+(until 6 December a diffuse BSDF's pdf of (NaN, 0, 1) was 1/π and an area light's 0).
 
 ``scene``: a ``PreparedScene``, or what ``prepare_scene`` takes (a path, a
 ``SceneDescription``), as ``render`` does (a path raised AttributeError until 6 December).
@@ -178,6 +180,7 @@ def _bsdf_rows(scene, b: int, wi):
         wo = _rows("wo", wo)
         out = np.empty((wo.shape[0], 4))
         _run("_bsdf_eval_rows", *tables, wo, out)
+        out[np.isnan(wo).any(axis=1)] = np.nan
         return out
 
     return draw, evaluate
@@ -261,6 +264,7 @@ def _emitter_rows(scene, k: int, ref):
         _run("_emitter_eval_rows", a.light_f, a.light_i, a.prims, a.prim_info, a.shape_flip,
              a.leaf_prims, a.leaf_info, rows, a.tex_data, a.tex_info, a.env_marginal,
              a.env_conditional, k, x, y, z, d, out)
+        out[np.isnan(d).any(axis=1)] = np.nan
         return out
 
     return draw, evaluate

@@ -188,6 +188,21 @@ def test_front_ends_refuse_bad_input():
         sample([["a", "b", "c"]])
 
 
+def test_a_direction_with_a_nan_coordinate_has_a_nan_density_as_in_the_warps():
+    """The warps' rule (a NaN point, a NaN density: a broken sampler's NaN stays
+    visible): the tracer's diffuse pdf of (NaN, 0, 1) was 1/π, an area light's 0, until
+    6 December. A finite direction in the same call keeps its value."""
+    scene = prepare_scene(os.path.join(REFERENCE_ROOT, "cornell-box", "scene.xml"),
+                          params={"res": 8})
+    d = np.array([[np.nan, 0.0, 1.0], [0.0, 0.6, 0.8]])
+    _, pdf, f = bsdf_sampler_with_weight(scene, 1, (0.0, 0.0, 1.0))
+    assert np.isnan(pdf(d)[0]) and np.all(np.isnan(f(d)[0]))
+    assert pdf(d)[1] == pytest.approx(0.8 / np.pi)
+    _, pdf = emitter_sampler(scene, 0, (0.0, 0.0, 0.0))
+    up = np.array([[0.0, 1.0, np.nan], [0.0, 1.0, 0.0]])
+    assert np.isnan(pdf(up)[0]) and pdf(up)[1] > 0.0
+
+
 def test_front_ends_take_a_scene_path_as_render_does():
     """An outside review: ``bsdf_sampler(path, ...)`` raised a bare AttributeError ('str'
     object has no attribute 'arrays'); the front ends now prepare what they are given, as
