@@ -286,8 +286,10 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
              "nonfinite_samples": int(bad.sum()), "triangles": cs.n_triangles,
              "lights": cs.n_lights, "bsdfs": list(cs.bsdf_names),
              "rfilter": cs.camera.rfilter}
-    return RenderResult(mean.astype(np.float32),
-                        var.astype(np.float32) if variance else None, spp, seconds, stats)
+    with np.errstate(over="ignore"):    # beyond float32's range is inf, and counted
+        return RenderResult(mean.astype(np.float32),
+                            var.astype(np.float32) if variance else None, spp, seconds,
+                            stats)
 
 
 class _BoxFilm:
@@ -390,6 +392,7 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
     stats = dict(stats, passes=passes, spp_per_pass=per, nonfinite_samples=nonfinite,
                  compile_seconds=compile_seconds,
                  samples_per_second=cs.width * cs.height * per * passes / seconds)
-    return RenderResult(m.mean(axis=0).astype(np.float32),
-                        m.var(axis=0, ddof=1).astype(np.float32), passes, seconds, stats,
-                        m.astype(np.float32))
+    with np.errstate(over="ignore", invalid="ignore"):     # inf passes: inf, NaN spread
+        return RenderResult(m.mean(axis=0).astype(np.float32),
+                            m.var(axis=0, ddof=1).astype(np.float32), passes, seconds,
+                            stats, m.astype(np.float32))

@@ -591,6 +591,7 @@ def test_a_film_larger_than_the_machines_memory_is_refused_by_its_size(tmp_path,
         render(str(path), spp=4, passes=passes)
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")     # inf pixels are said, not warned
 def test_a_render_in_passes_counts_the_nonfinite_samples_of_every_pass(tmp_path):
     """A point light of 1.7e308 overflows some samples to inf. With passes, the stats
     gave the last pass's count alone (19 of 85 here) and its compile time, until 6
