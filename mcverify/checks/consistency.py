@@ -221,24 +221,19 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
         # differences within 16 of the coarsest type's smallest subnormals are rounding
         tiny = 16 * float(np.finfo(np.float32 if single else np.float64).smallest_subnormal)
         details["rtol"] = tol
-        negative = np.flatnonzero((p[rows] < 0.0) | (q < 0.0))
-        if negative.size:           # equal on both sides, yet no density
-            j = int(negative[0])
-            i = int(rows[j])
-            failures.append(
-                f"{negative.size} of {rows.size} draws have a negative pdf (returned or "
-                f"pdf(x)); first at u={_show(u[i])}: x={_show(x[i])}, returned "
-                f"{p[i]:.9g}, pdf(x) {q[j]:.9g}")
-            details["negative_pdf"] = int(negative.size)
         unbounded = np.flatnonzero(~(np.isfinite(p[rows]) & np.isfinite(q)))
-        if unbounded.size:          # inf on both sides was "differ", ratio nan
-            j = int(unbounded[0])
-            i = int(rows[j])
-            failures.append(
-                f"{unbounded.size} of {rows.size} draws have a pdf that is not finite "
-                f"(returned or pdf(x)); first at u={_show(u[i])}: x={_show(x[i])}, "
-                f"returned {p[i]:.9g}, pdf(x) {q[j]:.9g}")
-            details["nonfinite_pdf"] = int(unbounded.size)
+        # equal on both sides, yet no density; inf on both sides was "differ", ratio nan
+        for bad, what, key in ((np.flatnonzero((p[rows] < 0.0) | (q < 0.0)), "a negative pdf",
+                                "negative_pdf"),
+                               (unbounded, "a pdf that is not finite", "nonfinite_pdf")):
+            if bad.size:
+                j = int(bad[0])
+                i = int(rows[j])
+                failures.append(
+                    f"{bad.size} of {rows.size} draws have {what} (returned or pdf(x)); "
+                    f"first at u={_show(u[i])}: x={_show(x[i])}, returned {p[i]:.9g}, "
+                    f"pdf(x) {q[j]:.9g}")
+                details[key] = int(bad.size)
         rel = _relative(p[rows], q, tiny)
         statistic = float(np.max(rel))
         details["max_pdf_rel_error"] = statistic
