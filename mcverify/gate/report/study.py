@@ -103,7 +103,8 @@ def run_study(*, ns=(64, 256, 1024, 4096, 16384), n_seeds: int = 24, seed: int =
 
     ``ns`` are powers of two (for Sobol; RQMC's two replicates take N/2 points each)
     and perfect squares/fourth powers are not required: stratified sampling rounds to
-    the nearest grid. Every estimator evaluates f about N times for an estimate at N. Expected slopes: −0.5 for
+    the nearest grid. Every estimator evaluates f about N times for an estimate at N.
+    Expected slopes: −0.5 for
     i.i.d. and antithetic MC; at least as steep as −0.5 ("less": no slower than MC) for
     stratified and RQMC, which on discontinuous integrands reach about −0.75 and on
     smooth ones −1 to −1.5 (a 4-D product only −0.58 stratified at these N, its
