@@ -51,6 +51,9 @@ def run_sequential(look: Callable[[int], CheckResult], *, batches: int, alpha: f
         has to reach to be rejected in its suite).
     stop_alpha : float, optional
         Stop at the first look whose sequential p-value is <= this (default ``alpha``).
+        Above ``alpha`` it stops at ``alpha``: a check that stopped at a p-value it does
+        not reject at would pass a subject on part of its budget (stop_alpha = 0.3 passed
+        a bias that the full budget rejected at p = 2e-7).
     min_batches : int
         First look after this many batches (a test that needs several batches, such as
         a variance across passes).
@@ -68,7 +71,8 @@ def run_sequential(look: Callable[[int], CheckResult], *, batches: int, alpha: f
     """
     k_total = validate.integer("batches", batches, minimum=1)
     alpha = validate.probability("alpha", alpha)
-    stop = alpha if stop_alpha is None else validate.probability("stop_alpha", stop_alpha)
+    stop = alpha if stop_alpha is None else min(validate.probability("stop_alpha", stop_alpha),
+                                                alpha)
     at = [b for b in looks(k_total) if b >= min_batches] or [k_total]
     try:
         weights = stats.spending_weights([b / k_total for b in at], alpha, spending)

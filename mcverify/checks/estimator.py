@@ -76,7 +76,8 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         bias is clear; ``details["sequential"]`` says at which batch it decided.
     stop_alpha : float, optional
         Sequential only: stop early when the sequential p-value reaches this (default
-        ``alpha``; a suite passes the level the check must reach within it).
+        ``alpha``; a suite passes the level the check must reach within it; above
+        ``alpha``, ``alpha``: stopping early never passes a subject).
 
     Examples
     --------

@@ -681,7 +681,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         without ``batches``.
     stop_alpha : float, optional
         With ``batches``: stop early when the sequential p-value reaches this (default
-        ``alpha``; a suite passes the level the check must reach within it).
+        ``alpha``; a suite passes the level the check must reach within it; above
+        ``alpha``, ``alpha``: stopping early never passes a subject).
 
     Returns
     -------

@@ -139,6 +139,20 @@ def test_stop_alpha_only_moves_where_it_stops():
     assert loose.details["sequential"]["batch"] < strict.details["sequential"]["batch"]
 
 
+def test_a_stop_alpha_above_alpha_never_passes_a_subject_on_part_of_its_budget():
+    """stop_alpha = 0.3 at alpha = 0.01 stopped a biased estimator at batch 8 of 16 with
+    p = 0.019 and passed it (its full budget gives p = 2e-7): a check that stops early at
+    a level above its own passed what its full budget rejects. It now stops at alpha at
+    most, and decides as without stop_alpha."""
+    draw = lambda b: np.random.default_rng(b).normal(1.006, 1.0, 20_000)  # noqa: E731
+    default = mv.check_unbiased(draw, 1.0, batches=16)
+    for stop in (0.3, 0.9):
+        r = mv.check_unbiased(draw, 1.0, batches=16, stop_alpha=stop)
+        assert not r.passed and r.p_value == default.p_value, (stop, r.p_value)
+        assert r.details["sequential"]["batch"] == default.details["sequential"]["batch"]
+        assert r.details["sequential"]["stop_alpha"] == 0.01
+
+
 def test_deterministic_failure_stops_at_once():
     calls = []
 
