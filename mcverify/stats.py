@@ -679,13 +679,16 @@ def spending_function(spec: str):
 def spending_weights(fractions, alpha: float, spending: str = "obrien-fleming") -> np.ndarray:
     """Share of ``alpha`` spent at each look: ``(α(t_k) − α(t_{k−1})) / α`` for
     increasing information fractions ``t_1 < … < t_K = 1`` (they sum to 1), under the
-    spending function ``spending`` names (:func:`spending_function`)."""
+    spending function ``spending`` names (:func:`spending_function`). Divided by
+    ``α(1)``, which is α but for rounding: O'Brien–Fleming's came out as α(1 − 3e-16), and
+    a single look's weight 0.9999999999999997 made ``batches=1`` report a p-value other
+    than the one-shot check's."""
     f = spending_function(spending)
     t = np.asarray(fractions, dtype=np.float64)
     if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0) or t[-1] != 1.0:
         raise ValueError(f"fractions={t.tolist()}: need increasing values ending at 1")
     spent = f(t, alpha)
-    return np.diff(np.concatenate([[0.0], spent])) / alpha
+    return np.diff(np.concatenate([[0.0], spent])) / spent[-1]
 
 
 def sequential_p_value(p_values, weights) -> float:

@@ -153,6 +153,22 @@ def test_a_stop_alpha_above_alpha_never_passes_a_subject_on_part_of_its_budget()
         assert r.details["sequential"]["stop_alpha"] == 0.01
 
 
+@pytest.mark.parametrize("alpha", [0.05, 0.01, 0.001])
+def test_one_batch_is_the_one_shot_check(alpha):
+    """With one look the weight must be exactly 1: O'Brien–Fleming's α(1) came out as
+    α(1 − 3e-16), so batches=1 divided p by 0.9999999999999997 and reported a p-value
+    other than the one-shot check's (1.7369771175393202e-07 against ...196e-07)."""
+    assert stats.spending_weights([1.0], alpha).tolist() == [1.0]
+    x = [np.random.default_rng(b).normal(1.006, 1.0, 20_000) for b in range(16)]
+    once = mv.check_unbiased(np.concatenate(x), 1.0, alpha=alpha)
+    seq = mv.check_unbiased(lambda b: np.concatenate(x), 1.0, alpha=alpha, batches=1)
+    assert seq.p_value == once.p_value and seq.passed == once.passed
+    args = (lambda u: u ** 0.5, lambda x: 2 * x[:, 0], "interval")
+    once = mv.check_sampler(*args, n_samples=100_000, seed=1, alpha=alpha)
+    seq = mv.check_sampler(*args, n_samples=100_000, seed=1, alpha=alpha, batches=1)
+    assert seq.p_value == once.p_value and seq.details["sequential"]["batch"] == 1
+
+
 def test_deterministic_failure_stops_at_once():
     calls = []
 
