@@ -24,6 +24,20 @@ def test_allocate_gives_equal_time_shares():
     assert predicted == pytest.approx(20.0) and notes == ()
 
 
+def test_allocate_shares_out_the_time_a_check_at_the_minimum_cannot_use():
+    """A check whose fixed cost alone exceeds its equal share runs at n_min; the others
+    share what is left. With equal shares b (6 s of cubature, share 4 s) overran its share
+    by 2 s while a took its full 4 s: a 20 s budget was planned at 22 s, and no note."""
+    fixed, per = {"a": 0.01, "b": 6.0}, {"a": 1e-7, "b": 1e-7}
+    n, predicted, notes = allocate(20.0, 10.0, 2.0, fixed, per, n_min=1 << 17, n_max=10**9)
+    assert n["b"] == 1 << 17 and n["a"] > 1 << 17
+    assert predicted == pytest.approx(20.0, abs=1e-6) and notes == ()
+    # too small for every check's minimum: all at n_min, and said
+    n, predicted, notes = allocate(20.0, 10.0, 2.0, {"a": 0.01, "b": 8.5}, per,
+                                   n_min=1 << 17, n_max=10**9)
+    assert n == {"a": 1 << 17, "b": 1 << 17} and predicted > 20.0 and "too small" in notes[0]
+
+
 def test_allocate_clamps_and_says_when_the_budget_is_too_small():
     n, predicted, notes = allocate(5.0, 4.0, 2.0, {"a": 1.0}, {"a": 1e-8}, n_min=1000,
                                    n_max=10**9)
