@@ -109,6 +109,16 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
                 validate.samples_1d(f"samples({len(drawn)})", v)
                 drawn.append(np.asarray(v))     # its own dtype: float32 rounds as float32
             r = check_unbiased(np.concatenate(drawn), expected, alpha=alpha, name=name)
+            upper = r.details.get("tail_index_upper")
+            if b < k and upper is not None and upper < _FINITE_VARIANCE_INDEX:
+                # The tail test is a statistical one (a 99.9 % bound), not a deterministic
+                # failure: taken at every look it failed a finite-variance estimator
+                # (Pareto index 2.2, 16 batches of 2000) on 8 of 300 seeds, the one-shot
+                # check on the same estimates on none. An early look with a heavy tail
+                # neither stops nor counts (its t-test would be invalid): the final look
+                # judges the tail on every estimate, as the one-shot check does.
+                r = dataclasses.replace(r, p_value=None, passed=True, failures=tuple(
+                    f for f in r.failures if not f.startswith("variance appears infinite")))
             return dataclasses.replace(r, seconds=time.perf_counter() - t0)
 
         t0 = time.perf_counter()
