@@ -684,6 +684,8 @@ def spending_weights(fractions, alpha: float, spending: str = "obrien-fleming") 
     a single look's weight 0.9999999999999997 made ``batches=1`` report a p-value other
     than the one-shot check's."""
     f = spending_function(spending)
+    if not 0.0 < alpha < 1.0:      # NaN included: NaN weights rejected nothing, ever
+        raise ValueError(f"alpha={alpha}: the level must lie in (0, 1)")
     t = np.asarray(fractions, dtype=np.float64)
     if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0) or t[-1] != 1.0:
         raise ValueError(f"fractions={t.tolist()}: need increasing values ending at 1")
@@ -705,9 +707,18 @@ def sequential_p_value(p_values, weights) -> float:
     spending and looks up to t = 1/2 that is 0.973 α at α = 0.01 (the exact boundaries
     for a z-statistic would gain at most the other 2.7 %); tests/mcverify/
     test_sequential.py simulates both bounds.
+
+    A NaN look makes it NaN (a failure, as a NaN p-value is one-shot; ``min(1.0, nan)``
+    made it 1); more p-values than weights, or a p-value outside [0, 1], is a ValueError.
     """
     p = np.asarray(p_values, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)[:p.size]
+    if w.size < p.size:
+        raise ValueError(f"{p.size} p-values but {w.size} weights: one weight per look")
+    if np.any((p < 0) | (p > 1)):
+        raise ValueError(f"p_values={p.tolist()}: p-values must lie in [0, 1]")
+    if np.isnan(p).any():
+        return float("nan")
     with np.errstate(divide="ignore"):
         ratio = np.where(w > 0, p / w, np.where(p == 0, 0.0, np.inf))
     return float(min(1.0, ratio.min())) if p.size else 1.0

@@ -56,6 +56,26 @@ def test_sequential_p_value_is_the_weighted_bonferroni_minimum():
     assert stats.sequential_p_value([0.3, 0.3, 0.0099], w) == pytest.approx(0.01)
 
 
+def test_spending_and_the_sequential_p_value_refuse_what_they_cannot_use():
+    """A NaN look became p = 1 (min(1.0, nan) is 1.0): a look whose p-value was NaN, a
+    failure one-shot, passed sequentially; a level outside (0, 1) gave NaN or negative
+    weights, with which nothing was ever rejected; more p-values than weights were
+    broadcast against the one weight."""
+    assert np.isnan(stats.sequential_p_value([0.5, float("nan")], [0.5, 0.5]))
+    assert np.isnan(stats.sequential_p_value([float("nan")], [1.0]))
+    with pytest.raises(ValueError, match="2 p-values but 1 weight"):
+        stats.sequential_p_value([0.01, 0.02], [0.5])
+    with pytest.raises(ValueError, match=r"p_values=\[1.5\]"):
+        stats.sequential_p_value([1.5], [1.0])
+    for bad in (0.0, 1.0, 1.5, -0.1, float("nan")):
+        for spending in ("obrien-fleming", "power:2"):
+            with pytest.raises(ValueError, match="alpha="):
+                stats.spending_weights([0.5, 1.0], bad, spending)
+    r = run_sequential(lambda b: CheckResult("x", True, float("nan"), None, 0.01, b, 0.0),
+                       batches=4, alpha=0.01)
+    assert not r.passed and r.details["sequential"]["batch"] == 4
+
+
 def _z_streams(rng, n_streams, batches, drift=0.0):
     """Cumulative z-statistics of i.i.d. N(drift, 1) batch means at every batch count."""
     inc = rng.standard_normal((n_streams, batches)) + drift
