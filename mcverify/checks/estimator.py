@@ -98,6 +98,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
 
         k = validate.integer("batches", 1 if batches is None else batches, minimum=1)
         alpha = validate.probability("alpha", alpha)
+        validate.real("expected", expected)     # before any draw: a batch may be a render
         _takes("samples", samples, (0,), "(batch), the batch's index, and return its "
                "estimates")
         drawn: list[np.ndarray] = []

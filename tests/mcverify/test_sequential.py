@@ -232,6 +232,16 @@ def test_bad_sequential_arguments(kwargs, needle):
         mv.check_unbiased(expected=1.0, **kwargs)
 
 
+@pytest.mark.parametrize("expected", ["x", None, float("inf"), float("nan")])
+def test_a_bad_expected_is_refused_before_any_batch_is_drawn(expected):
+    """A bad ``expected`` was refused only after batch 0 was drawn (a batch may be a
+    render's worth of work)."""
+    drawn = []
+    with pytest.raises(mv.InvalidArgument, match="expected="):
+        mv.check_unbiased(lambda b: drawn.append(b) or np.ones(10), expected, batches=4)
+    assert drawn == []
+
+
 @pytest.mark.parametrize("stop_alpha", [2.0, -1.0, 0.0, float("nan"), "x"])
 @pytest.mark.parametrize("batches", [None, 4])
 def test_check_sampler_refuses_a_bad_stop_alpha_with_or_without_batches(stop_alpha, batches):
