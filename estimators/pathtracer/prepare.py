@@ -295,11 +295,12 @@ class _Builder:
         two differ asks the kernel for that frame (``BSDF_FRAME``)."""
         given = {n for n in ("alpha_u", "alpha_v") if n in plugin.props}
         if not given:
-            alpha = float(plugin.get("alpha", 0.1))
+            alpha = max(float(plugin.get("alpha", 0.1)), _ALPHA_MIN)
             return alpha, alpha
         if len(given) == 1 or "alpha" in plugin.props:
             self.fail(plugin, "give alpha, or both alpha_u and alpha_v")
-        return float(plugin.get("alpha_u")), float(plugin.get("alpha_v"))
+        return (max(float(plugin.get("alpha_u")), _ALPHA_MIN),
+                max(float(plugin.get("alpha_v")), _ALPHA_MIN))
 
     def _roughness(self, plugin: Plugin, f: np.ndarray, i: np.ndarray):
         """Store the distribution and (alpha_u, alpha_v) of a microfacet BSDF; an
@@ -425,7 +426,7 @@ class _Builder:
                 f[layout.COAT_INTERNAL] = fresnel_diffuse_reflectance(1.0 / eta)
             else:
                 i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
-                alpha = float(plugin.get("alpha", 0.1))
+                alpha = max(float(plugin.get("alpha", 0.1)), _ALPHA_MIN)
                 f[layout.ALPHA] = f[layout.ALPHA_V] = alpha
                 table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
                 f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
@@ -905,6 +906,11 @@ _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)
 #: the film's output settings Mitsuba 3.9.1 accepts (its default first)
 _FILM_FORMATS = {"file_format": ("openexr", "exr", "pfm", "rgbe"),
                  "component_format": ("float16", "float32", "uint32")}
+#: the least microfacet roughness: Mitsuba 3.9.1's ``MicrofacetDistribution`` raises
+#: alpha_u and alpha_v to 1e-4, so a rough BSDF of alpha 1e-6 is one of 1e-4 there (an
+#: outside review: a rough mirror of alpha 1e-5 under a directional light rendered 96 %
+#: darker than Mitsuba, a rough dielectric of alpha 1e-200, whose alpha² underflows, NaN)
+_ALPHA_MIN = 1e-4
 #: what a blendbsdf may hold: BSDFs with a density and no delta lobe
 _BLENDABLE = ("diffuse", "roughconductor", "roughplastic", "roughdielectric", "twosided")
 
