@@ -417,7 +417,7 @@ class _Builder:
             f[c1], tex[1], s_mean = self._colour(plugin, "specular_reflectance", 1.0)
             eta = self._ior(plugin, "int_ior", "polypropylene") / self._ior(plugin, "ext_ior",
                                                                              "air")
-            if eta == 1.0:
+            if kind == layout.ROUGHPLASTIC and eta == 1.0:
                 self.fail(plugin, "int_ior and ext_ior must differ")
             f[layout.ETA] = eta
             f[layout.SPECULAR_WEIGHT] = s_mean / (d_mean + s_mean)

@@ -43,6 +43,11 @@ BSDFS = {
     "plastic-nonlinear": '<bsdf type="plastic"><rgb name="diffuse_reflectance" '
                          'value="0.6, 0.3, 0.9"/><boolean name="nonlinear" value="true"/>'
                          '<float name="int_ior" value="1.7"/></bsdf>',
+    # equal indices: no coat at all, a Lambertian base (Mitsuba's plastic allows them; its
+    # rough plastic refuses them, as ours does)
+    "plastic-equal-indices": '<bsdf type="plastic"><rgb name="diffuse_reflectance" '
+                             'value="0.3, 0.6, 0.2"/><float name="int_ior" value="1.333"/>'
+                             '<string name="ext_ior" value="water"/></bsdf>',
     "roughplastic-ggx": '<bsdf type="roughplastic"><rgb name="diffuse_reflectance" '
                         'value="0.1, 0.3, 0.6"/><float name="alpha" value="0.15"/>'
                         '<string name="distribution" value="ggx"/></bsdf>',
@@ -138,6 +143,7 @@ def test_a_roughness_below_mitsubas_floor_is_raised_to_it(mi, xml):
     ("conductor-grey", '<bsdf type="conductor"><float name="eta" value="1.3"/>'
                        '<float name="k" value="0.7"/></bsdf>'),
     ("plastic", BSDFS["plastic"]),
+    ("plastic-equal-indices", BSDFS["plastic-equal-indices"]),
 ])
 def test_delta_sampling_matches_mitsuba(mi, name, xml):
     """Delta components: with the same random numbers, the same direction and weight
@@ -661,6 +667,8 @@ def test_null_and_delta_sampling_matches_mitsuba(mi, tmp_path, name, xml):
     ('<bsdf type="roughplastic"><float name="alpha_u" value="0.1"/>'
      '<float name="alpha_v" value="0.3"/></bsdf>', "alpha_u"),
     ('<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/>'
+     '<float name="ext_ior" value="1.2"/></bsdf>', "must differ"),
+    ('<bsdf type="roughplastic"><float name="int_ior" value="1.2"/>'
      '<float name="ext_ior" value="1.2"/></bsdf>', "must differ"),
 ])
 def test_what_mitsuba_would_render_differently_is_refused(xml, message):
