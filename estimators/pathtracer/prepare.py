@@ -214,9 +214,18 @@ class _Builder:
     def _image(self, plugin: Plugin, raw: bool = False) -> np.ndarray:
         path = self._asset_path(plugin, " (the image file)")
         try:
-            return read_image(path, raw=raw)
+            img = read_image(path, raw=raw)
         except OSError as e:
             self.fail(plugin, str(e))
+        bad = ~np.isfinite(img)
+        if bad.any():
+            # as a non-finite number in the XML: Mitsuba renders NaN pixels from it, and
+            # an envmap's sampling table cannot be built from it
+            y, x, c = np.argwhere(bad)[0]
+            self.fail(plugin, f"{path}: texel (row {y}, column {x}) channel {c} is "
+                              f"{img[y, x, c]}; {int(bad.any(axis=2).sum())} texels are not "
+                              "finite")
+        return img
 
     def _bitmap(self, tex: Plugin) -> int:
         """Store a ``bitmap`` texture with its filter, wrap mode and ``to_uv``."""

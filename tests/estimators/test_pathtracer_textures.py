@@ -192,6 +192,36 @@ def test_unknown_filter_or_wrap_is_refused(images, bad):
         prepare_scene(str(path))
 
 
+@pytest.mark.parametrize("where", ["reflectance", "envmap", "normalmap"])
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_an_image_with_texels_that_are_not_finite_is_refused(mi, tmp_path, where, value):
+    """A NaN or infinite texel is refused, naming the file, the texel and the element, as a
+    non-finite number in the XML is: a diffuse texture with NaN texels rendered (Mitsuba's
+    reference then held NaN pixels, and render-check, having built it, said to build it),
+    and an envmap's raised a bare ValueError from its sampling table."""
+    img = np.full((4, 6, 3), 0.5, np.float32)
+    img[2, 3, 1] = value
+    mi.Bitmap(img).write(str(tmp_path / "bad.exr"))
+    tex = '<texture type="bitmap" name="{}"><string name="filename" value="bad.exr"/>' \
+          '<boolean name="raw" value="true"/></texture>'
+    bsdf, defs = {"reflectance": (f'<bsdf type="diffuse">{tex.format("reflectance")}</bsdf>',
+                                  ""),
+                  "envmap": ('<bsdf type="diffuse"/>', '<emitter type="envmap"><string '
+                             'name="filename" value="bad.exr"/></emitter>'),
+                  "normalmap": (f'<bsdf type="normalmap">{tex.format("normalmap")}'
+                                '<bsdf type="diffuse"/></bsdf>', "")}[where]
+    path = tmp_path / "scene.xml"
+    path.write_text(f"""<scene version="3.0.0">
+  <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="4"/>
+    <integer name="height" value="4"/><rfilter type="box"/></film></sensor>
+  {defs}
+  <shape type="rectangle">{bsdf}</shape>
+</scene>""")
+    with pytest.raises(SceneError, match=r"bad\.exr: texel \(row 2, column 3\) channel 1 "
+                                         rf"is {value}; 1 texels are not finite"):
+        prepare_scene(str(path))
+
+
 # ----------------------------------------------------------- uv at a hit, per shape
 _QUAD = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n" \
         "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
