@@ -270,6 +270,15 @@ class _Builder:
                 store = self._checkerboard if v.type == "checkerboard" else self._bitmap
                 self.texture_ids[key] = store(v)
                 self.features |= FEATURE_BITS["texture:bitmap"]
+            img = self.textures.images[self.texture_ids[key]]
+            if name in _ALBEDOS and img.min() < 0:
+                # as a <float> below 0 (scene.py): the tracer ends a path whose BSDF
+                # value is negative in every channel, Mitsuba carries it on
+                y, x, c = np.argwhere(img < 0)[0]
+                self.fail(v, f"{v.get('filename')}: texel (row {y}, column {x}) channel {c} "
+                             f"is {img[y, x, c]:g}: as {name}, a texture must be >= 0 "
+                             "(Mitsuba renders a negative one as a negative albedo, which "
+                             "this tracer does not)")
             return np.zeros(3), self.texture_ids[key], v._mean
         rgb = np.broadcast_to(np.asarray(v, dtype=np.float64), 3).astype(np.float64)
         return rgb, -1, float(rgb.mean())
@@ -440,6 +449,21 @@ class _Builder:
                 table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
                 f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
                 f[layout.COAT_INTERNAL] = internal
+            # the base under the coat, r / (1 - F_int) or (nonlinear) r / (1 - r F_int),
+            # must stay finite and >= 0: Mitsuba's fit of a smooth coat's internal
+            # reflectance F_int exceeds 1 above int_ior / ext_ior ~ 3.85 (a plastic of
+            # int_ior 5 rendered 3 % off Mitsuba), and a nonlinear base r >= 1 / F_int
+            # divides by 0 or less
+            f_int = f[layout.COAT_INTERNAL]
+            d_max = self.textures.images[tex[0]].max() if tex[0] >= 0 else f[c0].max()
+            nonlinear = bool(i[layout.BSDF_NONLINEAR])
+            if (d_max * f_int if nonlinear else f_int) >= 1.0:
+                r = (f"r / (1 - r F_int) with r up to {d_max:g} (diffuse_reflectance)"
+                     if nonlinear else "r / (1 - F_int)")
+                self.fail(plugin, f"the coat's internal reflectance F_int = {f_int:.4g} (for "
+                                  f"int_ior / ext_ior = {eta:.4g}) makes the base {r} "
+                                  "infinite or negative (Mitsuba renders a negative albedo, "
+                                  "which this tracer does not)")
         self.bsdf_rows.append((f, i, tex))
         self.bsdf_names.append(plugin.type if not twosided else f"twosided({plugin.type})")
         return len(self.bsdf_rows) - 1
@@ -920,6 +944,9 @@ _FILM_FORMATS = {"file_format": ("openexr", "exr", "pfm", "rgbe"),
 #: outside review: a rough mirror of alpha 1e-5 under a directional light rendered 96 %
 #: darker than Mitsuba, a rough dielectric of alpha 1e-200, whose alpha² underflows, NaN)
 _ALPHA_MIN = 1e-4
+#: BSDF colour properties that are albedos: a texture's texels must be >= 0
+_ALBEDOS = ("reflectance", "diffuse_reflectance", "specular_reflectance",
+            "specular_transmittance")
 #: what a blendbsdf may hold: BSDFs with a density and no delta lobe
 _BLENDABLE = ("diffuse", "roughconductor", "roughplastic", "roughdielectric", "twosided")
 
