@@ -426,6 +426,18 @@ class _Job:
         from . import mitsuba as mvm
 
         radius, spp = film
+        bad = ~np.isfinite(imgs)
+        if bad.any():
+            # a reference of inf pixels was written, then refused on loading with a
+            # rebuild command that built the same (and numpy warned on its variance)
+            k, y, x = np.argwhere(bad)[0][:3]
+            raise InvalidArgument(
+                f"{self.path}: Mitsuba's image is not finite (NaN or inf) in "
+                f"{int(bad.any(axis=(0, 3)).sum())} pixel(s), the first in pass {k + 1} at "
+                f"x={x}, y={y}: a radiance, intensity, irradiance or scale beyond float32's "
+                "range (3.4e38), which Mitsuba stores as infinity, or near it, where the "
+                "float32 sum of a pixel's samples overflows, renders so; no reference "
+                "written")
         # What Mitsuba rendered: a stratified sampler rounds 33 spp up to 36, and the
         # render gate pairs passes of equal spp where the filter splats (a probe found
         # the manifest saying 33)

@@ -463,3 +463,29 @@ def test_a_missing_mcverify_refs_is_named(tmp_path):
     r = subprocess.run(CMD + ["plan", "cornell-box", "--refs", SCENES], capture_output=True,
                        text=True, timeout=120, cwd=tmp_path, env=env)
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_scene_mitsuba_renders_infinite_is_refused_before_writing(tmp_path):
+    """An outside review: a constant sky of radiance 1e39, beyond float32's range, is
+    infinite in Mitsuba's image. The reference was written (numpy warning on its
+    variance) and render-check then refused it as containing NaN/Inf with a rebuild
+    command that built the same. Now the build says what Mitsuba rendered and writes
+    nothing; a sky of 1e37, whose samples' sum stays within the range, builds."""
+    from mcverify.errors import InvalidArgument
+
+    scene = tmp_path / "sky.xml"
+    text = """<scene version="3.0.0"><integrator type="path"/>
+  <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="4"/>
+    <integer name="height" value="4"/><rfilter type="box"/></film></sensor>
+  <emitter type="constant"><rgb name="radiance" value="{}"/></emitter></scene>"""
+    scene.write_text(text.format("1e39"))
+    with pytest.raises(InvalidArgument, match=r"sky\.xml: Mitsuba's image is not finite "
+                                              r"\(NaN or inf\) in 16 pixel\(s\), the first "
+                                              r"in pass 1 at x=0, y=0: .*beyond float32's "
+                                              r"range .*no reference written"):
+        reference.build_reference(str(scene), spp=4, passes=2)
+    assert sorted(os.listdir(tmp_path)) == ["sky.xml"]
+    scene.write_text(text.format("1e37"))
+    reference.build_reference(str(scene), spp=4, passes=2)
+    assert reference.load_reference(str(scene)).n == 2
