@@ -887,6 +887,28 @@ def test_a_spot_needs_a_positive_cutoff_and_a_beam_of_zero_or_more(tmp_path, ang
     assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
 
 
+@pytest.mark.parametrize("angles,needle", [
+    ('<float name="cutoff_angle" value="1e39"/>', "cutoff_angle=1e+39: beyond float32"),
+    ('<float name="beam_width" value="-4e38"/>', "beam_width=-4e+38: beyond float32"),
+], ids=["cutoff", "beam"])
+def test_a_spot_angle_beyond_float32_is_refused(tmp_path, angles, needle):
+    """An outside review: cutoff_angle 1e39 was accepted and lit a cone here, where
+    Mitsuba stores it in float32 as inf, takes a NaN cosine and lights nothing
+    (render-check: image mean +87 %, p = 1e-192). 400, whose falloff Mitsuba's
+    sample_direction gives as ours does, stays accepted."""
+    from estimators.pathtracer import prepare_scene
+
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<emitter type="spot">{angles}'
+                    '</emitter></scene>')
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<emitter type="spot">'
+                    '<float name="cutoff_angle" value="400"/></emitter></scene>')
+    prepare_scene(str(path))
+
+
 _DIRECT_SCENE = ('<scene version="3.0.0">\n' + SENSOR + '\n<integrator type="{t}">{p}</integrator>'
                  '\n<shape type="sphere"/>\n{light}</scene>')
 
