@@ -17,8 +17,10 @@ raises ``WorkerLost`` naming it (the CLI exits 2).
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures as cf
 import hashlib
+import json
 import multiprocessing
 import multiprocessing.synchronize
 import os
@@ -98,6 +100,41 @@ def same_source(expected: str | None) -> None:
             f"worker {os.uname().nodename} (pid {os.getpid()}) runs different mcverify/"
             f"estimators/mcnumba sources (fingerprint {source_fingerprint()[:12]}, client "
             f"{expected[:12]}); install the same version on every worker")
+
+
+def _scheduler_address(scheduler_file: str, where: str) -> str:
+    """The address a Dask scheduler file names (Dask's own reading said "unexpected
+    TypeError" for a file whose address is no string, or that holds no JSON object)."""
+    try:
+        with open(scheduler_file, encoding="utf-8") as f:
+            address = json.load(f).get("address")
+    except (OSError, ValueError, AttributeError):
+        address = None
+    if not isinstance(address, str) or not address:
+        raise EnvironmentProblem(f"{where}: cannot connect to the scheduler (the file holds "
+                                 "no scheduler address)")
+    return address
+
+
+def _handshake(address: str, timeout: str) -> None:
+    """Connect to ``address`` and exchange Dask's handshake within ``timeout``, or raise.
+    ``Client()`` waits for that handshake without a limit: a server that accepts the
+    connection and never answers (an HTTP server, a port forwarder) hung the run."""
+    from dask.utils import parse_timedelta
+    from distributed.comm import connect
+
+    seconds = parse_timedelta(timeout)
+
+    async def probe():
+        try:
+            comm = await asyncio.wait_for(connect(address, timeout=seconds), seconds + 5)
+        except asyncio.TimeoutError:
+            raise TimeoutError(f"no Dask handshake from {address} within {timeout}") from None
+        await comm.close()
+
+    # in a thread of its own: its event loop is not the caller's (nor Dask's)
+    with cf.ThreadPoolExecutor(1) as thread:
+        thread.submit(asyncio.run, probe()).result()
 
 
 def _worker_init(threads: int) -> None:
@@ -191,19 +228,20 @@ class Pool:
                                          "'dask[distributed]'") from None
             where = (f"--dask {self.dask}" if self.dask else
                      f"--dask-scheduler-file {self.dask_scheduler_file}")
+            address = self.dask or _scheduler_address(self.dask_scheduler_file, where)
             try:
-                if self.dask:
-                    self._client = Client(self.dask, timeout=DASK_CONNECT_TIMEOUT)
-                else:
-                    self._client = Client(scheduler_file=self.dask_scheduler_file,
-                                          timeout=DASK_CONNECT_TIMEOUT)
-            except (OSError, TimeoutError, ValueError, AssertionError, KeyError) as e:
-                # AssertionError/KeyError: a scheduler file without an address in it (an
-                # AssertionError's text is empty: it said "(AssertionError: )")
-                why = (f"{type(e).__name__}: {e}" if str(e) and not isinstance(e, KeyError)
-                       else "the file holds no scheduler address")
+                _handshake(address, DASK_CONNECT_TIMEOUT)
+                self._client = Client(address, timeout=DASK_CONNECT_TIMEOUT)
+            except (OSError, TimeoutError, ValueError) as e:
+                why = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
                 raise EnvironmentProblem(f"{where}: cannot connect to the scheduler ({why})") \
                     from None
+            except Exception as e:  # noqa: BLE001 - whatever answered, it is no scheduler
+                # a server that answers something else: Dask read its reply as a frame
+                # length ("unexpected MemoryError: Unable to allocate 3.07 EiB")
+                raise EnvironmentProblem(
+                    f"{where}: cannot connect to the scheduler ({address} does not answer "
+                    f"as a Dask scheduler: {type(e).__name__}: {e})") from None
             try:
                 # a scheduler without workers would take the units and never run them
                 self._client.wait_for_workers(1, timeout=DASK_WORKER_WAIT)

@@ -225,3 +225,50 @@ def test_a_scheduler_without_workers_is_refused_not_waited_on(monkeypatch, tmp_p
     assert str(info.value).startswith(f"--dask-scheduler-file {bad}: cannot connect to the "
                                       "scheduler ("), str(info.value)
     assert not str(info.value).endswith(": )"), str(info.value)
+
+
+@pytest.mark.parametrize("text", ['{"address": 5}', "[]", '"tcp://127.0.0.1:1"'],
+                         ids=["address-not-a-string", "a-list", "a-string"])
+def test_a_scheduler_file_without_an_address_string_is_named(tmp_path, text):
+    """A scheduler file whose JSON is no object with a string address ended the run with
+    "unexpected TypeError: expected str, got 'int'", naming no option or file."""
+    bad = tmp_path / "scheduler.json"
+    bad.write_text(text)
+    with pytest.raises(EnvironmentProblem) as info:
+        with Pool(dask_scheduler_file=str(bad)):
+            pass
+    assert str(info.value) == (f"--dask-scheduler-file {bad}: cannot connect to the "
+                               "scheduler (the file holds no scheduler address)")
+
+
+def test_a_server_that_is_no_scheduler_is_refused_not_waited_on(monkeypatch):
+    """``--dask`` at a server that accepts the connection and never answers (an HTTP
+    server waiting for a request) hung for ever: Dask's handshake has no time limit. One
+    that answers something else ended the run with "unexpected MemoryError: Unable to
+    allocate 3.07 EiB" (its reply read as a frame length)."""
+    import socket
+    import threading
+
+    from mcverify.gate import executors
+
+    monkeypatch.setattr(executors, "DASK_CONNECT_TIMEOUT", "2s")
+    silent = socket.create_server(("127.0.0.1", 0))        # accepts (backlog), says nothing
+    talker = socket.create_server(("127.0.0.1", 0))
+
+    def answer():
+        conn, _ = talker.accept()
+        conn.recv(4096)
+        conn.sendall(b"HTTP/1.0 400 Bad Request\r\nContent-Type: text/html\r\n\r\n" * 8)
+        conn.close()
+
+    threading.Thread(target=answer, daemon=True).start()
+    with silent, talker:
+        for server, why in ((silent, "no Dask handshake"), (talker, "does not answer as a "
+                                                             "Dask scheduler")):
+            address = "tcp://127.0.0.1:%d" % server.getsockname()[1]
+            with pytest.raises(EnvironmentProblem) as info:
+                with Pool(dask=address):
+                    pass
+            assert str(info.value).startswith(f"--dask {address}: cannot connect to the "
+                                              "scheduler ("), str(info.value)
+            assert why in str(info.value), str(info.value)
