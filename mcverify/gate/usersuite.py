@@ -19,12 +19,13 @@ table, its settings apply (command-line options win)::
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib
 import os
 import sys
 from dataclasses import dataclass
 
-from ..errors import InvalidArgument
+from ..errors import EnvironmentProblem, InvalidArgument
 from .suites import Check
 
 __all__ = ["ProjectConfig", "find_config", "load_user_suite", "is_user_suite"]
@@ -209,10 +210,36 @@ def load_user_suite(spec: str, *, roots=(".",), option: str = "--suite") -> list
             raise InvalidArgument(f"{option} {spec!r}: two checks are named {c.name!r} "
                                   "(seeds derive from names; make them unique)")
         seen.add(c.name)
-    recipe = (_rebuild, (spec, tuple(os.path.abspath(r) for r in roots)))
+    recipe = (_rebuild, (spec, tuple(os.path.abspath(r) for r in roots),
+                         _imported_digest(module)))
     return [c if c.source is not None else dataclasses.replace(c, source=recipe) for c in obj]
 
 
-def _rebuild(spec: str, roots: tuple) -> list[Check]:
-    """How a worker process rebuilds a user suite: the same import, the same roots."""
-    return load_user_suite(spec, roots=roots)
+#: SHA-256 of each user-suite module's file as this process first imported it: Python
+#: keeps a module once imported, so a long-lived (Dask) worker runs that version.
+_DIGESTS: dict[str, str | None] = {}
+
+
+def _imported_digest(module) -> str | None:
+    if module.__name__ not in _DIGESTS:
+        try:
+            with open(getattr(module, "__file__", None), "rb") as f:
+                _DIGESTS[module.__name__] = hashlib.sha256(f.read()).hexdigest()
+        except (OSError, TypeError):    # no file (a namespace package, a built-in)
+            _DIGESTS[module.__name__] = None
+    return _DIGESTS[module.__name__]
+
+
+def _rebuild(spec: str, roots: tuple, digest: str | None = None) -> list[Check]:
+    """How a worker process rebuilds a user suite: the same import, the same roots, and
+    the module as the client imported it (a Dask worker that imported an earlier version
+    of it ran those checks, as if they were the current ones)."""
+    checks = load_user_suite(spec, roots=roots)
+    module = sys.modules[spec.partition(":")[0]]
+    if digest is not None and _imported_digest(module) != digest:
+        raise EnvironmentProblem(
+            f"suite {spec!r}: worker {os.uname().nodename} (pid {os.getpid()}) runs another "
+            f"version of {getattr(module, '__file__', module.__name__)} than this run (imported before it was edited, "
+            "or a different file); restart the workers (a worker keeps a module it has "
+            "imported)")
+    return checks

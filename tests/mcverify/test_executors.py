@@ -272,3 +272,43 @@ def test_a_server_that_is_no_scheduler_is_refused_not_waited_on(monkeypatch):
             assert str(info.value).startswith(f"--dask {address}: cannot connect to the "
                                               "scheduler ("), str(info.value)
             assert why in str(info.value), str(info.value)
+
+
+_EDITED_SUITE = """
+from mcverify.gate.suites import Check
+from mcverify.result import CheckResult
+
+def _run(seed):
+    return CheckResult(name="edited", passed={passed}, p_value={p}, statistic=None,
+                       alpha=0.01, n_samples=1, seconds=0.0)
+
+suite = [Check("edited.check", _run)]
+"""
+
+
+def test_a_dask_worker_holding_an_earlier_version_of_a_user_suite_refuses(tmp_path):
+    """Dask workers live across runs and keep a user suite's module imported: after the
+    user fixed (or broke) a check, ``--dask`` ran the version the worker had imported
+    first, and reported its verdict as the current one."""
+    import sys
+
+    from mcverify.gate import usersuite
+
+    module = tmp_path / "edited_suite_mod.py"
+    module.write_text(_EDITED_SUITE.format(passed=False, p=0.0))
+
+    def fresh_client_load():        # a new `mcverify check` process reads the file anew
+        sys.modules.pop("edited_suite_mod", None)
+        usersuite._DIGESTS.pop("edited_suite_mod", None)
+        return usersuite.load_user_suite("edited_suite_mod:suite", roots=[str(tmp_path)])
+
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        with Pool(dask=cluster.scheduler_address) as pool:
+            first = suites.run_suite(fresh_client_load(), canary=False, pool=pool)
+            assert not first.passed
+            module.write_text(_EDITED_SUITE.format(passed=True, p=0.5))   # the fix
+            with pytest.raises(EnvironmentProblem, match="runs another version of .*"
+                               "edited_suite_mod.py than this run"):
+                suites.run_suite(fresh_client_load(), canary=False, pool=pool)
+    sys.modules.pop("edited_suite_mod", None)
