@@ -176,6 +176,14 @@ class Pool:
         if self.jobs > MAX_JOBS:
             raise InvalidArgument(f"-j {self.jobs}: more local worker processes than a "
                                   f"process pool can have (at most {MAX_JOBS})")
+        # given but empty (`--dask "$SCHEDULER"` with the variable unset): it ran in this
+        # process without a word
+        for option, value in (("--dask", self.dask),
+                              ("--dask-scheduler-file", self.dask_scheduler_file)):
+            if value is not None and not value.strip():
+                raise InvalidArgument(f"{option} {value!r}: empty; give the scheduler's "
+                                      "address (tcp://HOST:PORT) or its scheduler file, or "
+                                      "leave the option out to run in this process")
         if self.dask and self.dask_scheduler_file:
             raise InvalidArgument("--dask and --dask-scheduler-file: give one of them")
         if (self.dask or self.dask_scheduler_file) and self.jobs != 1:

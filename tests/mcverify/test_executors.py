@@ -165,7 +165,11 @@ def test_a_check_missing_from_its_rebuilt_suite_is_named():
     (dict(jobs=2, dask="tcp://localhost:1"), "-j 2 with a Dask cluster"),
     (dict(dask="tcp://a:1", dask_scheduler_file="f"), "give one of them"),
     (dict(dask_scheduler_file="/no/such/file.json"), "--dask-scheduler-file /no/such"),
-], ids=["jobs", "jobs-huge", "jobs-and-dask", "both-dask", "scheduler-file"])
+    # given but empty (an unset variable): ran in this process without a word
+    (dict(dask=""), "--dask '': empty"),
+    (dict(dask_scheduler_file=" "), "--dask-scheduler-file ' ': empty"),
+], ids=["jobs", "jobs-huge", "jobs-and-dask", "both-dask", "scheduler-file", "dask-empty",
+        "scheduler-file-empty"])
 def test_bad_pool_arguments(kwargs, needle):
     with pytest.raises(InvalidArgument, match=needle):
         Pool(**kwargs)
