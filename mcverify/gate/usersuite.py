@@ -239,7 +239,7 @@ def _rebuild(spec: str, roots: tuple, digest: str | None = None) -> list[Check]:
     if digest is not None and _imported_digest(module) != digest:
         raise EnvironmentProblem(
             f"suite {spec!r}: worker {os.uname().nodename} (pid {os.getpid()}) runs another "
-            f"version of {getattr(module, '__file__', module.__name__)} than this run (imported before it was edited, "
-            "or a different file); restart the workers (a worker keeps a module it has "
-            "imported)")
+            f"version of {getattr(module, '__file__', module.__name__)} than this run "
+            "(imported before it was edited, or a different file); restart the workers (a "
+            "worker keeps a module it has imported)")
     return checks
