@@ -78,12 +78,24 @@ def _rounding(*arrays) -> tuple[float, float]:
     renderer's half image of a directly seen emitter of radiance 0.7 (zero variance on
     both sides) failed against a float reference with p = 0 (an outside review)."""
     rel, tiny = ROUNDING, 0.0
-    for a in arrays:
-        dtype = getattr(a, "dtype", None)
+    for a in arrays:        # arrays, or a numpy dtype (``compare_images``' ``precision``)
+        dtype = a if isinstance(a, np.dtype) else getattr(a, "dtype", None)
         if dtype is not None and np.issubdtype(dtype, np.floating):
             info = np.finfo(dtype)
             rel, tiny = max(rel, float(info.eps)), max(tiny, float(info.smallest_subnormal))
     return rel, tiny
+
+
+def _floating_type(name: str, v) -> np.dtype:
+    """``v`` as a numpy floating dtype, or InvalidArgument naming ``name``."""
+    try:
+        dtype = np.dtype(v)
+    except TypeError:
+        dtype = None
+    if dtype is None or not np.issubdtype(dtype, np.floating):
+        raise InvalidArgument(f"{name}={v!r}: must be a numpy floating type (np.float16, "
+                              "np.float32, np.float64)")
+    return dtype
 
 
 def _display_scale(ref) -> float:
@@ -337,15 +349,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     True
     """
     t0 = time.perf_counter()
-    stored = ()
-    if precision is not None:
-        try:
-            stored = (np.empty(0, dtype=precision),)
-        except TypeError:
-            stored = (None,)
-        if stored[0] is None or not np.issubdtype(stored[0].dtype, np.floating):
-            raise InvalidArgument(f"precision={precision!r}: must be a numpy floating type "
-                                  "(np.float16, np.float32, np.float64)")
+    stored = () if precision is None else (_floating_type("precision", precision),)
     rel_rounding, tiny = _rounding(test_mean, ref_mean, test_var, ref_var, test_passes,
                                    ref_passes, *stored)
     tm = _as_image("test_mean", test_mean)
@@ -403,10 +407,11 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     for label, passes, mean in (("test", tp, tm), ("ref", rp, rm)):
         # the image and block tests read the passes, the pixel tests the mean: a mean
         # that is not its passes' mean (1.5 times it) was compared without a word
-        if passes is not None and not np.allclose(
-                passes.mean(axis=0), mean, rtol=max(1e-4, rel_rounding),
+        of_passes = None if passes is None else passes.mean(axis=0)
+        if of_passes is not None and not np.allclose(
+                of_passes, mean, rtol=max(1e-4, rel_rounding),
                 atol=1e-6 * max(float(np.abs(mean).max()), 1e-300)):
-            worst = float(np.max(np.abs(passes.mean(axis=0) - mean)))
+            worst = float(np.max(np.abs(of_passes - mean)))
             raise InvalidArgument(f"{label}_mean: not the mean of {label}_passes (largest "
                                   f"difference {worst:.3g}); give the mean of the passes")
     correlated = tp is not None
