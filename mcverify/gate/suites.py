@@ -486,8 +486,7 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
         return failed(f"returned {type(r).__name__}, not a CheckResult")
     r = _plain_fields(r, time.perf_counter() - t0)
     p = r.p_value       # Holm counts every p-value: p = 7 raised the others' adjusted p
-    if p is not None and (isinstance(p, (bool, np.bool_)) or not isinstance(
-            p, (int, float, np.integer, np.floating)) or not 0.0 <= p <= 1.0):
+    if p is not None and not (_number(p) and 0.0 <= p <= 1.0):
         r = dataclasses.replace(r, p_value=None, passed=False, failures=r.failures + (
             f"returned p_value={p!r}, not a probability in [0, 1]",))
     elif p is None and not r.passed and not r.failures:
@@ -501,6 +500,12 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
     return r
 
 
+def _number(v) -> bool:
+    """Whether a user's result field holds a real number (a bool is not one)."""
+    return not isinstance(v, (bool, np.bool_)) and isinstance(
+        v, (int, float, np.integer, np.floating))
+
+
 def _plain_fields(r: CheckResult, seconds: float) -> CheckResult:
     """A user's result with the field types the gate prints and writes: ``seconds``
     and ``n_samples`` that are no numbers (None) become the call's measured time and
@@ -509,9 +514,7 @@ def _plain_fields(r: CheckResult, seconds: float) -> CheckResult:
     with "unexpected TypeError" (in the progress line, the JUnit file or the page of
     ``check --report``, after its report.json was written), naming no check."""
     def real(v):
-        return (not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer,
-                                                                     np.floating))
-                and bool(np.isfinite(v)) and v >= 0)
+        return _number(v) and bool(np.isfinite(v)) and v >= 0
 
     def texts(v):
         v = (v,) if isinstance(v, str) else tuple(v or ())
