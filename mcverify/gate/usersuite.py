@@ -19,7 +19,6 @@ table, its settings apply (command-line options win)::
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import importlib
 import os
 import sys
@@ -221,10 +220,11 @@ _DIGESTS: dict[str, str | None] = {}
 
 
 def _imported_digest(module) -> str | None:
+    from .reference import file_hash
+
     if module.__name__ not in _DIGESTS:
         try:
-            with open(getattr(module, "__file__", None), "rb") as f:
-                _DIGESTS[module.__name__] = hashlib.sha256(f.read()).hexdigest()
+            _DIGESTS[module.__name__] = file_hash(getattr(module, "__file__", None))
         except (OSError, TypeError):    # no file (a namespace package, a built-in)
             _DIGESTS[module.__name__] = None
     return _DIGESTS[module.__name__]
