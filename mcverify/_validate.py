@@ -163,25 +163,29 @@ def real_dtype(dtype) -> bool:
     return np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)
 
 
-def as_array(what: str, v) -> np.ndarray:
-    """``np.asarray(v)``, or InvalidArgument saying ``what`` is wrong: a ragged sequence
+def as_array(what, v) -> np.ndarray:
+    """``np.asarray(v)``, or InvalidArgument saying ``what`` is wrong (a string, or a
+    function of no arguments that makes it: a repr of a million points costs about a
+    millisecond, which a check paid on every chunk before any error): a ragged sequence
     (``[[1, 2], [3]]``) raised numpy's bare ValueError, naming nothing. A masked array
     with masked values is refused: ``np.asarray`` keeps the values under the mask
     (``np.ma.sqrt(-1.0)``'s is -1.0) and the checks would read them as data."""
     if np.ma.is_masked(v):
+        what = what() if callable(what) else what
         raise InvalidArgument(f"{what}: a masked array with {int(np.ma.count_masked(v))} "
                               "masked values; the checks read every value (fill them, "
                               "e.g. .filled(np.nan), or leave them out)")
     try:
         return np.asarray(v)
     except (ValueError, TypeError) as e:
+        what = what() if callable(what) else what
         raise InvalidArgument(f"{what}: not an array of numbers ({e})") from None
 
 
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
     """Output of a user callable as an (n, dim) array (float32 kept, anything else as
     float64), or InvalidArgument."""
-    a = as_array(f"{name} returned {_show(x)}", x)
+    a = as_array(lambda: f"{name} returned {_show(x)}", x)
     if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers")
     if a.dtype == np.float16:
@@ -201,7 +205,7 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
 def values(name: str, v, n: int) -> np.ndarray:
     """Output of a user callable as (n,) float64. A single number is taken as that value
     at every point (a constant pdf, e.g. ``lambda x: 1 / (4 * np.pi)``)."""
-    a = as_array(f"{name} returned {_show(v)}", v)
+    a = as_array(lambda: f"{name} returned {_show(v)}", v)
     if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers "
                               f"(first value {_show(a.flat[0] if a.size else None)})")

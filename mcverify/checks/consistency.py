@@ -42,7 +42,7 @@ def _parts(out, n: int):
             f"sample returned {validate._show(out)}: expected a tuple (points, pdf) or "
             "(points, pdf, weight); a sampler that returns points only is check_sampler's "
             "subject")
-    x = validate.as_array(f"sample's points {validate._show(out[0])}", out[0])
+    x = validate.as_array(lambda: f"sample's points {validate._show(out[0])}", out[0])
     if x.ndim not in (1, 2) or x.shape[0] != n or x.shape[1:] == (0,):
         # the width is read from the array: a transposed (d, n) one was "expected (n, n)"
         raise InvalidArgument(
@@ -206,8 +206,8 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     if rows.size:
         xs = x[rows]
         q_raw = pdf(xs)
-        q_raw = _not_half("pdf", validate.as_array(f"pdf returned {validate._show(q_raw)}",
-                                                   q_raw))
+        q_raw = _not_half("pdf", validate.as_array(
+            lambda: f"pdf returned {validate._show(q_raw)}", q_raw))
         q = validate.values("pdf", q_raw, rows.size)
         dtypes.append(q_raw.dtype)      # a float32 pdf(x) is float32's rounding too
         value = None

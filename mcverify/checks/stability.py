@@ -93,7 +93,7 @@ def _call(what, fn, arg):
     except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
         return None, f"{what} raised {type(e).__name__}: {e}"
     try:        # a ragged list (numpy's bare ValueError), masked values (read as data)
-        a = validate.as_array(f"{what} returned {v!r:.80}", v)
+        a = validate.as_array(lambda: f"{what} returned {v!r:.80}", v)
     except InvalidArgument as e:
         return None, str(e)
     if what == "sample":                    # the domain's own conversion judges points,

@@ -135,3 +135,21 @@ def test_a_checks_name_is_a_string_or_its_default():
     assert mv.check_variance(np.ones(5), name="").name == "variance"
     assert mv.check_sampler(S, P, "square", n_samples=100, name=None).name == "sampler:<lambda>"
     assert mv.check_inverse(S, S, 2, n_samples=10, name=np.str_("mine")).name == "mine"
+
+
+class _NoRepr(np.ndarray):
+    """An array whose repr fails the test: a message is formatted only for an error."""
+
+    def __repr__(self):
+        raise AssertionError("repr of a valid result taken")
+
+
+def test_a_valid_callable_result_is_not_formatted_for_a_message():
+    # every chunk's points and pdf values had been repr'd (a millisecond for 1e6 points)
+    # for a message that is only shown when the value is bad
+    square = lambda u: np.asarray(u).view(_NoRepr)  # noqa: E731
+    ones = lambda x: np.ones(len(x)).view(_NoRepr)  # noqa: E731
+    assert mv.check_sampler(square, ones, "square", n_samples=1000).passed
+    assert mv.check_inverse(square, lambda x: np.asarray(x), 2, n_samples=100).passed
+    assert mv.check_pdf_consistency(lambda u: (square(u), ones(u)), ones, sample_dim=2,
+                                    n_samples=100).passed
