@@ -116,6 +116,20 @@ def _vector(name: str, v) -> tuple[float, float, float]:
     return float(a[0]), float(a[1]), float(a[2])
 
 
+def _unit_vector(name: str, v) -> tuple[float, float, float]:
+    """A unit vector: its length within 1e-9 of 1, or, given in float32, within float32's
+    rounding (4 ulps, 2.4e-7) of 1 and then normalised in float64 (a normalised float32
+    direction is off by up to ~1e-7 and was refused)."""
+    w = _vector(name, v)
+    norm = math.sqrt(sum(c * c for c in w))
+    single = getattr(v, "dtype", None) == np.float32 or (
+        isinstance(v, (list, tuple)) and any(isinstance(c, np.float32) for c in v))
+    if abs(norm - 1.0) <= (2.0 ** -22 if single else 1e-9):
+        return w if not single else (w[0] / norm, w[1] / norm, w[2] / norm)
+    raise ValueError(f"{name}={v!r}: expected a unit vector, its length is {norm!r} "
+                     f"(allowed: 1 ± {2.0 ** -22 if single else 1e-9:.2g})")
+
+
 def _index(name: str, i, count: int) -> int:
     if not isinstance(i, (int, np.integer)) or isinstance(i, bool) or not 0 <= i < count:
         raise ValueError(f"{name}={i!r}: expected an index in [0, {count})")
@@ -163,9 +177,7 @@ def _bsdf_rows(scene, b: int, wi):
     scene = prepare_scene(scene)
     a = scene.arrays
     b = _index("b", b, len(a.bsdf_i))
-    w = _vector("wi", wi)
-    if abs(math.sqrt(sum(c * c for c in w)) - 1.0) > 1e-9:
-        raise ValueError(f"wi={wi!r}: expected a unit vector")
+    w = _unit_vector("wi", wi)
     mask = int(scene.features)
     tables = (mask, a.bsdf_f, a.bsdf_i, a.bsdf_tex, a.tex_data, a.tex_info, b) + w
 

@@ -188,6 +188,29 @@ def test_front_ends_refuse_bad_input():
         sample([["a", "b", "c"]])
 
 
+def test_a_float32_unit_wi_is_taken_as_its_float64_normalisation():
+    """A normalised float32 direction is off unit length by up to ~1e-7; with the float64
+    tolerance (1e-9) it was refused ("expected a unit vector", its length not said). It
+    is now normalised in float64; a float64 one off by the same is still refused, and the
+    message gives the length."""
+    scene = prepare_scene(ROUGH)
+    v = np.array([0.3, 0.5, 0.8])
+    w32 = (v / np.linalg.norm(v)).astype(np.float32)
+    w32 = w32 * np.float32(1 + 1.2e-7)            # float32's rounding at most
+    assert abs(np.linalg.norm(w32.astype(np.float64)) - 1.0) > 1e-9
+    _, pdf = bsdf_sampler(scene, 2, w32)
+    w64 = tuple(w32.astype(np.float64) / np.linalg.norm(w32.astype(np.float64)))
+    _, pdf64 = bsdf_sampler(scene, 2, w64)
+    wo = np.array([[0.0, 0.6, 0.8], [0.5, -0.5, np.sqrt(0.5)]])
+    assert np.array_equal(pdf(wo), pdf64(wo))
+    _, pdf_list = bsdf_sampler(scene, 2, list(w32))          # float32 scalars in a list
+    assert np.array_equal(pdf_list(wo), pdf64(wo))
+    with pytest.raises(ValueError, match=r"wi=.*its length is 1\.0000001"):
+        bsdf_sampler(scene, 2, tuple(w32.astype(np.float64)))
+    with pytest.raises(ValueError, match=r"its length is 1\.001"):
+        bsdf_sampler(scene, 2, np.array([0.0, 0.0, 1.001], dtype=np.float32))
+
+
 def test_a_direction_with_a_nan_coordinate_has_a_nan_density_as_in_the_warps():
     """The warps' rule (a NaN point, a NaN density: a broken sampler's NaN stays
     visible): the tracer's diffuse pdf of (NaN, 0, 1) was 1/π, an area light's 0, until
