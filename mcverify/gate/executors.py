@@ -190,8 +190,10 @@ class Pool:
             raise InvalidArgument(f"-j {self.jobs} with a Dask cluster: the cluster's "
                                   "workers set the parallelism; drop -j")
         if self.dask_scheduler_file and not os.path.isfile(self.dask_scheduler_file):
-            raise InvalidArgument(f"--dask-scheduler-file {self.dask_scheduler_file}: no "
-                                  "such file (dask-scheduler --scheduler-file writes it)")
+            what = ("a folder, not a file" if os.path.isdir(self.dask_scheduler_file)
+                    else "no such file")
+            raise InvalidArgument(f"--dask-scheduler-file {self.dask_scheduler_file}: {what} "
+                                  "(dask-scheduler --scheduler-file writes it)")
         if self.retries < 0:
             raise InvalidArgument(f"retries={self.retries}: must be >= 0")
 

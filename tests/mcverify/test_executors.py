@@ -164,12 +164,14 @@ def test_a_check_missing_from_its_rebuilt_suite_is_named():
     (dict(jobs=99999999999), "-j 99999999999: more local worker processes"),
     (dict(jobs=2, dask="tcp://localhost:1"), "-j 2 with a Dask cluster"),
     (dict(dask="tcp://a:1", dask_scheduler_file="f"), "give one of them"),
-    (dict(dask_scheduler_file="/no/such/file.json"), "--dask-scheduler-file /no/such"),
+    (dict(dask_scheduler_file="/no/such/file.json"), "--dask-scheduler-file /no/such.*: no such"),
+    # a folder was "no such file", which it is, under its name, not
+    (dict(dask_scheduler_file="/tmp"), "--dask-scheduler-file /tmp: a folder, not a file"),
     # given but empty (an unset variable): ran in this process without a word
     (dict(dask=""), "--dask '': empty"),
     (dict(dask_scheduler_file=" "), "--dask-scheduler-file ' ': empty"),
-], ids=["jobs", "jobs-huge", "jobs-and-dask", "both-dask", "scheduler-file", "dask-empty",
-        "scheduler-file-empty"])
+], ids=["jobs", "jobs-huge", "jobs-and-dask", "both-dask", "scheduler-file",
+        "scheduler-file-folder", "dask-empty", "scheduler-file-empty"])
 def test_bad_pool_arguments(kwargs, needle):
     with pytest.raises(InvalidArgument, match=needle):
         Pool(**kwargs)
