@@ -178,6 +178,10 @@ def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
                          f"{spent:.1f}s and "
                          f"the fixed-size checks {other:.1f}s; every sampler check runs at "
                          f"the minimum n = {n_min:,}")
+    elif left < 0:          # nothing scales with n: said, as where the sampler checks' are
+        notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
+                     f"{spent:.1f}s and the fixed-size checks {other:.1f}s; no selected "
+                     f"check scales with n, so the run takes about {spent + other:.1f}s")
     predicted = spent + other + sum(fixed[x] + per_sample[x] * n_samples[x] for x in fixed)
     return n_samples, predicted, tuple(notes)
 
