@@ -935,6 +935,13 @@ class _Builder:
                 self.fail(d.sampler, "jitter=\"false\" (samples at the strata's centres) is "
                           "not supported: its image is not the independent sampler's "
                           "expectation; leave jitter on")
+            strength = int(d.sampler.get("strength", 2))
+            if d.sampler.type == "orthogonal" and strength < 2:
+                # Mitsuba's Bush construction of strength s draws from p^s rows: below
+                # 2 it never returns (3.9.1 hangs at 0, at 1 above 4 samples)
+                self.fail(d.sampler, f"strength {strength}: must be at least 2 (Mitsuba "
+                          "3.9.1's orthogonal sampler never finishes a render below "
+                          "that, so no reference could be built)")
             self.features |= layout.F_STRATIFIED
         n_tri = int(np.sum((info[:, layout.PRIM_KIND] == TRIANGLE)
                            & (info[:, layout.PRIM_SHAPE] >= 0)))

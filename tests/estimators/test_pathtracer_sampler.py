@@ -309,6 +309,25 @@ def test_unjittered_strata_are_refused_naming_the_line(tmp_path, kind):
     assert prepare_scene(str(p)).features & F_STRATIFIED
 
 
+
+@pytest.mark.parametrize("strength", [-1, 0, 1])
+def test_an_orthogonal_strength_below_2_is_refused_naming_the_line(tmp_path, strength):
+    """Mitsuba 3.9.1's orthogonal sampler never returns from a render at strength 0 or
+    below, nor at 1 above 4 samples: `render-check` of such a scene hung building its
+    reference. Refused by line before anything renders; 2 (the default) and 3 load."""
+    from estimators.pathtracer.scene import SceneError
+
+    p = tmp_path / "s.xml"
+    sampler = ('<sampler type="orthogonal"><integer name="sample_count" value="16"/>'
+               '<integer name="strength" value="{}"/></sampler>')
+    p.write_text(_ONE_SPHERE.format(sampler=sampler.format(strength)))
+    with pytest.raises(SceneError, match=r"s.xml:2: <sampler type=\"orthogonal\">: "
+                                         r"strength %d: must be at least 2" % strength):
+        prepare_scene(str(p))
+    for fine in (2, 3):
+        p.write_text(_ONE_SPHERE.format(sampler=sampler.format(fine)))
+        assert prepare_scene(str(p)).features & F_STRATIFIED
+
 @pytest.mark.mitsuba
 def test_the_orthogonal_sampler_renders_stratified_at_the_scenes_count(tmp_path):
     """It loads as in Mitsuba and renders with the stratified sampler at the scene's
