@@ -808,7 +808,7 @@ class _Builder:
     # -------------------------------------------------------------------- all
     def build(self) -> PreparedScene:
         d = self.desc
-        if d.film.get("pixel_format", "rgb") != "rgb":
+        if str(d.film.get("pixel_format", "rgb")).lower() != "rgb":    # any case, as Mitsuba
             self.fail(d.film, f"pixel_format {d.film.get('pixel_format')!r}: only rgb is "
                               "supported (the tracer writes 3 channels)")
         for name, allowed in _FILM_FORMATS.items():

@@ -1021,6 +1021,21 @@ def test_the_films_output_settings_are_read_as_mitsuba_reads_them(tmp_path, mi, 
                                   rf"'{value}': Mitsuba takes")
 
 
+@pytest.mark.parametrize("value", ["rgb", "RGB", "Rgb"])
+def test_the_films_pixel_format_rgb_is_read_in_any_case(tmp_path, mi, value):
+    """Mitsuba lower-cases ``pixel_format`` (``"RGB"`` is its rgb film); until 6
+    December the tracer refused it ("only rgb is supported"), and render-check with it."""
+    text = ('<scene version="3.0.0">\n<sensor type="perspective"><film type="hdrfilm">\n'
+            f'<string name="pixel_format" value="{value}"/></film></sensor>\n'
+            '<shape type="sphere"/></scene>')
+    _prepared_where_mitsuba_loads(tmp_path, mi, text, True, None)
+    assert "pixel_format = rgb," in str(mi.load_string(text).sensors()[0].film())
+    from estimators.pathtracer import prepare_scene
+
+    (tmp_path / "a.xml").write_text(text.replace(value, "RGBA"))
+    with pytest.raises(SceneError, match=r"pixel_format 'RGBA': only rgb"):
+        prepare_scene(str(tmp_path / "a.xml"))
+
 @pytest.mark.parametrize("sensor", ["perspective", "orthographic"])
 @pytest.mark.parametrize("props,accepted", [
     ('<float name="focus_distance" value="1000"/>', True),
