@@ -472,6 +472,14 @@ class _Loader:
                     continue
                 if ref.kind not in allowed_children:
                     self.fail(child, f"a {ref.kind} cannot go inside {kind} {ptype!r}")
+                if ref.kind == "emitter" and ref.type == "area":
+                    # an area emitter is declared inside its own shape: a <ref> to it is a
+                    # second shape (Mitsuba: "An endpoint can be only be attached to a
+                    # single shape"); the loader made both shapes emit
+                    self.fail(child, f"area emitter {target!r} (line {ref.line}) already "
+                                     "belongs to its shape; an emitter is attached to one "
+                                     "shape only (Mitsuba refuses it too): give this shape "
+                                     "its own <emitter type=\"area\">")
                 p.children.append(ref)
             elif child.tag == "texture":
                 name = self.attr(child, "name")

@@ -398,6 +398,19 @@ def test_a_light_that_is_no_area_light_is_refused_inside_a_shape(light):
     assert "s.xml:4" in msg and "inside a shape" in msg, msg
 
 
+def test_an_area_emitter_referenced_by_a_second_shape_is_refused(mi):
+    """An area emitter belongs to the shape it is declared in; a ``<ref>`` to it from
+    another shape made both shapes emit here, where Mitsuba refuses the scene ("An
+    endpoint can be only be attached to a single shape")."""
+    text = (f'<scene version="3.0.0">\n{_CAMERA}\n<shape type="sphere"><emitter type="area" '
+            'id="L"/></shape>\n<shape type="disk"><ref id="L"/></shape></scene>')
+    msg = _error(text)
+    assert "s.xml:4" in msg and "'L'" in msg and "line 3" in msg and "one shape" in msg, msg
+    with pytest.raises(RuntimeError):
+        mi.load_string(text.replace("<scene version=\"3.0.0\">",
+                                    "<scene version=\"3.0.0\"><integrator type=\"path\"/>"))
+
+
 @pytest.mark.parametrize("ops", [
     '<matrix value="0.5 0 0 0  0 0 0 1  0 0 0.5 0  0 0 0 1"/>',
     '<scale x="2" y="0" z="1"/>',
