@@ -373,7 +373,13 @@ class _Loader:
                     axis = self._xyz(op, 0.0)
                     t = rotate(axis, self.numbers(op, self.attr(op, "angle"), 1)[0])
                 elif op.tag == "matrix":
-                    t = matrix(self.numbers(op, self.attr(op, "value"), 16))
+                    # 16 values, or 9: a linear part (Mitsuba's parser takes both)
+                    text = self.attr(op, "value")
+                    count = len(split_numbers(text))
+                    if count not in (9, 16):
+                        self.fail(op, f"expected 16 numbers (a 4x4 matrix) or 9 (its linear "
+                                      f"part, 3x3), got {count}: {text!r}")
+                    t = matrix(self.numbers(op, text, count))
                 else:
                     self.fail(op, "unsupported transform operation; supported: lookat, "
                                   "translate, rotate, scale, matrix")

@@ -68,8 +68,14 @@ def look_at(origin, target, up=None) -> np.ndarray:
 
 
 def matrix(values) -> np.ndarray:
-    """A 4×4 matrix from 16 row-major values (Mitsuba's ``<matrix value="...">``)."""
-    return np.asarray(values, dtype=np.float64).reshape(4, 4)
+    """A 4×4 matrix from 16 row-major values, or from 9, its linear part (Mitsuba's
+    ``<matrix value="...">`` takes either)."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.size == 9:
+        m = np.eye(4)
+        m[:3, :3] = values.reshape(3, 3)
+        return m
+    return values.reshape(4, 4)
 
 
 def apply_point(m, p) -> np.ndarray:

@@ -398,6 +398,26 @@ def test_a_light_that_is_no_area_light_is_refused_inside_a_shape(light):
     assert "s.xml:4" in msg and "inside a shape" in msg, msg
 
 
+def test_a_matrix_of_nine_values_is_the_linear_part_as_in_mitsuba(mi):
+    """Mitsuba's ``<matrix>`` takes 9 values (a 3x3 linear part) as well as 16; the loader
+    refused 9 as "expected 16 numbers", so a valid scene could not be rendered. A count
+    other than 9 or 16 is refused by both."""
+    ops = '<matrix value="2,0.5,0, 0,1,0.3, 0,0,1"/><translate x="3" y="-1"/>'
+    desc = parse_scene(f'<scene version="3.0.0">{_CAMERA}<shape type="cube"><transform '
+                       f'name="to_world">{ops}</transform></shape></scene>', path="s.xml")
+    m = desc.shapes[0].get("to_world")
+    corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * 3)).reshape(3, -1).T
+    world = corners @ m[:3, :3].T + m[:3, 3]
+    box = mi.load_string(f'<scene version="3.0.0"><shape type="cube"><transform '
+                         f'name="to_world">{ops}</transform></shape></scene>').shapes()[0].bbox()
+    assert np.allclose(world.min(0), np.array(box.min), atol=1e-6)
+    assert np.allclose(world.max(0), np.array(box.max), atol=1e-6)
+    for bad in ("1 0 0 0", "1 0 0 0 1 0 0 0 1 0 0 0"):
+        msg = _error(f'<scene version="3.0.0">\n{_CAMERA}\n<shape type="cube"><transform '
+                     f'name="to_world"><matrix value="{bad}"/></transform></shape></scene>')
+        assert "s.xml:3" in msg and "9" in msg and "16" in msg, msg
+
+
 def test_an_area_emitter_referenced_by_a_second_shape_is_refused(mi):
     """An area emitter belongs to the shape it is declared in; a ``<ref>`` to it from
     another shape made both shapes emit here, where Mitsuba refuses the scene ("An
