@@ -592,9 +592,11 @@ class _Builder:
         vertex per face corner. What Mitsuba refuses is refused, naming the line."""
         path = self._asset_path(s)
         try:
-            with open(path, encoding="utf-8") as fh:
+            # numbers and keywords are ASCII; a comment or a name in another encoding
+            # (an exporter's Latin-1 "# Café") is read past, as Mitsuba reads bytes
+            with open(path, encoding="utf-8", errors="replace") as fh:
                 lines = fh.readlines()
-        except (OSError, UnicodeDecodeError) as e:
+        except OSError as e:
             self.fail(s, f"cannot read {path} ({getattr(e, 'strerror', None) or e})")
         if lines and lines[0].startswith("\ufeff"):
             self.fail(s, f"{path}: starts with a byte-order mark, which Mitsuba's OBJ "

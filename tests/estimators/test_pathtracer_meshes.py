@@ -286,6 +286,21 @@ def test_mitsuba_refuses_those_obj_files_too(mi, tmp_path, case):
         mi.load_dict({"type": "obj", "filename": str(tmp_path / "m.obj")})
 
 
+def test_an_obj_with_non_utf8_comments_and_names_loads_as_in_mitsuba(mi, tmp_path):
+    """An outside review: an OBJ whose comment or object name is Latin-1 (an exporter's
+    "# Caf\xe9") was refused, "cannot read ... 'utf-8' codec can't decode byte 0xe9",
+    where Mitsuba, which reads bytes, renders it. Its numbers are ASCII: it loads, with
+    Mitsuba's triangle."""
+    (tmp_path / "m.obj").write_bytes(b"# Caf\xe9\no d\xe9cor\n" + _TRI.encode() + b"f 1 2 3\n")
+    scene = tmp_path / "s.xml"
+    scene.write_text(_SCENE.format(mesh='<shape type="obj"><string name="filename" '
+                                        'value="m.obj"/></shape>'))
+    cs = prepare_scene(str(scene))
+    assert len(cs.arrays.prims) == 1
+    shape = mi.load_dict({"type": "obj", "filename": str(tmp_path / "m.obj")})
+    assert shape.face_count() == 1
+
+
 _COLLINEAR = "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n"
 
 
