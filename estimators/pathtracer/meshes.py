@@ -257,9 +257,14 @@ def _mesh(vertex, face, path) -> PlyMesh:
     if not {"x", "y", "z"} <= names:
         raise SceneError(f"{path}: the vertex element needs properties x, y and z")
     verts = _floats(vertex, "xyz", path)
-    if not np.all(np.isfinite(verts)):
-        raise SceneError(f"{path}: vertex {int(np.argmax(~np.isfinite(verts).all(1)))} "
-                         "has a non-finite position")
+    with np.errstate(over="ignore"):
+        finite = np.isfinite(verts.astype(np.float32)).all(1)
+    if not finite.all():
+        # a double beyond float32's range too: Mitsuba stores single precision and
+        # refuses it ("invalid vertex position data")
+        raise SceneError(f"{path}: vertex {int(np.argmax(~finite))} has a non-finite "
+                         "position (in single precision, as Mitsuba stores it: beyond "
+                         "±3.4028235e38 is not finite)")
     normals = (_floats(vertex, ("nx", "ny", "nz"), path)
                if {"nx", "ny", "nz"} <= names else None)
     uv_sets = [pair for pair in _UV_NAMES if set(pair) <= names]

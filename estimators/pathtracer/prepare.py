@@ -618,6 +618,11 @@ class _Builder:
                 if not all(math.isfinite(x) for x in vals):
                     # Mitsuba: "invalid vertex position data"; the triangle vanished
                     self.fail(s, f"{where}: not finite")
+                if t[0] != "vt" and not _finite_in_float32(vals):
+                    # Mitsuba stores single precision and refuses the file ("invalid
+                    # vertex position data"); float64 rendered it here
+                    self.fail(s, f"{where}: not finite in single precision (beyond "
+                                 "±3.4028235e38), as Mitsuba stores it (it refuses it too)")
                 if t[0] == "vn" and not any(vals):
                     # Mitsuba refuses the file for any such line, used or not
                     self.fail(s, f"{where}: a zero normal")
@@ -978,6 +983,12 @@ _DIFFUSE_LIKE = (layout.DIFFUSE, layout.PLASTIC, layout.ROUGHPLASTIC)
 
 
 _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
+
+
+def _finite_in_float32(values) -> bool:
+    """Whether ``values`` stay finite rounded to float32, as Mitsuba stores a mesh."""
+    with np.errstate(over="ignore"):
+        return bool(np.all(np.isfinite(np.asarray(values, dtype=np.float32))))
 
 
 def _numbers(tokens, kind):

@@ -100,6 +100,13 @@ def _bad(fmt, edit):
     return make
 
 
+def _beyond_float32(folder):
+    """The mesh with double positions, its first coordinate 1e39."""
+    path = _written(folder, "big.ply", "ascii", vertex_type="double")
+    path.write_bytes(path.read_bytes().replace(b"end_header\n-1.0", b"end_header\n1e39", 1))
+    return path
+
+
 BAD = {
     "truncated-binary": (_bad("binary_little_endian", lambda b: b[:-7]), "truncated", True),
     "truncated-ascii": (_bad("ascii", lambda b: b.rsplit(b" ", 2)[0]), "truncated", True),
@@ -126,6 +133,9 @@ BAD = {
         b"property float ny", b"property float t")), "texture coordinates named", False),
     "non-finite": (_bad("ascii", lambda b: b.replace(b"end_header\n-1.0", b"end_header\nnan")),
                    "non-finite position", True),
+    # a double Mitsuba rounds to float32's infinity ("invalid vertex position data");
+    # it was rendered in float64 here
+    "beyond-float32": (_beyond_float32, "in single precision", True),
 }
 
 
@@ -228,6 +238,12 @@ OBJ_BAD = {   # name: (file text, what the message says, Mitsuba refuses it too)
     "nan-position": ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", ":1: 'v nan 0 0': not finite",
                      True),
     "inf-position": (_TRI + "v inf 0 0\nf 1 2 4\n", ":4: 'v inf 0 0': not finite", True),
+    # finite in float64, infinite in the float32 Mitsuba stores (it refuses both; they
+    # were rendered here)
+    "float32-overflow-position": (_TRI + "v 0 0 3.4028236e38\nf 1 2 4\n",
+                                  ":4: 'v 0 0 3.4028236e38': not finite in single", True),
+    "float32-overflow-normal": (_TRI + "vn 0 0 1e39\nf 1//1 2//1 3//1\n",
+                                ":4: 'vn 0 0 1e39': not finite in single", True),
     "negative-index": (_TRI + "f -3 -2 -1\n", "negative (relative) indices", True),
     "negative-vt": (_TRI + "vt 0 0\nvt 1 1\nf 1/-1 2/-2 3/-1\n", "negative (relative)", True),
     "zero-normal": (_TRI + "vn 0 0 0\nf 1//1 2//1 3//1\n", "'vn 0 0 0': a zero normal", True),
@@ -237,8 +253,9 @@ OBJ_BAD = {   # name: (file text, what the message says, Mitsuba refuses it too)
                           ":3: 'f 1 2 3': refers to a 'v' that is not defined", True),
     "unused-zero-normal": (_TRI + "vn 0 0 0\nf 1 2 3\n", ":4: 'vn 0 0 0': a zero normal",
                            True),
+    # beyond float32 (Mitsuba's precision) as well as too large to normalise in float64
     "huge-normal": (_TRI + "vn 0 1e300 1e300\nf 1//1 2//1 3//1\n",
-                    "cannot be normalised in world space", True),
+                    ":4: 'vn 0 1e300 1e300': not finite in single", True),
     "two-coordinates": ("v 0 0\n" + _TRI + "f 2 3 4\n", ":1: 'v 0 0': needs 3 numbers", True),
     "one-uv": (_TRI + "vt 0.1\nf 1/1 2/1 3/1\n", "'vt 0.1': needs 2 numbers", True),
     "two-normal-values": (_TRI + "vn 0 1\nf 1//1 2//1 3//1\n", "'vn 0 1': needs 3", True),
