@@ -291,16 +291,21 @@ class _Loader:
         if name not in node.attrib:
             self.fail(node, f"missing attribute {name!r}")
         value = node.attrib[name]
-
-        def sub(m):
-            key = m.group(1)
-            self.declared.add(key)
-            if key not in self.params:
-                self.fail(node, f"${key} has no value: add <default name=\"{key}\" .../> or "
-                                "pass it as a parameter")
-            return self.params[key]
-
-        return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", sub, value)
+        if "$" not in value:
+            return value
+        # Mitsuba's substitution: each parameter's "$name" replaced, the longest names
+        # first ($r2 is r2's value, not r's and a 2), whatever characters the name has
+        # ($max-depth, $2x; an identifier pattern took "$r-x" for "$r" and left "$2x")
+        for key in sorted(self.params, key=len, reverse=True):
+            if "$" + key in value:
+                self.declared.add(key)
+                value = value.replace("$" + key, self.params[key])
+        if "$" in value:
+            key = re.search(r"\$([A-Za-z0-9_-]*)", value).group(1)
+            self.fail(node, f"${key} has no value: add <default name=\"{key}\" .../> or "
+                            "pass it as a parameter" if key else
+                      f"{node.attrib[name]!r}: a '$' that names no parameter")
+        return value
 
     def numbers(self, node, text, count):
         want = "a number" if count == 1 else f"{count} numbers"
@@ -543,7 +548,10 @@ class _Loader:
                 self.check_attributes(node)
                 name = self.attr(node, "name")
                 self.declared.add(name)
-                self.params.setdefault(name, node.attrib.get("value", ""))
+                # its value may use the parameters before it, as in Mitsuba
+                # (<default name="height" value="$res"/>; it was taken as "$res")
+                self.params.setdefault(name, self.attr(node, "value")
+                                       if "value" in node.attrib else "")
             elif node.tag == "integrator":
                 if integrator is not None:
                     self.fail(node, "a second <integrator>; a scene has one (Mitsuba refuses "

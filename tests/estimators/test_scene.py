@@ -398,6 +398,37 @@ def test_a_light_that_is_no_area_light_is_refused_inside_a_shape(light):
     assert "s.xml:4" in msg and "inside a shape" in msg, msg
 
 
+@pytest.mark.parametrize("defaults,value,radius", [
+    ('<default name="b" value="2"/><default name="a" value="1$b"/>', "$a", 12.0),
+    ('<default name="res" value="0.5"/><default name="r" value="$res"/>', "$r", 0.5),
+    ('<default name="r-x" value="0.5"/>', "$r-x", 0.5),
+    ('<default name="2x" value="0.25"/>', "$2x", 0.25),
+    ('<default name="r" value="2"/><default name="r2" value="3"/>', "$r2", 3.0),
+    ('<default name="r" value="2"/>', "$r.5", 2.5),
+], ids=["default-uses-default", "default-is-default", "hyphen", "leading-digit", "longest",
+        "suffix"])
+def test_parameters_are_substituted_as_mitsuba_substitutes_them(mi, defaults, value, radius):
+    """A <default> whose value uses an earlier parameter was taken literally ("expected a
+    number, got '1$b'"), and a parameter whose name is no identifier ($r-x, $2x) was not
+    substituted ("$r has no value" beside <default name="r-x">): Mitsuba renders each."""
+    text = (f'<scene version="3.0.0">{defaults}{_CAMERA}<shape type="sphere">'
+            f'<float name="radius" value="{value}"/></shape></scene>')
+    assert parse_scene(text, path="s.xml").shapes[0].get("radius") == radius
+    box = mi.load_string(text.replace("<sensor", '<integrator type="path"/><sensor', 1)
+                         ).shapes()[0].bbox()
+    assert abs(box.max[0] - radius) < 1e-6 * radius
+
+
+def test_an_unresolved_dollar_is_refused_naming_it():
+    base = '<scene version="3.0.0">{d}{c}<shape type="sphere"><float name="radius" value="{v}"/>' \
+           '</shape></scene>'
+    msg = _error(base.format(d='<default name="a" value="$b"/><default name="b" value="1"/>',
+                             c=_CAMERA, v="$a"))
+    assert '<default name="a">' in msg and "$b has no value" in msg, msg
+    msg = _error(base.format(d='<default name="r" value="2"/>', c=_CAMERA, v="${r}"))
+    assert "'${r}'" in msg and "names no parameter" in msg, msg
+
+
 def test_a_matrix_of_nine_values_is_the_linear_part_as_in_mitsuba(mi):
     """Mitsuba's ``<matrix>`` takes 9 values (a 3x3 linear part) as well as 16; the loader
     refused 9 as "expected 16 numbers", so a valid scene could not be rendered. A count
