@@ -164,9 +164,15 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
     their names resolved, as Mitsuba resolves them, against the scene's own folder."""
     defaults, names, includes = {}, [], set()
 
+    def substitute(text):
+        for key in sorted(defaults, key=len, reverse=True):    # as Mitsuba: longest first
+            text = text.replace("$" + key, defaults[key])
+        return text
+
     def start(tag, attrib):
         if tag == "default" and "name" in attrib:
-            defaults.setdefault(attrib["name"], attrib.get("value", ""))
+            # a default's value may use the ones before it (value="$base.obj")
+            defaults.setdefault(attrib["name"], substitute(attrib.get("value", "")))
         elif tag == "string" and attrib.get("name") == "filename" and "value" in attrib:
             names.append(attrib["value"])
         elif tag == "include" and "filename" in attrib:
@@ -183,9 +189,7 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
         i += 1
         if name in out:
             continue
-        real = name
-        for key in sorted(defaults, key=len, reverse=True):
-            real = real.replace("$" + key, defaults[key])
+        real = substitute(name)
         out[name] = full = real if os.path.isabs(real) else os.path.join(folder, real)
         if name in includes and os.path.isfile(full) and os.path.realpath(full) not in read:
             read.add(os.path.realpath(full))

@@ -238,6 +238,19 @@ def test_scene_assets_resolve_defaults_and_relative_paths(tmp_path):
                       "gone.png": None}
 
 
+def test_scene_assets_resolve_a_default_that_uses_another(tmp_path):
+    """``<default name="mesh" value="$base.obj"/>``, as Mitsuba (and the loader) read it:
+    the file was resolved as ``$base.obj``, hashed as missing, so that a change to the
+    mesh left the reference in use."""
+    (tmp_path / "tri.obj").write_text("v 0 0 0\n")
+    (tmp_path / "s.xml").write_text(
+        '<scene version="3.0.0"><default name="base" value="tri"/>'
+        '<default name="mesh" value="$base.obj"/>'
+        '<shape type="obj"><string name="filename" value="$mesh"/></shape></scene>')
+    assert reference.scene_assets(str(tmp_path / "s.xml")) == {
+        "$mesh": reference.file_hash(str(tmp_path / "tri.obj"))}
+
+
 def test_files_named_by_an_included_file_count_too(tmp_path):
     """A texture named only inside an ``<include>``d file (resolved, as Mitsuba does,
     against the scene's folder; includes of includes too, each read once) is hashed:
