@@ -611,6 +611,12 @@ def trace(sc, stack, ox, oy, oz, dx, dy, dz, t_max, state, pdf_scale):
             if ur >= q:
                 break
             tr, tg, tb = tr / q, tg / q, tb / q
+        if max(tr, tg, tb) < 2.0 ** -126:
+            # Mitsuba's stopping rule (throughput_max != 0), in its float32 arithmetic,
+            # which flushes a value below float32's smallest normal number to 0. Without
+            # it a closed room below rr_depth never ended: a float64 throughput stalls at
+            # the least subnormal, which an albedo above 1/2 rounds back to itself
+            break
     if not valid:
         return 0.0, 0.0, 0.0, state
     return rr, rg, rb, state

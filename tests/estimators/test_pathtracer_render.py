@@ -339,6 +339,43 @@ def test_max_depth_zero_renders_black_as_in_mitsuba(tmp_path):
     assert one.max() == 3.0 and one.min() == 1.0
 
 
+def test_a_path_whose_throughput_underflows_ends_as_in_mitsuba(tmp_path):
+    """Mitsuba ends a path whose throughput is 0 (``throughput_max != 0``); ours went on
+    until Russian roulette or an escape, so in a closed room (a twosided diffuse cube of
+    albedo 0.9 around the camera and a point light) with ``rr_depth`` 2^31 - 1 every path
+    bounced forever, its float64 throughput stalled at the least subnormal (0.9 times it
+    rounds back to it; Mitsuba's float32 flushes it to 0 below 2^-126): the render
+    hung (found on a scene not in the repository; Mitsuba renders it in half a second).
+    Rendered in a fresh process with a timeout, so a hang fails instead of stalling the
+    run; the kernel is compiled here first (rr_depth 5), and loaded there from the cache."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "room.xml"
+    path.write_text(
+        '<scene version="3.0.0"><default name="rr" value="2147483647"/>'
+        '<integrator type="path"><integer name="max_depth" value="-1"/>'
+        '<integer name="rr_depth" value="$rr"/>'
+        '</integrator><sensor type="perspective"><float name="fov" value="60"/>'
+        '<transform name="to_world"><lookat origin="0, 0, 0.5" target="0, 0, -1" '
+        'up="0, 1, 0"/></transform><film type="hdrfilm"><integer name="width" value="4"/>'
+        '<integer name="height" value="4"/><rfilter type="box"/></film></sensor>'
+        '<shape type="cube"><bsdf type="twosided">'
+        '<bsdf type="diffuse"><float name="reflectance" value="0.9"/></bsdf></bsdf></shape>'
+        '<emitter type="point"><point name="position" x="0" y="0.5" z="0"/>'
+        '<rgb name="intensity" value="1"/></emitter></scene>')
+    # the same kernel, where Russian roulette ends the paths
+    render(str(path), spp=2, seed=1, general=True, params={"rr": 5})
+    code = ("from estimators.pathtracer import render\n"
+            f"r = render({str(path)!r}, spp=2, seed=1, general=True)\n"
+            "print(float(r.mean.mean()), r.stats['nonfinite_samples'])\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    mean, nonfinite = r.stdout.split()[-2:]
+    assert 0.3 < float(mean) < 5.0 and nonfinite == "0", r.stdout
+
+
 _SKY = os.path.join(os.path.dirname(__file__), "..", "..", "reference", "scenes", "envmap",
                     "sky.exr")
 
