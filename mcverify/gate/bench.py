@@ -79,7 +79,8 @@ def pairs(n: int = N, *, spp: int = 64, renders: bool = True):
 
 def _render_pairs(mi, spp: int):
     """The path tracer: the render gate's decision time on the Cornell box (no
-    counterpart); every reference scene at 128 × 128 (its own integrator settings), ours
+    counterpart); every reference scene at ``res`` 128 (128 × 128 unless its film fixes
+    a side; its own integrator settings), ours
     against Mitsuba at the same spp; and the specialised kernel against the general one
     on a diffuse-only scene (the white furnace)."""
     from estimators.pathtracer import prepare_scene, render
@@ -117,7 +118,9 @@ def _render_pairs(mi, spp: int):
         depth = ours.arrays.max_depth
         # ours renders the samples Mitsuba's sampler rounds spp to (orthogonal: 64 -> 121)
         n = mvm.sampler_rounds(ours.desc.sampler, spp)
-        what = (f"128 x 128, {ours.n_triangles:,} triangles, max_depth "
+        # the film's own size: a scene whose width is fixed (vocabulary-geometry's 64)
+        # renders 64 x 128 on both sides, which this label had called 128 x 128
+        what = (f"{ours.width} x {ours.height}, {ours.n_triangles:,} triangles, max_depth "
                 f"{depth if depth < 1 << 30 else 'unlimited'}, {n} spp, the image alone")
         # the image alone on both sides (ours variance=False, as the render gate's passes)
         out.append((f"render:{name}", what,

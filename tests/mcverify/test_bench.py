@@ -66,6 +66,16 @@ def test_render_rows_give_ours_the_samples_mitsubas_sampler_renders():
     assert mvm._loaded.cache_info().misses == loads
 
 
+def test_render_rows_name_the_film_size_both_sides_render():
+    """`res` 128 sets the height; a film whose width is fixed keeps it (vocabulary-geometry
+    64, vocabulary-lights 48): their rows said "128 x 128" for the 64 x 128 and 48 x 128
+    images both sides render."""
+    rows = {r[0]: r[1] for r in bench._render_pairs(_FakeMitsuba(), spp=16)}
+    assert rows["render:vocabulary-geometry"].startswith("64 x 128,"), rows
+    assert rows["render:vocabulary-lights"].startswith("48 x 128,"), rows
+    assert rows["render:cornell-box"].startswith("128 x 128,"), rows
+
+
 def test_equal_time_rmse_of_our_tracer_against_itself_is_one():
     """A stand-in Mitsuba that renders with our own tracer, and a clock under which every
     render takes the same time: the same estimator at the same spp, so the equal-time
