@@ -197,6 +197,12 @@ def _best(fn, repeats: int, clock=time.perf_counter, min_seconds: float = 0.0) -
     return float(best)
 
 
+def equal_time_spp(spp: int) -> int:
+    """The spp the equal-time rows ask of Mitsuba for a bench at ``spp`` (a quarter;
+    its sampler may round it up, as each row's workload says)."""
+    return max(2, spp // 4)
+
+
 def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = True,
               progress=None) -> list[dict]:
     """Time every pair (best of at least ``repeats`` runs and ``MIN_SECONDS`` of runs,
@@ -224,7 +230,7 @@ def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = Tr
         if progress:
             progress(i + 1, total, rows[-1])
     for i, scene in enumerate(scenes):
-        rows.append(equal_time_rmse(scene, spp=max(2, spp // 4)))
+        rows.append(equal_time_rmse(scene, spp=equal_time_spp(spp)))
         if progress:
             progress(len(work) + i + 1, total, rows[-1])
     return rows

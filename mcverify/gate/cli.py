@@ -573,7 +573,7 @@ def _cmd_report(args) -> int:
 def _cmd_bench(args) -> int:
     import json
 
-    from .bench import run_bench
+    from .bench import equal_time_spp, run_bench
     from ..provenance import describe_cpu, provenance
     from ..result import atomic_write
 
@@ -619,8 +619,15 @@ def _cmd_bench(args) -> int:
         print(f"{r['group']:{w}s} {r['ours_s']:10.4g} {m:>10s} {ratio:>12s}  {r['against']} "
               "(seconds)")
     if args.json:
+        from .reference import REFERENCE_ROOT
+
+        # the sizes chosen, as the table's rows were timed with them: a run at --n 1000
+        # --spp 4 had the provenance of one at the defaults (only --repeats recorded)
         doc = {"provenance": provenance(mitsuba_version=mv_mitsuba.mitsuba_version(),
-                                        mitsuba_variant=choice.variant, repeats=args.repeats),
+                                        mitsuba_variant=choice.variant, repeats=args.repeats,
+                                        n=args.n, spp=args.spp, renders=not args.no_render,
+                                        equal_time_spp=equal_time_spp(args.spp),
+                                        refs=None if args.no_render else REFERENCE_ROOT),
                "results": rows}
         atomic_write(args.json, json.dumps(doc, indent=2) + "\n")
     return EXIT_OK

@@ -125,6 +125,27 @@ def test_cli_prints_microsecond_timings_as_numbers(monkeypatch, capsys):
         assert line[end - 1] != " " and line[end:end + 2] == "  ", (header, line)
 
 
+def test_cli_json_records_the_sizes_it_timed(tmp_path, monkeypatch, capsys):
+    """`bench --json` records --n, --spp (and the equal-time rows' quarter of it), whether
+    the renders ran and their scenes' folder: only --repeats was recorded, so a run at
+    --n 1000 --spp 8 had the provenance of one at the defaults."""
+    import json
+
+    from mcverify.gate import cli, reference
+
+    _own_scenes(tmp_path, monkeypatch)
+    monkeypatch.setattr(bench, "run_bench", lambda **kw: [])
+    out = tmp_path / "bench.json"
+    assert cli.main(["bench", "--n", "2000", "--spp", "8", "--repeats", "2", "-q",
+                     "--json", str(out)]) == 0
+    prov = json.loads(out.read_text())["provenance"]
+    assert (prov["n"], prov["spp"], prov["equal_time_spp"], prov["repeats"]) == (2000, 8, 2, 2)
+    assert prov["renders"] is True and prov["refs"] == reference.REFERENCE_ROOT
+    assert cli.main(["bench", "--no-render", "--n", "1000", "-q", "--json", str(out)]) == 0
+    prov = json.loads(out.read_text())["provenance"]
+    assert (prov["n"], prov["spp"], prov["renders"], prov["refs"]) == (1000, 64, False, None)
+
+
 def _own_scenes(tmp_path, monkeypatch, *, with_reference=True):
     """A --refs folder of the user's own: one scene (a copy of the white furnace under
     another name), with or without its reference."""
