@@ -53,7 +53,9 @@ def main() -> None:
         try:
             ours = prepare_scene(scratch, params={"res": 128})
             theirs = mi.load_file(scratch, res=128)
-            t_ours = _best(lambda: render(ours, spp=args.spp, variance=False), args.repeats)
+            # the samples Mitsuba's sampler rounds --spp to (orthogonal: 32 -> 49), on both
+            n = mvm.sampler_rounds(ours.desc.sampler, args.spp)
+            t_ours = _best(lambda: render(ours, spp=n, variance=False), args.repeats)
             t_theirs = _best(lambda: np.asarray(mi.render(theirs, spp=args.spp)),
                              args.repeats)
         finally:
