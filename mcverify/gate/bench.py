@@ -13,6 +13,10 @@ import time
 import numpy as np
 
 N = 1_000_000
+#: Memory a point of ``n`` takes, about: the uniform numbers in float64 and float32 (24
+#: bytes), our points and pdf (32), Mitsuba's float32 copies of both and their numpy
+#: arrays (40); ``mcverify bench --n`` is refused where they exceed half the memory.
+BYTES_PER_POINT = 96
 
 
 def pairs(n: int = N, *, spp: int = 64, renders: bool = True):

@@ -592,6 +592,12 @@ def _cmd_bench(args) -> int:
     if args.n < 1000:
         raise InvalidArgument(f"--n {args.n}: must be >= 1000 (timings of fewer points "
                               "measure call overhead, not work)")
+    from .._validate import memory
+    from .bench import BYTES_PER_POINT
+
+    # --n 10000000000 ended in "unexpected MemoryError: Unable to allocate 149. GiB for an
+    # array with shape (10000000000, 2)", naming no option, after Mitsuba's probe
+    memory("--n", args.n, BYTES_PER_POINT, "the warps' points and results, both sides")
     from . import mitsuba as mv_mitsuba
 
     choice = mv_mitsuba.choose_variant()

@@ -67,8 +67,11 @@ def test_check_subset_passes_writes_json_and_is_deterministic(tmp_path):
     (["report", "--out", "/proc/forbidden/rep"], "--out /proc/forbidden/rep"),
     (["bench", "--repeats", "0"], "--repeats 0"),
     (["bench", "--n", "10"], "--n 10"),
+    # more points than memory: numpy's "unexpected MemoryError", naming no option
+    (["bench", "--no-render", "--n", "10000000000000"], "--n=10000000000000: needs about"),
 ], ids=["suite", "pattern", "list-pattern", "alpha", "seed", "seed-underscore",
-        "seed-fullwidth", "json-path", "command", "report-out", "bench-repeats", "bench-n"])
+        "seed-fullwidth", "json-path", "command", "report-out", "bench-repeats", "bench-n",
+        "bench-n-memory"])
 def test_bad_input_is_one_line_exit_2(args, needle):
     r = run(*args)
     assert r.returncode == 2
