@@ -201,6 +201,18 @@ def _best(fn, repeats: int, clock=time.perf_counter, min_seconds: float = 0.0) -
     return float(best)
 
 
+def _not_vectorised() -> str:
+    """Why a row has no Mitsuba time: the variant in use and why it is that one. It said
+    "no libLLVM >= 16" also where a libLLVM was found but failed Dr.Jit's probe, or where
+    $MCVERIFY_MITSUBA_VARIANT chose scalar_rgb."""
+    from . import mitsuba as mvm
+
+    choice = mvm.choose_variant()
+    why = (choice.notice.removeprefix("mitsuba: ") if choice.notice
+           else "chosen by $MCVERIFY_MITSUBA_VARIANT")
+    return f"Mitsuba's variant here, {choice.variant}, is not vectorised ({why})"
+
+
 def equal_time_spp(spp: int) -> int:
     """The spp the equal-time rows ask of Mitsuba for a bench at ``spp`` (a quarter;
     its sampler may round it up, as each row's workload says)."""
@@ -229,8 +241,7 @@ def run_bench(*, repeats: int = 5, n: int = N, spp: int = 64, renders: bool = Tr
                      "mitsuba_s": t_theirs, "against": against,
                      "ratio": None if t_theirs is None else t_ours / t_theirs,
                      "note": None if theirs is not None else
-                     "no counterpart" if against == "-" else
-                     "Mitsuba's vectorised llvm variant unavailable (no libLLVM >= 16)"})
+                     "no counterpart" if against == "-" else _not_vectorised()})
         if progress:
             progress(i + 1, total, rows[-1])
     for i, scene in enumerate(scenes):

@@ -190,6 +190,24 @@ def test_cli_json_records_the_sizes_it_timed(tmp_path, monkeypatch, capsys):
     assert (prov["n"], prov["spp"], prov["renders"], prov["refs"]) == (1000, 64, False, None)
 
 
+@pytest.mark.parametrize("notice,why", [
+    ("mitsuba: llvm_ad_rgb does not work with /x/libLLVM.so; using scalar_rgb",
+     "(llvm_ad_rgb does not work with /x/libLLVM.so; using scalar_rgb)"),
+    (None, "(chosen by $MCVERIFY_MITSUBA_VARIANT)")])
+def test_a_row_without_mitsuba_says_which_variant_and_why(monkeypatch, notice, why):
+    """A warp row with no Mitsuba time said "no libLLVM >= 16" whatever the reason: also
+    where a libLLVM was found but failed the probe, or the variable chose scalar_rgb."""
+    from mcverify.gate import mitsuba as mvm
+
+    monkeypatch.setattr(mvm, "choose_variant", lambda: mvm.VariantChoice("scalar_rgb", notice))
+    monkeypatch.setattr(bench, "pairs", lambda *a, **k: [
+        ("warp:w", "w", lambda: None, None, "mitsuba"), ("gate", "g", lambda: None, None, "-")])
+    monkeypatch.setattr(bench, "MIN_SECONDS", 0.0)
+    warp, gate = bench.run_bench(repeats=1, n=1000, renders=False)
+    assert warp["note"] == f"Mitsuba's variant here, scalar_rgb, is not vectorised {why}"
+    assert gate["note"] == "no counterpart"
+
+
 def _own_scenes(tmp_path, monkeypatch, *, with_reference=True):
     """A --refs folder of the user's own: one scene (a copy of the white furnace under
     another name), with or without its reference."""
