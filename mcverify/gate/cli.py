@@ -608,8 +608,13 @@ def _cmd_bench(args) -> int:
         if not args.quiet:
             print(f"[{i}/{total}] {row['group']} done", file=sys.stderr)
 
-    rows = run_bench(repeats=args.repeats, n=args.n, spp=args.spp,
-                     renders=not args.no_render, progress=show)
+    from estimators.pathtracer import SceneError
+
+    try:    # every scene is prepared before anything is timed
+        rows = run_bench(repeats=args.repeats, n=args.n, spp=args.spp,
+                         renders=not args.no_render, progress=show)
+    except SceneError as e:     # a --refs scene our tracer refuses: bad input, as in check
+        raise InvalidArgument(str(e)) from None
     w = max([30] + [len(r["group"]) for r in rows])     # long names kept the columns apart
     # the ratios depend on the processor (up to 1.8x apart on this project's machines)
     print(f"on {describe_cpu()}, Mitsuba {mv_mitsuba.mitsuba_version()} {choice.variant}")

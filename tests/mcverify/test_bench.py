@@ -1,5 +1,6 @@
 """``mcverify bench``'s render rows: Mitsuba's scenes are loaded one at a time."""
 
+import json
 import os
 
 import numpy as np
@@ -243,6 +244,30 @@ def test_a_scene_without_reference_is_refused_before_any_timing(tmp_path, monkey
     monkeypatch.setattr(bench, "_best", lambda *a, **k: pytest.fail("timed"))
     with pytest.raises(MissingReference, match="no reference built for 'mine'"):
         bench.run_bench(repeats=1, n=1000, spp=4)
+
+
+def test_cli_a_scene_our_tracer_refuses_is_bad_input(tmp_path, monkeypatch, capsys):
+    """A --refs scene our tracer refuses (an unsupported integrator, its reference
+    present) ended as "unexpected SceneError ... (set MCVERIFY_TRACEBACK=1 to see where)",
+    the wording of a crash; now the scene's own message, as `check` gives it, exit 2,
+    before anything is timed and with no --json written."""
+    from mcverify.gate import cli
+    from mcverify.gate.reference import scene_hash
+
+    _own_scenes(tmp_path, monkeypatch)
+    scene = tmp_path / "mine" / "scene.xml"
+    scene.write_text(scene.read_text().replace('<integrator type="path"',
+                                               '<integrator type="volpath"'))
+    manifest = tmp_path / "mine" / "ref" / "manifest.json"
+    doc = json.loads(manifest.read_text())
+    doc["scene_sha256"] = scene_hash(str(scene))        # the reference stays current
+    manifest.write_text(json.dumps(doc))
+    monkeypatch.setattr(bench, "_best", lambda *a, **k: pytest.fail("timed"))
+    out = tmp_path / "bench.json"
+    assert cli.main(["bench", "--n", "1000", "-q", "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "unsupported integrator type 'volpath'" in err and "unexpected" not in err, err
+    assert not out.exists()
 
 
 def test_cli_json_over_a_reference_it_reads_is_refused(tmp_path, monkeypatch, capsys):
