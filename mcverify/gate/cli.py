@@ -617,7 +617,13 @@ def _cmd_bench(args) -> int:
         raise InvalidArgument(str(e)) from None
     w = max([30] + [len(r["group"]) for r in rows])     # long names kept the columns apart
     # the ratios depend on the processor (up to 1.8x apart on this project's machines)
-    print(f"on {describe_cpu()}, Mitsuba {mv_mitsuba.mitsuba_version()} {choice.variant}")
+    # and on each side's threads: MCVERIFY_NUM_THREADS=1 timed ours on one thread against
+    # Mitsuba's every core, and neither the table nor the JSON said so
+    import numba
+
+    threads = {"ours": numba.get_num_threads(), "mitsuba": mv_mitsuba.thread_count()}
+    print(f"on {describe_cpu()}, Mitsuba {mv_mitsuba.mitsuba_version()} {choice.variant}; "
+          f"threads: ours {threads['ours']}, Mitsuba {threads['mitsuba']}")
     print(f"{'workload':{w}s} {'ours':>10s} {'theirs':>10s} {'ours/theirs':>12s}  against")
     for r in rows:
         if "ours_rmse" in r:
@@ -637,6 +643,7 @@ def _cmd_bench(args) -> int:
         doc = {"provenance": provenance(mitsuba_version=mv_mitsuba.mitsuba_version(),
                                         mitsuba_variant=choice.variant, repeats=args.repeats,
                                         n=args.n, spp=args.spp, renders=not args.no_render,
+                                        threads=threads,
                                         equal_time_spp=equal_time_spp(args.spp),
                                         refs=None if args.no_render else REFERENCE_ROOT),
                "results": rows}

@@ -174,6 +174,13 @@ def mitsuba_version() -> str:
     return mi.__version__
 
 
+def thread_count() -> int:
+    """The threads Mitsuba renders on (Dr.Jit's pool: every core unless told)."""
+    import drjit as dr
+
+    return int(dr.thread_count())
+
+
 def _vectorised() -> bool:
     return not choose_variant().variant.startswith("scalar")
 

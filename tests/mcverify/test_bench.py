@@ -191,6 +191,27 @@ def test_cli_json_records_the_sizes_it_timed(tmp_path, monkeypatch, capsys):
     assert (prov["n"], prov["spp"], prov["renders"], prov["refs"]) == (1000, 64, False, None)
 
 
+def test_cli_says_how_many_threads_each_side_ran(tmp_path, monkeypatch, capsys):
+    """MCVERIFY_NUM_THREADS=1 timed ours on one thread against Mitsuba's every core, and
+    neither the table nor --json said so; both now give each side's threads."""
+    import numba
+
+    from mcverify.gate import cli
+    from mcverify.gate import mitsuba as mvm
+
+    before = numba.get_num_threads()
+    monkeypatch.setenv("MCVERIFY_NUM_THREADS", "1")
+    monkeypatch.setattr(bench, "run_bench", lambda **kw: [])
+    out = tmp_path / "bench.json"
+    try:
+        assert cli.main(["bench", "--no-render", "-q", "--json", str(out)]) == 0
+    finally:
+        numba.set_num_threads(before)
+    threads = json.loads(out.read_text())["provenance"]["threads"]
+    assert threads == {"ours": 1, "mitsuba": mvm.thread_count()}
+    assert f"threads: ours 1, Mitsuba {mvm.thread_count()}" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("notice,why", [
     ("mitsuba: llvm_ad_rgb does not work with /x/libLLVM.so; using scalar_rgb",
      "(llvm_ad_rgb does not work with /x/libLLVM.so; using scalar_rgb)"),
