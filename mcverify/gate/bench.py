@@ -191,6 +191,9 @@ MIN_SECONDS = 0.25
 def _best(fn, repeats: int, clock=time.perf_counter, min_seconds: float = 0.0) -> float:
     """Best time of ``fn`` over at least ``repeats`` runs and ``min_seconds`` of runs
     (at most 1000), after a warm-up."""
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        # benchmarks/tracer_speed.py --repeats 0 printed "ours infs" (no run timed)
+        raise ValueError(f"repeats={repeats!r}: must be an integer >= 1")
     fn()  # warm-up: JIT compilation on both sides is excluded
     best, spent, runs = np.inf, 0.0, 0
     while runs < repeats or (spent < min_seconds and runs < 1000):

@@ -150,6 +150,17 @@ def test_equal_time_rmse_of_our_tracer_against_itself_is_one():
     assert len(seeds) == 8 and len(set(seeds[4:])) == 4     # warm-up, 3 timed, 4 measured
 
 
+@pytest.mark.parametrize("repeats", [0, -2])
+def test_best_of_no_runs_is_refused(repeats):
+    """``_best`` with no timed run returned inf: benchmarks/tracer_speed.py --repeats 0
+    (and ablate_scene.py, which share it) printed "ours infs" as a time."""
+    calls = []
+    with pytest.raises(ValueError, match=f"repeats={repeats}: must be an integer >= 1"):
+        bench._best(lambda: calls.append(1), repeats)
+    assert calls == []
+    assert bench._best(lambda: calls.append(1), 1, clock=iter([0.0, 0.5]).__next__) == 0.5
+
+
 def test_cli_prints_microsecond_timings_as_numbers(monkeypatch, capsys):
     """A workload of microseconds (``--n 1000``) printed as 0.0000 on both sides, beside
     a ratio of 0.33 that its printed times could not give; now 4 significant digits."""
