@@ -8,6 +8,7 @@ warm-up, so JIT compilation is excluded on both sides) and reports ``ours / thei
 
 from __future__ import annotations
 
+import re
 import time
 
 import numpy as np
@@ -107,18 +108,19 @@ def _render_pairs(mi, spp: int):
     # of 0.235 s (64 spp, 128²), which flattered our ratios by about 1.5×.
     loaded: dict = {}
 
-    def theirs_render(path):
+    def theirs_render(path, params):
         def run():
             if loaded.get("path") != path:
                 loaded.clear()                  # drop the previous scene before loading
-                loaded["scene"] = mi.load_file(path, res=128)
+                loaded["scene"] = mi.load_file(path, **params)
                 loaded["path"] = path
             return np.asarray(mi.render(loaded["scene"], spp=spp))
         return run
 
     for name in list_scenes():
         path = resolve_scene(name)[1]
-        ours = prepare_scene(path, params={"res": 128})
+        params = _res_128(path)
+        ours = prepare_scene(path, params=params)
         depth = ours.arrays.max_depth
         # ours renders the samples Mitsuba's sampler rounds spp to (orthogonal: 64 -> 121)
         n = mvm.sampler_rounds(ours.desc.sampler, spp)
@@ -129,13 +131,24 @@ def _render_pairs(mi, spp: int):
         # the image alone on both sides (ours variance=False, as the render gate's passes)
         out.append((f"render:{name}", what,
                     lambda ours=ours, n=n: render(ours, spp=n, variance=False),
-                    theirs_render(path), "mitsuba"))
+                    theirs_render(path, params), "mitsuba"))
     furnace = prepare_scene(resolve_scene("white-furnace", BUNDLED_ROOT)[1],
                             params={"res": 128})
     out.append(("kernel:specialised/general", f"white furnace (diffuse only), {spp} spp",
                 lambda: render(furnace, spp=spp, general=False),
                 lambda: render(furnace, spp=spp, general=True), "general kernel"))
     return out
+
+
+def _res_128(path: str) -> dict:
+    """``{"res": 128}`` for a scene that takes a ``res`` parameter (every scene that comes
+    with mcverify), else ``{}``: the scene at its own film size. A ``--refs`` scene of the
+    user's with a literal film size was refused by both renderers ("params ['res']: the
+    scene has no such parameter"; Mitsuba: "Found unused parameters")."""
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    uses = re.search(r"""<default\s+name\s*=\s*["']res["']|\$res\b""", text)
+    return {"res": 128} if uses else {}
 
 
 def equal_time_rmse(scene: str = "cornell-box", spp: int = 16, seed: int = 1,

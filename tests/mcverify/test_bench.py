@@ -29,7 +29,8 @@ class _FakeMitsuba:
         self.Scene = Scene
 
     def load_file(self, path, **params):
-        assert params == {"res": 128}
+        assert params in ({"res": 128}, {})     # {}: a scene without a res parameter
+        self.params = params
         return self.Scene(path)
 
     def render(self, scene, spp):
@@ -265,6 +266,25 @@ def test_own_scenes_folder_keeps_the_fixed_workloads(tmp_path, monkeypatch):
     assert {"render:mine", "render-check:cornell-box",
             "kernel:specialised/general"} <= set(rows), sorted(rows)
     assert not any(name in rows for name in ("render:cornell-box", "render:white-furnace"))
+
+
+def test_own_scene_without_a_res_parameter_renders_at_its_own_size(tmp_path, monkeypatch):
+    """`bench --refs MYDIR` with a scene whose film size is literal (no $res, as a user's
+    own scene often is) was refused by both renderers: "params ['res']: the scene has no
+    such parameter" (ours), "Found unused parameters" (Mitsuba). It now renders at its
+    own size on both sides, the row saying which."""
+    _own_scenes(tmp_path, monkeypatch)
+    scene = tmp_path / "mine" / "scene.xml"
+    text = scene.read_text()
+    assert '<default name="res" value="64"/>' in text
+    scene.write_text(text.replace('<default name="res" value="64"/>', "")
+                     .replace("$res", "40"))
+    mi = _FakeMitsuba()
+    rows = {r[0]: r for r in bench._render_pairs(mi, spp=4)}
+    assert rows["render:mine"][1].startswith("40 x 40,"), rows["render:mine"][1]
+    rows["render:mine"][3]()
+    assert mi.params == {}
+    assert bench._res_128(str(scene)) == {}
 
 
 def test_a_scene_without_reference_is_refused_before_any_timing(tmp_path, monkeypatch):
