@@ -288,7 +288,11 @@ def _bench(tmp_path, *extra):
     machine, header, *lines = r.stdout.splitlines()
     # the first line names the processor and Mitsuba's variant the ratios were measured on
     assert machine.startswith("on ") and " cores, Mitsuba " in machine, machine
-    assert machine.endswith(doc["provenance"]["mitsuba_variant"]), machine
+    # ... and each side's threads (ours on one thread against Mitsuba's every core was
+    # not said)
+    t = doc["provenance"]["threads"]
+    assert machine.endswith(f"{doc['provenance']['mitsuba_variant']}; threads: ours "
+                            f"{t['ours']}, Mitsuba {t['mitsuba']}"), machine
     end = header.index("ours/theirs") + len("ours/theirs")
     for line in lines:          # the ratio column ends under its header on every row
         assert line[end - 1] != " " and line[end:end + 2] == "  ", (header, line)
