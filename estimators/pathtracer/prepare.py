@@ -547,6 +547,12 @@ class _Builder:
             scales = np.linalg.norm(lin, axis=0)
             if not np.allclose(scales, scales[0], rtol=1e-6):
                 self.fail(s, "a sphere's to_world must scale uniformly")
+            frame = lin / scales[0]
+            if not np.allclose(frame.T @ frame, np.eye(3), atol=1e-6):
+                # equal column lengths, but not orthogonal: a shear, which the sphere's
+                # frame (its uv and shading frame) cannot hold (Mitsuba warns of it)
+                self.fail(s, "a sphere's to_world must not shear (a rotation, a uniform "
+                             "scale and a translation)")
             r = float(s.get("radius", 1.0)) * scales[0]
             if not r > 0:
                 self.fail(s, f"radius must be > 0, got {r}")

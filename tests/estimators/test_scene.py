@@ -1157,3 +1157,24 @@ def test_a_sensors_film_sampler_and_filter_may_be_declared_at_the_top_and_refere
         unused = text.replace(f'<ref id="{ident}"/>', "")
         assert f"s.xml:{line}: <{tag} " in _error(unused)
         assert f"{tag} {ident!r} is never used" in _error(unused)
+
+
+@pytest.mark.parametrize("ops,needle", [
+    ('<scale x="2" y="1" z="1"/>', "must scale uniformly"),
+    # equal column lengths (1, 1, 1) but a shear: slipped past the scale test and gave
+    # the sphere a frame that is no rotation (an outside review)
+    ('<matrix value="1 0.6 0 0  0 0.8 0 0  0 0 1 0  0 0 0 1"/>', "must not shear"),
+], ids=["non-uniform", "shear-equal-lengths"])
+def test_a_sphere_to_world_that_is_no_similarity_is_refused(tmp_path, ops, needle):
+    from estimators.pathtracer import prepare_scene
+
+    body = (f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><transform '
+            f'name="to_world">{ops}</transform></shape></scene>')
+    path = tmp_path / "s.xml"
+    path.write_text(body)
+    with pytest.raises(SceneError, match=f"s.xml:3.*{needle}"):
+        prepare_scene(str(path))
+    # a rotation, a uniform scale and a translation load
+    path.write_text(body.replace(ops, '<rotate y="1" angle="33"/><scale value="2"/>'
+                                      '<translate x="1"/>'))
+    prepare_scene(str(path))
