@@ -23,7 +23,7 @@ from . import stats
 from .errors import InvalidArgument
 
 __all__ = ["CheckResult", "SuiteResult", "write_json", "write_junit", "atomic_write",
-           "output_target"]
+           "output_target", "json_text"]
 
 
 def _jsonable(v):
@@ -47,6 +47,13 @@ def _jsonable(v):
     # anything else a user's check put in its details (a Path, a complex): its text, not
     # a TypeError at the end of the run that writes no JSON and names no check
     return str(v)
+
+
+def json_text(doc) -> str:
+    """``doc`` as indented JSON text, as every output file writes it: numpy values as
+    numbers, infinite and NaN floats as the strings "inf" and "nan" (the bare tokens NaN
+    and Infinity are no JSON: strict parsers such as jq's or JavaScript's refuse them)."""
+    return json.dumps(_jsonable(doc), indent=2, allow_nan=False) + "\n"
 
 
 @dataclass(frozen=True)
@@ -244,7 +251,7 @@ def write_json(result, path: str, *, provenance: dict | None = None) -> None:
     d = result.to_dict()
     if provenance is not None:
         d["provenance"] = _jsonable(provenance)
-    atomic_write(path, json.dumps(d, indent=2, sort_keys=False) + "\n")
+    atomic_write(path, json_text(d))
 
 
 #: Characters XML 1.0 cannot hold, not even as references: C0 controls but tab, LF and CR

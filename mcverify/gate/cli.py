@@ -571,11 +571,9 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    import json
-
     from .bench import equal_time_spp, run_bench
     from ..provenance import describe_cpu, provenance
-    from ..result import atomic_write
+    from ..result import atomic_write, json_text
 
     inputs = []
     if not args.no_render:  # the scenes and references the render rows read
@@ -647,7 +645,7 @@ def _cmd_bench(args) -> int:
                                         equal_time_spp=equal_time_spp(args.spp),
                                         refs=None if args.no_render else REFERENCE_ROOT),
                "results": rows}
-        atomic_write(args.json, json.dumps(doc, indent=2) + "\n")
+        atomic_write(args.json, json_text(doc))     # a ratio 0/0 was a bare NaN token
     return EXIT_OK
 
 

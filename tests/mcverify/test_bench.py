@@ -335,3 +335,23 @@ def test_cli_json_over_a_reference_it_reads_is_refused(tmp_path, monkeypatch, ca
     assert cli.main(["bench", "--json", str(manifest), "-q"]) == 2
     assert "is also an input" in capsys.readouterr().err
     assert manifest.read_bytes() == before
+
+
+def test_cli_json_has_no_nan_token_where_a_ratio_is_undefined(tmp_path, monkeypatch, capsys):
+    """An equal-time row whose Mitsuba RMSE is 0 (a noise-free scene of the user's
+    --refs, a constant environment) has ratio NaN: `bench --json` wrote the bare token
+    NaN, which strict JSON parsers (jq, JavaScript, Go, Rust) refuse. Written as the
+    results' other writers do: "nan"."""
+    from mcverify.gate import cli
+
+    row = {"group": "equal-time-rmse:empty", "workload": "w", "ours_rmse": 0.0,
+           "mitsuba_rmse": 0.0, "ratio": float("nan"), "against": "mitsuba"}
+    monkeypatch.setattr(bench, "run_bench", lambda **kw: [row])
+    out = tmp_path / "bench.json"
+    assert cli.main(["bench", "--no-render", "-q", "--json", str(out)]) == 0
+
+    def strict(token):
+        raise AssertionError(f"{token} in bench.json: not JSON")
+
+    doc = json.loads(out.read_text(), parse_constant=strict)
+    assert doc["results"][0]["ratio"] == "nan"
