@@ -267,7 +267,8 @@ def _xml(text) -> str:
 
 
 def write_junit(suite: SuiteResult, path: str) -> None:
-    """Write a suite as JUnit XML (one testcase per check, canaries as their own class).
+    """Write a suite as JUnit XML (one testcase per check, canaries as their own class,
+    each skipped check with ``<skipped message=REASON>``, as the JSON lists them).
     Characters XML cannot hold are written as escapes (``_xml``): the file always parses."""
     if not isinstance(suite, SuiteResult):
         raise InvalidArgument(f"write_junit: expected a SuiteResult (what run_suite and "
@@ -276,8 +277,9 @@ def write_junit(suite: SuiteResult, path: str) -> None:
     cases = list(suite.results) + [replace(c, name="canary." + c.name, passed=not c.passed)
                                    for c in suite.canary]
     root = ET.Element("testsuite", name=_xml(f"mcverify.{suite.name}"),
-                      tests=str(len(cases)), failures=str(sum(not c.passed for c in cases)),
-                      time=f"{suite.seconds:.3f}")
+                      tests=str(len(cases) + len(suite.skipped)),
+                      failures=str(sum(not c.passed for c in cases)),
+                      skipped=str(len(suite.skipped)), time=f"{suite.seconds:.3f}")
     props = ET.SubElement(root, "properties")
     for k, v in suite.provenance.items():
         ET.SubElement(props, "property", name=_xml(k), value=_xml(json.dumps(_jsonable(v))))
@@ -289,5 +291,9 @@ def write_junit(suite: SuiteResult, path: str) -> None:
             f.text = _xml("\n".join(c.failures + c.messages))
         elif c.messages:
             ET.SubElement(tc, "system-out").text = _xml("\n".join(c.messages))
+    for name, why in suite.skipped:     # were in the JSON only: CI showed nothing skipped
+        tc = ET.SubElement(root, "testcase", classname=_xml(f"mcverify.{suite.name}"),
+                           name=_xml(name), time="0.000")
+        ET.SubElement(tc, "skipped", message=_xml(why))
     ET.indent(root)
     atomic_write(path, ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n")

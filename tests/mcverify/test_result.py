@@ -70,3 +70,23 @@ def test_details_json_cannot_hold_are_written_as_text(tmp_path):
     d = json.loads((tmp_path / "r.json").read_text())["results"][0]["details"]
     assert d["cells"] == [1, 3] and d["file"] == "/x/y" and d["z"] == "(1+2j)"
     assert d["ok"] == [None, True, "s", 2]
+
+
+def test_junit_lists_the_skipped_checks_as_the_json_does(tmp_path):
+    """`check --scene` skips what the scene does not need, with the reason ("smooth
+    dielectric: a delta BSDF, nothing to sample"): the JSON listed them under
+    "skipped", the JUnit file not at all, so a CI's test view (GitLab, Jenkins) showed
+    every test passed and nothing skipped. Each is now a testcase with <skipped>."""
+    suite = SuiteResult.judge("s", [_r("a", 0.5)], alpha=0.01, seconds=1.0,
+                              skipped=(("sampler:x", "not needed by this scene"),
+                                       ("bsdf:dielectric\x1b", "a delta BSDF, <nothing> & co")))
+    mv.write_junit(suite, str(tmp_path / "r.xml"))
+    mv.write_json(suite, str(tmp_path / "r.json"))
+    root = ET.parse(tmp_path / "r.xml").getroot()
+    assert (root.get("tests"), root.get("failures"), root.get("skipped")) == ("3", "0", "2")
+    skipped = {c.get("name"): c.find("skipped").get("message")
+               for c in root.iter("testcase") if c.find("skipped") is not None}
+    listed = json.loads((tmp_path / "r.json").read_text())["skipped"]
+    assert skipped == {"sampler:x": "not needed by this scene",
+                       "bsdf:dielectric\\x1b": "a delta BSDF, <nothing> & co"}
+    assert [s["check"] for s in listed] == ["sampler:x", "bsdf:dielectric\x1b"]
