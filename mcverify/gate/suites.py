@@ -475,7 +475,11 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
             r = check.run(seed, stop_alpha=stop_alpha)
         else:
             r = check.run(seed)
-    except EnvironmentProblem:
+    except EnvironmentProblem as e:
+        # named by the check that met it: a user's check raising "no GPU" stopped the
+        # run with "mcverify: error: no GPU", naming none of the suite's checks
+        if e.args and isinstance(e.args[0], str):
+            e.args = (f"check {check.name!r}: {e.args[0]}", *e.args[1:])
         raise
     except (Exception, SystemExit) as e:  # noqa: BLE001 - a subject error is a finding
         if interrupted(e):          # Ctrl-C inside a numba kernel arrives as SystemError

@@ -510,3 +510,30 @@ def test_a_stability_check_leaves_no_hypothesis_folder_in_the_project(project, t
     assert r.returncode == 0, r.stdout + r.stderr
     assert not (project / ".hypothesis").exists()
     assert (tmp_path / "home" / ".cache" / "mcverify" / "hypothesis").is_dir()
+
+
+def test_an_environment_problem_in_a_check_names_the_check(tmp_path, capsys):
+    """A user's check that meets its environment (raises EnvironmentProblem: "no GPU")
+    stops the run, exit 2, as the README says; the line said "mcverify: error: no GPU",
+    naming no check among the suite's, and no output file is written."""
+    from mcverify.errors import EnvironmentProblem
+    from mcverify.gate import cli
+
+    def no_gpu(seed):
+        raise EnvironmentProblem("no GPU")
+
+    def ok(seed):
+        return mv.CheckResult("ok", True, 0.5, 1.0, 0.01, 10, 0.0)
+
+    import types
+    mod = types.ModuleType("env_problem_suite")
+    mod.suite = [Check("ok", ok), Check("my.gpu[kernel]", no_gpu)]
+    sys.modules[mod.__name__] = mod
+    try:
+        rc = cli.main(["check", "-q", "--suite", "env_problem_suite:suite", "--json",
+                       str(tmp_path / "r.json")])
+    finally:
+        del sys.modules[mod.__name__]
+    err = capsys.readouterr().err
+    assert rc == 2 and err == "mcverify: error: check 'my.gpu[kernel]': no GPU\n", err
+    assert not (tmp_path / "r.json").exists()
