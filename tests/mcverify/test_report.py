@@ -64,6 +64,17 @@ def test_a_report_over_an_old_one_removes_the_old_ones_images_only(tmp_path):
     assert (tmp_path / "report.html").exists()
 
 
+def test_report_json_has_no_bare_nan_token(tmp_path):
+    """report.json is written as every other output file (``result.json_text``): a
+    non-finite number is the string "nan"/"inf", where a plain json.dumps wrote the bare
+    token NaN, which strict parsers (jq, JavaScript) refuse."""
+    build_report(str(tmp_path), suite=None, study=None,
+                 extra_provenance={"odd": float("nan"), "big": float("inf")})
+    text = (tmp_path / "report.json").read_text()
+    doc = json.loads(text, parse_constant=lambda c: pytest.fail(f"bare token {c}"))
+    assert doc["provenance"]["odd"] == "nan" and doc["provenance"]["big"] == "inf"
+
+
 @pytest.mark.parametrize("blocked", ["report.html", "convergence.png"])
 def test_a_folder_in_the_way_is_refused_before_any_file_is_written(tmp_path, blocked):
     """A folder where a report file goes (report.html, a PNG) is refused, naming it,

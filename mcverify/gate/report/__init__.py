@@ -15,7 +15,7 @@ import json
 import os
 
 from ...provenance import provenance
-from ...result import SuiteResult, atomic_write, output_target
+from ...result import SuiteResult, atomic_write, json_text, output_target
 from . import plots
 
 __all__ = ["build_report", "render_html"]
@@ -55,7 +55,7 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
     # Both documents are made before any file is written: the page was rendered after
     # report.json had replaced the old one, so a result the page could not show (a
     # user's check with seconds=None) left a new report.json beside the old page, or none.
-    text = json.dumps(doc, indent=2) + "\n"
+    text = json_text(doc)       # as every output file: no bare NaN/Infinity token
     page = render_html(doc, images)
     os.makedirs(out_dir, exist_ok=True)
     stale = set(_previous_images(out_dir)) - set(images)
