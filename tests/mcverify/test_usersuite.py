@@ -36,6 +36,7 @@ CHECKS = textwrap.dedent('''
     number_named = [Check(3, good[0].run)]
     surrogate_named = [Check("scene_\\udcff.xml", good[0].run)]
     not_runnable = [Check("x", None)]
+    canary_tagged = [Check("mine-planted", lambda seed: None, ("canary",))]
     duplicates = [good[0], good[0]]
     number = 3
 
@@ -99,6 +100,8 @@ def test_a_list_and_a_factory_load(project):
     ("mine.checks:number_named", "item 0 is named 3: a check's name must be a non-empty "
                                  "string"),
     ("mine.checks:not_runnable", "check 'x': run=None is not callable"),
+    # the progress line read it as a canary ("NOT bitten") where the verdict was FAIL
+    ("mine.checks:canary_tagged", "check 'mine-planted' is tagged 'canary'"),
     # a name from a non-UTF-8 file name (surrogateescape): the seed's derivation raised
     # "unexpected UnicodeEncodeError" without naming the check, and nothing was written
     ("mine.checks:surrogate_named", r"item 0 is named 'scene_\\udcff.xml': not "
