@@ -302,8 +302,8 @@ class _Builder:
             self.fail(plugin, f"distribution {d!r}; supported: ggx, beckmann")
         for name in ("alpha", "alpha_u", "alpha_v"):
             alpha = float(plugin.get(name, 0.1))
-            if not alpha > 0:
-                self.fail(plugin, f"{name} must be > 0, got {alpha}")
+            if not alpha >= 0:      # 0 (an exporter's smooth surface) is raised to 1e-4
+                self.fail(plugin, f"{name} must be >= 0, got {alpha}")
         return layout.GGX if d == "ggx" else layout.BECKMANN
 
     def _alpha(self, plugin: Plugin) -> tuple[float, float]:

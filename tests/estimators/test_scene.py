@@ -1178,3 +1178,20 @@ def test_a_sphere_to_world_that_is_no_similarity_is_refused(tmp_path, ops, needl
     path.write_text(body.replace(ops, '<rotate y="1" angle="33"/><scale value="2"/>'
                                       '<translate x="1"/>'))
     prepare_scene(str(path))
+
+
+def test_a_negative_roughness_is_refused_and_zero_loads(tmp_path):
+    """A microfacet alpha of 0 (an exporter's smooth surface) loads, raised to 1e-4 as
+    Mitsuba raises it (refused until 6 December); a negative one is refused by line."""
+    from estimators.pathtracer import prepare_scene
+
+    path = tmp_path / "s.xml"
+    for value, refused in (("-0.1", True), ("0", False)):
+        path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf '
+                        f'type="roughconductor"><float name="alpha" value="{value}"/></bsdf>'
+                        '</shape></scene>')
+        if refused:
+            with pytest.raises(SceneError, match=r"s\.xml:3.*alpha must be >= 0, got -0\.1"):
+                prepare_scene(str(path))
+        else:
+            prepare_scene(str(path))
