@@ -214,7 +214,7 @@ class _Builder:
     def _image(self, plugin: Plugin, raw: bool = False) -> np.ndarray:
         path = self._asset_path(plugin, " (the image file)")
         try:
-            img = read_image(path, raw=raw)
+            img = read_image(path, raw=raw, texture=plugin.kind == "texture")
         except OSError as e:
             self.fail(plugin, str(e))
         bad = ~np.isfinite(img)

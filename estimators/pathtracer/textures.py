@@ -12,7 +12,8 @@ Images are stored back to back in one float64 array; each texture is one float64
 ``tex_info`` with the columns named in ``layout`` (``TEX_OFFSET``, ``TEX_WIDTH``...;
 integers are stored exactly). Files are decoded with Mitsuba's image reader (file I/O
 only; 8-bit sRGB images, PNG and JPEG, are linearised unless ``raw``; a grey image
-is repeated into R, G and B), imported lazily.
+is repeated into R, G and B; a bitmap's 16-bit image rounded to half, as Mitsuba stores
+it), imported lazily.
 """
 
 from __future__ import annotations
@@ -50,15 +51,20 @@ def import_mitsuba(variant: str | None = None):
     return mi
 
 
-def read_image(path: str, *, raw: bool = False) -> np.ndarray:
+def read_image(path: str, *, raw: bool = False, texture: bool = False) -> np.ndarray:
     """(H, W, 3) float64 RGB of an image file, 8-bit sRGB decoded to linear unless
-    ``raw`` (as Mitsuba's ``bitmap`` does); raises OSError naming the file."""
+    ``raw`` (as Mitsuba's ``bitmap`` does); raises OSError naming the file. ``texture``:
+    the values a ``bitmap`` texture holds, which Mitsuba 3.9.1 stores in half precision
+    where the file has 2 bytes a channel (a 16-bit PNG: decoded, then rounded to half,
+    up to 2^-11 of a texel; an envmap keeps float32)."""
     try:
         mi = import_mitsuba()
         bmp = mi.Bitmap(path)
         if raw:
             bmp.set_srgb_gamma(False)
-        bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False)
+        half = texture and bmp.bytes_per_pixel() == 2 * bmp.channel_count()
+        bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB,
+                          mi.Struct.Type.Float16 if half else mi.Struct.Type.Float32, False)
         a = np.array(bmp, dtype=np.float64)
     except Exception as e:  # noqa: BLE001 - any decoder failure is a bad file
         raise OSError(f"{path}: cannot read image ({e})") from None
