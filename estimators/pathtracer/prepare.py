@@ -259,6 +259,15 @@ class _Builder:
         m = np.asarray(tex.get("to_uv", np.eye(4)), dtype=np.float64)
         if np.any(m[2, [0, 1, 3]] != 0) or np.any(m[[0, 1], 2] != 0):
             self.fail(tex, "to_uv must map the uv plane to itself (x and y only)")
+        if tex.type == "bitmap" and not _finite_in_float32(m[[0, 0, 0, 1, 1, 1],
+                                                             [0, 1, 3, 0, 1, 3]]):
+            # Mitsuba stores it in float32 as inf: its bilinear look-up is NaN, its nearest
+            # one a texel that depends on the wrap mode; we read texel 0 (render-check then
+            # refused Mitsuba's NaN image blaming an emitter's value). A checkerboard's
+            # infinite uv has a NaN fraction, the cell Mitsuba's and our look-up both give.
+            self.fail(tex, f"to_uv {m[:2, [0, 1, 3]].tolist()}: beyond float32's range "
+                           "(±3.4e38), where Mitsuba stores it as infinity and its look-up "
+                           "is NaN (bilinear) or one texel (nearest)")
         return m[0, 0], m[0, 1], m[0, 3], m[1, 0], m[1, 1], m[1, 3]
 
     def _colour(self, plugin: Plugin, name: str, default: float):

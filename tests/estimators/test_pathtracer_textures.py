@@ -143,6 +143,40 @@ def test_to_uv_matches_mitsuba(mi, images):
     _lookups_agree(mi, cs, scene, np.random.default_rng(6).random((300, 2)))
 
 
+@pytest.mark.parametrize("filter_type", ["bilinear", "nearest"])
+@pytest.mark.parametrize("to_uv", ['<translate x="1e39"/>', '<scale x="1e20"/><scale x="1e20"/>'])
+def test_a_bitmaps_to_uv_beyond_float32_is_refused(mi, images, filter_type, to_uv):
+    """Mitsuba stores to_uv in float32, as infinity here: its bilinear look-up is NaN (its
+    reference then refused as not finite, with a message naming emitters), its nearest one
+    not texel 0 of the row, which we read. Refused naming the to_uv. A
+    checkerboard's infinite uv has a NaN fraction, whose cell we give as Mitsuba does."""
+    xml = _texture_xml("t.exr", [("string", "filter_type", filter_type)]).replace(
+        "</texture>", f'<transform name="to_uv">{to_uv}</transform></texture>')
+    path = images / f"big-to-uv-{filter_type}-{len(to_uv)}.xml"
+    path.write_text(_SCENE.format(defs="", shape="rectangle", shape_props="", texture=xml))
+    with pytest.raises(SceneError, match=r'texture type="bitmap".*to_uv .*'
+                                         r"beyond float32's range"):
+        prepare_scene(str(path))
+    bsdf = mi.load_file(str(path)).shapes()[0].bsdf()
+    si = mi.SurfaceInteraction3f()
+    values = []
+    for v in (0.1, 0.5, 0.9):       # three rows of the 6-row image
+        si.uv = mi.Point2f(0.3, v)
+        values.append(np.array(bsdf.eval_diffuse_reflectance(si)))
+    if filter_type == "bilinear":
+        assert np.isnan(values).all()
+    else:       # not texel 0 of each row, what we read
+        texels = np.array(mi.Bitmap(str(images / "t.exr")))[[0, 3, 5], 0]
+        assert not np.allclose(values, texels)
+    checker = path.with_name("big-to-uv-checker.xml")
+    checker.write_text(path.read_text().replace(xml, (
+        '<texture type="checkerboard" name="reflectance"><transform name="to_uv">'
+        f"{to_uv}</transform></texture>")))
+    cs, scene = _compiled(mi, images, checker.read_text().split("<bsdf type=\"diffuse\">")[1]
+                          .split("</bsdf>")[0])
+    _lookups_agree(mi, cs, scene, np.random.default_rng(4).random((100, 2)))
+
+
 @pytest.mark.parametrize("raw", [False, True])
 @pytest.mark.parametrize("image", ["t.png", "t.jpg", "grey.jpg"])
 def test_srgb_png_and_jpeg_decoding_and_raw_match_mitsuba(mi, images, image, raw):
