@@ -395,7 +395,12 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         # per-sample variances, test over reference, in the median pixel where both have
         # one: near 1 for two renderers of the same scene, whatever their passes (ours
         # against Mitsuba: 0.5-1.3 on the reference scenes)
-        both = (tv > 0) & (rv > 0)
+        # (a variance at the values' rounding is none: a pixel that sees one texel under
+        # a directional light has 0 here, floored at half the smallest subnormal above,
+        # and ~1e-15 in Mitsuba's float32 sums; their ratio, 1e-38, noted a wrong sample
+        # count on every such render-check, the counts right)
+        both = ((tv > (rel_rounding * np.abs(tm)) ** 2 + tiny)
+                & (rv > (rel_rounding * np.abs(rm)) ** 2 + tiny))
         ratio = float(np.median(tv[both] * ts / (rv[both] * rs))) if both.any() else None
         floor_info = {"test_spp": ts, "ref_spp": rs,
                       "raised_fraction": float(np.mean(tv < floor)),

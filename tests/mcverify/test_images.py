@@ -156,6 +156,28 @@ def test_a_sample_count_far_off_the_variances_is_noted():
                and "test_spp=16384 and ref_spp=64" in m for m in wrong.messages)
 
 
+def test_variances_at_the_values_rounding_note_no_sample_count():
+    """Pixels of no sampling noise (a textured plane under a directional light, each pixel
+    seeing one texel): ours 0, Mitsuba's ~1e-15 from its float32 sums. Their ratio is no
+    per-sample variance ratio: until 6 December it was 1e-38 and every such render-check
+    noted 'check test_spp=32 and ref_spp=256' with both counts right. Where some pixels
+    are noisy, those give the ratio."""
+    rng = np.random.default_rng(4)
+    ref = rng.uniform(0.2, 0.9, (16, 16, 3)).astype(np.float32)     # as EXRs hold them
+    ref_var = (ref * 3e-8) ** 2             # float32 rounding of 256-sample sums
+    kw = dict(test_var=np.zeros_like(ref), ref_var=ref_var, test_n=16, ref_n=16,
+              perceptual=False, test_spp=32, ref_spp=256)
+    r = mv.compare_images(ref.copy(), ref, **kw)
+    assert r.passed and not any(m.startswith("note:") for m in r.messages)
+    assert r.details["variance_floor"]["per_sample_variance_ratio"] is None
+    noisy_test, noisy_ref = np.zeros_like(ref), ref_var.copy()
+    noisy_test[:4], noisy_ref[:4] = 0.01 * 256 / 32, 0.01     # the same σ² a sample
+    # (float32: 1.0 within its rounding)
+    r = mv.compare_images(ref.copy(), ref, **{**kw, "test_var": noisy_test,
+                                               "ref_var": noisy_ref})
+    assert r.details["variance_floor"]["per_sample_variance_ratio"] == pytest.approx(1.0)
+
+
 def test_the_variance_floor_also_raises_a_reference_whose_few_passes_missed_a_path():
     """A reference of 2 passes whose pixel saw a rare path in neither (both 0, variance
     0) against 16 test passes that saw it (mean 0.006): the pixel t-test took the
