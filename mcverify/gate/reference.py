@@ -406,6 +406,30 @@ def _render_pass_unit(fingerprint, path, spp, seed, params, variant) -> np.ndarr
                                  f"{' '.join(str(first_cause(e)).split())})") from None
 
 
+def _non_finite_image(scene_path: str) -> str | None:
+    """Which image the scene names (a texture, an envmap, a normal map) holds a NaN or
+    infinite texel, said in words, or None: Mitsuba renders such a texel as NaN pixels,
+    and the build blamed an emitter's value beyond float32's range (an outside review;
+    ``render-check``'s loader names the file, ``reference build`` loads no scene of its
+    own). Files that are no image (meshes, includes) are passed over."""
+    from estimators.pathtracer.textures import read_image
+
+    for name, full in scene_asset_files(scene_path).items():
+        if not os.path.isfile(full):
+            continue
+        try:
+            img = read_image(full)
+        except OSError:
+            continue
+        bad = ~np.isfinite(img)
+        if bad.any():
+            y, x, c = np.argwhere(bad)[0]
+            return (f"the image {name} has {int(bad.any(axis=2).sum())} texel(s) that are "
+                    f"not finite, the first at row {y}, column {x} (channel {c}: "
+                    f"{img[y, x, c]}), which Mitsuba renders as NaN")
+    return None
+
+
 @dataclass(frozen=True)
 class _Job:
     """The passes of one scene's reference: what to render and how to label it."""
@@ -435,13 +459,14 @@ class _Job:
             # a reference of inf pixels was written, then refused on loading with a
             # rebuild command that built the same (and numpy warned on its variance)
             k, y, x = np.argwhere(bad)[0][:3]
+            cause = _non_finite_image(self.path) or (
+                "a radiance, intensity, irradiance or scale beyond float32's range "
+                "(3.4e38), which Mitsuba stores as infinity, or near it, where the float32 "
+                "sum of a pixel's samples overflows, renders so")
             raise InvalidArgument(
                 f"{self.path}: Mitsuba's image is not finite (NaN or inf) in "
                 f"{int(bad.any(axis=(0, 3)).sum())} pixel(s), the first in pass {k + 1} at "
-                f"x={x}, y={y}: a radiance, intensity, irradiance or scale beyond float32's "
-                "range (3.4e38), which Mitsuba stores as infinity, or near it, where the "
-                "float32 sum of a pixel's samples overflows, renders so; no reference "
-                "written")
+                f"x={x}, y={y}: {cause}; no reference written")
         # What Mitsuba rendered: a stratified sampler rounds 33 spp up to 36, and the
         # render gate pairs passes of equal spp where the filter splats (a probe found
         # the manifest saying 33)

@@ -502,3 +502,34 @@ def test_a_scene_mitsuba_renders_infinite_is_refused_before_writing(tmp_path):
     scene.write_text(text.format("1e37"))
     reference.build_reference(str(scene), spp=4, passes=2)
     assert reference.load_reference(str(scene)).n == 2
+
+
+def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(tmp_path):
+    """An outside review: ``reference build`` of a scene whose bitmap holds a NaN texel
+    (Mitsuba renders NaN pixels from it) blamed 'a radiance, intensity, irradiance or scale
+    beyond float32's range', which the scene had none of. The message now names the image
+    and its first non-finite texel; nothing is written. A mesh beside it (no image) is
+    passed over."""
+    from mcverify.errors import InvalidArgument
+
+    texels = np.full((4, 5, 3), 0.5, dtype=np.float32)
+    texels[2, 3, 1] = np.nan
+    mvm.write_exr(str(tmp_path / "bad.exr"), texels)
+    (tmp_path / "card.obj").write_text("v -1 -1 0\nv 1 -1 0\nv 1 1 0\nf 1 2 3\n")
+    scene = tmp_path / "scene.xml"
+    scene.write_text("""<scene version="3.0.0"><integrator type="path"/>
+  <sensor type="orthographic"><transform name="to_world"><lookat origin="0, 0, 5"
+    target="0, 0, 0" up="0, 1, 0"/></transform><film type="hdrfilm">
+    <integer name="width" value="8"/><integer name="height" value="8"/>
+    <rfilter type="box"/></film></sensor>
+  <shape type="obj"><string name="filename" value="card.obj"/></shape>
+  <shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">
+    <string name="filename" value="bad.exr"/><string name="filter_type" value="nearest"/>
+  </texture></bsdf></shape>
+  <emitter type="constant"/></scene>""")
+    with pytest.raises(InvalidArgument, match=r"scene\.xml: Mitsuba's image is not finite "
+                                              r".*: the image bad\.exr has 1 texel\(s\) that "
+                                              r"are not finite, the first at row 2, column 3 "
+                                              r"\(channel 1: nan\).*no reference written"):
+        reference.build_reference(str(scene), spp=4, passes=2)
+    assert sorted(os.listdir(tmp_path)) == ["bad.exr", "card.obj", "scene.xml"]
