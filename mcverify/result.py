@@ -221,6 +221,11 @@ def atomic_write(path, data: str | bytes) -> None:
         raise OSError(e.errno, f"cannot write it ({e.strerror or e})", path) from None
 
 
+#: Most bytes of a target's name that its temporary file's name repeats: with ".tmp-" and
+#: mkstemp's 8 characters it stays within NAME_MAX (255 bytes) of common file systems.
+_TMP_NAME_BYTES = 200
+
+
 def _write(target: str, how: str, payload: bytes) -> None:
     if how == "stream":
         with open(target, "wb") as f:
@@ -232,7 +237,12 @@ def _write(target: str, how: str, payload: bytes) -> None:
         mode = shared_mode()    # mkstemp makes 0600; results are for reading
     folder = os.path.dirname(target)
     os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.basename(target))
+    # the temporary file is named after the target where that fits the folder's limit
+    # on a name (".tmp-XXXXXXXX" + a 250-byte name failed with "File name too long",
+    # after the run, though the target itself could be written)
+    base = os.path.basename(target)
+    suffix = base if len(os.fsencode(base)) <= _TMP_NAME_BYTES else ""
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=suffix)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(payload)

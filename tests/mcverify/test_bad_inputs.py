@@ -913,6 +913,19 @@ def test_a_failed_write_names_the_output_not_a_temporary_file(tmp_path, monkeypa
     assert target.read_text() == "old\n" and os.listdir(tmp_path) == ["out.json"]
 
 
+def test_a_file_whose_name_is_near_the_limit_is_written(tmp_path):
+    """A name of 250 bytes (255 is the limit) is a valid output path, but its temporary
+    file, '.tmp-XXXXXXXX' + the name, was not: the run ended with 'File name too long'
+    (exit 2) after its work. The temporary file's name no longer repeats so long a name."""
+    for name in ("a" * 250 + ".json", "é" * 125 + ".json"):     # 255 bytes either way
+        target = tmp_path / name
+        write_json(_suite(), str(target))
+        assert json.loads(target.read_text())["suite"] == "s"
+        write_json(_suite(), str(target))                       # replaced, too
+        assert os.listdir(tmp_path) == [name]
+        os.remove(target)
+
+
 def test_write_junit_refuses_a_single_check_result(tmp_path):
     from mcverify.result import write_junit
 
