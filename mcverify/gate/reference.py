@@ -573,10 +573,40 @@ def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
             zip(jobs, _render_jobs(jobs, pool, progress))]
 
 
+#: Most bytes of a file name on common file systems (NAME_MAX), where ``pathconf`` says
+#: nothing.
+_NAME_MAX = 255
+
+
+def _name_max(folder: str) -> int:
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return _NAME_MAX
+
+
+def _aside(base: str, what: str) -> str:
+    """The prefix of the temporary folders beside a reference folder ``base`` while it is
+    replaced (``what``: "new" or "old"): ``.BASE-new-``, or, for a name too long to take
+    that and mkdtemp's 8 characters within NAME_MAX, its SHA-256's first 16 digits
+    (``.ref-<name of 240 bytes>.xml-new-…`` failed with 'File name too long' after
+    every pass had rendered)."""
+    if len(os.fsencode(base)) > 200:
+        base = "ref-" + hashlib.sha256(os.fsencode(base)).hexdigest()[:16]
+    return f".{base}-{what}-"
+
+
 def _replaceable(out: str) -> None:
     """A reference folder may be replaced only if it is one: a file, a link or a folder
     holding anything but a reference's files is refused before any rendering (a file
-    named ``ref`` beside the scene was deleted without a word)."""
+    named ``ref`` beside the scene was deleted without a word); so is a scene whose
+    reference folder's name, ``ref-<file name>``, is longer than the file system takes."""
+    folder, base = os.path.split(out)
+    if len(os.fsencode(base)) > _name_max(folder):
+        raise InvalidArgument(f"{out}: the reference folder of "
+                              f"{os.path.join(folder, base[len('ref-'):])} would have a name "
+                              f"of {len(os.fsencode(base))} bytes, more than the file system "
+                              f"takes ({_name_max(folder)}); give the scene file a shorter name")
     if not os.path.lexists(out):
         return
     if os.path.islink(out) or not os.path.isdir(out):
@@ -608,7 +638,7 @@ def _write(path: str, ref: Reference) -> str:
 
     out = ref_folder(path)
     folder, base = os.path.split(out)
-    tmp = tempfile.mkdtemp(prefix=f".{base}-new-", dir=folder)
+    tmp = tempfile.mkdtemp(prefix=_aside(base, "new"), dir=folder)
     old = None
     try:
         manifest = {k: v for k, v in ref.manifest.items() if k != "params"}
@@ -622,7 +652,7 @@ def _write(path: str, ref: Reference) -> str:
             json.dump(manifest, f, indent=2)
         os.chmod(tmp, shared_mode(0o777))  # mkdtemp makes 0700; references are shared
         if os.path.lexists(out):
-            old = tempfile.mkdtemp(prefix=f".{base}-old-", dir=folder)
+            old = tempfile.mkdtemp(prefix=_aside(base, "old"), dir=folder)
             os.rename(out, os.path.join(old, base))
         os.rename(tmp, out)
     except BaseException:
@@ -674,7 +704,7 @@ def load_reference(spec: str) -> Reference:
     mpath = os.path.join(folder, "manifest.json")
     rebuild = f"run `{rebuild_command(name, path)}`"
     if not os.path.isfile(mpath):
-        aside = sorted(d for d in os.listdir(parent) if d.startswith(f".{base}-old-"))
+        aside = sorted(d for d in os.listdir(parent) if d.startswith(_aside(base, "old")))
         where = (f" (an interrupted build left the previous one in "
                  f"{os.path.join(parent, aside[-1], base)})" if aside else "")
         raise MissingReference(f"{mpath}: no reference built for {name!r}{where}; {rebuild}")

@@ -11,7 +11,7 @@ import pytest
 
 from mcverify.gate import mitsuba as mvm
 from mcverify.gate import reference
-from mcverify.errors import EnvironmentProblem, MissingReference
+from mcverify.errors import EnvironmentProblem, InvalidArgument, MissingReference
 
 pytestmark = pytest.mark.mitsuba
 SCENES = reference.REFERENCE_ROOT
@@ -346,6 +346,27 @@ def test_build_refuses_to_replace_what_is_not_a_reference(scene_copy, monkeypatc
     with pytest.raises(InvalidArgument, match=r"thesis.tex, which is not part of a reference"):
         reference.build_reference(str(scene_copy), spp=4, passes=2)
     assert (ref / "thesis.tex").read_text() == "keep me"
+
+
+def test_a_scene_file_with_a_long_name_gets_its_reference(scene_copy, monkeypatch):
+    """A scene file of 240 bytes has a reference folder of 244 (``ref-`` + the name), a
+    valid name, but the build's temporary folders beside it, ``.ref-<name>-new-XXXXXXXX``,
+    were not: every pass rendered, then 'File name too long' (exit 2), for each rebuild
+    too. A name whose reference folder cannot exist (252 bytes + ``ref-``) is refused
+    before anything renders, naming the scene."""
+    scene = scene_copy / ("b" * 236 + ".xml")
+    shutil.copy(scene_copy / "scene.xml", scene)
+    for _ in range(2):                  # built, then rebuilt over the first one
+        out = reference.build_reference(str(scene), spp=2, passes=2)
+        assert os.path.basename(out) == "ref-" + scene.name
+        assert reference.load_reference(str(scene)).n == 2
+    assert sorted(p.name for p in scene_copy.iterdir() if p.name.startswith(".")) == []
+    monkeypatch.setattr(reference, "_render_jobs", lambda *a, **k: pytest.fail("rendered"))
+    longer = scene_copy / ("c" * 248 + ".xml")
+    shutil.copy(scene_copy / "scene.xml", longer)
+    with pytest.raises(InvalidArgument, match=r"name of 256 bytes.*shorter name") as e:
+        reference.build_reference(str(longer), spp=2, passes=2)
+    assert str(longer) in str(e.value)
 
 
 def test_a_scene_named_twice_is_built_once(scene_copy, monkeypatch):
