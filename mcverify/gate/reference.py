@@ -568,6 +568,7 @@ def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
         job = _job(s, spp, passes, seed, None)
         if all(os.path.realpath(j.path) != os.path.realpath(job.path) for j in jobs):
             _replaceable(ref_folder(job.path))       # a scene named twice is built once
+            _assets_beside(job)
             jobs.append(job)
     return [_write(job.path, ref) for job, (ref, _) in
             zip(jobs, _render_jobs(jobs, pool, progress))]
@@ -594,6 +595,21 @@ def _aside(base: str, what: str) -> str:
     if len(os.fsencode(base)) > 200:
         base = "ref-" + hashlib.sha256(os.fsencode(base)).hexdigest()[:16]
     return f".{base}-{what}-"
+
+
+def _assets_beside(job: _Job) -> None:
+    """Every file the scene names must be a file where the manifest hashes it (against the
+    scene's folder): Mitsuba also looks in the current directory, so a mesh found only
+    there was rendered into a reference that recorded it as missing (null) and never went
+    stale when that file changed, and our tracer, which looks beside the scene, refused
+    the scene the reference was built from."""
+    for name, digest in job.assets.items():
+        if digest is None:
+            full = scene_asset_files(job.path)[name]
+            raise InvalidArgument(f"{job.path}: names {name!r}, which is no file at {full}; "
+                                  "give its path from the scene's folder or an absolute "
+                                  "path (Mitsuba would also look in the current directory, "
+                                  "and the reference would depend on where it is built)")
 
 
 def _replaceable(out: str) -> None:

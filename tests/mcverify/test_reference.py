@@ -198,6 +198,29 @@ def test_a_changed_texture_or_mesh_makes_the_reference_stale(tmp_path):
         reference.load_reference(str(scene))
 
 
+def test_a_file_found_only_in_the_working_directory_is_refused(tmp_path, monkeypatch):
+    """Mitsuba resolves a relative file name against the scene's folder, then the current
+    directory: a mesh that lay only in the directory the build ran from was rendered into
+    the reference, recorded as missing (null), and a later change to it never made the
+    reference stale (our tracer, which looks beside the scene, refused the scene). The
+    build now refuses such a scene before rendering, naming the file."""
+    scene = tmp_path / "textures"
+    shutil.copytree(os.path.join(SCENES, "textures"), scene,
+                    ignore=shutil.ignore_patterns("ref"))
+    here = tmp_path / "here"
+    here.mkdir()
+    shutil.move(scene / "card.obj", here / "card.obj")
+    monkeypatch.chdir(here)
+    with pytest.raises(InvalidArgument, match=r"names 'card.obj', which is no file at "
+                                              + str(scene / "card.obj")):
+        reference.build_reference(str(scene), spp=4, passes=2)
+    assert not (scene / "ref").exists()
+    r = subprocess.run(CMD + ["reference", "build", str(scene), "--spp", "4", "--passes",
+                              "2"], capture_output=True, text=True, cwd=here)
+    assert r.returncode == 2 and "card.obj" in r.stderr and "Traceback" not in r.stderr
+    assert not (scene / "ref").exists()
+
+
 def test_a_stale_file_named_by_a_parameter_is_named_as_it_resolves(tmp_path):
     """A texture named ``$tex``: the staleness message names the file it resolves to
     (it said only "$tex", an outside review), and the manifest keeps the name as
