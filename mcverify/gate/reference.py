@@ -683,11 +683,13 @@ def _write(path: str, ref: Reference) -> str:
 
 
 def reference_files(spec: str) -> list[str]:
-    """The files a reference is made of (scene, the files it names, manifest, images),
-    for refusing to write an output over one of them."""
+    """The files a reference is made of (scene, the files it names, its folder, manifest,
+    images), for refusing to write an output over one of them (the folder too: a render
+    check built it where none was, then failed to write its JSON there, exit 2 after all
+    its work)."""
     _, path = resolve_scene(spec)
     folder = ref_folder(path)
-    return ([path] + list(scene_asset_files(path).values())
+    return ([path] + list(scene_asset_files(path).values()) + [folder]
             + [os.path.join(folder, f) for f in ("manifest.json",) + IMAGES + (PASSES,)])
 
 

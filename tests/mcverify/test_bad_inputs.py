@@ -469,6 +469,17 @@ CLI = [
                                                 "--param", "nosuch=3", "--json",
                                                 "{d}/scenes/ref-obj-card.xml/mean.exr"],
      "is also an input"),
+    # so is the reference's folder itself: the run built it, then failed to write the
+    # JSON over it, "is a directory", exit 2 after all its work
+    ("json-is-reference-folder-to-build", ["check", "--scene", "{d}/scenes/obj-card.xml",
+                                           "-k", "zzz", "--json",
+                                           "{d}/scenes/ref-obj-card.xml"],
+     "is also an input"),
+    ("render-check-json-is-reference-folder-to-build", ["render-check",
+                                                        "{d}/scenes/obj-card.xml",
+                                                        "--param", "nosuch=3", "--json",
+                                                        "{d}/scenes/ref-obj-card.xml"],
+     "is also an input"),
     # a file the scene names (a mesh, a texture) is an input too: it was replaced
     ("json-is-scene-mesh", ["check", "--scene", "{d}/scenes/obj-card.xml", "-k", "zzz",
                             "--json", "{d}/scenes/card.obj"], "is also an input"),
