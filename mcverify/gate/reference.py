@@ -616,13 +616,20 @@ def _replaceable(out: str) -> None:
     """A reference folder may be replaced only if it is one: a file, a link or a folder
     holding anything but a reference's files is refused before any rendering (a file
     named ``ref`` beside the scene was deleted without a word); so is a scene whose
-    reference folder's name, ``ref-<file name>``, is longer than the file system takes."""
+    reference folder's name, ``ref-<file name>``, is longer than the file system takes,
+    and (EnvironmentProblem) a folder where no reference can be written."""
     folder, base = os.path.split(out)
     if len(os.fsencode(base)) > _name_max(folder):
         raise InvalidArgument(f"{out}: the reference folder of "
                               f"{os.path.join(folder, base[len('ref-'):])} would have a name "
                               f"of {len(os.fsencode(base))} bytes, more than the file system "
                               f"takes ({_name_max(folder)}); give the scene file a shorter name")
+    try:    # the build's first write: a read-only folder failed only after every pass
+        os.rmdir(tempfile.mkdtemp(prefix=_aside(base, "new"), dir=folder))   # rendered
+    except OSError as e:
+        raise EnvironmentProblem(f"{out}: cannot write the reference in {folder} "
+                                 f"({e.strerror or e}); make the folder writable, or copy "
+                                 "the scene somewhere writable and build it there") from None
     if not os.path.lexists(out):
         return
     if os.path.islink(out) or not os.path.isdir(out):

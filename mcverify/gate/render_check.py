@@ -353,7 +353,12 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                     _samples_kept(path, subject, spp, passes)
                 if notice:
                     notice(f"{name}: no reference yet; building it with Mitsuba (once)")
-                reference.build_reference(path, pool=pool, **made)
+                try:
+                    reference.build_reference(path, pool=pool, **made)
+                except InvalidArgument as e:    # a file named ref in the way, a scene
+                    # Mitsuba renders non-finite: no reference, so no verdict on ours
+                    # (check --scene failed the render check for it, exit 1)
+                    raise EnvironmentProblem(str(e)) from None
                 ref = reference.load_reference(path)
         ref_seconds = time.perf_counter() - t0
         label = name + "".join(f",{k}={v}" for k, v in sorted(

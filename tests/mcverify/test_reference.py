@@ -392,6 +392,34 @@ def test_a_scene_file_with_a_long_name_gets_its_reference(scene_copy, monkeypatc
     assert str(longer) in str(e.value)
 
 
+def test_a_folder_where_no_reference_can_be_written_is_refused_before_rendering(
+        scene_copy, monkeypatch):
+    """A read-only scene folder rendered every pass, then failed naming a temporary
+    folder ('.ref-new-XXXXXXXX: Read-only file system'); now EnvironmentProblem naming
+    the reference folder, before anything renders. And ``check --scene`` whose render
+    check cannot build its reference (a file named ``ref`` in the way) failed that check,
+    exit 1, as if our tracer were wrong; now exit 2 naming the file."""
+    monkeypatch.setattr(reference, "_render_jobs", lambda *a, **k: pytest.fail("rendered"))
+
+    def read_only(*a, **k):
+        raise OSError(30, "Read-only file system", str(scene_copy / ".ref-new-x"))
+
+    monkeypatch.setattr(reference.tempfile, "mkdtemp", read_only)
+    with pytest.raises(EnvironmentProblem, match=r"ref: cannot write the reference in "
+                                                 r".*\(Read-only file system\)") as e:
+        reference.build_reference(str(scene_copy), spp=4, passes=2)
+    assert ".ref-new" not in str(e.value)
+    monkeypatch.undo()
+    xml = scene_copy / "scene.xml"
+    xml.write_text(xml.read_text().replace('name="res" value="64"', 'name="res" value="8"'))
+    (scene_copy / "ref").write_text("my notes")
+    r = subprocess.run(CMD + ["check", "--scene", str(scene_copy), "-k", "render", "-q"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert "not a reference folder" in r.stderr and "Traceback" not in r.stderr
+    assert (scene_copy / "ref").read_text() == "my notes"
+
+
 def test_a_scene_named_twice_is_built_once(scene_copy, monkeypatch):
     seen = []
     real = reference._render_jobs
