@@ -414,15 +414,18 @@ def _cmd_check(args) -> int:
     # written after the verdict is printed: a write that fails (exit 2) loses no result;
     # flushed first, so that a --json /dev/stdout follows the text instead of cutting it
     sys.stdout.flush()
+    report = None
+    if args.report is not None:     # made (seconds of plots) before any file is written
+        from .report import prepare_report
+
+        _, report = prepare_report(args.report, suite=result, study=None,
+                                   extra_provenance=dict(extra, seed=args.seed))
     if args.json:
         write_json(result, args.json)
     if args.junit:
         write_junit(result, args.junit)
-    if args.report is not None:
-        from .report import build_report
-
-        build_report(args.report, suite=result, study=None,
-                     extra_provenance=dict(extra, seed=args.seed))
+    if report is not None:
+        report()
         print(f"mcverify check: wrote {report_files[1]} and report.json")
     return EXIT_OK if result.passed else EXIT_FAILED
 

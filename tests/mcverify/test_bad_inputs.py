@@ -848,6 +848,39 @@ def test_sigint_during_check_leaves_outputs(tmp_path):
     assert snapshot(tmp_path) == before
 
 
+def test_sigint_while_the_report_is_drawn_leaves_every_output(tmp_path, monkeypatch):
+    """``check --json A --report D``: the JSON was written, then the report's histograms
+    drawn (seconds); a Ctrl-C then exited 130 with A replaced and no report, where the
+    README promises no output written or replaced. The report is now made before any
+    file is written. (The Ctrl-C is raised from the plotting, deterministically.)"""
+    from mcverify.gate import cli
+    from mcverify.gate.report import plots
+
+    (tmp_path / "wrong_sampler_suite.py").write_text(
+        "import numpy as np\nimport mcverify as mv\nfrom mcverify.gate.suites import Check\n"
+        "def _run(seed):\n"
+        "    return mv.check_sampler(lambda u: u[:, :1] ** 0.7, lambda x: np.ones(len(x)),\n"
+        "                            'interval', n_samples=100_000, seed=seed)\n"
+        "def suite():\n    return [Check('wrong', _run)]\n")
+    out = tmp_path / "result.json"
+    out.write_text('{"previous": "run"}\n')
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)   # no __pycache__ in the snapshot
+    drawn = []
+
+    def ctrl_c(result):
+        drawn.append(result["name"])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plots, "histogram", ctrl_c)
+    before = snapshot(tmp_path)
+    rc = cli.main(["check", "--suite", "wrong_sampler_suite:suite", "-q", "--json", str(out),
+                   "--report", str(tmp_path / "rep")])
+    assert rc == 130 and drawn == ["wrong"]
+    assert snapshot(tmp_path) == before
+
+
 @pytest.mark.mitsuba
 def test_sigint_during_reference_build_keeps_old_reference(sandbox, tmp_path):
     scene = tmp_path / "tiny"

@@ -18,7 +18,7 @@ from ...provenance import provenance
 from ...result import SuiteResult, atomic_write, json_text, output_target
 from . import plots
 
-__all__ = ["build_report", "render_html"]
+__all__ = ["build_report", "prepare_report", "render_html"]
 
 
 def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] | None,
@@ -26,6 +26,19 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
                  extra_provenance: dict | None = None) -> dict:
     """Write the report into ``out_dir``; returns the JSON document. ``renders`` is
     ``report.renders.run_renders``'s result."""
+    doc, write = prepare_report(out_dir, suite=suite, study=study, renders=renders,
+                                extra_provenance=extra_provenance)
+    write()
+    return doc
+
+
+def prepare_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] | None,
+                   renders: tuple[list, dict] | None = None,
+                   extra_provenance: dict | None = None):
+    """``build_report``'s work up to the writing: (the JSON document, a function that
+    writes every file). A run with other outputs (``check --json … --report DIR``) makes
+    the report, which takes seconds of plotting, before it writes any of them: a Ctrl-C
+    while the histograms were drawn left the new --json beside no report (exit 130)."""
     doc = {
         "provenance": provenance(**(extra_provenance or {})),
         "verification": suite.to_dict() if suite is not None else None,
@@ -57,18 +70,21 @@ def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] |
     # user's check with seconds=None) left a new report.json beside the old page, or none.
     text = json_text(doc)       # as every output file: no bare NaN/Infinity token
     page = render_html(doc, images)
-    os.makedirs(out_dir, exist_ok=True)
-    stale = set(_previous_images(out_dir)) - set(images)
-    for name, data in images.items():
-        atomic_write(os.path.join(out_dir, name), data)
-    atomic_write(os.path.join(out_dir, "report.json"), text)
-    atomic_write(os.path.join(out_dir, "report.html"), page)
-    for name in stale:      # the last report's images this one does not have
-        try:
-            os.remove(os.path.join(out_dir, name))
-        except FileNotFoundError:
-            pass
-    return doc
+
+    def write() -> None:
+        os.makedirs(out_dir, exist_ok=True)
+        stale = set(_previous_images(out_dir)) - set(images)
+        for name, data in images.items():
+            atomic_write(os.path.join(out_dir, name), data)
+        atomic_write(os.path.join(out_dir, "report.json"), text)
+        atomic_write(os.path.join(out_dir, "report.html"), page)
+        for name in stale:      # the last report's images this one does not have
+            try:
+                os.remove(os.path.join(out_dir, name))
+            except FileNotFoundError:
+                pass
+
+    return doc, write
 
 
 def _previous_images(out_dir: str) -> list[str]:
