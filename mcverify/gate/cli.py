@@ -1157,6 +1157,35 @@ def _thread_limit() -> None:
     numba.set_num_threads(min(int(value), numba.config.NUMBA_NUM_THREADS))
 
 
+#: The commands that compile or load numba kernels through the kernel cache.
+_KERNEL_COMMANDS = ("check", "render-check", "report", "bench")
+
+
+def _kernel_cache(command: str) -> None:
+    """The kernel cache (``$MCVERIFY_CACHE``, else ``~/.cache/mcverify/kernels``) must be a
+    folder this run can write, for the commands that compile kernels: a file there, or a
+    read-only folder, failed every check that compiles one ("raised FileExistsError",
+    exit 1) as if the sampler were wrong. EnvironmentProblem naming it otherwise."""
+    if command not in _KERNEL_COMMANDS:
+        return
+    import tempfile
+
+    from estimators._generated import cache_dir
+
+    given = os.environ.get("MCVERIFY_CACHE")
+    where = (f"MCVERIFY_CACHE={given}" if given else "the kernel cache "
+             + os.path.join(os.path.expanduser("~"), ".cache", "mcverify", "kernels"))
+    try:
+        folder = cache_dir()
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".tmp-probe-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise EnvironmentProblem(f"{where}: cannot write kernels there ("
+                                 f"{e.strerror or e}{': ' + e.filename if e.filename else ''}"
+                                 "); set MCVERIFY_CACHE to a folder you can write") from None
+
+
 def _hypothesis_home() -> None:
     """``check_stability`` runs hypothesis, which caches the constants of the user's modules
     in ``./.hypothesis``: a gate run left that folder in the project it was started in
@@ -1172,6 +1201,7 @@ def main(argv=None) -> int:
     try:
         _validate_common(args)
         _thread_limit()
+        _kernel_cache(args.command)
         _hypothesis_home()
         return args.func(args)
     except (InvalidArgument, EnvironmentProblem) as e:

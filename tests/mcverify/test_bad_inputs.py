@@ -1150,6 +1150,23 @@ def test_a_bad_thread_count_in_the_environment_exits_2(cli_sandbox, capsys, monk
     assert rc == 2 and f"MCVERIFY_NUM_THREADS={value!r}" in err, err
 
 
+def test_a_kernel_cache_that_cannot_be_written_exits_2_naming_it(tmp_path):
+    """$MCVERIFY_CACHE naming a file (or a read-only folder) failed every check that
+    compiles a kernel, "raised FileExistsError", exit 1, as if the sampler were wrong;
+    now exit 2 naming the variable, before any work. ``list`` compiles nothing."""
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("x")
+    env = dict(os.environ, MCVERIFY_CACHE=str(blocker))
+    r = subprocess.run(CMD + ["check", "-k", "sampler:uniform_disk_polar", "-q"], env=env,
+                       cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert f"MCVERIFY_CACHE={blocker}: cannot write kernels there" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and r.stdout == ""
+    r = subprocess.run(CMD + ["list", "-k", "uniform_disk_polar"], env=env, cwd=tmp_path,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+
+
 def test_inputs_a_probe_found_read_wrongly_are_refused_or_explained():
     """Found by a probe: a float16 sampler was failed as 95042 points "outside" the
     hemisphere; check_unbiased read strings ("1", "2") as numbers;
