@@ -189,6 +189,11 @@ def output_target(path) -> tuple[str, str]:
     if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):
         raise InvalidArgument(f"path={path!r}: give a file path (an empty path writes nothing)")
     path = os.fspath(path)
+    if os.path.basename(path) in ("", ".", ".."):
+        # "out/" names a folder: realpath dropped the slash, and a file named "out" was
+        # written (or "f.json/" replaced the file f.json, which open() would refuse)
+        raise InvalidArgument(f"{path}: ends in {os.path.basename(path) or os.sep!r}, "
+                              "which names a folder; give a file path")
     target = os.path.realpath(path)
     try:    # the path itself, followed: /dev/stdout -> /proc/self/fd/1 -> "pipe:[N]", a
         mode = os.stat(path).st_mode    # link whose text realpath cannot resolve

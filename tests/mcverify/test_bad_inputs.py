@@ -449,6 +449,13 @@ CLI = [
     ("json-directory", ["check", "--json", "{d}/adir"], "is a directory"),
     ("json-proc", ["check", "--json", "/proc/forbidden/x.json"], "--json /proc/forbidden"),
     ("json-under-a-file", ["check", "--json", "{d}/notes.txt/x.json"], "notes.txt"),
+    # a path ending in '/' names a folder: a file "newdir" was written, and "notes.txt/"
+    # replaced the file notes.txt
+    ("json-trailing-slash", ["check", "-k", "zzz", "--json", "{d}/newdir/"],
+     "newdir/: ends in '/', which names a folder"),
+    ("json-file-with-slash", ["check", "-k", "zzz", "--json", "{d}/notes.txt/"],
+     "which names a folder"),
+    ("junit-dot", ["check", "-k", "zzz", "--junit", "{d}/newdir/."], "which names a folder"),
     ("json-is-junit", ["check", "--json", "{d}/o.json", "--junit", "{d}/o.json"],
      "the same file"),
     ("json-socket", ["check", "--json", "{d}/sock"], "not a regular file, FIFO"),
