@@ -753,7 +753,9 @@ def load_reference(spec: str) -> Reference:
         raise EnvironmentProblem(f"{mpath}: stale: records no SHA-256 of the files the scene "
                                  f"names (built before they were recorded); {rebuild}")
     for asset, now in sorted(assets.items()):
-        if not isinstance(recorded, dict) or recorded.get(asset, "") != now:
+        # a file missing now is stale whatever was recorded: a reference built before the
+        # build refused it (Mitsuba found it in the working directory) recorded null
+        if not isinstance(recorded, dict) or recorded.get(asset, "") != now or now is None:
             what = "is missing" if now is None else "changed"
             # a name with a $parameter: the file it names now, too
             named = asset

@@ -221,6 +221,24 @@ def test_a_file_found_only_in_the_working_directory_is_refused(tmp_path, monkeyp
     assert not (scene / "ref").exists()
 
 
+def test_a_reference_that_recorded_a_file_as_missing_is_stale(tmp_path):
+    """References built before the build refused a file found only in the working
+    directory recorded it as null, and loaded as valid while it was missing beside the
+    scene (null == null): a change to the file Mitsuba had rendered went unnoticed. A
+    file missing now is stale, whatever the manifest recorded."""
+    scene = tmp_path / "textures"
+    shutil.copytree(os.path.join(SCENES, "textures"), scene,
+                    ignore=shutil.ignore_patterns("ref"))
+    reference.build_reference(str(scene), spp=4, passes=2)
+    mpath = scene / "ref" / "manifest.json"
+    manifest = json.loads(mpath.read_text())
+    manifest["assets_sha256"]["card.obj"] = None
+    mpath.write_text(json.dumps(manifest))
+    (scene / "card.obj").unlink()
+    with pytest.raises(EnvironmentProblem, match="stale: card.obj .* is missing"):
+        reference.load_reference(str(scene))
+
+
 def test_a_stale_file_named_by_a_parameter_is_named_as_it_resolves(tmp_path):
     """A texture named ``$tex``: the staleness message names the file it resolves to
     (it said only "$tex", an outside review), and the manifest keeps the name as
