@@ -678,11 +678,17 @@ def _write(path: str, ref: Reference) -> str:
             old = tempfile.mkdtemp(prefix=_aside(base, "old"), dir=folder)
             os.rename(out, os.path.join(old, base))
         os.rename(tmp, out)
-    except BaseException:
+    except BaseException as e:
         if old is not None and not os.path.lexists(out):
             os.rename(os.path.join(old, base), out)
             os.rmdir(old)
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(e, (OSError, RuntimeError)):
+            # a full disk: Mitsuba's writer raises RuntimeError naming the temporary file,
+            # which was "unexpected RuntimeError"
+            why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+            raise EnvironmentProblem(f"{out}: cannot write the reference ({why}); "
+                                     "the previous one, if any, is kept") from None
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

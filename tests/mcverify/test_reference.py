@@ -438,6 +438,32 @@ def test_a_folder_where_no_reference_can_be_written_is_refused_before_rendering(
     assert (scene_copy / "ref").read_text() == "my notes"
 
 
+def test_a_reference_that_cannot_be_written_names_it_and_keeps_the_old_one(
+        scene_copy, monkeypatch):
+    """A full disk while the images were written: Mitsuba's writer raised RuntimeError,
+    reported as 'unexpected RuntimeError: [FileStream] ".../.ref-new-…/var.exr": I/O
+    error … No space left on device'. Now EnvironmentProblem naming the reference folder;
+    the previous reference stays, and nothing is left beside it."""
+    xml = scene_copy / "scene.xml"
+    xml.write_text(xml.read_text().replace('name="res" value="64"', 'name="res" value="8"'))
+    reference.build_reference(str(scene_copy), spp=2, passes=2)
+    before = sorted(os.listdir(scene_copy))
+    calls = []
+
+    def full_disk(path, image):
+        calls.append(path)
+        raise RuntimeError(f'[FileStream] "{path}": I/O error while attempting to write '
+                           "12402 bytes: No space left on device")
+
+    monkeypatch.setattr(mvm, "write_exr", full_disk)
+    with pytest.raises(EnvironmentProblem, match=r"ref: cannot write the reference \(.*No "
+                                                 r"space left on device\); the previous") as e:
+        reference.build_reference(str(scene_copy), spp=2, passes=3)
+    assert str(e.value).startswith(str(scene_copy / "ref")) and calls
+    assert sorted(os.listdir(scene_copy)) == before
+    assert reference.load_reference(str(scene_copy)).n == 2
+
+
 def test_a_scene_named_twice_is_built_once(scene_copy, monkeypatch):
     seen = []
     real = reference._render_jobs
