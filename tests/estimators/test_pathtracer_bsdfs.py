@@ -655,7 +655,7 @@ def test_null_and_delta_sampling_matches_mitsuba(mi, tmp_path, name, xml):
      '<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/></bsdf>',
      "both alpha_u and alpha_v"),
     ('<bsdf type="roughdielectric"><float name="alpha_v" value="-1"/>'
-     '<float name="alpha_u" value="0.1"/></bsdf>', "alpha_v must be > 0"),
+     '<float name="alpha_u" value="0.1"/></bsdf>', "alpha_v must be >= 0"),
     ('<bsdf type="roughconductor"><float name="alpha_u" value="0.1"/></bsdf>',
      "both alpha_u and alpha_v"),
     ('<bsdf type="mask"><bsdf type="normalmap"><texture type="bitmap" name="normalmap">'
