@@ -721,18 +721,25 @@ def test_a_negative_float_reflectance_is_refused(tmp_path, bsdf, prop):
     """Mitsuba renders a <float> reflectance of -0.5 as a negative albedo (a probe's
     sphere: -0.15 where ours gave 0.0001, z = 1000); the loader refuses it by line. A
     <float> above 1 stays allowed, as in Mitsuba."""
+    for value, refused in [("-0.5", True), ("1.5", False), ("0", False)]:
+        _prepare_one_float(tmp_path, bsdf, prop, value,
+                           refused and f"s.xml:3: .*{prop} = -0.5: a reflectance")
+
+
+def _prepare_one_float(tmp_path, bsdf, prop, value, refusal=None):
+    """Prepare a sphere whose BSDF ``bsdf`` has the <float> ``prop`` = ``value``: it
+    loads, or, given ``refusal`` (a pattern), is refused with a SceneError matching it."""
     from estimators.pathtracer import prepare_scene
 
-    for value, refused in [("-0.5", True), ("1.5", False), ("0", False)]:
-        path = tmp_path / "s.xml"
-        path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf '
-                        f'type="{bsdf}"><float name="{prop}" value="{value}"/></bsdf>'
-                        '</shape>\n</scene>')
-        if refused:
-            with pytest.raises(SceneError, match=f"s.xml:3: .*{prop} = -0.5: a reflectance"):
-                prepare_scene(str(path))
-        else:
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf '
+                    f'type="{bsdf}"><float name="{prop}" value="{value}"/></bsdf>'
+                    '</shape>\n</scene>')
+    if refusal:
+        with pytest.raises(SceneError, match=refusal):
             prepare_scene(str(path))
+    else:
+        prepare_scene(str(path))
 
 
 def test_a_negative_float_checkerboard_colour_is_refused(tmp_path):
@@ -1183,15 +1190,6 @@ def test_a_sphere_to_world_that_is_no_similarity_is_refused(tmp_path, ops, needl
 def test_a_negative_roughness_is_refused_and_zero_loads(tmp_path):
     """A microfacet alpha of 0 (an exporter's smooth surface) loads, raised to 1e-4 as
     Mitsuba raises it (refused until 6 December); a negative one is refused by line."""
-    from estimators.pathtracer import prepare_scene
-
-    path = tmp_path / "s.xml"
-    for value, refused in (("-0.1", True), ("0", False)):
-        path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf '
-                        f'type="roughconductor"><float name="alpha" value="{value}"/></bsdf>'
-                        '</shape></scene>')
-        if refused:
-            with pytest.raises(SceneError, match=r"s\.xml:3.*alpha must be >= 0, got -0\.1"):
-                prepare_scene(str(path))
-        else:
-            prepare_scene(str(path))
+    _prepare_one_float(tmp_path, "roughconductor", "alpha", "-0.1",
+                       r"s\.xml:3.*alpha must be >= 0, got -0\.1")
+    _prepare_one_float(tmp_path, "roughconductor", "alpha", "0")
