@@ -90,3 +90,21 @@ def test_junit_lists_the_skipped_checks_as_the_json_does(tmp_path):
     assert skipped == {"sampler:x": "not needed by this scene",
                        "bsdf:dielectric\\x1b": "a delta BSDF, <nothing> & co"}
     assert [s["check"] for s in listed] == ["sampler:x", "bsdf:dielectric\x1b"]
+
+
+def test_junit_failures_say_why_and_canaries_are_their_own_class(tmp_path):
+    """A check that fails on its p-value alone (no failures, no messages) and a canary
+    not bitten had an empty <failure> text, which CI views show as the whole story; the
+    canaries shared the checks' classname though the writer said "their own class"."""
+    not_bitten = _r("cosine+2%", 0.5)               # a canary the checks did not catch
+    suite = SuiteResult.judge("s", [_r("a", 1e-9), _r("b", 0.5)], alpha=0.01, seconds=1.0,
+                              canary=(not_bitten,))
+    mv.write_junit(suite, str(tmp_path / "r.xml"))
+    cases = {c.get("name"): c for c in ET.parse(tmp_path / "r.xml").getroot().iter("testcase")}
+    text = cases["a"].find("failure").text
+    assert "rejected at family-wise alpha=0.01 (holm)" in text and "p=1e-09" in text
+    assert cases["b"].find("failure") is None
+    canary = cases["canary.cosine+2%"]
+    assert canary.get("classname") == "mcverify.s.canary"
+    assert cases["a"].get("classname") == "mcverify.s"
+    assert "planted bug passed" in canary.find("failure").text
