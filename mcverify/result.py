@@ -275,10 +275,15 @@ def write_json(result, path: str, *, provenance: dict | None = None) -> None:
 _NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
 
 
-def _xml(text) -> str:
-    """``text`` with each character XML cannot hold written as its escape (``\\x1b``)."""
+def escape_controls(text) -> str:
+    """``text`` with each character XML cannot hold written as its escape (``\\x1b``):
+    for the JUnit file, and for the error line on a terminal, where a user's message's
+    ANSI escape or BEL would act instead of showing."""
     return _NOT_XML.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"),
                         str(text))
+
+
+_xml = escape_controls       # the JUnit writer's name for it
 
 
 def write_junit(suite: SuiteResult, path: str) -> None:

@@ -17,6 +17,7 @@ import time
 
 from .._validate import decimal_int
 from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
+from ..result import escape_controls
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_BROKEN_PIPE = 141         # 128 + SIGPIPE, as a shell reports a command whose reader left
@@ -1207,7 +1208,8 @@ def main(argv=None) -> int:
         _hypothesis_home()
         return args.func(args)
     except (InvalidArgument, EnvironmentProblem) as e:
-        print(f"mcverify: error: {' '.join(str(e).split())}", file=sys.stderr)
+        print(f"mcverify: error: {escape_controls(' '.join(str(e).split()))}",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:
         # the reader closed the pipe (mcverify list | head -3): stop without a message,
@@ -1225,7 +1227,7 @@ def main(argv=None) -> int:
     except Exception as e:  # noqa: BLE001 - a crash must not read as "a check failed" (1)
         if os.environ.get("MCVERIFY_TRACEBACK"):
             raise
-        text = " ".join(str(e).split())
+        text = escape_controls(" ".join(str(e).split()))
         print(f"mcverify: error: unexpected {type(e).__name__}: {text} (set "
               "MCVERIFY_TRACEBACK=1 to see where)", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -115,3 +115,19 @@ def test_k_selects_a_name_that_contains_glob_characters():
     assert names("bsdf[y]") == ["bsdfy"]                # still a glob too
     assert names("light*2") == ["light*2", "light-2"]
     assert names("light?2") == ["light*2", "light-2"]
+
+
+def test_the_error_line_escapes_control_characters(monkeypatch, capsys):
+    """A message holding a user's ANSI escape or BEL (an exception's text) reached the
+    terminal raw, where it acted instead of showing; it is written as its escape, as in
+    the JUnit file."""
+    from mcverify.errors import InvalidArgument
+    from mcverify.gate import cli
+
+    def bad(args):
+        raise InvalidArgument("no \x1b[31mGPU\x07 here")
+
+    monkeypatch.setattr(cli, "_validate_common", bad)
+    assert cli.main(["list"]) == 2
+    err = capsys.readouterr().err
+    assert "no \\x1b[31mGPU\\x07 here" in err and "\x1b" not in err and "\x07" not in err
