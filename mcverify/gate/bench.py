@@ -145,8 +145,8 @@ def _res_128(path: str) -> dict:
     with mcverify), else ``{}``: the scene at its own film size. A ``--refs`` scene of the
     user's with a literal film size was refused by both renderers ("params ['res']: the
     scene has no such parameter"; Mitsuba: "Found unused parameters")."""
-    with open(path, encoding="utf-8") as f:
-        text = f.read()
+    with open(path, encoding="utf-8", errors="replace") as f:  # the loader names a bad
+        text = f.read()                                         # encoding, not this read
     uses = re.search(r"""<default\s+name\s*=\s*["']res["']|\$res\b""", text)
     return {"res": 128} if uses else {}
 

@@ -355,3 +355,17 @@ def test_cli_json_has_no_nan_token_where_a_ratio_is_undefined(tmp_path, monkeypa
 
     doc = json.loads(out.read_text(), parse_constant=strict)
     assert doc["results"][0]["ratio"] == "nan"
+
+
+def test_a_scenes_res_parameter_is_found_whatever_its_encoding(tmp_path):
+    """``bench --refs``: a scene in Latin-1 (an XML encoding declaration, a comment with
+    0xe9) was read as strict UTF-8 to find its ``$res`` and ended in "unexpected
+    UnicodeDecodeError" before the loader could name the encoding (a final review)."""
+    from mcverify.gate.bench import _res_128
+
+    path = tmp_path / "scene.xml"
+    path.write_bytes(b'<?xml version="1.0" encoding="ISO-8859-1"?>\n<!-- caf\xe9 -->\n'
+                     b'<scene version="3.0.0"><default name="res" value="64"/></scene>')
+    assert _res_128(str(path)) == {"res": 128}
+    path.write_bytes(b'<!-- caf\xe9 --><scene version="3.0.0"/>')
+    assert _res_128(str(path)) == {}
