@@ -683,9 +683,10 @@ def _write(path: str, ref: Reference) -> str:
             os.rename(os.path.join(old, base), out)
             os.rmdir(old)
         shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(e, (OSError, RuntimeError)):
+        if isinstance(e, OSError) or type(e) is RuntimeError:
             # a full disk: Mitsuba's writer raises RuntimeError naming the temporary file,
-            # which was "unexpected RuntimeError"
+            # which was "unexpected RuntimeError" (its subclasses, a RecursionError or
+            # NotImplementedError, are not the disk's and go on as they are)
             why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
             raise EnvironmentProblem(f"{out}: cannot write the reference ({why}); "
                                      "the previous one, if any, is kept") from None

@@ -462,6 +462,13 @@ def test_a_reference_that_cannot_be_written_names_it_and_keeps_the_old_one(
     assert str(e.value).startswith(str(scene_copy / "ref")) and calls
     assert sorted(os.listdir(scene_copy)) == before
     assert reference.load_reference(str(scene_copy)).n == 2
+    # a RuntimeError subclass is no disk's: it goes on as it is (it was reworded as
+    # "cannot write the reference"; a final review), the old reference kept all the same
+    monkeypatch.setattr(mvm, "write_exr", lambda path, image: (_ for _ in ()).throw(
+        NotImplementedError("a writer bug")))
+    with pytest.raises(NotImplementedError, match="a writer bug"):
+        reference.build_reference(str(scene_copy), spp=2, passes=3)
+    assert sorted(os.listdir(scene_copy)) == before
 
 
 def test_a_scene_named_twice_is_built_once(scene_copy, monkeypatch):
