@@ -267,6 +267,15 @@ def _mesh(vertex, face, path) -> PlyMesh:
                          "±3.4028235e38 is not finite)")
     normals = (_floats(vertex, ("nx", "ny", "nz"), path)
                if {"nx", "ny", "nz"} <= names else None)
+    if normals is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            finite = np.isfinite(normals.astype(np.float32)).all(1)
+        if not finite.all():
+            # Mitsuba loads a double normal beyond float32's range as inf and renders its
+            # triangles black (a NaN normal); ours normalised it in float64 and lit them
+            raise SceneError(f"{path}: vertex {int(np.argmax(~finite))} has a normal that "
+                             "is not finite in single precision, as Mitsuba stores it "
+                             "(beyond ±3.4028235e38; Mitsuba renders its triangles black)")
     uv_sets = [pair for pair in _UV_NAMES if set(pair) <= names]
     if len(uv_sets) > 1:
         raise SceneError(f"{path}: texture coordinates named both {uv_sets[0]} and "

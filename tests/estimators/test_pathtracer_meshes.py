@@ -107,6 +107,15 @@ def _beyond_float32(folder):
     return path
 
 
+def _normal_beyond_float32(folder):
+    """Double normals, one of them 1e39 long: Mitsuba loads it as inf and renders the
+    triangle black (a NaN normal); ours normalised it and lit it (a final review)."""
+    path = folder / "bign.ply"
+    write_ply(str(path), np.eye(3), [[0, 1, 2]], fmt="ascii", vertex_type="double",
+              normals=[[0, 0, 1], [0, 0, 1e39], [0, 0, 1]])
+    return path
+
+
 BAD = {
     "truncated-binary": (_bad("binary_little_endian", lambda b: b[:-7]), "truncated", True),
     "truncated-ascii": (_bad("ascii", lambda b: b.rsplit(b" ", 2)[0]), "truncated", True),
@@ -136,6 +145,8 @@ BAD = {
     # a double Mitsuba rounds to float32's infinity ("invalid vertex position data");
     # it was rendered in float64 here
     "beyond-float32": (_beyond_float32, "in single precision", True),
+    "normal-beyond-float32": (_normal_beyond_float32, "normal that is not finite in single",
+                              False),
 }
 
 
