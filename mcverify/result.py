@@ -23,7 +23,7 @@ from . import stats
 from .errors import InvalidArgument
 
 __all__ = ["CheckResult", "SuiteResult", "write_json", "write_junit", "atomic_write",
-           "output_target", "json_text"]
+           "output_target", "json_text", "escape_controls"]
 
 
 def _jsonable(v):
