@@ -271,8 +271,9 @@ def write_json(result, path: str, *, provenance: dict | None = None) -> None:
 
 #: Characters XML 1.0 cannot hold, not even as references: C0 controls but tab, LF and CR
 #: (an ANSI colour code in an exception's message), lone surrogates (a file name that is
-#: not UTF-8, decoded by Python), U+FFFE and U+FFFF.
-_NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+#: not UTF-8, decoded by Python), U+FFFE and U+FFFF; and DEL and the C1 controls, which
+#: XML discourages and a terminal may act on (U+009B is a one-character CSI).
+_NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\ud800-\udfff\ufffe\uffff]")
 
 
 def escape_controls(text) -> str:

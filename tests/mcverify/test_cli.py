@@ -125,9 +125,10 @@ def test_the_error_line_escapes_control_characters(monkeypatch, capsys):
     from mcverify.gate import cli
 
     def bad(args):
-        raise InvalidArgument("no \x1b[31mGPU\x07 here")
+        raise InvalidArgument("no \x1b[31mGPU\x07 here\x9b")
 
     monkeypatch.setattr(cli, "_validate_common", bad)
     assert cli.main(["list"]) == 2
     err = capsys.readouterr().err
-    assert "no \\x1b[31mGPU\\x07 here" in err and "\x1b" not in err and "\x07" not in err
+    assert "no \\x1b[31mGPU\\x07 here\\x9b" in err
+    assert not any(c in err for c in "\x1b\x07\x9b")
