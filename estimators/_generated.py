@@ -42,9 +42,14 @@ def load(name: str, source: str):
     path = os.path.join(folder, name + ".py")
     if not os.path.exists(path):
         fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(source)
-        os.replace(tmp, path)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(source)
+            os.replace(tmp, path)
+        except BaseException:   # a full disk, Ctrl-C: no .tmp file left in the cache
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module

@@ -7,6 +7,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from estimators import _generated
 
@@ -145,3 +146,17 @@ def test_a_sampling_loop_takes_the_lock_on_its_first_call_only(monkeypatch):
     pdf(a)
     assert len(taken) == 2 and taken[0].endswith("._bsdf_sample_rows") \
         and taken[1].endswith("._bsdf_eval_rows"), taken
+
+
+def test_a_failed_write_leaves_no_temporary_file_in_the_cache(tmp_path, monkeypatch):
+    """A generated module whose write fails (a full disk, Ctrl-C) left its ``.tmp`` file
+    in the kernel cache (an outside review); it is removed, and the error goes on."""
+    monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path))
+
+    def full(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(_generated.os, "replace", full)
+    with pytest.raises(OSError, match="No space left"):
+        _generated.load("mcverify_test_failed_write", "x = 1\n")
+    assert os.listdir(tmp_path) == []
