@@ -252,13 +252,23 @@ def _floats(vertex, names, path):
     return np.stack([vertex[n].astype(np.float64) for n in names], axis=1)
 
 
+#: The least magnitude that float32 rounds to inf (FLT_MAX + half its ulp): Mitsuba stores
+#: a mesh (and a to_uv) in single precision, so a double at or beyond it is infinite there.
+FLOAT32_OVERFLOW = 2.0 ** 128 - 2.0 ** 103
+
+
+def _rows_finite_in_float32(a: np.ndarray) -> np.ndarray:
+    """Per row of ``a``: whether every value is finite once rounded to float32 (NaN, inf
+    and magnitudes from ``FLOAT32_OVERFLOW`` up are not)."""
+    return (np.abs(a) < FLOAT32_OVERFLOW).all(1)
+
+
 def _mesh(vertex, face, path) -> PlyMesh:
     names = set(vertex.dtype.names)
     if not {"x", "y", "z"} <= names:
         raise SceneError(f"{path}: the vertex element needs properties x, y and z")
     verts = _floats(vertex, "xyz", path)
-    with np.errstate(over="ignore"):
-        finite = np.isfinite(verts.astype(np.float32)).all(1)
+    finite = _rows_finite_in_float32(verts)
     if not finite.all():
         # a double beyond float32's range too: Mitsuba stores single precision and
         # refuses it ("invalid vertex position data")
@@ -268,8 +278,7 @@ def _mesh(vertex, face, path) -> PlyMesh:
     normals = (_floats(vertex, ("nx", "ny", "nz"), path)
                if {"nx", "ny", "nz"} <= names else None)
     if normals is not None:
-        with np.errstate(over="ignore", invalid="ignore"):
-            finite = np.isfinite(normals.astype(np.float32)).all(1)
+        finite = _rows_finite_in_float32(normals)
         if not finite.all():
             # Mitsuba loads a double normal beyond float32's range as inf and renders its
             # triangles black (a NaN normal); ours normalised it in float64 and lit them

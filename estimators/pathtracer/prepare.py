@@ -28,7 +28,7 @@ from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
 from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
-from .meshes import read_ply
+from .meshes import FLOAT32_OVERFLOW, read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
 from .text_numbers import SPACE, parse_float, parse_int, split_words
@@ -1007,15 +1007,11 @@ _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
 #: How far a sphere's to_world may be from a rotation times a uniform scale (relative).
 _SIMILARITY_TOL = 1e-3
 
-#: the smallest magnitude that rounds to inf in float32 (FLT_MAX + half its ulp)
-_FLOAT32_OVERFLOW = 2.0 ** 128 - 2.0 ** 103
-
-
 def _finite_in_float32(values) -> bool:
-    """Whether ``values`` (finite floats) stay finite rounded to float32, as Mitsuba
-    stores a mesh: one comparison a value (a numpy array a line cost an OBJ of 1e6
-    vertices about a second)."""
-    return all(abs(x) < _FLOAT32_OVERFLOW for x in values)
+    """Whether ``values`` (a few floats: an OBJ line, a to_uv) stay finite rounded to
+    float32, as Mitsuba stores them: one comparison a value (a numpy array a line cost an
+    OBJ of 1e6 vertices about a second)."""
+    return all(abs(x) < FLOAT32_OVERFLOW for x in values)
 
 
 def _numbers(tokens, kind):
