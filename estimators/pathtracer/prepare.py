@@ -320,14 +320,15 @@ class _Builder:
         ``alpha_v`` (both, and no ``alpha``: Mitsuba refuses the rest). Mitsuba orients
         alpha_u along the shading frame's tangent s, which follows dp/du; a BSDF whose
         two differ asks the kernel for that frame (``BSDF_FRAME``)."""
+        def raised(name):       # to Mitsuba's least roughness
+            return max(float(plugin.get(name, 0.1)), _ALPHA_MIN)
+
         given = {n for n in ("alpha_u", "alpha_v") if n in plugin.props}
         if not given:
-            alpha = max(float(plugin.get("alpha", 0.1)), _ALPHA_MIN)
-            return alpha, alpha
+            return raised("alpha"), raised("alpha")
         if len(given) == 1 or "alpha" in plugin.props:
             self.fail(plugin, "give alpha, or both alpha_u and alpha_v")
-        return (max(float(plugin.get("alpha_u")), _ALPHA_MIN),
-                max(float(plugin.get("alpha_v")), _ALPHA_MIN))
+        return raised("alpha_u"), raised("alpha_v")
 
     def _roughness(self, plugin: Plugin, f: np.ndarray, i: np.ndarray):
         """Store the distribution and (alpha_u, alpha_v) of a microfacet BSDF; an
@@ -453,8 +454,8 @@ class _Builder:
                 f[layout.COAT_INTERNAL] = fresnel_diffuse_reflectance(1.0 / eta)
             else:
                 i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
-                alpha = max(float(plugin.get("alpha", 0.1)), _ALPHA_MIN)
-                f[layout.ALPHA] = f[layout.ALPHA_V] = alpha
+                alpha = self._alpha(plugin)[0]      # isotropic: the loader takes no
+                f[layout.ALPHA] = f[layout.ALPHA_V] = alpha     # alpha_u on a plastic
                 table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
                 f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
                 f[layout.COAT_INTERNAL] = internal
@@ -1006,6 +1007,7 @@ _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
 
 #: How far a sphere's to_world may be from a rotation times a uniform scale (relative).
 _SIMILARITY_TOL = 1e-3
+
 
 def _finite_in_float32(values) -> bool:
     """Whether ``values`` (a few floats: an OBJ line, a to_uv) stay finite rounded to
