@@ -32,7 +32,8 @@ from .meshes import FLOAT32_OVERFLOW, read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
 from .text_numbers import SPACE, parse_float, parse_int, split_words
-from .textures import TextureStore, envmap_sampling_weights, luminance, read_image
+from .textures import (TextureStore, envmap_sampling_weights, luminance,
+                       non_finite_texels, read_image)
 
 _MATERIALS = None
 
@@ -217,14 +218,13 @@ class _Builder:
             img = read_image(path, raw=raw, texture=plugin.kind == "texture")
         except OSError as e:
             self.fail(plugin, str(e))
-        bad = ~np.isfinite(img)
-        if bad.any():
+        bad = non_finite_texels(img)
+        if bad:
             # as a non-finite number in the XML: Mitsuba renders NaN pixels from it, and
             # an envmap's sampling table cannot be built from it
-            y, x, c = np.argwhere(bad)[0]
-            self.fail(plugin, f"{path}: texel (row {y}, column {x}) channel {c} is "
-                              f"{img[y, x, c]}; {int(bad.any(axis=2).sum())} texels are not "
-                              "finite")
+            count, y, x, c, value = bad
+            self.fail(plugin, f"{path}: texel (row {y}, column {x}) channel {c} is {value}; "
+                              f"{count} texels are not finite")
         return img
 
     def _bitmap(self, tex: Plugin) -> int:

@@ -73,6 +73,17 @@ def read_image(path: str, *, raw: bool = False, texture: bool = False) -> np.nda
     return a[:, :, :3]
 
 
+def non_finite_texels(image: np.ndarray) -> tuple | None:
+    """Where ``image`` (H, W, 3) holds NaN or infinite values: (the number of such texels,
+    the first one's row, column and channel, its value), or None if it holds none (for
+    the loader's refusal and the reference build's diagnosis)."""
+    bad = ~np.isfinite(image)
+    if not bad.any():
+        return None
+    y, x, c = np.argwhere(bad)[0]
+    return int(bad.any(axis=2).sum()), y, x, c, image[y, x, c]
+
+
 class TextureStore:
     """Collects images into the flat arrays the kernels read."""
 

@@ -412,21 +412,20 @@ def _non_finite_image(scene_path: str) -> str | None:
     and the build blamed an emitter's value beyond float32's range (an outside review;
     ``render-check``'s loader names the file, ``reference build`` loads no scene of its
     own). Files that are no image (meshes, includes) are passed over."""
-    from estimators.pathtracer.textures import read_image
+    from estimators.pathtracer.textures import non_finite_texels, read_image
 
     for name, full in scene_asset_files(scene_path).items():
         if not os.path.isfile(full):
             continue
         try:
-            img = read_image(full)
+            bad = non_finite_texels(read_image(full))
         except OSError:
             continue
-        bad = ~np.isfinite(img)
-        if bad.any():
-            y, x, c = np.argwhere(bad)[0]
-            return (f"the image {name} has {int(bad.any(axis=2).sum())} texel(s) that are "
-                    f"not finite, the first at row {y}, column {x} (channel {c}: "
-                    f"{img[y, x, c]}), which Mitsuba renders as NaN")
+        if bad:
+            count, y, x, c, value = bad
+            return (f"the image {name} has {count} texel(s) that are not finite, the first "
+                    f"at row {y}, column {x} (channel {c}: {value}), which Mitsuba renders "
+                    "as NaN")
     return None
 
 
