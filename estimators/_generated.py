@@ -27,10 +27,15 @@ except ImportError:         # not on POSIX: no lock, each process compiles for i
     fcntl = None
 
 
+def cache_path() -> str:
+    """``$MCVERIFY_CACHE``, else ``~/.cache/mcverify/kernels``."""
+    return os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"),
+                                                            ".cache", "mcverify", "kernels")
+
+
 def cache_dir() -> str:
-    """``$MCVERIFY_CACHE``, else ``~/.cache/mcverify/kernels`` (made if missing)."""
-    d = os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
-                                                         "mcverify", "kernels")
+    """``cache_path()``, made if missing."""
+    d = cache_path()
     os.makedirs(d, exist_ok=True)
     return d
 

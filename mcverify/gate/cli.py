@@ -1173,11 +1173,10 @@ def _kernel_cache(command: str) -> None:
         return
     import tempfile
 
-    from estimators._generated import cache_dir
+    from estimators._generated import cache_dir, cache_path
 
     given = os.environ.get("MCVERIFY_CACHE")
-    where = (f"MCVERIFY_CACHE={given}" if given else "the kernel cache "
-             + os.path.join(os.path.expanduser("~"), ".cache", "mcverify", "kernels"))
+    where = f"MCVERIFY_CACHE={given}" if given else f"the kernel cache {cache_path()}"
     try:
         folder = cache_dir()
         fd, probe = tempfile.mkstemp(dir=folder, prefix=".tmp-probe-")
