@@ -124,10 +124,11 @@ def _unit_vector(name: str, v) -> tuple[float, float, float]:
     norm = math.sqrt(sum(c * c for c in w))
     single = getattr(v, "dtype", None) == np.float32 or (
         isinstance(v, (list, tuple)) and any(isinstance(c, np.float32) for c in v))
-    if abs(norm - 1.0) <= (2.0 ** -22 if single else 1e-9):
+    tol = 2.0 ** -22 if single else 1e-9
+    if abs(norm - 1.0) <= tol:
         return w if not single else (w[0] / norm, w[1] / norm, w[2] / norm)
     raise ValueError(f"{name}={v!r}: expected a unit vector, its length is {norm!r} "
-                     f"(allowed: 1 ± {2.0 ** -22 if single else 1e-9:.2g})")
+                     f"(allowed: 1 ± {tol:.2g})")
 
 
 def _index(name: str, i, count: int) -> int:
