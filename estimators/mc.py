@@ -47,7 +47,10 @@ class Estimate:
 
 def _from_terms(terms, n_evals=None) -> Estimate:
     terms = np.asarray(terms, dtype=np.float64).ravel()
-    se = float(np.std(terms, ddof=1) / np.sqrt(terms.size)) if terms.size > 1 else np.inf
+    if terms.size > 1 and np.isfinite(terms).all():
+        se = float(np.std(terms, ddof=1) / np.sqrt(terms.size))
+    else:   # one term, or an infinite one (p = 0 where f is not): no finite error
+        se = np.nan if np.isnan(terms).any() else np.inf
     return Estimate(float(np.mean(terms)), se, int(n_evals or terms.size), terms)
 
 

@@ -1,6 +1,8 @@
 """The estimators, judged by mcverify: unbiased on known integrals, zero variance when
 p ∝ f, and the right convergence slopes (seeded; α = 0.01 per check)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -404,3 +406,18 @@ def test_stratified_works_in_more_than_32_dimensions():
         e = mc.stratified(lambda x: x.sum(axis=1), np.zeros(d), np.ones(d), 64, seed=3)
         assert e.n <= 128 and np.isfinite(e.value)
         assert mv.check_unbiased(e.samples, d / 2.0, alpha=0.01).passed
+
+
+def test_an_infinite_term_gives_an_infinite_std_error_without_a_warning():
+    """A sample with p = 0 where f is not gave value inf and std_error NaN, with numpy's
+    'invalid value encountered in subtract' warning: the error of an infinite estimate
+    is now inf, and no warning is raised."""
+    def half_pdf(x):
+        return np.where(x[:, 0] < 0.5, 0.0, 2.0)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        e = mc.importance(lambda x: np.ones(len(x)), lambda u: u, half_pdf, 100)
+    assert e.value == np.inf and e.std_error == np.inf
+    assert mc.importance(lambda x: np.ones(len(x)), lambda u: u * 0.5 + 0.5, half_pdf,
+                         100).std_error < np.inf
