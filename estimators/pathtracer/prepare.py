@@ -423,6 +423,15 @@ class _Builder:
             if given:
                 f[eta] = np.broadcast_to(plugin.get("eta", 0.0), 3)
                 f[k] = np.broadcast_to(plugin.get("k", 1.0), 3)
+                over = f[eta] ** 2 + f[k] ** 2 >= 2.0 ** 64
+                if over.any():
+                    c = int(np.argmax(over))
+                    # (η² + k²)² is the Fresnel term's largest product: beyond float32
+                    # there, Mitsuba's term is NaN and the surface renders black
+                    self.fail(plugin, f"eta = {f[eta][c]:g}, k = {f[k][c]:g}: eta² + k² "
+                                      "must be below 2^64 (1.8e19), beyond which Mitsuba's "
+                                      "float32 Fresnel term is NaN and renders the surface "
+                                      "black; a perfect mirror is material=\"none\"")
             else:
                 table = _materials()["conductors"]
                 if name not in table:

@@ -605,6 +605,34 @@ def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
             mi.load_string(text)
 
 
+@pytest.mark.parametrize("eta, k, refused", [
+    ("4.2e9", "0", False), ("4.4e9", "0", True), ("1e80", "0", True),
+    ("1", "4.4e9", True), ("-4.4e9", "0", True), ("3e9, 0.2, 0.2", "3.2e9, 3, 3", True),
+    ("3e9, 0.2, 0.2", "1, 3, 3", False)])
+def test_a_conductor_index_beyond_mitsubas_float32_fresnel_is_refused(mi, tmp_path, eta, k,
+                                                                      refused):
+    """η = 1e10 rendered a perfect mirror in ours and a black sphere in Mitsuba, whose
+    float32 Fresnel term overflows to NaN once η² + k² reaches 2^64; 1e80 was NaN in
+    ours too. Such an index is refused by line; below it both agree."""
+    from estimators.pathtracer import prepare_scene
+
+    kind = "rgb" if "," in eta else "float"
+    body = (f'<shape type="sphere"><bsdf type="conductor"><{kind} name="eta" value="{eta}"/>'
+            f'<{kind} name="k" value="{k}"/></bsdf></shape>')
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>')
+    e_r = [float(v) for v in eta.split(",")]
+    k_r = [float(v) for v in k.split(",")]
+    terms = [mi.fresnel_conductor(c, mi.ScalarComplex2f(a, b))
+             for a, b in zip(e_r * (3 // len(e_r)), k_r * (3 // len(k_r))) for c in (1.0, 0.5)]
+    assert (not np.isfinite(np.array(terms, dtype=np.float64)).all()) == refused, terms
+    if refused:
+        with pytest.raises(SceneError, match=r"s\.xml:3: .*eta² \+ k² must be below 2\^64"):
+            prepare_scene(str(path))
+    else:
+        prepare_scene(str(path))
+
+
 _DEPTH = '<integrator type="path"><integer name="max_depth" value="{}"/></integrator>'
 _IOR = ('<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="{}"/></bsdf>'
         '</shape>')
