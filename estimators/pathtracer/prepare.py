@@ -303,7 +303,32 @@ class _Builder:
             return float(table[v.lower()])
         if not v > 0:       # Mitsuba refuses a negative index; 0 would divide by zero
             self.fail(plugin, f"{name} must be > 0, got {v}")
+        self._float32_index(plugin, name, float(v))
         return float(v)
+
+    def _float32_index(self, plugin: Plugin, name: str, v: float) -> None:
+        """Refuse an index of refraction that float32, in which Mitsuba holds it, rounds
+        to 0 or inf (an int_ior of 1e39 gave a black sphere in Mitsuba where ours
+        rendered glass)."""
+        if not 2.0 ** -126 <= v < FLOAT32_OVERFLOW:
+            self.fail(plugin, f"{name} = {v:g} is outside float32's normal range "
+                              "(1.2e-38 to 3.4e38), which Mitsuba holds it in: it renders "
+                              "such a surface black or NaN")
+
+    def _relative_ior(self, plugin: Plugin, default: str, rough: bool) -> float:
+        """int_ior / ext_ior; a rough interface of ratio 1 is refused, as Mitsuba
+        refuses it."""
+        eta = self._ior(plugin, "int_ior", default) / self._ior(plugin, "ext_ior", "air")
+        if rough and eta == 1.0:
+            self.fail(plugin, "int_ior and ext_ior must differ")
+        if not 2.0 ** -60 <= eta <= 2.0 ** 60:
+            # Mitsuba squares the ratio and its inverse in float32, with factors: a rough
+            # plastic of ratio 1e-19 rendered NaN (2e-19 did not), a thin dielectric of
+            # 1.2e-38 grey
+            self.fail(plugin, f"int_ior / ext_ior = {eta:g} must lie in [2^-60, 2^60] "
+                              "(8.7e-19 to 1.2e18): Mitsuba squares it in float32, which "
+                              "overflows beyond")
+        return eta
 
     def _distribution(self, plugin: Plugin) -> int:
         d = str(plugin.get("distribution", "beckmann")).lower()     # as Mitsuba reads it
@@ -443,20 +468,14 @@ class _Builder:
         elif kind in (layout.DIELECTRIC, layout.ROUGHDIELECTRIC, layout.THINDIELECTRIC):
             f[c0], tex[0], _ = self._colour(plugin, "specular_reflectance", 1.0)
             f[c1], tex[1], _ = self._colour(plugin, "specular_transmittance", 1.0)
-            eta = self._ior(plugin, "int_ior", "bk7") / self._ior(plugin, "ext_ior", "air")
-            if kind == layout.ROUGHDIELECTRIC and eta == 1.0:
-                self.fail(plugin, "int_ior and ext_ior must differ")
-            f[layout.ETA] = eta
+            f[layout.ETA] = self._relative_ior(plugin, "bk7", kind == layout.ROUGHDIELECTRIC)
             if kind == layout.ROUGHDIELECTRIC:
                 self._roughness(plugin, f, i)
         else:  # plastic, roughplastic
             f[c0], tex[0], d_mean = self._colour(plugin, "diffuse_reflectance", 0.5)
             f[c1], tex[1], s_mean = self._colour(plugin, "specular_reflectance", 1.0)
-            eta = self._ior(plugin, "int_ior", "polypropylene") / self._ior(plugin, "ext_ior",
-                                                                             "air")
-            if kind == layout.ROUGHPLASTIC and eta == 1.0:
-                self.fail(plugin, "int_ior and ext_ior must differ")
-            f[layout.ETA] = eta
+            eta = f[layout.ETA] = self._relative_ior(plugin, "polypropylene",
+                                                     kind == layout.ROUGHPLASTIC)
             f[layout.SPECULAR_WEIGHT] = s_mean / (d_mean + s_mean)
             i[layout.BSDF_NONLINEAR] = int(bool(plugin.get("nonlinear", False)))
             if kind == layout.PLASTIC:

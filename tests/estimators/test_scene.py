@@ -633,6 +633,34 @@ def test_a_conductor_index_beyond_mitsubas_float32_fresnel_is_refused(mi, tmp_pa
         prepare_scene(str(path))
 
 
+@pytest.mark.parametrize("bsdf, int_ior, ext_ior, needle", [
+    ("dielectric", "1e39", "1", "int_ior = 1e+39 is outside float32's normal range"),
+    ("thindielectric", "1.5", "1e-39", "ext_ior = 1e-39 is outside float32's normal range"),
+    ("dielectric", "3e38", "0.1", "int_ior / ext_ior = 3e+39 must lie in [2^-60, 2^60]"),
+    ("roughplastic", "6e-20", "1", "int_ior / ext_ior = 6e-20 must lie in [2^-60, 2^60]"),
+    ("thindielectric", "1.2e-38", "1", "int_ior / ext_ior = 1.2e-38 must lie in"),
+    ("roughdielectric", "1e-18", "1", None), ("dielectric", "1e18", "1", None),
+    ("roughplastic", "1e38", "1e37", None)])
+def test_an_index_of_refraction_beyond_mitsubas_float32_is_refused(tmp_path, bsdf, int_ior,
+                                                                   ext_ior, needle):
+    """An int_ior of 1e39 rendered glass in ours and a black sphere in Mitsuba (float32
+    inf); a rough plastic of ratio 6e-20 NaN in Mitsuba (1/η² overflows), a thin
+    dielectric of 1.2e-38 grey. Indices outside float32's normal range, and ratios
+    outside [2^-60, 2^60], are refused by line; 1e-18 and 1e18 render alike in both."""
+    from estimators.pathtracer import prepare_scene
+
+    body = (f'<shape type="sphere"><bsdf type="{bsdf}"><float name="int_ior" '
+            f'value="{int_ior}"/><float name="ext_ior" value="{ext_ior}"/></bsdf></shape>')
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{SENSOR}\n{body}\n</scene>')
+    if needle is None:
+        prepare_scene(str(path))
+    else:
+        with pytest.raises(SceneError, match=r"s\.xml:3: ") as e:
+            prepare_scene(str(path))
+        assert needle in str(e.value), str(e.value)
+
+
 _DEPTH = '<integrator type="path"><integer name="max_depth" value="{}"/></integrator>'
 _IOR = ('<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="{}"/></bsdf>'
         '</shape>')
