@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .scene import SceneError
+from .text_numbers import FLOAT32_OVERFLOW
 
 __all__ = ["PlyMesh", "read_ply", "write_ply"]
 
@@ -250,11 +251,6 @@ def _floats(vertex, names, path):
                              "Mitsuba reads integer vertex data normalised to [0, 1] through "
                              "an sRGB curve: store float, double or half")
     return np.stack([vertex[n].astype(np.float64) for n in names], axis=1)
-
-
-#: The least magnitude that float32 rounds to inf (FLT_MAX + half its ulp): Mitsuba stores
-#: a mesh (and a to_uv) in single precision, so a double at or beyond it is infinite there.
-FLOAT32_OVERFLOW = 2.0 ** 128 - 2.0 ** 103
 
 
 def _rows_finite_in_float32(a: np.ndarray) -> np.ndarray:

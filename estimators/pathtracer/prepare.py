@@ -28,10 +28,11 @@ from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
 from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
-from .meshes import FLOAT32_OVERFLOW, read_ply
+from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
-from .text_numbers import SPACE, parse_float, parse_int, split_words
+from .text_numbers import (FLOAT32_OVERFLOW, SPACE, parse_float, parse_int,
+                           split_words)
 from .textures import (TextureStore, envmap_sampling_weights, luminance,
                        non_finite_texels, read_image)
 
@@ -303,17 +304,12 @@ class _Builder:
             return float(table[v.lower()])
         if not v > 0:       # Mitsuba refuses a negative index; 0 would divide by zero
             self.fail(plugin, f"{name} must be > 0, got {v}")
-        self._float32_index(plugin, name, float(v))
+        if v < 2.0 ** -126:
+            # (the scene parser refuses one beyond float32's range: Mitsuba's inf there
+            # rendered int_ior 1e39 black where ours rendered glass)
+            self.fail(plugin, f"{name} = {v:g} is below float32's least normal number "
+                              "(1.2e-38), in which Mitsuba holds it")
         return float(v)
-
-    def _float32_index(self, plugin: Plugin, name: str, v: float) -> None:
-        """Refuse an index of refraction that float32, in which Mitsuba holds it, rounds
-        to 0 or inf (an int_ior of 1e39 gave a black sphere in Mitsuba where ours
-        rendered glass)."""
-        if not 2.0 ** -126 <= v < FLOAT32_OVERFLOW:
-            self.fail(plugin, f"{name} = {v:g} is outside float32's normal range "
-                              "(1.2e-38 to 3.4e38), which Mitsuba holds it in: it renders "
-                              "such a surface black or NaN")
 
     def _relative_ior(self, plugin: Plugin, default: str, rough: bool) -> float:
         """int_ior / ext_ior; a rough interface of ratio 1 is refused, as Mitsuba
@@ -782,13 +778,6 @@ class _Builder:
                     self.fail(e, "to_world must be a rotation and translation (a uniform scale "
                                  "is allowed): Mitsuba measures the cone in the scaled frame, "
                                  "which is not matched")
-                for name in ("cutoff_angle", "beam_width"):
-                    if abs(float(e.get(name, 0.0))) > float(np.finfo(np.float32).max):
-                        # Mitsuba stores it in float32 as inf: its cos is NaN and the spot
-                        # lights nothing (we lit a cone: +87 % on a review's scene)
-                        self.fail(e, f"{name}={float(e.get(name)):g}: beyond float32's range, "
-                                     "where Mitsuba stores it as infinity and the spot lights "
-                                     "nothing; give an angle in degrees")
                 cutoff = math.radians(float(e.get("cutoff_angle", 20.0)))
                 beam = math.radians(float(e.get("beam_width", math.degrees(cutoff) * 0.75)))
                 if not (cutoff > 0.0 and beam >= 0.0):

@@ -26,8 +26,8 @@ from xml.parsers import expat
 
 import numpy as np
 
-from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, parse_float, parse_int,
-                           split_numbers)
+from .text_numbers import (FLOAT32_OVERFLOW, INT32, INT32_PROPERTIES, INT64, SPACE,
+                           parse_float, parse_int, split_numbers)
 from .transform import look_at, matrix, rotate, scale, translate
 
 __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scene"]
@@ -323,6 +323,10 @@ class _Loader:
         if not all(np.isfinite(vals)):
             self.fail(node, f"expected {'a finite number' if count == 1 else 'finite numbers'}"
                             f", got {text!r}")
+        if not all(abs(v) < FLOAT32_OVERFLOW for v in vals):
+            # Mitsuba loads it as inf (a sphere of radius 1e39 had an invalid bounding box)
+            self.fail(node, f"{text!r} is beyond float32's range (|x| < 3.4e38), in which "
+                            "Mitsuba holds scene values: it would be infinite there")
         return np.array(vals)
 
     def value(self, node):

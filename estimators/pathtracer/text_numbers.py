@@ -19,6 +19,10 @@ _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
                     r"|[+-]?(?:inf|infinity|nan)", re.ASCII | re.IGNORECASE)
 _INT = re.compile(r"[+-]?[0-9]+", re.ASCII)
 INT64 = (-2 ** 63, 2 ** 63 - 1)
+#: The least magnitude that float32 rounds to inf (FLT_MAX + half its ulp): Mitsuba's RGB
+#: variants hold every scene value (and a mesh, a to_uv) in single precision, so a double
+#: at or beyond it is infinite there.
+FLOAT32_OVERFLOW = 2.0 ** 128 - 2.0 ** 103
 INT32 = (-2 ** 31, 2 ** 31 - 1)
 #: integer properties Mitsuba 3.9.1 holds to 32 bits (it refuses max_depth 2^31 when it
 #: builds the integrator); a sampler's seed has its own range, [0, 2^32 - 1]

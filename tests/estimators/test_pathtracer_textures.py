@@ -144,9 +144,11 @@ def test_to_uv_matches_mitsuba(mi, images):
 
 
 @pytest.mark.parametrize("filter_type", ["bilinear", "nearest"])
-@pytest.mark.parametrize("to_uv", ['<translate x="1e39"/>', '<scale x="1e20"/><scale x="1e20"/>'])
+@pytest.mark.parametrize("to_uv", ['<translate x="3e38"/><translate x="3e38"/>',
+                                   '<scale x="1e20"/><scale x="1e20"/>'])
 def test_a_bitmaps_to_uv_beyond_float32_is_refused(mi, images, filter_type, to_uv):
-    """Mitsuba stores to_uv in float32, as infinity here: its bilinear look-up is NaN (its
+    """Mitsuba stores to_uv in float32, as infinity here (each number is within float32's
+    range, which the parser holds them to; their composition is not): its bilinear look-up is NaN (its
     reference then refused as not finite, with a message naming emitters), its nearest one
     not texel 0 of the row, which we read. Refused naming the to_uv. A
     checkerboard's infinite uv has a NaN fraction, whose cell we give as Mitsuba does."""
