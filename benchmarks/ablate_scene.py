@@ -19,6 +19,8 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
+import _args  # benchmarks/_args.py, beside this script
+
 
 def variants(text: str):
     """(label, scene text): the scene, then the scene without each top-level emitter or
@@ -35,8 +37,8 @@ def variants(text: str):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scene", help="a reference scene's name or a scene file")
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--repeats", type=_args.count, default=7)
+    ap.add_argument("--spp", type=_args.count, default=64)
     args = ap.parse_args()
     from estimators.pathtracer import prepare_scene, render
     from mcverify.gate import mitsuba as mvm
@@ -65,4 +67,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

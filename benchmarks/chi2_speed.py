@@ -16,6 +16,8 @@ from estimators import warps as W
 from mcverify.checks import sampler as S
 from mcverify.gate import mitsuba as mvm
 
+import _args  # benchmarks/_args.py, beside this script
+
 
 def best(fn, repeats):
     fn()
@@ -29,8 +31,8 @@ def best(fn, repeats):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--n", type=float, default=16e6)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--n", type=_args.count, default=16e6)
+    ap.add_argument("--repeats", type=_args.count, default=3)
     a = ap.parse_args()
     n = int(a.n)
     if mvm.choose_variant().variant.startswith("scalar"):
@@ -53,4 +55,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

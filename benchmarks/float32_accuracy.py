@@ -13,6 +13,8 @@ import numpy as np
 from estimators import warps
 from mcverify.gate import mitsuba as mvm
 
+import _args  # benchmarks/_args.py, beside this script
+
 
 def ulps(a: np.ndarray, ref: np.ndarray) -> np.ndarray:
     spacing = np.spacing(np.abs(ref.astype(np.float32))).astype(np.float64)
@@ -21,7 +23,7 @@ def ulps(a: np.ndarray, ref: np.ndarray) -> np.ndarray:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--n", type=int, default=1_000_000)
+    ap.add_argument("--n", type=_args.count, default=1_000_000)
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args()
     mi = mvm._mi()
@@ -44,4 +46,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

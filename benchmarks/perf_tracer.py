@@ -25,6 +25,8 @@ import sys
 import tempfile
 import time
 
+import _args  # benchmarks/_args.py, beside this script
+
 
 def short_name(mangled: str) -> str:
     """The function's own name from numba's mangled symbol (``cfunc.``/``cpython.``
@@ -47,9 +49,9 @@ def short_name(mangled: str) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scene")
-    ap.add_argument("--seconds", type=float, default=20.0, help="time spent rendering")
-    ap.add_argument("--res", type=int, default=128)
-    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--seconds", type=_args.seconds, default=20.0, help="time spent rendering")
+    ap.add_argument("--res", type=_args.count, default=128)
+    ap.add_argument("--spp", type=_args.count, default=64)
     ap.add_argument("--dump", metavar="DIR", help="write each function's machine code here")
     ap.add_argument("--image-only", action="store_true",
                     help="render the image alone (variance=False), as `mcverify bench` times")
@@ -103,4 +105,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

@@ -15,11 +15,13 @@ import argparse
 from mcverify.gate import suites
 from mcverify.gate.budget import power_bought
 
+import _args  # benchmarks/_args.py, beside this script
+
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--suite", default="default")
-    ap.add_argument("--n", type=float, default=None)
+    ap.add_argument("--n", type=_args.count, default=None)
     ap.add_argument("-k", default=None)
     ap.add_argument("--alpha", type=float, default=0.01)
     a = ap.parse_args()
@@ -43,4 +45,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

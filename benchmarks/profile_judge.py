@@ -19,6 +19,8 @@ from mcverify.checks import sampler as S
 from mcverify.domains import Hemisphere
 from mcverify.quadrature import integrate_cells
 
+import _args  # benchmarks/_args.py, beside this script
+
 
 def best(fn, repeats):
     """Best wall time and best CPU time (all threads) of ``repeats`` calls after a
@@ -35,9 +37,9 @@ def best(fn, repeats):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--n", type=float, default=4e6)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--threads", type=int, default=None,
+    ap.add_argument("--n", type=_args.count, default=4e6)
+    ap.add_argument("--repeats", type=_args.count, default=5)
+    ap.add_argument("--threads", type=_args.count, default=None,
                     help="numba threads (default: all); 1 gives per-stage costs that a "
                          "shared machine's load disturbs least")
     a = ap.parse_args()
@@ -110,4 +112,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

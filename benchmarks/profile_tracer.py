@@ -39,6 +39,8 @@ from estimators.pathtracer import geometry, prepare_scene, render
 from estimators.pathtracer.camera import _generate_ray_kernel
 from mcverify.gate.reference import load_reference, resolve_scene
 
+import _args  # benchmarks/_args.py, beside this script
+
 SCENES = ("cornell-box", "bunny", "glass-sphere", "envmap")
 
 
@@ -112,7 +114,7 @@ def mitsuba_variance_ratio(name: str, spp: int, renders: int,
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("scenes", nargs="*", default=list(SCENES))
-    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--spp", type=_args.count, default=16)
     ap.add_argument("--variance", action="store_true")
     ap.add_argument("--renders", type=int, default=0,
                     help="with --variance: against Mitsuba at equal spp, N renders a side")
@@ -154,4 +156,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

@@ -25,15 +25,17 @@ from mcverify.gate import mitsuba as mvm
 from mcverify.gate.bench import _best
 from mcverify.gate.reference import resolve_scene
 
+import _args  # benchmarks/_args.py, beside this script
+
 SCENES = ("cornell-box", "bunny", "glass-sphere", "envmap")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("scenes", nargs="*", default=list(SCENES))
-    ap.add_argument("--spp", type=int, default=32)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--spp", type=_args.count, default=32)
+    ap.add_argument("--repeats", type=_args.count, default=3)
+    ap.add_argument("--res", type=_args.count, default=128)
     ap.add_argument("--ours-only", action="store_true")
     ap.add_argument("--cpu", action="store_true", help="CPU seconds (process_time), not wall")
     a = ap.parse_args()
@@ -60,4 +62,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

@@ -26,6 +26,8 @@ from numba import njit
 from estimators import _fastmath as F
 from estimators import warps as W
 
+import _args  # benchmarks/_args.py, beside this script
+
 _TWO_PI = 2.0 * math.pi
 
 
@@ -100,11 +102,14 @@ def fastmath_table(n, repeats):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("warps", nargs="*", help="warp names (default: all of WARPS)")
-    ap.add_argument("--n", type=float, default=1e6)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--n", type=_args.count, default=1e6)
+    ap.add_argument("--repeats", type=_args.count, default=5)
     ap.add_argument("--fastmath", action="store_true",
                     help="time _fastmath's functions against libm's instead")
     args = ap.parse_args()
+    unknown = [w for w in args.warps if w not in W.WARPS]
+    if unknown:
+        ap.error(f"unknown warp {unknown[0]!r}; known: {', '.join(sorted(W.WARPS))}")
     numba.set_num_threads(1)
     n = int(args.n)
     if args.fastmath:
@@ -126,4 +131,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    _args.run(main)

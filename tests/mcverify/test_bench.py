@@ -78,15 +78,44 @@ def test_render_rows_name_the_film_size_both_sides_render():
     assert rows["render:cornell-box"].startswith("128 x 128,"), rows
 
 
-def _script(name):
-    """A script of benchmarks/ as a module (they are run as files, not imported)."""
-    import importlib.util
+_BENCHMARKS = os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks")
 
-    path = os.path.join(os.path.dirname(__file__), "..", "..", "benchmarks", name + ".py")
+
+def _script(name):
+    """A script of benchmarks/ as a module (they are run as files, not imported; each
+    imports ``_args`` from its own folder, which running it puts on the path)."""
+    import importlib.util
+    import sys
+
+    if _BENCHMARKS not in sys.path:
+        sys.path.append(_BENCHMARKS)
+    path = os.path.join(_BENCHMARKS, name + ".py")
     spec = importlib.util.spec_from_file_location(f"_bench_script_{name}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["tracer_speed.py", "nosuchscene", "--ours-only"],
+     "tracer_speed.py: error: scene 'nosuchscene': no such file"),
+    (["profile_judge.py", "--n", "-5"], "argument --n: '-5': must be a whole number >= 1"),
+    (["warp_speed.py", "--repeats", "0"], "argument --repeats: '0': must be a whole number"),
+    (["warp_speed.py", "nosuchwarp"], "unknown warp 'nosuchwarp'; known: beckmann"),
+    (["perf_tracer.py", "x", "--seconds", "nan"], "'nan': must be a number of seconds > 0"),
+])
+def test_a_benchmark_script_refuses_a_bad_input_in_one_line(argv, needle):
+    """The scripts of benchmarks/ ended in a raw traceback on a scene that is none
+    (tracer_speed, profile_tracer, ablate_scene) or on --n -5 (numpy's "negative
+    dimensions"), and warp_speed --repeats 0 printed inf for every warp: each is now
+    one error line and exit 2, before any work."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, os.path.join(_BENCHMARKS, argv[0]), *argv[1:]],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert needle in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
 
 
 def test_tracer_speed_renders_ours_at_mitsubas_sample_count(monkeypatch, capsys):
