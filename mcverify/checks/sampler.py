@@ -592,6 +592,48 @@ def _worst_cells(domain, edges, counts, expected, k=5):
              "contribution": float(contrib[f])} for r, f in enumerate(top)]
 
 
+#: What each parameter axis of a 2-D domain is, for messages about a marginal.
+_AXIS_NAMES = {"square": ("x", "y"), "disk": ("r²", "φ / 2π"), "sphere": ("(1 - z) / 2", "φ / 2π"),
+               "hemisphere": ("1 - z", "φ / 2π")}
+
+
+def _sampler_discrepancy(dom, edges, counts, expected, sub, alpha, worst, ks=None
+                         ) -> list[str]:
+    """Where a failed check_sampler saw the samples depart from the pdf: the cell of the
+    χ² test that rejects most strongly, the grid's or a marginal's, or (1-D) the largest
+    gap of the KS test's CDFs (``ks``: its edges, fine counts and the pdf's CDF there).
+    Until 7 December the grid's worst cell was named whatever had rejected: where only a
+    marginal, the KS or the acceptance test did, a cell at the noise's own extreme, often
+    observed above expected where the sampler puts too few. Nothing where only the
+    acceptance test rejects."""
+    level = alpha / len(sub)
+    keys = [k for k in sub if k != "acceptance" and sub[k].p_value <= level]
+    if not keys:
+        return []
+    key = min(keys, key=lambda k: sub[k].p_value)
+    if key == "ks":
+        at, fine, cdf = ks
+        ecdf = np.concatenate([[0.0], np.cumsum(fine)]) / max(fine.sum(), 1)
+        i = int(np.argmax(np.abs(ecdf - cdf)))
+        x = dom.to_point(np.array([[at[i]]]))[0, 0]
+        return [f"largest CDF gap at x≈{x:.6g}: {ecdf[i]:.6g} of the samples lie below it, "
+                f"the pdf puts {cdf[i]:.6g} of its mass there (KS p = "
+                f"{sub['ks'].p_value:.3g})"]
+    if key == "chi2":
+        w = worst[0]
+        return [f"largest discrepancy at x≈{np.round(w['point'], 4).tolist()}: "
+                f"observed {w['observed']:.0f}, expected {w['expected']:.1f}"]
+    j = int(key[-1])
+    w = _worst_cells(None, [edges[j]], counts.sum(axis=1 - j), expected.sum(axis=1 - j), k=1)
+    if not w:
+        return []
+    w = w[0]
+    axis = _AXIS_NAMES.get(dom.name, ("parameter 0", "parameter 1"))[j]
+    return [f"largest discrepancy in the {'first' if j == 0 else 'second'} axis' marginal, "
+            f"{axis} in [{w['param_lo'][0]:.4g}, {w['param_hi'][0]:.4g}): observed "
+            f"{w['observed']:.0f}, expected {w['expected']:.1f}"]
+
+
 def _histogram_test_iv(domain, n_samples, resolution, alpha, seed, sample_dim, chunk, *,
                        min_samples):
     """Validate the arguments shared by the histogram tests; returns them normalised."""
@@ -886,9 +928,9 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
 
         worst = _worst_cells(dom, edges, counts, expected)
         if p_value <= alpha and worst:
-            w = worst[0]
-            messages.append(f"largest discrepancy at x≈{np.round(w['point'], 4).tolist()}: "
-                            f"observed {w['observed']:.0f}, expected {w['expected']:.1f}")
+            messages += _sampler_discrepancy(dom, edges, counts, expected, sub, alpha, worst,
+                                             ks=(hist_edges[0], fine, cdf) if "ks" in sub
+                                             else None)
         details = {
             "domain": repr(dom), "resolution": list(res), "sample_dim": k,
             "tests": {key: _test_details(r) for key, r in sub.items()},

@@ -578,6 +578,40 @@ def test_the_largest_discrepancy_is_a_cell_the_chi2_test_weighs():
     assert _worst_cells(Square(), edges, counts, expected)[0]["cell"] == [1, 1]
 
 
+def test_a_failure_names_where_the_rejecting_test_saw_it():
+    """The "largest discrepancy" was the full grid's worst cell whatever sub-test had
+    rejected: a sampler whose x follows 1.015·x^0.015 (too few points near x = 0), caught
+    by the x marginal alone, was reported at x≈[0.105, 0.558], "observed 144, expected
+    101.8", a noise cell with too many; a 1-D sampler caught by the KS test alone, and a
+    rejection sampler whose acceptance rate alone is wrong, likewise (an outside review).
+    Seeded: the grid's χ² test does not reject at these seeds."""
+    for seed in (0, 2):
+        r = mv.check_sampler(lambda u: np.stack([u[:, 0] ** (1 / 1.015), u[:, 1]], 1),
+                             lambda x: np.ones(len(x)), "square", n_samples=200_000,
+                             seed=seed)
+        assert not r.passed and r.details["tests"]["chi2"]["p_value"] > 0.01
+        (m,) = [m for m in r.messages if m.startswith("largest discrepancy")]
+        assert m.startswith("largest discrepancy in the first axis' marginal, x in [0, "), m
+        obs, exp = (float(v) for v in m.split("observed ")[1].split(", expected "))
+        assert obs < exp, m
+    r = mv.check_sampler(lambda u: 2 + 3 * u ** (1 / 1.01), lambda x: np.full(len(x), 1 / 3),
+                         mv.Interval(2, 5), n_samples=200_000, seed=0)
+    assert not r.passed and r.details["tests"]["chi2"]["p_value"] > 0.01
+    (m,) = r.messages
+    # F(x) = t^1.01 below the pdf's t = (x - 2) / 3, farthest at t = 1.01^-100 ≈ 0.37
+    assert m.startswith("largest CDF gap at x≈3.0") and "KS p = " in m, m
+
+    def disk(u):
+        x = 2 * u - 1
+        x[(x ** 2).sum(1) > 1] = np.nan
+        return x
+
+    r = mv.check_sampler(disk, lambda x: np.full(len(x), 0.98 / 4), "disk",
+                         n_samples=200_000, rejection=True)
+    assert not r.passed
+    assert [m.split(":")[0] for m in r.messages] == ["acceptance"], r.messages
+
+
 def test_worst_cells_rank_overflowed_expectations_first():
     """Expected counts that overflowed to inf give NaN contributions: the worst cells
     still list them (first), and otherwise the largest contributions, ties in cell order."""
