@@ -593,8 +593,8 @@ def _worst_cells(domain, edges, counts, expected, k=5):
 
 
 #: What each parameter axis of a 2-D domain is, for messages about a marginal.
-_AXIS_NAMES = {"square": ("x", "y"), "disk": ("r²", "φ / 2π"), "sphere": ("(1 - z) / 2", "φ / 2π"),
-               "hemisphere": ("1 - z", "φ / 2π")}
+_AXIS_NAMES = {"square": ("x", "y"), "disk": ("r²", "φ / 2π"),
+               "sphere": ("(1 - z) / 2", "φ / 2π"), "hemisphere": ("1 - z", "φ / 2π")}
 
 
 def _sampler_discrepancy(dom, edges, counts, expected, sub, alpha, worst, ks=None
