@@ -83,6 +83,10 @@ _POINT_FROM_RAY = ("sphere", "disk")
 MITSUBA_RAY_EPSILON = 1500 * 2.0 ** -24
 #: The offset, as a share of the scene's extent, beyond which a failing gate notes it.
 SMALL_SCENE_OFFSET = 1e-3
+#: Mitsuba's float32 1 - cos θ_max of a sphere emitter's cone is off by up to about 2^-24
+#: (the rounding of 1 - sin² and of its square root), against 1 - cos θ_max ≈ sin²/2: a
+#: failing gate notes a sphere emitter whose pdf that makes more than this share wrong.
+SMALL_SPHERE_LIGHT_ERROR = 0.05
 
 
 def mitsuba_caveats(desc, bounds=None) -> list[str]:
@@ -103,7 +107,16 @@ def mitsuba_caveats(desc, bounds=None) -> list[str]:
     the scene; where that is over ``SMALL_SCENE_OFFSET`` of the scene's extent, its light
     near contacts and corners moves (an outside review: a scene scaled by 1e-3 failed
     the block test on three seeds, Mitsuba's image of it 15 standard errors from its own
-    image of the same scene at scale 1, which ours matched at both scales)."""
+    image of the same scene at scale 1, which ours matched at both scales).
+
+    A sphere emitter small against its distance from the scene's farthest corner: Mitsuba
+    samples it in the cone it subtends and divides by the cone's solid angle 2π(1 - cos
+    θ_max), cos θ_max = sqrt(1 - (r/d)²) in float32, so that 1 - cos θ_max, about
+    (r/d)²/2, keeps few bits (an outside review: a sphere light of radius 1e-3 about 1.5
+    from a floor, radiance 1e6, lit the image 11 % brighter in Mitsuba than ours and than
+    Mitsuba's own at radius 1e-2 with radiance 1e4; from radius 1e-4 Mitsuba's cone is
+    empty and the light lights nothing, where a disk or rectangle of the same power
+    renders alike at every size in both)."""
     notes = []
     if bounds is not None:
         lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
@@ -116,6 +129,28 @@ def mitsuba_caveats(desc, bounds=None) -> list[str]:
                          f"largest coordinate), {offset / extent:.2g} of this scene's "
                          f"extent {extent:.3g}, which moves its light near contacts and "
                          f"corners; render the scene at a scale near 1 to compare")
+    if desc is not None and bounds is not None:
+        corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T
+        for s in desc.shapes:
+            if s.type != "sphere" or not any(c.kind == "emitter" for c in s.children):
+                continue
+            m = np.asarray(s.get("to_world", np.eye(4)), dtype=np.float64)
+            c = (m @ np.append(np.asarray(s.get("center", np.zeros(3)), float), 1.0))[:3]
+            r = float(s.get("radius", 1.0)) * float(np.linalg.norm(m[:3, 0]))
+            far = float(np.max(np.linalg.norm(corners - c, axis=1)))
+            if not far > r:
+                continue
+            error = 2.0 ** -23 / (r / far) ** 2     # of 1 - cos θ_max, about (r/d)²/2
+            if error > SMALL_SPHERE_LIGHT_ERROR:
+                notes.append(
+                    f"Mitsuba 3.9.1 may be wrong here: the sphere emitter of radius {r:.3g} "
+                    f"at {', '.join(f'{x:.3g}' for x in c)} is small against its distance "
+                    f"{far:.3g} to the scene's farthest corner; Mitsuba samples it in the "
+                    f"cone it subtends and divides by the cone's solid angle, whose 1 - cos "
+                    f"θ_max, about (r/d)²/2 = {(r / far) ** 2 / 2:.2g} there, float32 "
+                    f"keeps to about 2^-24 (up to {min(error, 1.0):.0%} off; from r/d "
+                    f"below 2.4e-4 the cone is empty and the light lights nothing); a disk "
+                    f"or rectangle emitter of the same power renders right in both")
     if desc is None or not desc.integrator.get("hide_emitters", False):
         return notes
 
