@@ -87,9 +87,12 @@ SMALL_SCENE_OFFSET = 1e-3
 #: (the rounding of 1 - sin² and of its square root), against 1 - cos θ_max ≈ sin²/2: a
 #: failing gate notes a sphere emitter whose pdf that makes more than this share wrong.
 SMALL_SPHERE_LIGHT_ERROR = 0.05
+#: A triangle this many times (1 + its plane's distance from the origin) across: Mitsuba's
+#: float32 hit points on it stray further from its plane than its ray offset near there.
+HUGE_TRIANGLE = 300.0
 
 
-def mitsuba_caveats(desc, bounds=None) -> list[str]:
+def mitsuba_caveats(desc, bounds=None, triangles=None) -> list[str]:
     """Where Mitsuba 3.9.1's own image of the scene (``desc``, our loader's description)
     is known to be wrong, so that a failing gate may be the reference's fault.
 
@@ -121,8 +124,32 @@ def mitsuba_caveats(desc, bounds=None) -> list[str]:
     A cube or sphere thinner than twice that offset: a ray that enters it starts beyond
     its far side (an outside review: a glass slab 1e-5 thick, a cube scaled by 5e-6 in y,
     came out 19 % dark through the slab in Mitsuba; ours was within 0.3 % of the same
-    slab 1e-2 thick, where Mitsuba agrees with ours)."""
+    slab 1e-2 thick, where Mitsuba agrees with ours).
+
+    ``triangles`` ((n, 9): each triangle's three world-space vertices): Mitsuba computes a
+    triangle's hit point from its barycentrics in float32, off the surface by about 2^-24
+    of the vertices' magnitude, while its ray offset scales with the hit point's own: a
+    triangle more than ``HUGE_TRIANGLE`` times (1 + its plane's distance from the origin)
+    across shadows itself near the origin (an outside review: a tilted floor rectangle
+    scaled by 1e5 under a directional light was 84 % dark in Mitsuba at the camera's feet,
+    and right in Mitsuba at scale 3, as in ours at both)."""
     notes = []
+    if triangles is not None and len(triangles):
+        p = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+        size = np.max(np.linalg.norm(p - p[:, [1, 2, 0]], axis=2), axis=1)
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dist = np.abs(np.sum(n * p[:, 0], axis=1)) / np.linalg.norm(n, axis=1)
+        huge = size > HUGE_TRIANGLE * (1.0 + np.nan_to_num(dist, nan=np.inf))
+        if np.any(huge):
+            k = int(np.argmax(np.where(huge, size, -np.inf)))
+            notes.append(f"Mitsuba 3.9.1 may be wrong here: a triangle {size[k]:.3g} across "
+                         f"passes {dist[k]:.3g} from the origin (of {int(huge.sum())} "
+                         f"such); Mitsuba computes its hit points from the vertices in "
+                         f"float32, off the surface by about 2^-24 of their magnitude, "
+                         f"more than its ray offset of 1500 · 2^-24 (1 + |p|) near the "
+                         f"origin, so the surface shadows itself there; split it into "
+                         f"smaller triangles")
     if bounds is not None:
         lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
         extent = float(np.max(hi - lo))
@@ -208,7 +235,12 @@ def _caveats(path: str, params: dict | None, subject) -> list[str]:
         bounds = bvh_bounds(subject.arrays.bvh_nodes)
     except (ValueError, IndexError):        # nothing in the hierarchy: no extent
         bounds = None
-    return mitsuba_caveats(subject.desc, bounds)
+    from estimators.pathtracer import layout
+
+    a = subject.arrays
+    triangles = a.prims[a.prim_info[:, layout.PRIM_KIND] == layout.TRIANGLE,
+                        layout.TRI_P0:layout.TRI_P2 + 3]
+    return mitsuba_caveats(subject.desc, bounds, triangles)
 
 
 def _samples_kept(path, subject, spp: int, passes: int) -> None:
