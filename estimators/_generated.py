@@ -41,11 +41,11 @@ def cache_dir() -> str:
 
 
 def load(name: str, source: str):
-    """The module ``name`` with ``source``: written atomically into the cache (once),
-    imported, and registered in ``sys.modules`` (numba's cache finds it there)."""
+    """The module ``name`` with ``source``: written atomically into the cache (once, and
+    again where the file there is not ``source``: see ``_cached_source``), imported, and registered in ``sys.modules`` (numba's cache finds it there)."""
     folder = cache_dir()
     path = os.path.join(folder, name + ".py")
-    if not os.path.exists(path):
+    if _cached_source(path) != source:
         fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
@@ -60,6 +60,18 @@ def load(name: str, source: str):
     sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
+
+
+def _cached_source(path: str) -> str | None:
+    """The text of the generated module at ``path``, None if it is missing or unreadable
+    as UTF-8. ``name`` hashes the source, so a file that differs is damaged: one cut
+    short at a line's end still imported, its loop left the output array as
+    ``np.empty`` made it, and a correct warp failed its check with p = 0."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read()
+    except (FileNotFoundError, UnicodeDecodeError):
+        return None
 
 
 @contextlib.contextmanager

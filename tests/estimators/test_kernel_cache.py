@@ -160,3 +160,24 @@ def test_a_failed_write_leaves_no_temporary_file_in_the_cache(tmp_path, monkeypa
     with pytest.raises(OSError, match="No space left"):
         _generated.load("mcverify_test_failed_write", "x = 1\n")
     assert os.listdir(tmp_path) == []
+
+
+def test_a_damaged_generated_module_is_written_again(tmp_path, monkeypatch):
+    """A generated module cut short in the cache (at a line's end, as a crash or a full
+    disk may leave it) was imported as it was: the uniform disk's loop, cut after its
+    first lines, returned ``np.empty``'s garbage and the correct warp failed its check
+    with p = 0 (an outside review). Its name hashes its source, so a file that differs
+    is rewritten before the import; one that matches is left alone."""
+    monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path))
+    source = "def f():\n    x = 1\n    return x + 1\n"
+    path = tmp_path / "mcverify_test_damaged.py"
+    path.write_text(source[:len("def f():\n    x = 1\n")])
+    assert _generated.load("mcverify_test_damaged", source).f() == 2
+    assert path.read_text() == source
+    path.write_bytes(b"\xff\xfe")        # not UTF-8 at all
+    assert _generated.load("mcverify_test_damaged", source).f() == 2
+    stamp = path.stat().st_mtime_ns
+    os.utime(path, ns=(stamp - 10**9, stamp - 10**9))
+    _generated.load("mcverify_test_damaged", source)
+    assert path.stat().st_mtime_ns == stamp - 10**9        # intact: not rewritten
+
