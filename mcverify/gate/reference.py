@@ -19,6 +19,7 @@ would otherwise be read as radiance.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -39,6 +40,11 @@ from ..errors import (EnvironmentProblem, InvalidArgument, MissingReference, fir
 from ..provenance import provenance
 from ..result import shared_mode
 from .executors import Pool, Unit, same_source, source_fingerprint
+
+try:
+    import fcntl
+except ImportError:         # not on POSIX: no lock, as before
+    fcntl = None
 
 def _reference_root() -> str:
     """Where the reference scenes are: ``$MCVERIFY_REFS`` if set; else the scenes that
@@ -654,6 +660,28 @@ def build_reference(spec: str, *, spp: int = 256, passes: int = 16, seed: int = 
                             pool=pool)[0]
 
 
+@contextlib.contextmanager
+def _swap_lock(folder: str, exclusive: bool):
+    """Hold an advisory ``flock`` on ``folder`` (the one a reference folder is in; no file
+    is added there): exclusive while a build swaps a reference in, shared while one is
+    read. Two builds of one reference at once failed where their swaps met ("Directory
+    not empty", or an error naming the other's ``.ref-old-*`` folder, exit 2), and a
+    render check reading it at that moment found none. A folder that cannot be opened
+    or locked (a file system without ``flock``) is used unlocked."""
+    fd = None
+    if fcntl is not None:
+        try:
+            fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+            fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        except OSError:
+            pass
+    try:
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)
+
+
 def _write(path: str, ref: Reference) -> str:
     """Write a rendered reference beside its scene (``build_reference``'s swap)."""
     from . import mitsuba as mvm
@@ -673,14 +701,18 @@ def _write(path: str, ref: Reference) -> str:
         with open(os.path.join(tmp, "manifest.json"), "w", encoding="utf-8") as f:
             json.dump(manifest, f, indent=2)
         os.chmod(tmp, shared_mode(0o777))  # mkdtemp makes 0700; references are shared
-        if os.path.lexists(out):
-            old = tempfile.mkdtemp(prefix=_aside(base, "old"), dir=folder)
-            os.rename(out, os.path.join(old, base))
-        os.rename(tmp, out)
+        with _swap_lock(folder, exclusive=True):
+            try:
+                if os.path.lexists(out):
+                    old = tempfile.mkdtemp(prefix=_aside(base, "old"), dir=folder)
+                    os.rename(out, os.path.join(old, base))
+                os.rename(tmp, out)
+            except BaseException:
+                if old is not None and not os.path.lexists(out):
+                    os.rename(os.path.join(old, base), out)
+                    os.rmdir(old)
+                raise
     except BaseException as e:
-        if old is not None and not os.path.lexists(out):
-            os.rename(os.path.join(old, base), out)
-            os.rmdir(old)
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(e, OSError) or type(e) is RuntimeError:
             # a full disk: Mitsuba's writer raises RuntimeError naming the temporary file,
@@ -728,8 +760,14 @@ def _radius(manifest: dict) -> float:
 
 def load_reference(spec: str) -> Reference:
     """Load a built reference; a missing, stale (scene changed) or corrupt one raises
-    ``EnvironmentProblem`` naming the file and saying how to rebuild it."""
+    ``EnvironmentProblem`` naming the file and saying how to rebuild it. A build
+    swapping it in meanwhile waits until it is read (``_swap_lock``)."""
     name, path = resolve_scene(spec)
+    with _swap_lock(os.path.dirname(ref_folder(path)), exclusive=False):
+        return _load(name, path)
+
+
+def _load(name: str, path: str) -> Reference:
     folder = ref_folder(path)
     parent, base = os.path.split(folder)
     mpath = os.path.join(folder, "manifest.json")

@@ -806,6 +806,61 @@ def test_reference_swap_keeps_the_old_one_on_interrupt(sandbox, tmp_path, monkey
     assert sorted(os.listdir(scene)) == ["ref", "scene.xml"]
 
 
+_SWAP_CHILD = """
+import sys
+from mcverify.gate import reference
+ref = reference.load_reference(sys.argv[2])
+print("ready", flush=True)
+sys.stdin.readline()
+if sys.argv[1] == "write":
+    reference._write(reference.resolve_scene(sys.argv[2])[1], ref)
+else:
+    reference.load_reference(sys.argv[2])
+print("done", flush=True)
+"""
+
+
+def test_builds_and_reads_meeting_at_the_swap_wait_for_it(sandbox, tmp_path, monkeypatch):
+    """A second build of a reference that swapped its own in while this one had renamed
+    the old one aside and not yet renamed the new one in: this one failed with "cannot
+    write the reference (Directory not empty)", exit 2 (two CI jobs building one scene;
+    an outside review); a render check reading the reference then found none. Both now
+    wait for the swap (a lock on the scene's folder) and succeed; one reference stays."""
+    scene = tmp_path / "furnace"
+    shutil.copytree(sandbox / "ref-ok", scene)
+    ref = reference.load_reference(str(scene))
+    children = [subprocess.Popen([sys.executable, "-c", _SWAP_CHILD, what, str(scene)],
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True)
+                for what in ("write", "read")]
+    for c in children:
+        assert c.stdout.readline() == "ready\n", c.communicate()
+    real_rename = os.rename
+    calls = []
+
+    def rename(a, b):
+        real_rename(a, b)
+        calls.append((a, b))
+        if len(calls) == 1:                  # the old one is aside: the others come now
+            for c in children:
+                c.stdin.write("go\n")
+                c.stdin.flush()
+            for c in children:
+                try:
+                    c.wait(3)                # before the lock: done in well under that
+                except subprocess.TimeoutExpired:
+                    pass                     # waiting for this swap, as they should
+
+    monkeypatch.setattr(os, "rename", rename)
+    reference._write(reference.resolve_scene(str(scene))[1], ref)
+    monkeypatch.setattr(os, "rename", real_rename)
+    for c in children:
+        out, err = c.communicate(timeout=120)
+        assert c.returncode == 0 and out == "done\n", err
+    assert sorted(os.listdir(scene)) == ["ref", "scene.xml"]
+    np.testing.assert_array_equal(reference.load_reference(str(scene)).mean, ref.mean)
+
+
 # ------------------------------------------------------------------ SIGINT
 #: ``python -m mcverify`` as a terminal starts it: SIGINT unblocked and handled by Python.
 #: A child inherits its parent's signal mask and ignored signals, and Python installs
