@@ -1,5 +1,7 @@
 """The subject: Monte Carlo estimators, warps, distributions and the path tracer."""
 
+from mcnumba.disk_cache import tolerate_damaged_cache
 from mcnumba.vector_width import prefer_wide_vectors
 
 prefer_wide_vectors()
+tolerate_damaged_cache()

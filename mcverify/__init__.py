@@ -35,9 +35,11 @@ references, the Mitsuba adapters, bench, report, CLI). ``render_check`` is re-ex
 from the gate lazily, so ``import mcverify`` loads neither.
 """
 
+from mcnumba.disk_cache import tolerate_damaged_cache
 from mcnumba.vector_width import prefer_wide_vectors
 
 prefer_wide_vectors()       # before any numba function is defined: see mcnumba.vector_width
+tolerate_damaged_cache()    # a cache file cut short is a miss: see mcnumba.disk_cache
 
 from ._version import __version__
 from .checks import (check_convergence, check_inverse, check_pdf_consistency,
