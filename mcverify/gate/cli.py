@@ -2,17 +2,20 @@
 
 Exit codes: 0 all checks passed (images equal); 1 a check failed, a canary survived or
 images differ; 2 bad input or environment, with one line on stderr naming what and where;
-130 interrupted (Ctrl-C), with nothing written; 141 the reader of stdout left.
+130 interrupted (Ctrl-C), with nothing written (or, during the writes, all); 141 the reader of stdout left.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import os
 import shlex
+import signal
 import sys
+import threading
 import time
 
 from .._validate import decimal_int
@@ -29,7 +32,8 @@ EPILOG = """exit codes:
   1    a check failed or a canary survived (compare, render-check: the images differ)
   2    bad input or environment: one line on stderr names what and where; no output is
        written or replaced
-  130  interrupted (Ctrl-C); output files are left as they were
+  130  interrupted (Ctrl-C); output files are left as they were (one while they are
+       written, at the end, waits until all are)
   141  the reader of stdout left (mcverify list | head): no message
 
 output files (--json, --junit) are written when the run ends: a regular file is replaced
@@ -421,14 +425,36 @@ def _cmd_check(args) -> int:
 
         _, report = prepare_report(args.report, suite=result, study=None,
                                    extra_provenance=dict(extra, seed=args.seed))
-    if args.json:
-        write_json(result, args.json)
-    if args.junit:
-        write_junit(result, args.junit)
-    if report is not None:
-        report()
-        print(f"mcverify check: wrote {report_files[1]} and report.json")
+    with _outputs_together():
+        if args.json:
+            write_json(result, args.json)
+        if args.junit:
+            write_junit(result, args.junit)
+        if report is not None:
+            report()
+            print(f"mcverify check: wrote {report_files[1]} and report.json")
     return EXIT_OK if result.passed else EXIT_FAILED
+
+
+@contextlib.contextmanager
+def _outputs_together():
+    """Hold a Ctrl-C that comes while a run's output files are written (``--json``,
+    ``--junit``, ``--report``'s files, one after another) until the last is, then stop
+    (KeyboardInterrupt, exit 130): one there left this run's JSON beside the last run's
+    JUnit file and report. Where SIGINT is not Python's (ignored, or the caller's own
+    handler) or off the main thread, nothing changes."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield
+        return
+    held = []
+    signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if held:
+        raise KeyboardInterrupt
 
 
 def _report_files(option: str, out: str | None, inputs=()) -> list[str]:

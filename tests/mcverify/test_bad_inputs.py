@@ -943,6 +943,44 @@ def test_sigint_while_the_report_is_drawn_leaves_every_output(tmp_path, monkeypa
     assert snapshot(tmp_path) == before
 
 
+def test_sigint_while_the_outputs_are_written_leaves_none_half_done(tmp_path, monkeypatch):
+    """``check --json A --junit B --report D`` writes A, then B, then D's files: a Ctrl-C
+    after A was written exited 130 with A this run's and B and D the last run's (an
+    outside review). The Ctrl-C is now held until every output is written, then the run
+    stops (130). (The SIGINT is sent as the JUnit file is about to be written.)"""
+    from mcverify import result as result_module
+
+    (tmp_path / "one_check_suite.py").write_text(
+        "import numpy as np\nimport mcverify as mv\nfrom mcverify.gate.suites import Check\n"
+        "def _run(seed):\n"
+        "    return mv.check_sampler(lambda u: u[:, :1], lambda x: np.ones(len(x)),\n"
+        "                            'interval', n_samples=10_000, seed=seed)\n"
+        "def suite():\n    return [Check('uniform', _run)]\n")
+    out, junit, rep = tmp_path / "result.json", tmp_path / "r.xml", tmp_path / "rep"
+    out.write_text('{"previous": "run"}\n')
+    junit.write_text("<previous/>\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    real = result_module.write_junit
+
+    def ctrl_c(*a, **k):
+        os.kill(os.getpid(), signal.SIGINT)
+        return real(*a, **k)
+
+    monkeypatch.setattr(result_module, "write_junit", ctrl_c)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        rc = cli.main(["check", "--suite", "one_check_suite:suite", "-q", "--json", str(out),
+                       "--junit", str(junit), "--report", str(rep)])
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert rc == 130
+    assert json.loads(out.read_text())["results"][0]["name"] == "uniform"
+    assert "uniform" in junit.read_text()
+    assert json.loads((rep / "report.json").read_text())["verification"] is not None
+
+
 @pytest.mark.mitsuba
 def test_sigint_during_reference_build_keeps_old_reference(sandbox, tmp_path):
     scene = tmp_path / "tiny"
