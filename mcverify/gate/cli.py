@@ -2,7 +2,7 @@
 
 Exit codes: 0 all checks passed (images equal); 1 a check failed, a canary survived or
 images differ; 2 bad input or environment, with one line on stderr naming what and where;
-130 interrupted (Ctrl-C), with nothing written (or, during the writes, all); 141 the reader of stdout left.
+130 interrupted (Ctrl-C), with nothing written (or, during the writes, all); 141 the reader of stdout left; 143 terminated (SIGTERM), as on Ctrl-C.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from ..result import escape_controls
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_BROKEN_PIPE = 141         # 128 + SIGPIPE, as a shell reports a command whose reader left
+EXIT_TERMINATED = 143          # 128 + SIGTERM, as a shell reports a command it terminated
 #: Seeds must fit the path tracer's counter-based RNG (and numpy's SeedSequence).
 MAX_SEED = 2 ** 63 - 1
 
@@ -35,6 +36,7 @@ EPILOG = """exit codes:
   130  interrupted (Ctrl-C); output files are left as they were (one while they are
        written, at the end, waits until all are)
   141  the reader of stdout left (mcverify list | head): no message
+  143  terminated (SIGTERM: a cancelled CI job); stops as on Ctrl-C
 
 output files (--json, --junit) are written when the run ends: a regular file is replaced
 atomically, a symlink is followed to its target, a FIFO or device (/dev/stdout) is
@@ -441,19 +443,24 @@ def _outputs_together():
     """Hold a Ctrl-C that comes while a run's output files are written (``--json``,
     ``--junit``, ``--report``'s files, one after another) until the last is, then stop
     (KeyboardInterrupt, exit 130): one there left this run's JSON beside the last run's
-    JUnit file and report. Where SIGINT is not Python's (ignored, or the caller's own
-    handler) or off the main thread, nothing changes."""
-    if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
-        yield
-        return
+    JUnit file and report. A SIGTERM that ``_sigterm_unwinds`` raises is held too. Where
+    SIGINT is not Python's (ignored, or the caller's own handler) or off the main thread,
+    it is left alone."""
+    ours = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _on_sigterm}
+    if threading.current_thread() is not threading.main_thread():
+        ours = {}
+    ours = {sig: h for sig, h in ours.items() if signal.getsignal(sig) is h}
     held = []
-    signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    for sig in ours:
+        signal.signal(sig, lambda signum, frame: held.append(signum))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        for sig, handler in ours.items():
+            signal.signal(sig, handler)
     if held:
+        if signal.SIGTERM in held:
+            _TERMINATED.append(signal.SIGTERM)
         raise KeyboardInterrupt
 
 
@@ -1224,8 +1231,42 @@ def _hypothesis_home() -> None:
         os.path.expanduser("~"), ".cache", "mcverify", "hypothesis"))
 
 
+#: SIGTERMs ``main``'s handler has turned into KeyboardInterrupt in this process
+_TERMINATED: list = []
+
+
+def _on_sigterm(signum, frame):
+    _TERMINATED.append(signum)
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds():
+    """SIGTERM (a CI job cancelled, ``timeout``, ``kill``) raised as KeyboardInterrupt,
+    so that a run stops as on Ctrl-C: its worker processes shut down, its temporary
+    files removed. Python's default ended the process at once: ``-j N``'s workers
+    stayed behind, idle, for good (they hold their own queue open). Not where SIGTERM is
+    ignored or handled already, nor off the main thread; the handler that was there is
+    put back on return."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield
+        return
+    _TERMINATED.clear()
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    with _sigterm_unwinds():
+        return _main(args)
+
+
+def _main(args) -> int:
     try:
         _validate_common(args)
         _thread_limit()
@@ -1246,6 +1287,10 @@ def main(argv=None) -> int:
         print(f"mcverify: error: {where}{e.strerror or e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
+        if _TERMINATED:
+            print("mcverify: terminated (SIGTERM; outputs are written whole or not at all)",
+                  file=sys.stderr)
+            return EXIT_TERMINATED
         print("mcverify: interrupted (outputs are written whole or not at all)",
               file=sys.stderr)
         return EXIT_INTERRUPTED

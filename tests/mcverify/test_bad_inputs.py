@@ -910,6 +910,57 @@ def test_sigint_during_check_leaves_outputs(tmp_path):
     assert snapshot(tmp_path) == before
 
 
+def _workers_of(pid: int) -> list[int]:
+    """The multiprocessing workers (``spawn_main``) whose parent is ``pid`` (Linux)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == pid and b"spawn_main" in cmd:
+            found.append(int(entry))
+    return found
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc for the workers")
+def test_sigterm_stops_a_run_and_its_workers(tmp_path):
+    """SIGTERM (a cancelled CI job, ``kill``) ended ``check -j 2`` at once, exit 143, and
+    its two workers stayed behind for good, idle (an outside review). It now unwinds as
+    Ctrl-C does: the workers are shut down, no output is written, exit 143 with one line
+    saying so."""
+    out = tmp_path / "result.json"
+    out.write_text('{"previous": "run"}\n')
+    before = snapshot(tmp_path)
+    p = subprocess.Popen([sys.executable, "-m", "mcverify", "check", "-k", "sampler:uniform_",
+                          "-j", "2", "--json", str(out)], cwd=tmp_path,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    workers, left = [], []
+    try:
+        for line in p.stderr:
+            if "[1/" in line:
+                workers = _workers_of(p.pid)
+                p.send_signal(signal.SIGTERM)
+                break
+        # the workers left behind held stderr open: this waited the whole timeout
+        err = p.communicate(timeout=120)[1]
+        left = [w for w in workers if os.path.exists(f"/proc/{w}")
+                and open(f"/proc/{w}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"]
+    finally:
+        if p.poll() is None:
+            p.kill()
+        for w in set(workers) & set(_workers_of(1)):     # orphans of this test's run
+            os.kill(w, signal.SIGKILL)
+    assert len(workers) == 2, workers
+    assert p.returncode == 143, err
+    assert "mcverify: terminated" in err and "Traceback" not in err, err
+    assert left == [], f"workers {left} outlived their run"
+    assert snapshot(tmp_path) == before
+
+
 def test_sigint_while_the_report_is_drawn_leaves_every_output(tmp_path, monkeypatch):
     """``check --json A --report D``: the JSON was written, then the report's histograms
     drawn (seconds); a Ctrl-C then exited 130 with A replaced and no report, where the
