@@ -543,7 +543,7 @@ def _cmd_list(args) -> int:
 
 def _cmd_report(args) -> int:
     from . import suites
-    from .report import build_report
+    from .report import prepare_report
     from .report.study import run_study
 
     out = args.out
@@ -591,8 +591,10 @@ def _cmd_report(args) -> int:
 
         renders = run_renders(scenes, seed=args.seed,
                               progress=None if args.quiet else _progress(sys.stderr))
-    build_report(out, suite=suite, study=study, renders=renders,
-                 extra_provenance=dict(extra, seed=args.seed))
+    _, write = prepare_report(out, suite=suite, study=study, renders=renders,
+                              extra_provenance=dict(extra, seed=args.seed))
+    with _outputs_together():
+        write()
     print(f"mcverify report: wrote {os.path.join(out, 'report.html')} and report.json")
     # the report is written either way; its verdicts decide the exit code, as check's do
     failed = ([r.name for r in suite.results if not r.passed] if suite is not None else [])

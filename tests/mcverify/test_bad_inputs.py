@@ -1032,6 +1032,36 @@ def test_sigint_while_the_outputs_are_written_leaves_none_half_done(tmp_path, mo
     assert json.loads((rep / "report.json").read_text())["verification"] is not None
 
 
+def test_sigint_while_the_report_is_written_leaves_no_mix(tmp_path, monkeypatch):
+    """``mcverify report`` writes the PNGs, report.json, then report.html: a Ctrl-C after
+    report.json left it beside the last run's page (exit 130; an outside review). As with
+    ``check``, the Ctrl-C is held until the last file is written. (The study is stubbed;
+    the SIGINT is sent as report.html is about to be written.)"""
+    from mcverify.gate import report as report_module
+    from mcverify.gate.report import study
+
+    rep = tmp_path / "rep"
+    rep.mkdir()
+    (rep / "report.html").write_text("<p>previous run</p>\n")
+    monkeypatch.setattr(study, "run_study", lambda **k: [])
+    real = report_module.atomic_write
+
+    def ctrl_c(path, data):
+        if path.endswith("report.html"):
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(path, data)
+
+    monkeypatch.setattr(report_module, "atomic_write", ctrl_c)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        rc = cli.main(["report", "--no-suite", "--renders", "none", "-q", "--out", str(rep)])
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert rc == 130
+    assert json.loads((rep / "report.json").read_text())["verification"] is None
+    assert "previous run" not in (rep / "report.html").read_text()
+
+
 @pytest.mark.mitsuba
 def test_sigint_during_reference_build_keeps_old_reference(sandbox, tmp_path):
     scene = tmp_path / "tiny"
