@@ -46,6 +46,7 @@ try:
 except ImportError:         # not on POSIX: no lock, as before
     fcntl = None
 
+
 def _reference_root() -> str:
     """Where the reference scenes are: ``$MCVERIFY_REFS`` if set; else the scenes that
     come with mcverify (``_bundled_root``)."""
@@ -668,14 +669,16 @@ def _swap_lock(folder: str, exclusive: bool):
     not empty", or an error naming the other's ``.ref-old-*`` folder, exit 2), and a
     render check reading it at that moment found none. A folder that cannot be opened
     or locked (a file system without ``flock``) is used unlocked."""
-    fd = None
-    if fcntl is not None:
-        try:
-            fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
-            fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
-        except OSError:
-            pass
     try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY) if fcntl is not None else None
+    except OSError:
+        fd = None
+    try:
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+            except OSError:
+                pass
         yield
     finally:
         if fd is not None:
