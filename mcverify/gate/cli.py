@@ -2,7 +2,8 @@
 
 Exit codes: 0 all checks passed (images equal); 1 a check failed, a canary survived or
 images differ; 2 bad input or environment, with one line on stderr naming what and where;
-130 interrupted (Ctrl-C), with nothing written (or, during the writes, all); 141 the reader of stdout left; 143 terminated (SIGTERM), as on Ctrl-C.
+130 interrupted (Ctrl-C), with nothing written (or, during the writes, all); 141 the reader
+of stdout left; 143 terminated (SIGTERM), as on Ctrl-C.
 """
 
 from __future__ import annotations
