@@ -42,7 +42,8 @@ def cache_dir() -> str:
 
 def load(name: str, source: str):
     """The module ``name`` with ``source``: written atomically into the cache (once, and
-    again where the file there is not ``source``: see ``_cached_source``), imported, and registered in ``sys.modules`` (numba's cache finds it there)."""
+    again where the file there is not ``source``: see ``_cached_source``), imported, and
+    registered in ``sys.modules`` (numba's cache finds it there)."""
     folder = cache_dir()
     path = os.path.join(folder, name + ".py")
     if _cached_source(path) != source:
