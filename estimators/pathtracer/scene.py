@@ -341,9 +341,9 @@ class _Loader:
                 self.fail(node, f"expected an integer, got {text!r}")
             if not INT64[0] <= n <= INT64[1]:
                 self.fail(node, f"{text!r} is outside the 64-bit integers Mitsuba reads")
-            if node.attrib.get("name") in INT32_PROPERTIES and not INT32[0] <= n <= INT32[1]:
+            if "name" in node.attrib and self.attr(node, "name") in INT32_PROPERTIES and not INT32[0] <= n <= INT32[1]:
                 self.fail(node, f"{text!r} is outside the 32-bit integers Mitsuba takes for "
-                                f"{node.attrib['name']} [{INT32[0]}, {INT32[1]}]")
+                                f"{self.attr(node, 'name')} [{INT32[0]}, {INT32[1]}]")
             return "integer", n
         if tag == "boolean":
             text = self.attr(node, "value").strip(SPACE).lower()
@@ -428,7 +428,9 @@ class _Loader:
             why = UNMATCHED.get((kind, ptype))
             self.fail(node, f"unsupported {kind} type {ptype!r}{f' ({why})' if why else ''}; "
                             f"supported: {', '.join(sorted(SUPPORTED[kind]))}")
-        p = Plugin(kind, ptype, {}, node.line, node.attrib.get("id"))
+        # $params are substituted in every attribute, the id too, as Mitsuba does
+        p = Plugin(kind, ptype, {}, node.line,
+                   self.attr(node, "id") if "id" in node.attrib else None)
         allowed_children = spec.get("children", ())
 
         def set_prop(child, name, val):
@@ -479,7 +481,7 @@ class _Loader:
                 self.referenced.add(target)
                 if ref.kind == "texture":
                     # a texture is a property value: <ref id="..." name="reflectance"/>
-                    name = child.attrib.get("name")
+                    name = self.attr(child, "name") if "name" in child.attrib else None
                     if name is None or name not in spec or "texture" not in spec[name]:
                         self.fail(child, f"texture {target!r} needs name=\"...\" naming a "
                                          f"property of {kind} {ptype!r} that takes a texture")
@@ -568,7 +570,7 @@ class _Loader:
             elif node.tag == "shape":
                 shapes.append(self.plugin(node))
             elif node.tag == "emitter":
-                if node.attrib.get("type") == "area":
+                if "type" in node.attrib and self.attr(node, "type") == "area":
                     self.fail(node, "an area emitter must be inside a <shape>")
                 emitters.append(self.plugin(node))
             elif node.tag in _REFERENCED:

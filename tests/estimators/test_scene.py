@@ -428,6 +428,28 @@ def test_parameters_are_substituted_as_mitsuba_substitutes_them(mi, defaults, va
     assert abs(box.max[0] - radius) < 1e-6 * radius
 
 
+def test_parameters_are_substituted_in_ids_and_ref_names_as_in_mitsuba(mi):
+    """Mitsuba substitutes $name in every attribute: a plugin's id="$m" and a <ref>'s
+    name="$prop" too. The loader substituted only the attributes it read through its
+    substitution, so <bsdf id="$m"> was declared as the literal "$m" and the <ref id="$m">
+    naming it failed ("no object with id 'gold' defined before this line"), and a
+    texture's <ref name="$prop"> was "needs name=... naming a property"."""
+    text = (f'<scene version="3.0.0"><default name="m" value="gold"/>'
+            f'<default name="t" value="tex"/><default name="prop" value="reflectance"/>'
+            f'{_CAMERA}<integrator type="path"/>'
+            '<bsdf type="roughconductor" id="$m"><string name="material" value="Au"/></bsdf>'
+            '<texture type="checkerboard" id="$t"/>'
+            '<shape type="sphere"><ref id="$m"/></shape>'
+            '<shape type="sphere"><bsdf type="diffuse"><ref id="tex" name="$prop"/></bsdf>'
+            '</shape></scene>')
+    scene = parse_scene(text, path="s.xml")
+    gold, diffuse = (s.children[0] for s in scene.shapes)
+    assert (gold.type, gold.id, gold.get("material")) == ("roughconductor", "gold", "Au")
+    assert diffuse.get("reflectance").type == "checkerboard"
+    shapes = mi.load_string(text).shapes()       # Mitsuba loads it as read here
+    assert len(shapes) == 2
+
+
 def test_an_unresolved_dollar_is_refused_naming_it():
     base = '<scene version="3.0.0">{d}{c}<shape type="sphere"><float name="radius" value="{v}"/>' \
            '</shape></scene>'
