@@ -13,8 +13,8 @@ import contextlib
 import importlib.util
 import os
 import sys
-import tempfile
 import time
+import uuid
 
 from ._copy_propagate import fast_copy_propagation
 from ._inline_copy import shared_scope_copies
@@ -47,7 +47,11 @@ def load(name: str, source: str):
     folder = cache_dir()
     path = os.path.join(folder, name + ".py")
     if _cached_source(path) != source:
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
+        # created as open() creates a file (0666 under the umask), not as mkstemp's
+        # private 0600: a kernel cache shared by a team's accounts was unreadable to all
+        # but the first to write each module
+        tmp = f"{path}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
                 f.write(source)

@@ -181,3 +181,20 @@ def test_a_damaged_generated_module_is_written_again(tmp_path, monkeypatch):
     _generated.load("mcverify_test_damaged", source)
     assert path.stat().st_mtime_ns == stamp - 10**9        # intact: not rewritten
 
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077])
+def test_a_generated_module_is_readable_as_the_umask_allows(tmp_path, monkeypatch, umask):
+    """Generated modules were written through ``mkstemp``, private (0600) whatever the
+    umask: a kernel cache shared by a team's accounts (``MCVERIFY_CACHE`` on a shared
+    disk) could not be read by the others (an outside review). They are created as
+    ``open`` creates a file, 0666 under the umask."""
+    monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path))
+    old = os.umask(umask)
+    try:
+        _generated.load(f"mcverify_test_mode_{umask:o}", "x = 1\n")
+    finally:
+        os.umask(old)
+    mode = (tmp_path / f"mcverify_test_mode_{umask:o}.py").stat().st_mode & 0o777
+    assert mode == 0o666 & ~umask, oct(mode)
+    assert [p for p in os.listdir(tmp_path) if p.endswith(".tmp")] == []
