@@ -115,12 +115,10 @@ def test_the_gate_measures_the_scene_it_renders(tmp_path):
     assert len(_caveats(path, None, None)) == 1
 
 
-# A floor under a small light of fixed power (radiance 1 / r²), 1.5 above it
-SMALL_LIGHT = """<scene version="3.0.0">
-  <default name="r" value="0.001"/>
-  <default name="L" value="1e6"/>
-  <integrator type="path"><integer name="max_depth" value="2"/>
-    <boolean name="hide_emitters" value="true"/></integrator>
+# A floor seen from above, 16² at 64 spp: the scenes of the notes below add to it
+FLOOR = """<scene version="3.0.0">
+  {defaults}
+  <integrator type="path">{integrator}</integrator>
   <sensor type="perspective"><float name="fov" value="45"/>
     <transform name="to_world"><lookat origin="0,1.5,4" target="0,0.3,0"/></transform>
     <sampler type="independent"><integer name="sample_count" value="64"/></sampler>
@@ -129,9 +127,14 @@ SMALL_LIGHT = """<scene version="3.0.0">
   </sensor>
   <shape type="rectangle"><transform name="to_world"><scale value="3"/>
     <rotate x="1" angle="-90"/><translate y="-0.5"/></transform></shape>
-  {light}
+  {body}
 </scene>
 """
+# ... under a small light of fixed power (radiance 1 / r²), 1.5 above it
+SMALL_LIGHT = FLOOR.format(
+    defaults='<default name="r" value="0.001"/>\n  <default name="L" value="1e6"/>',
+    integrator='<integer name="max_depth" value="2"/>\n    <boolean name="hide_emitters" '
+               'value="true"/>', body="{light}")
 SMALL_SPHERE = ('<shape type="sphere"><float name="radius" value="$r"/><point name="center" '
                 'x="-0.5" y="1" z="0.5"/><emitter type="area"><rgb name="radiance" '
                 'value="$L"/></emitter></shape>')
@@ -177,25 +180,16 @@ def test_mitsubas_small_sphere_light_is_what_the_note_says():
     assert mean(SMALL_DISK, "0.001") / mean(SMALL_DISK, "0.01") == pytest.approx(1.0, abs=0.02)
 
 
-# A glass slab under a white sky, seen against a floor and a red sphere, 2 t thick
-SLAB = """<scene version="3.0.0">
-  <default name="t" value="5e-6"/>
-  <integrator type="path"><integer name="max_depth" value="8"/></integrator>
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0,1.5,4" target="0,0.3,0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="64"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/>
-      <rfilter type="box"/></film>
-  </sensor>
-  <shape type="rectangle"><transform name="to_world"><scale value="3"/>
-    <rotate x="1" angle="-90"/><translate y="-0.5"/></transform></shape>
-  <shape type="sphere"><float name="radius" value="0.3"/><point name="center" x="0.3" y="-0.2" z="0"/>
+# ... seen through a glass slab 2 t thick under a white sky, with a red sphere
+SLAB = FLOOR.format(defaults='<default name="t" value="5e-6"/>',
+                    integrator='<integer name="max_depth" value="8"/>', body="""\
+<shape type="sphere"><float name="radius" value="0.3"/>
+    <point name="center" x="0.3" y="-0.2" z="0"/>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.2, 0.2"/></bsdf></shape>
   <shape type="cube"><transform name="to_world"><scale x="0.6" y="$t" z="0.6"/>
-    <rotate x="1" angle="20"/><translate y="0.3" z="0.5"/></transform><bsdf type="dielectric"/></shape>
-  <emitter type="constant"/>
-</scene>
-"""
+    <rotate x="1" angle="20"/><translate y="0.3" z="0.5"/></transform>
+    <bsdf type="dielectric"/></shape>
+  <emitter type="constant"/>""")
 
 
 @pytest.mark.parametrize("shape,t,noted", [
@@ -247,7 +241,8 @@ HUGE_FLOOR = """<scene version="3.0.0">
   </sensor>
   <shape type="rectangle"><transform name="to_world"><scale value="$S"/><rotate x="1" angle="-90"/>
     <rotate z="1" angle="17"/><rotate x="1" angle="9"/><translate y="-0.5"/></transform></shape>
-  <shape type="sphere"><float name="radius" value="0.3"/><point name="center" x="0" y="0.3" z="0"/></shape>
+  <shape type="sphere"><float name="radius" value="0.3"/>
+    <point name="center" x="0" y="0.3" z="0"/></shape>
   <emitter type="directional"><vector name="direction" x="0.3" y="-1" z="-0.4"/>
     <rgb name="irradiance" value="2"/></emitter>
 </scene>
