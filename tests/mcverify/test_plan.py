@@ -34,6 +34,15 @@ def test_cornell_box_plan():
     assert "render:cornell-box" in names           # the scene's own render gate
 
 
+def test_rough_conductors_instance_checks_are_as_many_as_the_readme_says():
+    # The README's cost line: `-k tracer.` runs 21 chi-square and 21 consistency checks.
+    checks, _, _ = plan(os.path.join(REFERENCE_ROOT, "rough-conductors", "scene.xml"))
+    names = [n for n in _names(checks) if "tracer." in n]
+    assert len(names) == 42
+    assert sum(n.startswith("sampler:tracer.") for n in names) == 21
+    assert sum(n.startswith("pdf_consistency:tracer.") for n in names) == 21
+
+
 def test_a_check_that_names_nothing_it_verifies_runs_with_any_scene():
     """A user suite's checks leave ``verifies`` empty (Check's default): with --scene they
     were all skipped as "not needed by this scene" (printed nowhere), and a project's
