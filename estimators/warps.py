@@ -370,12 +370,12 @@ def _invert_beckmann_kernel(x, p):
 
 
 @_jit
-def _ggx_lambda(w, alpha):
+def _ggx_g1_over_cos(w, alpha):
+    """G1(w) / w_z = 1 / (w_z (1 + Λ(w))) = 2 / (w_z + √(w_z² + α² (w_x² + w_y²))) for
+    w_z > 0: Λ itself takes tan²θ = (w_x² + w_y²) / w_z², which overflowed below w_z ≈
+    1e-154 (grazing), so G1 was 0 and every density 0 beside samples of a finite one."""
     s2 = w[0] * w[0] + w[1] * w[1]
-    if s2 == 0.0:
-        return 0.0
-    tan2 = s2 / (w[2] * w[2])
-    return 0.5 * (math.sqrt(1.0 + alpha * alpha * tan2) - 1.0)
+    return 2.0 / (w[2] + math.sqrt(w[2] * w[2] + alpha * alpha * s2))
 
 
 @_jit
@@ -414,8 +414,7 @@ def _ggx_vndf_pdf_kernel(x, p):
     cos_wh = w[0] * x[0] + w[1] * x[1] + w[2] * x[2]
     if cos_wh <= 0.0:
         return 0.0
-    g1 = 1.0 / (1.0 + _ggx_lambda(w, p[0]))
-    return g1 * cos_wh * ggx_d(x, p[0]) / w[2]
+    return _ggx_g1_over_cos(w, p[0]) * cos_wh * ggx_d(x, p[0])
 
 
 # ------------------------------------------------------------------- 1-D densities

@@ -657,6 +657,22 @@ def test_microfacet_warps_hold_at_the_ends_of_their_alpha_range(name, alpha):
         assert np.max(np.abs(w.invert(x, *params) - u)) < 1e-15
 
 
+@pytest.mark.parametrize("alpha", [1e-30, 0.05, 2.0, 1e30])
+@pytest.mark.parametrize("wz", [1e-160, 1e-200, 1e-300])
+def test_ggx_visible_normals_density_holds_at_grazing_incidence(alpha, wz):
+    """Below w_z ≈ 1e-154, Smith's Λ took tan²θ = (w_x² + w_y²)/w_z², which overflowed:
+    G1 = 0 and every sample, a unit vector, had density 0 (found by review). The density
+    converges as w_z -> 0, so at these w_z it is the one at w_z = 1e-100 (wx = 1 in
+    float64 for all of them)."""
+    from estimators import warps as W
+
+    u = np.random.default_rng(11).random((20_000, 2))
+    x = W.sample_ggx_vndf(u, alpha, 1.0, 0.0, wz)
+    pdf = W.ggx_vndf_pdf(x, alpha, 1.0, 0.0, wz)
+    assert np.all(np.isfinite(pdf) & (pdf > 0)), pdf[~(pdf > 0)][:5]
+    np.testing.assert_allclose(pdf, W.ggx_vndf_pdf(x, alpha, 1.0, 0.0, 1e-100), rtol=1e-12)
+
+
 def test_a_nan_u_gives_a_nan_point_from_every_warp():
     """sqrt(max(0, NaN)) was 0: GGX turned a NaN u into the zero vector, density 0."""
     from estimators.warps import WARPS
