@@ -43,7 +43,9 @@ RULES = {
     "exponential": (("sigma", "t_max"),
                     lambda s, t: s >= 1e-150 and t > 0.0 and s * t >= 1e-150,
                     "sigma >= 1e-150, t_max > 0 and sigma·t_max >= 1e-150"),
-    "tent": (("radius",), lambda r: r > 0.0, "radius > 0"),
+    # r >= 2^-1022 (normal), as the interval's width: r = 1e-310 gave every point a
+    # density of 1 / r = inf
+    "tent": (("radius",), lambda r: r >= 2.0 ** -1022, "radius >= 2^-1022"),
     "linear": (("a", "b"), lambda a, b: a >= 0.0 and b >= 0.0 and a + b > 0.0,
                "a >= 0 and b >= 0, not both 0"),
     "bilinear": (("w00", "w10", "w01", "w11"),

@@ -544,7 +544,11 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
     (lambda W, u: W.power_cosine_pdf(np.ones((2, 3)), -3), "n=-3.0: the warp needs n >= 0"),
     (lambda W, u: W.sample_ggx_vndf(u, 0.3, 0.6, 0.0, 0.9), "a unit vector with wz > 0"),
     (lambda W, u: W.sample_exponential(u[:, :1], 0.0, 1.0), "sigma >= 1e-150, t_max > 0"),
-    (lambda W, u: W.sample_tent(u[:, :1], -1.0), "radius=-1.0: the warp needs radius > 0"),
+    (lambda W, u: W.sample_tent(u[:, :1], -1.0), "radius=-1.0: the warp needs radius >= "
+                                                 "2^-1022"),
+    # found by review: every point of density 1 / 1e-310 = inf
+    (lambda W, u: W.tent_pdf(u[:, :1], 1e-310), "radius=1e-310: the warp needs radius"),
+    (lambda W, u: W.sample_tent(u[:, :1], 2.0 ** -1022), None),
     (lambda W, u: W.sample_uniform_interval(u[:, :1], 3.0, 1.0), "a=3.0, b=1.0"),
     (lambda W, u: W.sample_linear(u[:, :1], 0.0, 0.0), "a >= 0 and b >= 0, not both 0"),
     (lambda W, u: W.sample_exponential(u[:, :1], 1e-200, 1e-200), "sigma·t_max >= 1e-150"),
@@ -560,7 +564,8 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
     (lambda W, u: W.cosine_hemisphere_pdf(np.array([["a", "b", "c"]])), "cosine_hemisphere_pdf"),
 ], ids=["missing", "too-few", "extra", "negative-alpha", "huge-alpha", "tiny-alpha-pdf",
         "beckmann-huge-alpha", "vndf-tiny-alpha", "nan", "string", "cone-1.5",
-        "power-negative", "vndf-not-unit", "sigma-0", "tent-negative", "interval-reversed",
+        "power-negative", "vndf-not-unit", "sigma-0", "tent-negative", "tent-subnormal",
+        "tent-smallest-normal-is-fine", "interval-reversed",
         "linear-zero", "exponential-sigma-t-underflows", "exponential-tiny-sigma",
         "interval-span-overflows", "interval-span-subnormal", "interval-one-ulp-is-fine",
         "int-beyond-float", "complex-points", "object-points",
