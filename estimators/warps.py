@@ -278,8 +278,9 @@ def _sample_power_cosine_kernel(u, p):
     """Phong lobe around +z: pdf (n + 1)/(2π) cos^n θ; ``p[0] = n >= 0``. cos θ =
     (1 - u)^(1/(n+1)) = e^y with y = log1p(-u)/(n+1), and 1 - cos θ = -expm1(y): at a
     large n the lobe is narrow, and 1 - cos θ taken from a rounded cos θ would keep only
-    the last bits of cos θ (n = 1e8: round trip off by 5.5e-9; n = 1e12: 5.5e-5)."""
-    y = fast_log1p(-u[0]) / (p[0] + 1.0)
+    the last bits of cos θ (n = 1e8: round trip off by 5.5e-9; n = 1e12: 5.5e-5).
+    u[0] = 1 is taken as 1 - 2^-53, as Beckmann's: it gave the horizon, of density 0."""
+    y = fast_log1p(-min(u[0], ONE_MINUS_EPSILON)) / (p[0] + 1.0)
     one_minus_cos = -fast_expm1(y)
     cos_t = fast_exp(y)
     return _direction(_safe_sqrt(one_minus_cos * (1.0 + cos_t)), cos_t, u[1])
@@ -323,11 +324,13 @@ def ggx_d(x, alpha):
 
 @_jit
 def _sample_ggx_kernel(u, p):
-    """Normals h distributed as D(h) cos θ_h for GGX of roughness ``p[0] = α``."""
+    """Normals h distributed as D(h) cos θ_h for GGX of roughness ``p[0] = α``. u[0] = 1
+    is taken as 1 - 2^-53, as Beckmann's: it gave the horizon, of density D cos θ = 0."""
     a2 = p[0] * p[0]
-    den = 1.0 - u[0] + a2 * u[0]
-    cos2 = (1.0 - u[0]) / den
-    sin2 = a2 * u[0] / den
+    v = min(u[0], ONE_MINUS_EPSILON)     # NaN stays NaN (min returns its first argument)
+    den = 1.0 - v + a2 * v
+    cos2 = (1.0 - v) / den
+    sin2 = a2 * v / den
     return _direction(_safe_sqrt(sin2), _safe_sqrt(cos2), u[1])
 
 
@@ -381,7 +384,9 @@ def _ggx_g1_over_cos(w, alpha):
 @_jit
 def sample_ggx_vndf_kernel(u, p):
     """Visible normals of GGX (Heitz 2018) for the outgoing direction
-    ``w = (p[1], p[2], p[3])`` (unit, z > 0) and roughness ``p[0] = α``."""
+    ``w = (p[1], p[2], p[3])`` (unit, z > 0) and roughness ``p[0] = α``. u[0] = 1 is
+    taken as 1 - 2^-53, as Beckmann's: r = 1 put h on the visible hemisphere's edge,
+    where w · h = 0, of density 0."""
     alpha = p[0]
     vx, vy, vz = alpha * p[1], alpha * p[2], p[3]
     inv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
@@ -393,7 +398,7 @@ def sample_ggx_vndf_kernel(u, p):
     else:
         t1x, t1y, t1z = 1.0, 0.0, 0.0
     t2x, t2y, t2z = vy * t1z - vz * t1y, vz * t1x - vx * t1z, vx * t1y - vy * t1x
-    r = math.sqrt(u[0])
+    r = math.sqrt(min(u[0], ONE_MINUS_EPSILON))
     sin_phi, cos_phi = _sincos_two_pi(u[1])
     a = r * cos_phi
     b = r * sin_phi

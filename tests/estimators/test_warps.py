@@ -709,6 +709,30 @@ def test_u_of_one_gives_a_point_of_the_domain_from_every_warp(dtype):
                                atol=1e-6), (name, x)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("name,params", [
+    ("power_cosine", (0.0,)), ("power_cosine", (20.0,)), ("power_cosine", (1e4,)),
+    ("ggx", (1e-4,)), ("ggx", (0.3,)), ("ggx", (1e3,)),
+    ("ggx_vndf", (0.3, 0.6, 0.0, 0.8)), ("ggx_vndf", (1e-4, 0.6, 0.0, 0.8)),
+    ("ggx_vndf", (1e3, 0.6, 0.0, 0.8)), ("beckmann", (0.3,))])
+def test_u0_of_one_gives_a_point_of_positive_density(name, params, dtype):
+    """u0 = 1 (a float32 u within 2^-25 of 1 rounds to it) put the power-cosine lobe's
+    and GGX's point on the horizon and the visible normals' on the edge where w · h = 0,
+    all of density 0, so f / pdf was inf once in 2^25 float32 draws (found by review).
+    u0 = 1 is taken as 1 - 2^-53, as Beckmann's sampler takes it."""
+    from estimators.warps import ONE_MINUS_EPSILON, WARPS
+
+    w = WARPS[name]
+    u = np.array([[1.0, 0.0], [1.0, 0.3], [1.0, 1.0]], dtype=dtype)
+    x = w.sample(u, *params)
+    pdf = w.pdf(x, *params)
+    assert np.all(np.isfinite(pdf) & (pdf > 0)), (x, pdf)
+    if dtype == np.float64:
+        below = u.copy()
+        below[:, 0] = ONE_MINUS_EPSILON
+        np.testing.assert_array_equal(x, w.sample(below, *params))
+
+
 def test_the_cone_inverse_at_the_south_pole_of_the_whole_sphere():
     """cos θ_max = -1: the cone is the sphere, and its inverse at (0, 0, -1) divided 0 by
     0 (an outside review); the uniform sphere's inverse gives u0 = 1 - 2^-53 there."""
