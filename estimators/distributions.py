@@ -372,6 +372,15 @@ class DiscreteDistribution:
             bad = idx.ravel()[np.argmax(~(np.isfinite(idx) & (idx == np.floor(idx))).ravel())]
             raise ValueError(f"index: {float(bad)!r} is not an integer (an entry of the "
                              "distribution)")
+        # the range is checked before the cast: 1e300 became -2^63 in int64, and the
+        # message named that number, not the index given
+        n = self.cdf.size - 1
+        outside = (idx.ravel() < 0) | (idx.ravel() >= n)
+        if outside.any():
+            bad = float(idx.ravel()[np.argmax(outside)])
+            bad = int(bad) if abs(bad) < 2.0 ** 53 else bad
+            raise ValueError(f"index: {bad!r} is not an entry of the distribution (0 to "
+                             f"{n - 1}); -1 wrapped to the last one before")
         index = idx.astype(np.int64)
         u_remapped = _reals(u_remapped, "u_remapped")
         try:
@@ -379,11 +388,6 @@ class DiscreteDistribution:
         except ValueError:
             raise ValueError(f"index (shape {index.shape}) and u_remapped (shape "
                              f"{u_remapped.shape}): expected one shape") from None
-        n = self.cdf.size - 1
-        if index.size and (index.min() < 0 or index.max() >= n):
-            bad = index.ravel()[np.argmax((index.ravel() < 0) | (index.ravel() >= n))]
-            raise ValueError(f"index: {bad} is not an entry of the distribution (0 to "
-                             f"{n - 1}); -1 wrapped to the last one before")
         outside = (u_remapped < 0) | (u_remapped > 1)          # NaN: neither, stays NaN
         if outside.any():
             # cdf[i] + 1.5 p_i is a u of another entry, which sample maps to that entry

@@ -204,6 +204,14 @@ def test_a_discrete_inverse_refuses_an_index_outside_the_distribution():
             d.invert(index, [0.5] * len(index))
     i, _, r = d.sample([0.1, 0.5, 0.9])
     np.testing.assert_allclose(d.invert(i, r), [0.1, 0.5, 0.9], rtol=1e-12)
+    # an index beyond int64 is named as given: 1e300 was cast first, and the message
+    # said "index: -9223372036854775808" (found by review)
+    for index, shown in (([1e300], "index: 1e+300 is"), ([-1e300], "index: -1e+300 is"),
+                         ([0, 2.0 ** 70], "index: 1.1805916207174113e+21 is"),
+                         ([3.0], "index: 3 is")):
+        with pytest.raises(ValueError) as e:
+            d.invert(index, [0.5] * len(index))
+        assert shown in str(e.value), str(e.value)
 
 
 def test_a_discrete_inverse_refuses_a_remapped_u_outside_the_unit_interval():
