@@ -596,7 +596,10 @@ class InvertedCDF:
             scale = max(scale, found)
             f_ends = self._eval(np.concatenate([lo, hi])).reshape(2, -1)
             err = np.abs(m20 - m10)
-            budget = tol * scale * (hi - lo) / (self.b - self.a) + 1e-300
+            # the piece's share of the interval first: tol·scale·(hi - lo) overflowed on
+            # a wide interval (-1e300 to 1e300), an infinite budget refined no piece, and
+            # a smooth pdf was then refused as not integrable
+            budget = tol * scale * ((hi - lo) / (self.b - self.a)) + 1e-300
             # Endpoint test: a step or a tail at a piece's end that no node saw.
             hidden = (((f_ends.max(0) > 4 * fmax) | (f_ends.min(0) < 0.25 * fmin))
                       & (np.maximum(f_ends.max(0), fmax) * (hi - lo) > budget))

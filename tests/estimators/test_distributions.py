@@ -1,6 +1,8 @@
 """CDF-inversion distributions: sample matches pdf (χ²/KS), inverse round trips,
 zero-weight entries never drawn, InvertedCDF accuracy (seeded, α = 0.01 each)."""
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -310,6 +312,26 @@ def test_inverted_cdf_refuses_a_pdf_whose_integral_overflows(value, b):
     # the same shape scaled down is sampled (the pdf need not be normalised)
     d = InvertedCDF(lambda x: np.full(x.shape, value / 1e10), 0.0, b)
     assert d.sample([0.5])[0, 0] == pytest.approx(b / 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("s", [1e300, 1e306])
+def test_inverted_cdf_on_a_wide_interval_is_the_unit_one_scaled(s):
+    """tol·scale·(hi - lo), each piece's error budget, overflowed on [-1e300, 1e300]
+    (accepted: b - a is finite): an infinite budget refined no piece, and this smooth
+    pdf with a narrow bump was refused as "not integrable" (found by review). Its table
+    is now the one on [-1, 1], scaled."""
+    def pdf(scale):
+        return lambda x: (1.0 + np.sin(x / scale * 40.0) ** 2
+                          + 50.0 * (np.abs(x / scale - 0.33) < 0.0013))
+
+    unit = InvertedCDF(pdf(1.0), -1.0, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")              # no overflow on the way either
+        wide = InvertedCDF(pdf(s), -s, s)
+    assert wide.cdf_error < 1e-9
+    assert wide.total / s == pytest.approx(unit.total, rel=1e-12)
+    u = np.linspace(0.0, 1.0, 101)
+    np.testing.assert_allclose(wide.sample(u) / s, unit.sample(u), rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("max_rounds", [1, 10])
