@@ -493,13 +493,18 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                                                getattr(renderer, "__name__", "renderer"))
             batches, image, source = 1, (lambda b: out), None
         shown = {}
-        # our passes' variance is floored at the reference's at our samples per pass
-        # (compare_images' test_spp/ref_spp)
-        ref_spp = ref.manifest.get("spp") if ours else None
-        spps = dict(test_spp=spp // passes, ref_spp=int(ref_spp)) if ref_spp else {}
+        # the rendered variance is floored at the reference's at the samples behind each
+        # value (compare_images' test_spp/ref_spp): ours spp / passes; a renderer of one's
+        # own returns n values of spp / n samples each (until 7 December it had no floor,
+        # and a correct one failed the Cornell box on 2 of 12 seeds, an outside review)
+        ref_spp, per_pass = ref.manifest.get("spp"), spp // passes
 
         def look(b):
             mean, var, n, seconds, stats, passes = image(b)
+            per = per_pass if ours else spp // n if isinstance(
+                n, (int, np.integer)) and not isinstance(n, bool) and 0 < n <= spp \
+                and spp % n == 0 else None
+            spps = dict(test_spp=per, ref_spp=int(ref_spp)) if ref_spp and per else {}
             if getattr(mean, "shape", None) != ref.mean.shape:
                 got = getattr(mean, "shape", None) or type(mean).__name__
                 raise InvalidArgument(
