@@ -2,6 +2,7 @@
 and it catches a global ±2 % bias and a local +10 % one, saying which test found what."""
 
 import os
+import re
 
 import numpy as np
 import pytest
@@ -290,6 +291,23 @@ def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
                                    for s, y, x in ((8, 16, 8), (16, 16, 0), (4, 16, 8),
                                                    (4, 16, 12), (4, 20, 8), (4, 20, 12))), \
         r.messages
+
+
+def test_the_clearest_block_says_how_far_off_a_small_difference_is():
+    """A rejected block 0.02 % off (a precise block: the sky beside a silhouette) printed
+    '+0.0%', as if nothing differed; it now keeps two significant digits."""
+    rng = np.random.default_rng(0)
+    ref = np.full((16, 16, 3), 0.25)
+    test = ref.copy()
+    test[4:8, 8:12] *= 1.0002
+    v = np.full_like(ref, 1e-12)
+    r = mv.compare_images(test + rng.normal(0, 1e-6, ref.shape), ref, test_var=v,
+                          ref_var=v, test_n=16, ref_n=16, perceptual=False)
+    where = [m for m in r.messages if m.startswith("clearest block: ")]
+    assert not r.passed and len(where) == 1 and where[0].endswith("+0.02%"), r.messages
+    pixel = [m for m in r.messages if m.startswith("clearest pixel: ")]
+    assert re.search(r"test \[(0\.2500[45]\d? ){2}0\.2500[45]\d?\] against reference "
+                     r"\[0\.25 0\.25 0\.25\]", pixel[0]), pixel
 
 
 def test_a_small_patch_is_found_by_blocks_of_its_size():
