@@ -96,8 +96,10 @@ def pass_stats(pattern: str, *, option: str = "--test-passes", keep: bool = Fals
         m2 += delta * (img - mean)
     # half passes (Mitsuba's default film format): their rounding, 2^-11 of a value, is
     # no evidence, though their mean and variance are computed in float64 (a correct
-    # renderer's half passes failed against float ones with p = 0: an outside review)
-    half = all(set(reference.exr_channel_types(f).values()) == {"half"} for f in files)
+    # renderer's half passes failed against float ones with p = 0: an outside review);
+    # one half pass is enough (4 half passes among 12 float ones of a correct render
+    # failed with p = 4e-42 until 7 December: the mean holds their rounding)
+    half = any("half" in reference.exr_channel_types(f).values() for f in files)
     return ImageStats(mean=mean, var=m2 / (len(files) - 1), n=len(files), files=tuple(files),
                       notes=tuple(sorted(notes)), passes=np.stack(kept) if keep else None,
                       precision=np.float16 if half else None)
