@@ -863,6 +863,13 @@ def _cmd_compare(args) -> int:
         raise InvalidArgument(f"--test-spp {args.test_spp}: the reference side's samples per "
                               "value are unknown; give --ref-spp (a committed reference "
                               "knows its own)")
+    if correlated and args.test_spp is not None and args.test_spp != ref_spp:
+        # a pixel's Σ w L / Σ w has a bias of order 1/(samples per pass), as render-check
+        # refuses (until 7 December compare took 16-spp passes against 64 without a word)
+        raise InvalidArgument(f"--test-spp {args.test_spp}: pixels of a pass correlate (a "
+                              "splatting filter), and a pixel's weighted mean Σ w L / Σ w "
+                              "has a bias of order 1/(samples per pass), so the test passes "
+                              f"need the reference side's {ref_spp} samples per pass")
     test = test_load(keep=correlated)
     if ref_load is not None:
         ref = ref_load(keep=correlated)

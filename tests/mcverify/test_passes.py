@@ -238,3 +238,21 @@ def test_passes_some_of_them_half_of_a_correct_render_agree(tmp_path):
                               "--ref-passes", str(tmp_path / "r_*.exr")],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_compare_refuses_correlated_passes_of_other_spp_than_the_references(tmp_path):
+    """Where pixels correlate (a splatting filter) the passes compare only at the
+    reference's samples per pass (render-check refuses another split); ``compare
+    --test-spp 16`` against the ``filters`` reference (64 a pass) was compared without a
+    word. It exits 2 naming the count to use; at the reference's own count it goes on."""
+    rng = np.random.default_rng(6)
+    passes = _write(tmp_path / "p", rng.gamma(2.0, 0.5, (4, 64, 64, 3)))
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "filters", "--test-spp",
+                              "16"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "--test-spp 16" in r.stderr and \
+        "64 samples per pass" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    theirs = _write(tmp_path / "r", rng.gamma(2.0, 0.5, (4, 64, 64, 3)))
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "--ref-passes", theirs,
+                              "--correlated", "--test-spp", "16", "--ref-spp", "64"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "64 samples per pass" in r.stderr, r.stderr
