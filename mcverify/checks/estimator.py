@@ -158,8 +158,13 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         mean = float(np.mean(x))
         ok = abs(mean - expected) <= tol
         if not ok:
+            # No test can tell these from an estimator that is rarely anything else (a
+            # light hit with probability p: all n samples miss it with probability
+            # (1 - p)^n, 5 % at n·p = 3): say so, as the failure's likely innocent cause.
             failures.append(f"every sample is {mean:.15g} (to rounding), but expected is "
-                            f"{expected:.15g}")
+                            f"{expected:.15g} (an estimator whose other values are rare, "
+                            "such as a small light's hits, gives this by chance unless "
+                            "n is several times 1/p: draw more samples)")
         return CheckResult(name=name, passed=CheckResult.decide(None, alpha, failures),
                            p_value=None, statistic=None, alpha=alpha, n_samples=int(x.size),
                            seconds=time.perf_counter() - t0,

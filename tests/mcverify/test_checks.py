@@ -179,6 +179,18 @@ def test_unbiased_holds_its_level_on_skewed_estimates(draw):
     assert found >= 5, found
 
 
+def test_unbiased_says_why_all_zero_estimates_of_a_rare_hit_fail():
+    """A correct estimator of a small light (hit with probability 1e-4, 10,000 samples)
+    returned only zeros on this seed, as it does on e^-1 of them: the failure said only
+    "every sample is 0", as if the estimator were a wrong constant (an outside review).
+    It now names the likely cause and the remedy; a hit makes the t-test decide."""
+    hits = lambda s: 1e4 * (np.random.default_rng(s).random(10_000) < 1e-4)   # noqa: E731
+    r = mv.check_unbiased(hits(0), 1.0)
+    assert not hits(0).any() and not r.passed
+    assert "rare" in r.failures[0] and "draw more samples" in r.failures[0], r.failures
+    assert all(hits(s).any() and mv.check_unbiased(hits(s), 1.0).passed for s in (1, 2, 3))
+
+
 def test_unbiased_detects_infinite_variance():
     # ∫₀¹ x^-0.75 dx = 4 sampled uniformly: f/p = x^-0.75 has tail index 4/3 < 2.
     u = np.random.default_rng(6).random(500_000)
