@@ -992,7 +992,8 @@ def detectable_contamination(result: CheckResult, *, power: float = 0.95,
     KS test in 1-D and, with ``rejection``, the acceptance test count among them);
     the check rejects when any does, so the smallest ε over the sub-tests is an upper
     bound on the check's (the KS test's extra power in 1-D is not counted). Computed
-    from the noncentral χ² distribution (:func:`mcverify.stats.chi2_detectable_mixture`);
+    from the χ² statistic's mean and variance under the admixture
+    (:func:`mcverify.stats.chi2_detectable_mixture`);
     uniform contamination is the cell volume in parameter space, since every domain
     maps to it with a constant Jacobian.
     """
