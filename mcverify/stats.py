@@ -390,8 +390,12 @@ def hill_tail_index(x, *, k: int | None = None, confidence: float = 0.999) -> Ta
     """
     x = np.asarray(x, dtype=np.float64).ravel()
     dev = np.abs(x - np.median(x))
-    ss = float(np.sum((x - x.mean()) ** 2))
-    max_share = float(np.max((x - x.mean()) ** 2) / ss) if ss > 0 else 0.0
+    # the share is scale-free: on x / max|x|, whose squares neither overflow (1e300
+    # gave NaN) nor underflow (1e-170 gave 0, "no sample dominates")
+    c = float(np.max(np.abs(x))) if x.size else 0.0
+    y = x / c if np.isfinite(c) and c > 0.0 else x
+    ss = float(np.sum((y - y.mean()) ** 2))
+    max_share = float(np.max((y - y.mean()) ** 2) / ss) if ss > 0 else 0.0
     n = dev.size
     k = int(round(np.sqrt(n))) if k is None else int(k)
     k = max(2, min(k, n - 1))

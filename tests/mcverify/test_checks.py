@@ -1,5 +1,7 @@
 """The judge's teeth: correct subjects pass, planted bugs fail (seeded, α = 0.01)."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy import stats as scipy_stats
@@ -246,6 +248,19 @@ def test_unbiased_at_tiny_scales_tests_the_mean(scale):
         assert r.passed is passed and ref.passed is passed, (scale, bias, r.summary())
         assert not r.details.get("constant"), r.messages
         assert r.p_value == pytest.approx(ref.p_value, rel=1e-6, abs=1e-300)
+
+
+@pytest.mark.parametrize("scale", [1e-170, 1e300])
+def test_unbiased_largest_sample_share_is_scale_free(scale):
+    """details["max_sample_share"] squared the deviations unscaled: at 1e300 they
+    overflowed (NaN, with numpy's overflow warnings), at 1e-170 they underflowed (0,
+    "no sample dominates"); an outside review. It is the unit scale's now."""
+    x = np.random.default_rng(0).random(1000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = mv.check_unbiased(x * scale, 0.5 * scale)
+    want = mv.check_unbiased(x, 0.5).details["max_sample_share"]
+    assert r.details["max_sample_share"] == pytest.approx(want, rel=1e-9)
 
 
 def test_a_known_variance_is_tested_at_its_level_and_a_wrong_one_says_why():
