@@ -189,6 +189,8 @@ def chi2_homogeneity(counts_a, counts_b, *, min_expected: float = MIN_EXPECTED) 
     a = np.asarray(counts_a, dtype=np.float64).ravel()
     b = np.asarray(counts_b, dtype=np.float64).ravel()
     na, nb = a.sum(), b.sum()
+    if not na + nb > 0:     # nothing to compare (two samplers that rejected every draw)
+        return Chi2Result(0.0, 0, 1.0, a.size, 0, 0, 0)
     share = min(na, nb) / (na + nb)
     label = pool_cells((a + b) * share, min_expected)
     n_bins = int(label.max()) + 1 if (label >= 0).any() else 0

@@ -1182,6 +1182,9 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                                   sub["chi2"].n_bins) if ha.sum() and hb.sum() else None
     if note:
         messages.append(note)
+    if rejection and not (ha.sum() or hb.sum()):
+        messages.append("neither side accepted a draw: only the acceptance rates were "
+                        "compared (two samplers that reject everything agree)")
     if p_value <= alpha:
         messages += _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha)
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
