@@ -341,9 +341,13 @@ def ttest_mean(x, expected: float) -> TTestResult:
     S = (mean − expected)/s and γ the sample skewness, the statistic is
     √n (S + γS²/3 + γ²S³/27 + γ/(6n)) (P. Hall, "On the removal of skewness by
     transformation", J. R. Statist. Soc. B 54, 1992), which removes the n^-1/2 term of
-    its distribution's expansion (measured: 0.2 %, 0.85 %, 0.95 %; normal, uniform and
-    symmetric samples are unchanged). ``statistic`` stays the plain t, the mean's
-    distance from ``expected`` in standard errors.
+    its distribution's expansion (measured: 1.15 %, 0.85 %, 0.95 %; normal, uniform and
+    symmetric samples are unchanged). Where 1 + γS/3 falls below 1/2 (a mean far off
+    against the skew) the cubic, whose slope (1 + γS/3)² goes to 0 there, continues as
+    a line of slope 1: as written it squeezed such a mean to |2| (3 hits of 1000 among
+    10,000 samples where 16 are expected: p = 0.074; a review of the change).
+    ``statistic`` stays the plain t, the mean's distance from ``expected`` in standard
+    errors.
 
     A sample with zero spread gets p = 1 when its mean equals ``expected`` to within
     a mixed tolerance of 1e-12 (absolute) and 1e-9 (relative), else p = 0.
@@ -361,8 +365,13 @@ def ttest_mean(x, expected: float) -> TTestResult:
     d = x / c - mean / c
     gamma = float(np.mean(d ** 3) / np.mean(d * d) ** 1.5)
     s = t / np.sqrt(n)
-    hall = np.sqrt(n) * (s + gamma * s * s / 3.0 + gamma * gamma * s ** 3 / 27.0
-                         + gamma / (6.0 * n))
+    # Hall's cubic, (1 + γs/3)³ - 1 over γ, flattens where 1 + γs/3 -> 0: a mean far
+    # off on the side opposite the skew (3 light hits among 10,000 samples where 16
+    # are expected) was squeezed to |2| and could not fail (p = 0.074; an outside
+    # review). From 1 + γs/3 = 1/2 on it continues as a line of slope 1, monotone.
+    s0 = -1.5 / gamma if gamma * s < -1.5 else s
+    g = s0 + gamma * s0 * s0 / 3.0 + gamma * gamma * s0 ** 3 / 27.0 + gamma / (6.0 * n)
+    hall = np.sqrt(n) * (g + (s - s0))
     p = float(2.0 * _sps.t.sf(abs(hall), n - 1))
     return TTestResult(mean, se, float(t), p, n)
 
