@@ -17,7 +17,7 @@ def count(text: str) -> int:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (v >= 1 and v == int(v)):
+    if not (v >= 1 and v.is_integer()):     # inf and NaN too (int(inf) raised)
         raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number >= 1")
     return int(v)
 

@@ -100,6 +100,7 @@ def _script(name):
     (["tracer_speed.py", "nosuchscene", "--ours-only"],
      "tracer_speed.py: error: scene 'nosuchscene': no such file"),
     (["profile_judge.py", "--n", "-5"], "argument --n: '-5': must be a whole number >= 1"),
+    (["chi2_speed.py", "--n", "inf"], "argument --n: 'inf': must be a whole number >= 1"),
     (["warp_speed.py", "--repeats", "0"], "argument --repeats: '0': must be a whole number"),
     (["warp_speed.py", "nosuchwarp"], "unknown warp 'nosuchwarp'; known: beckmann"),
     (["perf_tracer.py", "x", "--seconds", "nan"], "'nan': must be a number of seconds > 0"),
