@@ -765,14 +765,14 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
         import numpy as np
 
         from .._validate import negatives
-        from .passes import ImageStats, read_radiance
+        from .passes import ImageStats, colour_types, read_radiance
 
         (m, a), (v, b) = read_radiance(image), read_radiance(var)
         # a half image handed on as half (exactly: its values are half's), so that
         # compare_images takes half's rounding as no evidence (a correct renderer's half
-        # mean.exr and var.exr failed with p = 0 against a float reference)
-        m, v = (x.astype(np.float16) if all(t == "half" for t in
-                                            reference.exr_channel_types(f).values()) else x
+        # mean.exr and var.exr failed with p = 0 against a float reference); its colour
+        # channels decide, not a float alpha beside them (an outside review)
+        m, v = (x.astype(np.float16) if all(t == "half" for t in colour_types(f)) else x
                 for x, f in ((m, image), (v, var)))
         if v.shape != m.shape:  # named here by file (compare_images would say "test_var")
             raise InvalidArgument(f"{var} ({opt}-var): shape {v.shape} differs from "

@@ -256,3 +256,31 @@ def test_compare_refuses_correlated_passes_of_other_spp_than_the_references(tmp_
                               "--correlated", "--test-spp", "16", "--ref-spp", "64"],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "64 samples per pass" in r.stderr, r.stderr
+
+
+def _exr_header_only(path, channels):
+    """An OpenEXR file holding a header alone: ``channels`` {name: 1 (half) or 2 (float)}.
+    Enough for the header readers (exr_channel_types, colour_types), not for pixels."""
+    import struct
+
+    chlist = b"".join(name.encode() + b"\0" + struct.pack("<iB3xii", kind, 0, 1, 1)
+                      for name, kind in channels.items()) + b"\0"
+    path.write_bytes(b"\x76\x2f\x31\x01" + struct.pack("<i", 2) + b"channels\0chlist\0"
+                     + struct.pack("<i", len(chlist)) + chlist + b"\0")
+    return str(path)
+
+
+def test_a_half_alpha_beside_float_colours_is_no_half_image(tmp_path):
+    """A pass of float colours and a half alpha (a common film setting) made the whole
+    comparison take half's rounding, 2^-10 instead of 2^-16, as if the colours were half
+    (a review of the change): the alpha, which ``read_radiance`` drops, no longer
+    counts; half colours still do, whatever the alpha's type."""
+    from mcverify.gate.passes import colour_types
+
+    mixed = _exr_header_only(tmp_path / "a.exr", {"A": 1, "B": 2, "G": 2, "R": 2})
+    assert "half" in reference.exr_channel_types(mixed).values()
+    assert colour_types(mixed) == ["float"] * 3
+    half = _exr_header_only(tmp_path / "b.exr", {"A": 2, "B": 1, "G": 1, "R": 1})
+    assert colour_types(half) == ["half"] * 3
+    layered = _exr_header_only(tmp_path / "c.exr", {"rgb.A": 1, "rgb.R": 2})
+    assert colour_types(layered) == ["float"]
