@@ -217,8 +217,26 @@ class Pool:
         self._start()
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, *exc) -> None:
+        if kind is not None and issubclass(kind, KeyboardInterrupt):
+            self._stop_workers()
         self.close()
+
+    def _stop_workers(self) -> None:
+        """End the local workers now, on an interrupt: a SIGTERM (a cancelled CI job)
+        reaches this process alone, not the spawned workers, and ``close`` waited for
+        every unit they were running (minutes for a long check) before the run could
+        exit; a CI runner's SIGKILL after its grace period then orphaned them (a review
+        of the change). On Ctrl-C the workers got the SIGINT themselves."""
+        if self.kind == "processes" and self._executor is not None:
+            procs = list((getattr(self._executor, "_processes", None) or {}).values())
+            for proc in procs:
+                if proc.is_alive():
+                    proc.terminate()
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+            for proc in procs:      # reaped, not left as zombies
+                proc.join(5)
 
     def _start(self) -> None:
         if self._executor is not None:

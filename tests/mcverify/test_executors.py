@@ -68,6 +68,37 @@ def _square(x: int) -> int:
     return x * x
 
 
+def _slow_mark(started: str, done: str) -> int:
+    import time
+
+    open(started, "w").close()
+    time.sleep(3.0)
+    open(done, "w").close()
+    return 1
+
+
+def test_an_interrupted_pool_ends_its_running_units(tmp_path):
+    """A SIGTERM reaches the parent alone (its workers are spawned), which raises
+    KeyboardInterrupt there; leaving the pool then waited for every unit the workers
+    were running (``shutdown(wait=True)``): minutes for a long check, and CI's SIGKILL
+    after its grace period orphaned them (a review of the change). The workers are now
+    ended at once: the running unit never finishes."""
+    import time
+
+    started, done = str(tmp_path / "started"), str(tmp_path / "done")
+    with pytest.raises(KeyboardInterrupt):
+        with Pool(jobs=2) as pool:
+            pool._executor.submit(_slow_mark, started, done)
+            for _ in range(600):        # the unit is running (spawn takes a few seconds)
+                if os.path.exists(started):
+                    break
+                time.sleep(0.1)
+            raise KeyboardInterrupt
+    assert os.path.exists(started)
+    time.sleep(5.0)             # past the unit's end, had its worker lived
+    assert not os.path.exists(done)
+
+
 def test_a_unit_whose_worker_dies_once_is_rerun(tmp_path):
     units = [Unit(f"sq{i}", _square, (i,)) for i in range(4)]
     units.insert(2, Unit("flaky", _die_once, (str(tmp_path / "died"),)))
