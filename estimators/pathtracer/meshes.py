@@ -16,7 +16,7 @@ scalar types of the PLY standard and Mitsuba's aliases (``uint8`` ... ``float64`
 
 Refused, with ``SceneError`` naming the file and what is wrong: a malformed header, a
 truncated body, trailing content after the last element (Mitsuba refuses it too),
-non-triangle faces, vertex indices out of range, non-finite positions, positions,
+non-triangle faces, vertex indices out of range, non-finite positions or uv, positions,
 normals or uv stored as integers (Mitsuba would read them normalised to [0, 1] through
 an sRGB curve), a list property other than the face's indices, and two sets of uv names
 in one file. The file's size is capped by the caller (``scene.MAX_ASSET_BYTES``).
@@ -286,6 +286,14 @@ def _mesh(vertex, face, path) -> PlyMesh:
         raise SceneError(f"{path}: texture coordinates named both {uv_sets[0]} and "
                          f"{uv_sets[1]}; Mitsuba's choice between them is undefined: keep one")
     uvs = _floats(vertex, uv_sets[0], path) if uv_sets else None
+    if uvs is not None:
+        finite = _rows_finite_in_float32(uvs)
+        if not finite.all():
+            # Mitsuba holds such a uv as inf or NaN; it was refused only as the prepared
+            # triangles' "geometry ... reaches 1e+39", naming neither file nor uv
+            raise SceneError(f"{path}: vertex {int(np.argmax(~finite))} has texture "
+                             "coordinates that are not finite in single precision, as "
+                             "Mitsuba stores them (NaN, or beyond ±3.4028235e38)")
     key = next(n for n in _INDEX_LISTS if f"{n}.count" in face.dtype.names)
     faces = np.stack([face[f"{key}.{k}"].astype(np.int64) for k in range(3)], axis=1)
     if len(faces) == 0:

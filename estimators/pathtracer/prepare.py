@@ -703,6 +703,11 @@ class _Builder:
                         # Mitsuba resolves an index as the face is read
                         self.fail(s, f"{where}: refers to a '{name}' that is not defined "
                                      f"before it ({len(seen)} so far)")
+                if any(c[1] and not _finite_in_float32(vt[c[1] - 1]) for c in idx):
+                    # Mitsuba holds it as inf (an unused one is harmless); it was refused
+                    # only as the triangles' "geometry ... reaches 1e+39", naming no line
+                    self.fail(s, f"{where}: uses a 'vt' that is not finite in single "
+                                 "precision (beyond ±3.4028235e38), as Mitsuba stores it")
                 for k in range(1, len(idx) - 1):
                     corners.append((idx[0], idx[k], idx[k + 1]))
         if not corners:

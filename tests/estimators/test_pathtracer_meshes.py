@@ -396,3 +396,37 @@ def test_a_ply_with_a_zero_normal_is_refused(tmp_path):
                                         'value="z.ply"/></shape>'))
     with pytest.raises(SceneError, match="a vertex normal is zero or not finite"):
         prepare_scene(str(scene))
+
+
+def _ply_with_uv(folder, fmt, bad):
+    path = folder / f"uv-{fmt}.ply"
+    uvs = _UVS.copy()
+    uvs[4, 0] = bad
+    write_ply(str(path), _VERTS, _FACES, uvs=uvs, fmt=fmt, vertex_type="double")
+    return path
+
+
+@pytest.mark.parametrize("fmt,bad", [("ascii", 1e39), ("binary_little_endian", 1e39),
+                                     ("binary_big_endian", np.nan)])
+def test_a_uv_beyond_float32_is_refused_naming_the_file_and_vertex(tmp_path, fmt, bad):
+    """An outside review: a PLY whose uv is 1e39 (a double; float32's inf in Mitsuba) or
+    NaN was refused only by the check on the prepared triangles, "its geometry in world
+    space (to_world applied) reaches 1e+39", naming neither the file nor the uv."""
+    path = _ply_with_uv(tmp_path, fmt, bad)
+    with pytest.raises(SceneError) as e:
+        read_ply(str(path))
+    assert str(path) in str(e.value) and "vertex 4" in str(e.value), str(e.value)
+    assert "texture coordinates" in str(e.value), str(e.value)
+
+
+def test_an_obj_face_using_a_vt_beyond_float32_is_refused_naming_the_line(tmp_path):
+    """The same for an OBJ: a used 'vt 1e39 0' was refused as "its geometry in world
+    space reaches 1e+39"; it now names the face's line (an unused one stays accepted,
+    as in Mitsuba)."""
+    text = _TRI + "vt 0 0\nvt 1e39 0\nvt 0 1\n"
+    prepare_scene(str(_obj_scene(tmp_path, text + "f 1/1 2/1 3/3\n")))
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(_obj_scene(tmp_path, text + "f 1/1 2/2 3/3\n")))
+    message = str(e.value)
+    assert f"{tmp_path / 'm.obj'}:7: 'f 1/1 2/2 3/3'" in message, message
+    assert "'vt'" in message and "single precision" in message, message
