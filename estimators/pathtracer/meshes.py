@@ -16,7 +16,8 @@ scalar types of the PLY standard and Mitsuba's aliases (``uint8`` ... ``float64`
 
 Refused, with ``SceneError`` naming the file and what is wrong: a malformed header, a
 truncated body, trailing content after the last element (Mitsuba refuses it too),
-non-triangle faces, vertex indices out of range, non-finite positions or uv, positions,
+non-triangle faces, vertex indices out of range, an ASCII integer field written as a
+float (``2.0``), non-finite positions or uv, positions,
 normals or uv stored as integers (Mitsuba would read them normalised to [0, 1] through
 an sRGB curve), a list property other than the face's indices, and two sets of uv names
 in one file. The file's size is capped by the caller (``scene.MAX_ASSET_BYTES``).
@@ -190,6 +191,15 @@ def _read_ascii(data, offset, elements, path):
         for k, name in enumerate(dt.names):
             column = values[:, k]
             if dt[name].kind in "iu":
+                # digits after an optional sign, as Mitsuba's stream reads an integer: a
+                # "2.0" (numpy's savetxt writes "2.000e+00") it refuses was read as 2
+                written = np.array(block[k::width], dtype="S")
+                literal = np.char.isdigit(np.char.lstrip(written, b"+-"))
+                if not literal.all():
+                    j = int(np.argmax(~literal))
+                    raise SceneError(f"{path}: element {el.name!r}, record {j}: {name} = "
+                                     f"{written[j][:40]!r} is not an integer (the header "
+                                     f"declares {dt[name]}; Mitsuba refuses it too)")
                 info = np.iinfo(dt[name])
                 wrong = ~((column == np.round(column)) & (column >= info.min)
                           & (column <= info.max))

@@ -430,3 +430,45 @@ def test_an_obj_face_using_a_vt_beyond_float32_is_refused_naming_the_line(tmp_pa
     message = str(e.value)
     assert f"{tmp_path / 'm.obj'}:7: 'f 1/1 2/2 3/3'" in message, message
     assert "'vt'" in message and "single precision" in message, message
+
+
+_ASCII_TRIANGLE = (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                   b"property float y\nproperty float z\nelement face 1\n"
+                   b"property list uchar int vertex_indices\nproperty int flags\n"
+                   b"end_header\n0 0 0\n1 0 0\n0 1 0\n")
+# np.savetxt's default format writes every integer so; Mitsuba's ascii reader takes an
+# integer field as digits only ("2.0" leaves ".0", which it refuses)
+_INTEGERS_WRITTEN_AS_FLOATS = {
+    "index": (b"3 0 1.0 2 7\n", "vertex_indices.1 = b'1.0'"),
+    "count": (b"3.0 0 1 2 7\n", "vertex_indices.count = b'3.0'"),
+    "savetxt": (b"3.000000000000000000e+00 0 1 2 7\n", "vertex_indices.count"),
+    "other-property": (b"3 0 1 2 7.0\n", "flags = b'7.0'"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_INTEGERS_WRITTEN_AS_FLOATS))
+def test_an_ascii_integer_written_as_a_float_is_refused(tmp_path, case):
+    """An outside review: an ASCII PLY whose face counts or indices were written as
+    floats ("1.0", "3.000e+00", as numpy's savetxt writes them) was read as the integer
+    where Mitsuba refuses the file ("could not parse ..."): render-check could then build
+    no reference for a scene we render."""
+    face, needle = _INTEGERS_WRITTEN_AS_FLOATS[case]
+    path = tmp_path / "m.ply"
+    path.write_bytes(_ASCII_TRIANGLE + face)
+    with pytest.raises(SceneError) as e:
+        read_ply(str(path))
+    assert str(path) in str(e.value) and needle in str(e.value), str(e.value)
+    assert "not an integer" in str(e.value), str(e.value)
+    path.write_bytes(_ASCII_TRIANGLE + b"+3 0 +1 2 -7\n")     # signs are integers
+    np.testing.assert_array_equal(read_ply(str(path)).faces, [[0, 1, 2]])
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("case", sorted(_INTEGERS_WRITTEN_AS_FLOATS))
+def test_mitsuba_refuses_an_ascii_integer_written_as_a_float_too(mi, tmp_path, case):
+    path = tmp_path / "m.ply"
+    path.write_bytes(_ASCII_TRIANGLE + _INTEGERS_WRITTEN_AS_FLOATS[case][0])
+    with pytest.raises(Exception):
+        mi.load_dict({"type": "ply", "filename": str(path)})
+    path.write_bytes(_ASCII_TRIANGLE + b"+3 0 +1 2 -7\n")
+    assert mi.load_dict({"type": "ply", "filename": str(path)}).face_count() == 1
