@@ -646,8 +646,9 @@ class _Builder:
         path = self._asset_path(s)
         try:
             # numbers and keywords are ASCII; a comment or a name in another encoding
-            # (an exporter's Latin-1 "# Café") is read past, as Mitsuba reads bytes
-            with open(path, encoding="utf-8", errors="replace") as fh:
+            # (an exporter's Latin-1 "# Café") is read past, as Mitsuba reads bytes; lines
+            # end at LF only, as Mitsuba splits them (a lone CR is a space to it)
+            with open(path, encoding="utf-8", errors="replace", newline="\n") as fh:
                 lines = fh.readlines()
         except OSError as e:
             self.fail(s, f"cannot read {path} ({getattr(e, 'strerror', None) or e})")
@@ -711,7 +712,10 @@ class _Builder:
                 for k in range(1, len(idx) - 1):
                     corners.append((idx[0], idx[k], idx[k + 1]))
         if not corners:
-            self.fail(s, f"{path}: no faces")
+            lone_cr = any("\r" in line.rstrip("\r\n") for line in lines)
+            self.fail(s, f"{path}: no faces" + (
+                " (its lines end in CR alone, classic Mac OS line ends, which Mitsuba "
+                "reads as one line: convert them to LF)" if lone_cr else ""))
         v, vt, vn = np.array(v, float), np.array(vt, float), np.array(vn, float)
         for j, word in ((1, "texture coordinates"), (2, "normals")):
             given = {bool(c[j]) for tri in corners for c in tri}

@@ -472,3 +472,27 @@ def test_mitsuba_refuses_an_ascii_integer_written_as_a_float_too(mi, tmp_path, c
         mi.load_dict({"type": "ply", "filename": str(path)})
     path.write_bytes(_ASCII_TRIANGLE + b"+3 0 +1 2 -7\n")
     assert mi.load_dict({"type": "ply", "filename": str(path)}).face_count() == 1
+
+
+def test_obj_lines_end_at_lf_only_as_mitsuba_splits_them(tmp_path):
+    """An outside review: the OBJ was read with Python's universal newlines, which also
+    end a line at a lone CR. Mitsuba splits at LF only (a CR is a space to it), so an OBJ
+    with classic Mac OS line ends (CR alone), which Mitsuba refuses, rendered here, and a
+    face with a stray CR in it ('f 1 2\\r3', one triangle in Mitsuba) was refused here."""
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(_obj_scene(tmp_path, (_TRI + "f 1 2 3\n").replace("\n", "\r"))))
+    message = str(e.value)
+    assert str(tmp_path / "m.obj") in message and "no faces" in message, message
+    assert "CR alone" in message, message
+    cs = prepare_scene(str(_obj_scene(tmp_path, _TRI + "f 1 2\r3\r\n")))
+    assert len(cs.arrays.prims) == 1
+
+
+@pytest.mark.mitsuba
+def test_mitsuba_splits_obj_lines_at_lf_only_too(mi, tmp_path):
+    path = tmp_path / "m.obj"
+    path.write_bytes((_TRI + "f 1 2 3\n").replace("\n", "\r").encode())
+    with pytest.raises(Exception):
+        mi.load_dict({"type": "obj", "filename": str(path)})
+    path.write_bytes((_TRI + "f 1 2\r3\r\n").encode())
+    assert mi.load_dict({"type": "obj", "filename": str(path)}).face_count() == 1
