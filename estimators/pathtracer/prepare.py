@@ -645,13 +645,24 @@ class _Builder:
         vertex per face corner. What Mitsuba refuses is refused, naming the line."""
         path = self._asset_path(s)
         try:
-            # numbers and keywords are ASCII; a comment or a name in another encoding
-            # (an exporter's Latin-1 "# Café") is read past, as Mitsuba reads bytes; lines
-            # end at LF only, as Mitsuba splits them (a lone CR is a space to it)
-            with open(path, encoding="utf-8", errors="replace", newline="\n") as fh:
-                lines = fh.readlines()
+            with open(path, "rb") as fh:
+                # lines end at LF only, as Mitsuba splits them (a lone CR is a space to it)
+                lines = fh.read().split(b"\n")
         except OSError as e:
             self.fail(s, f"cannot read {path} ({getattr(e, 'strerror', None) or e})")
+        lone_cr = ("; its lines end in CR alone, classic Mac OS line ends, which Mitsuba "
+                   "reads as one line: convert them to LF"
+                   if any(b"\r" in line.rstrip(b"\r") for line in lines) else "")
+        for ln, line in enumerate(lines, 1):
+            if len(line) >= _OBJ_LINE_BYTES:
+                # Mitsuba refuses the file ("excessively long line"): an exporter's n-gon
+                # of 200 'v/vt/vn' corners (a cylinder's cap) rendered here
+                self.fail(s, f"{path}:{ln}: a line of {len(line)} bytes; Mitsuba refuses "
+                             f"lines of {_OBJ_LINE_BYTES} or more (triangulate long "
+                             f"polygons on export){lone_cr}")
+        # numbers and keywords are ASCII; a comment or a name in another encoding
+        # (an exporter's Latin-1 "# Café") is read past, as Mitsuba reads bytes
+        lines = [line.decode("utf-8", errors="replace") for line in lines]
         if lines and lines[0].startswith("\ufeff"):
             self.fail(s, f"{path}: starts with a byte-order mark, which Mitsuba's OBJ "
                          "loader reads as part of the first line (it refuses the file): "
@@ -712,10 +723,7 @@ class _Builder:
                 for k in range(1, len(idx) - 1):
                     corners.append((idx[0], idx[k], idx[k + 1]))
         if not corners:
-            lone_cr = any("\r" in line.rstrip("\r\n") for line in lines)
-            self.fail(s, f"{path}: no faces" + (
-                " (its lines end in CR alone, classic Mac OS line ends, which Mitsuba "
-                "reads as one line: convert them to LF)" if lone_cr else ""))
+            self.fail(s, f"{path}: no faces{lone_cr}")
         v, vt, vn = np.array(v, float), np.array(vt, float), np.array(vn, float)
         for j, word in ((1, "texture coordinates"), (2, "normals")):
             given = {bool(c[j]) for tri in corners for c in tri}
@@ -1042,6 +1050,11 @@ _BARYCENTRIC_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
 
 #: How far a sphere's to_world may be from a rotation times a uniform scale (relative).
 _SIMILARITY_TOL = 1e-3
+
+
+#: Mitsuba 3.9.1's OBJ loader reads a line into 1025 bytes and refuses one of this many
+#: bytes or more (the LF not counted, a CR before it counted)
+_OBJ_LINE_BYTES = 1024
 
 
 def _finite_in_float32(values) -> bool:

@@ -483,7 +483,7 @@ def test_obj_lines_end_at_lf_only_as_mitsuba_splits_them(tmp_path):
         prepare_scene(str(_obj_scene(tmp_path, (_TRI + "f 1 2 3\n").replace("\n", "\r"))))
     message = str(e.value)
     assert str(tmp_path / "m.obj") in message and "no faces" in message, message
-    assert "CR alone" in message, message
+    assert "; its lines end in CR alone" in message, message
     cs = prepare_scene(str(_obj_scene(tmp_path, _TRI + "f 1 2\r3\r\n")))
     assert len(cs.arrays.prims) == 1
 
@@ -496,3 +496,49 @@ def test_mitsuba_splits_obj_lines_at_lf_only_too(mi, tmp_path):
         mi.load_dict({"type": "obj", "filename": str(path)})
     path.write_bytes((_TRI + "f 1 2\r3\r\n").encode())
     assert mi.load_dict({"type": "obj", "filename": str(path)}).face_count() == 1
+
+
+def _ngon(n):
+    """An exporter's n-gon with v/vt/vn corners on one face line (a cylinder's cap)."""
+    ring = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return ("".join(f"v {np.cos(a):.6f} {np.sin(a):.6f} 0.000000\n" for a in ring)
+            + "vn 0 0 1\nvt 0 0\nf " + " ".join(f"{k + 1}/1/1" for k in range(n)) + "\n")
+
+
+_LONG_LINES = {   # name: (text, its long line's number and bytes, or None)
+    "ngon-200": (_ngon(200), (203, 1493)),
+    "ngon-100": (_ngon(100), None),                    # 690 bytes: read
+    "face-1023": (_TRI + "f 1 2 3" + " " * 1016 + "\n", None),
+    "face-1024-crlf": (_TRI + "f 1 2 3" + " " * 1016 + "\r\n", (4, 1024)),
+    "comment-1024": (_TRI + "#" * 1024 + "\nf 1 2 3\n", (4, 1024)),
+    "latin-1-comment": ((_TRI + "# " + "\xe9" * 1022 + "\nf 1 2 3\n"), (4, 1024)),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_LONG_LINES))
+def test_an_obj_line_of_1024_bytes_or_more_is_refused(tmp_path, case):
+    """An outside review: Mitsuba refuses an OBJ with a line of 1024 bytes or more
+    ("file contains an excessively long line"), as an exporter writes an n-gon of 200
+    corners; it rendered here (198 triangles)."""
+    text, long_line = _LONG_LINES[case]
+    scene = _obj_scene(tmp_path, "")
+    (tmp_path / "m.obj").write_bytes(text.encode("latin-1"))
+    if long_line is None:
+        assert len(prepare_scene(str(scene)).arrays.prims) > 0
+        return
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(scene))
+    line, size = long_line
+    assert f"{tmp_path / 'm.obj'}:{line}: a line of {size} bytes" in str(e.value), str(e.value)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("case", sorted(_LONG_LINES))
+def test_mitsuba_refuses_an_obj_line_of_1024_bytes_or_more_too(mi, tmp_path, case):
+    text, long_line = _LONG_LINES[case]
+    (tmp_path / "m.obj").write_bytes(text.encode("latin-1"))
+    if long_line is None:
+        assert mi.load_dict({"type": "obj", "filename": str(tmp_path / "m.obj")}).face_count()
+        return
+    with pytest.raises(Exception, match="excessively long line"):
+        mi.load_dict({"type": "obj", "filename": str(tmp_path / "m.obj")})
