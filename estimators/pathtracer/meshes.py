@@ -229,8 +229,9 @@ def _is_number(token: bytes) -> bool:
     return True
 
 
-def read_ply(path: str) -> PlyMesh:
-    """Read a PLY triangle mesh; ``SceneError`` naming the file and the problem."""
+def read_ply(path: str, *, normals: bool = True) -> PlyMesh:
+    """Read a PLY triangle mesh; ``SceneError`` naming the file and the problem.
+    ``normals=False`` reads past ``nx, ny, nz`` (as Mitsuba does with ``face_normals``)."""
     try:
         with open(path, "rb") as f:
             data = f.read()
@@ -251,7 +252,7 @@ def read_ply(path: str) -> PlyMesh:
         raise SceneError(f"{path}: the face element has no vertex_indices list")
     records = (_read_ascii(data, offset, elements, path) if order is None
                else _read_binary(data, offset, elements, order, path))
-    return _mesh(records["vertex"], records["face"], path)
+    return _mesh(records["vertex"], records["face"], path, normals)
 
 
 def _floats(vertex, names, path):
@@ -269,7 +270,7 @@ def _rows_finite_in_float32(a: np.ndarray) -> np.ndarray:
     return (np.abs(a) < FLOAT32_OVERFLOW).all(1)
 
 
-def _mesh(vertex, face, path) -> PlyMesh:
+def _mesh(vertex, face, path, read_normals=True) -> PlyMesh:
     names = set(vertex.dtype.names)
     if not {"x", "y", "z"} <= names:
         raise SceneError(f"{path}: the vertex element needs properties x, y and z")
@@ -282,7 +283,7 @@ def _mesh(vertex, face, path) -> PlyMesh:
                          "position (in single precision, as Mitsuba stores it: beyond "
                          "±3.4028235e38 is not finite)")
     normals = (_floats(vertex, ("nx", "ny", "nz"), path)
-               if {"nx", "ny", "nz"} <= names else None)
+               if read_normals and {"nx", "ny", "nz"} <= names else None)
     if normals is not None:
         finite = _rows_finite_in_float32(normals)
         if not finite.all():

@@ -625,7 +625,7 @@ class _Builder:
         corner with Mitsuba's barycentric uv."""
         path = self._asset_path(s)      # refuses a missing file naming the shape itself
         try:
-            mesh = read_ply(path)
+            mesh = read_ply(path, normals=not s.get("face_normals", False))
         except SceneError as e:
             self.fail(s, str(e))
         verts, faces, normals, uvs = mesh.vertices, mesh.faces, mesh.normals, mesh.uvs
@@ -670,12 +670,17 @@ class _Builder:
         v, vt, vn = [], [], []
         corners = []
         width = {"v": 3, "vt": 2, "vn": 3}
+        # with face_normals Mitsuba reads neither vn lines nor their indices (it rendered
+        # a 'vn 0 0 0' an exporter wrote for a degenerate face, which we refused)
+        face_normals = bool(s.get("face_normals", False))
         for ln, line in enumerate(lines, 1):
             hash_at = line.find("#")                    # a comment may end any line
             t = split_words(line if hash_at < 0 else line[:hash_at])
             if not t:
                 continue
             where = f"{path}:{ln}: {line.strip()!r}"
+            if t[0] == "vn" and face_normals:
+                continue
             if t[0] in width:
                 vals = _numbers(t[1:width[t[0]] + 1], parse_float)
                 if vals is None or len(vals) < width[t[0]]:
@@ -711,7 +716,7 @@ class _Builder:
                 if any(c[0] == 0 for c in idx):
                     self.fail(s, f"{where}: a face refers to vertex 0 (indices start at 1)")
                 for j, (name, seen) in enumerate((("v", v), ("vt", vt), ("vn", vn))):
-                    if any(c[j] > len(seen) for c in idx):
+                    if any(c[j] > len(seen) for c in idx) and not (j == 2 and face_normals):
                         # Mitsuba resolves an index as the face is read
                         self.fail(s, f"{where}: refers to a '{name}' that is not defined "
                                      f"before it ({len(seen)} so far)")
@@ -725,13 +730,13 @@ class _Builder:
         if not corners:
             self.fail(s, f"{path}: no faces{lone_cr}")
         v, vt, vn = np.array(v, float), np.array(vt, float), np.array(vn, float)
-        for j, word in ((1, "texture coordinates"), (2, "normals")):
+        for j, word in ((1, "texture coordinates"), (2, "normals"))[:2 - face_normals]:
             given = {bool(c[j]) for tri in corners for c in tri}
             if len(given) > 1:
                 self.fail(s, f"{path}: some faces have {word} and some do not (Mitsuba's "
                              f"{word} on those are undefined); give them to every face or "
                              "to none")
-        use_vn = len(vn) > 0 and not s.get("face_normals", False)
+        use_vn = len(vn) > 0 and not face_normals
         flip = bool(s.get("flip_tex_coords", True))     # Mitsuba's default: v -> 1 - v
         verts, uvs, normals, faces, key = [], [], [], [], {}
         for tri in corners:

@@ -542,3 +542,52 @@ def test_mitsuba_refuses_an_obj_line_of_1024_bytes_or_more_too(mi, tmp_path, cas
         return
     with pytest.raises(Exception, match="excessively long line"):
         mi.load_dict({"type": "obj", "filename": str(tmp_path / "m.obj")})
+
+
+_FACE_NORMALS = '<boolean name="face_normals" value="true"/>'
+# normals Mitsuba refuses, which it reads past with face_normals (an exporter writes
+# 'vn 0 0 0' for a degenerate face): name -> (mesh file text, kind)
+_UNREAD_NORMALS = {
+    "obj-zero-vn": (_TRI + "vn 0 0 0\nf 1//1 2//1 3//1\n", "obj"),
+    "obj-nan-vn": (_TRI + "vn nan 0 1\nf 1//1 2//1 3//1\n", "obj"),
+    "obj-short-vn": (_TRI + "vn 0 1\nf 1//1 2//1 3//1\n", "obj"),
+    "obj-undefined-vn": (_TRI + "f 1//5 2//5 3//5\n", "obj"),
+    "obj-some-faces-vn": (_TRI + "v 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\nf 2 4 3\n", "obj"),
+    "ply-normal-1e39": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                        "property float y\nproperty float z\nproperty double nx\n"
+                        "property double ny\nproperty double nz\nelement face 1\n"
+                        "property list uchar int vertex_indices\nend_header\n"
+                        "0 0 0 0 0 1e39\n1 0 0 0 0 1\n0 1 0 0 0 1\n3 0 1 2\n", "ply"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_UNREAD_NORMALS))
+def test_face_normals_reads_past_the_files_normals_as_mitsuba_does(tmp_path, case):
+    """An outside review: with face_normals Mitsuba does not read an OBJ's vn lines or
+    indices, nor a PLY's nx, ny, nz, and renders these meshes with the faces' normals;
+    we refused them for normals the render does not use. Without face_normals they are
+    still refused (Mitsuba refuses them too, or its normals there are undefined)."""
+    text, kind = _UNREAD_NORMALS[case]
+    (tmp_path / f"m.{kind}").write_text(text)
+    scene = tmp_path / "s.xml"
+    for extra in ("", _FACE_NORMALS):
+        scene.write_text(_SCENE.format(mesh=f'<shape type="{kind}"><string name="filename" '
+                                            f'value="m.{kind}"/>{extra}</shape>'))
+        if not extra:
+            with pytest.raises(SceneError, match=str(tmp_path / f"m.{kind}")):
+                prepare_scene(str(scene))
+            continue
+        prims = prepare_scene(str(scene)).arrays.prims
+        normals = _corner_normals(prepare_scene(str(scene)))
+        assert len(prims) == text.count("\nf ") + ("3 0 1 2" in text)
+        assert np.all(normals == 0)         # no vertex normals: the face's is used
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("case", sorted(_UNREAD_NORMALS))
+def test_mitsuba_renders_those_with_face_normals(mi, tmp_path, case):
+    text, kind = _UNREAD_NORMALS[case]
+    (tmp_path / f"m.{kind}").write_text(text)
+    shape = mi.load_dict({"type": kind, "filename": str(tmp_path / f"m.{kind}"),
+                          "face_normals": True})
+    assert shape.face_count() >= 1 and not shape.has_vertex_normals()
