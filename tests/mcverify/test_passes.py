@@ -251,6 +251,9 @@ def test_compare_refuses_correlated_passes_of_other_spp_than_the_references(tmp_
                               "16"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "--test-spp 16" in r.stderr and \
         "64 samples per pass" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = subprocess.run(CMD + ["compare", "--test-passes", passes, "filters", "--test-spp",
+                              "64"], capture_output=True, text=True, timeout=300)
+    assert r.returncode in (0, 1) and "samples per pass" not in r.stderr, r.stderr
     theirs = _write(tmp_path / "r", rng.gamma(2.0, 0.5, (4, 64, 64, 3)))
     r = subprocess.run(CMD + ["compare", "--test-passes", passes, "--ref-passes", theirs,
                               "--correlated", "--test-spp", "16", "--ref-spp", "64"],
