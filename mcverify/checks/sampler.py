@@ -882,8 +882,9 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
             expected = mass * n_valid
         messages = []
         if unconverged:
+            # a thin leaf's nested line integrals count one each
             messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
-                            f"(error bound {err_bound:.2g})")
+                            f"or lines (error bound {err_bound:.2g})")
 
         full = stats.chi2_gof(counts, expected)
         sub["chi2"] = full
