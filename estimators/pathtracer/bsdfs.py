@@ -492,6 +492,8 @@ def _sample_basic(mask, bf, bi, btex, tex_data, tex_info, b, wi, u0, u1, u2, u, 
         m = sample_microfacet(wp, bf[b, ALPHA], bf[b, ALPHA_V], bi[b, BSDF_DISTRIBUTION],
                               u1, u2)
         wim = _dot(wi, m)
+        if wim * ci <= 0.0:             # a back-facing normal (Beckmann's D cos θ_m): G1 = 0
+            return fail
         f, cos_t, eta_it, eta_ti = fresnel_dielectric(wim, bf[b, ETA])
         if u0 <= f:
             wo = _reflect(wi, m)
