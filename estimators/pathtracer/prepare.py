@@ -61,6 +61,10 @@ class PreparedScene:
     n_triangles: int
     n_lights: int
     bsdf_names: list = field(default_factory=list)
+    #: the scene file's line of each BSDF row's element (0: Mitsuba's default diffuse)
+    #: and of each light's <emitter>, for messages that point into the file
+    bsdf_lines: list = field(default_factory=list)
+    light_lines: list = field(default_factory=list)
 
     @property
     def width(self) -> int:
@@ -187,7 +191,9 @@ class _Builder:
         self.bsdf_rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.bsdf_ids: dict[int, int] = {}
         self.bsdf_names: list[str] = []
+        self.bsdf_lines: list[int] = []
         self.lights: list[tuple[np.ndarray, np.ndarray]] = []
+        self.light_lines: list[int] = []
         self.light_cdf: list[float] = [0.0]
         self.textures = TextureStore()
         self.texture_ids: dict[int, int] = {}
@@ -500,6 +506,7 @@ class _Builder:
                                   "which this tracer does not)")
         self.bsdf_rows.append((f, i, tex))
         self.bsdf_names.append(plugin.type if not twosided else f"twosided({plugin.type})")
+        self.bsdf_lines.append(plugin.line)
         return len(self.bsdf_rows) - 1
 
     def _normalmap(self, plugin: Plugin, f: np.ndarray, i: np.ndarray, tex: np.ndarray):
@@ -785,6 +792,7 @@ class _Builder:
         else:
             f[layout.LIGHT_AREA] = 4 * math.pi * self.prims[first][layout.SPHERE_RADIUS] ** 2
         self.lights.append((f, i))
+        self.light_lines.append(emitter.line)
         self.features |= FEATURE_BITS["light:area"]
         return len(self.lights) - 1
 
@@ -879,6 +887,7 @@ class _Builder:
             self.features |= FEATURE_BITS["light:environment"]
             self.features |= FEATURE_BITS["light:nondelta"]
         self.lights.append((f, i))
+        self.light_lines.append(e.line)
 
     # -------------------------------------------------------------------- all
     def build(self) -> PreparedScene:
@@ -1021,7 +1030,8 @@ class _Builder:
         n_tri = int(np.sum((info[:, layout.PRIM_KIND] == TRIANGLE)
                            & (info[:, layout.PRIM_SHAPE] >= 0)))
         return PreparedScene(d, camera_from_scene(d), arrays, self.features, spp, n_tri,
-                             len(self.lights), self.bsdf_names)
+                             len(self.lights), self.bsdf_names, self.bsdf_lines,
+                             self.light_lines)
 
 
 _RGB = slice(layout.LIGHT_RADIANCE, layout.LIGHT_RADIANCE + 3)

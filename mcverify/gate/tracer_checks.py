@@ -182,16 +182,32 @@ def _on_light(scene, k: int, p) -> bool:
     return bool(np.any(np.abs(np.einsum("tc,tc->t", p - v[:, 0], g)) <= tol))
 
 
+def _declared(scene, kind: str, index: int) -> str:
+    """Where the scene file declares BSDF row or light ``index``: a message for its
+    checks, so that a failure points at the element (``FILE:LINE: <bsdf type="...">``)."""
+    lines = scene.bsdf_lines if kind == "bsdf" else scene.light_lines
+    line = lines[index] if index < len(lines) else 0
+    if not line:
+        return ("declared nowhere: Mitsuba's default diffuse of a shape without a <bsdf>"
+                if kind == "bsdf" else "declared nowhere in the scene file")
+    what = (scene.bsdf_names[index] if kind == "bsdf" else
+            _emitter_label(scene, "", index).split(":", 1)[1].split(":")[0])
+    what = what.removeprefix("twosided(").removesuffix(")")
+    return f"declared at {scene.desc.path}:{line}: <{kind if kind == 'bsdf' else 'emitter'} type=\"{what}\">"
+
+
 def _fmt(p) -> str:
     return "(" + ",".join(f"{c:.3g}" for c in p) + ")"
 
 
 def scene_instances(scene_path: str):
-    """(entries, skipped): entries are (kind, label, where, make, make_weighted) with
+    """(entries, skipped): entries are (kind, label, where, make, make_weighted,
+    declared) with
     ``make()`` returning the (sample, pdf) pair and ``make_weighted()`` the (sample, pdf,
     f) of ``sampling.bsdf_sampler_with_weight`` or ``emitter_sampler_with_weight`` (an
     emitter's with the scene's own normals: the consistency check compares a drawn
-    point's density with the density at that same point); skipped are (label, why) for
+    point's density with the density at that same point) and ``declared`` the element's
+    place in the scene file (``_declared``); skipped are (label, why) for
     delta instances and for reference points on a light's own surface (``_on_light``)."""
     from estimators.pathtracer import layout, prepare_scene
     from estimators.pathtracer.sampling import (bsdf_has_density, bsdf_sampler,
@@ -215,7 +231,8 @@ def scene_instances(scene_path: str):
             entries.append(("bsdf", label, f"wi={t:g}°{where}",
                             lambda b=b, t=t: bsdf_sampler(scene, b, _direction(t, phi)),
                             lambda b=b, t=t: bsdf_sampler_with_weight(scene, b,
-                                                                      _direction(t, phi))))
+                                                                      _direction(t, phi)),
+                            _declared(scene, "bsdf", b)))
     for k in range(len(scene.arrays.light_i)):
         label = _emitter_label(scene, tag, k)
         if not emitter_has_density(scene, k):
@@ -240,7 +257,8 @@ def scene_instances(scene_path: str):
                 continue
             entries.append(("emitter", label, f"ref={where}",
                             lambda k=k, p=p, s=light_scene: emitter_sampler(s, k, p),
-                            lambda k=k, p=p: emitter_sampler_with_weight(scene, k, p)))
+                            lambda k=k, p=p: emitter_sampler_with_weight(scene, k, p),
+                            _declared(scene, "emitter", k)))
     return entries, skipped
 
 
@@ -250,17 +268,25 @@ def tracer_checks(scene_path: str, n_samples: int = TRACER_SAMPLES
     (delta instances) with the reason. Each check rebuilds in a worker from its source."""
     entries, skipped = scene_instances(scene_path)
     out = []
-    for kind, label, where, make, _ in entries:
+    for kind, label, where, make, _, declared in entries:
         name = f"sampler:tracer.{kind}:{label}@{where}"
 
-        def run(seed, make=make, name=name):
+        def run(seed, make=make, name=name, declared=declared):
             sample, pdf = make()
-            return checks.check_sampler(sample, pdf, "sphere", n_samples=n_samples, seed=seed,
-                                        rejection=True, sample_dim=3, name=name)
+            return _with_declared(checks.check_sampler(
+                sample, pdf, "sphere", n_samples=n_samples, seed=seed, rejection=True,
+                sample_dim=3, name=name), declared)
 
         out.append(Check(name, run, ("tracer", kind), frozenset({(kind, label)}),
                          source=(_rebuild, (scene_path, n_samples))))
     return out, skipped
+
+
+def _with_declared(result, declared: str):
+    """``result`` with where the scene file declares its instance as its first message."""
+    import dataclasses
+
+    return dataclasses.replace(result, messages=(declared,) + tuple(result.messages))
 
 
 def _rebuild(scene_path: str, n_samples: int) -> list[Check]:
@@ -277,15 +303,15 @@ def consistency_checks(scene_path: str, n_samples: int = CONSISTENCY_SAMPLES) ->
     ``sample_emitter`` returns must be the light's density where a BSDF-sampled ray
     meets the same point, and its radiance the radiance there."""
     out = []
-    for kind, label, where, _, make_weighted in scene_instances(scene_path)[0]:
+    for kind, label, where, _, make_weighted, declared in scene_instances(scene_path)[0]:
         label = label.removesuffix("(face normals)")
         name = f"pdf_consistency:tracer.{kind}:{label}@{where}"
 
-        def run(seed, make=make_weighted, name=name):
+        def run(seed, make=make_weighted, name=name, declared=declared):
             sample, pdf, f = make()
-            return checks.check_pdf_consistency(sample, pdf, f=f, sample_dim=3,
-                                                n_samples=n_samples, rejection=True,
-                                                seed=seed, name=name)
+            return _with_declared(checks.check_pdf_consistency(
+                sample, pdf, f=f, sample_dim=3, n_samples=n_samples, rejection=True,
+                seed=seed, name=name), declared)
 
         out.append(Check(name, run, ("tracer", "pdf_consistency"),
                          frozenset({("pdf_consistency", label)}),

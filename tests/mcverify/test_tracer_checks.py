@@ -480,3 +480,28 @@ def test_a_very_rough_beckmann_glass_passes_at_grazing_incidence(tmp_path, alpha
     checks, _ = tracer_checks(str(scene), 2 ** 18)
     n, bad = _family_passes(checks, seed=5, pick=lambda c: "roughdielectric" in c.name)
     assert n == 6 and not bad, bad
+
+
+def test_each_instance_check_names_where_the_scene_file_declares_it(tmp_path):
+    """An outside review: a failing instance check named its BSDF by row (``bsdf1``), which
+    the user had to count out of the file (rows include Mitsuba's default diffuse and the
+    children of composites). Now every result's first message says where: the file, the
+    line and the element."""
+    from mcverify.gate.tracer_checks import consistency_checks
+
+    scene = tmp_path / "glass.xml"
+    scene.write_text(_ROUGH_GLASS.format(alpha=0.3, visible=""))
+    lines = scene.read_text().splitlines()
+    bsdf = 1 + next(i for i, t in enumerate(lines) if '<bsdf type="roughdielectric">' in t)
+    light = 1 + next(i for i, t in enumerate(lines) if '<emitter type="area">' in t)
+    checks, _ = tracer_checks(str(scene), 2 ** 12)
+    by_name = {c.name: c for c in checks + consistency_checks(str(scene), 2 ** 10)}
+    for prefix in ("sampler", "pdf_consistency"):
+        glass = next(c for n, c in by_name.items()
+                     if n.startswith(prefix) and "roughdielectric" in n)
+        assert glass.run(1).messages[0] == (
+            f'declared at {scene}:{bsdf}: <bsdf type="roughdielectric">')
+        lamp = next(c for n, c in by_name.items() if n.startswith(prefix) and ".emitter:" in n)
+        assert lamp.run(1).messages[0] == f'declared at {scene}:{light}: <emitter type="area">'
+    default = next(c for n, c in by_name.items() if ":diffuse@" in n)
+    assert "Mitsuba's default diffuse" in default.run(1).messages[0]
