@@ -319,10 +319,15 @@ class _Builder:
 
     def _relative_ior(self, plugin: Plugin, default: str, rough: bool) -> float:
         """int_ior / ext_ior; a rough interface of ratio 1 is refused, as Mitsuba
-        refuses it."""
-        eta = self._ior(plugin, "int_ior", default) / self._ior(plugin, "ext_ior", "air")
-        if rough and eta == 1.0:
-            self.fail(plugin, "int_ior and ext_ior must differ")
+        refuses it: equal in float32, where Mitsuba holds them (int_ior 1.00000001
+        and ext_ior 1 are both 1 there)."""
+        int_ior = self._ior(plugin, "int_ior", default)
+        ext_ior = self._ior(plugin, "ext_ior", "air")
+        eta = int_ior / ext_ior
+        if rough and np.float32(int_ior) == np.float32(ext_ior):
+            self.fail(plugin, f"int_ior and ext_ior must differ (int_ior {int_ior!r} and "
+                              f"ext_ior {ext_ior!r} are equal in float32, in which Mitsuba "
+                              "holds them)")
         if not 2.0 ** -60 <= eta <= 2.0 ** 60:
             # Mitsuba squares the ratio and its inverse in float32, with factors: a rough
             # plastic of ratio 1e-19 rendered NaN (2e-19 did not), a thin dielectric of

@@ -676,6 +676,12 @@ def test_null_and_delta_sampling_matches_mitsuba(mi, tmp_path, name, xml):
      '<float name="ext_ior" value="1.2"/></bsdf>', "must differ"),
     ('<bsdf type="roughplastic"><float name="int_ior" value="1.2"/>'
      '<float name="ext_ior" value="1.2"/></bsdf>', "must differ"),
+    # equal in float32, where Mitsuba holds them (it refuses them too: an outside review,
+    # until 7 December accepted, a near-delta lobe that failed `check --scene`)
+    ('<bsdf type="roughdielectric"><float name="int_ior" value="1.00000001"/>'
+     '<float name="ext_ior" value="1"/></bsdf>', "equal in float32"),
+    ('<bsdf type="roughplastic"><float name="int_ior" value="1.33"/>'
+     '<float name="ext_ior" value="1.33000001"/></bsdf>', "equal in float32"),
     # a coat whose base is negative: Mitsuba's fit of F_int exceeds 1 above eta ~ 3.85
     # (int_ior 5 rendered 3 % off Mitsuba), and nonlinear r / (1 - r F_int) turns
     # negative for r >= 1 / F_int (diffuse 3: +695 %); the tracer ends such a path
@@ -692,6 +698,16 @@ def test_what_mitsuba_would_render_differently_is_refused(xml, message):
 
     with pytest.raises(SceneError, match=message):
         _ours(xml)
+
+
+def test_indices_equal_in_float32_are_refused_by_mitsuba_and_different_ones_not(mi):
+    """Evidence for the float32 refusal above: Mitsuba refuses int_ior 1.00000001 against
+    ext_ior 1, and takes 1.0000002 (the next float32 above 1 is 1 + 2^-23)."""
+    with pytest.raises(RuntimeError, match="must be positive and differ"):
+        mi.load_dict({"type": "roughdielectric", "int_ior": 1.00000001, "ext_ior": 1.0})
+    mi.load_dict({"type": "roughdielectric", "int_ior": 1.0000002, "ext_ior": 1.0})
+    _ours('<bsdf type="roughdielectric"><float name="int_ior" value="1.0000002"/>'
+          '<float name="ext_ior" value="1"/></bsdf>')
 
 
 def test_the_coat_bases_refused_are_negative_in_mitsuba(mi):
