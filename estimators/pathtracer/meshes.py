@@ -270,41 +270,41 @@ def _rows_finite_in_float32(a: np.ndarray) -> np.ndarray:
     return (np.abs(a) < FLOAT32_OVERFLOW).all(1)
 
 
+def _refuse_unstorable(rows, path, what: str, more: str = "") -> None:
+    """Refuse the first vertex whose row of ``rows`` (positions, normals, uv) is not
+    finite in single precision, as Mitsuba stores it, naming the file, the vertex and
+    ``what``."""
+    finite = _rows_finite_in_float32(rows)
+    if not finite.all():
+        raise SceneError(f"{path}: vertex {int(np.argmax(~finite))} has {what} in single "
+                         f"precision, as Mitsuba stores it (NaN, or beyond "
+                         f"±3.4028235e38{more})")
+
+
 def _mesh(vertex, face, path, read_normals=True) -> PlyMesh:
     names = set(vertex.dtype.names)
     if not {"x", "y", "z"} <= names:
         raise SceneError(f"{path}: the vertex element needs properties x, y and z")
     verts = _floats(vertex, "xyz", path)
-    finite = _rows_finite_in_float32(verts)
-    if not finite.all():
-        # a double beyond float32's range too: Mitsuba stores single precision and
-        # refuses it ("invalid vertex position data")
-        raise SceneError(f"{path}: vertex {int(np.argmax(~finite))} has a non-finite "
-                         "position (in single precision, as Mitsuba stores it: beyond "
-                         "±3.4028235e38 is not finite)")
+    # a double beyond float32's range too: Mitsuba stores single precision and refuses
+    # it ("invalid vertex position data")
+    _refuse_unstorable(verts, path, "a non-finite position")
     normals = (_floats(vertex, ("nx", "ny", "nz"), path)
                if read_normals and {"nx", "ny", "nz"} <= names else None)
     if normals is not None:
-        finite = _rows_finite_in_float32(normals)
-        if not finite.all():
-            # Mitsuba loads a double normal beyond float32's range as inf and renders its
-            # triangles black (a NaN normal); ours normalised it in float64 and lit them
-            raise SceneError(f"{path}: vertex {int(np.argmax(~finite))} has a normal that "
-                             "is not finite in single precision, as Mitsuba stores it "
-                             "(beyond ±3.4028235e38; Mitsuba renders its triangles black)")
+        # Mitsuba loads a double normal beyond float32's range as inf and renders its
+        # triangles black (a NaN normal); ours normalised it in float64 and lit them
+        _refuse_unstorable(normals, path, "a normal that is not finite",
+                           "; Mitsuba renders its triangles black")
     uv_sets = [pair for pair in _UV_NAMES if set(pair) <= names]
     if len(uv_sets) > 1:
         raise SceneError(f"{path}: texture coordinates named both {uv_sets[0]} and "
                          f"{uv_sets[1]}; Mitsuba's choice between them is undefined: keep one")
     uvs = _floats(vertex, uv_sets[0], path) if uv_sets else None
     if uvs is not None:
-        finite = _rows_finite_in_float32(uvs)
-        if not finite.all():
-            # Mitsuba holds such a uv as inf or NaN; it was refused only as the prepared
-            # triangles' "geometry ... reaches 1e+39", naming neither file nor uv
-            raise SceneError(f"{path}: vertex {int(np.argmax(~finite))} has texture "
-                             "coordinates that are not finite in single precision, as "
-                             "Mitsuba stores them (NaN, or beyond ±3.4028235e38)")
+        # Mitsuba holds such a uv as inf or NaN; it was refused only as the prepared
+        # triangles' "geometry ... reaches 1e+39", naming neither file nor uv
+        _refuse_unstorable(uvs, path, "texture coordinates that are not finite")
     key = next(n for n in _INDEX_LISTS if f"{n}.count" in face.dtype.names)
     faces = np.stack([face[f"{key}.{k}"].astype(np.int64) for k in range(3)], axis=1)
     if len(faces) == 0:
