@@ -68,9 +68,14 @@ class InProcessExecutor(cf.Executor):
         f = cf.Future()
         f.set_running_or_notify_cancel()
         try:
-            f.set_result(fn(*args, **kwargs))
+            result = fn(*args, **kwargs)
         except BaseException as e:  # noqa: BLE001 - delivered through the future
             f.set_exception(e)
+        else:
+            # outside the try: a Ctrl-C landing inside set_result, once the future was
+            # finished, went to set_exception, whose InvalidStateError ("FINISHED")
+            # ended `reference build` with exit 2 instead of 130 (seen once in a test run)
+            f.set_result(result)
         return f
 
 

@@ -349,3 +349,32 @@ def test_a_dask_worker_holding_an_earlier_version_of_a_user_suite_refuses(tmp_pa
                                "edited_suite_mod.py than this run"):
                 suites.run_suite(fresh_client_load(), canary=False, pool=pool)
     sys.modules.pop("edited_suite_mod", None)
+
+
+def test_an_interrupt_inside_set_result_stays_an_interrupt(monkeypatch):
+    """A Ctrl-C that lands inside ``Future.set_result`` after the future is finished went
+    to the in-process executor's ``except`` and its ``set_exception``, which raised
+    InvalidStateError ("FINISHED"): ``reference build`` exited 2, "unexpected
+    InvalidStateError", instead of 130 (seen once in a fresh clone's test run). The
+    interrupt now goes on as itself; one raised by the unit still reaches its future."""
+    import concurrent.futures as cf
+
+    from mcverify.gate.executors import InProcessExecutor
+
+    real = cf.Future.set_result
+
+    def interrupted(self, result):
+        real(self, result)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cf.Future, "set_result", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        InProcessExecutor().submit(_square, 3)
+    monkeypatch.setattr(cf.Future, "set_result", real)
+
+    def ctrl_c():
+        raise KeyboardInterrupt
+
+    f = InProcessExecutor().submit(ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        f.result()
