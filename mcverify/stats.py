@@ -152,8 +152,8 @@ def chi2_detectable_mixture(expected, alternative, *, alpha: float, power: float
     admixture to a peaked pdf puts many times E_b into its pooled tail bin, whose count
     then scatters far more, and the ε it named was rejected less often than claimed
     (21x^20 on [0, 1], 1e5 samples: 84 of 100 seeded checks rejected at a claimed 95 %;
-    GGX α = 0.1 93; now 98 and 95, an outside review, as the README says). Returns inf when no mixture
-    weight up to 1 is detected (the alternative matches ``expected`` on the bins).
+    GGX α = 0.1 93; now 98 and 95, an outside review, as the README says). Returns inf
+    when no mixture weight up to 1 is detected (the alternative matches ``expected`` on the bins).
     """
     e = np.asarray(expected, dtype=np.float64).ravel()
     a = np.asarray(alternative, dtype=np.float64).ravel()

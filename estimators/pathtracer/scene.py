@@ -341,7 +341,8 @@ class _Loader:
                 self.fail(node, f"expected an integer, got {text!r}")
             if not INT64[0] <= n <= INT64[1]:
                 self.fail(node, f"{text!r} is outside the 64-bit integers Mitsuba reads")
-            if "name" in node.attrib and self.attr(node, "name") in INT32_PROPERTIES and not INT32[0] <= n <= INT32[1]:
+            if "name" in node.attrib and self.attr(node, "name") in INT32_PROPERTIES \
+                    and not INT32[0] <= n <= INT32[1]:
                 self.fail(node, f"{text!r} is outside the 32-bit integers Mitsuba takes for "
                                 f"{self.attr(node, 'name')} [{INT32[0]}, {INT32[1]}]")
             return "integer", n

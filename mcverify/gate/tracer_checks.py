@@ -193,7 +193,8 @@ def _declared(scene, kind: str, index: int) -> str:
     what = (scene.bsdf_names[index] if kind == "bsdf" else
             _emitter_label(scene, "", index).split(":", 1)[1].split(":")[0])
     what = what.removeprefix("twosided(").removesuffix(")")
-    return f"declared at {scene.desc.path}:{line}: <{kind if kind == 'bsdf' else 'emitter'} type=\"{what}\">"
+    tag = kind if kind == "bsdf" else "emitter"
+    return f"declared at {scene.desc.path}:{line}: <{tag} type=\"{what}\">"
 
 
 def _fmt(p) -> str:

@@ -148,9 +148,10 @@ def test_to_uv_matches_mitsuba(mi, images):
                                    '<scale x="1e20"/><scale x="1e20"/>'])
 def test_a_bitmaps_to_uv_beyond_float32_is_refused(mi, images, filter_type, to_uv):
     """Mitsuba stores to_uv in float32, as infinity here (each number is within float32's
-    range, which the parser holds them to; their composition is not): its bilinear look-up is NaN (its
-    reference then refused as not finite, with a message naming emitters), its nearest one
-    not texel 0 of the row, which we read. Refused naming the to_uv. A
+    range, which the parser holds them to; their composition is not): its bilinear
+    look-up is NaN (its reference then refused as not finite, with a message naming
+    emitters), its nearest one not texel 0 of the row, which we read. Refused naming the
+    to_uv. A
     checkerboard's infinite uv has a NaN fraction, whose cell we give as Mitsuba does."""
     xml = _texture_xml("t.exr", [("string", "filter_type", filter_type)]).replace(
         "</texture>", f'<transform name="to_uv">{to_uv}</transform></texture>')

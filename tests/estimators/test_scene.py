@@ -644,7 +644,8 @@ def test_a_conductor_index_beyond_mitsubas_float32_fresnel_is_refused(mi, tmp_pa
                                                                       refused):
     """η = 1e10 rendered a perfect mirror in ours and a black sphere in Mitsuba, whose
     float32 Fresnel term overflows to NaN once η² + k² reaches 2^64 (1e80, NaN in ours
-    too, is now refused by the parser as beyond float32). Such an index is refused by line; below it both agree."""
+    too, is now refused by the parser as beyond float32). Such an index is refused by
+    line; below it both agree."""
     from estimators.pathtracer import prepare_scene
 
     kind = "rgb" if "," in eta else "float"

@@ -459,7 +459,8 @@ def test_a_reference_point_on_a_light_is_skipped_for_that_light(tmp_path):
 
 _ROUGH_GLASS = _scene_head("0, 1, 5", "0, 0, 0") + """\
   <shape type="sphere"><float name="radius" value="0.5"/>
-    <bsdf type="roughdielectric"><float name="int_ior" value="1.5"/><float name="alpha" value="{alpha}"/>
+    <bsdf type="roughdielectric"><float name="int_ior" value="1.5"/>
+      <float name="alpha" value="{alpha}"/>
       <string name="distribution" value="beckmann"/>{visible}</bsdf></shape>
   <shape type="sphere"><float name="radius" value="9"/>
     <emitter type="area"><rgb name="radiance" value="1, 1, 1"/></emitter></shape>
