@@ -31,8 +31,8 @@ from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIA
 from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
-from .text_numbers import (FLOAT32_OVERFLOW, SPACE, parse_float, parse_int,
-                           split_words)
+from .text_numbers import (FLOAT32_OVERFLOW, SPACE, finite_in_float32, parse_float,
+                           parse_int, split_words)
 from .textures import (TextureStore, envmap_sampling_weights, luminance,
                        non_finite_texels, read_image)
 
@@ -266,7 +266,7 @@ class _Builder:
         m = np.asarray(tex.get("to_uv", np.eye(4)), dtype=np.float64)
         if np.any(m[2, [0, 1, 3]] != 0) or np.any(m[[0, 1], 2] != 0):
             self.fail(tex, "to_uv must map the uv plane to itself (x and y only)")
-        if tex.type == "bitmap" and not _finite_in_float32(m[[0, 0, 0, 1, 1, 1],
+        if tex.type == "bitmap" and not finite_in_float32(m[[0, 0, 0, 1, 1, 1],
                                                              [0, 1, 3, 0, 1, 3]]):
             # Mitsuba stores it in float32 as inf: its bilinear look-up is NaN, its nearest
             # one a texel that depends on the wrap mode; we read texel 0 (render-check then
@@ -662,16 +662,13 @@ class _Builder:
                 lines = fh.read().split(b"\n")
         except OSError as e:
             self.fail(s, f"cannot read {path} ({getattr(e, 'strerror', None) or e})")
-        lone_cr = ("; its lines end in CR alone, classic Mac OS line ends, which Mitsuba "
-                   "reads as one line: convert them to LF"
-                   if any(b"\r" in line.rstrip(b"\r") for line in lines) else "")
         for ln, line in enumerate(lines, 1):
             if len(line) >= _OBJ_LINE_BYTES:
                 # Mitsuba refuses the file ("excessively long line"): an exporter's n-gon
                 # of 200 'v/vt/vn' corners (a cylinder's cap) rendered here
                 self.fail(s, f"{path}:{ln}: a line of {len(line)} bytes; Mitsuba refuses "
                              f"lines of {_OBJ_LINE_BYTES} or more (triangulate long "
-                             f"polygons on export){lone_cr}")
+                             f"polygons on export){_lone_cr(lines)}")
         # numbers and keywords are ASCII; a comment or a name in another encoding
         # (an exporter's Latin-1 "# Café") is read past, as Mitsuba reads bytes
         lines = [line.decode("utf-8", errors="replace") for line in lines]
@@ -700,7 +697,7 @@ class _Builder:
                 if not all(math.isfinite(x) for x in vals):
                     # Mitsuba: "invalid vertex position data"; the triangle vanished
                     self.fail(s, f"{where}: not finite")
-                if t[0] != "vt" and not _finite_in_float32(vals):
+                if t[0] != "vt" and not finite_in_float32(vals):
                     # Mitsuba stores single precision and refuses the file ("invalid
                     # vertex position data"); float64 rendered it here
                     self.fail(s, f"{where}: not finite in single precision (beyond "
@@ -732,7 +729,7 @@ class _Builder:
                         # Mitsuba resolves an index as the face is read
                         self.fail(s, f"{where}: refers to a '{name}' that is not defined "
                                      f"before it ({len(seen)} so far)")
-                if any(c[1] and not _finite_in_float32(vt[c[1] - 1]) for c in idx):
+                if any(c[1] and not finite_in_float32(vt[c[1] - 1]) for c in idx):
                     # Mitsuba holds it as inf (an unused one is harmless); it was refused
                     # only as the triangles' "geometry ... reaches 1e+39", naming no line
                     self.fail(s, f"{where}: uses a 'vt' that is not finite in single "
@@ -740,7 +737,7 @@ class _Builder:
                 for k in range(1, len(idx) - 1):
                     corners.append((idx[0], idx[k], idx[k + 1]))
         if not corners:
-            self.fail(s, f"{path}: no faces{lone_cr}")
+            self.fail(s, f"{path}: no faces{_lone_cr(lines)}")
         v, vt, vn = np.array(v, float), np.array(vt, float), np.array(vn, float)
         for j, word in ((1, "texture coordinates"), (2, "normals"))[:2 - face_normals]:
             given = {bool(c[j]) for tri in corners for c in tri}
@@ -1077,11 +1074,14 @@ _SIMILARITY_TOL = 1e-3
 _OBJ_LINE_BYTES = 1024
 
 
-def _finite_in_float32(values) -> bool:
-    """Whether ``values`` (a few floats: an OBJ line, a to_uv) stay finite rounded to
-    float32, as Mitsuba stores them: one comparison a value (a numpy array a line cost an
-    OBJ of 1e6 vertices about a second)."""
-    return all(abs(x) < FLOAT32_OVERFLOW for x in values)
+def _lone_cr(lines) -> str:
+    """A refusal's hint where an OBJ's ``lines`` (split at LF, as bytes or text) hold a CR
+    before their end: classic Mac OS line ends, one line to Mitsuba. Scanned only when a
+    refusal is written, not on every load."""
+    cr = "\r" if lines and isinstance(lines[0], str) else b"\r"
+    return ("; its lines end in CR alone, classic Mac OS line ends, which Mitsuba reads as "
+            "one line: convert them to LF"
+            if any(cr in line.rstrip(cr) for line in lines) else "")
 
 
 def _numbers(tokens, kind):

@@ -26,7 +26,7 @@ from xml.parsers import expat
 
 import numpy as np
 
-from .text_numbers import (FLOAT32_OVERFLOW, INT32, INT32_PROPERTIES, INT64, SPACE,
+from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, finite_in_float32,
                            parse_float, parse_int, split_numbers)
 from .transform import look_at, matrix, rotate, scale, translate
 
@@ -254,6 +254,10 @@ _PLUGIN_TAGS = ("integrator", "sensor", "film", "rfilter", "sampler", "shape", "
                 "emitter", "texture")
 
 
+#: ``_Loader.attr``'s default: the attribute must be there
+_REQUIRED = object()
+
+
 class _Loader:
     def __init__(self, path: str, params: dict):
         self.path = path
@@ -287,8 +291,13 @@ class _Loader:
                 self.fail(node, f"unexpected attribute {a!r}; <{node.tag}> takes "
                                 f"{', '.join(allowed)} (Mitsuba refuses it too)")
 
-    def attr(self, node, name):
+    def attr(self, node, name, missing=_REQUIRED):
+        """Attribute ``name`` of ``node`` with $params substituted, as Mitsuba substitutes
+        them in every attribute; ``missing`` where it is absent, if given (else a
+        refusal naming the attribute)."""
         if name not in node.attrib:
+            if missing is not _REQUIRED:
+                return missing
             self.fail(node, f"missing attribute {name!r}")
         value = node.attrib[name]
         if "$" not in value:
@@ -323,7 +332,7 @@ class _Loader:
         if not all(np.isfinite(vals)):
             self.fail(node, f"expected {'a finite number' if count == 1 else 'finite numbers'}"
                             f", got {text!r}")
-        if not all(abs(v) < FLOAT32_OVERFLOW for v in vals):
+        if not finite_in_float32(vals):
             # Mitsuba loads it as inf (a sphere of radius 1e39 had an invalid bounding box)
             self.fail(node, f"{text!r} is beyond float32's range (|x| < 3.4e38), in which "
                             "Mitsuba holds scene values: it would be infinite there")
@@ -341,10 +350,10 @@ class _Loader:
                 self.fail(node, f"expected an integer, got {text!r}")
             if not INT64[0] <= n <= INT64[1]:
                 self.fail(node, f"{text!r} is outside the 64-bit integers Mitsuba reads")
-            if "name" in node.attrib and self.attr(node, "name") in INT32_PROPERTIES \
-                    and not INT32[0] <= n <= INT32[1]:
+            name = self.attr(node, "name", None)
+            if name in INT32_PROPERTIES and not INT32[0] <= n <= INT32[1]:
                 self.fail(node, f"{text!r} is outside the 32-bit integers Mitsuba takes for "
-                                f"{self.attr(node, 'name')} [{INT32[0]}, {INT32[1]}]")
+                                f"{name} [{INT32[0]}, {INT32[1]}]")
             return "integer", n
         if tag == "boolean":
             text = self.attr(node, "value").strip(SPACE).lower()
@@ -430,8 +439,7 @@ class _Loader:
             self.fail(node, f"unsupported {kind} type {ptype!r}{f' ({why})' if why else ''}; "
                             f"supported: {', '.join(sorted(SUPPORTED[kind]))}")
         # $params are substituted in every attribute, the id too, as Mitsuba does
-        p = Plugin(kind, ptype, {}, node.line,
-                   self.attr(node, "id") if "id" in node.attrib else None)
+        p = Plugin(kind, ptype, {}, node.line, self.attr(node, "id", None))
         allowed_children = spec.get("children", ())
 
         def set_prop(child, name, val):
@@ -482,7 +490,7 @@ class _Loader:
                 self.referenced.add(target)
                 if ref.kind == "texture":
                     # a texture is a property value: <ref id="..." name="reflectance"/>
-                    name = self.attr(child, "name") if "name" in child.attrib else None
+                    name = self.attr(child, "name", None)
                     if name is None or name not in spec or "texture" not in spec[name]:
                         self.fail(child, f"texture {target!r} needs name=\"...\" naming a "
                                          f"property of {kind} {ptype!r} that takes a texture")
@@ -571,7 +579,7 @@ class _Loader:
             elif node.tag == "shape":
                 shapes.append(self.plugin(node))
             elif node.tag == "emitter":
-                if "type" in node.attrib and self.attr(node, "type") == "area":
+                if self.attr(node, "type", None) == "area":
                     self.fail(node, "an area emitter must be inside a <shape>")
                 emitters.append(self.plugin(node))
             elif node.tag in _REFERENCED:

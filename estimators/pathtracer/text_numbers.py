@@ -30,6 +30,13 @@ INT32_PROPERTIES = ("max_depth", "rr_depth", "sample_count", "width", "height",
                     "emitter_samples", "bsdf_samples", "shading_samples", "samples_per_pass")
 
 
+def finite_in_float32(values) -> bool:
+    """Whether ``values`` (a few floats: a scene number, an OBJ line, a to_uv) stay finite
+    rounded to float32, as Mitsuba stores them: one comparison a value (a numpy array a
+    line cost an OBJ of 1e6 vertices about a second)."""
+    return all(abs(x) < FLOAT32_OVERFLOW for x in values)
+
+
 def parse_float(token: str) -> float:
     """``token`` as a float64; ``ValueError`` unless it is a plain decimal number."""
     if not _FLOAT.fullmatch(token):
