@@ -315,6 +315,14 @@ class TTestResult:
     n: int
 
 
+def _by_largest(x: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(x / c, c)`` with c = max|x|, whose powers neither overflow nor underflow where
+    those of ``x`` would (``(x, 1.0)`` where max|x| is 0 or not finite): the one scaling
+    behind the spread, skewness, fourth moment and largest share below."""
+    c = float(np.max(np.abs(x))) if x.size else 0.0
+    return (x / c, c) if np.isfinite(c) and c > 0.0 else (x, 1.0)
+
+
 def scaled_std(x, ddof: int = 0) -> float:
     """``np.std(x, ddof)`` computed on ``x / max|x|`` and scaled back: the squares of
     values below ~1e-154 underflow to 0 (a spread of 0: "constant") and those above
@@ -322,10 +330,8 @@ def scaled_std(x, ddof: int = 0) -> float:
     x = np.asarray(x, dtype=np.float64).ravel()
     if x.size <= ddof:
         return 0.0
-    c = float(np.max(np.abs(x)))
-    if not (np.isfinite(c) and c > 0.0):
-        return float(np.std(x, ddof=ddof))
-    return float(np.std(x / c, ddof=ddof)) * c
+    y, c = _by_largest(x)
+    return float(np.std(y, ddof=ddof)) * c
 
 
 def ttest_mean(x, expected: float) -> TTestResult:
@@ -361,8 +367,8 @@ def ttest_mean(x, expected: float) -> TTestResult:
         close = abs(mean - expected) <= 1e-12 + 1e-9 * abs(expected)
         return TTestResult(mean, 0.0, 0.0 if close else np.inf, 1.0 if close else 0.0, n)
     t = (mean - expected) / se
-    c = float(np.max(np.abs(x)))      # the skewness of x / max|x|: its cube cannot overflow
-    d = x / c - mean / c
+    y, c = _by_largest(x)             # the skewness of x / max|x|: its cube cannot overflow
+    d = y - mean / c
     gamma = float(np.mean(d ** 3) / np.mean(d * d) ** 1.5)
     s = t / np.sqrt(n)
     # Hall's cubic, (1 + γs/3)³ - 1 over γ, flattens where 1 + γs/3 -> 0: a mean far
@@ -403,8 +409,7 @@ def hill_tail_index(x, *, k: int | None = None, confidence: float = 0.999) -> Ta
     dev = np.abs(x - np.median(x))
     # the share is scale-free: on x / max|x|, whose squares neither overflow (1e300
     # gave NaN) nor underflow (1e-170 gave 0, "no sample dominates")
-    c = float(np.max(np.abs(x))) if x.size else 0.0
-    y = x / c if np.isfinite(c) and c > 0.0 else x
+    y, _ = _by_largest(x)
     ss = float(np.sum((y - y.mean()) ** 2))
     max_share = float(np.max((y - y.mean()) ** 2) / ss) if ss > 0 else 0.0
     n = dev.size
@@ -466,9 +471,7 @@ def variance_test(x, expected_variance: float, *, rounding: float = 0.0) -> Vari
                        (rounding * max(scale, 1e-300)) ** 2)
         return VarianceTestResult(s2, 0.0, 0.0 if ok else np.inf, 1.0 if ok else 0.0, n)
     # z is scale-free: computed on x / max|x|, so that the fourth moment cannot overflow
-    c = float(np.max(np.abs(x))) if n else 0.0
-    c = c if np.isfinite(c) and c > 0.0 else 1.0
-    y = x / c
+    y, c = _by_largest(x)
     d = y - y.mean()
     m4, v = np.float64(np.mean(d ** 4)), np.float64(np.var(y, ddof=1))
     se = np.sqrt(max(m4 - v ** 2, 0.0) / n + 2.0 * v ** 2 / (n * (n - 1)))

@@ -256,7 +256,6 @@ def perceptual_metrics(test, ref) -> tuple[dict, dict]:
     return details, {k: m for k, m in maps.items() if m is not None}
 
 
-
 def _values(v) -> str:
     """A pixel's channels to 6 significant digits (4 decimals printed a pixel 0.02 % off as
     equal to its reference)."""

@@ -243,6 +243,14 @@ def _caveats(path: str, params: dict | None, subject) -> list[str]:
     return mitsuba_caveats(subject.desc, bounds, triangles)
 
 
+def _samples_per_value(n, spp: int) -> int | None:
+    """The samples behind each of the ``n`` values a renderer of one's own averaged into
+    its mean, ``spp / n``; None (no variance floor) where ``n`` is no count dividing
+    ``spp``."""
+    whole = isinstance(n, (int, np.integer)) and not isinstance(n, bool)
+    return spp // n if whole and 0 < n <= spp and spp % n == 0 else None
+
+
 def _samples_kept(path, subject, spp: int, passes: int) -> None:
     """Refuse, before Mitsuba renders a reference for a scene whose filter splats, a
     count of samples per pass that the scene's sampler rounds (stratified: up to a
@@ -501,9 +509,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
 
         def look(b):
             mean, var, n, seconds, stats, passes = image(b)
-            per = per_pass if ours else spp // n if isinstance(
-                n, (int, np.integer)) and not isinstance(n, bool) and 0 < n <= spp \
-                and spp % n == 0 else None
+            per = per_pass if ours else _samples_per_value(n, spp)
             spps = dict(test_spp=per, ref_spp=int(ref_spp)) if ref_spp and per else {}
             if getattr(mean, "shape", None) != ref.mean.shape:
                 got = getattr(mean, "shape", None) or type(mean).__name__
