@@ -642,6 +642,8 @@ class _Builder:
             self.fail(s, str(e))
         verts, faces, normals, uvs = mesh.vertices, mesh.faces, mesh.normals, mesh.uvs
         pidx = np.arange(len(verts))
+        if uvs is not None and s.get("flip_tex_coords", False):   # Mitsuba's PLY default
+            uvs = np.column_stack([uvs[:, 0], 1.0 - uvs[:, 1]])  # v -> 1 - v, as for an OBJ
         if uvs is None:
             pidx = faces.ravel()
             verts = verts[pidx]

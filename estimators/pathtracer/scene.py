@@ -166,9 +166,9 @@ SUPPORTED = {
               for t, extra in {"rectangle": {}, "cube": {}, "disk": {},
                                "sphere": {"radius": ("float",), "center": ("point",)},
                                **{mesh: {"filename": ("string",),
-                                         "face_normals": ("boolean",), **more}
-                                  for mesh, more in (("obj", {"flip_tex_coords": ("boolean",)}),
-                                                     ("ply", {}))}}.items()},
+                                         "face_normals": ("boolean",),
+                                         "flip_tex_coords": ("boolean",)}
+                                  for mesh in ("obj", "ply")}}.items()},
     "bsdf": {
         "diffuse": {"reflectance": _TEX},
         "conductor": {"material": ("string",), "eta": ("rgb", "float"), "k": ("rgb", "float"),

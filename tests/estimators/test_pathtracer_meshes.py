@@ -9,6 +9,7 @@ import pytest
 
 from estimators.pathtracer import prepare_scene, render
 from estimators.pathtracer.meshes import read_ply, write_ply
+from estimators.pathtracer.layout import TRI_UV0, TRI_UV1, TRI_UV2
 from estimators.pathtracer.scene import SceneError
 
 FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
@@ -241,6 +242,47 @@ def test_the_same_mesh_as_obj_and_as_ply_renders_identically(tmp_path, with_attr
     for name in prims:
         np.testing.assert_array_equal(prims[name], prims["grid.obj"], err_msg=name)
         np.testing.assert_array_equal(images[name], images["grid.obj"], err_msg=name)
+
+
+def _uv_scene(folder, name, flip):
+    """A scene of the grid file ``name``, ``flip_tex_coords`` set to ``flip`` (None: not
+    given), prepared by ours."""
+    extra = "" if flip is None else f'<boolean name="flip_tex_coords" value="{flip}"/>'
+    kind = name.rsplit(".", 1)[1]
+    scene = folder / f"{name}-{flip}.xml"
+    scene.write_text(_SCENE.format(mesh=f'<shape type="{kind}"><string name="filename" '
+                                        f'value="{name}"/>{extra}</shape>'))
+    return prepare_scene(str(scene))
+
+
+def test_flip_tex_coords_on_a_ply_flips_v_as_on_an_obj(tmp_path):
+    """Mitsuba's PLY takes ``flip_tex_coords`` too, default false (an OBJ's default is
+    true): a PLY with it true holds the uv of the OBJ with the same ``vt``, one with it
+    false or absent the uv as stored. Until 7 December a PLY with it was refused."""
+    ply = _written(tmp_path, "grid.ply", "binary_little_endian").name
+    (tmp_path / "grid.obj").write_text(_obj_text(True, True).replace(
+        "".join("vt %r %r\n" % (float(u), float(1 - v)) for u, v in _UVS),
+        "".join("vt %r %r\n" % (float(u), float(v)) for u, v in _UVS)))
+    uv = slice(TRI_UV0, TRI_UV2 + 2)
+    flipped = _uv_scene(tmp_path, "grid.obj", None).arrays.prims
+    as_stored = _uv_scene(tmp_path, ply, None).arrays.prims
+    assert not np.array_equal(flipped[:, uv], as_stored[:, uv])
+    np.testing.assert_array_equal(_uv_scene(tmp_path, ply, "true").arrays.prims, flipped)
+    np.testing.assert_array_equal(_uv_scene(tmp_path, ply, "false").arrays.prims, as_stored)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("flip", [None, "true", "false"])
+def test_a_plys_uv_with_flip_tex_coords_are_mitsubas(mi, tmp_path, flip):
+    ply = _written(tmp_path, "grid.ply", "ascii").name
+    extra = {} if flip is None else {"flip_tex_coords": flip == "true"}
+    mesh = mi.load_dict({"type": "ply", "filename": str(tmp_path / ply), **extra})
+    theirs = np.array(mesh.vertex_texcoords_buffer()).reshape(-1, 2)
+    prims = _uv_scene(tmp_path, ply, flip).arrays.prims
+    faces = np.array(mesh.faces_buffer()).reshape(-1, 3)
+    for k, col in enumerate((TRI_UV0, TRI_UV1, TRI_UV2)):
+        np.testing.assert_array_equal(np.sort(prims[:, col:col + 2], axis=0),
+                                      np.sort(theirs[faces[:, k]], axis=0))
 
 
 # ------------------------------------------------------------------ OBJ, as Mitsuba reads it
