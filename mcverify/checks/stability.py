@@ -10,6 +10,7 @@ finite and not negative, its inverse finite and inside [0, 1]."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import random
 import time
@@ -156,6 +157,22 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
     return int(i), problems[i]
 
 
+@contextlib.contextmanager
+def _global_generators(seed: int):
+    """numpy's and Python's global generators seeded by ``seed`` for the check, and the
+    caller's put back after it: a sampler drawing its own numbers from them (a rejection
+    loop on ``np.random.rand``) gives the same verdict for the same seed, and the check
+    leaves the caller's streams where they were."""
+    saved = np.random.get_state(), random.getstate()
+    np.random.set_state(np.random.RandomState(np.random.MT19937(seed)).get_state())
+    random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(saved[0])
+        random.setstate(saved[1])
+
+
 def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
                     inverse=None, rejection: bool = False, dtype=np.float64,
                     max_examples: int = 2000, seed: int = 0,
@@ -207,43 +224,55 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
                              rejection)
         return None if hit is None else hit[1]
 
-    edges = EDGES32 if dtype == np.float32 else EDGES
-    rows, chosen = _corners(edges, k)
-    corners = np.array(rows, dtype=dtype)
-    hit = _first_problem(corners, sample, pdf, inverse, dom, rejection)
-    tried, found, what = len(corners), None, None
-    if hit is not None:
-        tried, found, what = hit[0] + 1, tuple(corners[hit[0]].tolist()), hit[1]
-    if found is None and m > 0:
-        from hypothesis import HealthCheck, Phase, errors, find, settings
+    # a sampler drawing from the global generators: seeded, the caller's kept
+    with _global_generators(seed):
+        edges = EDGES32 if dtype == np.float32 else EDGES
+        rows, chosen = _corners(edges, k)
+        corners = np.array(rows, dtype=dtype)
+        hit = _first_problem(corners, sample, pdf, inverse, dom, rejection)
+        tried, found, what = len(corners), None, None
+        if hit is not None:
+            tried, found, what = hit[0] + 1, tuple(corners[hit[0]].tolist()), hit[1]
+        if found is None and m > 0:
+            from hypothesis import HealthCheck, Phase, errors, find, settings
 
-        count, first = [0], []          # first: the first (u, problem) the search met
+            count, first = [0], []          # first: the first (u, problem) the search met
 
-        def fails(u):
-            count[0] += 1
-            what = problem(u)
-            if what is not None and not first:
-                first.append((u, what))
-            return what is not None
+            # hypothesis reseeds the global generators for each example it runs: a
+            # sampler drawing from them saw the same numbers at every u (one returning
+            # NaN on 2 % of its draws passed); each example continues the check's stream
+            stream = [np.random.get_state(), random.getstate()]
 
-        rules = settings(max_examples=m, database=None, deadline=None,
-                         suppress_health_check=list(HealthCheck),
-                         phases=(Phase.generate, Phase.shrink))
-        try:
-            found = find(_u_strategy(k, dtype), fails, settings=rules,
-                         random=random.Random(seed))
-            what = problem(found)
-        except errors.NoSuchExample:
-            pass
-        except errors.Flaky:            # hypothesis's own traceback until 6 December
-            found = None
-        if first and what is None:
-            # the same u failed once and not again: a sampler drawing its own random
-            # numbers (or keeping state) is no function of u, the contract QMC needs
-            found, what = first[0][0], (f"{first[0][1]}; not reproduced when called again "
-                                        "with the same u: the result is not a function "
-                                        "of u")
-        tried += count[0]
+            def fails(u):
+                count[0] += 1
+                np.random.set_state(stream[0])
+                random.setstate(stream[1])
+                what = problem(u)
+                stream[:] = np.random.get_state(), random.getstate()
+                if what is not None and not first:
+                    first.append((u, what))
+                return what is not None
+
+            rules = settings(max_examples=m, database=None, deadline=None,
+                             suppress_health_check=list(HealthCheck),
+                             phases=(Phase.generate, Phase.shrink))
+            try:
+                found = find(_u_strategy(k, dtype), fails, settings=rules,
+                             random=random.Random(seed))
+                np.random.set_state(stream[0])      # the re-check continues the stream
+                random.setstate(stream[1])
+                what = problem(found)
+            except errors.NoSuchExample:
+                pass
+            except errors.Flaky:            # hypothesis's own traceback until 6 December
+                found = None
+            if first and what is None:
+                # the same u failed once and not again: a sampler drawing its own random
+                # numbers (or keeping state) is no function of u, the contract QMC needs
+                found, what = first[0][0], (f"{first[0][1]}; not reproduced when called "
+                                            "again with the same u: the result is not a "
+                                            "function of u")
+            tried += count[0]
     failures, details = [], {"examples": tried, "seed": seed, "sample_dim": k,
                              "dtype": np.dtype(dtype).name, "u": None, "problem": None}
     if found is not None:
