@@ -173,6 +173,33 @@ def _global_generators(seed: int):
         random.setstate(saved[1])
 
 
+@contextlib.contextmanager
+def _without_local_constants():
+    """hypothesis (from 6.131) draws floats among the constants of every module loaded
+    from outside site-packages, and caches them in ``./.hypothesis/constants``: the u
+    searched at a seed changed with the modules the caller had imported (and their
+    text), and a script or test calling ``check_stability`` left ``.hypothesis/`` in its
+    current directory. Here it draws among its own constants only; its cache of the
+    constants allowed per strategy is emptied before and after, so that neither run
+    sees the other's."""
+    try:
+        from hypothesis.internal.conjecture import providers
+    except ImportError:
+        providers = None
+    local = getattr(providers, "_get_local_constants", None)
+    if local is None:                           # an older hypothesis: no local constants
+        yield
+        return
+    none = providers.Constants()
+    providers._get_local_constants = lambda: none
+    providers.CONSTANTS_CACHE.cache.clear()
+    try:
+        yield
+    finally:
+        providers._get_local_constants = local
+        providers.CONSTANTS_CACHE.cache.clear()
+
+
 def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
                     inverse=None, rejection: bool = False, dtype=np.float64,
                     max_examples: int = 2000, seed: int = 0,
@@ -257,8 +284,9 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
                              suppress_health_check=list(HealthCheck),
                              phases=(Phase.generate, Phase.shrink))
             try:
-                found = find(_u_strategy(k, dtype), fails, settings=rules,
-                             random=random.Random(seed))
+                with _without_local_constants():
+                    found = find(_u_strategy(k, dtype), fails, settings=rules,
+                                 random=random.Random(seed))
                 np.random.set_state(stream[0])      # the re-check continues the stream
                 random.setstate(stream[1])
                 what = problem(found)

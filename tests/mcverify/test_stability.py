@@ -2,6 +2,8 @@
 inverse breaks. Fragile samplers of our own fail at the u that shows it; every warp of
 the subject passes; the search is reproducible by seed."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -218,3 +220,47 @@ def test_a_sampler_drawing_from_the_global_generators_is_not_pinned_by_the_searc
             b = mv.check_stability(sample, "interval", sample_dim=1, max_examples=500,
                                    seed=seed)
             assert a.details == b.details
+
+
+def test_the_search_does_not_read_the_callers_modules(tmp_path, monkeypatch):
+    """hypothesis draws floats among the constants of every module loaded from outside
+    site-packages (the user's project, mcverify from a checkout) and caches them in
+    ``./.hypothesis/constants``: the u searched at a seed changed when the caller had
+    imported one more module of its own, and calling ``check_stability`` (a script, a
+    test under the pytest plugin) left ``.hypothesis/`` in the current directory, until
+    7 December."""
+    seen = []
+
+    def sample(u):
+        seen.append(u.copy())
+        return u[:, :1]
+
+    def searched():
+        seen.clear()
+        r = mv.check_stability(sample, "interval", sample_dim=1, max_examples=200, seed=3)
+        assert r.passed
+        return np.concatenate(seen).ravel()
+
+    before = searched()
+    (tmp_path / "mcv_local_constants.py").write_text(
+        "".join(f"C{i} = {float(v)!r}\n" for i, v in enumerate(np.linspace(0.01, 0.99, 60))))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import mcv_local_constants  # noqa: F401
+    assert np.array_equal(before, searched())
+
+    import subprocess
+    import sys
+
+    from estimators._generated import cache_dir
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    env = {k: v for k, v in os.environ.items() if k != "HYPOTHESIS_STORAGE_DIRECTORY"}
+    env.setdefault("MCVERIFY_CACHE", cache_dir())
+    env["PYTHONPATH"] = root
+    project = tmp_path / "project"
+    project.mkdir()
+    r = subprocess.run([sys.executable, "-c", "import numpy as np, mcverify as mv; "
+                        "assert mv.check_stability(np.sqrt, 'interval', max_examples=50)"
+                        ".passed"], cwd=project, env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert not (project / ".hypothesis").exists()
