@@ -103,10 +103,11 @@ def _call(what, fn, arg):
             return None, (f"sample returned dtype {a.dtype} points, not float32 or "
                           "float64 numbers")
         return a, None
-    try:
-        return np.asarray(a, dtype=np.float64).reshape(-1), None
-    except (TypeError, ValueError):
-        return None, f"{what} returned {v!r:.80}, not real numbers"
+    if not validate.real_dtype(a.dtype):    # as every other check: complex was read as
+        # its real part (np.emath.sqrt(z - 1) as a pdf, 0, passed until 7 December),
+        # booleans as 0 and 1, None as NaN
+        return None, f"{what} returned dtype {a.dtype} values, not real numbers"
+    return np.asarray(a, dtype=np.float64).reshape(-1), None
 
 
 def _batch(rows, sample, pdf, inverse, domain, rejection):

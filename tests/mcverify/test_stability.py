@@ -264,3 +264,28 @@ def test_the_search_does_not_read_the_callers_modules(tmp_path, monkeypatch):
                        timeout=600)
     assert r.returncode == 0, r.stderr
     assert not (project / ".hypothesis").exists()
+
+
+def test_a_complex_or_boolean_pdf_or_inverse_is_a_finding():
+    """A pdf through ``np.emath.sqrt`` (complex where its argument is negative) was read
+    by its real part, with numpy's ComplexWarning: sqrt(z - 1) on the hemisphere is
+    0 + i·sqrt(1 - z), a real part of 0, and passed; booleans were read as 0 and 1. Every
+    other check refuses them ("expected real numbers"); here they pass until 7 December."""
+    import warnings
+
+    def hemisphere(u):
+        z = 1.0 - u[:, 0]
+        return _sphere_from_z(z, u)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = mv.check_stability(hemisphere, "hemisphere", max_examples=5,
+                               pdf=lambda x: np.emath.sqrt(x[:, 2] - 1.0))
+        assert not r.passed and "dtype complex128" in r.details["problem"]
+        assert r.details["problem"].startswith("pdf returned")
+        r = mv.check_stability(hemisphere, "hemisphere", max_examples=5,
+                               inverse=lambda x: np.emath.sqrt(x[:, :2]))
+        assert not r.passed and r.details["problem"].startswith("inverse returned dtype")
+        r = mv.check_stability(lambda u: u, "interval", sample_dim=1, max_examples=5,
+                               pdf=lambda x: x[:, 0] >= 0.0)
+        assert not r.passed and "dtype bool" in r.details["problem"]
