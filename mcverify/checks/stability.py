@@ -112,7 +112,9 @@ def _call(what, fn, arg):
 
 def _batch(rows, sample, pdf, inverse, domain, rejection):
     """``_first_problem`` of one call per callable: (-1, message) where one raised."""
-    x, raised = _call("sample", sample, rows)
+    # a copy: a sampler remapping u in place (u *= 2; u -= 1) changed the corners kept
+    # here, reported at u = -1.0 and re-tried changed until 7 December
+    x, raised = _call("sample", sample, rows.copy())
     if raised:
         return -1, raised
     try:

@@ -289,3 +289,23 @@ def test_a_complex_or_boolean_pdf_or_inverse_is_a_finding():
         r = mv.check_stability(lambda u: u, "interval", sample_dim=1, max_examples=5,
                                pdf=lambda x: x[:, 0] >= 0.0)
         assert not r.passed and "dtype bool" in r.details["problem"]
+
+
+def test_a_sampler_that_changes_its_u_in_place_is_reported_at_the_u_it_was_given():
+    """The corners went to the sampler as the very array the check kept: one remapping
+    u in place (``u *= 2; u -= 1``, to [-1, 1)) was reported at u = [-1.0], outside the
+    unit cube, and its rows were re-tried changed, until 7 December."""
+    def remaps(u):
+        u *= 2.0
+        u -= 1.0
+        return np.sqrt(u[:, :1])                  # NaN below u = 0.5
+    r = mv.check_stability(remaps, "interval", sample_dim=1, max_examples=50)
+    assert not r.passed and r.details["u"] == [0.0]
+    assert r.details["problem"] == "point [nan] is not finite"
+
+    def top(u):
+        u *= 2.0
+        u -= 1.0
+        return np.where(u[:, :1] == 1.0 - 2.0 ** -52, np.inf, np.abs(u[:, :1]))
+    r = mv.check_stability(top, "interval", sample_dim=1, max_examples=50)
+    assert not r.passed and r.details["u"] == [1.0 - 2.0 ** -53]
