@@ -264,7 +264,7 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
         if hit is not None:
             tried, found, what = hit[0] + 1, tuple(corners[hit[0]].tolist()), hit[1]
         if found is None and m > 0:
-            from hypothesis import HealthCheck, Phase, errors, find, settings
+            from hypothesis import HealthCheck, Phase, Verbosity, errors, find, settings
 
             count, first = [0], []          # first: the first (u, problem) the search met
 
@@ -283,9 +283,12 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
                     first.append((u, what))
                 return what is not None
 
+            # quiet whatever the caller's profile: a verbose one (pytest's
+            # --hypothesis-verbosity=verbose) printed every u searched until 7 December
             rules = settings(max_examples=m, database=None, deadline=None,
                              suppress_health_check=list(HealthCheck),
-                             phases=(Phase.generate, Phase.shrink))
+                             phases=(Phase.generate, Phase.shrink),
+                             verbosity=Verbosity.quiet)
             try:
                 with _without_local_constants():
                     found = find(_u_strategy(k, dtype), fails, settings=rules,

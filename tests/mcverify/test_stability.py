@@ -309,3 +309,23 @@ def test_a_sampler_that_changes_its_u_in_place_is_reported_at_the_u_it_was_given
         return np.where(u[:, :1] == 1.0 - 2.0 ** -52, np.inf, np.abs(u[:, :1]))
     r = mv.check_stability(top, "interval", sample_dim=1, max_examples=50)
     assert not r.passed and r.details["u"] == [1.0 - 2.0 ** -53]
+
+
+def test_the_callers_hypothesis_verbosity_does_not_print_the_search(capsys):
+    """The search's settings inherited the caller's hypothesis profile: under pytest's
+    ``--hypothesis-verbosity=verbose`` (or a verbose profile loaded by a conftest) every
+    searched u was printed, about 600 lines of ``Test case: test(v=...)`` for 100 u,
+    until 7 December; the check's own result says what it found."""
+    from hypothesis import Verbosity, settings
+
+    before = settings.get_current_profile_name()
+    settings.register_profile("mcverify-test-verbose", verbosity=Verbosity.verbose)
+    settings.load_profile("mcverify-test-verbose")
+    try:
+        r = mv.check_stability(lambda u: u[:, :1], "interval", sample_dim=1,
+                               max_examples=100)
+    finally:
+        settings.load_profile(before)
+    assert r.passed
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
