@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import random
+import threading
 import time
 
 import numpy as np
@@ -160,6 +161,12 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
     return int(i), problems[i]
 
 
+#: The search sets process-wide state (numpy's and Python's global generators,
+#: hypothesis's constants): checks run from several threads take turns, so that each
+#: keeps its own stream (re-entrant: a sampler may run a check of its own).
+_PROCESS_STATE = threading.RLock()
+
+
 @contextlib.contextmanager
 def _global_generators(seed: int):
     """numpy's and Python's global generators seeded by ``seed`` for the check, and the
@@ -270,7 +277,7 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
         return None if hit is None else hit[1]
 
     # a sampler drawing from the global generators: seeded, the caller's kept
-    with _global_generators(seed):
+    with _PROCESS_STATE, _global_generators(seed):
         edges = EDGES32 if dtype == np.float32 else EDGES
         rows, chosen = _corners(edges, k)
         corners = np.array(rows, dtype=dtype)

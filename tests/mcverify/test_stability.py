@@ -222,6 +222,37 @@ def test_a_sampler_drawing_from_the_global_generators_is_not_pinned_by_the_searc
             assert a.details == b.details
 
 
+def test_checks_in_threads_keep_their_own_streams():
+    """The seeded global streams are process-wide: two checks of a sampler drawing from
+    np.random, run at once from two threads (the sampler yielding the interpreter
+    between its draws), give each the verdict it gives alone."""
+    import threading
+    import time as _time
+
+    def drawing(u):
+        x = u[:, :1].copy()
+        for i in range(len(x)):
+            _time.sleep(0)
+            if np.random.rand() < 0.02:
+                x[i] = np.nan
+        return x
+
+    alone = [mv.check_stability(drawing, "interval", sample_dim=1, max_examples=300,
+                                seed=s).details for s in (0, 1)]
+    out = [None, None]
+
+    def run(s):
+        out[s] = mv.check_stability(drawing, "interval", sample_dim=1, max_examples=300,
+                                    seed=s).details
+
+    threads = [threading.Thread(target=run, args=(s,)) for s in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert out == alone
+
+
 def test_the_search_does_not_read_the_callers_modules(tmp_path, monkeypatch):
     """hypothesis draws floats among the constants of every module loaded from outside
     site-packages (the user's project, mcverify from a checkout) and caches them in
