@@ -154,7 +154,8 @@ def scene_hash(scene_path: str) -> str:
 
 def scene_assets(scene_path: str) -> dict[str, str | None]:
     """SHA-256 of every file the scene names (the manifest's ``assets_sha256``): each
-    ``<string name="filename" value=...>`` and ``<include filename=...>``, keyed by the
+    ``<string name="filename" value=...>``, ``<spectrum filename=...>`` and
+    ``<include filename=...>``, keyed by the
     name as written, ``$name`` replaced by the scene's ``<default>`` (Mitsuba's
     substitution), resolved against the scene's folder as Mitsuba resolves it; None for
     a name that is no regular file (Mitsuba then refuses the scene). Parsed as
@@ -182,6 +183,10 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
             defaults.setdefault(attrib["name"], substitute(attrib.get("value", "")))
         elif tag == "string" and attrib.get("name") == "filename" and "value" in attrib:
             names.append(attrib["value"])
+        elif tag == "spectrum" and "filename" in attrib:
+            # <spectrum name="reflectance" filename="x.spd"/>: Mitsuba reads the file
+            # (into RGB in RGB variants), so a changed one changes the image
+            names.append(attrib["filename"])
         elif tag == "include" and "filename" in attrib:
             names.append(attrib["filename"])
             includes.add(attrib["filename"])

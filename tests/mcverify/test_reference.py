@@ -279,6 +279,26 @@ def test_scene_assets_resolve_defaults_and_relative_paths(tmp_path):
                       "gone.png": None}
 
 
+def test_a_changed_spectrum_file_makes_the_reference_stale(tmp_path):
+    """``<spectrum name="reflectance" filename="x.spd"/>``: Mitsuba reads the file (into
+    RGB in an RGB variant), so it is hashed like a texture. It was not recorded, and a
+    reference of the old reflectance (its red wall 0.34 off) loaded as current after the
+    file changed."""
+    src = open(os.path.join(SCENES, "cornell-box", "scene.xml")).read()
+    src = src.replace('<default name="res" value="64"/>', '<default name="res" value="8"/>')
+    src = src.replace('<rgb name="reflectance" value="0.63 0.065 0.05"/>',
+                      '<spectrum name="reflectance" filename="red.spd"/>')
+    assert "red.spd" in src
+    (tmp_path / "scene.xml").write_text(src)
+    (tmp_path / "red.spd").write_text("400 0.2\n500 0.5\n600 0.8\n700 0.9\n")
+    assert set(reference.scene_assets(str(tmp_path / "scene.xml"))) == {"red.spd"}
+    reference.build_reference(str(tmp_path), spp=4, passes=2)
+    reference.load_reference(str(tmp_path))
+    (tmp_path / "red.spd").write_text("400 0.02\n500 0.05\n600 0.08\n700 0.09\n")
+    with pytest.raises(EnvironmentProblem, match="stale: red.spd .* changed"):
+        reference.load_reference(str(tmp_path))
+
+
 def test_scene_assets_resolve_a_default_that_uses_another(tmp_path):
     """``<default name="mesh" value="$base.obj"/>``, as Mitsuba (and the loader) read it:
     the file was resolved as ``$base.obj``, hashed as missing, so that a change to the
