@@ -169,8 +169,12 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
 
     The files an ``<include>``d file names count too (a texture named only there changed
     without the reference going stale): included files are read in turn, each once, and
-    their names resolved, as Mitsuba resolves them, against the scene's own folder."""
-    defaults, names, includes = {}, [], set()
+    their names resolved, as Mitsuba resolves them, against the scene's own folder.
+    A ``<path value="DIR"/>`` puts DIR (against the scene's folder) before it, the last
+    such element first, wherever it stands: Mitsuba's file resolver (a texture found
+    there was rendered while the manifest hashed the file of that name beside the scene,
+    or recorded it as missing)."""
+    defaults, names, includes, searched = {}, [], set(), []
 
     def substitute(text):
         for key in sorted(defaults, key=len, reverse=True):    # as Mitsuba: longest first
@@ -190,6 +194,15 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
         elif tag == "include" and "filename" in attrib:
             names.append(attrib["filename"])
             includes.add(attrib["filename"])
+        elif tag == "path" and "value" in attrib:
+            searched.append(attrib["value"])
+
+    def locate(real):
+        for d in reversed(searched):
+            full = os.path.join(folder, substitute(d), real)
+            if os.path.exists(full):
+                return full
+        return os.path.join(folder, real)
 
     _parse_scene(scene_path, start)
     folder = os.path.dirname(os.path.abspath(scene_path))
@@ -202,7 +215,7 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
         if name in out:
             continue
         real = substitute(name)
-        out[name] = full = real if os.path.isabs(real) else os.path.join(folder, real)
+        out[name] = full = real if os.path.isabs(real) else locate(real)
         if name in includes and os.path.isfile(full) and os.path.realpath(full) not in read:
             read.add(os.path.realpath(full))
             _parse_scene(full, start)

@@ -299,6 +299,31 @@ def test_a_changed_spectrum_file_makes_the_reference_stale(tmp_path):
         reference.load_reference(str(tmp_path))
 
 
+def test_a_file_found_through_a_path_element_is_the_one_hashed(tmp_path):
+    """``<path value="tex"/>`` puts ``tex/`` before the scene's folder in Mitsuba's file
+    resolver (the last such element first, wherever it stands): the manifest hashed
+    ``t.exr`` beside the scene while Mitsuba rendered ``tex/t.exr``, so a change to the
+    texture rendered left the reference in use."""
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    src = src.replace('<default name="res" value="64"/>', '<default name="res" value="4"/>'
+                      '<path value="other"/><path value="tex"/>')
+    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
+                      '<texture type="bitmap" name="reflectance">'
+                      '<string name="filename" value="t.exr"/></texture>')
+    assert "t.exr" in src
+    (tmp_path / "scene.xml").write_text(src)
+    for d, v in (("tex", 0.5), ("other", 0.25), (".", 0.75)):
+        (tmp_path / d).mkdir(exist_ok=True)
+        mvm.write_exr(str(tmp_path / d / "t.exr"), np.full((2, 2, 3), v, np.float32))
+    assert reference.scene_asset_files(str(tmp_path / "scene.xml")) == {
+        "t.exr": os.path.join(str(tmp_path), "tex", "t.exr")}
+    reference.build_reference(str(tmp_path), spp=4, passes=2)
+    reference.load_reference(str(tmp_path))
+    mvm.write_exr(str(tmp_path / "tex" / "t.exr"), np.full((2, 2, 3), 0.9, np.float32))
+    with pytest.raises(EnvironmentProblem, match="stale: t.exr .* changed"):
+        reference.load_reference(str(tmp_path))
+
+
 def test_scene_assets_resolve_a_default_that_uses_another(tmp_path):
     """``<default name="mesh" value="$base.obj"/>``, as Mitsuba (and the loader) read it:
     the file was resolved as ``$base.obj``, hashed as missing, so that a change to the
