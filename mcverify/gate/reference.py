@@ -464,6 +464,7 @@ class _Job:
     seeds: list
     params: dict | None
     assets: dict        # scene_assets() when the job was made, before any pass renders
+    scene_sha256: str   # likewise: a scene edited during the build is stale, not current
 
     def units(self, pool: Pool, variant: str) -> list[Unit]:
         fingerprint = None if pool.in_process else source_fingerprint()
@@ -495,7 +496,7 @@ class _Job:
         # render gate pairs passes of equal spp where the filter splats (a probe found
         # the manifest saying 33)
         asked = {} if spp == self.spp else {"spp_requested": self.spp}
-        manifest = provenance(scene=self.name, scene_sha256=scene_hash(self.path),
+        manifest = provenance(scene=self.name, scene_sha256=self.scene_sha256,
                               assets_sha256=self.assets, spp=spp, **asked,
                               passes=len(self.seeds), seeds=self.seeds,
                               mitsuba_version=mvm.mitsuba_version(), mitsuba_variant=variant,
@@ -543,7 +544,8 @@ def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _J
     # "unexpected MemoryError" naming no option (an outside review)
     validate.memory("passes", passes, _pass_bytes(path, params),
                     "its pass images, held until the reference is written")
-    return _Job(name, path, spp, _pass_seeds(seed, passes), params, scene_assets(path))
+    return _Job(name, path, spp, _pass_seeds(seed, passes), params, scene_assets(path),
+                scene_hash(path))
 
 
 def _render_jobs(jobs: list[_Job], pool: Pool | None, progress) -> list[tuple[Reference,

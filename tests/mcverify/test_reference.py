@@ -57,6 +57,27 @@ def test_build_load_stale_and_corrupt(scene_copy):
         reference.load_reference(str(scene_copy))
 
 
+def test_a_scene_edited_while_its_reference_renders_leaves_it_stale(scene_copy,
+                                                                    monkeypatch):
+    """The scene's SHA-256 is taken before any pass renders, as its files' are: it was
+    taken after the last pass, so a scene saved during a long build was recorded as the
+    one rendered, and the reference of the old scene loaded as current."""
+    scene = scene_copy / "scene.xml"
+    scene.write_text(scene.read_text().replace('name="res" value="64"', 'name="res" value="8"'))
+    render_pass = mvm.render_pass
+
+    def edit_after_rendering(*args, **kwargs):
+        img = render_pass(*args, **kwargs)
+        scene.write_text(scene.read_text().replace('value="17, 12, 4"', 'value="34, 24, 8"'))
+        return img
+
+    monkeypatch.setattr(mvm, "render_pass", edit_after_rendering)
+    reference.build_reference(str(scene_copy), spp=4, passes=2)
+    assert "34, 24, 8" in scene.read_text()
+    with pytest.raises(EnvironmentProblem, match="stale: .*scene.xml changed"):
+        reference.load_reference(str(scene_copy))
+
+
 def test_a_reference_without_pass_images_still_loads(scene_copy):
     """References built before passes.exr was stored (no ``passes_sha256``) stay valid
     for box-filtered scenes: they load, without passes."""
