@@ -781,6 +781,16 @@ def _radius(manifest: dict) -> float:
     return float(value)
 
 
+def _shape(manifest: dict) -> tuple[int, ...]:
+    """A manifest's ``shape``: a list of 2 or 3 positive integers (ValueError naming the
+    field otherwise; 5 or null raised "unexpected TypeError" naming no file)."""
+    value = manifest["shape"]
+    if not isinstance(value, list) or len(value) not in (2, 3) or any(
+            isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in value):
+        raise ValueError(f"shape: {value!r}, expected [height, width(, channels)]")
+    return tuple(value)
+
+
 def load_reference(spec: str) -> Reference:
     """Load a built reference; a missing, stale (scene changed) or corrupt one raises
     ``EnvironmentProblem`` naming the file and saying how to rebuild it. A build
@@ -808,6 +818,8 @@ def _load(name: str, path: str) -> Reference:
             _count(manifest, "spp", 1)
         if "rfilter_radius" in manifest:
             _radius(manifest)
+        if "shape" in manifest:
+            _shape(manifest)
         digest = manifest["scene_sha256"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise EnvironmentProblem(f"{mpath}: corrupt manifest ({e}); {rebuild}") from None
@@ -847,7 +859,7 @@ def _load(name: str, path: str) -> Reference:
         mean, var = (read_float_exr(os.path.join(folder, label)) for label in IMAGES)
     except InvalidArgument as e:
         raise EnvironmentProblem(f"{e}; {rebuild}") from None
-    shape = tuple(manifest.get("shape", mean.shape))
+    shape = _shape(manifest) if "shape" in manifest else mean.shape
     for label, img in (("mean.exr", mean), ("var.exr", var)):
         if img.shape != shape or not np.all(np.isfinite(img)):
             raise EnvironmentProblem(f"{os.path.join(folder, label)}: corrupt (shape "

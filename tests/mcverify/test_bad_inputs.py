@@ -92,7 +92,8 @@ def sandbox(tmp_path_factory):
     (d / "adir").mkdir()
     # references: a fresh copy of white-furnace per variant
     for variant in ("ok", "stale", "swapped", "unhashed", "corrupt", "missing",
-                    "passes-0", "passes-text", "spp-text", "spp-negative", "radius-text"):
+                    "passes-0", "passes-text", "spp-text", "spp-negative", "radius-text",
+                    "shape-number", "shape-null"):
         shutil.copytree(os.path.dirname(FURNACE), d / f"ref-{variant}")
     ref = d / "ref-stale"
     (ref / "scene.xml").write_text((ref / "scene.xml").read_text().replace('"0.8"', '"0.9"'))
@@ -107,7 +108,8 @@ def sandbox(tmp_path_factory):
     (d / "ref-corrupt" / "ref" / "manifest.json").write_text("{ not json")
     for variant, key, value in (("passes-0", "passes", 0), ("passes-text", "passes", "16"),
                                 ("spp-text", "spp", "x"), ("spp-negative", "spp", -5),
-                                ("radius-text", "rfilter_radius", "x")):
+                                ("radius-text", "rfilter_radius", "x"),
+                                ("shape-number", "shape", 5), ("shape-null", "shape", None)):
         m = d / f"ref-{variant}" / "ref" / "manifest.json"
         doc = json.loads(m.read_text())
         doc[key] = value
@@ -399,6 +401,11 @@ REFS = [
      "corrupt manifest (spp: -5, expected an integer >= 1)"),
     ("radius-text", "ref-radius-text", EnvironmentProblem,
      "corrupt manifest (rfilter_radius: 'x', expected a positive number)"),
+    # shape 5 or null was "unexpected TypeError: 'int' object is not iterable", no file named
+    ("shape-number", "ref-shape-number", EnvironmentProblem,
+     "corrupt manifest (shape: 5, expected [height, width(, channels)])"),
+    ("shape-null", "ref-shape-null", EnvironmentProblem,
+     "corrupt manifest (shape: None, expected [height, width(, channels)])"),
 ]
 
 
