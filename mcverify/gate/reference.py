@@ -229,13 +229,27 @@ def ref_folder(scene_path: str) -> str:
     return os.path.join(folder, "ref" if base == "scene.xml" else f"ref-{base}")
 
 
-def rebuild_command(name: str, scene_path: str) -> str:
+#: ``reference build``'s (and ``build_reference``'s) samples per pass and passes.
+DEFAULT_SPP, DEFAULT_PASSES = 256, 16
+
+
+def rebuild_command(name: str, scene_path: str, manifest: dict | None = None) -> str:
     """The command that builds the reference of a scene: by its reference name when the
     name resolves to it, else by its path, quoted for the shell (a path with a space was
-    split into several arguments when the command was pasted)."""
+    split into several arguments when the command was pasted); with the ``--spp`` and
+    ``--passes`` of the reference it replaces (``manifest``) where they are not the
+    defaults: a splatting-filter scene's reference of 64 passes × 64 spp, rebuilt by the
+    bare command at 16 × 256, was then refused by ``render-check`` at its defaults."""
     named = os.path.join(REFERENCE_ROOT, name, "scene.xml")
     spec = name if os.path.abspath(named) == os.path.abspath(scene_path) else scene_path
-    return f"mcverify reference build {shlex.quote(spec)}"
+    counts = ""
+    if isinstance(manifest, dict):
+        spp = manifest.get("spp_requested", manifest.get("spp"))
+        passes = manifest.get("passes")
+        if all(isinstance(v, int) and not isinstance(v, bool) and v > 0
+               for v in (spp, passes)) and (spp, passes) != (DEFAULT_SPP, DEFAULT_PASSES):
+            counts = f" --spp {spp} --passes {passes}"
+    return f"mcverify reference build {shlex.quote(spec)}{counts}"
 
 
 def _regular_file(path: str, what: str) -> None:
@@ -583,8 +597,8 @@ def render_reference(spec: str, *, spp: int = 64, passes: int = 16, seed: int = 
     return _render_jobs([_job(spec, spp, passes, seed, params)], pool, progress)[0]
 
 
-def build_references(specs, *, spp: int = 256, passes: int = 16, seed: int = 0,
-                     progress=None, pool: Pool | None = None) -> list[str]:
+def build_references(specs, *, spp: int = DEFAULT_SPP, passes: int = DEFAULT_PASSES,
+                     seed: int = 0, progress=None, pool: Pool | None = None) -> list[str]:
     """Render the references of several scenes (all their passes as units on ``pool``,
     default this process) and write each (see ``build_reference``); returns their
     folders, one per distinct scene (a scene named twice is built once). Every scene is
@@ -669,8 +683,8 @@ def _replaceable(out: str) -> None:
                               "it: move it away first")
 
 
-def build_reference(spec: str, *, spp: int = 256, passes: int = 16, seed: int = 0,
-                    progress=None, pool: Pool | None = None) -> str:
+def build_reference(spec: str, *, spp: int = DEFAULT_SPP, passes: int = DEFAULT_PASSES,
+                    seed: int = 0, progress=None, pool: Pool | None = None) -> str:
     """Render the reference of a scene and write it; returns its folder.
 
     Nothing is lost at any instant: the new reference is written into a temporary folder,
@@ -823,6 +837,7 @@ def _load(name: str, path: str) -> Reference:
         digest = manifest["scene_sha256"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise EnvironmentProblem(f"{mpath}: corrupt manifest ({e}); {rebuild}") from None
+    rebuild = f"run `{rebuild_command(name, path, manifest)}`"   # as it was built
     if digest != scene_hash(path):
         raise EnvironmentProblem(f"{mpath}: stale: {path} changed since the reference was "
                                  f"built; {rebuild}")

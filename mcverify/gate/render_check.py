@@ -466,7 +466,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         if splats and not ref.pixels_correlated:
             raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
                                      "does not say so (built before filters were recorded)"
-                                     f"; run `{reference.rebuild_command(name, path)}`")
+                                     f"; run `{reference.rebuild_command(name, path, ref.manifest)}`")
         if ours and ref.pixels_correlated and spp // passes != int(ref.manifest["spp"]):
             # E[Σ w L / Σ w] over N samples differs from its limit by O(1/N): passes
             # compare only at equal samples per pass (measured: Mitsuba's own 16-spp passes
@@ -481,7 +481,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             raise EnvironmentProblem(f"{path}: its reference has no pass images (built "
                                      "before passes.exr was stored), which a splatting "
                                      "filter needs; run "
-                                     f"`{reference.rebuild_command(name, path)}`")
+                                     f"`{reference.rebuild_command(name, path, ref.manifest)}`")
         if ours:
             source = _OurPasses(path, spp, passes, seed, params, plant, pdf_scale, pool,
                                 progress)

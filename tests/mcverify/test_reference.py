@@ -191,6 +191,29 @@ def test_rebuild_command_is_quoted_for_the_shell(tmp_path):
     assert shlex.split(command) == ["mcverify", "reference", "build", str(scene)]
 
 
+def test_the_rebuild_command_of_a_stale_reference_keeps_its_counts(scene_copy):
+    """A stale reference's rebuild command builds it as it was built: the splatting-filter
+    scenes' references are 64 passes × 64 spp, and the bare command rebuilt them at the
+    default 16 × 256, which ``render-check`` at its defaults (64 a pass) then refused
+    (exit 2). The defaults are not spelled out."""
+    scene = scene_copy / "scene.xml"
+    scene.write_text(scene.read_text().replace('name="res" value="64"', 'name="res" value="8"'))
+    reference.build_reference(str(scene_copy), spp=4, passes=3)
+    scene.write_text(scene.read_text().replace('value="17, 12, 4"', 'value="18, 12, 4"'))
+    with pytest.raises(EnvironmentProblem, match=r"stale: .*; run `mcverify reference build "
+                                                 r"\S*scene.xml --spp 4 --passes 3`$"):
+        reference.load_reference(str(scene_copy))
+    m = scene_copy / "ref" / "manifest.json"
+    doc = json.loads(m.read_text())
+    m.write_text(json.dumps(dict(doc, spp=256, passes=16)))
+    with pytest.raises(EnvironmentProblem, match=r"stale: .*; run `mcverify reference build "
+                                                 r"\S*scene.xml`$"):
+        reference.load_reference(str(scene_copy))
+    m.write_text(json.dumps(dict(doc, spp=9, spp_requested=8)))     # what was asked
+    with pytest.raises(EnvironmentProblem, match=r"build \S*scene.xml --spp 8 --passes 3`$"):
+        reference.load_reference(str(scene_copy))
+
+
 def test_a_changed_texture_or_mesh_makes_the_reference_stale(tmp_path):
     """The manifest records the SHA-256 of every file the scene names: a texture changed
     or removed after the build is refused as stale, naming it, instead of comparing a
