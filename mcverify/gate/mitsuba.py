@@ -317,7 +317,7 @@ def mitsuba_warps() -> list[MitsubaWarp]:
 
 
 @lru_cache(maxsize=4)
-def _loaded(scene_path: str, params: tuple, mtime: int):
+def _loaded(scene_path: str, params: tuple, stamp: tuple):
     mi = _mi()
     try:
         return mi.load_file(scene_path, **dict(params))
@@ -326,9 +326,11 @@ def _loaded(scene_path: str, params: tuple, mtime: int):
 
 
 def _current(scene_path: str, params: dict | None):
-    """The scene as ``_loaded`` keeps it, at the file's present modification time."""
-    return _loaded(scene_path, tuple(sorted((params or {}).items())),
-                   os.stat(scene_path).st_mtime_ns)
+    """The scene as ``_loaded`` keeps it, as its files are now (``scene_stamp``)."""
+    from .reference import scene_stamp
+
+    os.stat(scene_path)
+    return _loaded(scene_path, tuple(sorted((params or {}).items())), scene_stamp(scene_path))
 
 
 def mitsuba_seed(seed: int) -> int:
@@ -340,7 +342,8 @@ def mitsuba_seed(seed: int) -> int:
 def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = None,
                 variant: str | None = None) -> np.ndarray:
     """One independent pass of ``scene_path``: (H, W, C) float64. The loaded scene is
-    kept per process (keyed by path, ``$`` parameters and modification time), so a
+    kept per process (keyed by path, ``$`` parameters and the modification times of the
+    scene and the files it names), so a
     worker rendering many passes parses the scene once. ``variant``: the variant the
     caller uses; a process that would render with another one refuses (its images would
     differ)."""
@@ -348,12 +351,14 @@ def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = N
         raise EnvironmentProblem(f"{scene_path}: this process renders with Mitsuba "
                                  f"{choose_variant().variant}, the client with {variant}; "
                                  "set MCVERIFY_MITSUBA_VARIANT alike on every worker")
+    from .reference import scene_stamp
+
     try:
-        mtime = os.stat(scene_path).st_mtime_ns
+        os.stat(scene_path)
     except OSError as e:
         raise EnvironmentProblem(f"{scene_path}: cannot read it here ({e.strerror}); workers "
                                  "need the scenes at the same path") from None
-    scene = _loaded(scene_path, tuple(sorted((params or {}).items())), mtime)
+    scene = _loaded(scene_path, tuple(sorted((params or {}).items())), scene_stamp(scene_path))
     image = np.asarray(_mi().render(scene, spp=spp, seed=mitsuba_seed(seed)),
                        dtype=np.float64)
     if scene.integrator().should_stop():

@@ -222,6 +222,26 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
     return out
 
 
+def scene_stamp(scene_path: str) -> tuple:
+    """What a scene loaded once per process (Mitsuba's, our tracer's) is kept by: the
+    modification time, size and inode of the scene file and of every file it names
+    (``scene_asset_files``). Keyed by the scene file's time alone, a texture changed
+    beside an unchanged scene was rendered as it was: a reference rebuilt in the same
+    process showed the old texture under a manifest hashing the new one."""
+    def stamp(file):
+        try:
+            st = os.stat(file)
+        except OSError:
+            return None
+        return st.st_mtime_ns, st.st_size, st.st_ino
+
+    try:
+        files = sorted(set(scene_asset_files(scene_path).values()))
+    except InvalidArgument:     # the loader names what is wrong with the scene itself
+        files = []
+    return (stamp(scene_path),) + tuple((f, stamp(f)) for f in files)
+
+
 def ref_folder(scene_path: str) -> str:
     """Where the reference of a scene file lives: ``ref`` beside a ``scene.xml``,
     ``ref-<file name>`` beside a scene file of any other name."""

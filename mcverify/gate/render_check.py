@@ -63,7 +63,10 @@ Renderer = Callable[[str, int, int], object]
 
 
 @lru_cache(maxsize=4)
-def _compiled(scene_path: str, params: tuple, plant: tuple, mtime: int):
+def _compiled(scene_path: str, params: tuple, plant: tuple, stamp: tuple):
+    """Our tracer's scene, kept per process by path, parameters, planted bug and
+    ``reference.scene_stamp`` (the scene's and its files' modification times: a texture
+    changed beside an unchanged scene was rendered as it was)."""
     from estimators.pathtracer import SceneError, prepare_scene
 
     try:
@@ -276,8 +279,10 @@ def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_sca
     stats). The compiled scene is kept per process (its kernel is cached on disk)."""
     from estimators.pathtracer import render
 
+    from . import reference
+
     same_source(fingerprint)
-    cs = _compiled(scene_path, params, plant, os.stat(scene_path).st_mtime_ns)
+    cs = _compiled(scene_path, params, plant, reference.scene_stamp(scene_path))
     r = render(cs, spp=spp, seed=seed, pdf_scale=pdf_scale, variance=False)
     return r.mean, r.seconds, r.stats
 
@@ -434,7 +439,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # reference made here for such a scene gets ours, over 64 passes (as the
         # committed ones)
         subject = _compiled(path, tuple(sorted((params or {}).items())), (),
-                            os.stat(path).st_mtime_ns) if ours else None
+                            reference.scene_stamp(path)) if ours else None
         splats = ours and subject.camera.splats
         made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:
