@@ -369,3 +369,26 @@ def test_an_estimator_has_one_colour_in_every_panel(monkeypatch, panel):
             if name in ("uniform", "rqmc", "stratified"):
                 assert colour.setdefault(name, line.get_color()) == line.get_color(), name
     assert len(colour) == 3 and len(set(colour.values())) == 3
+
+
+@pytest.mark.parametrize("name", ["cost $\\frac$ 5", "$x^2$ sampler"])
+def test_a_check_name_with_dollar_signs_is_drawn_as_text(tmp_path, monkeypatch, name):
+    """matplotlib read a failed check's name as mathtext in its histogram's title: a name
+    such as 'cost $\\frac$ 5' ended `check --report` with "unexpected ValueError" after
+    the run, with no report, JSON or JUnit file; '$x^2$' was drawn as x²."""
+    import mcverify as mv
+    from mcverify.gate.report import plots
+    from mcverify.result import SuiteResult
+
+    r = mv.check_sampler(lambda u: np.sqrt(u[:, :1]), lambda x: np.ones(len(x)), "interval",
+                         n_samples=20_000, seed=0, name=name)
+    assert not r.passed and "histogram" in r.artifacts
+    titles, png = [], plots._png
+    monkeypatch.setattr(plots, "_png", lambda fig: titles.append(fig._suptitle) or png(fig))
+    build_report(str(tmp_path), study=None, extra_provenance={},
+                 suite=SuiteResult.judge("mine:suite", [r], alpha=0.01, seconds=0.0))
+    (title,) = titles
+    assert title.get_text() == name and not title.get_parse_math()
+    doc = json.loads((tmp_path / "report.json").read_text())
+    (image,) = [n for n in doc["images"] if n.startswith("failed_")]
+    assert (tmp_path / image).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,4 +1,9 @@
-"""PNG plots for the report (matplotlib, Agg backend: no display needed)."""
+"""PNG plots for the report (matplotlib, Agg backend: no display needed).
+
+A title holding a user's text (a check's name, a scene's) is drawn as plain text
+(``parse_math=False``): matplotlib read ``$...$`` in it as mathtext, so a check named
+``cost $\\frac$`` ended ``check --report`` with "unexpected ValueError" after the run,
+writing neither the report nor ``--json``/``--junit``."""
 
 from __future__ import annotations
 
@@ -90,7 +95,7 @@ def histogram(result: dict) -> bytes | None:
     for ax, t in zip(axes, ("observed", "expected (pdf integrated per cell)",
                             "(O - E) / sqrt(E), clipped")):
         ax.set_title(t, fontsize=9)
-    fig.suptitle(result["name"], fontsize=10)
+    fig.suptitle(result["name"], fontsize=10, parse_math=False)
     return _png(fig)
 
 
@@ -129,7 +134,7 @@ def render_panels(scene: str, a: dict) -> bytes:
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.suptitle(scene, fontsize=10)
+    fig.suptitle(scene, fontsize=10, parse_math=False)
     return _png(fig)
 
 
@@ -149,5 +154,5 @@ def render_error(rows: list[dict]) -> bytes:
             ax.set_ylabel("RMSE")
             ax.legend(fontsize=7)
             if i == 0:
-                ax.set_title(r["scene"], fontsize=9)
+                ax.set_title(r["scene"], fontsize=9, parse_math=False)
     return _png(fig)
