@@ -392,3 +392,32 @@ def test_a_check_name_with_dollar_signs_is_drawn_as_text(tmp_path, monkeypatch, 
     doc = json.loads((tmp_path / "report.json").read_text())
     (image,) = [n for n in doc["images"] if n.startswith("failed_")]
     assert (tmp_path / image).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_render_curves_plot_both_renderers_at_the_samples_mitsuba_renders(monkeypatch):
+    """vocabulary-geometry's orthogonal sampler renders 25 samples where 16 are asked:
+    the report's error-against-spp panel plotted Mitsuba's RMSE of 25 samples at 16,
+    beside ours of 16 (a head start of 1.56x the samples). Both sides now render, and the
+    curve records, the count Mitsuba's sampler renders."""
+    import estimators.pathtracer as pt
+    from types import SimpleNamespace
+
+    from mcverify.gate import render_check as rc_mod
+
+    asked = []
+
+    def ours(scene, spp, seed, **kw):
+        asked.append(spp)
+        return SimpleNamespace(mean=np.zeros((scene.height, scene.width, 3)), seconds=0.1)
+
+    def check(path, seed):
+        return SimpleNamespace(passed=True, p_value=1.0, artifacts={
+            "ours": None, "mitsuba": None, "p_map": None}, details={
+            "found_by": [], "relmse": 0.0, "ours_spp": 1, "ours_passes": 1,
+            "ours_seconds": 0.1, "ours_kernel": "general", "reference": {}})
+
+    monkeypatch.setattr(pt, "render", ours)
+    monkeypatch.setattr(rc_mod, "render_check", check)
+    rows, _ = run_renders(["vocabulary-geometry"], spps=(4, 16))
+    assert rows[0]["curve"]["spp"] == [4, 25]
+    assert asked == [2, 4, 25]        # the warm-up, then the curve's two renders

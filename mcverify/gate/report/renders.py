@@ -35,10 +35,13 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
         ours_scene, their_scene = prepare_scene(path), mi.load_file(path)
         render(ours_scene, spp=2, seed=seed)                     # warm-ups: JIT excluded
         np.asarray(mi.render(their_scene, spp=spps[0], seed=mvm.mitsuba_seed(seed)))
-        curve = {"spp": list(spps), "ours_rmse": [], "ours_seconds": [], "mitsuba_rmse": [],
+        # both sides at the samples Mitsuba's sampler renders (orthogonal: 16 -> 25, 64 ->
+        # 121): Mitsuba's curve was plotted at the spp asked, beside ours at that count
+        counts = [mvm.sampler_rounds(ours_scene.desc.sampler, max(s, 2)) for s in spps]
+        curve = {"spp": counts, "ours_rmse": [], "ours_seconds": [], "mitsuba_rmse": [],
                  "mitsuba_seconds": []}
-        for k, spp in enumerate(spps):
-            r = render(ours_scene, spp=max(spp, 2), seed=_shifted(seed, 10 + k))
+        for k, spp in enumerate(counts):
+            r = render(ours_scene, spp=spp, seed=_shifted(seed, 10 + k))
             curve["ours_rmse"].append(ref.rmse(r.mean))
             curve["ours_seconds"].append(r.seconds)
             # a render per spp first: Mitsuba compiles its kernels per spp
