@@ -424,10 +424,14 @@ def _cmd_check(args) -> int:
     sys.stdout.flush()
     report = None
     if args.report is not None:     # made (seconds of plots) before any file is written
-        from .report import prepare_report
+        from .report import files_touched, prepare_report
 
-        _, report = prepare_report(args.report, suite=result, study=None,
-                                   extra_provenance=dict(extra, seed=args.seed))
+        doc, report = prepare_report(args.report, suite=result, study=None,
+                                     extra_provenance=dict(extra, seed=args.seed))
+        # the histograms' names are known only now: --json/--junit named as one of them
+        # (or as an old report's image, which the report removes) would be replaced by it
+        _distinct_outputs(("--json", args.json), ("--junit", args.junit),
+                          *(("--report", f) for f in files_touched(args.report, doc)))
     with _outputs_together():
         if args.json:
             write_json(result, args.json)

@@ -421,3 +421,42 @@ def test_render_curves_plot_both_renderers_at_the_samples_mitsuba_renders(monkey
     rows, _ = run_renders(["vocabulary-geometry"], spps=(4, 16))
     assert rows[0]["curve"]["spp"] == [4, 25]
     assert asked == [2, 4, 25]        # the warm-up, then the curve's two renders
+
+
+@pytest.mark.parametrize("old", [False, True])
+def test_check_refuses_an_output_named_as_a_report_image(tmp_path, capsys, old):
+    """A failed check's histogram is named only once the run has judged it: `check
+    --report rep --junit rep/failed_x.png` wrote the JUnit file, then the histogram over
+    it, exit 1 without a word; and a --junit named as the last report's image was
+    written, then removed with that report's images. Both now exit 2, the same file,
+    with nothing written."""
+    import types
+
+    import mcverify as mv
+    from mcverify.gate import cli
+    from mcverify.gate.suites import Check
+
+    def run(seed):
+        return mv.check_sampler(lambda u: np.sqrt(u[:, :1]), lambda x: np.ones(len(x)),
+                                "interval", n_samples=20_000, seed=seed, name="x")
+
+    rep = tmp_path / "rep"
+    name = "failed_old.png" if old else "failed_x.png"
+    if old:
+        build_report(str(rep), suite=None, study=None, extra_provenance={})
+        doc = json.loads((rep / "report.json").read_text())
+        doc["images"][name] = name
+        (rep / "report.json").write_text(json.dumps(doc))
+        (rep / name).write_bytes(b"old")
+    before = {p.name: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    mod = types.ModuleType("image_named_suite")
+    mod.suite = [Check("x", run)]
+    sys.modules[mod.__name__] = mod
+    try:
+        rc = cli.main(["check", "-q", "--suite", "image_named_suite:suite", "--report",
+                       str(rep), "--junit", str(rep / name)])
+    finally:
+        del sys.modules[mod.__name__]
+    err = capsys.readouterr().err
+    assert rc == 2 and "the same file" in err and name in err, err
+    assert {p.name: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before

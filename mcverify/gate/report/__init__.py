@@ -18,7 +18,7 @@ from ...provenance import provenance
 from ...result import SuiteResult, atomic_write, json_text, output_target
 from . import plots
 
-__all__ = ["build_report", "prepare_report", "render_html"]
+__all__ = ["build_report", "prepare_report", "render_html", "files_touched"]
 
 
 def build_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict] | None,
@@ -85,6 +85,16 @@ def prepare_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict]
                 pass
 
     return doc, write
+
+
+def files_touched(out_dir: str, doc: dict) -> list[str]:
+    """Every file that writing the report ``doc`` into ``out_dir`` replaces or removes:
+    its images, ``report.json``, ``report.html`` and the last report's images it does not
+    write again. The images are known once the results are (a failed check's histogram),
+    so a run's other outputs are held against them then: ``check --report DIR --junit
+    DIR/failed_x.png`` wrote the JUnit file, then the histogram over it (exit 1, no word)."""
+    names = [*doc["images"], "report.json", "report.html", *_previous_images(out_dir)]
+    return [os.path.join(out_dir, n) for n in dict.fromkeys(names)]
 
 
 def _previous_images(out_dir: str) -> list[str]:
