@@ -460,3 +460,22 @@ def test_check_refuses_an_output_named_as_a_report_image(tmp_path, capsys, old):
     err = capsys.readouterr().err
     assert rc == 2 and "the same file" in err and name in err, err
     assert {p.name: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_a_long_name_of_wide_letters_gets_an_image_file_name_that_fits(tmp_path):
+    """The histogram's file name kept 80 letters of a failed check's name: 80 letters of
+    4 bytes ('𝐀', mathematical bold) made a name of 331 bytes, past the file system's
+    255, and `check --report --json` failed after the run with "File name too long",
+    its --json written and no report. Names are now cut at 160 bytes too."""
+    import mcverify as mv
+    from mcverify.result import SuiteResult
+
+    results = [mv.check_sampler(lambda u: np.sqrt(u[:, :1]), lambda x: np.ones(len(x)),
+                                "interval", n_samples=20_000, seed=0, name="\U0001D400" * k)
+               for k in (90, 91)]
+    build_report(str(tmp_path), study=None, extra_provenance={},
+                 suite=SuiteResult.judge("mine:suite", results, alpha=0.01, seconds=0.0))
+    images = [n for n in json.loads((tmp_path / "report.json").read_text())["images"]]
+    assert len(images) == 2 and all(len(n.encode()) <= 255 for n in images), images
+    for n in images:
+        assert (tmp_path / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

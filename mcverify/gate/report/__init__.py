@@ -110,7 +110,14 @@ def _previous_images(out_dir: str) -> list[str]:
 
 
 def _safe(name: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in name)[:80]
+    """``name`` for a file name: letters and digits kept, the rest "_", cut at 80
+    characters and at 160 bytes of UTF-8 (80 characters of 4 bytes, such as a check named
+    in mathematical bold letters, made a name past the file system's 255 bytes: "File
+    name too long" after the run, its --json written and no report)."""
+    safe = "".join(c if c.isalnum() else "_" for c in name)[:80]
+    while len(safe.encode("utf-8")) > 160:
+        safe = safe[:-1]
+    return safe
 
 
 def _unique(prefix: str, name: str, taken) -> str:
