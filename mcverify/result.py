@@ -263,6 +263,11 @@ def write_json(result, path: str, *, provenance: dict | None = None) -> None:
     """Write a ``CheckResult`` or ``SuiteResult`` as indented JSON, atomically; a
     ``CheckResult`` written on its own (``compare``, ``render-check``) carries the run's
     ``provenance`` as a suite's does."""
+    if not isinstance(result, (CheckResult, SuiteResult)):
+        # was "AttributeError: 'dict' object has no attribute 'to_dict'", as write_junit
+        # names what it expects
+        raise InvalidArgument(f"write_json: expected a CheckResult or SuiteResult, got "
+                              f"{type(result).__name__}")
     d = result.to_dict()
     if provenance is not None:
         d["provenance"] = _jsonable(provenance)

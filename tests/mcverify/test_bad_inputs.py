@@ -1168,6 +1168,17 @@ def test_write_junit_refuses_a_single_check_result(tmp_path):
     assert "<testsuite" in (tmp_path / "j.xml").read_text()
 
 
+@pytest.mark.parametrize("bad", [{"passed": True}, None, [CheckResult("c", True, 0.5, 1.0,
+                                                                       0.01, 10, 0.0)]])
+def test_write_json_refuses_what_is_not_a_result(tmp_path, bad):
+    """write_json of a dict, None or a list of results ended in "AttributeError: 'dict'
+    object has no attribute 'to_dict'"; it names what it expects, as write_junit does."""
+    with pytest.raises(mv.InvalidArgument, match="write_json: expected a CheckResult or "
+                                                 "SuiteResult, got " + type(bad).__name__):
+        mv.write_json(bad, str(tmp_path / "r.json"))
+    assert not (tmp_path / "r.json").exists()
+
+
 def test_constant_scalar_pdf_is_that_value_everywhere():
     r = mv.check_sampler(lambda u: u, lambda x: 1.0, "square", n_samples=20_000)
     assert r.passed and abs(r.details["pdf_integral"] - 1.0) < 1e-9
