@@ -479,3 +479,26 @@ def test_a_long_name_of_wide_letters_gets_an_image_file_name_that_fits(tmp_path)
     assert len(images) == 2 and all(len(n.encode()) <= 255 for n in images), images
     for n in images:
         assert (tmp_path / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_fifo_named_report_json_is_written_into_not_read(tmp_path):
+    """A FIFO named report.json (the JSON piped to another program) is written into, as
+    every output FIFO is; the report first opened it for reading, to find the last
+    report's images, and the run hung there (a reader waiting for a writer)."""
+    fifo = tmp_path / "out" / "report.json"
+    fifo.parent.mkdir()
+    os.mkfifo(fifo)
+    script = (
+        "import sys, threading\n"
+        "from mcverify.gate.report import build_report\n"
+        "got = []\n"
+        "def read():\n"
+        f"    with open({str(fifo)!r}, 'rb') as f: got.append(f.read())\n"
+        "t = threading.Thread(target=read); t.start()\n"
+        f"build_report({str(fifo.parent)!r}, suite=None, study=None, extra_provenance={{}})\n"
+        "t.join(); sys.stdout.write(got[0].decode())\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["verification"] is None
+    assert (tmp_path / "out" / "report.html").is_file()

@@ -99,9 +99,15 @@ def files_touched(out_dir: str, doc: dict) -> list[str]:
 
 def _previous_images(out_dir: str) -> list[str]:
     """The image files the report already in ``out_dir`` lists (its report.json): a
-    report written over it removes those it does not write again, and nothing else."""
+    report written over it removes those it does not write again, and nothing else. Only
+    a regular file is read: a FIFO named report.json (the JSON piped on, which the report
+    writes into) was opened for reading too, and the run hung there, a reader waiting
+    for a writer that was itself."""
+    path = os.path.join(out_dir, "report.json")
+    if not os.path.isfile(path):
+        return []
     try:
-        with open(os.path.join(out_dir, "report.json"), encoding="utf-8") as f:
+        with open(path, encoding="utf-8") as f:
             names = json.load(f).get("images") or {}
     except (OSError, ValueError, AttributeError):
         return []
