@@ -15,7 +15,7 @@ import re
 import stat
 import tempfile
 import xml.etree.ElementTree as ET
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 
 import numpy as np
 
@@ -26,11 +26,21 @@ __all__ = ["CheckResult", "SuiteResult", "write_json", "write_junit", "atomic_wr
            "output_target", "json_text", "escape_controls"]
 
 
-def _jsonable(v):
+def _jsonable(v, _inside=frozenset()):
+    record = is_dataclass(v) and not isinstance(v, type)
+    if record or isinstance(v, (dict, list, tuple, set, frozenset)):
+        # a container holding itself (a user's details with d["self"] = d) is written as
+        # Python's repr writes it: it ended the run with "unexpected RecursionError" after
+        # every check had run, naming none, and no --json was written
+        if id(v) in _inside:
+            return "{...}" if isinstance(v, dict) else "[...]"
+        _inside = _inside | {id(v)}
+    if record:                                          # as dataclasses.asdict wrote it
+        return _jsonable({f.name: getattr(v, f.name) for f in fields(v)}, _inside)
     if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
+        return {str(k): _jsonable(x, _inside) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
+        return [_jsonable(x, _inside) for x in v]
     if isinstance(v, np.ndarray):
         return _jsonable(v.tolist())
     if isinstance(v, (np.integer,)):
@@ -41,7 +51,7 @@ def _jsonable(v):
     if isinstance(v, np.bool_):
         return bool(v)
     if isinstance(v, (set, frozenset)):
-        return [_jsonable(x) for x in sorted(v, key=repr)]
+        return [_jsonable(x, _inside) for x in sorted(v, key=repr)]
     if v is None or isinstance(v, (str, int)):
         return v
     # anything else a user's check put in its details (a Path, a complex): its text, not
@@ -106,8 +116,9 @@ class CheckResult:
     def to_dict(self, *, arrays: bool = False) -> dict:
         """JSON-able dict. ``artifacts`` (bulky arrays) are left out unless
         ``arrays=True`` (reports ask for them on failed checks)."""
-        d = asdict(replace(self, artifacts={}))
-        del d["artifacts"]
+        # the fields as they are (dataclasses.asdict recursed into a details dict that
+        # holds itself); _jsonable makes the copy
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "artifacts"}
         if arrays:
             d["artifacts"] = self.artifacts
         return _jsonable(d)

@@ -108,3 +108,19 @@ def test_junit_failures_say_why_and_canaries_are_their_own_class(tmp_path):
     assert canary.get("classname") == "mcverify.s.canary"
     assert cases["a"].get("classname") == "mcverify.s"
     assert "planted bug passed" in canary.find("failure").text
+
+
+def test_details_that_hold_themselves_are_written_as_their_repr(tmp_path):
+    """A user's details holding itself (d["self"] = d) ended `mcverify check --json` with
+    "unexpected RecursionError" after the run, naming no check and writing no JSON. The
+    cycle is written as Python's repr writes it; a value shared, not a cycle, in full."""
+    d, shared = {"a": 1}, [1.0, 2.0]
+    d["self"], d["l"] = d, [shared, shared]
+    d["l"].append(d["l"])
+    suite = SuiteResult.judge("s", [CheckResult("c", True, 0.5, None, 0.01, 1, 0.1, d)],
+                              alpha=0.01, seconds=1.0)
+    mv.write_json(suite, str(tmp_path / "r.json"))
+    mv.write_junit(suite, str(tmp_path / "r.xml"))
+    got = json.loads((tmp_path / "r.json").read_text())["results"][0]["details"]
+    # (the judged result's details are a copy with p_adjusted: its "self" is the original)
+    assert got["self"]["self"] == "{...}" and got["l"] == [[1.0, 2.0], [1.0, 2.0], "[...]"]
