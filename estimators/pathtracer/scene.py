@@ -356,10 +356,11 @@ class _Loader:
                                 f"{name} [{INT32[0]}, {INT32[1]}]")
             return "integer", n
         if tag == "boolean":
-            text = self.attr(node, "value").strip(SPACE).lower()
-            if text not in ("true", "false"):
+            # any case, no padding: Mitsuba refuses " true" (its numbers may be padded)
+            text = self.attr(node, "value")
+            if text.lower() not in ("true", "false"):
                 self.fail(node, f"expected true or false, got {text!r}")
-            return "boolean", text == "true"
+            return "boolean", text.lower() == "true"
         if tag == "string":
             return "string", self.attr(node, "value")
         if tag == "rgb":

@@ -696,6 +696,8 @@ def test_an_index_of_refraction_beyond_mitsubas_float32_is_refused(tmp_path, bsd
 _DEPTH = '<integrator type="path"><integer name="max_depth" value="{}"/></integrator>'
 _IOR = ('<shape type="sphere"><bsdf type="dielectric"><float name="int_ior" value="{}"/></bsdf>'
         '</shape>')
+# a boolean is "true" or "false" in any case, unpadded: Mitsuba refuses " true"
+_HIDE = '<integrator type="path"><boolean name="hide_emitters" value="{}"/></integrator>'
 _RGB = ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf>'
         '</shape>')
 
@@ -719,11 +721,13 @@ _RGB = ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value
      '</transform></shape>', "expected a number, got '1,'"),
     (_RGB.format("0.1_0, 0.2, 0.3"), "expected 3 numbers"),
     (_RGB.format("0.5\u20030.2\u20030.1"), "expected 3 numbers"),  # em spaces
+    (_HIDE.format(" true"), "expected true or false, got ' true'"),
+    (_HIDE.format("False "), "expected true or false, got 'False '"),
 ], ids=["int-20-digits", "int-2^31", "int-plus", "int-arabic-digit", "int-3.0",
         "float-underscore", "float-full-width", "float-nbsp", "float-hex",
         "float-trailing-comma", "float-leading-comma", "float-two-numbers",
         "rotate-angle-comma", "translate-x-comma",
-        "rgb-underscore", "rgb-em-space"])
+        "rgb-underscore", "rgb-em-space", "bool-leading-space", "bool-trailing-space"])
 def test_numbers_are_read_as_mitsuba_reads_them(mi, tmp_path, body, needle):
     """Python's float() and int() read these (1_5 as 15, other scripts' digits, Unicode
     spaces, integers of any size: max_depth 10^20 failed in numba as "Int value is too
