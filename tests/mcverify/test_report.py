@@ -219,7 +219,7 @@ def test_a_page_that_cannot_be_rendered_leaves_the_old_report_whole(tmp_path, mo
     build_report(str(tmp_path), suite=suite("old"), study=None)
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
 
-    def broken(doc, images):
+    def broken(doc, images, captions=None):
         raise RuntimeError("page")
 
     monkeypatch.setattr(report_mod, "render_html", broken)
@@ -502,3 +502,33 @@ def test_a_fifo_named_report_json_is_written_into_not_read(tmp_path):
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout)["verification"] is None
     assert (tmp_path / "out" / "report.html").is_file()
+
+
+def test_the_page_names_each_failed_check_under_its_histogram_and_says_why(tmp_path):
+    """Under a failed check's histogram the page wrote its file name (failed__a_b_.png),
+    the same for checks whose names differ only in punctuation; a check failing on its
+    p-value alone had an empty "why" cell, and one without a sample count read "None"."""
+    import mcverify as mv
+    from mcverify.result import CheckResult, SuiteResult
+
+    def bad(name):
+        return mv.check_sampler(lambda u: np.sqrt(u[:, :1]), lambda x: np.ones(len(x)),
+                                "interval", n_samples=20_000, seed=0, name=name)
+
+    plain = CheckResult("mine<&>", False, 1e-9, 1.0, 0.01, None, 0.0)
+    checks = [bad("<a&b>"), bad("(a b)"), plain]
+    build_report(str(tmp_path), study=None, extra_provenance={},
+                 suite=SuiteResult.judge("mine:suite", checks, alpha=0.01, seconds=0.0))
+    page = (tmp_path / "report.html").read_text()
+    for name in ("&lt;a&amp;b&gt;", "(a b)"):
+        assert f"<figcaption>{name}: histogram" in page
+    row = page[page.index("<td>mine&lt;&amp;&gt;</td>"):].split("</tr>")[0]
+    assert "None" not in row and "≤ family-wise α 0.01" in row
+
+
+def test_the_convergence_table_states_its_intervals_confidence(report):
+    out, doc = report
+    page = (out / "report.html").read_text()
+    assert "CI (confidence)" in page
+    assert all(r["ci_confidence"] == pytest.approx(0.99) for r in doc["convergence"])
+    assert " (99 %)</td>" in page

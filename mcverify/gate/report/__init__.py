@@ -56,12 +56,14 @@ def prepare_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict]
     if study:
         images["convergence.png"] = plots.convergence(study)
         images["efficiency.png"] = plots.efficiency(study)
+    captions = {}       # a failed check's histogram: the check's own name under it
     if suite is not None:
         for r in suite.results:
             if not r.passed and "histogram" in r.artifacts:
                 png = plots.histogram(r.to_dict(arrays=True))
                 if png:
-                    images[_unique("failed", r.name, images)] = png
+                    name = _unique("failed", r.name, images)
+                    images[name], captions[name] = png, r.name
     for name in (*images, "report.json", "report.html"):   # all or nothing: a folder
         output_target(os.path.join(out_dir, name))       # in the way is refused first
     doc["images"] = {name: name for name in images}
@@ -69,7 +71,7 @@ def prepare_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict]
     # report.json had replaced the old one, so a result the page could not show (a
     # user's check with seconds=None) left a new report.json beside the old page, or none.
     text = json_text(doc)       # as every output file: no bare NaN/Infinity token
-    page = render_html(doc, images)
+    page = render_html(doc, images, captions)
 
     def write() -> None:
         os.makedirs(out_dir, exist_ok=True)
@@ -150,8 +152,11 @@ def _img(images: dict, name: str, alt: str) -> str:
     return f'<img alt="{_e(alt)}" src="data:image/png;base64,{data}">'
 
 
-def render_html(doc: dict, images: dict[str, bytes]) -> str:
-    """The report page from its JSON document and PNG bytes (embedded)."""
+def render_html(doc: dict, images: dict[str, bytes], captions: dict | None = None) -> str:
+    """The report page from its JSON document and PNG bytes (embedded); ``captions``:
+    the check each failed check's histogram is of, by image name (the file name alone
+    told apart checks whose names differ only in punctuation by the title in the image)."""
+    captions = captions or {}
     parts = [_HEAD]
     prov = doc["provenance"]
     parts.append("<h1>mcverify report</h1>")
@@ -178,14 +183,20 @@ def render_html(doc: dict, images: dict[str, bytes]) -> str:
                      "<th>α</th><th>n</th><th>seconds</th><th>why</th></tr>")
         for r in rows:
             why = "; ".join(r["failures"] + r["messages"])
+            if not r["passed"] and not why:     # rejected on its p-value alone
+                why = (f"p adjusted {_fmt(r['details'].get('p_adjusted'))} ≤ family-wise "
+                       f"α {_fmt(ver['alpha'])}" if "p_adjusted" in r["details"]
+                       else f"p {_fmt(r['p_value'])} ≤ α {_fmt(r['alpha'])}")
             parts.append(
                 f"<tr class={'pass' if r['passed'] else 'fail'}><td>{_e(r['name'])}</td>"
                 f"<td>{'pass' if r['passed'] else 'FAIL'}</td><td>{_fmt(r['p_value'])}</td>"
                 f"<td>{_fmt(r['details'].get('p_adjusted'))}</td><td>{_fmt(r['alpha'])}</td>"
-                f"<td>{r['n_samples']}</td><td>{r['seconds']:.2f}</td><td>{_e(why)}</td></tr>")
+                f"<td>{_fmt(r['n_samples'], '')}</td><td>{r['seconds']:.2f}</td>"
+                f"<td>{_e(why)}</td></tr>")
         parts.append("</table>")
         for name in (n for n in images if n.startswith("failed_")):
-            parts.append(f"<figure>{_img(images, name, name)}<figcaption>{_e(name)}: "
+            check = captions.get(name, name)
+            parts.append(f"<figure>{_img(images, name, check)}<figcaption>{_e(check)}: "
                          "histogram against the integrated pdf</figcaption></figure>")
 
     study = doc.get("convergence") or []
@@ -199,14 +210,16 @@ def render_html(doc: dict, images: dict[str, bytes]) -> str:
                      "Verdicts are Holm-corrected across the table.</p>")
         parts.append(f"<figure>{_img(images, 'convergence.png', 'RMSE against N')}</figure>")
         parts.append("<table><tr><th>integrand</th><th>estimator</th><th>slope</th>"
-                     "<th>CI</th><th>expected</th><th>p adjusted</th><th>verdict</th>"
+                     "<th>CI (confidence)</th><th>expected</th><th>p adjusted</th><th>verdict</th>"
                      "<th>efficiency 1/(MSE·t)</th></tr>")
         for r in study:
             exp = ("< " if r["alternative"] == "less" else "") + str(r["expected_slope"])
             parts.append(
                 f"<tr class={'pass' if r['passed'] else 'fail'}><td>{_e(r['integrand'])}</td>"
                 f"<td>{_e(r['estimator'])}</td><td>{r['slope']:.3f}</td>"
-                f"<td>[{r['ci'][0]:.3f}, {r['ci'][1]:.3f}]</td><td>{_e(exp)}</td>"
+                f"<td>[{r['ci'][0]:.3f}, {r['ci'][1]:.3f}]"
+                + (f" ({100 * r['ci_confidence']:.4g} %)" if "ci_confidence" in r else "")
+                + f"</td><td>{_e(exp)}</td>"
                 f"<td>{_fmt(r['p_adjusted'])}</td><td>{'as expected' if r['passed'] else 'NOT'}"
                 f"</td><td>{r['efficiency'][-1]:.3g}</td></tr>")
         parts.append("</table>")

@@ -132,6 +132,7 @@ def run_study(*, ns=(64, 256, 1024, 4096, 16384), n_seeds: int = 24, seed: int =
             "rmse": rmse.tolist(), "seconds": secs.tolist(),
             "efficiency": (1.0 / (np.maximum(rmse, 1e-300) ** 2 * secs)).tolist(),
             "slope": r.details["slope"], "ci": r.details["ci"],
+            "ci_confidence": 1.0 - r.alpha,     # the check's own level, not the table's
             "expected_slope": slope, "alternative": alternative, "passed": r.passed,
             "p_value": r.p_value,
         })
