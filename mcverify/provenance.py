@@ -14,10 +14,21 @@ from ._version import __version__
 @lru_cache(maxsize=1)
 def git_commit() -> str | None:
     """The commit of the checkout mcverify runs from, or None outside a git tree."""
-    here = os.path.dirname(os.path.abspath(__file__))
+    return commit_of(os.path.abspath(__file__))
+
+
+def commit_of(path: str) -> str | None:
+    """HEAD of the git tree that tracks the file ``path``, else None. An untracked file
+    in a tree is not its commit's: mcverify installed into a virtual environment inside
+    the user's repository (``.venv/lib/...``, ignored) recorded the user's commit as
+    mcverify's until 7 December (an outside review)."""
+    def git(*args):
+        return subprocess.run(["git", *args], cwd=os.path.dirname(path), capture_output=True,
+                              text=True, timeout=5, check=False)
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
-                             text=True, timeout=5, check=False)
+        if git("ls-files", "--error-unmatch", "--", os.path.basename(path)).returncode:
+            return None
+        out = git("rev-parse", "HEAD")
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() or None

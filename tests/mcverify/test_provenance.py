@@ -63,3 +63,28 @@ def test_describe_cpu_names_model_family_and_target(monkeypatch):
     monkeypatch.setattr(prov, "cpu", lambda: {"model": None, "family": None,
                                               "model_number": None, "llvm_cpu": None})
     assert prov.describe_cpu() == f"{prov.platform.machine() or 'unknown CPU'}, 2 cores"
+
+
+def test_the_commit_is_the_tree_that_tracks_mcverify(tmp_path):
+    """Installed into an ignored virtual environment inside the user's repository,
+    mcverify recorded the user's HEAD as its own commit; a file the tree does not track
+    has no commit, one it tracks has the tree's HEAD."""
+    import subprocess
+
+    def git(*args):
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args],
+                       cwd=tmp_path, check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / ".gitignore").write_text(".venv/\n")
+    (tmp_path / "tracked.py").write_text("")
+    git("add", ".")
+    git("commit", "-qm", "user's work")
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=tmp_path, capture_output=True,
+                          text=True, check=True).stdout.strip()
+    installed = tmp_path / ".venv" / "lib" / "mcverify"
+    installed.mkdir(parents=True)
+    (installed / "provenance.py").write_text("")
+    assert prov.commit_of(str(installed / "provenance.py")) is None
+    assert prov.commit_of(str(tmp_path / "tracked.py")) == head
+    assert prov.commit_of(prov.__file__) == prov.git_commit()     # this checkout
