@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import time
 from functools import lru_cache
 from typing import Callable
@@ -295,7 +296,7 @@ def _held_to_the_references_passes(out, ref, spp: int, path: str, who: str) -> N
         passes = np.asarray(out[5], dtype=np.float64)
     except (TypeError, ValueError):
         return                                  # compare_images names a malformed one
-    if passes.ndim != 4 or passes.shape[0] < 2:
+    if passes.ndim != 4 or passes.shape[0] < 2 or not np.all(np.isfinite(passes)):
         return
     ref_per = int(ref.manifest["spp"])
     if spp // passes.shape[0] != ref_per or spp % passes.shape[0]:
@@ -311,6 +312,20 @@ def _held_to_the_references_passes(out, ref, spp: int, path: str, who: str) -> N
         raise InvalidArgument(f"renderer={who}: its mean is not the mean of its passes "
                               f"(largest difference {worst:.3g}); the pixel tests read the "
                               "passes and the image its mean: return the two consistent")
+
+
+#: ``compare_images``' names of the test side, as a renderer of one's own returned them.
+_RETURNED = {"test_mean": "its mean", "test_var": "its variance", "test_n": "its n",
+             "test_passes": "its passes"}
+
+
+def _returned_by(message: str, who: str) -> str:
+    """``compare_images``' refusal of what a renderer of one's own returned, naming the
+    renderer and what it returned: until 7 December it read "test_mean: contains NaN/Inf
+    at [0, 1, 2]" or "test_n=1: must be >= 2", names the user never gave (an outside
+    review)."""
+    return f"renderer={who}: " + re.sub(r"\btest_(mean|var|n|passes)\b",
+                                        lambda m: _RETURNED[m.group(0)], message)
 
 
 def _rendered(out, who: str):
@@ -487,23 +502,22 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                                      "before passes.exr was stored), which a splatting "
                                      "filter needs; run "
                                      f"`{reference.rebuild_command(name, path, ref.manifest)}`")
+        who = None if ours else getattr(renderer, "__name__", "renderer")
         if ours:
             source = _OurPasses(path, spp, passes, seed, params, plant, pdf_scale, pool,
                                 progress)
             batches, image = source.batches, source.image
         else:
             t1 = time.perf_counter()
-            out = _rendered(renderer(path, spp, seed), getattr(renderer, "__name__", "renderer"))
+            out = _rendered(renderer(path, spp, seed), who)
             out = out[:3] + (time.perf_counter() - t1 if out[3] is None else out[3],) + out[4:]
             if ref.pixels_correlated and out[5] is None:
-                raise InvalidArgument(f"renderer={getattr(renderer, '__name__', 'renderer')}: "
-                                      f"{path}'s filter splats (radius "
+                raise InvalidArgument(f"renderer={who}: {path}'s filter splats (radius "
                                       f"{ref.manifest['rfilter_radius']}), so pixels "
                                       "correlate; return an object with passes (the n pass "
                                       "images) besides mean, variance and n")
             if ref.pixels_correlated:
-                _held_to_the_references_passes(out, ref, spp, path,
-                                               getattr(renderer, "__name__", "renderer"))
+                _held_to_the_references_passes(out, ref, spp, path, who)
             batches, image, source = 1, (lambda b: out), None
         shown = {}
         # the rendered variance is floored at the reference's at the samples behind each
@@ -519,17 +533,24 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             if getattr(mean, "shape", None) != ref.mean.shape:
                 got = getattr(mean, "shape", None) or type(mean).__name__
                 raise InvalidArgument(
-                    f"{path}: the rendered image is {got}, the reference {ref.mean.shape}; "
+                    ("" if ours else f"renderer={who}: ")
+                    + f"{path}: the rendered image is {got}, the reference {ref.mean.shape}; "
                     + ("rebuild the reference" if ours else
                        "return the mean as a numpy array (height, width, 3) at the scene's "
                        "film size"))
             shown.update(mean=mean, n=n, seconds=seconds, stats=stats)
             pairs = dict(test_passes=passes, ref_passes=ref.passes) \
                 if ref.pixels_correlated else {}
-            return compare_images(mean, ref.mean, test_var=var, ref_var=ref.var, test_n=n,
-                                  ref_n=ref.n, alpha=alpha, name=f"render:{label}",
-                                  tests=TESTS if b == batches else ("global", "blocks"),
-                                  perceptual=False, **pairs, **spps)
+            try:
+                return compare_images(mean, ref.mean, test_var=var, ref_var=ref.var,
+                                      test_n=n, ref_n=ref.n, alpha=alpha,
+                                      name=f"render:{label}",
+                                      tests=TESTS if b == batches else ("global", "blocks"),
+                                      perceptual=False, **pairs, **spps)
+            except InvalidArgument as e:
+                if ours:
+                    raise
+                raise InvalidArgument(_returned_by(str(e), who)) from None
 
         try:
             result = run_sequential(look, batches=batches, alpha=alpha, stop_alpha=stop_alpha,

@@ -1,6 +1,7 @@
 """``render_check(scene, renderer=...)``: a renderer of one's own through the render gate,
 held to what ours is held to (found by a probe with renderers not in the repository)."""
 
+import numpy as np
 import pytest
 
 import mcverify as mv
@@ -72,3 +73,51 @@ def test_a_correct_renderer_of_ones_own_has_the_variance_floor_ours_has():
         return p.mean, p.variance * 32, 512
     r = render_check("white-furnace", renderer=per_sample, spp=512, seed=2)
     assert r.passed and r.details["variance_floor"]["test_spp"] == 1
+
+
+def _returning(name, mean=None, var=None, n=16, passes=None):
+    """A renderer of one's own returning the given image of white-furnace (64 × 64 × 3,
+    1 in every pixel), no rendering needed."""
+    def renderer(path, spp, seed):
+        m = np.ones((64, 64, 3)) if mean is None else mean
+        v = np.full((64, 64, 3), 1e-3) if var is None else var
+        if passes is None:
+            return m, v, n
+        return type("R", (), dict(mean=m, variance=v, n=n, passes=passes))()
+    renderer.__name__ = name
+    return renderer
+
+
+_nan = np.ones((64, 64, 3))
+_nan[3, 4, 1] = np.nan
+
+
+@pytest.mark.parametrize("renderer,needle", [
+    (_returning("nan_pixel", mean=_nan), "renderer=nan_pixel: its mean: contains NaN/Inf at "
+                                         "[3, 4, 1]"),
+    (_returning("negative_var", var=-np.ones((64, 64, 3))),
+     "renderer=negative_var: its variance: 12288 negative"),
+    (_returning("grey_var", var=np.ones((64, 64))),
+     "renderer=grey_var: its variance: shape (64, 64, 1) differs from its mean's"),
+    (_returning("one_value", n=1), "renderer=one_value: its n=1: must be >= 2"),
+    (_returning("float_n", n=16.0), "renderer=float_n: its n=16.0: must be an integer"),
+    (_returning("rgba", mean=np.ones((64, 64, 4))), "renderer=rgba: "),
+], ids=["nan", "negative-var", "var-shape", "n1", "n-float", "rgba"])
+def test_what_a_renderer_returned_wrong_is_named_with_the_renderer(renderer, needle):
+    """compare_images' refusals reached the user as "test_mean: contains NaN/Inf at
+    [3, 4, 1]" or "test_n=1: must be >= 2": names of compare_images' parameters, which the
+    user never gave, and not the renderer."""
+    with pytest.raises(mv.InvalidArgument) as e:
+        render_check("white-furnace", renderer=renderer, spp=512, seed=2)
+    assert needle in str(e.value) and "test_" not in str(e.value), str(e.value)
+
+
+def test_a_nan_in_a_renderers_passes_is_named_as_such():
+    """On a splatting scene a NaN in one pass image was reported as "its mean is not the
+    mean of its passes (largest difference nan)"."""
+    passes = np.ones((16, 64, 64, 3))
+    passes[5, 10, 11, 2] = np.nan
+    renderer = _returning("nan_pass", passes=passes)
+    with pytest.raises(mv.InvalidArgument) as e:
+        render_check("filters-tent", renderer=renderer, spp=1024, seed=1)
+    assert "renderer=nan_pass: its passes: contains NaN/Inf" in str(e.value), str(e.value)
