@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 
 from .. import _validate as validate
-from ..checks.image import TESTS, compare_images, perceptual_metrics
+from ..checks.image import ROUNDING, TESTS, compare_images, perceptual_metrics
 from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
 from ..result import CheckResult
 from .executors import Pool, Unit, same_source, source_fingerprint
@@ -288,6 +288,32 @@ def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_sca
     return r.mean, r.seconds, r.stats
 
 
+def _distinct_passes(passes, ref, who: str) -> None:
+    """Refuse pass images of a renderer of one's own of which two are identical where
+    the reference's passes are not (the scene is noisy): it reused a seed (ignored the
+    one it was given), and its variance is then no variance of its passes, as ``compare
+    --test-passes`` refuses. Until 7 December such passes failed the gate as blocks and
+    pixels of another brightness, never saying why, or (on a box-filter scene, where the
+    passes are not read) were not looked at. A scene without noise (each pixel one
+    texel under a directional light) has identical passes in any renderer."""
+    if not np.any(ref.var > (ROUNDING * np.abs(ref.mean)) ** 2):
+        return
+    try:
+        passes = np.asarray(passes)
+    except (TypeError, ValueError):
+        return                                  # compare_images names a malformed one
+    if passes.ndim < 3 or passes.dtype == object:
+        return
+    seen: dict[bytes, int] = {}
+    for k, image in enumerate(passes):
+        key = np.ascontiguousarray(image).tobytes()
+        if key in seen:
+            raise InvalidArgument(f"renderer={who}: its pass {k} is identical to its pass "
+                                  f"{seen[key]}: the passes must be rendered with different "
+                                  "seeds (derive each pass's seed from the seed it is given)")
+        seen[key] = k
+
+
 def _held_to_the_references_passes(out, ref, spp: int, path: str, who: str) -> None:
     """A renderer of one's own on a splatting scene is held to what ours is held to: the
     reference's samples per pass (a pixel's Σ w L / Σ w has an O(1/samples) bias), and a
@@ -511,6 +537,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             t1 = time.perf_counter()
             out = _rendered(renderer(path, spp, seed), who)
             out = out[:3] + (time.perf_counter() - t1 if out[3] is None else out[3],) + out[4:]
+            if out[5] is not None:
+                _distinct_passes(out[5], ref, who)
             if ref.pixels_correlated and out[5] is None:
                 raise InvalidArgument(f"renderer={who}: {path}'s filter splats (radius "
                                       f"{ref.manifest['rfilter_radius']}), so pixels "

@@ -115,9 +115,44 @@ def test_what_a_renderer_returned_wrong_is_named_with_the_renderer(renderer, nee
 def test_a_nan_in_a_renderers_passes_is_named_as_such():
     """On a splatting scene a NaN in one pass image was reported as "its mean is not the
     mean of its passes (largest difference nan)"."""
-    passes = np.ones((16, 64, 64, 3))
+    passes = np.ones((16, 64, 64, 3)) + 0.01 * np.arange(16)[:, None, None, None]
     passes[5, 10, 11, 2] = np.nan
-    renderer = _returning("nan_pass", passes=passes)
+    renderer = _returning("nan_pass", mean=np.nanmean(passes, axis=0), passes=passes)
     with pytest.raises(mv.InvalidArgument) as e:
         render_check("filters-tent", renderer=renderer, spp=1024, seed=1)
     assert "renderer=nan_pass: its passes: contains NaN/Inf" in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize("scene,spp", [("white-furnace", 512), ("filters-tent", 1024)])
+def test_a_renderer_reusing_its_seed_is_refused_for_it(scene, spp):
+    """A renderer that ignores its seed returns identical passes. They failed the gate as
+    blocks of another brightness (filters-tent) or were not looked at (a box filter), the
+    cause unsaid; compare --test-passes refuses them. Now both say so."""
+    rng = np.random.default_rng(5)
+    one = 1.0 + 0.1 * rng.standard_normal((64, 64, 3))
+    passes = np.stack([one + 0.01 * k for k in range(16)])
+    passes[9] = passes[3]
+    renderer = _returning("same_seed", mean=passes.mean(axis=0),
+                          var=passes.var(axis=0, ddof=1), passes=passes)
+    with pytest.raises(mv.InvalidArgument,
+                       match="renderer=same_seed: its pass 9 is identical to its pass 3"):
+        render_check(scene, renderer=renderer, spp=spp, seed=1)
+
+
+def test_identical_passes_of_a_scene_without_noise_are_no_reused_seed(tmp_path):
+    """Where the reference's own passes are identical (no noise: a pixel sees one
+    constant emitter), any renderer's are: they are compared, not refused."""
+    scene = tmp_path / "scene.xml"
+    scene.write_text("""<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="2"/></integrator>
+  <sensor type="perspective"><float name="fov" value="30"/>
+    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+      <rfilter type="box"/></film></sensor>
+  <emitter type="constant"><rgb name="radiance" value="0.5, 0.25, 1"/></emitter>
+</scene>""")
+    passes = np.tile(np.array([0.5, 0.25, 1.0]), (16, 8, 8, 1))
+    renderer = _returning("constant", mean=passes[0], var=np.zeros((8, 8, 3)),
+                          passes=passes)
+    r = render_check(str(scene), renderer=renderer, spp=512, seed=1)
+    assert r.passed, r.messages
