@@ -764,6 +764,11 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
                               "behind the variance)")
     for path in (image, var):
         reference.exr_channel_types(path)
+    if os.path.realpath(var) == os.path.realpath(image):
+        # the image read as its own variance: compared without a word until 7 December
+        raise InvalidArgument(f"{var} ({opt}-var): is the image itself ({image}); give the "
+                              "variance image of it (the variance of the values averaged "
+                              "into each pixel)")
 
     def load(keep=False):
         import numpy as np
@@ -781,6 +786,9 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
         if v.shape != m.shape:  # named here by file (compare_images would say "test_var")
             raise InvalidArgument(f"{var} ({opt}-var): shape {v.shape} differs from "
                                   f"{image}'s {m.shape}; give the variance image of it")
+        if np.array_equal(m, v) and np.any(m != 0):   # a mean written twice
+            raise InvalidArgument(f"{var} ({opt}-var): holds the pixels of {image} itself; "
+                                  "give the variance image of it")
         bad = negatives(v)
         if bad:       # named here by file (compare_images would name the side only)
             count, first, value = bad

@@ -287,3 +287,31 @@ def test_a_half_alpha_beside_float_colours_is_no_half_image(tmp_path):
     assert colour_types(half) == ["half"] * 3
     layered = _exr_header_only(tmp_path / "c.exr", {"rgb.A": 1, "rgb.R": 2})
     assert colour_types(layered) == ["float"]
+
+
+def test_compare_refuses_an_image_given_as_its_own_variance(tmp_path):
+    """``compare M.exr REF --test-var M.exr`` (the image named twice) or a variance file
+    holding the image's own pixels (a mean written twice) was compared as if it were the
+    variance, and passed; now each exits 2 naming the file. A black image's variance is
+    its pixels, 0, and is taken."""
+    rng = np.random.default_rng(4)
+    m, v = rng.gamma(2.0, 0.5, (2, 8, 8, 3))
+    for name, img in (("m", m), ("m_again", m), ("rm", m * 1.01), ("rv", v),
+                      ("black", np.zeros_like(m)), ("black_var", np.zeros_like(m))):
+        mvm.write_exr(str(tmp_path / f"{name}.exr"), img)
+    ref = ["rm.exr", "--ref-var", "rv.exr", "--ref-n", "16"]
+    for var, needle in (("m.exr", "m.exr (--test-var): is the image itself (m.exr)"),
+                        ("m_again.exr", "m_again.exr (--test-var): holds the pixels of m.exr")):
+        r = subprocess.run(CMD + ["compare", "m.exr", *ref, "--test-var", var, "--test-n",
+                                  "16"], capture_output=True, text=True, cwd=tmp_path,
+                           timeout=120)
+        assert r.returncode == 2 and needle in r.stderr, r.stdout + r.stderr
+    r = subprocess.run(CMD + ["compare", "rm.exr", "m.exr", "--test-var", "rv.exr",
+                              "--test-n", "16", "--ref-var", "m.exr", "--ref-n", "16"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and "m.exr (--ref-var): is the image itself" in r.stderr, \
+        r.stdout + r.stderr
+    r = subprocess.run(CMD + ["compare", "black.exr", "rm.exr", "--test-var", "black_var.exr",
+                              "--test-n", "16", "--ref-var", "rv.exr", "--ref-n", "16"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 1 and "FAIL" in r.stdout, r.stdout + r.stderr
