@@ -354,6 +354,29 @@ def _returned_by(message: str, who: str) -> str:
                                         lambda m: _RETURNED[m.group(0)], message)
 
 
+def _callable_as_renderer(renderer) -> None:
+    """Refuse, before any reference is built, a ``renderer`` that cannot be called as
+    ``renderer(scene_path, spp, seed)``: a ``"module:function"`` string (as ``check
+    --suite`` takes) or a function of two parameters ended in Python's bare TypeError
+    ("'str' object is not callable"), naming no parameter (an outside review)."""
+    import inspect
+
+    if not callable(renderer):
+        raise InvalidArgument(f"renderer={renderer!r}: must be a callable "
+                              "renderer(scene_path, spp, seed) -> (mean, var, n), got "
+                              f"{type(renderer).__name__} (import the function and pass it)")
+    try:
+        signature = inspect.signature(renderer)
+    except (TypeError, ValueError):     # a builtin without one: called as it is
+        return
+    try:
+        signature.bind("scene.xml", 1, 0)
+    except TypeError as e:
+        raise InvalidArgument(f"renderer={getattr(renderer, '__name__', 'renderer')}: "
+                              f"cannot be called as renderer(scene_path, spp, seed) ({e})"
+                              ) from None
+
+
 def _rendered(out, who: str):
     """(mean, var, n, seconds, stats) of a renderer's output: a RenderResult-like object
     or a ``(mean, var, n)`` tuple."""
@@ -446,6 +469,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     passes = validate.integer("passes", passes, minimum=1)
     alpha = validate.probability("alpha", alpha)
     ours = renderer is None
+    if not ours:
+        _callable_as_renderer(renderer)
     if ours:
         if spp % passes:    # the passes are equal: none of the spp may be dropped unsaid
             raise InvalidArgument(f"spp={spp}, passes={passes}: spp must be a multiple of "

@@ -156,3 +156,24 @@ def test_identical_passes_of_a_scene_without_noise_are_no_reused_seed(tmp_path):
                           passes=passes)
     r = render_check(str(scene), renderer=renderer, spp=512, seed=1)
     assert r.passed, r.messages
+
+
+@pytest.mark.parametrize("renderer,needle", [
+    ("mymodule:render", "renderer='mymodule:render': must be a callable"),
+    (42, "renderer=42: must be a callable"),
+    (lambda path, spp: None, "renderer=<lambda>: cannot be called as renderer(scene_path, "
+                             "spp, seed)"),
+], ids=["module-string", "int", "two-parameters"])
+def test_a_renderer_that_cannot_be_called_so_is_named(renderer, needle):
+    """A "module:function" string (as check --suite takes) or a function of two
+    parameters ended in Python's TypeError ("'str' object is not callable")."""
+    with pytest.raises(mv.InvalidArgument) as e:
+        render_check("white-furnace", renderer=renderer, spp=512)
+    assert needle in str(e.value), str(e.value)
+
+
+def test_a_renderer_with_extra_defaults_or_a_callable_object_is_taken():
+    class Renderer:
+        def __call__(self, path, spp, seed, *, quality="high"):
+            return np.ones((64, 64, 3)), np.full((64, 64, 3), 1e-3), 16
+    assert render_check("white-furnace", renderer=Renderer(), spp=512).passed
