@@ -76,7 +76,8 @@ class PreparedScene:
                 filter_scale: float = 1.0, bsdf_scale: tuple | None = None,
                 swap_alpha_uv: bool = False, frame_ignored: bool = False,
                 normalmap_ignored: bool = False,
-                checkerboard_swapped: bool = False) -> "PreparedScene":
+                checkerboard_swapped: bool = False,
+                tex_coords_unflipped: bool = False) -> "PreparedScene":
         """A copy with a planted bug, for testing the render gate: every emitter's
         radiance/intensity scaled by ``light_scale``; BSDF ``bsdf``'s (default: the
         first textureless diffuse-like one) base colour scaled by ``albedo_scale``;
@@ -95,10 +96,14 @@ class PreparedScene:
         frame around the normal instead of Mitsuba's (s along dp/du);
         ``normalmap_ignored``: every ``normalmap`` replaced by the BSDF it holds;
         ``checkerboard_swapped``: every ``checkerboard``'s two colours exchanged (as
-        Mitsuba's float look-up has them)."""
-        if texture_raw or checkerboard_swapped:
+        Mitsuba's float look-up has them); ``tex_coords_unflipped``: every mesh's texture
+        coordinates read as stored, ``flip_tex_coords`` ignored (an OBJ's v not turned
+        into 1 - v, Mitsuba's default)."""
+        if texture_raw or checkerboard_swapped or tex_coords_unflipped:
             desc = copy.deepcopy(self.desc)
             for shape in desc.shapes:
+                if tex_coords_unflipped and shape.type in ("obj", "ply"):
+                    shape.props["flip_tex_coords"] = False
                 for tex in _textures(shape):
                     if tex.type == "checkerboard" and checkerboard_swapped:
                         p = tex.props

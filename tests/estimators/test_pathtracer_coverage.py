@@ -157,3 +157,30 @@ def test_wrong_frame_or_anisotropy_fails_the_gate_on_the_frame_scene(plant):
 
     r = mv.render_check("vocabulary-frame", seed=25, plant=plant)
     assert not r.passed, r.summary()
+
+
+@pytest.mark.mitsuba
+def test_an_objs_default_v_flip_ignored_fails_the_gate(tmp_path):
+    """A textured OBJ at Mitsuba's default ``flip_tex_coords`` (v read as 1 - v): the
+    textures scene's card without its ``flip_tex_coords`` false. No reference scene has
+    one (the textures scene's card sets false, panel.obj is an untextured light), so the
+    bug of an OBJ loader that forgets the flip passed every gate until 7 December (an
+    outside review: planted in the loader, the textures scene passed at p = 1). Ours
+    against Mitsuba's reference made on the fly passes; the flip ignored fails."""
+    import shutil
+
+    import mcverify as mv
+
+    src = os.path.join(SCENES, "textures")
+    for name in ("card.obj", "checker.exr", "tiles.png"):
+        shutil.copy(os.path.join(src, name), tmp_path / name)
+    with open(os.path.join(src, "scene.xml")) as f:
+        xml = f.read()
+    unflip = '<boolean name="flip_tex_coords" value="false"/>'
+    assert xml.count(unflip) == 1
+    (tmp_path / "scene.xml").write_text(xml.replace(unflip, ""))
+    r = mv.render_check(str(tmp_path / "scene.xml"), seed=26)
+    assert r.passed, (r.summary(), r.details["found_by"])
+    r = mv.render_check(str(tmp_path / "scene.xml"), seed=26,
+                        plant={"tex_coords_unflipped": True})
+    assert not r.passed, r.summary()
