@@ -4,11 +4,14 @@ sample puts into each pixel, pointwise against Mitsuba's own ``rfilter`` and
 on the filter scenes (their passing gate runs in test_pathtracer_coverage.py)."""
 
 import importlib
+import os
 
 import numpy as np
 import pytest
 
 from estimators.pathtracer.camera import SPLAT_CHANNELS, Camera, filter_weights, splat
+
+SCENES = os.path.join(os.path.dirname(__file__), "..", "..", "reference", "scenes")
 
 FILTERS = [("gaussian", {}), ("gaussian", {"stddev": 0.3}), ("gaussian", {"stddev": 1.0}),
            ("tent", {}), ("tent", {"radius": 1.5})]
@@ -123,6 +126,28 @@ def test_a_wrong_filter_width_fails_the_render_gate(scene, plant):
     assert not r.passed, r.summary()
     assert {"blocks", "pixels"} & set(r.details["found_by"]), r.details["found_by"]
     assert r.details["pixels_correlated"]
+
+
+@pytest.mark.mitsuba
+def test_a_tent_of_the_default_radius_passes_and_a_wrong_default_fails(tmp_path):
+    """A tent that names no radius (Mitsuba's default, 1 pixel): the filters-tent scene
+    without its radius. No reference scene has one (filters-tent sets 1.5), so a wrong
+    default (``TENT_RADIUS``) passed every gate until 7 December (an outside review:
+    planted as 1.25, filters-tent passed at p = 1). Ours against Mitsuba's reference made
+    on the fly passes; the radius rendered as 1.25 fails."""
+    import mcverify as mv
+
+    with open(os.path.join(SCENES, "filters-tent", "scene.xml")) as f:
+        xml = f.read()
+    tent = '<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>'
+    assert xml.count(tent) == 1
+    path = tmp_path / "scene.xml"
+    path.write_text(xml.replace(tent, '<rfilter type="tent"/>'))
+    r = mv.render_check(str(path), seed=27)
+    assert r.passed, (r.summary(), r.details["found_by"])
+    r = mv.render_check(str(path), seed=27, plant={"filter_scale": 1.25})
+    assert not r.passed, r.summary()
+    assert {"blocks", "pixels"} & set(r.details["found_by"]), r.details["found_by"]
 
 
 @pytest.mark.parametrize("rfilter", ["", '<rfilter type="tent"><float name="radius" '
