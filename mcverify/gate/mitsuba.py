@@ -79,8 +79,12 @@ def _probe_variant(variant: str, lib: str | None) -> str | None:
         return str(e)
     if r.returncode == 0 and r.stdout.strip() == "1.25":
         return None
+    # Dr.Jit's reason: the last line that names an error (an ImportError's, LLVM's
+    # "LLVM ERROR: Cannot select: ... fminimum" with LLVM 15), not the last line, which
+    # after LLVM's abort is its DAG dump's "In function: drjit_<hash>"
     lines = [ln.strip() for ln in r.stderr.splitlines() if ln.strip()]
-    return lines[-1] if lines else f"exit status {r.returncode}"
+    errors = [ln for ln in lines if "error" in ln.lower()]
+    return (errors or lines or [f"exit status {r.returncode}"])[-1]
 
 
 def _probe(lib: str) -> bool:
@@ -123,7 +127,9 @@ def choose_variant() -> VariantChoice:
             if why is not None:
                 raise EnvironmentProblem(
                     f"MCVERIFY_MITSUBA_VARIANT={forced!r}: Mitsuba cannot compute in it here "
-                    f"({why}); use scalar_rgb, or unset it to choose automatically")
+                    f"({why}); use scalar_rgb, or unset it to choose automatically"
+                    + (f", or point DRJIT_LIBLLVM_PATH (now {lib or 'unset'}) at a libLLVM "
+                       ">= 16" if forced.startswith("llvm") else ""))
         return VariantChoice(forced, None)
     lib = os.environ.get("DRJIT_LIBLLVM_PATH") or _find_libllvm()
     if lib is None:
@@ -136,8 +142,11 @@ def choose_variant() -> VariantChoice:
         ok = _probe(lib)
         os.environ[_PROBED] = ("ok:" if ok else "bad:") + lib
     if not ok:
+        # the library may be the user's DRJIT_LIBLLVM_PATH: say how to get llvm_ad_rgb back
         return VariantChoice(_SCALAR_VARIANT, f"mitsuba: {_LLVM_VARIANT} does not work with "
-                             f"{lib}; using scalar_rgb")
+                             f"{lib}; using scalar_rgb (for the 3x faster {_LLVM_VARIANT}, "
+                             "point DRJIT_LIBLLVM_PATH at a working libLLVM >= 16, such as "
+                             "Debian's libllvm19)")
     os.environ["DRJIT_LIBLLVM_PATH"] = lib
     return VariantChoice(_LLVM_VARIANT, None)
 

@@ -105,3 +105,36 @@ def test_a_child_process_inherits_the_verdict(fresh):
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 0 and r.stdout.strip() == "llvm_ad_rgb", r.stderr
+
+
+def test_a_forced_llvm_variant_is_refused_with_llvms_own_reason(fresh, tmp_path):
+    """With LLVM 15 Dr.Jit aborts after LLVM's "Cannot select ... fminimum" and a dump of
+    the DAG whose last line is "In function: drjit_<hash>": the refusal quoted that line,
+    which says nothing about what is wrong; it now quotes LLVM's error, and says how to
+    get the variant back (DRJIT_LIBLLVM_PATH)."""
+    lib = str(tmp_path / "libLLVM-15.so")
+    stderr = ("LLVM ERROR: Cannot select: 0x55f3: f32 = fminimum 0x55f4, 0x55f5\n"
+              "  0x55f4: f32,ch = load<(load (s32))> 0x55f6, undef:i64\n"
+              "In function: drjit_fa746af9fa891f13ca9aa6575a4f1972\n")
+    fresh.setattr(mvm.subprocess, "run", lambda *a, **k: subprocess.CompletedProcess(
+        a[0], -6, stdout="", stderr=stderr))
+    fresh.setenv("DRJIT_LIBLLVM_PATH", lib)
+    fresh.setenv("MCVERIFY_MITSUBA_VARIANT", "llvm_ad_rgb")
+    with pytest.raises(mvm.EnvironmentProblem) as e:
+        mvm.choose_variant()
+    assert "Cannot select" in str(e.value) and "fminimum" in str(e.value)
+    assert "In function" not in str(e.value)
+    assert f"DRJIT_LIBLLVM_PATH (now {lib})" in str(e.value)
+    # an ImportError's traceback: its last line, the error
+    assert mvm._probe_variant("llvm_ad_rgb", lib) == "LLVM ERROR: Cannot select: 0x55f3: " \
+        "f32 = fminimum 0x55f4, 0x55f5"
+
+
+def test_the_fallback_notice_says_how_to_get_llvm_back(fresh, tmp_path):
+    """A DRJIT_LIBLLVM_PATH that Dr.Jit cannot use (LLVM 15, a missing file) fell back to
+    scalar_rgb with a notice naming the library only, not what to do about it."""
+    fresh.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "missing" / "libLLVM.so.19"))
+    fresh.setattr(mvm, "_probe", lambda path: False)
+    choice = mvm.choose_variant()
+    assert choice.variant == "scalar_rgb"
+    assert "point DRJIT_LIBLLVM_PATH at a working libLLVM >= 16" in choice.notice
