@@ -1282,7 +1282,19 @@ def _sigterm_unwinds():
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
+def _printable_streams() -> None:
+    """stdout and stderr write what their encoding cannot hold as escapes (``\\u2248``):
+    on a terminal that is not UTF-8 (``LANG=en_US.ISO-8859-1``, a Windows console,
+    ``PYTHONIOENCODING=ascii``) a failing check's message, "largest discrepancy at x≈…",
+    raised UnicodeEncodeError while its verdict was printed: exit 2 for a failed check,
+    and no ``--json`` written."""
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
+
+
 def main(argv=None) -> int:
+    _printable_streams()
     args = build_parser().parse_args(argv)
     with _sigterm_unwinds():
         return _main(args)

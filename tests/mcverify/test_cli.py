@@ -132,3 +132,30 @@ def test_the_error_line_escapes_control_characters(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "no \\x1b[31mGPU\\x07 here\\x9b" in err
     assert not any(c in err for c in "\x1b\x07\x9b")
+
+
+def test_a_terminal_that_is_not_utf8_gets_the_verdict_and_the_json(tmp_path):
+    """On a terminal whose encoding has no '≈' (PYTHONIOENCODING=ascii stands for a
+    Latin-1 locale or a Windows console) a failing check's message "largest discrepancy
+    at x≈[...]" raised UnicodeEncodeError while it was printed: exit 2, "unexpected
+    UnicodeEncodeError", instead of 1, and no --json. The character is now escaped."""
+    import os
+
+    (tmp_path / "latin1_suite.py").write_text(
+        "import numpy as np, mcverify\n"
+        "from mcverify.gate.suites import Check\n"
+        "def bad(seed, stop_alpha=None):\n"
+        "    return mcverify.check_sampler(lambda u: np.sqrt(u[:, :1]),\n"
+        "        lambda x: np.ones(len(x)), mcverify.Interval(0, 1), sample_dim=1,\n"
+        "        n_samples=20_000, seed=seed, name='bad')\n"
+        "suite = [Check('my.bad', bad)]\n", encoding="utf-8")
+    env = dict(os.environ, PYTHONIOENCODING="ascii",
+               PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    out = tmp_path / "run.json"
+    r = subprocess.run(CMD + ["check", "--suite", "latin1_suite:suite", "--json", str(out)],
+                       capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    assert r.returncode == 1, r.stderr
+    assert "UnicodeEncodeError" not in r.stderr + r.stdout
+    assert "x\\u2248" in r.stderr + r.stdout
+    doc = json.loads(out.read_text(encoding="utf-8"))
+    assert doc["passed"] is False and doc["n_failed"] == 1
