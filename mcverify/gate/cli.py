@@ -212,6 +212,11 @@ def _mitsuba_provenance(selected) -> dict:
     warps, printing the fallback notice once; {} when no selected check uses Mitsuba."""
     if not any("mitsuba" in c.tags for c in selected):
         return {}
+    return _variant_provenance()
+
+
+def _variant_provenance() -> dict:
+    """Mitsuba's version and variant, printing the variant choice's fallback notice."""
     from . import mitsuba as mv_mitsuba
 
     choice = mv_mitsuba.choose_variant()
@@ -593,6 +598,11 @@ def _cmd_report(args) -> int:
     renders = None
     if scenes:
         from .report.renders import run_renders
+
+        if "mitsuba_variant" not in extra:    # Mitsuba renders beside ours: its variant's
+            # fallback notice and provenance, which a suite without Mitsuba checks (or
+            # --no-suite) left out
+            extra = dict(extra, **_variant_provenance())
 
         renders = run_renders(scenes, seed=args.seed,
                               progress=None if args.quiet else _progress(sys.stderr))

@@ -428,6 +428,19 @@ class _OurPasses:
         self.stream.close()
 
 
+def _variant_notice(notice) -> None:
+    """Before Mitsuba renders: the variant choice's fallback notice (llvm_ad_rgb unusable,
+    scalar_rgb used), through ``notice``. A reference built (or rendered for ``params``)
+    under the fallback was made without a word: `render-check` said only "building it
+    with Mitsuba", and the manifest recorded scalar_rgb, whose filter differs slightly."""
+    if notice:
+        from . import mitsuba as mvm
+
+        fallback = mvm.choose_variant().notice
+        if fallback:
+            notice(fallback)
+
+
 def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 1024,
                  passes: int = 16, seed: int = 0, alpha: float = 0.01,
                  params: dict | None = None, pdf_scale: float = 1.0,
@@ -511,6 +524,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         if params:
             if splats:
                 _samples_kept(path, subject, spp, passes)
+            _variant_notice(notice)
             ref, _ = reference.render_reference(path, params=params, seed=seed + 1, pool=pool,
                                                 **made)
         else:
@@ -523,6 +537,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                     _samples_kept(path, subject, spp, passes)
                 if notice:
                     notice(f"{name}: no reference yet; building it with Mitsuba (once)")
+                _variant_notice(notice)
                 try:
                     reference.build_reference(path, pool=pool, **made)
                 except InvalidArgument as e:    # a file named ref in the way, a scene

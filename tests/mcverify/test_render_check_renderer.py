@@ -1,6 +1,8 @@
 """``render_check(scene, renderer=...)``: a renderer of one's own through the render gate,
 held to what ours is held to (found by a probe with renderers not in the repository)."""
 
+import shutil
+
 import numpy as np
 import pytest
 
@@ -177,3 +179,30 @@ def test_a_renderer_with_extra_defaults_or_a_callable_object_is_taken():
         def __call__(self, path, spp, seed, *, quality="high"):
             return np.ones((64, 64, 3)), np.full((64, 64, 3), 1e-3), 16
     assert render_check("white-furnace", renderer=Renderer(), spp=512).passed
+@pytest.mark.parametrize("params", [None, {"res": 16}], ids=["missing-reference", "params"])
+def test_a_reference_mitsuba_renders_under_the_fallback_variant_says_so(tmp_path, monkeypatch,
+                                                                         params):
+    """With llvm_ad_rgb unusable (DRJIT_LIBLLVM_PATH at LLVM 15) render-check built a new
+    scene's reference, or rendered one for --param, with scalar_rgb without a word: the
+    notice said "building it with Mitsuba", the fallback's notice was printed by `check`
+    and `bench` only. It now comes through ``notice`` before Mitsuba renders."""
+    from mcverify.gate import mitsuba as mvm
+    from mcverify.gate import reference
+
+    scene = tmp_path / "scene.xml"
+    shutil.copy(reference.resolve_scene("white-furnace")[1], scene)
+    fallback = "mitsuba: llvm_ad_rgb does not work with /x/libLLVM-15.so; using scalar_rgb"
+    monkeypatch.setattr(mvm, "choose_variant", lambda: mvm.VariantChoice("scalar_rgb", fallback))
+
+    class Rendered(Exception):
+        pass
+
+    def render_with_mitsuba(*a, **k):
+        raise Rendered
+
+    monkeypatch.setattr(reference, "build_reference", render_with_mitsuba)
+    monkeypatch.setattr(reference, "render_reference", render_with_mitsuba)
+    said = []
+    with pytest.raises(Rendered):
+        render_check(str(scene), spp=512, seed=2, params=params, notice=said.append)
+    assert fallback in said, said
