@@ -35,6 +35,32 @@ references, the Mitsuba adapters, bench, report, CLI). ``render_check`` is re-ex
 from the gate lazily, so ``import mcverify`` loads neither.
 """
 
+import os as _os
+import sys as _sys
+
+
+def _numba_refused(e: ValueError):
+    """numba raises ValueError as it is imported where ``NUMBA_NUM_THREADS`` is 0 or
+    negative: ``mcverify check`` printed numba's traceback and exited 1, "a check failed".
+    Run as the command line (``python -m mcverify``, whose package import is this one,
+    or the ``mcverify`` script): one line naming the variable, exit 2; imported:
+    ``EnvironmentProblem`` saying the same."""
+    from .errors import EnvironmentProblem
+
+    given = _os.environ.get("NUMBA_NUM_THREADS")
+    text = (f"numba cannot start ({e})" + (f": NUMBA_NUM_THREADS={given!r}; set it to a "
+            "whole number >= 1, or unset it" if given is not None else ""))
+    if _sys.argv[:1] == ["-m"] or _os.path.basename(_sys.argv[0]) == "mcverify":
+        print(f"mcverify: error: {text}", file=_sys.stderr)
+        raise SystemExit(2)
+    raise EnvironmentProblem(text) from None
+
+
+try:
+    import numba  # noqa: F401 - numba refuses some settings as it is imported
+except ValueError as _e:
+    _numba_refused(_e)
+
 from mcnumba.disk_cache import tolerate_damaged_cache
 from mcnumba.vector_width import prefer_wide_vectors
 

@@ -159,3 +159,21 @@ def test_a_terminal_that_is_not_utf8_gets_the_verdict_and_the_json(tmp_path):
     assert "x\\u2248" in r.stderr + r.stdout
     doc = json.loads(out.read_text(encoding="utf-8"))
     assert doc["passed"] is False and doc["n_failed"] == 1
+
+
+@pytest.mark.parametrize("value", ["0", "-2"])
+def test_a_numba_thread_count_numba_refuses_exits_2_naming_it(value):
+    """numba raises ValueError as it is imported where NUMBA_NUM_THREADS is 0 or negative:
+    the command printed numba's traceback and exited 1, which CI reads as a failed check.
+    It now exits 2 with one line naming the variable; an import names it too."""
+    import os
+
+    env = dict(os.environ, NUMBA_NUM_THREADS=value)
+    r = subprocess.run(CMD + ["list"], capture_output=True, text=True, timeout=600, env=env)
+    assert r.returncode == 2 and r.stdout == ""
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"NUMBA_NUM_THREADS='{value}'" in r.stderr and "whole number >= 1" in r.stderr
+    r = subprocess.run([sys.executable, "-c", "import mcverify"], capture_output=True,
+                       text=True, timeout=600, env=env)
+    assert r.returncode == 1
+    assert "EnvironmentProblem: numba cannot start" in r.stderr.strip().splitlines()[-1]
