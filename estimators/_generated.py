@@ -40,6 +40,11 @@ def cache_dir() -> str:
     return d
 
 
+class CacheWriteError(OSError):
+    """The kernel cache cannot take a generated module (a full disk, a quota): the
+    machine's problem, not the warp's. ``filename`` is the module's path."""
+
+
 def load(name: str, source: str):
     """The module ``name`` with ``source``: written atomically into the cache (once, and
     again where the file there is not ``source``: see ``_cached_source``), imported, and
@@ -51,15 +56,23 @@ def load(name: str, source: str):
         # private 0600: a kernel cache shared by a team's accounts was unreadable to all
         # but the first to write each module
         tmp = f"{path}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(source)
-            os.replace(tmp, path)
-        except BaseException:   # a full disk, Ctrl-C: no .tmp file left in the cache
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            try:
+                with os.fdopen(fd, "w", encoding="utf-8") as f:
+                    f.write(source)
+                os.replace(tmp, path)
+            except BaseException:   # a full disk, Ctrl-C: no .tmp file left in the cache
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+                raise
+        except OSError as e:
+            # a full disk failed the check whose warp compiled first, "raised OSError:
+            # [Errno 28] No space left on device" (exit 1), naming neither the cache nor
+            # what to do, as if the warp were wrong
+            raise CacheWriteError(e.errno, f"cannot write a kernel into the kernel cache "
+                                  f"({e.strerror}); free space there or set MCVERIFY_CACHE "
+                                  "to a folder you can write", path) from None
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module

@@ -484,6 +484,12 @@ def _run_guarded(check: Check, seed: int, stop_alpha: float | None = None) -> Ch
     except (Exception, SystemExit) as e:  # noqa: BLE001 - a subject error is a finding
         if interrupted(e):          # Ctrl-C inside a numba kernel arrives as SystemError
             raise KeyboardInterrupt from None
+        from estimators._generated import CacheWriteError
+
+        if isinstance(e, CacheWriteError):  # the kernel cache is full: the machine's
+            # problem, not the subject's (exit 2, not a failed check)
+            raise EnvironmentProblem(f"check {check.name!r}: {e.filename}: {e.strerror}") \
+                from None
         # a check calling sys.exit fails too: it must not end the gate (with exit 0)
         return failed(f"raised {type(e).__name__}: {e}", type(e).__name__)
     if not isinstance(r, CheckResult):

@@ -198,3 +198,27 @@ def test_a_generated_module_is_readable_as_the_umask_allows(tmp_path, monkeypatc
     mode = (tmp_path / f"mcverify_test_mode_{umask:o}.py").stat().st_mode & 0o777
     assert mode == 0o666 & ~umask, oct(mode)
     assert [p for p in os.listdir(tmp_path) if p.endswith(".tmp")] == []
+
+
+def test_a_full_kernel_cache_stops_the_gate_naming_it(tmp_path, monkeypatch):
+    """A kernel cache on a full disk failed the check whose warp compiled first, "raised
+    OSError: [Errno 28] No space left on device", exit 1 as if the warp were wrong,
+    naming neither the cache nor what to do. The write now raises CacheWriteError (an
+    OSError) naming the module's path and MCVERIFY_CACHE, and the gate stops on it as an
+    environment problem (exit 2)."""
+    from mcverify.errors import EnvironmentProblem
+    from mcverify.gate.suites import Check, _run_guarded
+
+    monkeypatch.setenv("MCVERIFY_CACHE", str(tmp_path))
+
+    def full(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(_generated.os, "replace", full)
+    with pytest.raises(_generated.CacheWriteError, match="No space left.*MCVERIFY_CACHE") as e:
+        _generated.load("mcverify_test_full_cache", "x = 1\n")
+    assert e.value.filename == str(tmp_path / "mcverify_test_full_cache.py")
+    check = Check("my.warp", lambda seed: _generated.load("mcverify_test_full_cache2", "x = 2\n"))
+    with pytest.raises(EnvironmentProblem, match="check 'my.warp': .*mcverify_test_full_cache2"
+                       ".py: cannot write a kernel .*No space left"):
+        _run_guarded(check, 0)
