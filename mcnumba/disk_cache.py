@@ -8,10 +8,15 @@ subject failing; an outside review). ``tolerate_damaged_cache()`` runs when
 ``estimators`` or ``mcverify`` is imported: an index that cannot be unpickled reads as
 empty and a data file as missing (as numba already reads a data file removed under its
 index), so the function is compiled again and its cache rewritten. An error opening the
-files (a permission) goes on as numba raises it.
+files (a permission) goes on as numba raises it. A cache file that cannot be written (a
+full disk) is not written, with one warning a process: numba raised from the save after
+compiling, and the check whose kernel compiled first failed, "raised OSError: [Errno 28]
+No space left on device", exit 1.
 """
 
 from __future__ import annotations
+
+import warnings
 
 
 def tolerate_damaged_cache() -> bool:
@@ -22,11 +27,11 @@ def tolerate_damaged_cache() -> bool:
 
     cls = getattr(caching, "IndexDataCacheFile", None)
     if cls is None or not all(callable(getattr(cls, a, None))
-                              for a in ("_load_index", "_load_data")):
+                              for a in ("_load_index", "_load_data", "save")):
         return False
     if getattr(cls, "_mcnumba_tolerant", False):
         return True
-    load_index, load_data = cls._load_index, cls._load_data
+    load_index, load_data, save = cls._load_index, cls._load_data, cls.save
 
     def _load_index(self):
         try:
@@ -44,6 +49,18 @@ def tolerate_damaged_cache() -> bool:
         except Exception as e:  # noqa: BLE001 - numba's load() reads OSError as missing
             raise OSError(f"damaged numba cache file {name}: {e}") from e
 
-    cls._load_index, cls._load_data = _load_index, _load_data
+    def _save(self, key, data):
+        try:
+            save(self, key, data)
+        except OSError as e:    # the function is compiled; only its cache is not kept
+            if not _warned:
+                _warned.append(e)
+                warnings.warn(f"numba's cache cannot be written ({e}); kernels compile "
+                              "again in each process: free space there or set "
+                              "NUMBA_CACHE_DIR to a folder you can write", RuntimeWarning,
+                              stacklevel=2)
+
+    _warned = []
+    cls._load_index, cls._load_data, cls.save = _load_index, _load_data, _save
     cls._mcnumba_tolerant = True
     return True
