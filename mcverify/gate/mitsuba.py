@@ -99,7 +99,9 @@ def choose_variant() -> VariantChoice:
     try:
         import mitsuba
     except ImportError as e:  # pragma: no cover - mitsuba is a dependency
-        raise EnvironmentProblem(f"mitsuba is not importable ({e}); run `make setup`") from e
+        # `make setup` alone meant nothing where mcverify was installed with pip
+        raise EnvironmentProblem(f"mitsuba is not importable ({e}); install it (`pip install "
+                                 "mitsuba`, or `make setup` in a checkout of mcverify)") from e
     if forced:
         # the adapters read weights and values as RGB (3 channels): a mono or spectral
         # variant failed every check with numpy's "cannot reshape", a misspelt one with

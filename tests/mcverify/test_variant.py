@@ -138,3 +138,12 @@ def test_the_fallback_notice_says_how_to_get_llvm_back(fresh, tmp_path):
     choice = mvm.choose_variant()
     assert choice.variant == "scalar_rgb"
     assert "point DRJIT_LIBLLVM_PATH at a working libLLVM >= 16" in choice.notice
+
+
+def test_mitsuba_missing_says_how_to_install_it(fresh):
+    """Mitsuba not importable said only "run `make setup`", a target of this repository's
+    Makefile, which a user who installed mcverify with pip does not have."""
+    fresh.setitem(sys.modules, "mitsuba", None)
+    with pytest.raises(mvm.EnvironmentProblem, match="mitsuba is not importable .*"
+                       "pip install mitsuba"):
+        mvm.choose_variant()
