@@ -1310,9 +1310,30 @@ def main(argv=None) -> int:
         return _main(args)
 
 
+def _threading_layer(command: str) -> None:
+    """numba's threading layer, started before any work by the commands that run its
+    parallel loops: one it cannot load (``NUMBA_THREADING_LAYER=tbb`` without TBB, a
+    misspelt name) raised ValueError inside the first check that ran a parallel loop,
+    which failed ("raised ValueError: The threading layer requested 'bogus' is unknown
+    to Numba", exit 1) as if its subject were wrong. EnvironmentProblem naming it."""
+    if command not in _KERNEL_COMMANDS:
+        return
+    from numba.np.ufunc import parallel
+
+    try:
+        parallel._launch_threads()
+    except ValueError as e:
+        layer = os.environ.get("NUMBA_THREADING_LAYER")
+        raise EnvironmentProblem(
+            f"numba cannot start its threads ({' '.join(str(e).split())})"
+            + (f": NUMBA_THREADING_LAYER={layer!r}; unset it, or install that layer"
+               if layer else "")) from None
+
+
 def _main(args) -> int:
     try:
         _validate_common(args)
+        _threading_layer(args.command)     # before _thread_limit starts the threads
         _thread_limit()
         _kernel_cache(args.command)
         _hypothesis_home()

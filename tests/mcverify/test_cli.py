@@ -177,3 +177,22 @@ def test_a_numba_thread_count_numba_refuses_exits_2_naming_it(value):
                        text=True, timeout=600, env=env)
     assert r.returncode == 1
     assert "EnvironmentProblem: numba cannot start" in r.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("layer, needle", [("bogus", "unknown to Numba"),
+                                           ("tbb", "No threading layer could be loaded")])
+def test_a_threading_layer_numba_cannot_load_exits_2_naming_it(layer, needle):
+    """NUMBA_THREADING_LAYER misspelt, or tbb without TBB installed: numba raised inside
+    the first check that ran a parallel loop, which failed ("raised ValueError: ...",
+    exit 1) as if the warp were wrong. The run now stops before any work, exit 2."""
+    import importlib.util
+    import os
+
+    if layer == "tbb" and importlib.util.find_spec("tbb") is not None:
+        pytest.skip("TBB is installed here")
+    env = dict(os.environ, NUMBA_THREADING_LAYER=layer)
+    r = subprocess.run(CMD + ["check", "-k", "sampler:cosine_hemisphere", "-q"],
+                       capture_output=True, text=True, timeout=600, env=env)
+    assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr
+    assert f"NUMBA_THREADING_LAYER='{layer}'" in r.stderr
