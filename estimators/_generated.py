@@ -27,10 +27,24 @@ except ImportError:         # not on POSIX: no lock, each process compiles for i
     fcntl = None
 
 
+def user_cache() -> str:
+    """``~/.cache``; where no home folder is known (``HOME`` unset and the user not in the
+    password database: a container run as ``-u 1234``), ``mcverify-UID-cache`` in the
+    temporary folder: ``~`` was left as it was, and the kernel cache (and hypothesis's)
+    went into a folder named ``~`` in the current directory, the user's project."""
+    home = os.path.expanduser("~")
+    if not os.path.isabs(home):
+        import tempfile
+
+        uid = os.getuid() if hasattr(os, "getuid") else "user"
+        return os.path.join(tempfile.gettempdir(), f"mcverify-{uid}-cache")
+    return os.path.join(home, ".cache")
+
+
 def cache_path() -> str:
-    """``$MCVERIFY_CACHE``, else ``~/.cache/mcverify/kernels``."""
-    return os.environ.get("MCVERIFY_CACHE") or os.path.join(os.path.expanduser("~"),
-                                                            ".cache", "mcverify", "kernels")
+    """``$MCVERIFY_CACHE``, else ``~/.cache/mcverify/kernels`` (see ``user_cache``)."""
+    return os.environ.get("MCVERIFY_CACHE") or os.path.join(user_cache(), "mcverify",
+                                                            "kernels")
 
 
 def cache_dir() -> str:

@@ -1259,8 +1259,10 @@ def _hypothesis_home() -> None:
     (an untracked folder in a CI checkout). Its storage goes to
     ``~/.cache/mcverify/hypothesis`` unless ``HYPOTHESIS_STORAGE_DIRECTORY`` says where;
     worker processes inherit the setting."""
+    from estimators._generated import user_cache
+
     os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(
-        os.path.expanduser("~"), ".cache", "mcverify", "hypothesis"))
+        user_cache(), "mcverify", "hypothesis"))
 
 
 #: SIGTERMs ``main``'s handler has turned into KeyboardInterrupt in this process

@@ -222,3 +222,30 @@ def test_a_full_kernel_cache_stops_the_gate_naming_it(tmp_path, monkeypatch):
     with pytest.raises(EnvironmentProblem, match="check 'my.warp': .*mcverify_test_full_cache2"
                        ".py: cannot write a kernel .*No space left"):
         _run_guarded(check, 0)
+
+
+def test_without_a_home_folder_the_cache_is_not_put_in_the_current_directory(monkeypatch,
+                                                                            tmp_path):
+    """HOME unset and the user not in the password database (a container run as
+    ``-u 1234``): ``~`` stayed unexpanded, and the kernel cache and hypothesis's storage
+    went into a folder named ``~`` in the current directory, the user's project. They go
+    into the temporary folder instead."""
+    import pwd
+    import tempfile
+
+    from mcverify.gate import cli
+
+    def unknown(uid):
+        raise KeyError(f"getpwuid(): uid not found: {uid}")
+
+    for name in ("HOME", "MCVERIFY_CACHE", "HYPOTHESIS_STORAGE_DIRECTORY"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(pwd, "getpwuid", unknown)
+    monkeypatch.chdir(tmp_path)
+    assert os.path.expanduser("~") == "~"           # the situation
+    path = _generated.cache_path()
+    assert os.path.isabs(path) and path.startswith(tempfile.gettempdir()), path
+    cli._hypothesis_home()
+    storage = os.environ["HYPOTHESIS_STORAGE_DIRECTORY"]
+    assert os.path.isabs(storage) and storage.startswith(tempfile.gettempdir()), storage
+    assert os.listdir(tmp_path) == []
