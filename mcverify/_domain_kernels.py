@@ -114,6 +114,17 @@ def pseudo_azimuth_edges(e: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
+def _interval_tol(tol, a, b, x):
+    """How far outside ``[a, b]`` a point of ``x``'s type still counts as inside:
+    ``tol`` of the width, or one ulp of the ends' magnitude in that type, whichever is
+    more. An end a float32 point cannot hold exactly (100.1) is held as its nearest
+    float32, half a float32 ulp (3.8e-6) away: ``tol`` of a width of 0.1 is 1e-6, and a
+    correct float32 sampler on ``Interval(100.1, 100.2)`` failed, its draws at ``u = 0``
+    "outside the interval" (an outside review, 7 December)."""
+    return max(tol * (b - a), np.finfo(x.dtype).eps * max(abs(a), abs(b)))
+
+
+@njit(cache=True, inline="always")
 def _locate(kind, args, tol, x, i, rejection, exact):
     """(status, s0, s1) of the point ``x[i]`` (float32 or float64; computed in float64).
     ``s1`` is φ / 2π with ``exact``, else ``_pseudo_azimuth`` (binning). With
@@ -131,7 +142,7 @@ def _locate(kind, args, tol, x, i, rejection, exact):
         return NONFINITE, 0.0, 0.0
     if kind == INTERVAL:
         a, b = args[0], args[1]
-        t = tol * (b - a)
+        t = _interval_tol(tol, a, b, x)
         if x0 < a - t or x0 > b + t:
             return OUTSIDE, 0.0, 0.0
         return VALID, (x0 - a) / (b - a), 0.0
@@ -291,7 +302,7 @@ def _block_params(kind, args, tol, x, lo, m, s0, s1, c, exact):
             c0[t] = x[lo + t, 0]
     if kind == INTERVAL:
         a, b = args[0], args[1]
-        t_ = tol * (b - a)
+        t_ = _interval_tol(tol, a, b, x)
         for t in range(m):
             x0 = c0[t]
             ok = (x0 * 0.0 == 0.0) & (x0 >= a - t_) & (x0 <= b + t_)

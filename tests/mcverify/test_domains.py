@@ -443,3 +443,32 @@ def test_a_subclass_default_resolution_is_used():
     r = mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)),
                          _FixedResolutionSquare(12), n_samples=10_000, seed=1)
     assert r.passed and r.details["resolution"] == [12, 12], r.summary()
+
+
+@pytest.mark.parametrize("a, b", [(100.1, 100.2), (-550.7, -550.3), (1e6 + 0.3, 1e6 + 64.3)])
+def test_float32_points_at_an_interval_end_it_cannot_hold_are_inside(a, b):
+    """A float32 sampler holds an end that float32 cannot represent as its nearest
+    float32, up to half a float32 ulp of the end outside [a, b], more than the
+    tolerance's 1e-5 of a narrow width: those points are inside (at the end), and a
+    float64 point as far outside is not."""
+    dom = mv.Interval(a, b)
+    f32 = np.float32
+    # the nearest float32 to each end, and the float32 just outside each end
+    e32 = np.array([[a], [b]]).astype(f32)
+    out = np.array([[f32(a) if float(f32(a)) < a else np.nextafter(f32(a), f32(-np.inf))],
+                    [f32(b) if float(f32(b)) > b else np.nextafter(f32(b), f32(np.inf))]])
+    assert np.all(dom.inside(e32)) and np.all(dom.inside(out))
+    # a float64 point two float32 ulps outside is outside
+    far = 2.0 * np.finfo(f32).eps * max(abs(a), abs(b))
+    assert not np.any(dom.inside(np.array([[a - far], [b + far]])))
+    assert np.array_equal(dom.to_param(out)[:, 0], [0.0, K._S_MAX])
+    lo, hi = np.float32(a), np.float32(b)
+
+    def sample(u):                                         # float32 all the way
+        return np.clip(lo + (hi - lo) * u.astype(np.float32), lo, hi)
+
+    r = mv.check_sampler(sample, lambda x: np.full(len(x), 1.0 / (b - a)), dom,
+                         n_samples=50_000, seed=0)
+    assert not any("outside" in f for f in r.failures), r.failures
+    r = mv.check_stability(sample, dom, sample_dim=1, dtype=np.float32, max_examples=20)
+    assert r.passed, r.failures
