@@ -1026,13 +1026,25 @@ def detectable_contamination(result: CheckResult, *, power: float = 0.95,
     return min(stats.chi2_detectable_mixture(e, u, alpha=level, power=power) for e, u in pairs)
 
 
+#: Default ``atol`` of ``check_inverse``: 1e-7 (about one float32 ulp near 1) where
+#: ``sample`` and ``inverse`` return float64, 1e-6 (17 float32 ulps below 1) where either
+#: returns float32: a float32 round trip rounds u itself, the point and each step of the
+#: inverse (a float32 cosine warp and its inverse, r² = x² + y² and φ by arctan2, lose up
+#: to 2.1e-7, the uniform sphere's 1.5e-7).
+ATOL64, ATOL32 = 1e-7, 1e-6
+
+
 def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
-                  seed: int = 0, atol: float = 1e-7, name: str | None = None) -> CheckResult:
+                  seed: int = 0, atol: float | None = None,
+                  name: str | None = None) -> CheckResult:
     """Round trip of a CDF inversion: ``inverse(sample(u)) ≈ u``.
 
-    Passes iff every component satisfies ``|u' - u| <= atol`` (1e-7 by default: about
+    Passes iff every component satisfies ``|u' - u| <= atol``. By default 1e-7 (about
     one float32 ulp near 1, so any wrong inverse fails while float64 code has a wide
-    margin; tighten it to hold float64 code to float64 accuracy). Reports the worst
+    margin; tighten it to hold float64 code to float64 accuracy), or 1e-6 where
+    ``sample`` or ``inverse`` returns float32 (``ATOL32``: a correct float32 round trip
+    loses a few float32 ulps; until 7 December the float32 cosine warp and its inverse
+    failed at 2.1e-7). Reports the worst
     error in absolute terms (``max_abs_error``, its ``u -> x -> u'`` chain in ``worst``)
     and in float64 ulps of ``u`` (``max_ulps``, its chain in ``worst_ulps``: near u = 0,
     where an ulp is small, it is often another round trip).
@@ -1050,7 +1062,8 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     k = validate.integer("sample_dim", sample_dim, minimum=1)
     n = validate.integer("n_samples", n_samples, minimum=1)
     seed = validate.seed("seed", seed)
-    atol = validate.real("atol", atol, minimum=0.0)
+    if atol is not None:
+        atol = validate.real("atol", atol, minimum=0.0)
     validate.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips",
                     width=("sample_dim", k), least=min(n, 1000))
     name = validate.label(name, f"inverse:{_name_of(inverse, 'inverse')}")
@@ -1060,7 +1073,11 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     # the points' dimension is the sampler's own; their rows and dtype are checked here,
     # so that a short or non-numeric output is blamed on sample, not on inverse
     validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
-    u2 = np.asarray(validate.points("inverse", inverse(x), n, k), dtype=np.float64)
+    u2 = validate.points("inverse", inverse(x), n, k)
+    if atol is None:
+        single = np.float32 in (np.asarray(x).dtype, np.asarray(u2).dtype)
+        atol = ATOL32 if single else ATOL64
+    u2 = np.asarray(u2, dtype=np.float64)
     err = np.abs(u2 - u)
     err = np.where(np.isfinite(err), err, np.inf)
     per = err.max(axis=1)
