@@ -125,6 +125,22 @@ def _interval_tol(tol, a, b, x):
 
 
 @njit(cache=True, inline="always")
+def _one_minus_z(r2, z, half):
+    """1 - z of a unit vector with x² + y² = ``r2``, keeping the tangential components'
+    precision at both poles: (x² + y²) / (1 + z) for z > 0 (float32 points there have
+    z = 1 to within an ulp, so 1 - z would be 0 or 6e-8), and on the sphere 2 - (x² +
+    y²) / (1 - z) for z < 0, where float32 points have z = -1 to within an ulp (a
+    correct float32 cone of cos θ_max = 0.999999 about -z failed with p = 0 until
+    7 December, its points binned in the last row while the cubature spread their mass
+    below it; an outside review). The hemisphere's z < 0 lies within its tolerance."""
+    if z > 0.0:
+        return r2 / (1.0 + z)
+    if half:
+        return 1.0 - z
+    return 2.0 - r2 / (1.0 - z)
+
+
+@njit(cache=True, inline="always")
 def _locate(kind, args, tol, x, i, rejection, exact):
     """(status, s0, s1) of the point ``x[i]`` (float32 or float64; computed in float64).
     ``s1`` is φ / 2π with ``exact``, else ``_pseudo_azimuth`` (binning). With
@@ -157,15 +173,13 @@ def _locate(kind, args, tol, x, i, rejection, exact):
             return OUTSIDE, 0.0, 0.0
         return VALID, r2, s1
     # SPHERE / HEMISPHERE: unit vectors (|norm - 1| <= tol, compared squared: no root);
-    # s0 = (1 - z) / span, span 2 or 1, with 1 - z = (x² + y²) / (1 + z) for z > 0,
-    # which keeps the tangential components' precision near the pole (float32 points
-    # there have z = 1 to within an ulp, so 1 - z would be 0 or 6e-8).
+    # s0 = (1 - z) / span, span 2 or 1 (``_one_minus_z``).
     n2 = r2 + x2 * x2
     if n2 < (1.0 - tol) * (1.0 - tol) or n2 > (1.0 + tol) * (1.0 + tol):
         return OUTSIDE, 0.0, 0.0
     if kind == HEMISPHERE and x2 < -tol:
         return OUTSIDE, 0.0, 0.0
-    w = r2 / (1.0 + x2) if x2 > 0.0 else 1.0 - x2
+    w = _one_minus_z(r2, x2, kind == HEMISPHERE)
     return VALID, w if kind == HEMISPHERE else 0.5 * w, s1
 
 
@@ -332,7 +346,7 @@ def _block_params(kind, args, tol, x, lo, m, s0, s1, c, exact):
             n2 = r2 + x2 * x2
             ok = ((x0 * 0.0 + x1 * 0.0 + x2 * 0.0 == 0.0) & (n2 >= lo2) & (n2 <= hi2)
                   & ((x2 >= -tol) | (not half)))
-            w = r2 / (1.0 + x2) if x2 > 0.0 else 1.0 - x2
+            w = _one_minus_z(r2, x2, half)
             s0[t] = _clamp(w if half else 0.5 * w) if ok else -1.0
             phi = _azimuth(x0, x1) if exact else _pseudo_azimuth(x0, x1)
             s1[t] = _clamp(phi) if ok else 0.0

@@ -472,3 +472,32 @@ def test_float32_points_at_an_interval_end_it_cannot_hold_are_inside(a, b):
     assert not any("outside" in f for f in r.failures), r.failures
     r = mv.check_stability(sample, dom, sample_dim=1, dtype=np.float32, max_examples=20)
     assert r.passed, r.failures
+
+
+def test_float32_points_near_the_south_pole_keep_their_polar_parameter():
+    """On the sphere 1 + z of a float32 point within 1e-4 of the south pole is 0 or a
+    multiple of 6e-8; the domain takes it from the tangential components, as at the
+    north pole (until 7 December only there: a correct float32 cone of cos θ_max =
+    0.999999 about -z failed with p = 0, about +z it passed)."""
+    dom = mv.Sphere()
+    d = np.geomspace(1e-12, 1e-4, 50) / 2.0               # 1 - s0
+    s = np.stack([1.0 - d, np.full_like(d, 0.3)], -1)
+    x32 = dom.to_point(s).astype(np.float32)
+    back = 1.0 - dom.to_param(x32)[:, 0]
+    assert np.all(np.abs(back - d) <= 1e-6 * d + 2e-16)
+    ct = 0.999999
+
+    def cone(u, width=1.0):                                # float32 points about -z
+        z = 1.0 - u[:, 0] * (1.0 - ct) * width
+        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        phi = 2.0 * np.pi * u[:, 1]
+        return np.stack([r * np.cos(phi), r * np.sin(phi), -z], 1).astype(np.float32)
+
+    def pdf(x):
+        return np.where(-np.asarray(x, np.float64)[:, 2] >= ct, 1.0 / (2 * np.pi * (1 - ct)),
+                        0.0)
+
+    r = mv.check_sampler(cone, pdf, dom, n_samples=200_000, seed=0)
+    assert r.passed, (r.failures, r.messages)
+    r = mv.check_sampler(lambda u: cone(u, 0.9), pdf, dom, n_samples=200_000, seed=0)
+    assert not r.passed
