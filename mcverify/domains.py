@@ -247,6 +247,14 @@ def _refuse_custom(domain: Domain) -> None:
                 f"but the checks bin it as the built-in {base.__name__} ({name}="
                 f"{getattr(base, name)!r}); subclass a built-in domain for its repr or "
                 "default_resolution only")
+    # the uniform numbers a sampler on it takes by default: a subclass may set its own
+    # (a hemisphere sampler of 3 numbers), but 0 handed samplers (n, 0) arrays of u, a
+    # float crashed numpy (until 7 December; an outside review)
+    k = domain.sample_dim
+    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
+        raise InvalidArgument(f"domain={domain!r}: {cls.__name__} sets sample_dim={k!r}, "
+                              "but it must be an integer >= 1 (the uniform numbers a "
+                              "sampler on it takes by default)")
     changed = [name for name in _KERNEL_DECIDED if name in vars(domain)]
     if changed:
         raise InvalidArgument(

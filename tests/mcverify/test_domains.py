@@ -115,6 +115,35 @@ def test_a_domain_the_kernels_would_ignore_is_refused(dom, needle):
         mv.check_same_distribution(np.zeros((10, 1)), np.zeros((10, 1)), dom)
 
 
+@pytest.mark.parametrize("k", [0, -1, 2.0, "2", True, None])
+def test_a_subclass_sample_dim_is_validated(k):
+    """A subclass may set how many uniform numbers a sampler on it takes by default
+    (3 for a hemisphere sampler of three): that number is validated, naming it. Until
+    7 December 0 handed the sampler u of shape (n, 0), and 2.0 or "2" crashed in numpy."""
+    dom = type("Hemi", (mv.Hemisphere,), {"sample_dim": k})()
+    seen = []
+
+    def sample(u):
+        seen.append(u.shape)
+        return np.tile([0.0, 0.0, 1.0], (len(u), 1))
+
+    for check in (lambda: mv.check_sampler(sample, lambda x: np.ones(len(x)), dom,
+                                           n_samples=1000),
+                  lambda: mv.check_stability(sample, dom, max_examples=5),
+                  lambda: mv.check_same_distribution(sample, sample, dom, n_samples=1000)):
+        with pytest.raises(mv.InvalidArgument, match=f"sets sample_dim={k!r}"):
+            check()
+    assert not seen
+    three = type("Hemi3", (mv.Hemisphere,), {"sample_dim": 3})()
+
+    def cosine(u):                         # the first number unused
+        r, phi = np.sqrt(u[:, 1]), 2.0 * np.pi * u[:, 2]
+        return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - u[:, 1])], 1)
+
+    r = mv.check_sampler(cosine, lambda x: x[:, 2] / np.pi, three, n_samples=20_000)
+    assert r.passed and r.details["sample_dim"] == 3, r.summary()
+
+
 def test_an_interval_cannot_be_changed_after_it_is_made():
     """An interval's ends are read-only: ``d.b = 2`` after ``Interval(0, 1)`` kept the
     old width in the binning, and a correct sampler on [0, 2] failed with "pdf
