@@ -121,6 +121,13 @@ class Interval(Domain):
         for name, v in (("a", a), ("b", b)):
             if isinstance(v, bool) or not isinstance(v, numbers.Real):
                 raise InvalidArgument(f"Interval({name}={v!r}): must be a real number")
+        for name, v in (("a", a), ("b", b)):
+            try:
+                float(v)
+            except OverflowError:   # an int beyond float's range (10**400)
+                raise InvalidArgument(f"Interval({name}=...): an integer beyond float64's "
+                                      f"range (|{name}| > 1.8e308); need finite a < b with "
+                                      "b - a finite") from None
         a, b = float(a), float(b)
         # b - a finite too: Interval(-1e308, 1e308) would map parameters to inf
         if not (np.isfinite(a) and np.isfinite(b) and b > a and np.isfinite(b - a)):

@@ -40,6 +40,9 @@ CASES = [
      "resolution=(100000, 100000.: 10,000,000,000 histogram cells"),
     ("interval-text", lambda: mv.Interval("a", 1), "Interval(a='a'.: must be a real number"),
     ("interval-overflowing-width", lambda: mv.Interval(-1e308, 1e308), "b - a finite"),
+    # an int beyond float64's range was Python's bare OverflowError (7 December)
+    ("interval-int-beyond-float", lambda: mv.Interval(0, 10 ** 400),
+     r"Interval.b=\.\.\.\): an integer beyond float64.s range"),
     ("rejection-string", lambda: mv.check_sampler(S, P, "square", rejection="False"),
      "rejection='False'"),
     ("pilot-string", lambda: mv.check_sampler(S, P, "square", pilot="no"), "pilot='no'"),
