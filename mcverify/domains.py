@@ -247,6 +247,14 @@ def _refuse_custom(domain: Domain) -> None:
             f"domain={domain!r}: {cls.__name__} is not one of the built-in domains "
             "(Interval, Square, Disk, Sphere, Hemisphere), which the checks bin and "
             "integrate in numba passes; Domain itself is only their base class")
+    try:                        # every message and pass reads these
+        repr(domain), domain.args, domain.jacobian
+    except AttributeError as e:
+        # an Interval subclass whose __init__ skips Interval's has no ends (until
+        # 7 December: AttributeError '_ends' from deep inside the check)
+        raise InvalidArgument(
+            f"domain: {cls.__name__} object is not set up ({e}); its __init__ must call "
+            f"{base.__name__}'s (super().__init__(...))") from None
     for name in _KERNEL_SHAPE:
         if not _same(getattr(domain, name), getattr(base, name)):
             raise InvalidArgument(

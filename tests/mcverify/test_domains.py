@@ -144,6 +144,24 @@ def test_a_subclass_sample_dim_is_validated(k):
     assert r.passed and r.details["sample_dim"] == 3, r.summary()
 
 
+def test_a_subclass_that_skips_its_parent_init_is_refused():
+    """An Interval subclass whose __init__ does not call Interval's has no ends: every
+    check raised AttributeError '_ends' from inside (until 7 December)."""
+    class NoEnds(mv.Interval):
+        def __init__(self, width):
+            self.width = width
+
+    for check in (lambda d: as_domain(d),
+                  lambda d: mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)), d,
+                                             n_samples=1000),
+                  lambda d: mv.check_same_distribution(lambda u: u, lambda u: u, d,
+                                                       n_samples=1000),
+                  lambda d: mv.check_stability(lambda u: u, d, max_examples=5)):
+        with pytest.raises(mv.InvalidArgument, match=r"NoEnds object is not set up .*"
+                           r"_ends.*super\(\).__init__"):
+            check(NoEnds(2.0))
+
+
 def test_an_interval_cannot_be_changed_after_it_is_made():
     """An interval's ends are read-only: ``d.b = 2`` after ``Interval(0, 1)`` kept the
     old width in the binning, and a correct sampler on [0, 2] failed with "pdf
