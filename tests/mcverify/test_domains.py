@@ -162,6 +162,30 @@ def test_a_subclass_that_skips_its_parent_init_is_refused():
             check(NoEnds(2.0))
 
 
+def test_an_interval_subclass_with_ends_of_its_own_is_refused():
+    """A subclass returning its own ``a`` and ``b`` was binned on them (``args``) but
+    measured on the ends it was made with (``jacobian``): a correct sampler on
+    [360, 830] failed, "pdf integrates to 0.00212766" (until 7 December). Its ends are
+    given to Interval's __init__ instead, which works."""
+    class Visible(mv.Interval):
+        def __init__(self):
+            super().__init__(0.0, 1.0)
+
+        a = property(lambda self: 360.0)
+        b = property(lambda self: 830.0)
+
+    sample, pdf = (lambda u: 360.0 + 470.0 * u), (lambda x: np.full(len(x), 1 / 470))
+    with pytest.raises(mv.InvalidArgument, match=r"Visible overrides 'a', but the checks "
+                       r"bin and measure the interval it was made with, \[0.0, 1.0\]"):
+        mv.check_sampler(sample, pdf, Visible(), n_samples=1000)
+
+    class Made(mv.Interval):
+        def __init__(self):
+            super().__init__(360.0, 830.0)
+
+    assert mv.check_sampler(sample, pdf, Made(), n_samples=20_000, seed=0).passed
+
+
 def test_an_interval_cannot_be_changed_after_it_is_made():
     """An interval's ends are read-only: ``d.b = 2`` after ``Interval(0, 1)`` kept the
     old width in the binning, and a correct sampler on [0, 2] failed with "pdf
