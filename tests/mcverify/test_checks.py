@@ -380,6 +380,32 @@ def test_convergence_slope():
     assert r.messages[0].startswith(f"slope {r.statistic:.3f} (80% CI ["), r.messages
 
 
+def test_convergence_of_a_float32_exact_estimator_says_it_is_exact():
+    """A float32 estimator that is exact to float32's rounding (p ∝ f, or a constant
+    np.float32(0.1) against 0.1) has an RMSE of float32 ulps at every N: until
+    7 December its flat RMSE was fitted, "slope 0.000 (99% CI [-0.000, 0.000]),
+    expected -0.5", p = 4e-168, where float64's got "RMSE is 0 (to rounding)". A
+    float32 estimator of real noise is still fitted."""
+    f32 = np.float32
+
+    def perfect(n, s):
+        x = np.sqrt(np.random.default_rng(s).random(n).astype(f32))
+        return np.mean((f32(0.2) * x) / (f32(2.0) * x), dtype=f32)
+
+    for est, expected in ((perfect, 0.1), (lambda n, s: f32(0.1), 0.1),
+                          (lambda n, s: 0.1, f32(0.1))):
+        r = mv.check_convergence(est, expected, ns=[64, 256, 1024, 4096], n_seeds=16)
+        assert not r.passed and r.statistic is None
+        assert r.failures[0].startswith("RMSE is 0 (to rounding) at N=[64, 256, 1024, "
+                                        "4096]"), r.failures
+
+    def noisy(n, s):
+        return np.mean(np.random.default_rng(s).random(n).astype(f32), dtype=f32)
+
+    r = mv.check_convergence(noisy, 0.5, ns=[256, 1024, 4096, 16384], n_seeds=32)
+    assert r.passed and r.statistic is not None, r.summary()
+
+
 # ----------------------------------------------------------------- streaming judge
 def test_stream_is_independent_of_chunk_size_and_thread_count():
     """The uniforms come in seeded blocks of STREAM_BLOCK rows, so cutting the stream into
