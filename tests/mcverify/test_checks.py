@@ -406,6 +406,31 @@ def test_convergence_of_a_float32_exact_estimator_says_it_is_exact():
     assert r.passed and r.statistic is not None, r.summary()
 
 
+def test_a_discrepancy_names_the_extent_of_its_cell():
+    """A wide cell's centre alone misled: a cone 10 % wider than its pdf about the pole
+    (cos θ_max = 1 - 1.1e-6 against 1 - 1e-6) was reported at z ≈ 0.9677, the centre of
+    the cell beyond the rim, far from any of its points (until 7 December). The message
+    now gives the cell's extent, which reaches to the rim."""
+    ct = 1.0 - 1e-6
+
+    def cone(u, width=1.1):
+        z = 1.0 - u[:, 0] * (1.0 - ct) * width
+        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        return np.stack([r * np.cos(2 * np.pi * u[:, 1]), r * np.sin(2 * np.pi * u[:, 1]),
+                         z], 1)
+
+    pdf = lambda x: np.where(x[:, 2] >= ct, 1 / (2 * np.pi * (1 - ct)), 0.0)  # noqa: E731
+    r = mv.check_sampler(cone, pdf, "sphere", n_samples=200_000, seed=0)
+    assert not r.passed
+    m = next(m for m in r.messages if m.startswith("largest discrepancy at"))
+    lo = float(m.split("(the cell (1 - z) / 2 in [")[1].split(",")[0])
+    assert lo < 1e-6, m
+    r = mv.check_same_distribution(cone, lambda u: cone(u, 1.0), "sphere",
+                                   n_samples=200_000, seed=0)
+    m = next(m for m in r.messages if m.startswith("largest discrepancy at"))
+    assert float(m.split("(the cell (1 - z) / 2 in [")[1].split(",")[0]) < 1e-6, m
+
+
 # ----------------------------------------------------------------- streaming judge
 def test_stream_is_independent_of_chunk_size_and_thread_count():
     """The uniforms come in seeded blocks of STREAM_BLOCK rows, so cutting the stream into
