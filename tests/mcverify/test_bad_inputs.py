@@ -78,6 +78,7 @@ def sandbox(tmp_path_factory):
     mvm.write_exr(str(d / "negvar.exr"), np.where(np.arange(192).reshape(8, 8, 3) == 7,
                                                   -0.5, 0.01))
     mvm.write_exr(str(d / "big.exr"), _img(16, 16))
+    mvm.write_exr(str(d / "bigvar.exr"), _img(16, 16, value=0.01))    # big.exr's variance
     mvm.write_exr(str(d / "nan.exr"), np.where(np.arange(192).reshape(8, 8, 3) == 5,
                                                np.nan, 1.0))
     mi = mvm._mi()
@@ -616,7 +617,7 @@ CLI = [
     ("compare-swapped", ["compare", "{d}/good.exr", "{d}/ref-swapped", "--test-var",
                          "{d}/var.exr", "--test-n", "4"], "SHA-256"),
     ("compare-shape", ["compare", "{d}/big.exr", "{d}/good.exr", "--test-var",
-                       "{d}/big.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
+                       "{d}/bigvar.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
                        "--ref-n", "4"], "big.exr: shape"),
     ("compare-unknown-ref", ["compare", "{d}/good.exr", "nosuch-ref", "--test-var",
                              "{d}/var.exr", "--test-n", "4"], "scene 'nosuch-ref'"),
