@@ -983,3 +983,25 @@ def test_a_2d_shortfall_at_an_edge_singularity_says_so_too():
     r = mv.check_sampler(lambda u: u, lambda x: 1.01 * np.ones(len(x)), "square",
                          n_samples=200_000, seed=0)
     assert not r.passed and "depth limit" not in r.failures[0], r.failures
+
+
+def test_a_float32_expected_value_widens_only_its_own_comparison():
+    """A float32 expected value stands for any value within half its ulp, no more: it
+    had raised the samples' allowance to float32's 64 eps, so float64 estimates 3e-6
+    above 0.5 (spread 1e-7) passed against np.float32(0.5) as "constant to rounding",
+    and a float64 estimator of noise 1e-4 was called exact against np.float32(1.0) by
+    check_convergence."""
+    x = 0.5 + 3e-6 + np.random.default_rng(0).normal(0.0, 1e-7, 100_000)
+    assert not mv.check_unbiased(x, 0.5).passed
+    assert not mv.check_unbiased(x, np.float32(0.5)).passed
+    # a correct float64 estimator of tiny noise against the float32 rounding of its value
+    y = 0.1 + np.random.default_rng(1).normal(0.0, 1e-12, 100_000)
+    assert not mv.check_unbiased(y, float(np.float32(0.1))).passed
+    assert mv.check_unbiased(y, np.float32(0.1)).passed
+
+    def est(n, seed):
+        return float(np.random.default_rng(seed).normal(1.0, 1e-4, n).mean())
+
+    for expected in (1.0, np.float32(1.0)):
+        r = mv.check_convergence(est, expected, n_seeds=16)
+        assert r.statistic is not None and r.passed, r.summary()
