@@ -37,8 +37,31 @@ def user_cache() -> str:
         import tempfile
 
         uid = os.getuid() if hasattr(os, "getuid") else "user"
-        return os.path.join(tempfile.gettempdir(), f"mcverify-{uid}-cache")
+        return _private_folder(os.path.join(tempfile.gettempdir(), f"mcverify-{uid}-cache"))
     return os.path.join(home, ".cache")
+
+
+def _private_folder(path: str) -> str:
+    """``path``, a folder of this user's alone in a shared temporary folder: made 0700,
+    and refused (PermissionError naming it) where it is a link, another user's, or
+    writable by others. Its modules are imported and numba's cache files beside them
+    unpickled, so a folder another user made first under the predictable name would run
+    their code in this user's checks (the final review)."""
+    import stat
+
+    try:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+        st = os.lstat(path)
+    except OSError as e:
+        raise PermissionError(f"{path}: cannot make the kernel cache there ({e.strerror}); "
+                              "set MCVERIFY_CACHE to a folder of your own") from None
+    own = not hasattr(os, "getuid") or st.st_uid == os.getuid()
+    if not stat.S_ISDIR(st.st_mode) or not own or st.st_mode & 0o022:
+        raise PermissionError(f"{path}: the kernel cache's folder in the temporary folder "
+                              "(no home folder is known) is not this user's private "
+                              "folder (a link, another user's, or writable by others); "
+                              "set MCVERIFY_CACHE to a folder of your own")
+    return path
 
 
 def cache_path() -> str:

@@ -249,3 +249,31 @@ def test_without_a_home_folder_the_cache_is_not_put_in_the_current_directory(mon
     storage = os.environ["HYPOTHESIS_STORAGE_DIRECTORY"]
     assert os.path.isabs(storage) and storage.startswith(tempfile.gettempdir()), storage
     assert os.listdir(tmp_path) == []
+
+
+def test_the_temporary_cache_folder_must_be_this_users_private_one(monkeypatch, tmp_path):
+    """Without a home folder the cache goes to a predictable name in the shared temporary
+    folder, whose modules are imported and whose numba files are unpickled: one made
+    first by another user (or writable by others, or a link) would run their code in
+    this user's checks. It is made 0700 and refused otherwise, naming MCVERIFY_CACHE."""
+    import pwd
+    import tempfile
+
+    def unknown(uid):
+        raise KeyError(f"getpwuid(): uid not found: {uid}")
+
+    for name in ("HOME", "MCVERIFY_CACHE"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(pwd, "getpwuid", unknown)
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    folder = tmp_path / f"mcverify-{os.getuid()}-cache"
+    assert _generated.user_cache() == str(folder)
+    assert folder.stat().st_mode & 0o777 == 0o700
+    folder.chmod(0o777)                                 # writable by others
+    with pytest.raises(PermissionError, match="set MCVERIFY_CACHE"):
+        _generated.cache_path()
+    folder.rmdir()
+    (tmp_path / "elsewhere").mkdir(mode=0o700)
+    folder.symlink_to(tmp_path / "elsewhere")           # a link planted under the name
+    with pytest.raises(PermissionError, match="not this user's private folder"):
+        _generated.user_cache()
