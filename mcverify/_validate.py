@@ -60,11 +60,17 @@ def probability(name: str, v) -> float:
 def real(name: str, v, *, finite: bool = True, minimum: float | None = None) -> float:
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
         raise InvalidArgument(f"{name}={_show(v)}: must be a real number")
-    if finite and not np.isfinite(v):
+    try:
+        # an integer or fraction beyond float64's range (10**400) raised OverflowError
+        # or numpy's TypeError from isfinite, naming nothing (the final review)
+        x = float(v)
+    except OverflowError:
+        raise InvalidArgument(f"{name}={_show(v)}: beyond float64's range") from None
+    if finite and not np.isfinite(x):
         raise InvalidArgument(f"{name}={v}: must be finite")
-    if minimum is not None and not v >= minimum:
+    if minimum is not None and not x >= minimum:
         raise InvalidArgument(f"{name}={v}: must be >= {minimum}")
-    return float(v)
+    return x
 
 
 def _available_memory() -> int | None:

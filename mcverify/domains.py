@@ -191,8 +191,9 @@ class Disk(Domain):
 
 class Sphere(Domain):
     """Unit vectors; solid-angle measure. Parameters: ``s0 = (1 - z) / 2`` (equal-area
-    bands, Archimedes; computed as ``(x² + y²) / (1 + z) / 2`` for z > 0, which keeps
-    float32 points' precision near the pole), ``s1 = φ / 2π``; Jacobian 4π."""
+    bands, Archimedes; computed as ``(x² + y²) / (1 + z) / 2`` for z > 0 and
+    ``(2 - (x² + y²) / (1 - z)) / 2`` for z < 0, which keeps float32 points' precision
+    near either pole), ``s1 = φ / 2π``; Jacobian 4π."""
 
     name = "sphere"
     kind = kernels.SPHERE

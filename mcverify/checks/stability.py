@@ -197,17 +197,21 @@ def _without_local_constants():
     except ImportError:
         providers = None
     local = getattr(providers, "_get_local_constants", None)
-    if local is None:                           # an older hypothesis: no local constants
+    try:            # private names: a hypothesis that renamed one searches as it is
+        none = providers.Constants()
+        cache = providers.CONSTANTS_CACHE.cache
+        cache.clear()
+    except Exception:       # noqa: BLE001 - incl. an older hypothesis (providers None)
+        local = None
+    if local is None:
         yield
         return
-    none = providers.Constants()
     providers._get_local_constants = lambda: none
-    providers.CONSTANTS_CACHE.cache.clear()
     try:
         yield
     finally:
         providers._get_local_constants = local
-        providers.CONSTANTS_CACHE.cache.clear()
+        cache.clear()
 
 
 @contextlib.contextmanager

@@ -383,3 +383,14 @@ def test_a_stability_check_inside_a_hypothesis_test_runs():
 
     stable_for_every_sigma()
     assert verdicts and all(v == (True, False) for v in verdicts)
+
+
+def test_a_hypothesis_without_the_private_names_still_searches(monkeypatch):
+    """The search empties hypothesis's private cache of constants: a hypothesis that
+    renamed it (CONSTANTS_CACHE, Constants) made every check_stability raise
+    AttributeError; it now searches with hypothesis as it is."""
+    from hypothesis.internal.conjecture import providers
+
+    monkeypatch.setattr(providers, "CONSTANTS_CACHE", object(), raising=False)
+    r = mv.check_stability(lambda u: -np.log(u), "interval", sample_dim=1, max_examples=50)
+    assert not r.passed and r.details["u"] == [0.0]

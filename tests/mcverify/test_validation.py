@@ -156,3 +156,15 @@ def test_a_valid_callable_result_is_not_formatted_for_a_message():
     assert mv.check_inverse(square, lambda x: np.asarray(x), 2, n_samples=100).passed
     assert mv.check_pdf_consistency(lambda u: (square(u), ones(u)), ones, sample_dim=2,
                                     n_samples=100).passed
+
+
+@pytest.mark.parametrize("call", [
+    lambda: mv.check_unbiased(np.ones(10), 10**400),
+    lambda: mv.check_inverse(lambda u: u, lambda x: x, 1, atol=10**400),
+    lambda: mv.check_convergence(lambda n, s: 0.5, -(10**400)),
+], ids=["unbiased-expected", "inverse-atol", "convergence-expected"])
+def test_a_real_argument_beyond_float64_is_named(call):
+    """An integer beyond float64's range given for a real argument raised numpy's
+    TypeError ("ufunc 'isfinite' not supported") or OverflowError, naming nothing."""
+    with pytest.raises(mv.InvalidArgument, match="beyond float64's range"):
+        call()

@@ -184,7 +184,8 @@ def render_html(doc: dict, images: dict[str, bytes], captions: dict | None = Non
         for r in rows:
             why = "; ".join(r["failures"] + r["messages"])
             if not r["passed"] and not why:     # rejected on its p-value alone
-                why = (f"p adjusted {_fmt(r['details'].get('p_adjusted'))} ≤ family-wise "
+                why = ("failed (no reason given)" if r["p_value"] is None else
+                       f"p adjusted {_fmt(r['details'].get('p_adjusted'))} ≤ family-wise "
                        f"α {_fmt(ver['alpha'])}" if "p_adjusted" in r["details"]
                        else f"p {_fmt(r['p_value'])} ≤ α {_fmt(r['alpha'])}")
             parts.append(
