@@ -206,3 +206,25 @@ def test_a_reference_mitsuba_renders_under_the_fallback_variant_says_so(tmp_path
     with pytest.raises(Rendered):
         render_check(str(scene), spp=512, seed=2, params=params, notice=said.append)
     assert fallback in said, said
+
+
+def test_identical_passes_are_refused_only_where_the_scene_is_noisy_enough():
+    """Correct passes of a scene noisy at a few pixel values only (1 spp a pass, an edge
+    pixel of two values) can coincide by chance: refused only where the reference is
+    noisy at 64 values or more (two seeds then agree with probability 2^-64 or less)."""
+    from types import SimpleNamespace
+
+    from mcverify.gate.render_check import _NOISY_VALUES, _distinct_passes
+
+    passes = 1.0 + 0.01 * np.arange(4)[:, None, None, None] * np.ones((4, 8, 8, 3))
+    passes[2] = passes[1]
+    for noisy, refused in ((_NOISY_VALUES - 1, False), (_NOISY_VALUES, True)):
+        var = np.zeros((8, 8, 3))
+        var.flat[:noisy] = 0.1
+        ref = SimpleNamespace(mean=np.ones((8, 8, 3)), var=var)
+        if refused:
+            with pytest.raises(mv.InvalidArgument, match="its pass 2 is identical to its "
+                                                         "pass 1"):
+                _distinct_passes(passes, ref, "mine")
+        else:
+            _distinct_passes(passes, ref, "mine")
