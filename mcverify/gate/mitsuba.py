@@ -341,7 +341,8 @@ def _current(scene_path: str, params: dict | None):
     from .reference import scene_stamp
 
     os.stat(scene_path)
-    return _loaded(scene_path, tuple(sorted((params or {}).items())), scene_stamp(scene_path))
+    return _loaded(scene_path, tuple(sorted((params or {}).items())),
+                   scene_stamp(scene_path, params))
 
 
 def mitsuba_seed(seed: int) -> int:
@@ -369,7 +370,8 @@ def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = N
     except OSError as e:
         raise EnvironmentProblem(f"{scene_path}: cannot read it here ({e.strerror}); workers "
                                  "need the scenes at the same path") from None
-    scene = _loaded(scene_path, tuple(sorted((params or {}).items())), scene_stamp(scene_path))
+    scene = _loaded(scene_path, tuple(sorted((params or {}).items())),
+                    scene_stamp(scene_path, params))
     image = np.asarray(_mi().render(scene, spp=spp, seed=mitsuba_seed(seed)),
                        dtype=np.float64)
     if scene.integrator().should_stop():

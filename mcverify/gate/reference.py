@@ -152,7 +152,7 @@ def scene_hash(scene_path: str) -> str:
     return file_hash(scene_path)
 
 
-def scene_assets(scene_path: str) -> dict[str, str | None]:
+def scene_assets(scene_path: str, params=None) -> dict[str, str | None]:
     """SHA-256 of every file the scene names (the manifest's ``assets_sha256``): each
     ``<string name="filename" value=...>``, ``<spectrum filename=...>`` and
     ``<include filename=...>``, keyed by the
@@ -161,10 +161,10 @@ def scene_assets(scene_path: str) -> dict[str, str | None]:
     a name that is no regular file (Mitsuba then refuses the scene). Parsed as
     ``precheck_scene`` parses it (``_parse_scene``)."""
     return {name: file_hash(full) if os.path.isfile(full) else None
-            for name, full in scene_asset_files(scene_path).items()}
+            for name, full in scene_asset_files(scene_path, params).items()}
 
 
-def scene_asset_files(scene_path: str) -> dict[str, str]:
+def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     """The file each name of ``scene_assets`` resolves to (its key: the name as written).
 
     The files an ``<include>``d file names count too (a texture named only there changed
@@ -173,8 +173,12 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
     A ``<path value="DIR"/>`` puts DIR (against the scene's folder) before it, the last
     such element first, wherever it stands: Mitsuba's file resolver (a texture found
     there was rendered while the manifest hashed the file of that name beside the scene,
-    or recorded it as missing)."""
-    defaults, names, includes, searched = {}, [], set(), []
+    or recorded it as missing). ``params`` (a dict, or its sorted items): the ``$name``
+    values the scene is loaded with, over its ``<default>``s, as Mitsuba takes them (the
+    file a ``--param mesh=b.obj`` names was not the one stamped or hashed)."""
+    defaults = {k: str(v).lower() if isinstance(v, bool) else str(v)
+                for k, v in dict(params or {}).items()}
+    names, includes, searched = [], set(), []
 
     def substitute(text):
         for key in sorted(defaults, key=len, reverse=True):    # as Mitsuba: longest first
@@ -222,7 +226,7 @@ def scene_asset_files(scene_path: str) -> dict[str, str]:
     return out
 
 
-def scene_stamp(scene_path: str) -> tuple:
+def scene_stamp(scene_path: str, params=None) -> tuple:
     """What a scene loaded once per process (Mitsuba's, our tracer's) is kept by: the
     modification time, size and inode of the scene file and of every file it names
     (``scene_asset_files``). Keyed by the scene file's time alone, a texture changed
@@ -236,7 +240,7 @@ def scene_stamp(scene_path: str) -> tuple:
         return st.st_mtime_ns, st.st_size, st.st_ino
 
     try:
-        files = sorted(set(scene_asset_files(scene_path).values()))
+        files = sorted(set(scene_asset_files(scene_path, params).values()))
     except InvalidArgument:     # the loader names what is wrong with the scene itself
         files = []
     return (stamp(scene_path),) + tuple((f, stamp(f)) for f in files)
@@ -578,8 +582,8 @@ def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _J
     # "unexpected MemoryError" naming no option (an outside review)
     validate.memory("passes", passes, _pass_bytes(path, params),
                     "its pass images, held until the reference is written")
-    return _Job(name, path, spp, _pass_seeds(seed, passes), params, scene_assets(path),
-                scene_hash(path))
+    return _Job(name, path, spp, _pass_seeds(seed, passes), params,
+                scene_assets(path, params), scene_hash(path))
 
 
 def _render_jobs(jobs: list[_Job], pool: Pool | None, progress) -> list[tuple[Reference,
@@ -665,7 +669,7 @@ def _assets_beside(job: _Job) -> None:
     the scene the reference was built from."""
     for name, digest in job.assets.items():
         if digest is None:
-            full = scene_asset_files(job.path)[name]
+            full = scene_asset_files(job.path, job.params)[name]
             raise InvalidArgument(f"{job.path}: names {name!r}, which is no file at {full}; "
                                   "give its path from the scene's folder or an absolute "
                                   "path (Mitsuba would also look in the current directory, "

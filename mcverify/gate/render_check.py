@@ -284,7 +284,7 @@ def _our_pass(fingerprint, scene_path: str, params: tuple, plant: tuple, pdf_sca
     from . import reference
 
     same_source(fingerprint)
-    cs = _compiled(scene_path, params, plant, reference.scene_stamp(scene_path))
+    cs = _compiled(scene_path, params, plant, reference.scene_stamp(scene_path, params))
     r = render(cs, spp=spp, seed=seed, pdf_scale=pdf_scale, variance=False)
     return r.mean, r.seconds, r.stats
 
@@ -528,7 +528,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # reference made here for such a scene gets ours, over 64 passes (as the
         # committed ones)
         subject = _compiled(path, tuple(sorted((params or {}).items())), (),
-                            reference.scene_stamp(path)) if ours else None
+                            reference.scene_stamp(path, params)) if ours else None
         splats = ours and subject.camera.splats
         made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:

@@ -766,3 +766,26 @@ def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(t
                                               r"\(channel 1: nan\).*no reference written"):
         reference.build_reference(str(scene), spp=4, passes=2)
     assert sorted(os.listdir(tmp_path)) == ["bad.exr", "card.obj", "scene.xml"]
+
+
+def test_the_stamp_and_assets_follow_the_params_the_scene_is_loaded_with(tmp_path):
+    """A ``$name`` given as a parameter (``--param tex=b.exr``) replaces the scene's
+    ``<default>``: the stamp that keys a loaded scene and the hashes of a job's files
+    described the default's file (a.exr), so b.exr edited in the same process rendered
+    the scene as it was loaded."""
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    src = src.replace('<default name="res" value="64"/>',
+                      '<default name="res" value="64"/><default name="tex" value="a.exr"/>')
+    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
+                      '<texture type="bitmap" name="reflectance">'
+                      '<string name="filename" value="$tex"/></texture>')
+    (tmp_path / "scene.xml").write_text(src)
+    for name in ("a.exr", "b.exr"):
+        mvm.write_exr(str(tmp_path / name), np.full((2, 2, 3), 0.5, np.float32))
+    scene = str(tmp_path / "scene.xml")
+    files = [f for f, _ in reference.scene_stamp(scene, {"tex": "b.exr"})[1:]]
+    assert files == [str(tmp_path / "b.exr")]
+    assert set(reference.scene_assets(scene, (("tex", "b.exr"),))) == {"$tex"}
+    assert reference.scene_asset_files(scene, {"tex": "b.exr"})["$tex"] == \
+        str(tmp_path / "b.exr")
+    assert reference.scene_asset_files(scene)["$tex"] == str(tmp_path / "a.exr")
