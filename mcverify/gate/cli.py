@@ -605,7 +605,9 @@ def _cmd_report(args) -> int:
             extra = dict(extra, **_variant_provenance())
 
         renders = run_renders(scenes, seed=args.seed,
-                              progress=None if args.quiet else _progress(sys.stderr))
+                              progress=None if args.quiet else _progress(sys.stderr),
+                              notice=None if args.quiet else
+                              (lambda m: print(f"notice: {m}", file=sys.stderr)))
     _, write = prepare_report(out, suite=suite, study=study, renders=renders,
                               extra_provenance=dict(extra, seed=args.seed))
     with _outputs_together():

@@ -410,7 +410,10 @@ def test_render_curves_plot_both_renderers_at_the_samples_mitsuba_renders(monkey
         asked.append(spp)
         return SimpleNamespace(mean=np.zeros((scene.height, scene.width, 3)), seconds=0.1)
 
-    def check(path, seed):
+    told = []
+
+    def check(path, seed, notice=None):
+        told.append(notice)
         return SimpleNamespace(passed=True, p_value=1.0, artifacts={
             "ours": None, "mitsuba": None, "p_map": None}, details={
             "found_by": [], "relmse": 0.0, "ours_spp": 1, "ours_passes": 1,
@@ -418,9 +421,12 @@ def test_render_curves_plot_both_renderers_at_the_samples_mitsuba_renders(monkey
 
     monkeypatch.setattr(pt, "render", ours)
     monkeypatch.setattr(rc_mod, "render_check", check)
-    rows, _ = run_renders(["vocabulary-geometry"], spps=(4, 16))
+    rows, _ = run_renders(["vocabulary-geometry"], spps=(4, 16), notice=print)
     assert rows[0]["curve"]["spp"] == [4, 25]
     assert asked == [2, 4, 25]        # the warm-up, then the curve's two renders
+    # the render check's notices (a reference built, Mitsuba's fallback) reach the
+    # caller: `report --renders` built a missing reference silently until 7 December
+    assert told == [print]
 
 
 @pytest.mark.parametrize("old", [False, True])

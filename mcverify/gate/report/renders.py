@@ -18,8 +18,11 @@ def _shifted(seed: int, by: int) -> int:
     return (seed + by) % (1 << 63)
 
 
-def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[list, dict]:
-    """(JSON-able rows, {scene: image arrays for the panels})."""
+def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None,
+                notice=None) -> tuple[list, dict]:
+    """(JSON-able rows, {scene: image arrays for the panels}). ``notice(message)``: the
+    render check's notices (a reference built for a scene that has none, Mitsuba's
+    fallback variant), which ``report --renders`` made silently until 7 December."""
     from estimators.pathtracer import prepare_scene, render
 
     from .. import mitsuba as mvm
@@ -30,7 +33,7 @@ def run_renders(scenes, *, seed: int = 0, spps=SPPS, progress=None) -> tuple[lis
     rows, arrays = [], {}
     for i, name in enumerate(scenes):
         _, path = resolve_scene(name)
-        check = render_check(path, seed=seed)
+        check = render_check(path, seed=seed, notice=notice)
         ref = load_reference(path)
         ours_scene, their_scene = prepare_scene(path), mi.load_file(path)
         render(ours_scene, spp=2, seed=seed)                     # warm-ups: JIT excluded
