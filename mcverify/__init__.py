@@ -50,7 +50,8 @@ def _numba_refused(e: ValueError):
     given = _os.environ.get("NUMBA_NUM_THREADS")
     text = (f"numba cannot start ({e})" + (f": NUMBA_NUM_THREADS={given!r}; set it to a "
             "whole number >= 1, or unset it" if given is not None else ""))
-    if _sys.argv[:1] == ["-m"] or _os.path.basename(_sys.argv[0]) == "mcverify":
+    script = _os.path.splitext(_os.path.basename(_sys.argv[0]))[0]   # mcverify.exe too
+    if _sys.argv[:1] == ["-m"] or script == "mcverify":
         print(f"mcverify: error: {text}", file=_sys.stderr)
         raise SystemExit(2)
     raise EnvironmentProblem(text) from None
