@@ -283,18 +283,26 @@ def test_a_reference_that_recorded_a_file_as_missing_is_stale(tmp_path):
         reference.load_reference(str(scene))
 
 
+def _textured_furnace(res, filename, extra=""):
+    """The white furnace at ``res`` pixels high, its sphere's reflectance the bitmap
+    ``filename`` (``$tex`` with ``extra='<default name="tex" value=.../>'``), ``extra``
+    after the resolution's default."""
+    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
+    src = src.replace('<default name="res" value="64"/>',
+                      f'<default name="res" value="{res}"/>{extra}')
+    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
+                      '<texture type="bitmap" name="reflectance">'
+                      f'<string name="filename" value="{filename}"/></texture>')
+    assert filename in src and f'value="{res}"' in src
+    return src
+
+
 def test_a_stale_file_named_by_a_parameter_is_named_as_it_resolves(tmp_path):
     """A texture named ``$tex``: the staleness message names the file it resolves to
     (it said only "$tex", an outside review), and the manifest keeps the name as
     written."""
     shutil.copy(os.path.join(SCENES, "textures", "checker.exr"), tmp_path / "t.exr")
-    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
-    src = src.replace('<default name="res" value="64"/>',
-                      '<default name="res" value="4"/><default name="tex" value="t.exr"/>')
-    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
-                      '<texture type="bitmap" name="reflectance">'
-                      '<string name="filename" value="$tex"/></texture>')
-    assert "$tex" in src
+    src = _textured_furnace(4, "$tex", '<default name="tex" value="t.exr"/>')
     scene = tmp_path / "scene.xml"
     scene.write_text(src)
     reference.build_reference(str(scene), spp=4, passes=2)
@@ -348,13 +356,7 @@ def test_a_file_found_through_a_path_element_is_the_one_hashed(tmp_path):
     resolver (the last such element first, wherever it stands): the manifest hashed
     ``t.exr`` beside the scene while Mitsuba rendered ``tex/t.exr``, so a change to the
     texture rendered left the reference in use."""
-    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
-    src = src.replace('<default name="res" value="64"/>', '<default name="res" value="4"/>'
-                      '<path value="other"/><path value="tex"/>')
-    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
-                      '<texture type="bitmap" name="reflectance">'
-                      '<string name="filename" value="t.exr"/></texture>')
-    assert "t.exr" in src
+    src = _textured_furnace(4, "t.exr", '<path value="other"/><path value="tex"/>')
     (tmp_path / "scene.xml").write_text(src)
     for d, v in (("tex", 0.5), ("other", 0.25), (".", 0.75)):
         (tmp_path / d).mkdir(exist_ok=True)
@@ -373,12 +375,7 @@ def test_a_rebuild_in_the_same_process_renders_the_changed_texture(tmp_path):
     time only: a texture changed and the reference rebuilt by ``build_reference`` in the
     same process rendered the old texture, under a manifest hashing the new one, and the
     stale image loaded as current. The files the scene names are part of the key."""
-    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
-    src = src.replace('<default name="res" value="64"/>', '<default name="res" value="4"/>')
-    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
-                      '<texture type="bitmap" name="reflectance">'
-                      '<string name="filename" value="t.exr"/></texture>')
-    (tmp_path / "scene.xml").write_text(src)
+    (tmp_path / "scene.xml").write_text(_textured_furnace(4, "t.exr"))
     mvm.write_exr(str(tmp_path / "t.exr"), np.full((2, 2, 3), 0.25, np.float32))
     reference.build_reference(str(tmp_path), spp=4, passes=2)
     dark = reference.load_reference(str(tmp_path)).mean
@@ -773,13 +770,8 @@ def test_the_stamp_and_assets_follow_the_params_the_scene_is_loaded_with(tmp_pat
     ``<default>``: the stamp that keys a loaded scene and the hashes of a job's files
     described the default's file (a.exr), so b.exr edited in the same process rendered
     the scene as it was loaded."""
-    src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
-    src = src.replace('<default name="res" value="64"/>',
-                      '<default name="res" value="64"/><default name="tex" value="a.exr"/>')
-    src = src.replace('<rgb name="reflectance" value="1, 1, 1"/>',
-                      '<texture type="bitmap" name="reflectance">'
-                      '<string name="filename" value="$tex"/></texture>')
-    (tmp_path / "scene.xml").write_text(src)
+    (tmp_path / "scene.xml").write_text(
+        _textured_furnace(64, "$tex", '<default name="tex" value="a.exr"/>'))
     for name in ("a.exr", "b.exr"):
         mvm.write_exr(str(tmp_path / name), np.full((2, 2, 3), 0.5, np.float32))
     scene = str(tmp_path / "scene.xml")
