@@ -193,8 +193,8 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
                            failures=tuple(failures))
     # against the nearest value the float32 expected may stand for (a composite null:
     # its p-value is the largest over them)
-    near = expected if not given else expected + float(np.clip(np.mean(x) - expected,
-                                                               -given, given))
+    near = expected + float(np.clip(np.mean(x) - expected, -given, given)) \
+        if given and x.size > 1 else expected
     tt = stats.ttest_mean(x, near) if x.size > 1 else None
     tail = stats.hill_tail_index(x) if x.size >= _MIN_TAIL_SAMPLES else None
     if tail is None:
@@ -287,10 +287,11 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
 
 
 def _rmse_rounding(v) -> float:
-    """The relative RMSE below which estimates ``v`` are exact to rounding: float64's ``_ROUNDING``, or where ``v`` is float32 4 of float32's eps
-    (4.8e-7: a float32 perfect estimator's mean, summed pairwise in float32, errs by
-    up to 1.2 eps; 64 of them, ``_rounding``'s allowance for one value, would take a
-    float32 estimator of real noise, RMSE 4e-6 at large N, for an exact one)."""
+    """The relative RMSE below which estimates ``v`` are exact to rounding: float64's
+    ``_ROUNDING``, or where ``v`` is float32 4 of float32's eps (4.8e-7: a float32
+    perfect estimator's mean, summed pairwise in float32, errs by up to 1.2 eps; 64 of
+    them, ``_rounding``'s allowance for one value, would take a float32 estimator of
+    real noise, RMSE 4e-6 at large N, for an exact one)."""
     if np.asarray(v).dtype == np.float32:
         return 4 * float(np.finfo(np.float32).eps)
     return _ROUNDING
