@@ -560,9 +560,10 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             {**(params or {}), **(plant or {}),
              **({"pdf_scale": pdf_scale} if pdf_scale != 1 else {})}.items()))
         if splats and not ref.pixels_correlated:
+            rebuild = reference.rebuild_command(name, path, ref.manifest)
             raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
                                      "does not say so (built before filters were recorded)"
-                                     f"; run `{reference.rebuild_command(name, path, ref.manifest)}`")
+                                     f"; run `{rebuild}`")
         if ours and ref.pixels_correlated and spp // passes != int(ref.manifest["spp"]):
             # E[Σ w L / Σ w] over N samples differs from its limit by O(1/N): passes
             # compare only at equal samples per pass (measured: Mitsuba's own 16-spp passes
