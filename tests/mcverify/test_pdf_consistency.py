@@ -247,6 +247,23 @@ def test_a_zero_pdf_returned_with_a_weight_is_compared_not_skipped():
     assert not r.passed and "returned weights differ" in r.failures[0]
 
 
+def test_a_weight_with_no_density_on_either_side_fails_saying_so():
+    """A delta lobe returning its weight with a pdf of 0, where pdf(x) is 0 too: the
+    weight was compared with f(x) / 0 and failed as "expected [nan] (ratio nan)"."""
+    def mirror(u):
+        n = len(u)
+        return np.tile([0.0, 0.0, 1.0], (n, 1)), np.zeros(n), np.full((n, 3), 0.9)
+
+    r = mv.check_pdf_consistency(mirror, lambda x: np.zeros(len(x)), sample_dim=2,
+                                 f=lambda x: np.zeros((len(x), 3)), n_samples=1000, seed=1)
+    assert not r.passed and r.details["weight_without_density"] == 1000
+    assert len(r.failures) == 1 and "nan" not in r.failures[0], r.failures
+    assert r.failures[0].startswith("1000 of 1000 returned weights differ from f(x) / pdf(x) "
+                                    "= f(x) / 0: the draw returned a pdf of 0 and pdf(x) "
+                                    "is 0 too"), r.failures
+    assert "rejection=True" in r.failures[0] and "weight [0.9, 0.9, 0.9]" in r.failures[0]
+
+
 def test_nan_or_inf_returned_pdfs_fail():
     def nan_pdf(u):
         x, p = _good(u)
