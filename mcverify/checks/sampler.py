@@ -1087,6 +1087,10 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     x = validate.as_array(lambda: f"sample returned {validate._show(x)}", x)
     # the points' dimension is the sampler's own; their rows and dtype are checked here,
     # so that a short or non-numeric output is blamed on sample, not on inverse
+    if x.ndim == 2 and x.shape[0] != n and x.shape[1] == n:
+        # the width is read from the array: a transposed (d, n) one was "expected (n, n)"
+        raise InvalidArgument(f"sample returned shape {x.shape}: expected ({n}, d), a row "
+                              "of d coordinates per draw; transposed? return points.T")
     validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
     u2 = validate.points("inverse", inverse(x), n, k)
     if atol is None:

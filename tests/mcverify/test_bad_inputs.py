@@ -241,6 +241,10 @@ API = [
     ("inverse-sample-short", lambda: mv.check_inverse(lambda u: u[1:], lambda x: x, 2,
                                                       n_samples=100), InvalidArgument,
      "sample returned shape (99, 2): expected (100, 2)"),
+    ("inverse-sample-transposed", lambda: mv.check_inverse(lambda u: u.T, lambda x: x, 2,
+                                                           n_samples=100), InvalidArgument,
+     "sample returned shape (2, 100): expected (100, d), a row of d coordinates per draw; "
+     "transposed? return points.T"),
     ("sampler-sample-dim-1e7", _sampler(sample_dim=10 ** 7, n_samples=100_000),
      InvalidArgument, "sample_dim=10000000: 65536 rows of it need"),
     # estimators
