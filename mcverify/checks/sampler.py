@@ -1177,6 +1177,13 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
         if x is None or x.ndim not in (1, 2) or x.shape[0] < 2:
             raise InvalidArgument(f"{label}: must be a sampler callable or an array "
                                   f"of points (n, {dom.dim})")
+        if x.ndim == 2 and x.shape[1] != dom.dim:
+            # validated against its own row count, a transposed (d, n) array was
+            # "expected (3, 3)"
+            raise InvalidArgument(
+                f"{label}: an array of shape {x.shape}, expected (n, {dom.dim}), a row of "
+                f"{dom.dim} coordinates per point on {dom!r}"
+                + ("; transposed? pass points.T" if x.shape[0] == dom.dim else ""))
         sides.append((label, validate.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
     res = res or _default_resolution(dom, min(size for *_, size in sides))
     # independent pilot draws of the sampler callables place the cells (a uniform grid

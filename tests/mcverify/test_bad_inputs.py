@@ -221,6 +221,10 @@ API = [
     ("sampler-seed", _sampler(seed=-1), InvalidArgument, "seed=-1"),
     ("same-distribution-one-point", lambda: mv.check_same_distribution(
         np.zeros((1, 1)), np.zeros((5, 1)), "interval"), InvalidArgument, "sample_a"),
+    ("same-distribution-transposed", lambda: mv.check_same_distribution(
+        np.zeros((100, 3)), np.zeros((3, 50)), "hemisphere"), InvalidArgument,
+     "sample_b: an array of shape (3, 50), expected (n, 3), a row of 3 coordinates per "
+     "point on Hemisphere(); transposed? pass points.T"),
     # check_inverse
     ("inverse-atol-negative", lambda: mv.check_inverse(np.sqrt, np.square, 1, atol=-1),
      InvalidArgument, "atol=-1"),
