@@ -639,6 +639,27 @@ def test_same_distribution_with_rejected_draws():
     assert not plain.passed and any("NaN/Inf" in f for f in plain.failures)
 
 
+def test_same_distribution_names_no_cell_where_only_the_acceptance_rates_differ():
+    """Two samplers drawing the same law, rejecting 10 % and 12 % of draws: only the
+    acceptance test rejects, yet the grid's most extreme noise cell was named "largest
+    discrepancy" (16 against 43 points). Seeded; α = 0.01."""
+    def rejecting(p):
+        def sample(u):
+            x = W.sample_cosine_hemisphere(u[:, :2])
+            x[u[:, 2] < p] = np.nan
+            return x
+        return sample
+
+    r = mv.check_same_distribution(rejecting(0.1), rejecting(0.12), "hemisphere",
+                                   sample_dim=3, n_samples=200_000, rejection=True, seed=1)
+    level = r.alpha / len(r.details["tests"])
+    assert not r.passed and r.details["tests"]["acceptance"]["p_value"] < 1e-50
+    assert all(t["p_value"] > level for k, t in r.details["tests"].items()
+               if k.startswith("chi2")), r.details["tests"]
+    assert any(m.startswith("acceptance differs") for m in r.messages), r.messages
+    assert not any("largest discrepancy" in m for m in r.messages), r.messages
+
+
 def test_cubature_is_cached_by_pdf_identity_and_grid():
     """A repeated check integrates once and decides the same; another seed (other cell
     edges) or a pdf whose values changed since (hidden state) integrates afresh; the
