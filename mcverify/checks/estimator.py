@@ -132,6 +132,14 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
                 # judges the tail on every estimate, as the one-shot check does.
                 r = dataclasses.replace(r, p_value=None, passed=True, failures=tuple(
                     f for f in r.failures if not f.startswith("variance appears infinite")))
+            if b < k and r.details.get("constant"):
+                # Estimates constant at a value other than expected are no deterministic
+                # failure while batches remain: a rare-hit estimator (p = 0.01, batches
+                # of 200) has a first batch of zeros 13 % of the time, and stopping there
+                # failed it on 60 of 400 seeds at α = 0.05. The later batches are the
+                # samples the message asks for; the final look judges.
+                r = dataclasses.replace(r, p_value=None, passed=True, failures=tuple(
+                    f for f in r.failures if not f.startswith("every sample is ")))
             return dataclasses.replace(r, seconds=time.perf_counter() - t0)
 
         t0 = time.perf_counter()

@@ -210,6 +210,29 @@ def test_an_early_look_with_a_heavy_tail_neither_stops_nor_fails_a_finite_varian
     assert any("variance appears infinite" in f for f in heavy.failures)
 
 
+def test_an_early_look_of_constant_estimates_neither_stops_nor_fails_a_rare_hit_estimator():
+    """An estimator that is rarely non-zero (a small light hit with p = 0.01) has all 200
+    estimates of its first batch at 0 with probability 0.99^200 = 13 %: the constant
+    check ("every sample is 0 ... draw more samples") stopped it at batch 1 as a failure,
+    69 false alarms in 400 seeded runs at α = 0.05, 60 of them at batch 1 (the
+    one-shot check on the same 3200 estimates: 21; now 16). The later batches are the samples it asks for; the final look
+    judges, so an estimator constant at a wrong value still fails. The rate is held to
+    the binomial 99.9 % bound of α."""
+    def hits(s):
+        return lambda b: (np.random.default_rng([s, b]).random(200) < 0.01).astype(float)
+
+    assert not np.any(hits(8)(0))           # this seed's first batch is all misses
+    r = mv.check_unbiased(hits(8), 0.01, alpha=0.05, batches=16)
+    assert r.passed and r.details["sequential"]["batch"] == 16, r.failures
+    n, rejected = 400, 0
+    for s in range(n):
+        rejected += not mv.check_unbiased(hits(s), 0.01, alpha=0.05, batches=16).passed
+    assert rejected <= stats.binomial_upper_bound(n, 0.05, 0.999), rejected
+    wrong = mv.check_unbiased(lambda b: np.zeros(200), 0.01, batches=16)
+    assert not wrong.passed and wrong.details["sequential"]["batch"] == 16
+    assert any(f.startswith("every sample is 0") for f in wrong.failures)
+
+
 def test_deterministic_failure_stops_at_once():
     calls = []
 
