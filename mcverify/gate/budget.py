@@ -131,7 +131,7 @@ def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0
         other += sum(_timed(c, check_seed(seed, "canary:" + c.name)) for c in canaries())
     spent = time.perf_counter() - t0
     n_samples, predicted, notes = allocate(budget, startup + spent, other, fixed, per,
-                                           n_min=n_min, n_max=n_max)
+                                           n_min=n_min, n_max=n_max, untimed=len(untimed))
     if untimed:
         n_samples.update((name, n_min) for name in untimed)
         notes += (f"calibration stopped timing sampler checks when start-up and calibration "
@@ -147,14 +147,15 @@ def plan_budget(suite: str, pattern: str | None, budget: float, *, seed: int = 0
 
 
 def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
-             per_sample: dict[str, float], *, n_min: int, n_max: int
+             per_sample: dict[str, float], *, n_min: int, n_max: int, untimed: int = 0
              ) -> tuple[dict[str, int], float, tuple[str, ...]]:
     """Equal shares of the time left (``budget - spent - other``) to the checks whose
     cost is ``fixed[name] + per_sample[name] · n`` seconds: ``(n per check, predicted
     total seconds, notes)``. A check whose cost at ``n_min`` is at least its share runs at
     ``n_min``, and the others share what that leaves (with equal shares, a check with 6 s
     of cubature and a 4 s share overran it by 2 s while the others took their full
-    shares: a 20 s budget planned at 22 s)."""
+    shares: a 20 s budget planned at 22 s). ``untimed``: sampler checks calibration left
+    untimed (they run at ``n_min``, outside ``fixed``)."""
     left = budget - spent - other
     notes = []
     n_samples = {}
@@ -178,6 +179,11 @@ def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
                          f"{spent:.1f}s and "
                          f"the fixed-size checks {other:.1f}s; every sampler check runs at "
                          f"the minimum n = {n_min:,}")
+    elif left < 0 and untimed:  # none timed: they scale with n, but run at the minimum
+        # (it said "no selected check scales with n" of 28 untimed sampler checks)
+        notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
+                     f"{spent:.1f}s and the fixed-size checks {other:.1f}s; every sampler "
+                     f"check runs at the minimum n = {n_min:,}")
     elif left < 0:          # nothing scales with n: said, as where the sampler checks' are
         notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
                      f"{spent:.1f}s and the fixed-size checks {other:.1f}s; no selected "

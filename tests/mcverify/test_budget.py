@@ -46,6 +46,11 @@ def test_allocate_clamps_and_says_when_the_budget_is_too_small():
     n, predicted, notes = allocate(5.0, 4.0, 2.0, {}, {}, n_min=1000, n_max=10**9)
     assert n == {} and predicted == 6.0 and "too small" in notes[0] and "6.0s" in notes[0]
     assert allocate(7.0, 4.0, 2.0, {}, {}, n_min=1000, n_max=10**9)[2] == ()
+    # sampler checks left untimed (calibration stopped at once) do scale with n: the note
+    # said "no selected check scales with n" of 28 of them (check --budget 1)
+    notes = allocate(5.0, 4.0, 2.0, {}, {}, n_min=1000, n_max=10**9, untimed=28)[2]
+    assert len(notes) == 1 and "every sampler check runs at the minimum n = 1,000" in notes[0]
+    assert "no selected check scales" not in notes[0]
     n, _, _ = allocate(1e6, 0.0, 0.0, {"a": 0.0}, {"a": 1e-9}, n_min=1000, n_max=10**9)
     assert n == {"a": 10**9}
     # a huge budget or a free check: capped, no infinite n (OverflowError until 4 December)
@@ -215,6 +220,12 @@ def test_calibration_stops_at_two_thirds_of_the_budget():
     # no check was timed: the note does not speak of "the last timed check"
     assert any("no check was timed" in n for n in plan.notes), plan.notes
     assert not any("last timed check" in n for n in plan.notes), plan.notes
+    # past the whole budget before any timing: the sampler check is untimed, not absent
+    # (the note said "no selected check scales with n", check --budget 1)
+    over = B.plan_budget("default", "sampler:cosine_hemisphere", 10.0, startup=12.0,
+                         canary=False)
+    assert any("every sampler check runs at the minimum n" in n for n in over.notes), over.notes
+    assert not any("no selected check scales" in n for n in over.notes), over.notes
     timed = B.plan_budget("default", "sampler:cosine_hemisphere", 60.0, canary=False)
     assert not any("calibration stopped" in n for n in timed.notes)
     assert "sampler:cosine_hemisphere" in timed.per_sample_ns
