@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from .. import checks
+from .. import _validate as validate
 from ..domains import Interval
 from ..errors import EnvironmentProblem, InvalidArgument, interrupted
 from ..provenance import provenance
@@ -405,10 +406,25 @@ def canaries(n_samples: int = 1_000_000) -> list[Check]:
 def build_suite(name: str = "default", n_overrides: tuple[tuple[str, int], ...] = ()
                 ) -> list[Check]:
     """The checks of a built-in suite; ``n_overrides`` sets the sample count of the
-    named checks tagged ``SCALABLE``."""
+    named checks tagged ``SCALABLE``. An override it cannot apply (a name that is not
+    such a check of this suite, an n that is not an integer >= 1) is refused: it was
+    dropped without a word, and a rerun at a budget run's chosen n ran at other n."""
+    if name not in SUITES:
+        raise InvalidArgument(f"build_suite({name!r}): expected one of {', '.join(SUITES)}")
     profile = dataclasses.replace(SUITES[name], n_overrides=tuple(n_overrides))
     out = (_warp_checks(profile) + _distribution_checks(profile) + _estimator_checks(profile)
            + _scipy_checks(profile) + _mitsuba_checks(profile))
+    scalable = {c.name for c in out if SCALABLE in c.tags}
+    for pair in profile.n_overrides:
+        if isinstance(pair, (str, bytes)) or not hasattr(pair, "__len__") or len(pair) != 2:
+            raise InvalidArgument(f"n_overrides: {pair!r}: expected (check name, n_samples) "
+                                  "pairs")
+        check, n = pair
+        if check not in scalable:
+            raise InvalidArgument(f"n_overrides: {check!r} is not a sampler check of suite "
+                                  f"{name!r} (`mcverify list --suite {name}` names them; "
+                                  "only those tagged scalable take an n)")
+        validate.integer(f"n_overrides[{check!r}]", n, minimum=1)
     return _sourced(out, build_suite, name, *((tuple(n_overrides),) if n_overrides else ()))
 
 

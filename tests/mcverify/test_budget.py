@@ -263,3 +263,37 @@ def test_detectable_contamination_counts_the_acceptance_test(dom, sample, pdf):
     assert len(r.details["tests"]) == (4 if e.ndim == 2 else 3)
     want = min(stats.chi2_detectable_mixture(a, b, alpha=level) for a, b in pairs)
     assert mv.detectable_contamination(r) == pytest.approx(want, rel=1e-9)
+
+
+@pytest.mark.parametrize("overrides, needle", [
+    # the full suite's name, a typo, a check that does not scale: each ran at the suite's
+    # own n without a word, so a rerun "at the chosen n" silently was not one
+    ((("sampler:ggx(alpha=0.5)", 1 << 17),), "not a sampler check of suite 'default'"),
+    ((("sampler:cosine_hemisphere ", 1 << 17),), "not a sampler check of suite 'default'"),
+    ((("inverse:cosine_hemisphere", 1 << 17),), "not a sampler check of suite 'default'"),
+    ((("sampler:cosine_hemisphere", 0),), "must be >= 1"),
+    ((("sampler:cosine_hemisphere", 1.5e6),), "must be an integer"),
+    ((("sampler:cosine_hemisphere", "131072"),), "must be an integer"),
+    ((("sampler:cosine_hemisphere",),), "(check name, n_samples) pairs"),
+], ids=["other-suite", "typo", "not-scalable", "zero", "float", "string", "not-a-pair"])
+def test_build_suite_refuses_n_overrides_it_cannot_apply(overrides, needle):
+    """The README's rerun recipe gives a budget run's chosen n to ``build_suite``: an
+    override it could not apply was silently dropped (a rerun at other n than the JSON
+    says, a 'reproduction' that reproduces nothing)."""
+    from mcverify.gate.suites import build_suite
+
+    with pytest.raises(mv.InvalidArgument) as e:
+        build_suite("default", overrides)
+    assert needle in str(e.value), str(e.value)
+
+
+def test_build_suite_takes_a_budget_runs_n_and_names_an_unknown_suite():
+    from mcverify.gate.suites import build_suite
+
+    chosen = {"sampler:cosine_hemisphere": np.int64(1 << 17),
+              "sampler:power_cosine(n=20)": 200_000}
+    checks = {c.name: c for c in build_suite("default", tuple(chosen.items()))}
+    assert checks["sampler:cosine_hemisphere"].run(0).n_samples == 1 << 17
+    with pytest.raises(mv.InvalidArgument,
+                       match=r"build_suite\(.mitsuba.\): expected one of default, full"):
+        build_suite("mitsuba")
