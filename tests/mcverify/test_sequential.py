@@ -317,3 +317,33 @@ def test_false_alarm_rate_of_sequential_check_sampler():
                                         "hemisphere", n_samples=32_000, seed=s, alpha=alpha,
                                         batches=16).passed for s in range(n))
     assert rejected <= stats.binomial_upper_bound(n, alpha, 0.999), rejected
+
+
+def test_a_users_sequential_check_that_stops_above_the_suites_level_is_not_passed():
+    """A user's check_unbiased(batches=16) in a Check without ``sequential=True`` stops
+    at its own α = 0.01, not at the α/m = 0.0025 the suite's Holm must reach: a 2.8 %
+    bias stopped at batch 8 of 16, p = 0.0067, and the gate passed it on half its budget
+    (all 16 batches: p = 6.4e-6, rejected). Declared sequential, it stops at α/m."""
+    from mcverify.gate.suites import Check, run_suite
+
+    ss = np.random.SeedSequence(16).generate_state(16)
+
+    def biased(seed, stop_alpha=None):
+        return mv.check_unbiased(lambda b: np.random.default_rng(ss[b]).normal(0.028, 1, 1000),
+                                 0.0, batches=16, stop_alpha=stop_alpha, name="biased")
+
+    def fine(seed):
+        return mv.check_unbiased(np.random.default_rng(seed).normal(0, 1, 1000), 0.0)
+
+    once = mv.check_unbiased(np.concatenate(
+        [np.random.default_rng(ss[b]).normal(0.028, 1, 1000) for b in range(16)]), 0.0)
+    assert once.p_value < 0.01 / 4
+    others = [Check(f"fine{i}", fine) for i in range(3)]
+    plain = run_suite([Check("biased", biased)] + others, canary=False)
+    r = plain.results[0]
+    assert r.details["sequential"]["stopped_early"] and r.p_value > 0.01 / 4
+    assert not r.passed and "sequential=True" in r.failures[0], r.failures
+    declared = run_suite([Check("biased", biased, sequential=True)] + others, canary=False)
+    r = declared.results[0]
+    assert not r.passed and r.details["sequential"]["stop_alpha"] == 0.01 / 4
+    assert not r.failures
