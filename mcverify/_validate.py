@@ -74,17 +74,60 @@ def real(name: str, v, *, finite: bool = True, minimum: float | None = None) -> 
 
 
 def _available_memory() -> int | None:
-    """Bytes of memory available now (Linux: MemAvailable), else physical memory."""
+    """Bytes of memory available now (Linux: MemAvailable, else physical memory), at most
+    what this process may still map under its address-space limit (``ulimit -v``) and
+    what its cgroup (a container's memory limit) has left: MemAvailable counts neither,
+    and under ``ulimit -v 3000000`` a 3000 x 3000 resolution passed the guard and raised
+    numpy's MemoryError half-way (an outside review)."""
+    avail = None
     try:
         with open("/proc/meminfo", encoding="ascii") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    avail = int(line.split()[1]) * 1024
+                    break
     except (OSError, ValueError, IndexError):
         pass
+    if avail is None:
+        try:
+            avail = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (OSError, ValueError, AttributeError):
+            pass
+    for left in (_address_space_left(), _cgroup_left()):
+        if left is not None:
+            avail = left if avail is None else min(avail, left)
+    return avail
+
+
+def _address_space_left() -> int | None:
+    """Bytes this process may still map under RLIMIT_AS, or None when unlimited."""
     try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (OSError, ValueError, AttributeError):
+        import resource
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return max(soft - int(line.split()[1]) * 1024, 0)
+        return soft
+    except (ImportError, OSError, ValueError, IndexError):
+        return None
+
+
+def _cgroup_left() -> int | None:
+    """Bytes left under this process's cgroup v2 memory limit, or None when unlimited."""
+    try:
+        with open("/proc/self/cgroup", encoding="ascii") as f:
+            rel = next(line.split(":", 2)[2].strip() for line in f if line.startswith("0::"))
+        folder = os.path.join("/sys/fs/cgroup", rel.lstrip("/"))
+        with open(os.path.join(folder, "memory.max"), encoding="ascii") as f:
+            limit = f.read().strip()
+        if limit == "max":
+            return None
+        with open(os.path.join(folder, "memory.current"), encoding="ascii") as f:
+            return max(int(limit) - int(f.read()), 0)
+    except (OSError, ValueError, IndexError, StopIteration):
         return None
 
 

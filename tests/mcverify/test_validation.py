@@ -1,5 +1,8 @@
 """Bad input fails early with mcverify.InvalidArgument naming the parameter."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -168,3 +171,31 @@ def test_a_real_argument_beyond_float64_is_named(call):
     TypeError ("ufunc 'isfinite' not supported") or OverflowError, naming nothing."""
     with pytest.raises(mv.InvalidArgument, match="beyond float64's range"):
         call()
+
+
+_UNDER_ULIMIT = r"""
+import resource, sys
+import numpy as np
+import mcverify as mv
+with open("/proc/self/status") as f:
+    size = next(int(l.split()[1]) * 1024 for l in f if l.startswith("VmSize:"))
+# 1.5 GiB of address space beyond what this process maps now, as `ulimit -v` gives
+resource.setrlimit(resource.RLIMIT_AS, (size + 3 * 2 ** 29, resource.RLIM_INFINITY))
+try:
+    mv.check_sampler(lambda u: u, lambda x: np.ones(len(x)), mv.Square(),
+                     n_samples=10_000, resolution=(3000, 3000), seed=1)
+except mv.InvalidArgument as e:
+    print("refused:", e)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/status")
+def test_the_memory_guard_counts_an_address_space_limit():
+    """Under `ulimit -v` the guard read MemAvailable alone: 3000 x 3000 cells (4.3 GiB)
+    passed it with 1.5 GiB left to map, and numpy raised a raw MemoryError half-way (an
+    outside review). Now refused before any work, naming the resolution."""
+    p = subprocess.run([sys.executable, "-c", _UNDER_ULIMIT], capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 0 and "refused: resolution=(3000, 3000)" in p.stdout, \
+        p.stdout + p.stderr[-2000:]
+    assert "GiB of memory, more than half of the" in p.stdout
