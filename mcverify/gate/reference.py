@@ -550,9 +550,14 @@ MAX_SPP_PER_PASS = 2 ** 32 - 1
 
 
 def _pass_bytes(path: str, params: dict | None) -> int:
-    """Bytes one pass of a reference holds: its float32 RGB image at the film size our
+    """Bytes one pass of a reference takes at the build's peak, at the film size our
     loader reads (Mitsuba's default 768 × 576 where the film says nothing, and where our
-    loader refuses the scene), and its seed."""
+    loader refuses the scene): its float64 RGB image (``render_pass`` returns float64)
+    three times over, as Pool.map's list, their ``np.stack`` and ``var``'s deviations,
+    with the stack's non-finite mask, 75 bytes a pixel, rounded up to 80 for each pass's
+    small objects. Until 7 December it counted one float32 image, 12 bytes a pixel: a
+    4096 × 4096 film under ``ulimit -v 5000000`` was allowed "at most 10" passes, and the
+    10th failed after nine had rendered (an outside review)."""
     from estimators.pathtracer import SceneError
     from estimators.pathtracer.scene import load_scene
 
@@ -561,7 +566,7 @@ def _pass_bytes(path: str, params: dict | None) -> int:
         width, height = int(film.get("width", 768)), int(film.get("height", 576))
     except SceneError:
         width, height = 768, 576
-    return 12 * width * height + 64
+    return 80 * width * height
 
 
 def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _Job:

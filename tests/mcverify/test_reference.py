@@ -781,3 +781,27 @@ def test_the_stamp_and_assets_follow_the_params_the_scene_is_loaded_with(tmp_pat
     assert reference.scene_asset_files(scene, {"tex": "b.exr"})["$tex"] == \
         str(tmp_path / "b.exr")
     assert reference.scene_asset_files(scene)["$tex"] == str(tmp_path / "a.exr")
+
+
+def test_the_passes_memory_guard_counts_what_a_pass_takes(scene_copy):
+    """The --passes guard counted a float32 image a pass (12 bytes a pixel) while the
+    build holds float64 passes three times over (75): a 4096 × 4096 film under
+    `ulimit -v 5000000` was allowed "at most 10" passes and the 10th failed in Mitsuba
+    after nine had rendered (an outside review). The peak grows by at most what the guard
+    counts for each added pass."""
+    import tracemalloc
+
+    xml = scene_copy / "scene.xml"
+    xml.write_text(xml.read_text().replace('name="res" value="64"', 'name="res" value="256"'))
+    peaks = {}
+    tracemalloc.start()
+    try:
+        for k in (2, 6):
+            tracemalloc.reset_peak()
+            reference.build_reference(str(scene_copy), spp=1, passes=k)
+            peaks[k] = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    per_pass = (peaks[6] - peaks[2]) / 4
+    assert per_pass > 256 * 256 * 24, peaks          # at least one float64 image a pass
+    assert per_pass <= reference._pass_bytes(str(xml), None), (per_pass, peaks)
