@@ -401,6 +401,30 @@ def _rendered(out, who: str):
     return mean, var, n, None, {}, None
 
 
+#: Bytes a pixel of the film takes at a render check's peak, above what the process held
+#: before: the reference, our image, the comparison's and the perceptual metrics'
+#: temporaries, and each of our passes (measured with tracemalloc at 512² and 1024²:
+#: 626, 698, 850 and 1138 bytes at 2, 4, 8 and 16 passes).
+_CHECK_BYTES_PER_PIXEL, _PASS_BYTES_PER_PIXEL = 600, 40
+
+
+def _fits(shape, passes: int) -> None:
+    """Refuse, before our passes render, a check whose images would need more than half
+    the memory available: a 4096 × 4096 film under ``ulimit -v 4000000`` rendered its
+    passes and ended in "unexpected MemoryError: Unable to allocate 192. MiB", naming
+    nothing (an outside review)."""
+    h, w = shape[:2]
+    need = h * w * (_CHECK_BYTES_PER_PIXEL + _PASS_BYTES_PER_PIXEL * passes)
+    avail = validate._available_memory()
+    if avail is not None and need > avail // 2:
+        per = f" and --passes={passes}" if passes else ""
+        raise InvalidArgument(f"film {w} x {h}{per}: the render check needs about "
+                              f"{validate._bytes(need)} of memory (its images and their "
+                              f"comparison), more than half of the {validate._bytes(avail)} "
+                              "available; render a smaller film (its width and height)"
+                              + (" or fewer passes" if passes > 2 else ""))
+
+
 class _OurPasses:
     """Our path tracer's passes, rendered batch by batch on a pool as a sequential look
     asks for them; ``image(b)`` is (mean, var, n, seconds, stats, passes) of the first b
@@ -579,6 +603,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                                      "before passes.exr was stored), which a splatting "
                                      "filter needs; run "
                                      f"`{reference.rebuild_command(name, path, ref.manifest)}`")
+        _fits(ref.mean.shape, passes if ours else 0)
         who = None if ours else getattr(renderer, "__name__", "renderer")
         if ours:
             source = _OurPasses(path, spp, passes, seed, params, plant, pdf_scale, pool,

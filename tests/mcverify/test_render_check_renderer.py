@@ -228,3 +228,55 @@ def test_identical_passes_are_refused_only_where_the_scene_is_noisy_enough():
                 _distinct_passes(passes, ref, "mine")
         else:
             _distinct_passes(passes, ref, "mine")
+
+
+def _constant_scene(tmp_path, res):
+    from mcverify.gate import reference
+
+    scene = tmp_path / "scene.xml"
+    scene.write_text(f"""<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="2"/></integrator>
+  <sensor type="perspective"><float name="fov" value="30"/>
+    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="{res}"/>
+      <integer name="height" value="{res}"/><rfilter type="box"/></film></sensor>
+  <emitter type="constant"><rgb name="radiance" value="0.5, 0.25, 1"/></emitter>
+</scene>""")
+    reference.build_reference(str(scene), spp=1, passes=2)
+    return str(scene)
+
+
+def test_a_film_too_large_for_the_memory_is_refused_before_our_passes(tmp_path, monkeypatch):
+    """render-check had no memory guard of its own: a 4096 × 4096 film under
+    `ulimit -v 4000000` rendered and ended in "unexpected MemoryError: Unable to allocate
+    192. MiB", naming nothing (an outside review). Now refused before our passes render,
+    naming the film and the memory it needs."""
+    from mcverify import _validate
+    from mcverify.gate import render_check as rc
+
+    scene = _constant_scene(tmp_path, 256)
+    monkeypatch.setattr(_validate, "_available_memory", lambda: 2 ** 26)    # 64 MiB
+    monkeypatch.setattr(rc, "_OurPasses", None)     # never reached
+    with pytest.raises(mv.InvalidArgument, match=r"film 256 x 256 and --passes=2: the "
+                       r"render check needs about .* MiB of memory .*more than half of "
+                       r"the 64 MiB available"):
+        render_check(scene, spp=64, passes=2)
+
+
+@pytest.mark.parametrize("passes", [2, 8])
+def test_the_render_check_memory_guard_counts_what_it_takes(tmp_path, passes):
+    """The guard's bytes a pixel bound what a check takes at its peak (tracemalloc)."""
+    import tracemalloc
+
+    from mcverify.gate import render_check as rc
+
+    scene = _constant_scene(tmp_path, 256)
+    render_check(scene, spp=64, passes=2)     # what stays loaded after a first check
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        render_check(scene, spp=32 * passes, passes=passes)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    assert peak <= 256 * 256 * (rc._CHECK_BYTES_PER_PIXEL + rc._PASS_BYTES_PER_PIXEL * passes)
