@@ -501,3 +501,43 @@ def test_mitsuba_against_itself_passes_and_a_brighter_light_fails():
     tc, vc, _ = _mitsuba_passes(mi, scene, 2000)
     brighter = mv.compare_images(tc, tb, test_var=vc, ref_var=vb, test_n=n, ref_n=n)
     assert not brighter.passed and "global" in brighter.details["found_by"]
+
+
+def test_images_too_large_for_the_memory_are_refused_before_any_work(monkeypatch):
+    """Two 4096 × 4096 EXRs under `ulimit -v 4000000` ended in "unexpected MemoryError:
+    Unable to allocate 384. MiB", naming nothing (an outside review)."""
+    from mcverify import _validate
+
+    rng = np.random.default_rng(0)
+    a, b, va, vb = (rng.gamma(2, .5, (256, 256, 3)) for _ in range(4))
+    monkeypatch.setattr(_validate, "_available_memory", lambda: 2 ** 26)    # 64 MiB
+    with pytest.raises(mv.InvalidArgument, match=r"test_mean: 256 x 256 pixels need about "
+                       r".* MiB of memory to compare .*more than half of the 64 MiB"):
+        mv.compare_images(a, b, test_var=va, ref_var=vb, test_n=16, ref_n=16)
+
+
+@pytest.mark.parametrize("perceptual, k", [(True, 0), (False, 0), (True, 4)])
+def test_the_image_memory_guard_counts_what_a_comparison_takes(perceptual, k):
+    """The guard's bytes a pixel bound compare_images' peak above its inputs (tracemalloc)."""
+    import tracemalloc
+
+    from mcverify.checks import image
+
+    rng = np.random.default_rng(1)
+    p = rng.gamma(2, .5, (2, max(k, 2), 256, 256, 3))
+    means, var = p.mean(1), p.var(1, ddof=1)
+    kw = dict(test_passes=p[0], ref_passes=p[1]) if k else {}
+    n = max(k, 2)
+    mv.compare_images(means[0][:8, :8], means[1][:8, :8], test_var=var[0][:8, :8],
+                      ref_var=var[1][:8, :8], test_n=n, ref_n=n)    # first-call imports
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        mv.compare_images(means[0], means[1], test_var=var[0], ref_var=var[1], test_n=n,
+                          ref_n=n, perceptual=perceptual, **kw)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    each = image._BYTES_PER_PIXEL + image._PERCEPTUAL_BYTES_PER_PIXEL * perceptual \
+        + image._PASS_BYTES_PER_PIXEL * 2 * k
+    assert peak <= 256 * 256 * each, (peak / 256 ** 2, each)
