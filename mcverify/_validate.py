@@ -115,18 +115,25 @@ def _address_space_left() -> int | None:
         return None
 
 
-def _cgroup_left() -> int | None:
-    """Bytes left under this process's cgroup v2 memory limit, or None when unlimited."""
+def _cgroup_left(proc: str = "/proc/self/cgroup", root: str = "/sys/fs/cgroup") -> int | None:
+    """Bytes left under this process's cgroup v2 memory limit (its reclaimable page cache
+    counted as left), or None when unlimited."""
     try:
-        with open("/proc/self/cgroup", encoding="ascii") as f:
+        with open(proc, encoding="ascii") as f:
             rel = next(line.split(":", 2)[2].strip() for line in f if line.startswith("0::"))
-        folder = os.path.join("/sys/fs/cgroup", rel.lstrip("/"))
+        folder = os.path.join(root, rel.lstrip("/"))
         with open(os.path.join(folder, "memory.max"), encoding="ascii") as f:
             limit = f.read().strip()
         if limit == "max":
             return None
         with open(os.path.join(folder, "memory.current"), encoding="ascii") as f:
-            return max(int(limit) - int(f.read()), 0)
+            used = int(f.read())
+        # the page cache the cgroup holds counts in memory.current but is given back
+        # under pressure: a CI container that had read many files looked full
+        with open(os.path.join(folder, "memory.stat"), encoding="ascii") as f:
+            cache = next((int(line.split()[1]) for line in f
+                          if line.startswith("inactive_file ")), 0)
+        return max(int(limit) - used + cache, 0)
     except (OSError, ValueError, IndexError, StopIteration):
         return None
 

@@ -199,3 +199,21 @@ def test_the_memory_guard_counts_an_address_space_limit():
     assert p.returncode == 0 and "refused: resolution=(3000, 3000)" in p.stdout, \
         p.stdout + p.stderr[-2000:]
     assert "GiB of memory, more than half of the" in p.stdout
+
+
+def test_a_cgroups_page_cache_counts_as_memory_left(tmp_path):
+    """memory.current counts the page cache the cgroup holds, which the kernel gives back
+    under pressure: a CI container that had read many files looked full to the guards."""
+    from mcverify import _validate
+
+    (tmp_path / "cgroup").write_text("0::/ci\n")
+    folder = tmp_path / "fs" / "ci"
+    folder.mkdir(parents=True)
+    (folder / "memory.max").write_text("1000\n")
+    (folder / "memory.current").write_text("900\n")
+    (folder / "memory.stat").write_text("anon 300\nfile 600\nactive_file 100\n"
+                                        "inactive_file 500\n")
+    left = _validate._cgroup_left(str(tmp_path / "cgroup"), str(tmp_path / "fs"))
+    assert left == 1000 - 900 + 500
+    (folder / "memory.max").write_text("max\n")
+    assert _validate._cgroup_left(str(tmp_path / "cgroup"), str(tmp_path / "fs")) is None
