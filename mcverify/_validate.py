@@ -157,9 +157,12 @@ def memory(name: str, n: int, bytes_each: int, what: str, *, width=None,
                               f"{_bytes(least * bytes_each)} of memory ({what}), more than "
                               f"half of the {_bytes(avail)} available")
     if avail is not None and need > avail // 2:
+        most = avail // 2 // bytes_each
+        # below ``least`` (a reference's 2 passes) "use at most 1" was no way out
+        hint = f"use at most {most}" if most >= max(least, 1) else \
+            f"not even {max(least, 1)} fit (the least {name} allowed): free memory"
         raise InvalidArgument(f"{name}={n}: needs about {_bytes(need)} of memory ({what}), "
-                              f"more than half of the {_bytes(avail)} available; use at "
-                              f"most {max(avail // 2 // bytes_each, 1)}")
+                              f"more than half of the {_bytes(avail)} available; {hint}")
 
 
 def negatives(v: np.ndarray) -> tuple[int, tuple, float] | None:

@@ -586,7 +586,7 @@ def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _J
     # the passes stay in memory until the reference is written: --passes 10^17 was an
     # "unexpected MemoryError" naming no option (an outside review)
     validate.memory("passes", passes, _pass_bytes(path, params),
-                    "its pass images, held until the reference is written")
+                    "its pass images, held until the reference is written", least=2)
     return _Job(name, path, spp, _pass_seeds(seed, passes), params,
                 scene_assets(path, params), scene_hash(path))
 

@@ -805,3 +805,16 @@ def test_the_passes_memory_guard_counts_what_a_pass_takes(scene_copy):
     per_pass = (peaks[6] - peaks[2]) / 4
     assert per_pass > 256 * 256 * 24, peaks          # at least one float64 image a pass
     assert per_pass <= reference._pass_bytes(str(xml), None), (per_pass, peaks)
+
+
+def test_passes_that_do_not_fit_at_all_are_not_told_to_use_one(scene_copy, monkeypatch):
+    """Where not even the least 2 passes fit, the refusal said "use at most 1", a count
+    that is itself refused (an outside review)."""
+    from mcverify import _validate
+    from mcverify.errors import InvalidArgument
+
+    one = reference._pass_bytes(reference.resolve_scene(str(scene_copy))[1], None)
+    monkeypatch.setattr(_validate, "_available_memory", lambda: 3 * one)   # 1.5 in half
+    with pytest.raises(InvalidArgument, match=r"passes=2: .*; not even 2 fit") as e:
+        reference.build_reference(str(scene_copy), spp=4, passes=2)
+    assert "use at most" not in str(e.value)
