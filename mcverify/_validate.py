@@ -145,24 +145,37 @@ def _bytes(n: float) -> str:
         n /= 1024
 
 
+def fits(need: int, needs: str, detail: str = "", hint=None) -> None:
+    """Refuse, before any work, ``need`` bytes that are more than half the memory
+    available (numpy would raise MemoryError half-way, or the system would swap):
+    ``InvalidArgument("{needs} about N of memory{detail}, more than half of the M
+    available; {hint}")``, ``needs`` naming what is asked ("passes=20: needs"), ``hint``
+    what to do, a string or a function of the bytes available. Every memory guard's one
+    comparison and message."""
+    avail = _available_memory()
+    if avail is None or need <= avail // 2:
+        return
+    hint = hint(avail) if callable(hint) else hint
+    raise InvalidArgument(f"{needs} about {_bytes(need)} of memory{detail}, more than half "
+                          f"of the {_bytes(avail)} available" + (f"; {hint}" if hint else ""))
+
+
 def memory(name: str, n: int, bytes_each: int, what: str, *, width=None,
            least: int = 1) -> None:
     """Refuse ``n`` items of ``bytes_each`` bytes when they need more than half the memory
-    available, before any work (numpy would raise MemoryError half-way, or the system
-    would swap). ``width``: ``(parameter, value)`` that sets ``bytes_each``, blamed
-    instead of ``name`` when not even ``least`` items fit."""
-    need, avail = n * bytes_each, _available_memory()
-    if avail is not None and width is not None and least * bytes_each > avail // 2:
-        raise InvalidArgument(f"{width[0]}={width[1]}: {least} rows of it need about "
-                              f"{_bytes(least * bytes_each)} of memory ({what}), more than "
-                              f"half of the {_bytes(avail)} available")
-    if avail is not None and need > avail // 2:
+    available (``fits``). ``width``: ``(parameter, value)`` that sets ``bytes_each``,
+    blamed instead of ``name`` when not even ``least`` items fit."""
+    if width is not None:
+        fits(least * bytes_each, f"{width[0]}={width[1]}: {least} rows of it need",
+             f" ({what})")
+
+    def hint(avail):
         most = avail // 2 // bytes_each
         # below ``least`` (a reference's 2 passes) "use at most 1" was no way out
-        hint = f"use at most {most}" if most >= max(least, 1) else \
+        return f"use at most {most}" if most >= max(least, 1) else \
             f"not even {max(least, 1)} fit (the least {name} allowed): free memory"
-        raise InvalidArgument(f"{name}={n}: needs about {_bytes(need)} of memory ({what}), "
-                              f"more than half of the {_bytes(avail)} available; {hint}")
+
+    fits(n * bytes_each, f"{name}={n}: needs", f" ({what})", hint)
 
 
 def negatives(v: np.ndarray) -> tuple[int, tuple, float] | None:
@@ -208,11 +221,8 @@ def resolution(name: str, v, param_dim: int, *, cell_factor: int = 1,
         raise InvalidArgument(f"{name}={_show(v)}: every entry must be an integer >= 1")
     t = tuple(int(r) for r in t)
     cells = int(np.prod(t, dtype=object)) * cell_factor
-    need, avail = cells * bytes_per_cell, _available_memory()
-    if avail is not None and need > avail // 2:
-        raise InvalidArgument(f"{name}={_show(v)}: {cells:,} histogram cells need about "
-                              f"{_bytes(need)} of memory, more than half of the "
-                              f"{_bytes(avail)} available; use fewer cells")
+    fits(cells * bytes_per_cell, f"{name}={_show(v)}: {cells:,} histogram cells need",
+         hint="use fewer cells")
     return t
 
 

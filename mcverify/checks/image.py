@@ -279,15 +279,10 @@ def _fits(shape, perceptual, test_passes, ref_passes) -> None:
             for p in (test_passes, ref_passes) if p is not None)
     each = _BYTES_PER_PIXEL + (_PERCEPTUAL_BYTES_PER_PIXEL if perceptual is True else 0) \
         + _PASS_BYTES_PER_PIXEL * k
-    need, avail = pixels * each, validate._available_memory()
-    if avail is not None and need > avail // 2:
-        raise InvalidArgument(f"test_mean: {shape[1]} x {shape[0]} pixels"
-                              + (f" and {k} pass images" if k else "")
-                              + f" need about {validate._bytes(need)} of memory to compare "
-                              f"({each} bytes a pixel), more than half of the "
-                              f"{validate._bytes(avail)} available"
-                              + ("; perceptual=False saves 280 a pixel" if perceptual is True
-                                 else ""))
+    validate.fits(pixels * each, f"test_mean: {shape[1]} x {shape[0]} pixels"
+                  + (f" and {k} pass images" if k else "") + " need",
+                  f" to compare ({each} bytes a pixel)",
+                  "perceptual=False saves 280 a pixel" if perceptual is True else None)
 
 
 def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,

@@ -414,15 +414,12 @@ def _fits(shape, passes: int) -> None:
     passes and ended in "unexpected MemoryError: Unable to allocate 192. MiB", naming
     nothing (an outside review)."""
     h, w = shape[:2]
-    need = h * w * (_CHECK_BYTES_PER_PIXEL + _PASS_BYTES_PER_PIXEL * passes)
-    avail = validate._available_memory()
-    if avail is not None and need > avail // 2:
-        per = f" and --passes={passes}" if passes else ""
-        raise InvalidArgument(f"film {w} x {h}{per}: the render check needs about "
-                              f"{validate._bytes(need)} of memory (its images and their "
-                              f"comparison), more than half of the {validate._bytes(avail)} "
-                              "available; render a smaller film (its width and height)"
-                              + (" or fewer passes" if passes > 2 else ""))
+    per = f" and --passes={passes}" if passes else ""
+    validate.fits(h * w * (_CHECK_BYTES_PER_PIXEL + _PASS_BYTES_PER_PIXEL * passes),
+                  f"film {w} x {h}{per}: the render check needs",
+                  " (its images and their comparison)",
+                  "render a smaller film (its width and height)"
+                  + (" or fewer passes" if passes > 2 else ""))
 
 
 class _OurPasses:
