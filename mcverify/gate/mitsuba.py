@@ -340,7 +340,7 @@ def _current(scene_path: str, params: dict | None):
     """The scene as ``_loaded`` keeps it, as its files are now (``scene_stamp``)."""
     from .reference import scene_stamp
 
-    os.stat(scene_path)
+    os.stat(scene_path)         # a missing scene raises here (its stamp would be None)
     return _loaded(scene_path, tuple(sorted((params or {}).items())),
                    scene_stamp(scene_path, params))
 
@@ -363,15 +363,11 @@ def render_pass(scene_path: str, *, spp: int, seed: int, params: dict | None = N
         raise EnvironmentProblem(f"{scene_path}: this process renders with Mitsuba "
                                  f"{choose_variant().variant}, the client with {variant}; "
                                  "set MCVERIFY_MITSUBA_VARIANT alike on every worker")
-    from .reference import scene_stamp
-
     try:
-        os.stat(scene_path)
+        scene = _current(scene_path, params)
     except OSError as e:
         raise EnvironmentProblem(f"{scene_path}: cannot read it here ({e.strerror}); workers "
                                  "need the scenes at the same path") from None
-    scene = _loaded(scene_path, tuple(sorted((params or {}).items())),
-                    scene_stamp(scene_path, params))
     image = np.asarray(_mi().render(scene, spp=spp, seed=mitsuba_seed(seed)),
                        dtype=np.float64)
     if scene.integrator().should_stop():
