@@ -174,20 +174,16 @@ def allocate(budget: float, spent: float, other: float, fixed: dict[str, float],
             n = (min((share - fixed[name]) / max(per_sample[name], 1e-15), n_max)
                  if name in rest else 0)
             n_samples[name] = min(max(int(n), n_min), n_max)
-        if left < sum(fixed[x] + per_sample[x] * n_min for x in fixed):
-            notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
-                         f"{spent:.1f}s and "
-                         f"the fixed-size checks {other:.1f}s; every sampler check runs at "
-                         f"the minimum n = {n_min:,}")
-    elif left < 0 and untimed:  # none timed: they scale with n, but run at the minimum
-        # (it said "no selected check scales with n" of 28 untimed sampler checks)
-        notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
-                     f"{spent:.1f}s and the fixed-size checks {other:.1f}s; every sampler "
-                     f"check runs at the minimum n = {n_min:,}")
-    elif left < 0:          # nothing scales with n: said, as where the sampler checks' are
-        notes.append(f"budget {budget:g}s is too small: start-up and calibration took "
-                     f"{spent:.1f}s and the fixed-size checks {other:.1f}s; no selected "
-                     f"check scales with n, so the run takes about {spent + other:.1f}s")
+    too_small = (f"budget {budget:g}s is too small: start-up and calibration took "
+                 f"{spent:.1f}s and the fixed-size checks {other:.1f}s; ")
+    short = left < sum(floor.values()) if fixed else left < 0
+    if short and (fixed or untimed):
+        # untimed ones scale with n too, but run at the minimum (it said "no selected
+        # check scales with n" of 28 untimed sampler checks)
+        notes.append(too_small + f"every sampler check runs at the minimum n = {n_min:,}")
+    elif short:             # nothing scales with n: said, as where the sampler checks' are
+        notes.append(too_small + "no selected check scales with n, so the run takes about "
+                     f"{spent + other:.1f}s")
     predicted = spent + other + sum(fixed[x] + per_sample[x] * n_samples[x] for x in fixed)
     return n_samples, predicted, tuple(notes)
 
