@@ -215,9 +215,9 @@ def test_an_early_look_of_constant_estimates_neither_stops_nor_fails_a_rare_hit_
     estimates of its first batch at 0 with probability 0.99^200 = 13 %: the constant
     check ("every sample is 0 ... draw more samples") stopped it at batch 1 as a failure,
     69 false alarms in 400 seeded runs at α = 0.05, 60 of them at batch 1 (the
-    one-shot check on the same 3200 estimates: 21; now 16). The later batches are the samples it asks for; the final look
-    judges, so an estimator constant at a wrong value still fails. The rate is held to
-    the binomial 99.9 % bound of α."""
+    one-shot check on the same 3200 estimates: 21; now 16). The later batches are the
+    samples it asks for; the final look judges, so an estimator constant at a wrong value
+    still fails. The rate is held to the binomial 99.9 % bound of α."""
     def hits(s):
         return lambda b: (np.random.default_rng([s, b]).random(200) < 0.01).astype(float)
 
