@@ -545,6 +545,62 @@ def test_float32_points_at_an_interval_end_it_cannot_hold_are_inside(a, b):
     assert r.passed, r.failures
 
 
+@pytest.mark.parametrize("a, b", [(1000.0, 1001.0), (1e4, 1e4 + 1.0), (-3000.5, -3000.0)])
+def test_a_correct_float32_sampler_on_an_interval_far_from_0_passes(a, b):
+    """A float32 sampler's points are rounded values, 32 of them a cell on
+    Interval(1000, 1001) at 512 cells: with cell ends between float32 values, each
+    cell's count was off by up to a value's share while the cubature integrated the pdf
+    over the cell as drawn, and a correct sampler failed with 1e6 points (p = 4e-9 on
+    [1000, 1001], p = 0 on [1e4, 1e4 + 1]; the KS test too where values are fewer).
+    The cells' ends now lie where float32 rounding changes its answer. Three seeds at
+    α = 0.01 each (a false alarm in any of the 9 checks: ≤ 9 %, seeded, deterministic).
+    A sampler off by a power of 1.02 still fails on every seed."""
+    lo, w = np.float32(a), np.float32(b - a)
+
+    def sample(u):                                         # float32 all the way
+        return lo + w * u[:, 0].astype(np.float32)
+
+    def skewed(u):
+        return lo + w * u[:, 0].astype(np.float32) ** np.float32(1.02)
+
+    def pdf(x):
+        return np.full(len(x), 1.0 / (b - a))
+
+    dom = mv.Interval(a, b)
+    for seed in (1, 2, 3):
+        r = mv.check_sampler(sample, pdf, dom, n_samples=1_000_000, seed=seed)
+        assert r.passed, r.summary()
+        r = mv.check_sampler(skewed, pdf, dom, n_samples=1_000_000, seed=seed)
+        assert not r.passed, r.summary()
+
+
+def test_interval_rounding_edges_lie_halfway_between_float32_values():
+    """Every inner edge ``Interval.rounding_edges`` gives float32 points lies halfway
+    between two neighbouring float32 values (so each value's rounding interval is in
+    one cell), edges that meet are merged, and float64 points keep theirs."""
+    dom = mv.Interval(1000.0, 1000.01)
+    e = [np.linspace(0.0, 1.0, 513)]
+    assert dom.rounding_edges(e, np.float64) is e
+    out = dom.rounding_edges(e, np.float32)[0]
+    assert out[0] == 0.0 and out[-1] == 1.0 and np.all(np.diff(out) > 0)
+    assert out.size - 1 < 512             # 164 float32 values: cells merged
+    x = dom.a + out[1:-1] * (dom.b - dom.a)
+    v = x.astype(np.float32)
+    below = np.where(v.astype(np.float64) < x, v, np.nextafter(v, np.float32(-np.inf)))
+    above = np.nextafter(below, np.float32(np.inf))
+    mid = (below.astype(np.float64) + above.astype(np.float64)) / 2.0
+    assert np.all(np.abs(x - mid) <= 1e-12 * 1000.0)
+    # points of a float32 value fall in the cell the value's rounding interval is in
+    vals = np.arange(np.float32(1000.0), np.float32(1000.01), dtype=np.float32)
+    vals = np.unique(np.nextafter(vals, np.float32(np.inf)))
+    s = dom.to_param(vals.reshape(-1, 1))[:, 0]
+    cell = np.searchsorted(out, s, side="right") - 1
+    lo = np.searchsorted(out, dom.to_param(
+        ((vals.astype(np.float64) + np.nextafter(vals, np.float32(-np.inf))) / 2.0 + 1e-9)
+        .reshape(-1, 1))[:, 0], side="right") - 1
+    assert np.array_equal(cell, lo)
+
+
 def test_float32_points_near_the_south_pole_keep_their_polar_parameter():
     """On the sphere 1 + z of a float32 point within 1e-4 of the south pole is 0 or a
     multiple of 6e-8; the domain takes it from the tangential components, as at the
