@@ -191,6 +191,14 @@ def _fine_edges(dom: Domain, edges, dtype):
     return [fine], np.searchsorted(fine, e[:-1])
 
 
+def _merge_note(dom: Domain, edges, res) -> list[str]:
+    """The note where ``Domain.rounding_edges`` merged cells (1-D), else nothing."""
+    if dom.param_dim != 1 or len(edges[0]) == res[0] + 1:
+        return []
+    return [f"{dom!r} holds few float32 values: cells whose ends met at the same float32 "
+            f"rounding point were merged, {len(edges[0]) - 1} of the {res[0]} asked for"]
+
+
 _RADIX_BITS = 11
 _SIGN = np.uint64(1 << 63)
 
@@ -826,7 +834,6 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         pilot_s, dtype = _pilot(sample, "sample", pilot_seq, n, k, dom, rejection)
     uniforms = _uniform_chunks(main_seq, n_budget, k, chunk)
     edges = dom.rounding_edges(_edges(pilot_s, res), dtype)
-    merged = res[0] + 1 - len(edges[0]) if m == 1 else 0
     # 1-D: a fine histogram (each cell split in KS_SPLIT) serves the binned KS test; the
     # χ² counts are its sums.
     hist_edges, starts = _fine_edges(dom, edges, dtype) if m == 1 else (edges, None)
@@ -911,10 +918,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                                 f"not 1 (quadrature error bound {err_bound:.2g}){hint}")
             expected = mass * n_valid
         messages = []
-        if merged:
-            messages.append(f"{dom!r} holds few float32 values: cells whose ends met at "
-                            f"the same float32 rounding point were merged, "
-                            f"{len(edges[0]) - 1} of the {res[0]} asked for")
+        messages += _merge_note(dom, edges, res)
         if unconverged:
             # a thin leaf's nested line integrals count one each
             messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
@@ -1207,12 +1211,18 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     res = res or _default_resolution(dom, min(size for *_, size in sides))
     # independent pilot draws of the sampler callables place the cells (a uniform grid
     # put all of a GGX lobe at α = 0.005 into one row: 10 % too wide passed)
-    pilots = [_pilot(smp, label, pseq, size, k, dom, rejection)[0]
+    pilots = [_pilot(smp, label, pseq, size, k, dom, rejection)
               for (label, smp, seq, size), pseq in zip(sides, seqs[2].spawn(2))
               if seq is not None]
-    edges = _edges(np.concatenate(pilots) if pilots else None, res)
+    # float32 on either side: cell ends where float32 rounding changes its answer (a
+    # float32 port against its float64 original on Interval(1000, 1001) differed at
+    # p = 6e-4 with 1e6 points per side until 7 December)
+    types = [t for _, t in pilots] + [smp.dtype for _, smp, seq, _ in sides if seq is None]
+    dtype = np.float32 if np.float32 in types else None
+    edges = dom.rounding_edges(
+        _edges(np.concatenate([p for p, _ in pilots]) if pilots else None, res), dtype)
     m = dom.param_dim
-    hist_edges = [_split_edges(edges[0], KS_SPLIT)] if m == 1 else edges
+    hist_edges, starts = _fine_edges(dom, edges, dtype) if m == 1 else (edges, None)
     hists, failures = [], []
     for label, smp, seq, size in sides:
         h = _Histogram(dom, hist_edges, rejection=rejection)
@@ -1224,7 +1234,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
         hists.append(h)
         failures += h.failures(what=label + " point")
     fa, fb = (h.counts for h in hists)
-    ha, hb = ((f.reshape(-1, KS_SPLIT).sum(axis=1) if m == 1 else f) for f in (fa, fb))
+    ha, hb = ((np.add.reduceat(f, starts) if m == 1 else f) for f in (fa, fb))
     sub = {}
     if rejection:
         # Equal acceptance probabilities: Fisher's exact test on the 2 × 2 table.
@@ -1245,6 +1255,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                                   sub["chi2"].n_bins) if ha.sum() and hb.sum() else None
     if note:
         messages.append(note)
+    messages += _merge_note(dom, edges, res)
     if rejection and not (ha.sum() or hb.sum()):
         messages.append("neither side accepted a draw: only the acceptance rates were "
                         "compared (two samplers that reject everything agree)")
