@@ -97,8 +97,12 @@ def _report(rel, tol, rows, u, x, what, differ, returned, expected, failures, de
     j = int(bad[np.argmax(rel[bad])])
     i = int(rows[j])
     got, want = returned[j], expected[j]
-    ratio = (f" (ratio {got[0] / want[0] if want[0] else np.inf:.6g})"
-             if got.size == 1 else "")
+    with np.errstate(all="ignore"):     # 0 / 0 is a channel that agrees
+        r = np.where(want != 0, got / np.where(want != 0, want, 1.0),
+                     np.where(got == 0, 1.0, np.inf))
+    # a weight's channels each get theirs (until 7 December only one-channel values had
+    # a ratio, and a BSDF weight off by π in every channel showed none; an outside review)
+    ratio = f" (ratio {r[0]:.6g})" if got.size == 1 else f" (ratios {_show(r)})"
     failures.append(f"{bad.size} of {rows.size} {differ} by more than rtol={tol:g}; worst "
                     f"at u={_show(u[i])}: x={_show(x[i])}, returned {_show(got)}, "
                     f"expected {_show(want)}{ratio}")

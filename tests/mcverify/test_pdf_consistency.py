@@ -63,6 +63,26 @@ def test_a_returned_density_of_theta_fails_naming_the_ratio():
     assert worst["returned"][0] != pytest.approx(worst["expected"][0], rel=0.1)
 
 
+def test_a_weight_off_by_pi_in_every_channel_names_each_channel_ratio():
+    """A BSDF's returned weight f·cos/pdf off by π in each of its three channels: the
+    failure gives the ratio of each channel (until 7 December a multi-channel value had
+    none), 1 where a channel is 0 on both sides."""
+    albedo = np.array([0.5, 0.25, 0.0])
+
+    def sample(u):
+        x, p = _good(u)
+        return x, p, np.tile(albedo * np.pi, (len(x), 1))
+
+    def f(x):
+        return np.tile(albedo, (len(x), 1)) * x[:, 2:3] / np.pi
+
+    r = mv.check_pdf_consistency(sample, _cos_pdf, sample_dim=2, f=f, n_samples=2000,
+                                 seed=3)
+    assert not r.passed
+    msg = next(m for m in r.failures if "weights" in m)
+    assert "(ratios [3.14159, 3.14159, 1])" in msg, msg
+
+
 def test_a_jacobian_missed_near_the_horizon_only_fails_with_its_count():
     def grazing(u):
         x, p = _good(u)
