@@ -406,6 +406,31 @@ def test_convergence_of_a_float32_exact_estimator_says_it_is_exact():
     assert r.passed and r.statistic is not None, r.summary()
 
 
+def test_convergence_of_an_estimator_that_ignores_its_seed_says_so():
+    """An unrandomised "QMC" estimator (the same point set for every seed) has one error
+    at each N, no spread: the jackknife's standard error was 0, so the slope's interval
+    had no width and the verdict was the sign of the error's slope against the claim.
+    A midpoint rule (N^-2) passed the RQMC claim ``expected_slope=-1.0,
+    alternative="less"``, "slope -2.000 (99% CI [-2.000, -2.000])", p = 1, and
+    unscrambled Sobol on exp(xy) failed it at p = 0 saying only "slope -0.977" (until
+    7 December). Both now fail saying the estimator ignores its seed."""
+    from scipy.stats import qmc
+
+    def midpoint(n, seed):       # a fixed shift, the same for every seed
+        return float(np.mean(np.exp((np.arange(n) + 0.5) / n)))
+
+    def sobol(n, seed):          # unscrambled: seed unused
+        p = qmc.Sobol(2, scramble=False).random(n)
+        return float(np.mean(np.exp(p[:, 0] * p[:, 1])))
+
+    for est, expected in ((midpoint, np.e - 1.0), (sobol, 1.3179021514544038)):
+        r = mv.check_convergence(est, expected, ns=[64, 256, 1024, 4096], n_seeds=8,
+                                 expected_slope=-1.0, alternative="less")
+        assert not r.passed and r.p_value is None, r.summary()
+        assert "the same value for all 8 seeds at every N" in r.failures[0], r.failures
+        assert "ignores its seed" in r.failures[0], r.failures
+
+
 def test_a_discrepancy_names_the_extent_of_its_cell():
     """A wide cell's centre alone misled: a cone 10 % wider than its pdf about the pole
     (cos θ_max = 1 - 1.1e-6 against 1 - 1e-6) was reported at z ≈ 0.9677, the centre of
