@@ -385,14 +385,20 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
             rounding = max(rounding, rj)
     values = e2.copy()
     with np.errstate(over="ignore", invalid="ignore"):
-        e2 = (e2 - expected) ** 2
+        err = values - expected
     failures = []
-    if not np.all(np.isfinite(e2)):
-        bad = np.argwhere(~np.isfinite(e2))[0]
-        failures.append(f"{np.count_nonzero(~np.isfinite(e2))} estimates are NaN/Inf or "
-                        f"overflow when squared (first: N={ns[bad[0]]}, seed index {bad[1]})")
-        e2 = np.where(np.isfinite(e2), e2, 0.0)
-    rmse = np.sqrt(e2.mean(axis=1))
+    if not np.all(np.isfinite(err)):
+        bad = np.argwhere(~np.isfinite(err))[0]
+        failures.append(f"{np.count_nonzero(~np.isfinite(err))} estimates are NaN/Inf or "
+                        f"overflow when expected is subtracted (first: N={ns[bad[0]]}, seed "
+                        f"index {bad[1]})")
+        err = np.where(np.isfinite(err), err, 0.0)
+    # squared at the largest error's scale (the slope does not depend on it): squared as
+    # they were, errors of 1e-155 underflowed (a correct estimator failed, "slope 0.000")
+    # and finite ones of 1e160 overflowed, until 7 December
+    scale = float(np.max(np.abs(err))) or 1.0
+    e2 = (err / scale) ** 2
+    rmse = scale * np.sqrt(e2.mean(axis=1))
     # float32 estimates (or expected) are exact to float32's rounding: until 7 December
     # np.float32(0.1) against 0.1 at every N was fitted, "slope 0.000, expected -0.5"
     exact = [] if failures else [n for n, e in zip(ns, rmse)

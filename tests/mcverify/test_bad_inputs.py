@@ -1105,8 +1105,8 @@ def test_overflowing_and_exact_estimates_say_why():
     assert not r.passed and "overflows float64" in r.failures[0]
     r = mv.check_convergence(lambda n, s: 0.5, 0.5, n_seeds=4)
     assert not r.passed and r.p_value is None and "estimator is exact" in r.failures[0]
-    r = mv.check_convergence(lambda n, s: 1e200, 0.5, n_seeds=4)
-    assert not r.passed and "overflow when squared" in r.failures[0]
+    r = mv.check_convergence(lambda n, s: 1.7e308 - s % 2, -1e308, n_seeds=4)
+    assert not r.passed and "overflow when expected is subtracted" in r.failures[0]
 
 
 def test_powerless_sampler_check_says_so():

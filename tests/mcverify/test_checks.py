@@ -406,6 +406,25 @@ def test_convergence_of_a_float32_exact_estimator_says_it_is_exact():
     assert r.passed and r.statistic is not None, r.summary()
 
 
+@pytest.mark.parametrize("scale", [1e-155, 1e-170, 1e-300, 1e160, 1e300])
+def test_convergence_at_extreme_scales_fits_the_unit_scale_slope(scale):
+    """Errors near the ends of float64's range: their squares underflowed or overflowed,
+    so a correct estimator of an integral of 1e-155 failed, "slope 0.000 (99% CI
+    [-0.000, 0.000])", p = 4e-168; at 1e-160 it was called exact ("RMSE is 0"), and at
+    1e160 its finite estimates "overflow when squared" (until 7 December). The errors
+    are squared scaled; the slope, p-value and RMSE are the unit scale's."""
+    def est(n, s, scale=1.0):
+        return scale * np.mean(np.random.default_rng(s).random(n))
+
+    kw = dict(ns=[64, 256, 1024, 4096], n_seeds=16)
+    ref = mv.check_convergence(est, 0.5, **kw)
+    r = mv.check_convergence(lambda n, s: est(n, s, scale), 0.5 * scale, **kw)
+    assert r.passed and ref.passed and not r.failures, r.summary()
+    assert r.statistic == pytest.approx(ref.statistic, rel=1e-9)
+    assert r.p_value == pytest.approx(ref.p_value, rel=1e-6)
+    assert np.allclose(np.divide(r.details["rmse"], scale), ref.details["rmse"], rtol=1e-9)
+
+
 def test_convergence_of_an_estimator_that_ignores_its_seed_says_so():
     """An unrandomised "QMC" estimator (the same point set for every seed) has one error
     at each N, no spread: the jackknife's standard error was 0, so the slope's interval
