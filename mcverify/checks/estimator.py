@@ -368,7 +368,11 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
         raise InvalidArgument(f"ns={ns!r}: must be a sequence of sample counts")
     ns = [validate.integer(f"ns[{i}]", n, minimum=1) for i, n in enumerate(ns)]
     expected_slope = validate.real("expected_slope", expected_slope)
-    if len(ns) < 3 or len(set(ns)) != len(ns):
+    twice = next((n for i, n in enumerate(ns) if n in ns[:i]), None)
+    if twice is not None:   # it said "need at least 3 distinct" of 3 distinct and a repeat
+        raise InvalidArgument(f"ns={ns}: {twice} is given twice; give each sample count "
+                              "once")
+    if len(ns) < 3:
         raise InvalidArgument(f"ns={ns}: need at least 3 distinct sample counts")
     r = validate.integer("n_seeds", n_seeds, minimum=4)
     alpha = validate.probability("alpha", alpha)

@@ -279,6 +279,12 @@ API = [
      InvalidArgument, "expected_slope=nan"),
     ("convergence-ns", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0, ns=[4, 4, 4]),
      InvalidArgument, "ns="),
+    # three distinct counts and a repeat: it said "need at least 3 distinct sample counts"
+    ("convergence-ns-repeated", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0,
+                                                            ns=[256, 256, 1024, 4096]),
+     InvalidArgument, "ns=[256, 256, 1024, 4096]: 256 is given twice"),
+    ("convergence-ns-two", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0, ns=[64, 256]),
+     InvalidArgument, "ns=[64, 256]: need at least 3 distinct sample counts"),
     ("convergence-n-seeds", lambda: mv.check_convergence(lambda n, s: 0.0, 0.0, n_seeds=2),
      InvalidArgument, "n_seeds=2"),
     ("convergence-alternative", lambda: mv.check_convergence(
