@@ -36,8 +36,11 @@ __all__ = ["Estimate", "uniform", "importance", "stratified", "rqmc", "mis",
 
 @dataclass(frozen=True)
 class Estimate:
-    """``value`` ± ``std_error`` from ``n`` evaluations of f. ``samples``: the i.i.d.
-    terms averaged into ``value`` (per sample, per stratum pair or per replicate)."""
+    """``value`` ± ``std_error`` from ``n`` evaluations of f. ``samples``: the
+    independent terms averaged into ``value`` (per sample, per stratum pair or per
+    replicate). Identically distributed except ``stratified``'s: each stratum pair
+    has its own mean, so a t-test on them (``check_unbiased``) counts the spread between
+    strata as noise and has about the power of plain MC with n/2 samples."""
 
     value: float
     std_error: float
