@@ -517,9 +517,11 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         _callable_as_renderer(renderer)
     if ours:
         if spp % passes:    # the passes are equal: none of the spp may be dropped unsaid
+            # the example is one the next check accepts: spp=100, passes=16 suggested 96,
+            # 6 a pass, which was then refused as fewer than 32 a pass
             raise InvalidArgument(f"spp={spp}, passes={passes}: spp must be a multiple of "
                                   f"passes (each pass renders spp / passes samples); e.g. "
-                                  f"spp={spp // passes * passes or passes}")
+                                  f"spp={max(spp // passes, MIN_SPP_PER_PASS) * passes}")
         if passes < 2 or spp < MIN_SPP_PER_PASS * passes:
             raise InvalidArgument(f"spp={spp}, passes={passes}: need passes >= 2 and at least "
                                   f"{MIN_SPP_PER_PASS} samples per pass (pass means of fewer "

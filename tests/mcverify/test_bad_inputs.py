@@ -373,6 +373,23 @@ def test_api_bad_input(call, exc, needle):
     assert snapshot(os.path.dirname(FURNACE)) == before
 
 
+@pytest.mark.parametrize("spp,passes", [(100, 16), (1000, 16), (10, 3), (1000, 3)])
+def test_render_check_suggests_an_spp_it_accepts(spp, passes):
+    """The 'e.g. spp=...' of a count that is not a multiple of passes is one the render
+    check takes: spp=100, passes=16 suggested 96 (6 a pass), then refused it as fewer
+    than 32 a pass. Called with the suggestion it gets past the counts to the scene."""
+    with pytest.raises(InvalidArgument) as info:
+        mv.render_check("/nonexistent/scene.xml", spp=spp, passes=passes, build_missing=False)
+    text = str(info.value)
+    assert "spp must be a multiple of passes" in text, text
+    suggested = int(text.rsplit("e.g. spp=", 1)[1])
+    assert suggested % passes == 0, text
+    with pytest.raises(InvalidArgument) as info:
+        mv.render_check("/nonexistent/scene.xml", spp=suggested, passes=passes,
+                        build_missing=False)
+    assert "/nonexistent/scene.xml" in str(info.value), str(info.value)
+
+
 SCENES = [
     ("obj-dev-zero", "obj-dev-zero.xml", "/dev/zero is not a regular file"),
     ("obj-over-cap", "obj-huge.xml", "MiB limit"),
