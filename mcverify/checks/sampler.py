@@ -1170,6 +1170,10 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     depend on the data; the pilot's do not. With both sides arrays of points (no pilot
     to draw) the cells are uniform in the domain's parameters.
 
+    ``n_samples`` is the draws of each sampler callable; an array side gives its own
+    points. The result's ``n_samples`` is the smaller side's count, and
+    ``details["n_per_side"]`` holds both.
+
     Examples
     --------
     >>> import numpy as np, mcverify as mv
@@ -1262,7 +1266,10 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     if p_value <= alpha:
         messages += _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha,
                                             ks=(hist_edges[0], fa, fb) if m == 1 else None)
+    # n_samples is the smaller side's count: two arrays of 5000 and 7000 points were
+    # reported as the 1e6 of the n_samples default, which no sampler drew
     details = {"domain": repr(dom), "resolution": list(res), "seed": seed,
+               "n_per_side": {label: size for label, *_, size in sides},
                "tests": {key: _test_details(r) for key, r in sub.items()}}
     if rejection:
         details["rejection"] = {label: {"rejected": int(h.n_status[kernels.REJECTED]), "n": size}
@@ -1270,7 +1277,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     histogram = {"edges": [e.tolist() for e in edges], "a": ha, "b": hb}
     return CheckResult(name=name, passed=CheckResult.decide(p_value, alpha, failures),
                        p_value=p_value, statistic=sub["chi2"].statistic, alpha=alpha,
-                       n_samples=n, seconds=time.perf_counter() - t0, details=details,
+                       n_samples=size, seconds=time.perf_counter() - t0, details=details,
                        messages=tuple(messages), failures=tuple(failures),
                        artifacts={"histogram": histogram})
 

@@ -186,6 +186,22 @@ def test_same_distribution_says_when_its_histogram_has_no_power():
     assert any(m.startswith("n_samples=20: the χ² test pooled") for m in r.messages)
 
 
+def test_same_distribution_counts_the_points_it_compared():
+    """Two arrays of 5000 and 7000 points were reported with n_samples = 1e6, the
+    default no sampler drew (the JSON and the report's table said so); the result now
+    counts the smaller side, and details name both."""
+    rng = np.random.default_rng(0)
+    r = mv.check_same_distribution(rng.random((5000, 1)), rng.random((7000, 1)), "interval")
+    assert r.n_samples == 5000
+    assert r.details["n_per_side"] == {"sample_a": 5000, "sample_b": 7000}
+    r = mv.check_same_distribution(lambda u: u, rng.random((7000, 1)), "interval",
+                                   n_samples=3000)
+    assert r.n_samples == 3000
+    assert r.details["n_per_side"] == {"sample_a": 3000, "sample_b": 7000}
+    r = mv.check_same_distribution(lambda u: u, lambda u: u, "interval", n_samples=2000)
+    assert r.n_samples == 2000
+
+
 def test_same_distribution_of_two_samplers_that_reject_everything_says_so():
     """Two samplers that rejected every draw passed check_same_distribution with no
     message, and numpy's "invalid value" warning leaked from the χ² test's 0/0 (an
