@@ -50,7 +50,9 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
 
     def _get_help_string(self, action):
         text = action.help or ""
-        if ("%(default)" not in text and action.default not in (None, False)
+        # not ``in (None, False)``: 0 == False, so --seed's default of 0 went unsaid
+        if ("%(default)" not in text and action.default is not None
+                and action.default is not False
                 and action.default is not argparse.SUPPRESS and action.option_strings):
             text += " (default: %(default)s)"
         return text
@@ -1115,7 +1117,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "sensitivity)")
     rb.add_argument("--passes", type=decimal_int, default=16,
                     help="independent passes (>= 2), whose spread is the variance")
-    rb.add_argument("--seed", type=decimal_int, default=0, help=seed_help)
+    rb.add_argument("--seed", type=decimal_int, default=0,
+                    help=f"master seed, 0 to {MAX_SEED}; each pass's seed derives from it")
     rb.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(rb)
     _add_refs_option(rb)
