@@ -23,7 +23,12 @@ Public API
 ``CheckResult``, ``SuiteResult``  results as frozen data; ``to_dict()``
 ``write_json``, ``write_junit``   sinks (atomic writes)
 ``Interval``, ``Square``, ``Disk``, ``Sphere``, ``Hemisphere``  domains
+``Domain``                      their base class (a subclass may change only the
+                                repr, ``default_resolution`` and ``sample_dim``)
 ``InvalidArgument``             the one exception for bad input (a ValueError)
+``EnvironmentProblem``          what the environment cannot do (a RuntimeError: a
+                                missing package, an unusable Mitsuba variant)
+``__version__``                 this package's version
 ==============================  ======================================================
 
 Every randomised function takes ``seed``; the same seed gives the same result.

@@ -69,3 +69,14 @@ def test_a_non_editable_install_runs_check_render_check_and_report(tmp_path):
             "white-furnace")
     assert r.returncode == 0, r.stdout + r.stderr
     assert (elsewhere / "rep" / "report.html").is_file()
+
+
+def test_the_public_api_table_lists_every_public_name():
+    """``mcverify.__init__``'s docstring is the API table (STYLE.md: keep it current);
+    ``Domain``, ``EnvironmentProblem`` and ``__version__`` were exported unlisted."""
+    import re
+
+    import mcverify
+
+    listed = set(re.findall(r"``(\w+)``", mcverify.__doc__))
+    assert set(mcverify.__all__) <= listed, sorted(set(mcverify.__all__) - listed)
