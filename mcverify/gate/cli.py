@@ -1097,7 +1097,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "repeated for at least 0.25 s; the minimum is reported)")
     b.add_argument("--n", type=decimal_int, default=1_000_000, help="points per workload (>= 1000)")
     b.add_argument("--spp", type=decimal_int, default=64,
-                   help="samples per pixel of the renders (in all, one pass; rounded "
+                   help="samples per pixel of the renders (>= 4; in all, one pass; rounded "
                         "up to what a scene's sampler takes, on both sides); the "
                         "equal-time RMSE rows ask Mitsuba for a quarter of it (at least 2)")
     b.add_argument("--no-render", action="store_true", help="skip the path-tracer rows")
