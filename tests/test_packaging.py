@@ -80,3 +80,52 @@ def test_the_public_api_table_lists_every_public_name():
 
     listed = set(re.findall(r"``(\w+)``", mcverify.__doc__))
     assert set(mcverify.__all__) <= listed, sorted(set(mcverify.__all__) - listed)
+
+
+def _fake_install(packages, record_prefix, share):
+    """An install of this checkout's packages into ``packages`` as pip lays one out:
+    the package folders (links to the sources), a dist-info whose RECORD names the scenes
+    as ``record_prefix/share/mcverify/scenes/...`` and the scenes themselves under
+    ``share/mcverify/scenes``."""
+    packages.mkdir(parents=True)
+    for pkg in ("mcverify", "estimators", "mcnumba"):
+        (packages / pkg).symlink_to(os.path.join(ROOT, pkg), target_is_directory=True)
+    info = packages / "mcverify-0.1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: mcverify\nVersion: 0.1.0\n")
+    (info / "RECORD").write_text(
+        "mcverify/__init__.py,,\n"
+        f"{record_prefix}/share/mcverify/scenes/cornell-box/scene.xml,,\n")
+    scenes = share / "mcverify" / "scenes"
+    (scenes / "cornell-box").mkdir(parents=True)
+    (scenes / "cornell-box" / "scene.xml").write_text("<scene/>")
+    return scenes
+
+
+def _installed_roots(packages):
+    env = {k: v for k, v in os.environ.items() if k != "MCVERIFY_REFS"}
+    env["PYTHONPATH"] = str(packages)
+    r = subprocess.run([sys.executable, "-c",
+                        "import mcverify.gate.reference as r, mcverify.gate as g; "
+                        "print(g.__file__); print(r.BUNDLED_ROOT); print(r.REFERENCE_ROOT)"],
+                       cwd=str(packages), env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return r.stdout.split()
+
+
+@pytest.mark.parametrize("layout", ["prefix", "target"])
+def test_the_installed_scenes_are_found_where_the_install_put_them(tmp_path, layout):
+    # pip install --prefix DIR (and Debian's system Python, whose pip installs under
+    # /usr/local while sys.prefix is /usr): the scenes are under DIR/share, not under
+    # sys.prefix; pip install --target DIR puts them in DIR/share beside the packages,
+    # while its RECORD still names them as from DIR/lib/python. Until 7 December both
+    # found no scenes ('known: none').
+    if layout == "prefix":
+        packages = tmp_path / "pfx" / "lib" / "python3" / "site-packages"
+        scenes = _fake_install(packages, "../../..", tmp_path / "pfx" / "share")
+    else:
+        packages = tmp_path / "tgt"
+        scenes = _fake_install(packages, "../..", packages / "share")
+    module, bundled, root = _installed_roots(packages)
+    assert module == str(packages / "mcverify" / "gate" / "__init__.py")
+    assert bundled == root == str(scenes)

@@ -58,21 +58,47 @@ def _reference_root() -> str:
 
 def _bundled_root() -> str:
     """The scenes that come with mcverify: this checkout's ``reference/scenes``; else, for
-    an installed (non-editable) mcverify, the copy installed with it under
-    ``<prefix>/share/mcverify/scenes`` (pyproject's data-files)."""
-    checkout = os.path.join(
-        os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-        "reference", "scenes")
+    an installed (non-editable) mcverify, the copy installed with it (``_installed_root``)."""
+    packages = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    checkout = os.path.join(packages, "reference", "scenes")
     if os.path.isdir(checkout):
         return checkout
+    return _installed_root(packages) or checkout
+
+
+def _installed_root(packages: str) -> str | None:
+    """Where installing the wheel put its ``share/mcverify/scenes`` (pyproject's
+    data-files), ``packages`` being the folder that holds the ``mcverify`` package: beside
+    the packages (``pip install --target DIR``); where the wheel's RECORD, beside the
+    packages, places them (any scheme: a venv, ``--user``, ``--prefix DIR``, Debian's
+    system Python, which installs under /usr/local while ``sys.prefix`` is /usr); else
+    under ``sys.prefix`` or the user base. None if none of them is a folder."""
     import site
     import sys
 
-    for base in (sys.prefix, site.USER_BASE or ""):
-        installed = os.path.join(base, "share", "mcverify", "scenes")
-        if base and os.path.isdir(installed):
-            return installed
-    return checkout
+    tail = ("share", "mcverify", "scenes")
+    candidates = [os.path.join(packages, *tail)]
+    candidates += _recorded_roots(packages, tail)
+    candidates += [os.path.join(base, *tail) for base in (sys.prefix, site.USER_BASE) if base]
+    return next((c for c in candidates if os.path.isdir(c)), None)
+
+
+def _recorded_roots(packages: str, tail: tuple[str, ...]) -> list[str]:
+    """The folders ending in ``tail`` that the RECORD of the mcverify installed in
+    ``packages`` names, resolved against ``packages`` as pip wrote them."""
+    from importlib.metadata import distributions
+
+    roots = []
+    for dist in distributions(name="mcverify", path=[packages]):
+        for file in dist.files or ():
+            parts = file.parts
+            at = next((i for i in range(len(parts) - len(tail) + 1)
+                       if parts[i:i + len(tail)] == tail), None)
+            if at is not None:
+                roots.append(os.path.normpath(os.path.join(packages,
+                                                           *parts[:at + len(tail)])))
+                break
+    return roots
 
 
 REFERENCE_ROOT = _reference_root()
