@@ -129,3 +129,21 @@ def test_the_installed_scenes_are_found_where_the_install_put_them(tmp_path, lay
     module, bundled, root = _installed_roots(packages)
     assert module == str(packages / "mcverify" / "gate" / "__init__.py")
     assert bundled == root == str(scenes)
+
+
+def test_python_3_10_gets_a_toml_reader():
+    # usersuite reads [tool.mcverify] with tomllib, or tomli on Python 3.10 (which
+    # requires-python admits): until 7 December tomli was no dependency, and on 3.10
+    # `mcverify check` or `list` in any folder below a pyproject.toml exited 2,
+    # "unexpected ModuleNotFoundError: No module named 'tomli'" (an outside review)
+    from packaging.requirements import Requirement
+    from packaging.specifiers import SpecifierSet
+
+    project = _pyproject()["project"]
+    assert SpecifierSet(project["requires-python"]).contains("3.10")
+    on_310 = [r for r in map(Requirement, project["dependencies"])
+              if r.marker is None or r.marker.evaluate({"python_version": "3.10"})]
+    assert "tomli" in {r.name for r in on_310}
+    on_311 = [r for r in map(Requirement, project["dependencies"])
+              if r.marker is None or r.marker.evaluate({"python_version": "3.11"})]
+    assert "tomli" not in {r.name for r in on_311}
