@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from . import reference
+from .reference import is_alpha as _is_alpha
 
 __all__ = ["ImageStats", "read_radiance", "pass_files", "pass_stats"]
 
@@ -35,10 +36,6 @@ class ImageStats:
     passes: np.ndarray | None = None    # (K, H, W, C) if kept (``pass_stats(keep=True)``)
     #: the type every input file stored its pixels in, where coarser than float32 (half)
     precision: type | None = None
-
-
-def _is_alpha(channel: str) -> bool:
-    return channel == "A" or channel.endswith(".A")
 
 
 def colour_types(path: str) -> list[str]:

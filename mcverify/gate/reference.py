@@ -159,6 +159,14 @@ IMAGES = ("mean.exr", "var.exr")
 PASSES = "passes.exr"
 #: OpenEXR pixel types (the ``chlist`` attribute of the header).
 _EXR_TYPES = {0: "uint", 1: "half", 2: "float"}
+#: OpenEXR compressions that change the pixels, and the pixel types they change: PXR24
+#: rounds float channels to 24 bits, B44(A) quantises half ones, DWAA and DWAB colour
+#: channels of either type (``_DWA_LOSSY``; others they keep). A correct render's mean
+#: written with DWAB at its recommended level 45 failed against its reference with p = 0.
+_EXR_LOSSY = {5: ("PXR24", ("float",)), 6: ("B44", ("half",)), 7: ("B44A", ("half",)),
+              8: ("DWAA", ("half", "float")), 9: ("DWAB", ("half", "float"))}
+#: The channels DWAA/DWAB compress in a DCT (by the name after a layer's ``.``).
+_DWA_LOSSY = ("R", "G", "B", "Y", "RY", "BY")
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 #: Largest image or scene file read (a reference image of 4096² RGB float32 is 200 MB).
 MAX_FILE_BYTES = 1 << 30
@@ -318,14 +326,15 @@ def _regular_file(path: str, what: str) -> None:
 
 def exr_channel_types(path: str) -> dict[str, str]:
     """The channels of an OpenEXR file and their pixel types ("half", "float", "uint"),
-    from its header; InvalidArgument naming the file if it is not OpenEXR."""
+    from its header; InvalidArgument naming the file if it is not OpenEXR, or if its
+    compression is lossy for its channels (``_EXR_LOSSY``)."""
     _regular_file(path, "OpenEXR image")
     with open(path, "rb") as f:
         head = f.read(1 << 16)
     if head[:4] != _EXR_MAGIC:
         raise InvalidArgument(f"{path}: not an OpenEXR file (it starts with "
                               f"{head[:4]!r}); give a float OpenEXR image")
-    pos, channels = 8, None
+    pos, channels, compression = 8, None, 0
     try:
         while head[pos] != 0:
             end = head.index(b"\0", pos)
@@ -343,12 +352,34 @@ def exr_channel_types(path: str) -> dict[str, str]:
                     ptype = struct.unpack_from("<i", value, cend + 1)[0]
                     channels[value[q:cend].decode("latin-1")] = _EXR_TYPES.get(ptype, "?")
                     q = cend + 1 + 16
+            if name == "compression" and kind == b"compression":
+                compression = value[0]
             pos = tend + 5 + size
     except (IndexError, ValueError, struct.error) as e:
         raise InvalidArgument(f"{path}: corrupt OpenEXR header ({e})") from None
     if not channels:
         raise InvalidArgument(f"{path}: OpenEXR header without channels")
+    _lossless(path, compression, channels)
     return channels
+
+
+def is_alpha(channel: str) -> bool:
+    """An OpenEXR alpha channel (``A``, or a layer's ``beauty.A``): not compared."""
+    return channel == "A" or channel.endswith(".A")
+
+
+def _lossless(path: str, compression: int, channels: dict[str, str]) -> None:
+    """InvalidArgument naming the file where its compression changed the pixels of the
+    channels compared (all but alpha): the compression's error would read as the
+    renderer's."""
+    codec, changed = _EXR_LOSSY.get(compression, (None, ()))
+    lossy = sorted(c for c, t in channels.items() if t in changed and not is_alpha(c) and (
+        not codec.startswith("DWA") or c.rsplit(".", 1)[-1].upper() in _DWA_LOSSY))
+    if lossy:
+        raise InvalidArgument(f"{path}: {codec} compression is lossy for its channels "
+                              f"{', '.join(lossy)}; its error would be taken for the "
+                              "renderer's: write the image with a lossless compression "
+                              "(none, RLE, ZIPS, ZIP or PIZ)")
 
 
 def read_float_exr(path: str) -> np.ndarray:

@@ -315,3 +315,61 @@ def test_compare_refuses_an_image_given_as_its_own_variance(tmp_path):
                               "--test-n", "16", "--ref-var", "rv.exr", "--ref-n", "16"],
                        capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert r.returncode == 1 and "FAIL" in r.stdout, r.stdout + r.stderr
+
+
+def test_compare_refuses_a_lossy_compressed_image(tmp_path):
+    """A correct render's mean written with DWAB (Mitsuba's ``Bitmap.write(quality=45)``,
+    OpenEXR's recommended lossy level) failed against its reference with p = 0, the
+    compression's error taken for the renderer's: here "10 blocks and 37.11% of pixels
+    rejected", black pixels (no variance) stored as ~1e-5 (an outside review). Now it
+    exits 2 naming the file and its compression, as does a lossy pass, before any work.
+    The same mean written losslessly (PIZ, Mitsuba's default) passes."""
+    rng = np.random.default_rng(11)
+    truth = 0.2 + np.linspace(0, 1, 16 * 16 * 3).reshape(16, 16, 3)
+    truth[:, :6] = 0                                  # a black background
+    mine, theirs = (truth * rng.gamma(4.0, 0.25, (16, 16, 16, 3)) for _ in range(2))
+    mi = mvm._mi()
+    for name, img in (("m", mine.mean(0)), ("v", mine.var(0, ddof=1)),
+                      ("rm", theirs.mean(0)), ("rv", theirs.var(0, ddof=1))):
+        mi.Bitmap(img.astype(np.float32)).write(str(tmp_path / f"{name}.exr"))
+    mi.Bitmap(mine.mean(0).astype(np.float32)).write(str(tmp_path / "dwab.exr"), quality=45)
+    ref = ["rm.exr", "--ref-var", "rv.exr", "--ref-n", "16", "--test-var", "v.exr",
+           "--test-n", "16"]
+    for image, code in (("m.exr", 0), ("dwab.exr", 2)):
+        r = subprocess.run(CMD + ["compare", image, *ref], capture_output=True, text=True,
+                           cwd=tmp_path, timeout=120)
+        assert r.returncode == code, r.stdout + r.stderr
+    assert "dwab.exr: DWAB compression is lossy for its channels B, G, R" in r.stderr, r.stderr
+    assert r.stdout == "", r.stdout
+    _write(tmp_path / "p", mine[:2])
+    os.replace(tmp_path / "dwab.exr", tmp_path / "p" / "pass_01.exr")
+    r = subprocess.run(CMD + ["compare", "--test-passes", "p/pass_*.exr", "rm.exr",
+                              "--ref-var", "rv.exr", "--ref-n", "16"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and "pass_01.exr: DWAB compression" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("compression,channels,lossy", [
+    (5, {"B": 2, "G": 2, "R": 2}, "PXR24 compression is lossy for its channels B, G, R"),
+    (5, {"A": 2, "B": 1, "G": 1, "R": 1}, None),      # PXR24 keeps half; alpha ignored
+    (6, {"A": 2, "Y": 1}, "B44 compression is lossy for its channels Y"),
+    (7, {"B": 2, "G": 2, "R": 2}, None),              # B44(A) stores float as it is
+    (8, {"beauty.R": 2, "depth.Z": 2}, "DWAA compression is lossy for its channels beauty.R"),
+    (9, {"A": 1, "Z": 2}, None),                      # DWA keeps what is not colour
+    (4, {"B": 2, "G": 2, "R": 2}, None)], ids=["pxr24-float", "pxr24-half", "b44-half",
+                                               "b44a-float", "dwaa-layer", "dwab-alpha",
+                                               "piz"])
+def test_lossy_compression_is_refused_by_the_header(tmp_path, compression, channels, lossy):
+    import struct
+
+    path = tmp_path / "a.exr"
+    _exr_header_only(path, channels)
+    data = path.read_bytes()
+    path.write_bytes(data[:-1] + b"compression\0compression\0" + struct.pack("<i", 1)
+                     + bytes([compression]) + b"\0")
+    if lossy is None:
+        assert set(reference.exr_channel_types(str(path))) == set(channels)
+        return
+    with pytest.raises(mv.InvalidArgument, match=lossy) as info:
+        reference.exr_channel_types(str(path))
+    assert str(path) in str(info.value) and "lossless compression" in str(info.value)
