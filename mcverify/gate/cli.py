@@ -753,7 +753,7 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
     Pass images (``--X-passes``), or an image with ``--X-var``/``--X-n``, or (reference
     side only) a reference name or folder. Every input is checked before any work."""
     from . import reference
-    from .passes import pass_files, pass_stats
+    from .passes import colour_channels, pass_files, pass_stats
 
     opt = f"--{label}"
     if passes is not None:
@@ -777,7 +777,7 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
         raise InvalidArgument(f"{opt}-n {n}: must be from 2 to 2^53 (values per pixel "
                               "behind the variance)")
     for path in (image, var):
-        reference.exr_channel_types(path)
+        colour_channels(path)
     if os.path.realpath(var) == os.path.realpath(image):
         # the image read as its own variance: compared without a word until 7 December
         raise InvalidArgument(f"{var} ({opt}-var): is the image itself ({image}); give the "

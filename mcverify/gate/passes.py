@@ -46,10 +46,33 @@ def colour_types(path: str) -> list[str]:
     return [t for c, t in reference.exr_channel_types(path).items() if not _is_alpha(c)]
 
 
+#: The colour channels an image may hold (by the name after a layer's ``.``), beside
+#: an alpha: what a reference holds, RGB or luminance.
+COLOURS = ({"R", "G", "B"}, {"Y"})
+
+
+def colour_channels(path: str) -> list[str]:
+    """The channels of an OpenEXR image (its header read), which must be one layer's
+    colour, R, G, B or Y, and an alpha at most; InvalidArgument naming the file and the
+    channels otherwise. A depth channel or a second layer beside the colour was compared
+    as colour: RGB and Z was refused as "shape (64, 64, 4)", blaming the right variance
+    image, and X, Y, Z was compared as R, G, B (an outside review)."""
+    names = list(reference.exr_channel_types(path))
+    colour = [c for c in names if not _is_alpha(c)]
+    layers = {c.rpartition(".")[0] for c in colour}
+    if len(layers) != 1 or {c.rpartition(".")[2].upper() for c in colour} not in COLOURS:
+        raise InvalidArgument(f"{path}: channels {', '.join(names)}: give one layer's "
+                              "colour, R, G, B or Y (an alpha beside it is ignored); other "
+                              "channels (depth, a second layer, XYZ) are not compared: "
+                              "write the colour to an image of its own")
+    return names
+
+
 def read_radiance(path: str) -> tuple[np.ndarray, str | None]:
     """An OpenEXR image's colour channels as (H, W, C) float64, and a note if an alpha
-    channel was dropped (RGBA -> RGB, YA -> Y). Other checks as ``read_float_exr``."""
-    names = list(reference.exr_channel_types(path))
+    channel was dropped (RGBA -> RGB, YA -> Y). Other checks as ``colour_channels`` and
+    ``read_float_exr``."""
+    names = colour_channels(path)
     img = reference.read_float_exr(path)
     alpha = [c for c in names if _is_alpha(c)]
     if alpha and img.shape[2] in (2, 4) and len(names) == img.shape[2]:
@@ -65,7 +88,7 @@ def pass_files(pattern: str, *, option: str = "--test-passes") -> list[str]:
         raise InvalidArgument(f"{option} {pattern!r}: matches {len(files)} file(s); give a "
                               "glob (quoted) matching at least 2 independently seeded passes")
     for f in files:
-        reference.exr_channel_types(f)
+        colour_channels(f)
     return files
 
 

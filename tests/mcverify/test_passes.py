@@ -373,3 +373,73 @@ def test_lossy_compression_is_refused_by_the_header(tmp_path, compression, chann
     with pytest.raises(mv.InvalidArgument, match=lossy) as info:
         reference.exr_channel_types(str(path))
     assert str(path) in str(info.value) and "lossless compression" in str(info.value)
+
+
+def _exr_channels(path, planes):
+    """An uncompressed scanline OpenEXR file of float channels ``planes`` {name: (H, W)},
+    as any renderer's image library writes one (channels sorted by name)."""
+    import struct
+
+    names = sorted(planes)
+    h, w = planes[names[0]].shape
+
+    def attr(name, kind, value):
+        return name.encode() + b"\0" + kind + b"\0" + struct.pack("<i", len(value)) + value
+
+    chlist = b"".join(n.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1)
+                      for n in names) + b"\0"
+    box = struct.pack("<4i", 0, 0, w - 1, h - 1)
+    header = (b"\x76\x2f\x31\x01" + struct.pack("<i", 2) + attr("channels", b"chlist", chlist)
+              + attr("compression", b"compression", b"\0")
+              + attr("dataWindow", b"box2i", box) + attr("displayWindow", b"box2i", box)
+              + attr("lineOrder", b"lineOrder", b"\0")
+              + attr("pixelAspectRatio", b"float", struct.pack("<f", 1))
+              + attr("screenWindowCenter", b"v2f", struct.pack("<2f", 0, 0))
+              + attr("screenWindowWidth", b"float", struct.pack("<f", 1)) + b"\0")
+    lines = [b"".join(planes[n][y].astype("<f4").tobytes() for n in names) for y in range(h)]
+    start = len(header) + 8 * h
+    offsets = [start + y * (8 + len(lines[0])) for y in range(h)]
+    path.write_bytes(header + struct.pack(f"<{h}Q", *offsets) + b"".join(
+        struct.pack("<ii", y, len(line)) + line for y, line in enumerate(lines)))
+    return str(path)
+
+
+@pytest.mark.parametrize("channels", ["R G B Z", "beauty.R beauty.G beauty.B diffuse.R "
+                                      "diffuse.G diffuse.B", "X Y Z", "R G B Y"],
+                         ids=["depth", "two-layers", "xyz", "rgb-and-y"])
+def test_channels_beside_the_colour_are_refused_naming_the_image(tmp_path, channels):
+    """An image with a depth channel or a second layer beside its colour (what a
+    renderer's AOV output writes) was refused as "my_var.exr (--test-var): shape
+    (64, 64, 3) differs from rgbz.exr's (64, 64, 4); give the variance image of it",
+    blaming the right variance image, and X, Y, Z was compared as R, G, B (an outside
+    review); now the image exits 2 naming itself and its channels, as a pass does.
+    One layer's colour, with an alpha or not, is read."""
+    rng = np.random.default_rng(12)
+    plane = lambda: rng.gamma(2.0, 0.5, (8, 8))  # noqa: E731
+    names = channels.split()
+    _exr_channels(tmp_path / "bad.exr", {n: plane() for n in names})
+    for name, img in (("v", rng.gamma(2.0, 0.5, (8, 8, 3)) / 16),
+                      ("rm", rng.gamma(2.0, 0.5, (8, 8, 3))),
+                      ("rv", rng.gamma(2.0, 0.5, (8, 8, 3)) / 16)):
+        mvm.write_exr(str(tmp_path / f"{name}.exr"), img)
+    r = subprocess.run(CMD + ["compare", "bad.exr", "rm.exr", "--test-var", "v.exr",
+                              "--test-n", "16", "--ref-var", "rv.exr", "--ref-n", "16"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert f"bad.exr: channels {', '.join(sorted(names))}: give one layer's colour" \
+        in r.stderr and "v.exr" not in r.stderr, r.stderr
+    _write(tmp_path / "p", rng.gamma(2.0, 0.5, (2, 8, 8, 3)))
+    os.replace(tmp_path / "bad.exr", tmp_path / "p" / "pass_01.exr")
+    with pytest.raises(mv.InvalidArgument, match="pass_01.exr: channels"):
+        pass_stats(str(tmp_path / "p" / "pass_*.exr"))
+
+
+def test_one_layer_of_colour_is_read_with_its_alpha_left_out(tmp_path):
+    rng = np.random.default_rng(13)
+    rgb = rng.gamma(2.0, 0.5, (3, 8, 8))
+    for names in ("R G B", "beauty.R beauty.G beauty.B beauty.A", "Y A", "r g b"):
+        planes = dict(zip(names.split(), list(rgb) + [np.ones((8, 8))]))
+        img, note = read_radiance(_exr_channels(tmp_path / "a.exr", planes))
+        colour = [p for n, p in planes.items() if not n.endswith("A")]
+        np.testing.assert_array_equal(img, np.stack(colour, -1).astype(np.float32))
+        assert (note is None) == ("A" not in names.split()[-1]), names
