@@ -326,15 +326,16 @@ def _regular_file(path: str, what: str) -> None:
 
 def exr_channel_types(path: str) -> dict[str, str]:
     """The channels of an OpenEXR file and their pixel types ("half", "float", "uint"),
-    from its header; InvalidArgument naming the file if it is not OpenEXR, or if its
-    compression is lossy for its channels (``_EXR_LOSSY``)."""
+    from its header; InvalidArgument naming the file if it is not OpenEXR, if its
+    compression is lossy for its channels (``_EXR_LOSSY``) or if it stores another
+    window than its image's (``_whole``)."""
     _regular_file(path, "OpenEXR image")
     with open(path, "rb") as f:
         head = f.read(1 << 16)
     if head[:4] != _EXR_MAGIC:
         raise InvalidArgument(f"{path}: not an OpenEXR file (it starts with "
                               f"{head[:4]!r}); give a float OpenEXR image")
-    pos, channels, compression = 8, None, 0
+    pos, channels, compression, windows = 8, None, 0, {}
     try:
         while head[pos] != 0:
             end = head.index(b"\0", pos)
@@ -354,13 +355,29 @@ def exr_channel_types(path: str) -> dict[str, str]:
                     q = cend + 1 + 16
             if name == "compression" and kind == b"compression":
                 compression = value[0]
+            if name in ("dataWindow", "displayWindow") and kind == b"box2i":
+                windows[name] = struct.unpack_from("<4i", value)
             pos = tend + 5 + size
     except (IndexError, ValueError, struct.error) as e:
         raise InvalidArgument(f"{path}: corrupt OpenEXR header ({e})") from None
     if not channels:
         raise InvalidArgument(f"{path}: OpenEXR header without channels")
     _lossless(path, compression, channels)
+    _whole(path, windows)
     return channels
+
+
+def _whole(path: str, windows: dict) -> None:
+    """InvalidArgument naming the file where its pixels (the data window) are not its
+    image (the display window): a crop to the pixels that are not black, or an
+    overscan, read as an image of another size ("shape (62, 62, 3) differs from the
+    reference's (64, 64, 3)" of a 64 × 64 image, an outside review)."""
+    data, display = windows.get("dataWindow"), windows.get("displayWindow")
+    if data and display and data != display:
+        raise InvalidArgument(f"{path}: its data window {list(data)} is not its display "
+                              f"window {list(display)} (x min, y min, x max, y max): "
+                              "only the data window's pixels are stored; write the whole "
+                              "image, not cropped (autocrop) or with an overscan")
 
 
 def is_alpha(channel: str) -> bool:

@@ -375,9 +375,10 @@ def test_lossy_compression_is_refused_by_the_header(tmp_path, compression, chann
     assert str(path) in str(info.value) and "lossless compression" in str(info.value)
 
 
-def _exr_channels(path, planes):
+def _exr_channels(path, planes, display=None):
     """An uncompressed scanline OpenEXR file of float channels ``planes`` {name: (H, W)},
-    as any renderer's image library writes one (channels sorted by name)."""
+    as any renderer's image library writes one (channels sorted by name); ``display``
+    (x0, y0, x1, y1) its display window where not the data window (0, 0, W-1, H-1)."""
     import struct
 
     names = sorted(planes)
@@ -391,7 +392,8 @@ def _exr_channels(path, planes):
     box = struct.pack("<4i", 0, 0, w - 1, h - 1)
     header = (b"\x76\x2f\x31\x01" + struct.pack("<i", 2) + attr("channels", b"chlist", chlist)
               + attr("compression", b"compression", b"\0")
-              + attr("dataWindow", b"box2i", box) + attr("displayWindow", b"box2i", box)
+              + attr("dataWindow", b"box2i", box)
+              + attr("displayWindow", b"box2i", struct.pack("<4i", *display) if display else box)
               + attr("lineOrder", b"lineOrder", b"\0")
               + attr("pixelAspectRatio", b"float", struct.pack("<f", 1))
               + attr("screenWindowCenter", b"v2f", struct.pack("<2f", 0, 0))
@@ -443,3 +445,27 @@ def test_one_layer_of_colour_is_read_with_its_alpha_left_out(tmp_path):
         colour = [p for n, p in planes.items() if not n.endswith("A")]
         np.testing.assert_array_equal(img, np.stack(colour, -1).astype(np.float32))
         assert (note is None) == ("A" not in names.split()[-1]), names
+
+
+@pytest.mark.parametrize("display", [(0, 0, 9, 9), (-1, -1, 6, 6), (1, 0, 8, 7)],
+                         ids=["cropped", "overscan", "shifted"])
+def test_an_image_storing_part_of_its_window_is_refused_naming_it(tmp_path, display):
+    """A 10 × 10 image whose file stores its 8 × 8 pixels that are not black (an
+    autocrop) was read as an 8 × 8 image, and refused as "shape (8, 8, 3) differs from
+    the reference's (10, 10, 3)" (an outside review); one whose pixels sit elsewhere in
+    its display window was compared shifted. Now each exits 2 naming the file and both
+    windows; an image whose data window is its display window is read."""
+    rng = np.random.default_rng(14)
+    planes = {c: rng.gamma(2.0, 0.5, (8, 8)) for c in "RGB"}
+    bad = _exr_channels(tmp_path / "crop.exr", planes, display=display)
+    with pytest.raises(mv.InvalidArgument, match=r"crop.exr: its data window \[0, 0, 7, 7\] "
+                       r"is not its display window \[" + ", ".join(map(str, display))):
+        read_radiance(bad)
+    _write(tmp_path / "p", rng.gamma(2.0, 0.5, (4, 10, 10, 3)))
+    mvm.write_exr(str(tmp_path / "v.exr"), np.full((8, 8, 3), 0.1))
+    r = subprocess.run(CMD + ["compare", "--test-passes", "p/pass_*.exr", "crop.exr",
+                              "--ref-var", "v.exr", "--ref-n", "4"], capture_output=True,
+                       text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and "crop.exr: its data window" in r.stderr, r.stderr
+    whole = _exr_channels(tmp_path / "whole.exr", planes, display=(0, 0, 7, 7))
+    assert read_radiance(whole)[0].shape == (8, 8, 3)
