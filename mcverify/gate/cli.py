@@ -721,7 +721,16 @@ def _cmd_reference_build(args) -> int:
                               "(2^32 - 1) samples per pass, Mitsuba's limit; use more "
                               "--passes")
     resolved = [reference.resolve_scene(s) for s in names]    # fail before any rendering
-    for _, path in resolved:
+    for name, path in resolved:
+        installed = reference.installed_copy(path)
+        if installed:
+            # an installed mcverify's own references were rebuilt in place without a word
+            # (an 8-spp cornell-box then gated every check of this install; an outside
+            # review, 7 December)
+            raise InvalidArgument(
+                f"{name}: {path} is a scene installed with mcverify ({installed}), whose "
+                "reference this install's check and render-check compare against; copy "
+                "its folder into a folder of your own and build there (--refs DIR)")
         reference.precheck_scene(path)
     from . import mitsuba as mv_mitsuba
 

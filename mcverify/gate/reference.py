@@ -56,14 +56,17 @@ def _reference_root() -> str:
     return _bundled_root()
 
 
+#: The folder that holds the ``mcverify`` package, and a checkout's scenes beside it.
+_PACKAGES = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+_CHECKOUT = os.path.join(_PACKAGES, "reference", "scenes")
+
+
 def _bundled_root() -> str:
     """The scenes that come with mcverify: this checkout's ``reference/scenes``; else, for
     an installed (non-editable) mcverify, the copy installed with it (``_installed_root``)."""
-    packages = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    checkout = os.path.join(packages, "reference", "scenes")
-    if os.path.isdir(checkout):
-        return checkout
-    return _installed_root(packages) or checkout
+    if os.path.isdir(_CHECKOUT):
+        return _CHECKOUT
+    return _installed_root(_PACKAGES) or _CHECKOUT
 
 
 def _installed_root(packages: str) -> str | None:
@@ -106,6 +109,16 @@ REFERENCE_ROOT = _reference_root()
 #: fixed workloads of ``mcverify bench`` (the Cornell box's gate, the white furnace's
 #: kernels) are these.
 BUNDLED_ROOT = _bundled_root()
+
+
+def installed_copy(path: str) -> str | None:
+    """The folder of scenes installed with mcverify (not a checkout's) if it holds
+    ``path``, else None. Their references are what this install's ``check`` and
+    ``render-check`` compare against, so ``reference build`` leaves them alone."""
+    if BUNDLED_ROOT == _CHECKOUT or not os.path.isdir(BUNDLED_ROOT):
+        return None
+    root, real = os.path.realpath(BUNDLED_ROOT), os.path.realpath(path)
+    return BUNDLED_ROOT if os.path.commonpath([root, real]) == root else None
 
 
 def set_reference_root(path: str, option: str = "--refs") -> str:

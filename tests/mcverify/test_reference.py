@@ -473,6 +473,38 @@ def test_a_scene_name_resolves_under_the_root_not_in_the_working_directory(
     assert not (here / "mine" / "ref").exists()
 
 
+def test_build_leaves_the_references_installed_with_mcverify_alone(tmp_path, monkeypatch,
+                                                                  capsys):
+    """An installed (non-editable) mcverify's own references were rebuilt in place by
+    `mcverify reference build cornell-box --spp 4 --passes 2` from a user's project, and a
+    bare `reference build` would have re-rendered every one: the install's check and
+    render-check then compared against them. Refused, by name and by path, exit 2, the
+    old reference kept; a copy in a folder of one's own builds (an outside review)."""
+    from mcverify.gate import cli
+
+    installed, mine = tmp_path / "share" / "mcverify" / "scenes", tmp_path / "mine"
+    for base in (installed, mine):
+        shutil.copytree(os.path.join(SCENES, "white-furnace"), base / "white-furnace")
+    before = (installed / "white-furnace" / "ref" / "manifest.json").read_bytes()
+    monkeypatch.setattr(reference, "BUNDLED_ROOT", str(installed))
+    monkeypatch.setattr(reference, "_CHECKOUT", str(tmp_path / "no-checkout"))
+    monkeypatch.setenv("MCVERIFY_REFS", str(installed))        # --refs sets it: restored
+    monkeypatch.setattr(reference, "REFERENCE_ROOT", reference.REFERENCE_ROOT)   # and this
+    for args in (["--refs", str(installed), "white-furnace"], ["--refs", str(installed)],
+                 [str(installed / "white-furnace" / "scene.xml")]):
+        assert cli.main(["reference", "build", "--spp", "4", "--passes", "2", "-q",
+                         *args]) == 2
+        err = capsys.readouterr().err
+        assert "is a scene installed with mcverify" in err and "--refs DIR" in err, err
+    assert (installed / "white-furnace" / "ref" / "manifest.json").read_bytes() == before
+    assert reference.installed_copy(str(mine / "white-furnace" / "scene.xml")) is None
+    assert cli.main(["reference", "build", "--refs", str(mine), "--spp", "4", "--passes",
+                     "2", "-q", "white-furnace"]) == 0
+    # in a checkout the scenes that come with mcverify are the developer's to rebuild
+    monkeypatch.setattr(reference, "_CHECKOUT", str(installed))
+    assert reference.installed_copy(str(installed / "white-furnace")) is None
+
+
 def test_build_refuses_to_replace_what_is_not_a_reference(scene_copy, monkeypatch):
     """A file named ``ref`` beside the scene was deleted by the build (exit 0), as was a
     user's folder of that name; both are refused before anything renders, and kept."""
