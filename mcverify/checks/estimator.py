@@ -75,8 +75,9 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
 
     Parameters
     ----------
-    samples : 1-D array
-        i.i.d. per-sample estimates (at least 2).
+    samples : 1-D array or callable
+        i.i.d. per-sample estimates (at least 2); or ``draw(b)``, the estimates of batch
+        ``b`` (see ``batches``; without it, one batch: ``draw(0)``).
     expected : float
         The true value of the integral.
     alpha : float

@@ -194,7 +194,7 @@ def _pool(args):
 def _add_pool_options(parser) -> None:
     parser.add_argument("-j", "--jobs", type=decimal_int, default=1, metavar="N",
                         help="run independent units (checks, passes) on N local worker "
-                             "processes; default 1: in this process. Results are identical")
+                             "processes; 1: in this process. Results are identical")
     parser.add_argument("--dask", metavar="tcp://HOST:PORT",
                         help="run the units on this Dask scheduler's workers")
     parser.add_argument("--dask-scheduler-file", metavar="FILE",
