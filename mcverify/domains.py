@@ -163,28 +163,33 @@ class Interval(Domain):
         return f"Interval({self.a!r}, {self.b!r})"
 
     def rounding_edges(self, edges, dtype):
-        """For float32 points, each inner edge moved to the nearest point halfway between
-        two neighbouring float32 values, where rounding to float32 changes its answer;
-        edges that meet are merged. A float32 sampler's points are rounded values: a
-        cell whose ends fall between float32 values holds a whole number of them, and
-        the rounding interval of the value at each end lies partly outside it, so its
-        count is off by up to a value's share of the mass while the cubature integrates
-        the pdf over the cell as drawn. On ``Interval(1000, 1001)`` (32 float32 values
-        a cell at 512 cells) a correct float32 sampler failed at p = 4e-9 with 1e6
-        points (p = 0 on ``Interval(1e4, 1e4 + 1)``); with these edges each value's
-        rounding interval lies in one cell. Float64 points keep the edges: a float64
-        interval holds enough values unless it is narrower than 1e-10 of its ends."""
-        if np.dtype(dtype) != np.float32 or len(edges[0]) < 3:
+        """Each inner edge moved to halfway between the two neighbouring values of the
+        points' ``dtype`` it falls between, where rounding to that type changes its
+        answer; edges that meet are merged. A sampler's points are rounded values: a
+        cell whose ends fall between them holds a whole number of them, and the rounding
+        interval of the value at each end lies partly outside it, so its count is off by
+        up to a value's share of the mass while the cubature integrates the pdf over the
+        cell as drawn. On ``Interval(1000, 1001)`` (32 float32 values a cell at 512
+        cells) a correct float32 sampler failed at p = 4e-9 with 1e6 points (p = 0 on
+        ``Interval(1e4, 1e4 + 1)``), and a float64 one on ``Interval(1e9, 1e9 + 1e-3)``
+        (16 float64 values a cell: a millisecond at a time in seconds since 1970) at
+        p = 4e-76; with these edges each value's rounding interval lies in one cell.
+        Float64 points on an interval of more than 2^32 of their values keep the edges
+        (a value there is under 1e-9 of a cell's smallest share of 1e-5)."""
+        dtype = np.dtype(dtype) if dtype is not None else None
+        if dtype not in (np.float32, np.float64) or len(edges[0]) < 3:
             return edges
         a, b = self.a, self.b
+        if dtype == np.float64 and (b - a) > 2.0 ** 32 * np.spacing(max(abs(a), abs(b))):
+            return edges
         e = np.asarray(edges[0], dtype=np.float64)
         x = a + e[1:-1] * (b - a)
-        v32 = x.astype(np.float32)
-        v = v32.astype(np.float64)
-        up = np.nextafter(v32, np.float32(np.inf)).astype(np.float64)
-        down = np.nextafter(v32, np.float32(-np.inf)).astype(np.float64)
-        mid = np.where(x >= v, (v + up) / 2.0, (v + down) / 2.0)   # exact in float64
-        s = np.clip((mid - a) / (b - a), 0.0, 1.0)
+        v = x.astype(dtype)
+        side = np.where(x >= v.astype(np.float64), np.inf, -np.inf).astype(dtype)
+        near = np.nextafter(v, side)
+        # halfway in the parameter the histogram bins by, (x - a) / (b - a) of each
+        s = ((v.astype(np.float64) - a) / (b - a) + (near.astype(np.float64) - a) / (b - a))
+        s = np.clip(s / 2.0, 0.0, 1.0)
         return [np.unique(np.concatenate(([0.0], s, [1.0])))]
 
 

@@ -191,12 +191,13 @@ def _fine_edges(dom: Domain, edges, dtype):
     return [fine], np.searchsorted(fine, e[:-1])
 
 
-def _merge_note(dom: Domain, edges, res) -> list[str]:
+def _merge_note(dom: Domain, edges, res, dtype) -> list[str]:
     """The note where ``Domain.rounding_edges`` merged cells (1-D), else nothing."""
     if dom.param_dim != 1 or len(edges[0]) == res[0] + 1:
         return []
-    return [f"{dom!r} holds few float32 values: cells whose ends met at the same float32 "
-            f"rounding point were merged, {len(edges[0]) - 1} of the {res[0]} asked for"]
+    t = np.dtype(dtype).name
+    return [f"{dom!r} holds few {t} values: cells whose ends met at the same {t} rounding "
+            f"point were merged, {len(edges[0]) - 1} of the {res[0]} asked for"]
 
 
 _RADIX_BITS = 11
@@ -738,9 +739,10 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         k, the uniform numbers per sample (default ``domain.sample_dim``).
     pilot : bool
         Place cell edges by an independent pilot sample (see Notes). The pilot's points
-        also tell their type: on an ``Interval``, float32 points get edges where float32
-        rounding changes its answer (``Interval.rounding_edges``); without the pilot the
-        edges are uniform, as drawn.
+        also tell their type: on an ``Interval``, points of a type with few values there
+        (float32, or float64 far from 0) get edges where rounding to it changes its
+        answer (``Interval.rounding_edges``); without the pilot the edges are uniform,
+        as drawn.
     rejection : bool
         ``sample`` may reject draws: a row of NaN is a rejected draw, and ``pdf`` is the
         density of the accepted points, integrating to the acceptance probability P.
@@ -918,7 +920,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                                 f"not 1 (quadrature error bound {err_bound:.2g}){hint}")
             expected = mass * n_valid
         messages = []
-        messages += _merge_note(dom, edges, res)
+        messages += _merge_note(dom, edges, res, dtype)
         if unconverged:
             # a thin leaf's nested line integrals count one each
             messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
@@ -1218,11 +1220,11 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     pilots = [_pilot(smp, label, pseq, size, k, dom, rejection)
               for (label, smp, seq, size), pseq in zip(sides, seqs[2].spawn(2))
               if seq is not None]
-    # float32 on either side: cell ends where float32 rounding changes its answer (a
-    # float32 port against its float64 original on Interval(1000, 1001) differed at
-    # p = 6e-4 with 1e6 points per side until 7 December)
+    # cell ends where the coarser side's rounding changes its answer (a float32 port
+    # against its float64 original on Interval(1000, 1001) differed at p = 6e-4 with 1e6
+    # points per side until 7 December)
     types = [t for _, t in pilots] + [smp.dtype for _, smp, seq, _ in sides if seq is None]
-    dtype = np.float32 if np.float32 in types else None
+    dtype = np.float32 if np.float32 in types else np.float64 if types else None
     edges = dom.rounding_edges(
         _edges(np.concatenate([p for p, _ in pilots]) if pilots else None, res), dtype)
     m = dom.param_dim
@@ -1259,7 +1261,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                                   sub["chi2"].n_bins) if ha.sum() and hb.sum() else None
     if note:
         messages.append(note)
-    messages += _merge_note(dom, edges, res)
+    messages += _merge_note(dom, edges, res, dtype)
     if rejection and not (ha.sum() or hb.sum()):
         messages.append("neither side accepted a draw: only the acceptance rates were "
                         "compared (two samplers that reject everything agree)")
