@@ -138,6 +138,12 @@ class Interval(Domain):
         if not (np.isfinite(a) and np.isfinite(b) and b > a and np.isfinite(b - a)):
             raise InvalidArgument(f"Interval(a={a}, b={b}): need finite a < b with b - a "
                                   "finite")
+        with np.errstate(over="ignore"):
+            dense = not np.isfinite(1.0 / (b - a))
+        if dense:   # Interval(0, 1e-321) was accepted: every density on it overflows
+            raise InvalidArgument(f"Interval(a={a}, b={b}): b - a = {b - a:g} is so small "
+                                  "that a density on it, 1 / (b - a) and up, overflows "
+                                  "float64; scale the variable up")
         self._ends = (a, b)
 
     # read-only: an interval changed after its checks were planned would be binned with

@@ -46,6 +46,9 @@ CASES = [
     # an int beyond float64's range was Python's bare OverflowError (7 December)
     ("interval-int-beyond-float", lambda: mv.Interval(0, 10 ** 400),
      r"Interval.b=\.\.\.\): an integer beyond float64.s range"),
+    # a density on it overflows: accepted until 7 December, then every check's pdf was inf
+    ("interval-too-narrow-for-a-density", lambda: mv.Interval(0, 1e-321),
+     "Interval(a=0.0, b=1e-321.: b - a = .* is so small that a density"),
     ("rejection-string", lambda: mv.check_sampler(S, P, "square", rejection="False"),
      "rejection='False'"),
     ("pilot-string", lambda: mv.check_sampler(S, P, "square", pilot="no"), "pilot='no'"),
