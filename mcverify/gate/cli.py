@@ -338,7 +338,7 @@ def _cmd_check(args) -> int:
         # from the suites already resolved: a table's list ran as 'a:b+default', a name
         # that does not resolve, and its import roots were not passed on
         planned, skipped, _ = _plan(args.scene, args.suite, checks)
-        selected = suites.select(planned, args.k)
+        selected, family = suites.select(planned, args.k), len(planned)
         if any(c.name == planned[-1].name for c in selected):
             _precheck_render(args.scene)
         if planned and not selected:      # -k left nothing: no gate may pass on no check
@@ -356,9 +356,10 @@ def _cmd_check(args) -> int:
                   file=sys.stderr)
         plan = plan_budget(args.suite, args.k, args.budget, seed=args.seed,
                            startup=_seconds_since_start())
-        selected = suites.select(suites.build_suite(args.suite, plan.n_overrides), args.k)
+        sized = suites.build_suite(args.suite, plan.n_overrides)
+        selected, family = suites.select(sized, args.k), len(sized)
     else:
-        selected = suites.select(checks, args.k)
+        selected, family = suites.select(checks, args.k), len(checks)
     if not selected and args.scene:
         print(f"mcverify check --scene {args.scene}: the scene needs no sampler or estimator "
               "checks", file=sys.stderr)
@@ -369,7 +370,8 @@ def _cmd_check(args) -> int:
         result = suites.run_suite(selected, name=args.suite, seed=args.seed, alpha=args.alpha,
                                   progress=None if args.quiet else
                                   _progress(sys.stderr, alpha=args.alpha),
-                                  extra_provenance=extra, skipped=skipped, pool=pool)
+                                  extra_provenance=extra, skipped=skipped, pool=pool,
+                                  family=family)   # -k changes no check's stop level
     bought = None
     if plan is not None:
         from .budget import power_bought
@@ -587,13 +589,14 @@ def _cmd_report(args) -> int:
     suite = None
     extra = {}
     if not args.no_suite:
-        selected = suites.select(suites.build_suite(args.suite), args.k)
+        whole = suites.build_suite(args.suite)
+        selected = suites.select(whole, args.k)
         if not selected:
             raise InvalidArgument(_no_check(args))
         extra = _mitsuba_provenance(selected)
         with _pool(args) as pool:
             suite = suites.run_suite(selected, name=args.suite, seed=args.seed, progress=show,
-                                     extra_provenance=extra, pool=pool)
+                                     extra_provenance=extra, pool=pool, family=len(whole))
     # Study rows are judged together (Holm) at the end: no per-row verdict while running.
     study = run_study(seed=args.seed,
                       progress=None if args.quiet else _progress(sys.stderr, verdicts=False))

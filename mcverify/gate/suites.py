@@ -627,7 +627,7 @@ def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
               progress: Callable[[int, int, CheckResult, Check], None] | None = None,
               extra_provenance: dict | None = None,
               skipped: list[tuple[str, str]] | None = None,
-              pool: Pool | None = None) -> SuiteResult:
+              pool: Pool | None = None, family: int | None = None) -> SuiteResult:
     """Run checks and canaries; judge the checks at family-wise ``alpha``.
 
     ``pool`` says where the checks run (default: in this process); results come back in
@@ -635,15 +635,19 @@ def run_suite(checks_: list[Check], *, name: str = "default", seed: int = 0,
     is called as checks finish; ``check.tags`` says what it is (``"canary"``: a planted
     bug that must be rejected).
 
-    Sequential checks stop early once their p-value is at most ``alpha / len(checks_)``:
-    Holm's (and Šidák's) smallest threshold is no lower, so such a check is rejected by
-    the family-wise judgement whatever the other checks find; one that stops is never
-    rescued by a later look. Canaries stop at their own level, at which they are judged."""
+    Sequential checks stop early once their p-value is at most ``alpha / m``, m the
+    checks of ``family`` (default ``len(checks_)``; never fewer): Holm's (and Šidák's)
+    smallest threshold is no lower, so such a check is rejected by the family-wise
+    judgement whatever the other checks find; one that stops is never rescued by a later
+    look. A selection from a suite (``-k``) passes the whole suite's count, so that
+    choosing checks changes no check's result. Canaries stop at their own level, at which
+    they are judged."""
     t0 = time.perf_counter()
     bait = canaries() if canary else []
     seeds = ([check_seed(seed, c.name) for c in checks_]
              + [check_seed(seed, "canary:" + c.name) for c in bait])
-    stops = [alpha / max(len(checks_), 1)] * len(checks_) + [None] * len(bait)
+    m = max(len(checks_), family or 0, 1)
+    stops = [alpha / m] * len(checks_) + [None] * len(bait)
 
     def run_on(pool):
         units = _units(checks_ + bait, seeds, stops, pool)

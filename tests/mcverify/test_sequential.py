@@ -347,3 +347,43 @@ def test_a_users_sequential_check_that_stops_above_the_suites_level_is_not_passe
     r = declared.results[0]
     assert not r.passed and r.details["sequential"]["stop_alpha"] == 0.01 / 4
     assert not r.failures
+
+
+def test_k_changes_no_sequential_checks_result(tmp_path):
+    """`mcverify check -k NAME` ran the selected check alone, so it stopped at α/1 where
+    the whole suite's run stopped it at α/m: a 3 % bias (16 batches of 1000) rerun with
+    -k to see why it failed was decided at batch 8 of 16, p = 0.0033, where the suite's
+    run took all 16, p = 1.9e-6; the README says -k changes no result. The stop level now
+    counts the whole suite's checks."""
+    import json
+    import sys
+    import types
+
+    from mcverify.gate import cli
+    from mcverify.gate.suites import Check
+
+    ss = np.random.SeedSequence(16).generate_state(16)
+
+    def biased(seed, stop_alpha=None):
+        return mv.check_unbiased(lambda b: np.random.default_rng(ss[b]).normal(0.03, 1, 1000),
+                                 0.0, batches=16, stop_alpha=stop_alpha, name="biased")
+
+    def fine(seed):
+        return mv.check_unbiased(np.random.default_rng(seed).normal(0, 1, 1000), 0.0)
+
+    mod = types.ModuleType("k_selection_suite")
+    mod.suite = [Check("biased", biased, sequential=True)] + [
+        Check(f"fine{i}", fine) for i in range(4)]
+    sys.modules[mod.__name__] = mod
+    try:
+        got = {}
+        for label, k in (("all", []), ("one", ["-k", "biased"])):
+            assert cli.main(["check", "-q", "--suite", "k_selection_suite:suite", *k,
+                             "--json", str(tmp_path / f"{label}.json")]) == 1
+            got[label] = next(r for r in json.loads((tmp_path / f"{label}.json").read_text())
+                              ["results"] if r["name"] == "biased")
+    finally:
+        del sys.modules[mod.__name__]
+    assert got["all"]["n_samples"] == 16000, got["all"]
+    for key in ("p_value", "n_samples", "messages"):
+        assert got["one"][key] == got["all"][key], key
