@@ -5,7 +5,8 @@ Layout: ``reference/scenes/<name>/scene.xml`` and, built from it,
 ``reference/scenes/<name>/ref/{mean.exr, var.exr, passes.exr, manifest.json}``; a scene
 file of another name, ``<folder>/<file>.xml``, has its reference in
 ``<folder>/ref-<file>.xml/`` (``ref_folder``), so scenes sharing a folder keep one each.
-The manifest records Mitsuba's version and variant, spp, passes, seeds, UTC time, the
+The manifest records Mitsuba's version and variant, spp, passes, the seed and the pass
+seeds derived from it, UTC time, the
 film's filter radius (``rfilter_radius``: above 1/2 the filter splats, and pixels of one
 pass correlate) and the SHA-256 of the scene, of every file it names (meshes, textures,
 environment maps: ``scene_assets``) and of each image: a changed scene, a changed mesh or
@@ -310,7 +311,9 @@ def rebuild_command(name: str, scene_path: str, manifest: dict | None = None) ->
     split into several arguments when the command was pasted); with the ``--spp`` and
     ``--passes`` of the reference it replaces (``manifest``) where they are not the
     defaults: a splatting-filter scene's reference of 64 passes × 64 spp, rebuilt by the
-    bare command at 16 × 256, was then refused by ``render-check`` at its defaults."""
+    bare command at 16 × 256, was then refused by ``render-check`` at its defaults; and
+    with its ``--seed`` where that is not 0, so that the command builds the same bits
+    (a reference built with ``--seed 5`` was to be rebuilt at seed 0)."""
     named = os.path.join(REFERENCE_ROOT, name, "scene.xml")
     spec = name if os.path.abspath(named) == os.path.abspath(scene_path) else scene_path
     counts = ""
@@ -320,6 +323,9 @@ def rebuild_command(name: str, scene_path: str, manifest: dict | None = None) ->
         if all(isinstance(v, int) and not isinstance(v, bool) and v > 0
                for v in (spp, passes)) and (spp, passes) != (DEFAULT_SPP, DEFAULT_PASSES):
             counts = f" --spp {spp} --passes {passes}"
+        seed = manifest.get("seed")
+        if isinstance(seed, int) and not isinstance(seed, bool) and 0 < seed < 2 ** 63:
+            counts += f" --seed {seed}"
     return f"mcverify reference build {shlex.quote(spec)}{counts}"
 
 
@@ -590,6 +596,7 @@ class _Job:
     params: dict | None
     assets: dict        # scene_assets() when the job was made, before any pass renders
     scene_sha256: str   # likewise: a scene edited during the build is stale, not current
+    seed: int = 0       # the build's seed, from which ``seeds`` derive (the rebuild needs it)
 
     def units(self, pool: Pool, variant: str) -> list[Unit]:
         fingerprint = None if pool.in_process else source_fingerprint()
@@ -623,7 +630,7 @@ class _Job:
         asked = {} if spp == self.spp else {"spp_requested": self.spp}
         manifest = provenance(scene=self.name, scene_sha256=self.scene_sha256,
                               assets_sha256=self.assets, spp=spp, **asked,
-                              passes=len(self.seeds), seeds=self.seeds,
+                              passes=len(self.seeds), seed=self.seed, seeds=self.seeds,
                               mitsuba_version=mvm.mitsuba_version(), mitsuba_variant=variant,
                               shape=list(imgs.shape[1:]), rfilter_radius=radius,
                               params={k: str(v) for k, v in (self.params or {}).items()})
@@ -675,7 +682,7 @@ def _job(spec: str, spp: int, passes: int, seed: int, params: dict | None) -> _J
     validate.memory("passes", passes, _pass_bytes(path, params),
                     "its pass images, held until the reference is written", least=2)
     return _Job(name, path, spp, _pass_seeds(seed, passes), params,
-                scene_assets(path, params), scene_hash(path))
+                scene_assets(path, params), scene_hash(path), seed)
 
 
 def _render_jobs(jobs: list[_Job], pool: Pool | None, progress) -> list[tuple[Reference,

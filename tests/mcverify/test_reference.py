@@ -214,6 +214,28 @@ def test_the_rebuild_command_of_a_stale_reference_keeps_its_counts(scene_copy):
         reference.load_reference(str(scene_copy))
 
 
+
+def test_the_rebuild_command_keeps_the_seed_so_it_builds_the_same_bits(scene_copy):
+    """A reference built with ``--seed 5`` was to be rebuilt by a command without it, at
+    seed 0: other pass seeds, other bits (the manifest kept the pass seeds only, not the
+    seed they derive from). The manifest records the seed, the command passes it on where
+    it is not 0, and running it again gives the reference it replaces, bit for bit."""
+    scene = scene_copy / "scene.xml"
+    scene.write_text(scene.read_text().replace('name="res" value="64"', 'name="res" value="8"'))
+    reference.build_reference(str(scene_copy), spp=4, passes=2, seed=5)
+    assert reference.load_reference(str(scene_copy)).manifest["seed"] == 5
+    images = {f: (scene_copy / "ref" / f).read_bytes() for f in ("mean.exr", "var.exr")}
+    text = scene.read_text()
+    scene.write_text(text.replace('value="17, 12, 4"', 'value="18, 12, 4"'))
+    with pytest.raises(EnvironmentProblem, match=r"stale: .*; run `mcverify reference build "
+                                                 r"\S*scene.xml --spp 4 --passes 2 --seed 5`$"):
+        reference.load_reference(str(scene_copy))
+    scene.write_text(text)          # the edit undone: the command rebuilds the same bits
+    reference.build_reference(str(scene_copy), spp=4, passes=2, seed=5)
+    assert {f: (scene_copy / "ref" / f).read_bytes() for f in images} == images
+    reference.build_reference(str(scene_copy), spp=4, passes=2)
+    assert reference.load_reference(str(scene_copy)).manifest["seed"] == 0
+
 def test_a_changed_texture_or_mesh_makes_the_reference_stale(tmp_path):
     """The manifest records the SHA-256 of every file the scene names: a texture changed
     or removed after the build is refused as stale, naming it, instead of comparing a
