@@ -191,13 +191,33 @@ def _fine_edges(dom: Domain, edges, dtype):
     return [fine], np.searchsorted(fine, e[:-1])
 
 
-def _merge_note(dom: Domain, edges, res, dtype) -> list[str]:
-    """The note where ``Domain.rounding_edges`` merged cells (1-D), else nothing."""
+def _merge_note(dom: Domain, pilot_s, pilot_edges, edges, res, dtype) -> list[str]:
+    """The notes where cells were merged (1-D): where the pilot repeats one value (an
+    atom: its quantiles meet there, ``_edges``), and where rounding to the points' type
+    merged them (``Domain.rounding_edges``, and the pilot's own merges of points of a
+    type with few values on the interval, each value repeated about equally); else
+    nothing. Until 7 December every merge was put down to float32: a float64 sampler
+    clamped at 1 was said to sample an interval that "holds few float32 values"."""
     if dom.param_dim != 1 or len(edges[0]) == res[0] + 1:
         return []
-    t = np.dtype(dtype).name
-    return [f"{dom!r} holds few {t} values: cells whose ends met at the same {t} rounding "
-            f"point were merged, {len(edges[0]) - 1} of the {res[0]} asked for"]
+    out = []
+    k_pilot, k = len(pilot_edges[0]) - 1, len(edges[0]) - 1
+    rounded = edges is not pilot_edges         # rounding_edges moved them: few values
+    if k_pilot < res[0]:
+        v, c = np.unique(pilot_s[:, 0], return_counts=True)
+        i = int(np.argmax(c))
+        if not rounded or c[i] > 16 * np.median(c):
+            x = float(dom.to_point(v[i:i + 1, None])[0, 0])
+            out.append(f"the pilot draw put {c[i]} of its {pilot_s.shape[0]} points at "
+                       f"exactly x = {x:.9g}: an atom (a clamp, a delta lobe), which no "
+                       f"density has; cells whose ends met there were merged, {k_pilot} "
+                       f"of the {res[0]} asked for")
+    if rounded and (k < k_pilot or not out):
+        t = np.dtype(dtype).name
+        out.append(f"{dom!r} holds few {t} values: cells whose ends met at the same {t} "
+                   f"rounding point were merged, {k} of the "
+                   + (f"{k_pilot} the atom left" if out else f"{res[0]} asked for"))
+    return out
 
 
 _RADIX_BITS = 11
@@ -835,7 +855,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     if pilot:
         pilot_s, dtype = _pilot(sample, "sample", pilot_seq, n, k, dom, rejection)
     uniforms = _uniform_chunks(main_seq, n_budget, k, chunk)
-    edges = dom.rounding_edges(_edges(pilot_s, res), dtype)
+    pilot_edges = _edges(pilot_s, res)
+    edges = dom.rounding_edges(pilot_edges, dtype)
     # 1-D: a fine histogram (each cell split in KS_SPLIT) serves the binned KS test; the
     # χ² counts are its sums.
     hist_edges, starts = _fine_edges(dom, edges, dtype) if m == 1 else (edges, None)
@@ -920,7 +941,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                                 f"not 1 (quadrature error bound {err_bound:.2g}){hint}")
             expected = mass * n_valid
         messages = []
-        messages += _merge_note(dom, edges, res, dtype)
+        messages += _merge_note(dom, pilot_s, pilot_edges, edges, res, dtype)
         if unconverged:
             # a thin leaf's nested line integrals count one each
             messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "
@@ -1225,8 +1246,9 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     # points per side until 7 December)
     types = [t for _, t in pilots] + [smp.dtype for _, smp, seq, _ in sides if seq is None]
     dtype = np.float32 if np.float32 in types else np.float64 if types else None
-    edges = dom.rounding_edges(
-        _edges(np.concatenate([p for p, _ in pilots]) if pilots else None, res), dtype)
+    pilot_s = np.concatenate([p for p, _ in pilots]) if pilots else None
+    pilot_edges = _edges(pilot_s, res)
+    edges = dom.rounding_edges(pilot_edges, dtype)
     m = dom.param_dim
     hist_edges, starts = _fine_edges(dom, edges, dtype) if m == 1 else (edges, None)
     hists, failures = [], []
@@ -1261,7 +1283,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                                   sub["chi2"].n_bins) if ha.sum() and hb.sum() else None
     if note:
         messages.append(note)
-    messages += _merge_note(dom, edges, res, dtype)
+    messages += _merge_note(dom, pilot_s, pilot_edges, edges, res, dtype)
     if rejection and not (ha.sum() or hb.sum()):
         messages.append("neither side accepted a draw: only the acceptance rates were "
                         "compared (two samplers that reject everything agree)")

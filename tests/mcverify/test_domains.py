@@ -647,6 +647,46 @@ def test_interval_rounding_edges_lie_halfway_between_float32_values():
     assert np.array_equal(cell, lo)
 
 
+def test_cells_merged_at_an_atom_are_not_put_down_to_float32():
+    """A float64 sampler clamped at 1 (2.4 % of its draws exactly 1) repeats that value
+    in its pilot, whose quantiles meet there and merge cells: until 7 December the note
+    said Interval(0.0, 1.0) "holds few float32 values", pointing away from the clamp. It
+    now names the atom where it is, in check_sampler and check_same_distribution (for
+    float32 points too), and a float32 sampler on a narrow interval, whose pilot repeats
+    each of its few values, keeps its float32 note."""
+    def clamped(u):
+        return np.clip(1.05 * u[:, 0] - 0.025, 0.0, 1.0)
+
+    def pdf(x):
+        return np.ones(len(x))
+
+    r = mv.check_sampler(clamped, pdf, "interval", n_samples=100_000, seed=1)
+    assert not r.passed
+    assert not any("float32" in m for m in r.messages), r.messages
+    assert any("exactly x = 1:" in m and "an atom" in m for m in r.messages), r.messages
+    r = mv.check_sampler(lambda u: clamped(u).astype(np.float32), pdf, "interval",
+                         n_samples=100_000, seed=1)
+    assert [m for m in r.messages if "exactly x = 1:" in m or "float32" in m] == [
+        m for m in r.messages if "exactly x = 1:" in m], r.messages
+
+    def half(u):
+        return np.where(u[:, 0] < 0.3, 0.5, u[:, 0])
+
+    r = mv.check_same_distribution(half, half, "interval", n_samples=50_000, seed=1)
+    assert not any("float32" in m for m in r.messages), r.messages
+    assert any("exactly x = 0.5:" in m for m in r.messages), r.messages
+
+    a = 1000.0
+
+    def s32(u):
+        return np.float32(a) + np.float32(0.01) * u[:, :1].astype(np.float32)
+
+    r = mv.check_sampler(s32, lambda x: np.full(len(x), 100.0), mv.Interval(a, a + 0.01),
+                         n_samples=100_000, seed=1)
+    assert any("holds few float32 values" in m and "asked for" in m for m in r.messages)
+    assert not any("atom" in m for m in r.messages), r.messages
+
+
 def test_float32_points_near_the_south_pole_keep_their_polar_parameter():
     """On the sphere 1 + z of a float32 point within 1e-4 of the south pole is 0 or a
     multiple of 6e-8; the domain takes it from the tangential components, as at the
