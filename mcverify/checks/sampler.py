@@ -636,6 +636,23 @@ _AXIS_NAMES = {"square": ("x", "y"), "disk": ("r²", "φ / 2π"),
                "sphere": ("(1 - z) / 2", "φ / 2π"), "hemisphere": ("1 - z", "φ / 2π")}
 
 
+def _span(lo, hi, digits, closed=False) -> str:
+    """``[lo, hi)``, or ``[lo, hi]`` where ``closed`` (a last cell holds its end), at the
+    fewest significant digits from ``digits`` up that tell the ends apart: the cell one
+    ulp wide below 1 that holds a sampler's atom at 1 (a clamp) was printed as "[1, 1)"
+    until 7 December (an outside review)."""
+    d = digits
+    while d < 17 and f"{lo:.{d}g}" == f"{hi:.{d}g}":
+        d += 1
+    return f"[{lo:.{d}g}, {hi:.{d}g}{']' if closed else ')'}"
+
+
+def _axis_span(dom, j, lo, hi) -> str:
+    """``_span`` of parameter axis ``j`` of a 2-D domain: its last cell holds 1, except
+    on the azimuth, where φ / 2π = 1 is φ = 0."""
+    return _span(lo, hi, 4, closed=hi == 1.0 and not (j == 1 and dom._azimuth_axis))
+
+
 def _cell_at(dom, w) -> str:
     """Where a grid cell of ``_worst_cells`` is: its centre and its extent. The centre
     alone misled where the cell is wide: a cone 10 % wider than its pdf about the pole,
@@ -643,11 +660,11 @@ def _cell_at(dom, w) -> str:
     its rim (until 7 December; an outside review)."""
     if dom.param_dim == 1:
         x = dom.to_point(np.array([[w["param_lo"][0]], [w["param_hi"][0]]]))[:, 0]
-        return (f"x≈{np.round(w['point'], 4).tolist()} (the cell [{x[0]:.6g}, "
-                f"{x[1]:.6g}))")
+        return (f"x≈{np.round(w['point'], 4).tolist()} (the cell "
+                f"{_span(x[0], x[1], 6, closed=w['param_hi'][0] == 1.0)})")
     names = _AXIS_NAMES.get(dom.name, ("parameter 0", "parameter 1"))
-    extent = ", ".join(f"{a} in [{lo:.4g}, {hi:.4g})" for a, lo, hi in
-                       zip(names, w["param_lo"], w["param_hi"]))
+    extent = ", ".join(f"{a} in {_axis_span(dom, j, lo, hi)}" for j, (a, lo, hi) in
+                       enumerate(zip(names, w["param_lo"], w["param_hi"])))
     return f"x≈{np.round(w['point'], 4).tolist()} (the cell {extent})"
 
 
@@ -684,7 +701,7 @@ def _sampler_discrepancy(dom, edges, counts, expected, sub, alpha, worst, ks=Non
     w = w[0]
     axis = _AXIS_NAMES.get(dom.name, ("parameter 0", "parameter 1"))[j]
     return [f"largest discrepancy in the {'first' if j == 0 else 'second'} axis' marginal, "
-            f"{axis} in [{w['param_lo'][0]:.4g}, {w['param_hi'][0]:.4g}): observed "
+            f"{axis} in {_axis_span(dom, j, w['param_lo'][0], w['param_hi'][0])}: observed "
             f"{w['observed']:.0f}, expected {w['expected']:.1f}"]
 
 
@@ -1350,7 +1367,8 @@ def _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha, ks=Non
         w = w[0]
         nb_cell = float(b[tuple(w["cell"])])
         at = (_cell_at(dom, w) if where is None else
-              f"parameter {where} in [{w['param_lo'][0]:.4g}, {w['param_hi'][0]:.4g}) "
+              f"parameter {where} in "
+              f"{_axis_span(dom, where, w['param_lo'][0], w['param_hi'][0])} "
               f"(the {'first' if where == 0 else 'second'} axis' marginal)")
         out.append(f"largest discrepancy at {at}: sample_a {w['observed']:.0f} and sample_b "
                    f"{nb_cell:.0f} points, where equal distributions would give sample_a "

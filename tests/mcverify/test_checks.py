@@ -850,6 +850,20 @@ def test_the_largest_discrepancy_is_a_cell_the_chi2_test_weighs():
     assert _worst_cells(Square(), edges, counts, expected)[0]["cell"] == [1, 1]
 
 
+def test_a_cell_is_printed_with_the_digits_that_tell_its_ends_apart():
+    """A sampler clamped at 1 (2.4 % of its draws exactly 1) fails in the last cell, one
+    ulp wide below 1, and until 7 December it was named "the cell [1, 1)", an empty
+    interval; its ends are now printed to the digits that differ, and a last cell, which
+    holds its end, closes with "]". Other cells keep six digits."""
+    r = mv.check_sampler(lambda u: np.clip(1.05 * u[:, 0] - 0.025, 0.0, 1.0),
+                         lambda x: np.ones(len(x)), "interval", n_samples=100_000, seed=1)
+    assert not r.passed
+    (m,) = [m for m in r.messages if m.startswith("largest discrepancy")]
+    assert "(the cell [0.9999999999999998, 1]):" in m, m
+    from mcverify.checks.sampler import _span
+    assert _span(0.25, 0.2512345678, 6) == "[0.25, 0.251235)"
+
+
 def test_a_failure_names_where_the_rejecting_test_saw_it():
     """The "largest discrepancy" was the full grid's worst cell whatever sub-test had
     rejected: a sampler whose x follows 1.015·x^0.015 (too few points near x = 0), caught
