@@ -84,6 +84,38 @@ def test_samples_where_pdf_integrates_to_zero():
     assert any("integrates to 0" in f for f in r.failures)
 
 
+def test_samples_where_the_pdf_is_zero_fail_where_their_cell_has_mass():
+    """A hemisphere sampler that folds 1 % of its directions just below the horizon
+    (z in (-0.01, 0]) checked on the sphere against its pdf, 0 below: the cell that
+    straddles the equator holds those points in place of the ones missing above it, and
+    until 7 December the check passed at p = 1. The pilot's points where the pdf is 0
+    about the point now fail; the correct sampler, whose points on z = 0 have density
+    beside them, passes, as does one on the square whose every point sits on its
+    support's edge (pdf 1 for x > 0, points with x = 0 exactly)."""
+    def sphere(z, phi):
+        r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
+
+    def upper(x):
+        return np.where(x[:, 2] >= 0, 1 / (2 * np.pi), 0.0)
+
+    def folded(u):
+        return sphere(np.where(u[:, 0] < 0.01, -u[:, 0], u[:, 0]), 2 * np.pi * u[:, 1])
+
+    for seed in (0, 1):
+        r = mv.check_sampler(folded, upper, "sphere", n_samples=200_000, seed=seed)
+        assert not r.passed
+        (f,) = r.failures
+        assert "lie where the pdf is 0" in f and "first x = [" in f, f
+        r = mv.check_sampler(lambda u: sphere(u[:, 0], 2 * np.pi * u[:, 1]), upper,
+                             "sphere", n_samples=200_000, seed=seed)
+        assert r.passed, r.summary()
+    edge = mv.check_sampler(lambda u: np.stack([0 * u[:, 0], u[:, 1]], 1),
+                            lambda x: np.where(x[:, 0] > 0, 1.0, 0.0), "square",
+                            n_samples=20_000)
+    assert not any("lie where the pdf is 0" in f for f in edge.failures), edge.failures
+
+
 def test_inverse_round_trip_and_wrong_inverse():
     ok = mv.check_inverse(lambda u: W.sample_uniform_cone(u, 0.5),
                           lambda x: W.invert_uniform_cone(x, 0.5), 2, atol=1e-12)
