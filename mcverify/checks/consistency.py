@@ -196,10 +196,12 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     bad_points = int(np.count_nonzero(~finite & ~rejected))
     if bad_points:
         i = int(np.flatnonzero(~finite & ~rejected)[0])
+        # a row NaN in some coordinates only is no rejected draw, rejection or not
+        hint = ("; a rejected draw is a row of NaN in every coordinate" if rejection
+                else "; rejection=True reads NaN rows as rejected draws"
+                if np.isnan(x[i]).all() else "")
         failures.append(f"{bad_points} points not finite (first x={_show(x[i])} at "
-                        f"u={_show(u[i])})" + ("" if rejection else
-                                                 "; rejection=True reads NaN rows as "
-                                                 "rejected draws"))
+                        f"u={_show(u[i])}){hint}")
     # with a weight, the weight says "no sample": a pdf of 0 returned with a non-zero
     # weight is a draw the path goes on with while MIS reads no density for it
     no_sample = finite & ((p == 0.0) if w is None else np.all(w == 0.0, axis=1))

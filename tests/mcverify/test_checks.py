@@ -642,6 +642,30 @@ def test_rejection_sampler_passes_and_reports_its_acceptance():
     assert r.details["tests"]["acceptance"]["p_value"] > 0.01
 
 
+def test_a_row_nan_in_some_coordinates_is_named_as_no_rejected_draw():
+    """A plastic's delta lobe written as NaN in x and y with z = 1 kept, judged with
+    rejection=True: until 7 December check_sampler and check_pdf_consistency failed it
+    as NaN/Inf points without a word on why those rows were not rejected draws (the
+    acceptance line said every draw was accepted). Both now say that a rejected draw is
+    NaN in every coordinate."""
+    def sample(u):
+        x = W.sample_cosine_hemisphere(u[:, 1:])
+        x[u[:, 0] < 0.3, :2] = np.nan
+        return x
+
+    def pdf(x):
+        return 0.7 * W.cosine_hemisphere_pdf(x)
+
+    r = mv.check_sampler(sample, pdf, "hemisphere", sample_dim=3, rejection=True,
+                         n_samples=20_000)
+    assert not r.passed
+    assert "a rejected draw is a row of NaN in every coordinate" in r.failures[0], r.failures
+    r = mv.check_pdf_consistency(lambda u: (sample(u), pdf(sample(u))), pdf, sample_dim=3,
+                                 rejection=True, n_samples=2000)
+    assert not r.passed
+    assert "a rejected draw is a row of NaN in every coordinate" in r.failures[0], r.failures
+
+
 def _accepting(t):
     """Cosine-weighted points, each kept with probability ``t`` (a mask's opacity)."""
     def sample(u):
