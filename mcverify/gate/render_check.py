@@ -459,6 +459,21 @@ class _OurPasses:
         self.stream.close()
 
 
+def _not_both_black(mean, ref_mean, path: str, who: str | None) -> None:
+    """Refuse a comparison of two images that are 0 in every pixel: each pixel's t-test
+    compared 0 with 0, and a scene that shows the camera nothing passed the gate without
+    testing a path (until 7 December: a camera outside a closed room of one-sided walls,
+    PASS p = 1, an outside review). A black reference against an image with light is
+    compared, and fails."""
+    if not np.any(ref_mean) and not np.any(mean):
+        raise InvalidArgument(f"{path}: Mitsuba's reference and "
+                              + ("our render" if who is None else f"renderer={who}'s image")
+                              + " are black in every pixel, so the comparison tested "
+                              "nothing; make the scene show the camera some light (a camera "
+                              "outside a closed room sees one-sided walls from behind, an "
+                              "emitter may face away, max_depth may stop the paths)")
+
+
 def _variant_notice(notice) -> None:
     """Before Mitsuba renders: the variant choice's fallback notice (llvm_ad_rgb unusable,
     scalar_rgb used), through ``notice``. A reference built (or rendered for ``params``)
@@ -665,6 +680,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         if own_pool:
             pool.close()
     mean, stats, seconds = shown["mean"], shown["stats"], shown["seconds"]
+    _not_both_black(mean, ref.mean, path, who)
     if not result.passed:
         result = dataclasses.replace(result, messages=tuple(result.messages) + tuple(
             f"note: {c}" for c in _caveats(path, params, subject)))

@@ -280,3 +280,37 @@ def test_the_render_check_memory_guard_counts_what_it_takes(tmp_path, passes):
     finally:
         tracemalloc.stop()
     assert peak <= 256 * 256 * (rc._CHECK_BYTES_PER_PIXEL + rc._PASS_BYTES_PER_PIXEL * passes)
+
+
+def test_a_black_reference_is_refused_as_testing_nothing(tmp_path):
+    """A camera outside a closed room (a cube with flip_normals, one-sided diffuse walls)
+    sees only the walls' backs: Mitsuba's reference is 0 everywhere, and render-check
+    passed, p = 1, comparing 0 with 0 (found with a scene not in the repository). It is
+    refused now; an image with light against that reference still fails."""
+    from mcverify.gate import reference
+
+    scene = tmp_path / "scene.xml"
+    scene.write_text("""<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+      <rfilter type="box"/></film></sensor>
+  <shape type="cube"><transform name="to_world"><scale value="2"/></transform>
+    <boolean name="flip_normals" value="true"/><bsdf type="diffuse"/></shape>
+  <shape type="sphere"><float name="radius" value="0.3"/>
+    <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>
+</scene>""")
+    reference.build_reference(str(scene), spp=4, passes=2)
+
+    def black(path, spp, seed):
+        return np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), 16
+    black.__name__ = "black"
+    with pytest.raises(mv.InvalidArgument, match="reference and renderer=black's image are "
+                                                 "black in every pixel"):
+        render_check(str(scene), renderer=black, spp=64, seed=1)
+
+    def lit(path, spp, seed):       # light where Mitsuba has none: compared, and fails
+        return np.full((8, 8, 3), 0.5), np.full((8, 8, 3), 0.01), 16
+    assert not render_check(str(scene), renderer=lit, spp=64, seed=1).passed
