@@ -408,10 +408,16 @@ class _Builder:
             self.features |= FEATURE_BITS["bsdf:twosided"]
             return self._bsdf_row(inner, 1, parent)
         if parent == "blendbsdf" and plugin.type not in _BLENDABLE:
+            # a blendbsdf inside one was told "BSDFs with a density", which a blend of
+            # two of them has: the limit is the table's depth (an outside review)
+            why = ("BSDFs with a density: Mitsuba mixes a delta lobe's probability "
+                   "with the other BSDF's density"
+                   if plugin.type in ("conductor", "dielectric", "thindielectric",
+                                      "plastic") else
+                   "the tracer's BSDF table nests one level: a blend of basic BSDFs, "
+                   "not of a blend, mask or normalmap")
             self.fail(plugin, f"a {plugin.type} inside a blendbsdf is not supported: "
-                              f"supported: {', '.join(_BLENDABLE)} (BSDFs with a density; "
-                              "Mitsuba mixes a delta lobe's probability with the other "
-                              "BSDF's density)")
+                              f"supported: {', '.join(_BLENDABLE)} ({why})")
         if parent == "mask" and plugin.type == "mask":
             self.fail(plugin, "a mask inside a mask")
         if plugin.type == "normalmap" and parent is not None:
