@@ -190,7 +190,8 @@ class Interval(Domain):
             return edges
         e = np.asarray(edges[0], dtype=np.float64)
         x = a + e[1:-1] * (b - a)
-        v = x.astype(dtype)
+        with np.errstate(over="ignore"):    # an interval beyond float32's range: inf
+            v = x.astype(dtype)
         side = np.where(x >= v.astype(np.float64), np.inf, -np.inf).astype(dtype)
         near = np.nextafter(v, side)
         # halfway in the parameter the histogram bins by, (x - a) / (b - a) of each

@@ -197,7 +197,8 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     if bad_points:
         i = int(np.flatnonzero(~finite & ~rejected)[0])
         # a row NaN in some coordinates only is no rejected draw, rejection or not
-        hint = ("; a rejected draw is a row of NaN in every coordinate" if rejection
+        hint = ("" if not np.isnan(x[i]).any() else
+                "; a rejected draw is a row of NaN in every coordinate" if rejection
                 else "; rejection=True reads NaN rows as rejected draws"
                 if np.isnan(x[i]).all() else "")
         failures.append(f"{bad_points} points not finite (first x={_show(x[i])} at "

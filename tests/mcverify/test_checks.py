@@ -665,6 +665,21 @@ def test_a_row_nan_in_some_coordinates_is_named_as_no_rejected_draw():
     assert not r.passed
     assert "a rejected draw is a row of NaN in every coordinate" in r.failures[0], r.failures
 
+    # an infinite point, no NaN in it, is no half-written rejection: no such hint (a
+    # read-only review of the change above)
+    def infinite(u):
+        x = W.sample_cosine_hemisphere(u[:, 1:])
+        x[u[:, 0] < 0.3, 2] = np.inf
+        return x
+
+    r = mv.check_sampler(infinite, pdf, "hemisphere", sample_dim=3, rejection=True,
+                         n_samples=20_000)
+    assert not r.passed and "NaN/Inf" in r.failures[0], r.failures
+    assert "rejected draw" not in r.failures[0], r.failures
+    r = mv.check_pdf_consistency(lambda u: (infinite(u), pdf(infinite(u))), pdf,
+                                 sample_dim=3, rejection=True, n_samples=2000)
+    assert not r.passed and "rejected draw" not in r.failures[0], r.failures
+
 
 def _accepting(t):
     """Cosine-weighted points, each kept with probability ``t`` (a mask's opacity)."""

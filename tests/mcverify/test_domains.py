@@ -637,14 +637,34 @@ def test_interval_rounding_edges_lie_halfway_between_float32_values():
     mid = (below.astype(np.float64) + above.astype(np.float64)) / 2.0
     assert np.all(np.abs(x - mid) <= 1e-12 * 1000.0)
     # points of a float32 value fall in the cell the value's rounding interval is in
-    vals = np.arange(np.float32(1000.0), np.float32(1000.01), dtype=np.float32)
-    vals = np.unique(np.nextafter(vals, np.float32(np.inf)))
+    # (every float32 value in the interval: np.arange by 1 gave one, a read-only review)
+    vals = np.arange(np.float32(1000.0), np.float32(1000.01),
+                     np.spacing(np.float32(1000.0)), dtype=np.float32)[1:]
+    assert vals.size > 100 and np.all(np.diff(vals) == np.spacing(np.float32(1000.0)))
     s = dom.to_param(vals.reshape(-1, 1))[:, 0]
     cell = np.searchsorted(out, s, side="right") - 1
     lo = np.searchsorted(out, dom.to_param(
         ((vals.astype(np.float64) + np.nextafter(vals, np.float32(-np.inf))) / 2.0 + 1e-9)
         .reshape(-1, 1))[:, 0], side="right") - 1
     assert np.array_equal(cell, lo)
+
+
+@pytest.mark.parametrize("a, b", [(1e9, 1e9 + 0.01), (1.0, 1.0 + 2.0 ** -20),
+                                  (1000.0, 1001.0)])
+def test_the_fine_histogram_keeps_every_cell_edge_the_cubature_integrates(a, b):
+    """The KS test's fine edges are rounded again; a float64 halfway point rounded again
+    can land one value over, and where no fine cell merged, the χ² cells' own edges were
+    left out: 248 of 512 on Interval(1e9, 1e9 + 0.01), so the χ² counts summed cells one
+    value off those the cubature integrated (noncentrality 65 at 1e7 points; a read-only
+    review). Every cell edge is now among the fine edges, and the sums start at them."""
+    from mcverify.checks.sampler import _fine_edges
+
+    dom = mv.Interval(a, b)
+    for dtype in (np.float64, np.float32):
+        edges = dom.rounding_edges([np.linspace(0.0, 1.0, 513)], dtype)
+        (fine,), starts = _fine_edges(dom, edges, dtype)
+        assert np.all(np.diff(fine) > 0)
+        assert np.array_equal(fine[starts], edges[0][:-1]) and fine[-1] == edges[0][-1]
 
 
 def test_cells_merged_at_an_atom_are_not_put_down_to_float32():
@@ -668,6 +688,7 @@ def test_cells_merged_at_an_atom_are_not_put_down_to_float32():
                          n_samples=100_000, seed=1)
     assert [m for m in r.messages if "exactly x = 1:" in m or "float32" in m] == [
         m for m in r.messages if "exactly x = 1:" in m], r.messages
+    assert any("exactly x = 1:" in m and "an atom" in m for m in r.messages), r.messages
 
     def half(u):
         return np.where(u[:, 0] < 0.3, 0.5, u[:, 0])
