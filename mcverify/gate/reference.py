@@ -316,6 +316,12 @@ def rebuild_command(name: str, scene_path: str, manifest: dict | None = None) ->
     (a reference built with ``--seed 5`` was to be rebuilt at seed 0)."""
     named = os.path.join(REFERENCE_ROOT, name, "scene.xml")
     spec = name if os.path.abspath(named) == os.path.abspath(scene_path) else scene_path
+    return f"mcverify reference build {shlex.quote(spec)}{_build_options(manifest)}"
+
+
+def _build_options(manifest: dict | None) -> str:
+    """``--spp``, ``--passes`` and ``--seed`` of the reference a manifest describes, where
+    they are not the defaults ("" without a manifest)."""
     counts = ""
     if isinstance(manifest, dict):
         spp = manifest.get("spp_requested", manifest.get("spp"))
@@ -326,7 +332,22 @@ def rebuild_command(name: str, scene_path: str, manifest: dict | None = None) ->
         seed = manifest.get("seed")
         if isinstance(seed, int) and not isinstance(seed, bool) and 0 < seed < 2 ** 63:
             counts += f" --seed {seed}"
-    return f"mcverify reference build {shlex.quote(spec)}{counts}"
+    return counts
+
+
+def rebuild_advice(name: str, scene_path: str, manifest: dict | None = None) -> str:
+    """What to do to (re)build a scene's reference: ``run `rebuild_command```; for a
+    scene installed with mcverify, which ``reference build`` leaves alone, to copy its
+    folder into a folder of one's own and build it there (the command it named was
+    refused; a read-only review)."""
+    if not installed_copy(scene_path):
+        return f"run `{rebuild_command(name, scene_path, manifest)}`"
+    folder = os.path.dirname(os.path.abspath(scene_path))
+    base = os.path.basename(folder)
+    return (f"copy {shlex.quote(folder)} into a folder of your own, DIR, and run "
+            f"`mcverify reference build {shlex.quote(base)} --refs DIR"
+            f"{_build_options(manifest)}` (the references installed with mcverify are "
+            "left as they are)")
 
 
 def _regular_file(path: str, what: str) -> None:
@@ -400,8 +421,9 @@ def _whole(path: str, windows: dict) -> None:
 
 
 def is_alpha(channel: str) -> bool:
-    """An OpenEXR alpha channel (``A``, or a layer's ``beauty.A``): not compared."""
-    return channel == "A" or channel.endswith(".A")
+    """An OpenEXR alpha channel (``A``, or a layer's ``beauty.A``; either case, as the
+    colour channels are read): not compared."""
+    return channel.rpartition(".")[2] in ("A", "a")
 
 
 def _lossless(path: str, compression: int, channels: dict[str, str]) -> None:
@@ -941,7 +963,7 @@ def _load(name: str, path: str) -> Reference:
     folder = ref_folder(path)
     parent, base = os.path.split(folder)
     mpath = os.path.join(folder, "manifest.json")
-    rebuild = f"run `{rebuild_command(name, path)}`"
+    rebuild = rebuild_advice(name, path)
     if not os.path.isfile(mpath):
         aside = sorted(d for d in os.listdir(parent) if d.startswith(_aside(base, "old")))
         where = (f" (an interrupted build left the previous one in "
@@ -960,7 +982,7 @@ def _load(name: str, path: str) -> Reference:
         digest = manifest["scene_sha256"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise EnvironmentProblem(f"{mpath}: corrupt manifest ({e}); {rebuild}") from None
-    rebuild = f"run `{rebuild_command(name, path, manifest)}`"   # as it was built
+    rebuild = rebuild_advice(name, path, manifest)    # as it was built
     if digest != scene_hash(path):
         raise EnvironmentProblem(f"{mpath}: stale: {path} changed since the reference was "
                                  f"built; {rebuild}")

@@ -598,10 +598,9 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             {**(params or {}), **(plant or {}),
              **({"pdf_scale": pdf_scale} if pdf_scale != 1 else {})}.items()))
         if splats and not ref.pixels_correlated:
-            rebuild = reference.rebuild_command(name, path, ref.manifest)
             raise EnvironmentProblem(f"{path}: the film's filter splats, but its reference "
                                      "does not say so (built before filters were recorded)"
-                                     f"; run `{rebuild}`")
+                                     f"; {reference.rebuild_advice(name, path, ref.manifest)}")
         if ours and ref.pixels_correlated and spp // passes != int(ref.manifest["spp"]):
             # E[Σ w L / Σ w] over N samples differs from its limit by O(1/N): passes
             # compare only at equal samples per pass (measured: Mitsuba's own 16-spp passes
@@ -615,8 +614,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         if ref.pixels_correlated and ref.passes is None:
             raise EnvironmentProblem(f"{path}: its reference has no pass images (built "
                                      "before passes.exr was stored), which a splatting "
-                                     "filter needs; run "
-                                     f"`{reference.rebuild_command(name, path, ref.manifest)}`")
+                                     "filter needs; "
+                                     f"{reference.rebuild_advice(name, path, ref.manifest)}")
         _fits(ref.mean.shape, passes if ours else 0)
         who = None if ours else getattr(renderer, "__name__", "renderer")
         if ours:

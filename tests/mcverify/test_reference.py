@@ -519,6 +519,14 @@ def test_build_leaves_the_references_installed_with_mcverify_alone(tmp_path, mon
         err = capsys.readouterr().err
         assert "is a scene installed with mcverify" in err and "--refs DIR" in err, err
     assert (installed / "white-furnace" / "ref" / "manifest.json").read_bytes() == before
+    # a stale installed reference's advice is no command that is refused (a read-only
+    # review: it said `mcverify reference build white-furnace`)
+    scene = installed / "white-furnace" / "scene.xml"
+    scene.write_text(scene.read_text() + "<!-- edited -->\n")
+    with pytest.raises(EnvironmentProblem, match="stale") as e:
+        reference.load_reference(str(scene))
+    assert "into a folder of your own, DIR, and run `mcverify reference build " \
+           "white-furnace --refs DIR" in str(e.value), str(e.value)
     assert reference.installed_copy(str(mine / "white-furnace" / "scene.xml")) is None
     assert cli.main(["reference", "build", "--refs", str(mine), "--spp", "4", "--passes",
                      "2", "-q", "white-furnace"]) == 0
