@@ -549,6 +549,12 @@ def loglog_slope(ns, sq_errors, *, expected: float, alternative: str = "two-side
     return SlopeResult(slope, se, slope - h, slope + h, expected, float(t), p, alternative)
 
 
+def t_upper_tail(t: float, dof: int) -> float:
+    """P(T >= t) for Student's t with ``dof`` degrees of freedom, to its full relative
+    precision far in the tail (``1 - cdf`` is 0 below 1e-16)."""
+    return float(_sps.t(dof).sf(t))
+
+
 # ------------------------------------------------------------ multiple testing
 def _beyond(diff, tol):
     """|diff| beyond a rounding tolerance: differences within it are no evidence, however

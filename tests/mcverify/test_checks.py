@@ -426,6 +426,10 @@ def test_convergence_slope():
     # the interval it prints is at 1 - alpha (it always said 99 %)
     r = mv.check_convergence(biased, 0.5, n_seeds=32, alpha=0.2)
     assert r.messages[0].startswith(f"slope {r.statistic:.3f} (80% CI ["), r.messages
+    # "less" far in its tail: p was 1 - cdf, exactly 0 below 1e-16 (an outside review)
+    r = mv.check_convergence(biased, 0.5, n_seeds=32, expected_slope=-1.0,
+                             alternative="less")
+    assert not r.passed and 0.0 < r.p_value < 1e-16, r.p_value
 
 
 def test_convergence_of_a_float32_exact_estimator_says_it_is_exact():
