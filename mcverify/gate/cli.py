@@ -1061,7 +1061,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--budget", type=float, metavar="SECONDS",
                    help="choose each sampler check's n so the run (with a short "
                         "calibration of this machine) takes about SECONDS, and say what "
-                        "power that buys; the chosen n go into the JSON; default: the "
+                        "power that buys; the chosen n go into the JSON; the built-in "
+                        "suites only, not with --scene or a suite of your own; default: the "
                         "suite's fixed n")
     c.add_argument("-q", "--quiet", action="store_true", help=quiet_help)
     _add_pool_options(c)
