@@ -530,6 +530,15 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     ours = renderer is None
     if not ours:
         _callable_as_renderer(renderer)
+        # our tracer's settings, silently ignored for a renderer of one's own until 7
+        # December (an outside review): it is called once, with spp
+        for what, value, default in (("passes", passes, 16), ("pdf_scale", pdf_scale, 1.0),
+                                     ("plant", plant, None)):
+            if value != default:
+                raise InvalidArgument(f"{what}={value!r}: applies to our path tracer only; "
+                                      "a renderer of your own is called once, "
+                                      "renderer(scene_path, spp, seed), and returns its "
+                                      "mean, variance and n")
     if ours:
         if spp % passes:    # the passes are equal: none of the spp may be dropped unsaid
             # the example is one the next check accepts: spp=100, passes=16 suggested 96,

@@ -47,6 +47,15 @@ def test_params_cannot_reach_a_renderer_of_ones_own():
         render_check("white-furnace", renderer=_ours(), spp=512, params={"res": 16})
 
 
+@pytest.mark.parametrize("kw", [{"passes": 4}, {"pdf_scale": 1.1}, {"plant": {"x": 1}}],
+                         ids=["passes", "pdf_scale", "plant"])
+def test_our_tracers_settings_are_refused_for_a_renderer_of_ones_own(kw):
+    """``passes`` (and the bug-planting hooks) were accepted with a renderer of one's
+    own and silently ignored: it is called once (an outside review)."""
+    with pytest.raises(mv.InvalidArgument, match=f"{next(iter(kw))}=.*our path tracer only"):
+        render_check("white-furnace", renderer=_ours(), spp=512, **kw)
+
+
 def test_a_splatting_scene_holds_a_renderer_of_ones_own_to_the_references_passes():
     """filters-tent's reference has 64 samples a pass: 16 passes of 16 are refused, as
     for our tracer, and a mean that is not its passes' mean is refused."""
