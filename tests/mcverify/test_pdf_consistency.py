@@ -83,6 +83,27 @@ def test_a_weight_off_by_pi_in_every_channel_names_each_channel_ratio():
     assert "(ratios [3.14159, 3.14159, 1])" in msg, msg
 
 
+def test_a_delta_lobes_huge_stand_in_pdf_is_named_with_what_to_do():
+    """A plastic's mirror draw returned as the normal with a pdf of 1e30 (as some
+    renderers do) failed at ratio 4.5e30 without saying what to do (an outside review);
+    the failure now points to NaN rows and rejection=True. A narrow but real lobe's
+    difference gets no such hint."""
+    def sample(u):
+        x, p = _good(u[:, 1:])
+        mirror = u[:, 0] < 0.3
+        x[mirror], p[mirror] = [0.0, 0.0, 1.0], 1e30
+        return x, np.where(mirror, p, 0.7 * p)
+
+    r = mv.check_pdf_consistency(sample, lambda x: 0.7 * _cos_pdf(x), sample_dim=3,
+                                 n_samples=2000, seed=4)
+    assert not r.passed
+    assert "delta lobe's stand-in: return such draws as rows of NaN and check with " \
+           "rejection=True" in r.failures[0], r.failures
+    r = mv.check_pdf_consistency(lambda u: (_cosine(u), 2.0 * _cos_pdf(_cosine(u))),
+                                 _cos_pdf, sample_dim=2, n_samples=2000, seed=4)
+    assert not r.passed and "stand-in" not in r.failures[0], r.failures
+
+
 def test_a_jacobian_missed_near_the_horizon_only_fails_with_its_count():
     def grazing(u):
         x, p = _good(u)
