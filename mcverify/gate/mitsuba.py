@@ -431,7 +431,11 @@ def read_exr(path: str) -> np.ndarray:
     try:
         a = np.array(mi.Bitmap(path), dtype=np.float64)
     except Exception as e:
-        raise EnvironmentProblem(f"{path}: cannot read image ({e})") from None
+        # one line, and short: a partly written file's error carried Mitsuba's whole
+        # FileStream[...] dump (an outside review)
+        why = " ".join(str(e).split())
+        why = why if len(why) <= 300 else why[:300] + " ..."
+        raise EnvironmentProblem(f"{path}: cannot read image ({why})") from None
     return a[:, :, None] if a.ndim == 2 else a
 
 

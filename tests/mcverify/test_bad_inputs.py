@@ -472,6 +472,25 @@ def test_exr_bad(sandbox, name, exc, needle):
     assert snapshot(sandbox) == before
 
 
+def test_an_unreadable_images_reason_is_one_short_line(tmp_path, monkeypatch):
+    """A partly written EXR's reason carried Mitsuba's whole FileStream[...] dump over
+    many lines (an outside review): it is one line, cut at 300 characters."""
+    from mcverify.gate import mitsuba as mvm
+
+    class _Mi:
+        class Bitmap:
+            def __init__(self, path):
+                raise RuntimeError("read failed\n  FileStream[\n" + "    x = 1,\n" * 200 + "]")
+
+    monkeypatch.setattr(mvm, "_mi", lambda: _Mi)
+    with pytest.raises(EnvironmentProblem) as info:
+        mvm.read_exr(str(tmp_path / "cut.exr"))
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith(f"{tmp_path / 'cut.exr'}: cannot read image "
+                                              "(read failed FileStream[ x = 1,"), msg
+    assert len(msg) < 300 + len(str(tmp_path)) + 40 and msg.endswith(" ...)"), msg
+
+
 def test_precheck_scene_without_integrator(sandbox):
     with pytest.raises(InvalidArgument, match="no-integrator.xml: no <integrator>"):
         reference.precheck_scene(str(sandbox / "scenes" / "no-integrator.xml"))
