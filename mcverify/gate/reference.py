@@ -646,6 +646,8 @@ class _Job:
                 f"{self.path}: Mitsuba's image is not finite (NaN or inf) in "
                 f"{int(bad.any(axis=(0, 3)).sum())} pixel(s), the first in pass {k + 1} at "
                 f"x={x}, y={y}: {cause}; no reference written")
+        var = imgs.var(axis=0, ddof=1)
+        _check_variance_fits(self.path, var, imgs)
         # What Mitsuba rendered: a stratified sampler rounds 33 spp up to 36, and the
         # render gate pairs passes of equal spp where the filter splats (a probe found
         # the manifest saying 33)
@@ -656,8 +658,25 @@ class _Job:
                               mitsuba_version=mvm.mitsuba_version(), mitsuba_variant=variant,
                               shape=list(imgs.shape[1:]), rfilter_radius=radius,
                               params={k: str(v) for k, v in (self.params or {}).items()})
-        return Reference(self.name, imgs.mean(axis=0), imgs.var(axis=0, ddof=1),
-                         len(self.seeds), manifest, imgs)
+        return Reference(self.name, imgs.mean(axis=0), var, len(self.seeds), manifest, imgs)
+
+
+def _check_variance_fits(path: str, var: np.ndarray, imgs: np.ndarray) -> None:
+    """Refuse a reference whose per-pixel variance across passes is beyond float32's
+    range, in which ``var.exr`` stores it: finite pass values above about 1.8e19 (an area
+    light of radiance 1e30) have a variance of 1e60, which was written as infinity (numpy
+    warning of an overflow in the cast), reported built, and then refused by
+    ``render-check`` as containing NaN/Inf with a rebuild command that built the same."""
+    over = ~(var <= np.finfo(np.float32).max)
+    if not over.any():
+        return
+    y, x, c = np.argwhere(over)[0]
+    raise InvalidArgument(
+        f"{path}: the variance across Mitsuba's passes is beyond float32's range "
+        f"(3.4e38), in which var.exr stores it, in {int(over.any(axis=2).sum())} pixel(s), "
+        f"the first at x={x}, y={y} (channel {c}: {var[y, x, c]:.3g}; pass values up to "
+        f"{np.abs(imgs).max():.3g}): scale the scene's emitters down so that its pixels "
+        "stay below about 1e19; no reference written")
 
 
 #: Most samples per pixel of one Mitsuba pass: ``mi.render`` takes a 32-bit unsigned spp

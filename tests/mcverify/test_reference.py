@@ -796,6 +796,39 @@ def test_a_scene_mitsuba_renders_infinite_is_refused_before_writing(tmp_path):
     assert reference.load_reference(str(scene)).n == 2
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_variance_beyond_float32_is_refused_before_writing(tmp_path):
+    """An outside review: an area light of radiance 1e30 renders finite pixels (about
+    1e29), but their variance across passes, about 1e58, is beyond float32's range: var.exr
+    was written as infinity (numpy warning of an overflow in the cast), the build said
+    'built', and render-check then refused the reference as containing NaN/Inf with a
+    rebuild command that built the same. Now the build names the pixel and writes
+    nothing; a light of 1e15 (a variance near 1e28) builds."""
+    from mcverify.errors import InvalidArgument
+
+    scene = tmp_path / "scene.xml"
+    text = """<scene version="3.0.0"><integrator type="path"/>
+  <sensor type="perspective"><transform name="to_world"><lookat origin="0, 0, 4"
+    target="0, 0, 0" up="0, 1, 0"/></transform><film type="hdrfilm">
+    <integer name="width" value="4"/><integer name="height" value="4"/>
+    <rfilter type="box"/></film></sensor>
+  <shape type="rectangle"><transform name="to_world"><scale value="3"/></transform>
+    <bsdf type="diffuse"/></shape>
+  <shape type="sphere"><point name="center" x="0" y="0" z="3"/><float name="radius"
+    value="0.3"/><emitter type="area"><rgb name="radiance" value="{}"/></emitter></shape>
+</scene>"""
+    scene.write_text(text.format("1e30"))
+    with pytest.raises(InvalidArgument, match=r"scene\.xml: the variance across Mitsuba's "
+                                              r"passes is beyond float32's range .* the "
+                                              r"first at x=\d+, y=\d+ .*no reference "
+                                              r"written"):
+        reference.build_reference(str(scene), spp=4, passes=2)
+    assert sorted(os.listdir(tmp_path)) == ["scene.xml"]
+    scene.write_text(text.format("1e15"))
+    reference.build_reference(str(scene), spp=4, passes=2)
+    assert np.isfinite(reference.load_reference(str(scene)).var).all()
+
+
 def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(tmp_path):
     """An outside review: ``reference build`` of a scene whose bitmap holds a NaN texel
     (Mitsuba renders NaN pixels from it) blamed 'a radiance, intensity, irradiance or scale
