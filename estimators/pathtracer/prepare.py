@@ -502,6 +502,14 @@ class _Builder:
                 i[layout.BSDF_DISTRIBUTION] = self._distribution(plugin)
                 alpha = self._alpha(plugin)[0]      # isotropic: the loader takes no
                 f[layout.ALPHA] = f[layout.ALPHA_V] = alpha     # alpha_u on a plastic
+                if alpha >= 2.0 ** 64:
+                    # Mitsuba's coat squares it in float32: alpha 2e19 evaluated to NaN
+                    # (Beckmann; GGX from about 1e35) and the reference build blamed an
+                    # emitter's value beyond float32's range, which the scene had none of
+                    self.fail(plugin, f"alpha = {alpha:g}: a rough plastic's roughness "
+                                      "must be below 2^64 (1.8e19), beyond which Mitsuba's "
+                                      "float32 alpha² overflows and its coat evaluates to "
+                                      "NaN (Beckmann; GGX from about 1e35)")
                 table, internal = rough_coat_tables(alpha, int(i[layout.BSDF_DISTRIBUTION]), eta)
                 f[layout.COAT_TABLE:layout.COAT_TABLE + layout.COAT_TABLE_RES] = table
                 f[layout.COAT_INTERNAL] = internal
