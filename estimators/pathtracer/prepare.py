@@ -550,11 +550,30 @@ class _Builder:
         if getattr(plugin.get("normalmap"), "type", None) != "bitmap":
             self.fail(plugin, "normalmap must be a bitmap texture")
         _, tex[0], _ = self._colour(plugin, "normalmap", 0.5)
+        self._normals_fit(plugin, self.textures.images[tex[0]])
         i[layout.NORMALMAP_FLIP_INVALID] = int(bool(plugin.get("flip_invalid_normals", True)))
         i[layout.NORMALMAP_SHADOWING] = int(bool(plugin.get("use_shadowing_function", True)))
         i[layout.BSDF_CHILD0] = self._bsdf_row(nested[0], 0, "normalmap")
         i[layout.BSDF_FRAME] = 1
         self.features |= FEATURE_BITS["shading:frame"]
+
+    def _normals_fit(self, plugin: Plugin, img: np.ndarray) -> None:
+        """Refuse a normal map texel whose normal 2 v - 1 has a squared length beyond
+        float32's range: Mitsuba's LLVM variant normalises it as n / sqrt(n · n) in
+        float32, where n · n overflows and the normal comes out 0 (texels of 1e19 and 1e30
+        rendered black there, and up to 94 % brighter in ours, which normalises in
+        float64)."""
+        square = np.sum((2.0 * img - 1.0) ** 2, axis=2)
+        over = ~(square < np.finfo(np.float32).max)
+        if over.any():
+            y, x = np.argwhere(over)[0]
+            tex = plugin.get("normalmap")
+            self.fail(tex, f"{tex.get('filename')}: texel (row {y}, column {x}) is "
+                           f"{', '.join(f'{c:g}' for c in img[y, x])}, a normal 2 v - 1 "
+                           "whose squared length is beyond float32's range (3.4e38), in "
+                           "which Mitsuba normalises it (the normal comes out 0 and the "
+                           f"surface black); {int(over.sum())} texel(s) are so: keep each "
+                           "channel's magnitude below 9e18")
 
     # ------------------------------------------------------------------ shapes
     def _triangles(self, verts, faces, normals=None, uvs=None):

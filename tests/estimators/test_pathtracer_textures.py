@@ -280,6 +280,45 @@ def test_an_image_with_texels_that_are_not_finite_is_refused(mi, tmp_path, where
         prepare_scene(str(path))
 
 
+@pytest.mark.parametrize("texel, refused", [((1e30, 0.5, 1.0), True), ((1e19, 0.5, 1.0), True),
+                                           ((9e18, 0.5, 1.0), False)])
+def test_a_normal_map_texel_whose_square_overflows_float32_is_refused(mi, tmp_path, texel,
+                                                                      refused):
+    """An outside review: a normal map with texels of 1e30 (or 1e19) in x loaded; Mitsuba's
+    LLVM variant normalises 2 v - 1 in float32, where its square overflows and the normal
+    comes out 0: black there, up to 94 % brighter in ours (float64), and render-check
+    failed a scene that could not be matched. Such a texel is now refused, naming the file
+    and the texel; 9e18, whose square fits, loads."""
+    import drjit as dr
+    from mcverify.gate import mitsuba as mvm
+
+    # Mitsuba's reference variant: there n / sqrt(n · n) is 0 once n · n overflows
+    lv = mvm._mi()
+    n = np.array(dr.normalize(lv.Vector3f(*(2.0 * float(c) - 1.0 for c in texel))),
+                 dtype=np.float64)
+    mi.set_variant("scalar_rgb")
+    assert (n == 0).all() == refused, n
+    img = np.full((4, 6, 3), 0.5, np.float32)
+    img[..., 2] = 1.0
+    img[2, 3] = texel
+    mi.Bitmap(img).write(str(tmp_path / "n.exr"))
+    path = tmp_path / "scene.xml"
+    path.write_text("""<scene version="3.0.0">
+  <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="4"/>
+    <integer name="height" value="4"/><rfilter type="box"/></film></sensor>
+  <shape type="rectangle"><bsdf type="normalmap"><texture type="bitmap" name="normalmap">
+    <string name="filename" value="n.exr"/><boolean name="raw" value="true"/></texture>
+    <bsdf type="diffuse"/></bsdf></shape>
+</scene>""")
+    if refused:
+        with pytest.raises(SceneError, match=r"n\.exr: texel \(row 2, column 3\) is .*a "
+                                             r"normal 2 v - 1 whose squared length is beyond "
+                                             r"float32's range .*1 texel\(s\) are so"):
+            prepare_scene(str(path))
+    else:
+        prepare_scene(str(path))
+
+
 # ----------------------------------------------------------- uv at a hit, per shape
 _QUAD = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n" \
         "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
