@@ -256,6 +256,13 @@ def perceptual_metrics(test, ref) -> tuple[dict, dict]:
     return details, {k: m for k, m in maps.items() if m is not None}
 
 
+def _percent(r: float, spec: str) -> str:
+    """``r`` as a percentage in ``spec``, or in three significant digits from 10^6 % on:
+    a test image holding a 1e30 firefly against a reference of 0.5 printed its block as
+    "+200000000000000005366162204393472.0%" (an outside review)."""
+    return format(r, spec) if abs(r) < 1e4 else f"{100 * r:+.3g}%"
+
+
 def _values(v) -> str:
     """A pixel's channels to 6 significant digits (4 decimals printed a pixel 0.02 % off as
     equal to its reference)."""
@@ -547,7 +554,7 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
     if found:
         # relative to the reference's mean, unless that is 0 (a black reference: the
         # ratio to 1e-300 printed a 300-digit percentage)
-        rel = (f"{diff.mean() / abs(rm.mean()):+.2%}" if rm.mean() != 0
+        rel = (_percent(diff.mean() / abs(rm.mean()), "+.2%") if rm.mean() != 0
                else "the reference's mean is 0")
         messages.append(f"found by {', '.join(found)}: image mean differs by "
                         f"{diff.mean():+.4g} ({rel})"
@@ -559,8 +566,8 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
             y, x = b["pixels"]
             # two significant digits below 0.1 %: a precise block 0.02 % off printed +0.0%
             d = b["relative_difference"]
-            off = ("against a reference of 0" if not math.isfinite(d) else f"{d:+.1%}"
-                   if abs(d) >= 0.00095 else f"{100 * d:+.2g}%")
+            off = ("against a reference of 0" if not math.isfinite(d) else
+                   _percent(d, "+.1%") if abs(d) >= 0.00095 else f"{100 * d:+.2g}%")
             messages.append(f"clearest block: pixels y {y}-{min(y + b['side'], h) - 1}, "
                             f"x {x}-{min(x + b['side'], w) - 1}, channel {b['channel']}, "
                             f"{off}")

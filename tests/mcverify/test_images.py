@@ -275,6 +275,23 @@ def test_a_black_reference_s_message_gives_no_percentage():
     assert "(+10.00%)" in lit.messages[0], lit.messages
 
 
+def test_a_huge_relative_difference_is_printed_in_a_few_digits():
+    """An outside review: a test image with a firefly block of 1e30 against a reference
+    of 0.5 (a float32 EXR holds it) printed the image mean's and the block's difference
+    as percentages of 30-odd digits ("+200000000000000005366162204393472.0%"). From
+    10^6 % on they are now printed in three significant digits."""
+    ref = np.full((16, 16, 3), 0.5)
+    v = np.full_like(ref, 1e-4)
+    test = ref.copy()
+    test[:8, :8] = 1e30
+    r = mv.compare_images(test, ref, test_var=v, ref_var=v, test_n=4, ref_n=4,
+                          perceptual=False)
+    assert not r.passed
+    text = " ".join(r.messages)
+    assert "(+5e+31%)" in text and "channel 0, +2e+32%" in text, text
+    assert not re.search(r"\d{12}", text), text
+
+
 def test_local_ten_percent_bias_is_found_by_blocks_at_the_right_place():
     local = (slice(16, 24), slice(8, 16), slice(None))
     r = mv.compare_images(**_pair(np.random.default_rng(2), 2.0, 64, local=local))
