@@ -770,6 +770,21 @@ def test_a_missing_mcverify_refs_is_named(tmp_path):
     assert r.returncode == 0, r.stderr
 
 
+def _refused_then_built(scene, text, bad, good, match):
+    """``text`` with the radiance ``bad`` is refused by the build (``match``), nothing
+    written beside the scene; with ``good`` it builds a finite reference of 2 passes."""
+    from mcverify.errors import InvalidArgument
+
+    scene.write_text(text.format(bad))
+    with pytest.raises(InvalidArgument, match=match):
+        reference.build_reference(str(scene), spp=4, passes=2)
+    assert sorted(os.listdir(scene.parent)) == [scene.name]
+    scene.write_text(text.format(good))
+    reference.build_reference(str(scene), spp=4, passes=2)
+    built = reference.load_reference(str(scene))
+    assert built.n == 2 and np.isfinite(built.mean).all() and np.isfinite(built.var).all()
+
+
 @pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_a_scene_mitsuba_renders_infinite_is_refused_before_writing(tmp_path):
     """An outside review: a constant sky of radiance 1e39, beyond float32's range, is
@@ -777,23 +792,15 @@ def test_a_scene_mitsuba_renders_infinite_is_refused_before_writing(tmp_path):
     variance) and render-check then refused it as containing NaN/Inf with a rebuild
     command that built the same. Now the build says what Mitsuba rendered and writes
     nothing; a sky of 1e37, whose samples' sum stays within the range, builds."""
-    from mcverify.errors import InvalidArgument
-
     scene = tmp_path / "sky.xml"
     text = """<scene version="3.0.0"><integrator type="path"/>
   <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="4"/>
     <integer name="height" value="4"/><rfilter type="box"/></film></sensor>
   <emitter type="constant"><rgb name="radiance" value="{}"/></emitter></scene>"""
-    scene.write_text(text.format("1e39"))
-    with pytest.raises(InvalidArgument, match=r"sky\.xml: Mitsuba's image is not finite "
-                                              r"\(NaN or inf\) in 16 pixel\(s\), the first "
-                                              r"in pass 1 at x=0, y=0: .*beyond float32's "
-                                              r"range .*no reference written"):
-        reference.build_reference(str(scene), spp=4, passes=2)
-    assert sorted(os.listdir(tmp_path)) == ["sky.xml"]
-    scene.write_text(text.format("1e37"))
-    reference.build_reference(str(scene), spp=4, passes=2)
-    assert reference.load_reference(str(scene)).n == 2
+    _refused_then_built(scene, text, "1e39", "1e37",
+                        r"sky\.xml: Mitsuba's image is not finite \(NaN or inf\) in 16 "
+                        r"pixel\(s\), the first in pass 1 at x=0, y=0: .*beyond float32's "
+                        r"range .*no reference written")
 
 
 @pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -804,8 +811,6 @@ def test_a_variance_beyond_float32_is_refused_before_writing(tmp_path):
     'built', and render-check then refused the reference as containing NaN/Inf with a
     rebuild command that built the same. Now the build names the pixel and writes
     nothing; a light of 1e15 (a variance near 1e28) builds."""
-    from mcverify.errors import InvalidArgument
-
     scene = tmp_path / "scene.xml"
     text = """<scene version="3.0.0"><integrator type="path"/>
   <sensor type="perspective"><transform name="to_world"><lookat origin="0, 0, 4"
@@ -817,16 +822,9 @@ def test_a_variance_beyond_float32_is_refused_before_writing(tmp_path):
   <shape type="sphere"><point name="center" x="0" y="0" z="3"/><float name="radius"
     value="0.3"/><emitter type="area"><rgb name="radiance" value="{}"/></emitter></shape>
 </scene>"""
-    scene.write_text(text.format("1e30"))
-    with pytest.raises(InvalidArgument, match=r"scene\.xml: the variance across Mitsuba's "
-                                              r"passes is beyond float32's range .* the "
-                                              r"first at x=\d+, y=\d+ .*no reference "
-                                              r"written"):
-        reference.build_reference(str(scene), spp=4, passes=2)
-    assert sorted(os.listdir(tmp_path)) == ["scene.xml"]
-    scene.write_text(text.format("1e15"))
-    reference.build_reference(str(scene), spp=4, passes=2)
-    assert np.isfinite(reference.load_reference(str(scene)).var).all()
+    _refused_then_built(scene, text, "1e30", "1e15",
+                        r"scene\.xml: the variance across Mitsuba's passes is beyond "
+                        r"float32's range .* the first at x=\d+, y=\d+ .*no reference written")
 
 
 def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(tmp_path):

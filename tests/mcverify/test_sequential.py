@@ -319,6 +319,21 @@ def test_false_alarm_rate_of_sequential_check_sampler():
     assert rejected <= stats.binomial_upper_bound(n, alpha, 0.999), rejected
 
 
+def _biased_and_fine(bias):
+    """A sequential check of a bias (16 batches of 1000 normal values), a plain check of
+    none, and the batches' seeds."""
+    ss = np.random.SeedSequence(16).generate_state(16)
+
+    def biased(seed, stop_alpha=None):
+        return mv.check_unbiased(lambda b: np.random.default_rng(ss[b]).normal(bias, 1, 1000),
+                                 0.0, batches=16, stop_alpha=stop_alpha, name="biased")
+
+    def fine(seed):
+        return mv.check_unbiased(np.random.default_rng(seed).normal(0, 1, 1000), 0.0)
+
+    return biased, fine, ss
+
+
 def test_a_users_sequential_check_that_stops_above_the_suites_level_is_not_passed():
     """A user's check_unbiased(batches=16) in a Check without ``sequential=True`` stops
     at its own α = 0.01, not at the α/m = 0.0025 the suite's Holm must reach: a 2.8 %
@@ -326,15 +341,7 @@ def test_a_users_sequential_check_that_stops_above_the_suites_level_is_not_passe
     (all 16 batches: p = 6.4e-6, rejected). Declared sequential, it stops at α/m."""
     from mcverify.gate.suites import Check, run_suite
 
-    ss = np.random.SeedSequence(16).generate_state(16)
-
-    def biased(seed, stop_alpha=None):
-        return mv.check_unbiased(lambda b: np.random.default_rng(ss[b]).normal(0.028, 1, 1000),
-                                 0.0, batches=16, stop_alpha=stop_alpha, name="biased")
-
-    def fine(seed):
-        return mv.check_unbiased(np.random.default_rng(seed).normal(0, 1, 1000), 0.0)
-
+    biased, fine, ss = _biased_and_fine(0.028)
     once = mv.check_unbiased(np.concatenate(
         [np.random.default_rng(ss[b]).normal(0.028, 1, 1000) for b in range(16)]), 0.0)
     assert once.p_value < 0.01 / 4
@@ -362,14 +369,7 @@ def test_k_changes_no_sequential_checks_result(tmp_path):
     from mcverify.gate import cli
     from mcverify.gate.suites import Check
 
-    ss = np.random.SeedSequence(16).generate_state(16)
-
-    def biased(seed, stop_alpha=None):
-        return mv.check_unbiased(lambda b: np.random.default_rng(ss[b]).normal(0.03, 1, 1000),
-                                 0.0, batches=16, stop_alpha=stop_alpha, name="biased")
-
-    def fine(seed):
-        return mv.check_unbiased(np.random.default_rng(seed).normal(0, 1, 1000), 0.0)
+    biased, fine, _ = _biased_and_fine(0.03)
 
     mod = types.ModuleType("k_selection_suite")
     mod.suite = [Check("biased", biased, sequential=True)] + [
