@@ -773,7 +773,7 @@ def _where_pdf_is_zero(pdf, dom: Domain, pilot_s, pilot_x):
     points took 3 ms, a sixth of a repeated 1M check."""
     if pilot_s is None or not pilot_s.shape[0]:
         return 0, None
-    idx = np.flatnonzero(validate.values("pdf", pdf(pilot_x), pilot_s.shape[0]) == 0)
+    idx = np.flatnonzero(_screening_pdf(pdf, dom, pilot_s, pilot_x) == 0)
     if idx.size:
         idx = idx[validate.values("pdf", pdf(dom.to_point(pilot_s[idx])), idx.size) == 0]
     for j in range(pilot_s.shape[1]):
@@ -784,6 +784,21 @@ def _where_pdf_is_zero(pdf, dom: Domain, pilot_s, pilot_x):
             s[:, j] = np.clip(s[:, j] + step, 0.0, 1.0)
             idx = idx[validate.values("pdf", pdf(dom.to_point(s)), idx.size) == 0]
     return idx.size, (dom.to_point(pilot_s[idx[:1]])[0] if idx.size else None)
+
+
+def _screening_pdf(pdf, dom: Domain, pilot_s, pilot_x):
+    """The pdf at the pilot's points as drawn, in float64 (the pdf's other calls get
+    float64 points: a float32 row reached a pdf compiled for float64 only, a TypeError,
+    and a read-only review found it), numpy's floating-point warnings off (a drawn point
+    may lie just outside the domain, within its tolerance: arccos(1.0000001)); where the
+    pdf cannot take the drawn points, at the points of their parameters. A screen only:
+    ``_where_pdf_is_zero`` reads the pdf again at those points before it flags one."""
+    n = pilot_s.shape[0]
+    try:
+        with np.errstate(all="ignore"):
+            return validate.values("pdf", pdf(np.asarray(pilot_x, dtype=np.float64)), n)
+    except Exception:      # noqa: BLE001 - the mapped points are the pdf's own domain
+        return validate.values("pdf", pdf(dom.to_point(pilot_s)), n)
 
 
 def _default_resolution(dom: Domain, n: int) -> tuple[int, ...]:

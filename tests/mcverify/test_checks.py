@@ -2,6 +2,7 @@
 
 import warnings
 
+import numba
 import numpy as np
 import pytest
 from scipy import stats as scipy_stats
@@ -82,6 +83,19 @@ def test_samples_where_pdf_integrates_to_zero():
                          n_samples=50_000)
     assert not r.passed
     assert any("integrates to 0" in f for f in r.failures)
+
+
+def test_a_float32_sampler_with_a_pdf_compiled_for_float64_points_passes():
+    """The zero-density screen read the pdf at the pilot's points as drawn, float32 here,
+    and a pdf compiled for float64 rows only raised numba's TypeError where the check had
+    passed (a read-only review); it reads them in float64."""
+    @numba.njit("float64[:](float64[:, ::1])")
+    def pdf(x):
+        return 2.0 * x[:, 0]
+
+    r = mv.check_sampler(lambda u: np.sqrt(u).astype(np.float32), pdf, "interval",
+                         n_samples=100_000, seed=1)
+    assert r.passed, r.summary()
 
 
 def test_samples_where_the_pdf_is_zero_fail_where_their_cell_has_mass():
