@@ -523,8 +523,8 @@ def loglog_slope(ns, sq_errors, *, expected: float, alternative: str = "two-side
 
     ``alternative="two-sided"`` tests ``slope == expected``; ``"less"`` gives
     ``P(T <= t)``, small where the slope is significantly steeper than ``expected``
-    (``check_convergence`` uses ``1 -`` that: its claim "at least as steep" fails where
-    the slope is significantly shallower).
+    (``check_convergence`` uses the upper tail, ``t_upper_tail``: its claim "at least as
+    steep" fails where the slope is significantly shallower).
     """
     ns = np.asarray(ns, dtype=np.float64)
     e2 = np.asarray(sq_errors, dtype=np.float64)

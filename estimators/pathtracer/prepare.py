@@ -572,8 +572,9 @@ class _Builder:
                            f"{', '.join(f'{c:g}' for c in img[y, x])}, a normal 2 v - 1 "
                            "whose squared length is beyond float32's range (3.4e38), in "
                            "which Mitsuba normalises it (the normal comes out 0 and the "
-                           f"surface black); {int(over.sum())} texel(s) are so: keep each "
-                           "channel's magnitude below 9e18")
+                           f"surface black); {int(over.sum())} texel(s) are so: keep the "
+                           "squared length of 2 v - 1 below 3.4e38 (each channel below "
+                           "about 5e18)")
 
     # ------------------------------------------------------------------ shapes
     def _triangles(self, verts, faces, normals=None, uvs=None):

@@ -13,7 +13,6 @@ import contextlib
 import dataclasses
 import json
 import os
-import shlex
 import signal
 import sys
 import threading
@@ -888,8 +887,8 @@ def _cmd_compare(args) -> int:
         if correlated and ref_passes is None:
             raise EnvironmentProblem(f"{ref_image}: the reference has no pass images (built "
                                      "before passes.exr was stored), which correlated pixels "
-                                     "need; run `mcverify reference build "
-                                     f"{shlex.quote(ref_image)}`")
+                                     "need; " + reference.rebuild_advice(
+                                         *reference.resolve_scene(ref_image), r.manifest))
     elif correlated and args.ref_passes is None:
         raise InvalidArgument("--correlated: give the reference side's pass images "
                               "(--ref-passes GLOB) or a reference name")

@@ -673,10 +673,11 @@ def _check_variance_fits(path: str, var: np.ndarray, imgs: np.ndarray) -> None:
     y, x, c = np.argwhere(over)[0]
     raise InvalidArgument(
         f"{path}: the variance across Mitsuba's passes is beyond float32's range "
-        f"(3.4e38), in which var.exr stores it, in {int(over.any(axis=2).sum())} pixel(s), "
+        f"(3.4e38), in which a reference stores it (var.exr), in "
+        f"{int(over.any(axis=2).sum())} pixel(s), "
         f"the first at x={x}, y={y} (channel {c}: {var[y, x, c]:.3g}; pass values up to "
         f"{np.abs(imgs).max():.3g}): scale the scene's emitters down so that its pixels "
-        "stay below about 1e19; no reference written")
+        "stay below about 1e19; nothing written")
 
 
 #: Most samples per pixel of one Mitsuba pass: ``mi.render`` takes a 32-bit unsigned spp

@@ -533,7 +533,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # our tracer's settings, silently ignored for a renderer of one's own until 7
         # December (an outside review): it is called once, with spp
         for what, value, default in (("passes", passes, 16), ("pdf_scale", pdf_scale, 1.0),
-                                     ("plant", plant, None)):
+                                     ("plant", plant or None, None)):
             if value != default:
                 raise InvalidArgument(f"{what}={value!r}: applies to our path tracer only; "
                                       "a renderer of your own is called once, "
@@ -556,9 +556,6 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             raise InvalidArgument(f"spp={spp}, passes={passes}: {spp // passes} samples per "
                                   "pass; the gate takes fewer than 2^31 a pass (our "
                                   "tracer's stratified samplers cannot take more)")
-    elif pdf_scale != 1.0 or plant:
-        raise InvalidArgument("pdf_scale/plant: planted bugs are hooks of our path tracer; "
-                              "they cannot be applied to a renderer= of your own")
     elif params:
         raise InvalidArgument(f"params={params!r}: a renderer of your own is called as "
                               "renderer(scene_path, spp, seed) and cannot take them (the "

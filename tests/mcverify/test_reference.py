@@ -824,7 +824,7 @@ def test_a_variance_beyond_float32_is_refused_before_writing(tmp_path):
 </scene>"""
     _refused_then_built(scene, text, "1e30", "1e15",
                         r"scene\.xml: the variance across Mitsuba's passes is beyond "
-                        r"float32's range .* the first at x=\d+, y=\d+ .*no reference written")
+                        r"float32's range .* the first at x=\d+, y=\d+ .*nothing written")
 
 
 def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(tmp_path):
