@@ -1008,15 +1008,19 @@ def _cmd_render_check(args) -> int:
 
 def _print_visibility(d: dict) -> None:
     """How visible the difference is (decides nothing): ΔE2000, ΔE ITP, HDR-FLIP."""
+    from ..checks.image import FLIP_MIN_LUMINANCE
+
     if d.get("flip_mean") is not None:
         print(f"    how visible: mean ΔE2000 {d['delta_e2000_mean']:.3g}, mean ΔE ITP "
               f"{d['delta_e_itp_mean']:.3g}, mean HDR-FLIP {d['flip_mean']:.3g} "
               f"(99th percentiles {d['delta_e2000_p99']:.3g}, {d['delta_e_itp_p99']:.3g}, "
               f"{d['flip_p99']:.3g})")
     elif d.get("delta_e2000_mean") is not None:
+        # "the reference is black" was said of a negative image too (an outside review)
         print(f"    how visible: mean ΔE2000 {d['delta_e2000_mean']:.3g}, mean ΔE ITP "
               f"{d['delta_e_itp_mean']:.3g} (99th percentiles {d['delta_e2000_p99']:.3g}, "
-              f"{d['delta_e_itp_p99']:.3g}); HDR-FLIP not measured: the reference is black")
+              f"{d['delta_e_itp_p99']:.3g}); HDR-FLIP not measured: no reference pixel "
+              f"reaches luminance {FLIP_MIN_LUMINANCE:g} (negative values count as 0)")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -558,3 +558,19 @@ def test_the_image_memory_guard_counts_what_a_comparison_takes(perceptual, k):
     each = image._BYTES_PER_PIXEL + image._PERCEPTUAL_BYTES_PER_PIXEL * perceptual \
         + image._PASS_BYTES_PER_PIXEL * 2 * k
     assert peak <= 256 * 256 * each, (peak / 256 ** 2, each)
+
+
+def test_a_negative_reference_is_not_called_black(capsys):
+    """A scene of negative radiance (both renderers agree) printed "HDR-FLIP not measured:
+    the reference is black" (an outside review): FLIP reads negative values as 0, and the
+    line now says that no pixel reaches its luminance threshold."""
+    from mcverify.checks.image import perceptual_metrics
+    from mcverify.gate.cli import _print_visibility
+
+    ref = -np.full((8, 8, 3), 0.5)
+    details, _ = perceptual_metrics(ref * 1.01, ref)
+    assert details["flip_mean"] is None and details["delta_e2000_mean"] is not None
+    _print_visibility(details)
+    out = capsys.readouterr().out
+    assert "black" not in out and "no reference pixel reaches luminance 1e-06 " \
+        "(negative values count as 0)" in out, out
