@@ -383,12 +383,11 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     seeds = np.random.SeedSequence(validate.seed("seed", seed)).generate_state(r * len(ns))
     _takes("estimate", estimate, (1, 2), "(n, seed), the sample count and a seed, and "
            "return one estimate")
-    e2 = np.empty((len(ns), r))
+    values = np.empty((len(ns), r))
     for i, n in enumerate(ns):
         for j in range(r):
-            e2[i, j], rj = _estimate(estimate, n, int(seeds[i * r + j]))
+            values[i, j], rj = _estimate(estimate, n, int(seeds[i * r + j]))
             rounding = max(rounding, rj)
-    values = e2.copy()
     with np.errstate(over="ignore", invalid="ignore"):
         err = values - expected
     failures = []

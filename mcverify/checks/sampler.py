@@ -942,6 +942,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     # 1-D: a fine histogram (each cell split in KS_SPLIT) serves the binned KS test; the
     # χ² counts are its sums.
     hist_edges, starts = _fine_edges(dom, edges, dtype) if m == 1 else (edges, None)
+    merge_notes = _merge_note(dom, pilot_s, pilot_edges, edges, res, dtype)   # once
     hist = _Histogram(dom, hist_edges, rejection=rejection)
     density = _Density(pdf, dom)
     integrated: list = []
@@ -1022,8 +1023,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                 failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain, "
                                 f"not 1 (quadrature error bound {err_bound:.2g}){hint}")
             expected = mass * n_valid
-        messages = []
-        messages += _merge_note(dom, pilot_s, pilot_edges, edges, res, dtype)
+        messages = list(merge_notes)
         if unconverged:
             # a thin leaf's nested line integrals count one each
             messages.append(f"quadrature stopped at its depth limit on {unconverged} leaves "

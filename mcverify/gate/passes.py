@@ -62,8 +62,8 @@ def colour_channels(path: str) -> list[str]:
     layers = {c.rpartition(".")[0] for c in colour}
     # two alphas (R G B A diffuse.A) passed here and ended in the shape error this
     # check is for (a read-only review)
-    if len(layers) != 1 or {c.rpartition(".")[2].upper() for c in colour} not in COLOURS \
-            or len(names) - len(colour) > 1:
+    kinds = {reference.channel_name(c).upper() for c in colour}
+    if len(layers) != 1 or kinds not in COLOURS or len(names) - len(colour) > 1:
         raise InvalidArgument(f"{path}: channels {', '.join(names)}: give one layer's "
                               "colour, R, G, B or Y (an alpha beside it is ignored); other "
                               "channels (depth, a second layer, XYZ) are not compared: "

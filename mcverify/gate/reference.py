@@ -420,10 +420,15 @@ def _whole(path: str, windows: dict) -> None:
                               "image, not cropped (autocrop) or with an overscan")
 
 
+def channel_name(channel: str) -> str:
+    """An OpenEXR channel's name without its layer (``beauty.R`` -> ``R``)."""
+    return channel.rpartition(".")[2]
+
+
 def is_alpha(channel: str) -> bool:
     """An OpenEXR alpha channel (``A``, or a layer's ``beauty.A``; either case, as the
     colour channels are read): not compared."""
-    return channel.rpartition(".")[2] in ("A", "a")
+    return channel_name(channel) in ("A", "a")
 
 
 def _lossless(path: str, compression: int, channels: dict[str, str]) -> None:
@@ -432,7 +437,7 @@ def _lossless(path: str, compression: int, channels: dict[str, str]) -> None:
     renderer's."""
     codec, changed = _EXR_LOSSY.get(compression, (None, ()))
     lossy = sorted(c for c, t in channels.items() if t in changed and not is_alpha(c) and (
-        not codec.startswith("DWA") or c.rsplit(".", 1)[-1].upper() in _DWA_LOSSY))
+        not codec.startswith("DWA") or channel_name(c).upper() in _DWA_LOSSY))
     if lossy:
         raise InvalidArgument(f"{path}: {codec} compression is lossy for its channels "
                               f"{', '.join(lossy)}; its error would be taken for the "

@@ -539,7 +539,13 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                                       "a renderer of your own is called once, "
                                       "renderer(scene_path, spp, seed), and returns its "
                                       "mean, variance and n")
-    if ours:
+        if params:
+            raise InvalidArgument(f"params={params!r}: a renderer of your own is called as "
+                                  "renderer(scene_path, spp, seed) and cannot take them "
+                                  "(the reference would be rendered with them, your image "
+                                  "without); write them into a copy of the scene (its "
+                                  "<default> values)")
+    else:
         if spp % passes:    # the passes are equal: none of the spp may be dropped unsaid
             # the example is one the next check accepts: spp=100, passes=16 suggested 96,
             # 6 a pass, which was then refused as fewer than 32 a pass
@@ -556,11 +562,6 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             raise InvalidArgument(f"spp={spp}, passes={passes}: {spp // passes} samples per "
                                   "pass; the gate takes fewer than 2^31 a pass (our "
                                   "tracer's stratified samplers cannot take more)")
-    elif params:
-        raise InvalidArgument(f"params={params!r}: a renderer of your own is called as "
-                              "renderer(scene_path, spp, seed) and cannot take them (the "
-                              "reference would be rendered with them, your image without); "
-                              "write them into a copy of the scene (its <default> values)")
     name, path = reference.resolve_scene(scene)
     own_pool = pool is None
     pool = Pool() if own_pool else pool
