@@ -1322,6 +1322,8 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                 f"{dom.dim} coordinates per point on {dom!r}"
                 + ("; transposed? pass points.T" if x.shape[0] == dom.dim else ""))
         sides.append((label, validate.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
+    if all(seq is None for _, _, seq, _ in sides):
+        _shared_draws_iv(dom, sides[0][1], sides[1][1], rejection)
     res = res or _default_resolution(dom, min(size for *_, size in sides))
     # independent pilot draws of the sampler callables place the cells (a uniform grid
     # put all of a GGX lobe at α = 0.005 into one row: 10 % too wide passed)
@@ -1391,6 +1393,38 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
                        n_samples=size, seconds=time.perf_counter() - t0, details=details,
                        messages=tuple(messages), failures=tuple(failures),
                        artifacts={"histogram": histogram})
+
+
+#: Rows of two arrays of points closer than this in every parameter are the same draw
+#: (a float32 port of a warp lands within ~1e-7 of its float64 original), and how many
+#: leading rows are compared for it.
+SHARED_TOL, SHARED_ROWS = 2.0 ** -20, 1 << 16
+
+
+def _shared_draws_iv(dom, a, b, rejection: bool) -> None:
+    """Refuse two arrays of points drawn from the same random numbers (a seed reused for
+    the old and the new version): row i of each is then the same point wherever the
+    sampler did not change. The two-sample test needs independent sides; paired ones
+    pass a real change (a cosine warp's u0 1 % smaller for a quarter of u1, 200 000
+    points a side: p = 1 with the seed shared, 3e-7 with another; an outside review).
+    Rows i of a and i of b that coincide are counted against rows i of a and i + 1 of b
+    (as often, for independent draws, whatever the distribution's atoms), by an exact
+    binomial test at 1e-9."""
+    m = min(a.shape[0], b.shape[0], SHARED_ROWS)
+    if m < 3:
+        return
+    (sa, ta), (sb, tb) = (dom.classify(x[:m], rejection=rejection) for x in (a, b))
+    va, vb = ta == kernels.VALID, tb == kernels.VALID
+    close = np.all(np.abs(sa - sb) <= SHARED_TOL, axis=1) & va & vb
+    beside = np.all(np.abs(sa[:-1] - sb[1:]) <= SHARED_TOL, axis=1) & va[:-1] & vb[1:]
+    same, shifted = int(close[:-1].sum()), int(beside.sum())
+    if same > shifted and stats.binomial_test(same, same + shifted, 0.5).p_value <= 1e-9:
+        raise InvalidArgument(
+            f"sample_a and sample_b: {same} of their first {m - 1} rows are the same point "
+            f"(within {SHARED_TOL:.3g} in each of the domain's parameters), against {shifted} "
+            "rows i of sample_a and i + 1 of sample_b: drawn from the same random numbers "
+            "(one seed for both versions)? The test needs independent draws, and paired "
+            "ones let a real change pass: draw sample_b with another seed")
 
 
 def _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha, ks=None
