@@ -1308,12 +1308,18 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
             x = np.asarray(smp)
             if x.dtype == object:       # None entries would become NaN points
                 raise TypeError
-            x = x if x.dtype == np.float32 else x.astype(np.float64)
+            x = x if x.dtype in (np.float32, np.float16) else x.astype(np.float64)
         except (TypeError, ValueError):
             x = None
         if x is None or x.ndim not in (1, 2) or x.shape[0] < 2:
             raise InvalidArgument(f"{label}: must be a sampler callable or an array "
                                   f"of points (n, {dom.dim})")
+        if x.dtype == np.float16:
+            # read as float64, correct half points failed as "outside the sphere domain"
+            # where a sampler returning them is refused (an outside review)
+            raise InvalidArgument(f"{label}: an array of float16 points: judge float32 or "
+                                  "float64 ones (float16's 11-bit significand puts unit "
+                                  "vectors up to 1e-3 off the sphere, outside the domain)")
         if x.ndim == 2 and x.shape[1] != dom.dim:
             # validated against its own row count, a transposed (d, n) array was
             # "expected (3, 3)"

@@ -61,6 +61,11 @@ CASES = [
      "inverse returned dtype"),
     ("same-dist-array-of-none", lambda: mv.check_same_distribution(
         np.full((100, 2), None), S, "square", n_samples=100), "sample_a: must be"),
+    # half points saved from a GPU buffer: read as float64, a correct unit-vector sampler
+    # failed with 95 % of them "outside the sphere domain" (7 December)
+    ("same-dist-float16-array", lambda: mv.check_same_distribution(
+        S, np.full((100, 2), 0.5, dtype=np.float16), "square", n_samples=100),
+     "sample_b: an array of float16 points: judge float32 or float64 ones"),
     ("n-beyond-2^53", lambda: mv.check_sampler(S, P, "square", n_samples=10 ** 30),
      "n_samples=1000000000000000000000000000000: at most 2\\*\\*53"),
     # a name that is no string reached the JUnit writer, which raised a bare TypeError
