@@ -266,8 +266,13 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
     if dim == 1 and a.shape == (n,):
         a = a.reshape(n, 1)
     if a.shape != (n, dim):
-        raise InvalidArgument(f"{name} returned shape {a.shape}: expected ({n}, {dim})"
-                              + (" or (n,)" if dim == 1 else ""))
+        # the rows it was called on: a pilot's 1000 rows beside n_samples=1e6 read as a
+        # mismatch of the user's n; a transposed (dim, n) array gets the hint the arrays
+        # of check_same_distribution and check_inverse give (an outside review)
+        raise InvalidArgument(f"{name} returned shape {a.shape} for {n} rows: expected "
+                              f"({n}, {dim})" + (" or (n,)" if dim == 1 else "")
+                              + ("; transposed? return points.T"
+                                 if dim > 1 and a.shape == (dim, n) else ""))
     return a if a.dtype == np.float32 else a.astype(np.float64, copy=False)
 
 

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 import mcverify as mv
+from estimators import warps as W
 from estimators.pathtracer import SceneError, prepare_scene, load_scene, render
 from mcverify.errors import EnvironmentProblem, InvalidArgument, MissingReference
 from mcverify.gate import cli, reference
@@ -244,7 +245,20 @@ API = [
      "sample returned dtype object"),
     ("inverse-sample-short", lambda: mv.check_inverse(lambda u: u[1:], lambda x: x, 2,
                                                       n_samples=100), InvalidArgument,
-     "sample returned shape (99, 2): expected (100, 2)"),
+     "sample returned shape (99, 2) for 100 rows: expected (100, 2)"),
+    # a callable's transposed points got no hint, and the shape it was called with (the
+    # pilot's 1000 rows) read as a mismatch with n_samples (an outside review)
+    ("sampler-sample-transposed",
+     lambda: mv.check_sampler(lambda u: W.sample_cosine_hemisphere(u).T,
+                              W.cosine_hemisphere_pdf, "hemisphere", n_samples=100_000),
+     InvalidArgument, "sample returned shape (3, 10000) for 10000 rows: expected "
+     "(10000, 3); transposed? return points.T"),
+    ("same-dist-sample-transposed",
+     lambda: mv.check_same_distribution(lambda u: W.sample_cosine_hemisphere(u).T,
+                                        W.sample_cosine_hemisphere, "hemisphere",
+                                        n_samples=20_000),
+     InvalidArgument, "returned shape (3, 2000) for 2000 rows: expected (2000, 3); "
+     "transposed? return points.T"),
     ("inverse-sample-transposed", lambda: mv.check_inverse(lambda u: u.T, lambda x: x, 2,
                                                            n_samples=100), InvalidArgument,
      "sample returned shape (2, 100): expected (100, d), a row of d coordinates per draw; "
@@ -1425,8 +1439,6 @@ def test_inputs_a_probe_found_read_wrongly_are_refused_or_explained():
     hemisphere; check_unbiased read strings ("1", "2") as numbers;
     NaN rows from a rejecting sampler judged without ``rejection=True`` did not say so.
     Booleans stay 0/1 (a hit-or-miss estimator)."""
-    from estimators import warps as W
-
     with pytest.raises(mv.InvalidArgument, match="float16 points"):
         mv.check_sampler(lambda u: W.sample_cosine_hemisphere(u).astype(np.float16),
                          W.cosine_hemisphere_pdf, "hemisphere", n_samples=10_000)
