@@ -23,6 +23,20 @@ def callable_(name: str, v) -> None:
                               f"(got {type(v).__name__})")
 
 
+def draw(name: str, sample, u: np.ndarray):
+    """``sample(u)``, its exceptions as raised (the user's own traceback), an IndexError
+    with a note of the uniforms' shape: a sampler reading ``u[:, 2]`` of the domain's
+    default two columns raised numpy's bare "index 2 is out of bounds for axis 1 with
+    size 2", nothing saying that ``sample_dim`` sets them (an outside review)."""
+    try:
+        return sample(u)
+    except IndexError as e:
+        if hasattr(e, "add_note"):      # Python 3.11
+            e.add_note(f"mcverify called {name} with uniform numbers u of shape {u.shape}: "
+                       f"{u.shape[1]} a draw; pass sample_dim=K where it takes K")
+        raise
+
+
 def integer(name: str, v, *, minimum: int | None = None, maximum: int | None = None) -> int:
     if isinstance(v, bool) or not isinstance(v, numbers.Integral):
         raise InvalidArgument(f"{name}={_show(v)}: must be an integer")

@@ -188,7 +188,7 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     name = validate.label(name, f"pdf_consistency:{_name_of(sample, 'sample')}")
 
     u = np.random.default_rng(seed).random((n, k))
-    x, p, p_dtype, w_raw = _parts(sample(u), n)
+    x, p, p_dtype, w_raw = _parts(validate.draw("sample", sample, u), n)
     dtypes = [x.dtype, p_dtype]
     if f is not None and w_raw is None:
         raise InvalidArgument("f given, but sample returns no weight to check against it: "

@@ -166,7 +166,8 @@ def _stream_batches(sample, uniforms, dim, hist: _Histogram, bounds, name="sampl
         a = 0
         while a < u.shape[0]:
             b = min(u.shape[0], stop - start)
-            hist.add(validate.points(name, sample(u[a:b]), b - a, dim), u[a:b])
+            hist.add(validate.points(name, validate.draw(name, sample, u[a:b]), b - a, dim),
+                     u[a:b])
             a = b
             if start + a == stop:
                 yield stop
@@ -747,7 +748,8 @@ def _pilot(sample, label, seq, n, k, dom: Domain, rejection):
     (``_where_pdf_is_zero``)."""
     n_pilot = int(min(max(n // 10, 1000), 100_000))
     pu = _uniforms(seq, n_pilot, k)
-    px = dom.points(validate.points(label, sample(pu), n_pilot, dom.dim))
+    px = dom.points(validate.points(label, validate.draw(label, sample, pu), n_pilot,
+                                    dom.dim))
     s, status = dom.classify(px, rejection=rejection)
     valid = status == kernels.VALID
     if valid.all():
@@ -1216,7 +1218,7 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
                     width=("sample_dim", k), least=min(n, 1000))
     name = validate.label(name, f"inverse:{_name_of(inverse, 'inverse')}")
     u = np.random.default_rng(seed).random((n, k))
-    x = sample(u)
+    x = validate.draw("sample", sample, u)
     x = validate.as_array(lambda: f"sample returned {validate._show(x)}", x)
     # the points' dimension is the sampler's own; their rows and dtype are checked here,
     # so that a short or non-numeric output is blamed on sample, not on inverse

@@ -1457,3 +1457,29 @@ def test_inputs_a_probe_found_read_wrongly_are_refused_or_explained():
 
     r = mv.check_sampler(rejecting, W.cosine_hemisphere_pdf, "hemisphere", n_samples=10_000)
     assert not r.passed and "judge it with rejection=True" in r.failures[0], r.failures
+
+
+@pytest.mark.parametrize("check", [
+    lambda s: mv.check_sampler(s, W.cosine_hemisphere_pdf, "hemisphere", n_samples=10_000),
+    lambda s: mv.check_sampler(s, W.cosine_hemisphere_pdf, "hemisphere", n_samples=10_000,
+                               pilot=False),
+    lambda s: mv.check_same_distribution(W.sample_cosine_hemisphere, s, "hemisphere",
+                                         n_samples=10_000),
+    lambda s: mv.check_pdf_consistency(lambda u: (s(u), W.cosine_hemisphere_pdf(s(u))),
+                                       W.cosine_hemisphere_pdf, sample_dim=2,
+                                       n_samples=1000),
+    lambda s: mv.check_inverse(s, lambda x: x[:, :2], 2, n_samples=1000),
+], ids=["check_sampler", "no-pilot", "same_distribution", "pdf_consistency", "inverse"])
+def test_a_sampler_taking_more_uniforms_than_given_is_told_about_sample_dim(check):
+    """A sampler reading a third uniform number (a BSDF's lobe choice) without
+    sample_dim=3 raised numpy's bare IndexError from the user's own line; it is raised
+    as it was, with a note of u's shape and sample_dim (an outside review)."""
+    def three(u):
+        return W.sample_cosine_hemisphere(u[:, :2] * 0.5 + 0.5 * u[:, 2][:, None])
+
+    with pytest.raises(IndexError) as e:
+        check(three)
+    notes = getattr(e.value, "__notes__", [])
+    if sys.version_info >= (3, 11):
+        assert any("u of shape (" in n and ", 2): 2 a draw; pass sample_dim=K" in n
+                   for n in notes), notes
