@@ -275,6 +275,12 @@ class _Loader:
         self.declared: set[str] = set()
         self.ids: dict[str, Plugin] = {}
         self.referenced: set[str] = set()      # ids some <ref> names
+        # a <ref> may name a plugin declared after it, as in Mitsuba: the elements with
+        # an id, each with the top-level <default>s before it (load fills them in)
+        self.later: list[tuple[_Node, list]] = []
+        self.done: dict[int, Plugin] = {}      # id(node) -> its plugin, once parsed
+        self.by_id: dict | None = None         # later_ids(), built at the first <ref> ahead
+        self.parsing: list[str] = []           # the ids being parsed, outermost first
 
     def fail(self, node, message):
         raise SceneError(f"{self.path}:{node.line}: <{node.tag}"
@@ -429,6 +435,8 @@ class _Loader:
                          if k in op.attrib or default is None else default for k in "xyz"])
 
     def plugin(self, node, kind=None):
+        if id(node) in self.done:       # parsed already, for a <ref> before it
+            return self.done[id(node)]
         kind = kind or node.tag
         if kind not in SUPPORTED:
             self.fail(node, f"unsupported element; supported: {', '.join(_PLUGIN_TAGS)}")
@@ -441,6 +449,22 @@ class _Loader:
                             f"supported: {', '.join(sorted(SUPPORTED[kind]))}")
         # $params are substituted in every attribute, the id too, as Mitsuba does
         p = Plugin(kind, ptype, {}, node.line, self.attr(node, "id", None))
+        self.parsing.append(p.id)
+        try:
+            self._fill(node, kind, ptype, spec, p)
+        finally:
+            self.parsing.pop()
+        if p.id:
+            if p.id in self.ids:
+                self.fail(node, f"id {p.id!r} is already used by the <{self.ids[p.id].kind}> "
+                                f"on line {self.ids[p.id].line} (Mitsuba refuses a "
+                                "duplicate id too)")
+            self.ids[p.id] = p
+            self.done[id(node)] = p
+        return p
+
+    def _fill(self, node, kind, ptype, spec, p):
+        """``p``'s properties and children from ``node``'s, checked against ``spec``."""
         allowed_children = spec.get("children", ())
 
         def set_prop(child, name, val):
@@ -486,7 +510,7 @@ class _Loader:
             elif child.tag == "ref":
                 target = self.attr(child, "id")
                 if target not in self.ids:
-                    self.fail(child, f"no object with id {target!r} defined before this line")
+                    self.declared_later(child, target)
                 ref = self.ids[target]
                 self.referenced.add(target)
                 if ref.kind == "texture":
@@ -540,13 +564,69 @@ class _Loader:
                     self.fail(node, f"a {c.type!r} emitter inside a shape (line {c.line}): "
                                     "only an area emitter makes a shape emit; put a "
                                     f"{c.type} light at the top level of the scene")
-        if p.id:
-            if p.id in self.ids:
-                self.fail(node, f"id {p.id!r} is already used by the <{self.ids[p.id].kind}> "
-                                f"on line {self.ids[p.id].line} (Mitsuba refuses a "
-                                "duplicate id too)")
-            self.ids[p.id] = p
-        return p
+
+    def declared_later(self, ref, target):
+        """Parse the plugin of id ``target`` that the document declares after ``ref``
+        (Mitsuba resolves references once the whole file is read), with the parameters
+        of the <default>s before it; refuse a cycle or an id nowhere declared."""
+        if target in self.parsing:
+            cycle = [i for i in self.parsing[self.parsing.index(target):] if i] + [target]
+            self.fail(ref, f"circular reference {' -> '.join(cycle)}: a plugin cannot "
+                           "contain itself (Mitsuba refuses it too)")
+        if target not in self.later_ids():
+            self.fail(ref, f"no object with id {target!r}: no element of the scene has "
+                           f"id=\"{target}\" (Mitsuba refuses it too)")
+        node, defaults = self.later_ids()[target]
+        self.with_defaults(defaults, lambda: self.plugin(node))
+
+    def later_ids(self) -> dict:
+        """id -> (element, the <default>s before it), for every plugin element with an
+        id (the first of each id), its $params substituted as at its place."""
+        if self.by_id is None:
+            self.by_id = {}
+            for node, defaults in self.later:
+                key = node.attrib["id"]
+                if "$" in key:
+                    key = self.with_defaults(defaults, lambda: self.attr(node, "id"))
+                self.by_id.setdefault(key, (node, defaults))
+        return self.by_id
+
+    def with_defaults(self, defaults, f):
+        """``f()`` with the parameters as they are after ``defaults`` (the <default>s
+        before an element declared further on), then as they were."""
+        saved = self.params
+        self.params = dict(saved)
+        try:
+            for d in defaults:
+                self.default(d)
+            return f()
+        finally:
+            self.params = saved
+
+    def default(self, node):
+        """A top-level ``<default>``: its parameter, unless the caller gave it."""
+        self.check_attributes(node)
+        name = self.attr(node, "name")
+        self.declared.add(name)
+        # its value may use the parameters before it, as in Mitsuba
+        # (<default name="height" value="$res"/>; it was taken as "$res")
+        self.params.setdefault(name, self.attr(node, "value") if "value" in node.attrib
+                               else "")
+
+    def index_ids(self, root):
+        """Every plugin element with an id, in document order, with the top-level
+        <default>s before it, for a <ref> that names a plugin declared after it."""
+        defaults = []
+        for top in root.children:
+            if top.tag == "default":
+                defaults.append(top)
+                continue
+            stack = [top]
+            while stack:
+                node = stack.pop()
+                if node.tag in _PLUGIN_TAGS and "id" in node.attrib:
+                    self.later.append((node, list(defaults)))
+                stack += reversed(node.children)
 
     def load(self, root) -> SceneDescription:
         self.check_attributes(root)
@@ -559,15 +639,10 @@ class _Loader:
                             "supported here: write it for Mitsuba 3 (version=\"3.0.0\")")
         integrator = sensor = None
         shapes, emitters, declared = [], [], []
+        self.index_ids(root)
         for node in root.children:
             if node.tag == "default":
-                self.check_attributes(node)
-                name = self.attr(node, "name")
-                self.declared.add(name)
-                # its value may use the parameters before it, as in Mitsuba
-                # (<default name="height" value="$res"/>; it was taken as "$res")
-                self.params.setdefault(name, self.attr(node, "value")
-                                       if "value" in node.attrib else "")
+                self.default(node)
             elif node.tag == "integrator":
                 if integrator is not None:
                     self.fail(node, "a second <integrator>; a scene has one (Mitsuba refuses "

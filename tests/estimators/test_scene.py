@@ -450,6 +450,47 @@ def test_parameters_are_substituted_in_ids_and_ref_names_as_in_mitsuba(mi):
     assert len(shapes) == 2
 
 
+def test_a_ref_may_name_a_plugin_declared_after_it_as_in_mitsuba(mi):
+    """Mitsuba resolves a <ref> once the whole file is read: a BSDF, a texture or a film
+    declared after the shape or sensor that names it, at the top level or inside a later
+    shape, with a $param of a <default> between them. The loader refused every such
+    scene ("no object with id 'm' defined before this line"), though Mitsuba renders it;
+    a twosided BSDF's front side by reference stays its front side. A cycle and an id
+    declared nowhere are refused by both."""
+    film = ('<film type="hdrfilm" id="fl"><integer name="width" value="8"/>'
+            '<integer name="height" value="6"/><rfilter type="box"/></film>')
+    text = ('<scene version="3.0.0"><integrator type="path"/>'
+            '<sensor type="perspective"><float name="fov" value="40"/><ref id="fl"/></sensor>'
+            '<shape type="sphere"><ref id="m"/></shape>'
+            '<shape type="sphere"><bsdf type="diffuse"><ref id="t" name="reflectance"/></bsdf>'
+            '</shape>'
+            '<shape type="sphere"><bsdf type="twosided"><ref id="front"/>'
+            '<bsdf type="conductor"/></bsdf></shape>'
+            '<shape type="cube"><bsdf type="diffuse" id="front"/></shape>'
+            '<default name="c" value="0.25"/>'
+            '<bsdf type="diffuse" id="m"><rgb name="reflectance" value="$c"/></bsdf>'
+            f'<texture type="checkerboard" id="t"/>{film}</scene>')
+    desc = parse_scene(text, path="s.xml")
+    m, t, two, front = (s.children[0] for s in desc.shapes)
+    assert (m.id, list(m.get("reflectance"))) == ("m", [0.25] * 3)
+    assert t.get("reflectance").type == "checkerboard"
+    assert [c.type for c in two.children] == ["diffuse", "conductor"] and \
+        two.children[0] is front
+    assert (desc.film.get("width"), desc.film.get("height")) == (8, 6)
+    assert len(mi.load_string(text).shapes()) == 4       # Mitsuba loads it as read here
+    cycle = ('<scene version="3.0.0"><integrator type="path"/>{c}'
+             '<bsdf type="twosided" id="a">\n<ref id="b"/></bsdf>'
+             '<bsdf type="twosided" id="b"><ref id="a"/></bsdf>'
+             '<shape type="sphere"><ref id="a"/></shape></scene>').format(c=_CAMERA)
+    msg = _error(cycle)
+    assert "s.xml:2" in msg and "circular reference a -> b -> a" in msg, msg
+    with pytest.raises(RuntimeError, match="circular reference"):
+        mi.load_string(cycle)
+    nowhere = cycle.replace('<ref id="b"/>', '<ref id="zz"/>')
+    msg = _error(nowhere)
+    assert "s.xml:2" in msg and "no element of the scene has id=\"zz\"" in msg, msg
+
+
 def test_an_unresolved_dollar_is_refused_naming_it():
     base = '<scene version="3.0.0">{d}{c}<shape type="sphere"><float name="radius" value="{v}"/>' \
            '</shape></scene>'
