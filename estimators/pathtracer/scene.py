@@ -66,7 +66,7 @@ class _Node:
     children: list = field(default_factory=list)
 
 
-def _parse_xml(text: str, origin: str) -> _Node:
+def _parse_xml(text: str | bytes, origin: str) -> _Node:
     """A small element tree that remembers each element's line (ElementTree does not)."""
     parser = expat.ParserCreate()
     root = _Node("#document", {}, 0)
@@ -718,9 +718,10 @@ def _features(desc: SceneDescription) -> set[str]:
     return feats
 
 
-def parse_scene(text: str, *, path: str = "<string>", params: dict | None = None
+def parse_scene(text: str | bytes, *, path: str = "<string>", params: dict | None = None
                 ) -> SceneDescription:
-    """Parse scene XML text (``params`` override ``<default>`` values)."""
+    """Parse scene XML text, or a file's bytes in the encoding its BOM or XML declaration
+    names (``params`` override ``<default>`` values)."""
     return _Loader(path, params or {}).load(_parse_xml(text, path))
 
 
@@ -730,10 +731,12 @@ def load_scene(path: str, *, params: dict | None = None) -> SceneDescription:
     if problem:
         raise SceneError(problem)
     try:
-        with open(path, encoding="utf-8") as f:
+        # bytes: expat reads the encoding from the BOM or the XML declaration, as
+        # Mitsuba's parser does (a UTF-16 or ISO-8859-1 scene was "cannot read")
+        with open(path, "rb") as f:
             text = f.read(MAX_SCENE_BYTES + 1)
-    except (OSError, UnicodeDecodeError) as e:
-        raise SceneError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+    except OSError as e:
+        raise SceneError(f"{path}: cannot read ({e.strerror or e})") from None
     desc = parse_scene(text, path=path, params=params)
     desc.path = os.path.abspath(path)
     return desc

@@ -6,7 +6,8 @@ import re
 import numpy as np
 import pytest
 
-from estimators.pathtracer import SceneError, camera_from_scene, generate_rays, parse_scene
+from estimators.pathtracer import (SceneError, camera_from_scene, generate_rays, load_scene,
+                                   parse_scene)
 
 CORNELL = """<scene version="3.0.0">
   <default name="spp" value="16"/>
@@ -489,6 +490,23 @@ def test_a_ref_may_name_a_plugin_declared_after_it_as_in_mitsuba(mi):
     nowhere = cycle.replace('<ref id="b"/>', '<ref id="zz"/>')
     msg = _error(nowhere)
     assert "s.xml:2" in msg and "no element of the scene has id=\"zz\"" in msg, msg
+
+
+@pytest.mark.parametrize("encoding", ["utf-16", "iso-8859-1"])
+def test_a_scene_file_in_the_encoding_its_declaration_names_loads_as_in_mitsuba(
+        mi, tmp_path, encoding):
+    """An XML file's encoding is its BOM's or its declaration's, and Mitsuba's parser
+    reads it so: a scene saved as UTF-16 (a Windows editor's "Unicode") or declared
+    ISO-8859-1 with a comment "café". load_scene decoded every file as UTF-8 and refused
+    both, "cannot read ('utf-8' codec can't decode byte ...)"."""
+    text = (f'<?xml version="1.0" encoding="{encoding}"?>\n<!-- café -->\n'
+            f'<scene version="3.0.0"><integrator type="path"/>{_CAMERA}'
+            '<shape type="sphere"><float name="radius" value="0.5"/></shape></scene>')
+    path = tmp_path / "scene.xml"
+    path.write_bytes(text.encode(encoding))
+    desc = load_scene(str(path))
+    assert desc.shapes[0].get("radius") == 0.5 and desc.film.get("width") == 8
+    assert len(mi.load_file(str(path)).shapes()) == 1    # Mitsuba loads it too
 
 
 def test_an_unresolved_dollar_is_refused_naming_it():
