@@ -383,8 +383,6 @@ class _Loader:
         m = np.eye(4)
         for op in node.children:
             self.check_attributes(op)     # Mitsuba refuses others (a typo, not a default)
-            if "value" in op.attrib and any(k in op.attrib for k in "xyz"):
-                self.fail(op, "give either value or x/y/z, not both")
             try:
                 if op.tag == "lookat":
                     t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
@@ -429,6 +427,10 @@ class _Loader:
 
     def _xyz(self, op, default):
         """``value`` or x, y, z; a coordinate left out is ``default`` (None: required)."""
+        if "value" in op.attrib and any(k in op.attrib for k in "xyz"):
+            # Mitsuba: 'Cannot mix "value" and "x"/"y"/"z" attributes' (a <point> or
+            # <vector> took the value and ignored x, y, z)
+            self.fail(op, "give either value or x/y/z, not both (Mitsuba refuses both too)")
         if "value" in op.attrib:
             return self.numbers(op, self.attr(op, "value"), 3)
         return np.array([self.numbers(op, self.attr(op, k), 1)[0]

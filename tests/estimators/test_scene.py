@@ -674,11 +674,16 @@ def test_a_filter_without_a_positive_radius_is_refused(rfilter):
      '</texture><shape type="sphere"><bsdf type="plastic"><ref id="c" '
      'name="specular_reflectance"/></bsdf></shape>',
      'color1">: an RGB reflectance must lie in [0, 1], got -0.5, 0.2, 0.2'),
+    # a <vector>'s or <point>'s value and x, y, z: the value was taken, x, y, z ignored
+    ('<emitter type="directional"><vector name="direction" value="0, -1, 0" x="1"/>'
+     '</emitter>', 'direction">: give either value or x/y/z, not both'),
+    ('<shape type="sphere"><point name="center" value="1, 0, 0" z="2"/></shape>',
+     'center">: give either value or x/y/z, not both'),
 ], ids=["max-depth", "two-integrators", "negative-ior", "negative-ext-ior", "zero-ior",
         "point-position-and-to-world", "directional-direction-and-to-world",
         "rgb-reflectance-above-1", "rgb-reflectance-negative", "material-and-eta",
         "material-and-k", "material-and-eta-k", "checkerboard-rgb-above-1",
-        "checkerboard-rgb-negative-referenced"])
+        "checkerboard-rgb-negative-referenced", "vector-value-and-x", "point-value-and-z"])
 def test_what_mitsuba_refuses_is_refused_by_line(mi, tmp_path, body, needle):
     """Each of these rendered in ours (a negative index of refraction, max_depth -2 as
     infinite, the last of two integrators) where Mitsuba refuses the scene."""
