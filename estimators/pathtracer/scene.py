@@ -611,9 +611,10 @@ class _Loader:
         name = self.attr(node, "name")
         self.declared.add(name)
         # its value may use the parameters before it, as in Mitsuba
-        # (<default name="height" value="$res"/>; it was taken as "$res")
-        self.params.setdefault(name, self.attr(node, "value") if "value" in node.attrib
-                               else "")
+        # (<default name="height" value="$res"/>; it was taken as "$res"); Mitsuba
+        # requires the value, given by the caller or not (one without was taken as "")
+        value = self.attr(node, "value")
+        self.params.setdefault(name, value)
 
     def index_ids(self, root):
         """Every plugin element with an id, in document order, with the top-level

@@ -509,6 +509,19 @@ def test_a_scene_file_in_the_encoding_its_declaration_names_loads_as_in_mitsuba(
     assert len(mi.load_file(str(path)).shapes()) == 1    # Mitsuba loads it too
 
 
+@pytest.mark.parametrize("given", [{}, {"r": "0.5"}], ids=["unused", "given-by-caller"])
+def test_a_default_without_a_value_is_refused_as_in_mitsuba(mi, given):
+    """Mitsuba requires a <default>'s value ('missing required attribute "value" in
+    <default>'), even where the caller gives the parameter; the loader took a missing
+    one as "" and loaded the scene."""
+    text = (f'<scene version="3.0.0">\n{_CAMERA}<integrator type="path"/>\n'
+            '<default name="r"/><shape type="sphere"/></scene>')
+    msg = _error(text, params=given)
+    assert "s.xml:3" in msg and '<default name="r">' in msg and "'value'" in msg, msg
+    with pytest.raises(RuntimeError, match="missing required attribute"):
+        mi.load_string(text, **given)
+
+
 def test_an_unresolved_dollar_is_refused_naming_it():
     base = '<scene version="3.0.0">{d}{c}<shape type="sphere"><float name="radius" value="{v}"/>' \
            '</shape></scene>'
