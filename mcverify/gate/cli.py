@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import glob
 import json
 import os
 import signal
@@ -831,6 +832,24 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
 FEW_PASSES = 4
 
 
+def _expanded_glob(args, want: int) -> str:
+    """A hint where the shell expanded an unquoted --test-passes/--ref-passes glob: the
+    option took the first file and the others came as image arguments, and the refusal
+    listed them as images given in excess, never saying why (an outside review:
+    ``--test-passes p_*.exr REF`` over 16 passes, 'got 16 image argument(s)')."""
+    if len(args.images) <= want:
+        return ""
+    given = [(opt, v) for opt, v in (("--test-passes", args.test_passes),
+                                     ("--ref-passes", args.ref_passes))
+             if v is not None and not glob.has_magic(v)]
+    if not given:
+        return ""
+    opt, first = given[0]
+    return (f"; the shell seems to have expanded the glob of {opt} (it got {first}, "
+            f"the other files came as image arguments): quote it, as in {opt} "
+            "'out/pass_*.exr', so that compare expands it")
+
+
 def _cmd_compare(args) -> int:
     from . import reference
     from ..checks import compare_images
@@ -850,7 +869,8 @@ def _cmd_compare(args) -> int:
                                             ("REF", args.ref_passes is None)) if given)
         raise InvalidArgument(f"compare: got {len(args.images)} image argument(s) "
                               f"{args.images}, expected {want}: {shape or 'none'} (with "
-                              "--test-passes there is no TEST.exr, with --ref-passes no REF)")
+                              "--test-passes there is no TEST.exr, with --ref-passes no REF)"
+                              + _expanded_glob(args, want))
     images = list(args.images)
     test_image = images.pop(0) if args.test_passes is None else None
     ref_image = images.pop(0) if args.ref_passes is None else None

@@ -106,6 +106,13 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
 @pytest.mark.parametrize("args, needle", [
     (["compare", "--test-passes", "p_*.exr"], "expected 1: REF"),
     (["compare", "a.exr", "b.exr", "--test-passes", "p_*.exr"], "expected 1: REF"),
+    # the shell expanded an unquoted glob: the option got the first pass, the rest came
+    # as image arguments (until 8 December not said, an outside review)
+    (["compare", "--test-passes", "p_00.exr", "p_01.exr", "p_02.exr", "cornell-box"],
+     "the shell seems to have expanded the glob of --test-passes (it got p_00.exr, the "
+     "other files came as image arguments): quote it"),
+    (["compare", "--ref-passes", "r_0.exr", "r_1.exr", "t.exr", "--test-var", "v.exr",
+      "--test-n", "4"], "expanded the glob of --ref-passes (it got r_0.exr"),
     (["compare", "r", "--test-passes", "p_*.exr", "--test-n", "4"],
      "--test-n: not with --test-passes"),
     (["compare", "a.exr", "r"], "a.exr: an image needs --test-var and --test-n"),
@@ -114,7 +121,8 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
      "--test-spp 0: samples per pixel"),
     (["compare", "cornell-box", "--test-passes", "p_*.exr", "--ref-spp", "64"],
      "--ref-spp 64: give --test-spp too"),
-], ids=["no-ref", "two-positionals", "n-with-passes", "no-var", "empty-glob", "spp-0",
+], ids=["no-ref", "two-positionals", "unquoted-test-glob", "unquoted-ref-glob",
+        "n-with-passes", "no-var", "empty-glob", "spp-0",
         "ref-spp-alone"])
 def test_compare_bad_input_exit_2(tmp_path, args, needle):
     r = subprocess.run(CMD + args, capture_output=True, text=True, timeout=120, cwd=tmp_path)
