@@ -832,15 +832,16 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
 FEW_PASSES = 4
 
 
-def _expanded_glob(args, want: int) -> str:
+def _expanded_glob(args, excess: bool) -> str:
     """A hint where the shell expanded an unquoted --test-passes/--ref-passes glob: the
-    option took the first file and the others came as image arguments, and the refusal
-    listed them as images given in excess, never saying why (an outside review:
-    ``--test-passes p_*.exr REF`` over 16 passes, 'got 16 image argument(s)')."""
-    if len(args.images) <= want:
+    option took the first file and the others came as image arguments (``excess``), and
+    the refusal listed them as images given in excess, or (after REF) as unrecognized
+    arguments, never saying why (an outside review: ``--test-passes p_*.exr REF`` over
+    16 passes, 'got 16 image argument(s)')."""
+    if not excess:
         return ""
-    given = [(opt, v) for opt, v in (("--test-passes", args.test_passes),
-                                     ("--ref-passes", args.ref_passes))
+    given = [(opt, v) for opt, v in (("--test-passes", getattr(args, "test_passes", None)),
+                                     ("--ref-passes", getattr(args, "ref_passes", None)))
              if v is not None and not glob.has_magic(v)]
     if not given:
         return ""
@@ -870,7 +871,7 @@ def _cmd_compare(args) -> int:
         raise InvalidArgument(f"compare: got {len(args.images)} image argument(s) "
                               f"{args.images}, expected {want}: {shape or 'none'} (with "
                               "--test-passes there is no TEST.exr, with --ref-passes no REF)"
-                              + _expanded_glob(args, want))
+                              + _expanded_glob(args, len(args.images) > want))
     images = list(args.images)
     test_image = images.pop(0) if args.test_passes is None else None
     ref_image = images.pop(0) if args.ref_passes is None else None
@@ -1348,7 +1349,11 @@ def _printable_streams() -> None:
 
 def main(argv=None) -> int:
     _printable_streams()
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:       # as parse_args says it, with the unquoted glob's hint where it applies
+        parser.error(f"unrecognized arguments: {' '.join(extra)}"
+                     + _expanded_glob(args, True))
     with _sigterm_unwinds():
         return _main(args)
 

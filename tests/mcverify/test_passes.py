@@ -113,6 +113,9 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
      "other files came as image arguments): quote it"),
     (["compare", "--ref-passes", "r_0.exr", "r_1.exr", "t.exr", "--test-var", "v.exr",
       "--test-n", "4"], "expanded the glob of --ref-passes (it got r_0.exr"),
+    (["compare", "cornell-box", "--test-passes", "p_00.exr", "p_01.exr", "p_02.exr"],
+     "unrecognized arguments: p_01.exr p_02.exr; the shell seems to have expanded the glob "
+     "of --test-passes (it got p_00.exr"),
     (["compare", "r", "--test-passes", "p_*.exr", "--test-n", "4"],
      "--test-n: not with --test-passes"),
     (["compare", "a.exr", "r"], "a.exr: an image needs --test-var and --test-n"),
@@ -122,6 +125,7 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
     (["compare", "cornell-box", "--test-passes", "p_*.exr", "--ref-spp", "64"],
      "--ref-spp 64: give --test-spp too"),
 ], ids=["no-ref", "two-positionals", "unquoted-test-glob", "unquoted-ref-glob",
+        "unquoted-glob-after-ref",
         "n-with-passes", "no-var", "empty-glob", "spp-0",
         "ref-spp-alone"])
 def test_compare_bad_input_exit_2(tmp_path, args, needle):
