@@ -364,6 +364,22 @@ def _returned_by(message: str, who: str) -> str:
                                         lambda m: _RETURNED[m.group(0)], message)
 
 
+_COUNTS_NOTE = re.compile(r"check test_spp=(\d+) and ref_spp=(\d+) \(samples per value, "
+                          r"e\.g\. per pass\)")
+
+
+def _counts_named(message: str, who: str, n) -> str:
+    """``compare_images``' note on the two sides' per-sample variances, for a renderer of
+    one's own: it said "check test_spp=64 and ref_spp=64", counts the gate derives (spp /
+    n), where what to check is what the renderer returned: a renderer 1 % too bright that
+    returned its samples' variance with n = 16 passes passed, p = 0.15, the note naming
+    only parameters the user never gave (an outside review)."""
+    return _COUNTS_NOTE.sub(
+        lambda m: f"check what renderer={who} returned: n={n} values of {m.group(1)} "
+                  f"samples each (spp / n), and the variance of those values, not of single "
+                  f"samples (the reference's values are of {m.group(2)} samples)", message)
+
+
 def _callable_as_renderer(renderer) -> None:
     """Refuse, before any reference is built, a ``renderer`` that cannot be called as
     ``renderer(scene_path, spp, seed)``: a ``"module:function"`` string (as ``check
@@ -687,6 +703,9 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
             pool.close()
     mean, stats, seconds = shown["mean"], shown["stats"], shown["seconds"]
     _not_both_black(mean, ref.mean, path, who)
+    if not ours:
+        result = dataclasses.replace(result, messages=tuple(
+            _counts_named(m, who, shown["n"]) for m in result.messages))
     if not result.passed:
         result = dataclasses.replace(result, messages=tuple(result.messages) + tuple(
             f"note: {c}" for c in _caveats(path, params, subject)))

@@ -86,6 +86,25 @@ def test_a_correct_renderer_of_ones_own_has_the_variance_floor_ours_has():
     assert r.passed and r.details["variance_floor"]["test_spp"] == 1
 
 
+def test_a_renderer_returning_its_samples_variance_is_told_what_to_check():
+    """Mitsuba's own 16 passes, 2 % brighter, returned with their samples' variance (32
+    times the pass means') and n = 16: the tests lose power (p = 7e-4 on seed 100, 4e-7
+    with the right variance; on the 32 × 32 box of the review a light 1 % brighter passed,
+    p = 0.15), and the note that says so named compare_images' test_spp=32 and
+    ref_spp=256, counts the user never gave, where what to check is the renderer's n and
+    variance (an outside review)."""
+    from mcverify.gate import mitsuba as mvm
+
+    def samples_variance(path, spp, seed):
+        m = mvm.render_passes(path, spp=spp // 16, seeds=range(seed, seed + 16)) * 1.02
+        return m.mean(axis=0), m.var(axis=0, ddof=1) * (spp // 16), 16
+    r = render_check("cornell-box", renderer=samples_variance, spp=512, seed=100)
+    note = [m for m in r.messages if m.startswith("note: per sample")]
+    assert note and "test_spp" not in note[0] and "check what renderer=samples_variance " \
+        "returned: n=16 values of 32 samples each (spp / n), and the variance of those " \
+        "values, not of single samples (the reference's values are of 256" in note[0], note
+
+
 def _returning(name, mean=None, var=None, n=16, passes=None):
     """A renderer of one's own returning the given image of white-furnace (64 × 64 × 3,
     1 in every pixel), no rendering needed."""
