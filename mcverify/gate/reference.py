@@ -217,7 +217,10 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
 
     The files an ``<include>``d file names count too (a texture named only there changed
     without the reference going stale): included files are read in turn, each once, and
-    their names resolved, as Mitsuba resolves them, against the scene's own folder.
+    their names resolved, as Mitsuba resolves them, against the scene's own folder; the
+    files an ``<include>`` names are found beside the file that includes it first (Mitsuba
+    3.9 renders ``sub/more.xml`` for an include of ``more.xml`` in ``sub/parts.xml``,
+    where the manifest hashed ``more.xml`` beside the scene).
     A ``<path value="DIR"/>`` puts DIR (against the scene's folder) before it, the last
     such element first, wherever it stands: Mitsuba's file resolver (a texture found
     there was rendered while the manifest hashed the file of that name beside the scene,
@@ -226,7 +229,8 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     file a ``--param mesh=b.obj`` names was not the one stamped or hashed)."""
     defaults = {k: str(v).lower() if isinstance(v, bool) else str(v)
                 for k, v in dict(params or {}).items()}
-    names, includes, searched = [], set(), []
+    names, includes, searched = [], {}, []
+    including = [None]          # the folder of the file being read (None: the scene's)
 
     def substitute(text):
         for key in sorted(defaults, key=len, reverse=True):    # as Mitsuba: longest first
@@ -245,7 +249,7 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
             names.append(attrib["filename"])
         elif tag == "include" and "filename" in attrib:
             names.append(attrib["filename"])
-            includes.add(attrib["filename"])
+            includes.setdefault(attrib["filename"], including[0])
         elif tag == "path" and "value" in attrib:
             searched.append(attrib["value"])
 
@@ -267,9 +271,12 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
         if name in out:
             continue
         real = substitute(name)
-        out[name] = full = real if os.path.isabs(real) else locate(real)
+        beside = os.path.join(includes[name], real) if includes.get(name) else None
+        out[name] = full = real if os.path.isabs(real) else \
+            beside if beside and os.path.isfile(beside) else locate(real)
         if name in includes and os.path.isfile(full) and os.path.realpath(full) not in read:
             read.add(os.path.realpath(full))
+            including[0] = os.path.dirname(full)
             _parse_scene(full, start)
     return out
 

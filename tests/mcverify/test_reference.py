@@ -449,6 +449,25 @@ def test_files_named_by_an_included_file_count_too(tmp_path):
                       "$mesh": h(str(tmp_path / "m.obj"))}
 
 
+def test_an_include_in_an_included_file_is_hashed_where_mitsuba_finds_it(tmp_path):
+    """Mitsuba 3.9 finds an include named in an included file beside that file first:
+    sub/parts.xml's include of more.xml renders sub/more.xml where it exists. The
+    manifest hashed more.xml beside the scene, so a change to the one rendered left the
+    reference in use."""
+    (tmp_path / "sub").mkdir()
+    for f in ("more.xml", "sub/more.xml"):
+        (tmp_path / f).write_text('<scene version="3.0.0"/>')
+    (tmp_path / "sub" / "parts.xml").write_text(
+        '<scene version="3.0.0"><include filename="more.xml"/></scene>')
+    (tmp_path / "s.xml").write_text(
+        '<scene version="3.0.0"><include filename="sub/parts.xml"/></scene>')
+    files = reference.scene_asset_files(str(tmp_path / "s.xml"))
+    assert files["more.xml"] == os.path.join(str(tmp_path), "sub", "more.xml")
+    os.remove(tmp_path / "sub" / "more.xml")        # then beside the scene, as Mitsuba
+    files = reference.scene_asset_files(str(tmp_path / "s.xml"))
+    assert files["more.xml"] == os.path.join(str(tmp_path), "more.xml")
+
+
 def test_a_texture_changed_in_an_included_file_makes_the_reference_stale(tmp_path):
     shutil.copy(os.path.join(SCENES, "textures", "checker.exr"), tmp_path / "t.exr")
     src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
