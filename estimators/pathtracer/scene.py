@@ -64,6 +64,7 @@ class _Node:
     attrib: dict
     line: int
     children: list = field(default_factory=list)
+    origin: str | None = None     # the <include>d file it came from (None: the scene's)
 
 
 def _parse_xml(text: str | bytes, origin: str) -> _Node:
@@ -239,6 +240,7 @@ _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector"
 #: the attributes Mitsuba's parser allows on each element (it refuses any other: a typo
 #: such as ``vaule=`` would otherwise leave a default in place without a word)
 _ATTRIBUTES = {"scene": ("version",), "default": ("name", "value"), "ref": ("id", "name"),
+               "include": ("filename",),
                "transform": ("name",), "point": ("name", "value", "x", "y", "z"),
                "vector": ("name", "value", "x", "y", "z"),
                **{t: ("name", "value") for t in ("float", "integer", "boolean", "string", "rgb")}}
@@ -283,7 +285,7 @@ class _Loader:
         self.parsing: list[str] = []           # the ids being parsed, outermost first
 
     def fail(self, node, message):
-        raise SceneError(f"{self.path}:{node.line}: <{node.tag}"
+        raise SceneError(f"{node.origin or self.path}:{node.line}: <{node.tag}"
                          + "".join(f" {a}=\"{node.attrib[a]}\"" for a in ("type", "name")
                                    if a in node.attrib)
                          + f">: {message}")
@@ -631,8 +633,56 @@ class _Loader:
                     self.later.append((node, list(defaults)))
                 stack += reversed(node.children)
 
-    def load(self, root) -> SceneDescription:
-        self.check_attributes(root)
+    def include_all(self, root):
+        """Each top-level ``<include filename=...>`` replaced by the top-level elements of
+        the scene file it names, in place, as Mitsuba reads it (until 7 December refused
+        by line): a file's includes are found beside it first, then beside the scene;
+        the included file is a whole ``<scene>`` with its version; a ``$param`` in the
+        name takes the ``<default>``s before it. Files its elements name (meshes,
+        textures) are found against the scene's own folder, as Mitsuba finds them."""
+        scene = os.path.realpath(self.path) if os.path.isfile(self.path) else self.path
+        root.children = self._spliced(root.children, os.path.dirname(self.path), [scene], [])
+
+    def _spliced(self, children, folder, chain, defaults):
+        out = []
+        for node in children:
+            if node.tag == "default":
+                defaults.append(node)
+            if node.tag != "include":
+                out.append(node)
+                continue
+            self.check_attributes(node)
+            name = self.with_defaults(defaults, lambda: self.attr(node, "filename"))
+            full = self.included_file(node, name, folder)
+            real = os.path.realpath(full)
+            if real in chain:
+                self.fail(node, f"{name!r} includes itself ({' -> '.join(chain + [real])}; "
+                                "Mitsuba stops there too)")
+            sub = _read_scene(full, SceneError)
+            stack = [sub]
+            while stack:                # its elements' messages name its file
+                n = stack.pop()
+                n.origin = full
+                stack += n.children
+            self.check_attributes(sub)
+            self.check_version(sub)
+            out += self._spliced(sub.children, os.path.dirname(full), chain + [real],
+                                 defaults)
+        return out
+
+    def included_file(self, node, name, folder):
+        """The file an ``<include>`` names: as given where absolute, else beside the file
+        that includes it, else beside the scene (Mitsuba 3.9's order: a nested include
+        of ``more.xml`` in ``sub/parts.xml`` is ``sub/more.xml`` where that exists)."""
+        tried = [name] if os.path.isabs(name) else [
+            os.path.join(folder, name), os.path.join(os.path.dirname(self.path), name)]
+        for full in tried:
+            if os.path.isfile(full):
+                return full
+        self.fail(node, f"included file {name!r} not found (looked for "
+                        f"{' and '.join(dict.fromkeys(tried))})")
+
+    def check_version(self, root):
         version = self.attr(root, "version")    # Mitsuba requires it too
         if not re.fullmatch(r"[0-9]+\.[0-9]+\.[0-9]+", version.strip(SPACE)):
             self.fail(root, f"version {version!r}: expected major.minor.patch, e.g. 3.0.0")
@@ -640,6 +690,11 @@ class _Loader:
             self.fail(root, f"version {version!r}: Mitsuba rewrites scenes older than 2.0.0 "
                             "(camelCase names, diffuse_reflectance, uoffset/uscale); not "
                             "supported here: write it for Mitsuba 3 (version=\"3.0.0\")")
+
+    def load(self, root) -> SceneDescription:
+        self.check_attributes(root)
+        self.check_version(root)
+        self.include_all(root)
         integrator = sensor = None
         shapes, emitters, declared = [], [], []
         self.index_ids(root)
@@ -730,16 +785,22 @@ def parse_scene(text: str | bytes, *, path: str = "<string>", params: dict | Non
 
 def load_scene(path: str, *, params: dict | None = None) -> SceneDescription:
     """Parse a Mitsuba XML scene file."""
+    desc = _Loader(path, params or {}).load(_read_scene(path, SceneError))
+    desc.path = os.path.abspath(path)
+    return desc
+
+
+def _read_scene(path: str, error) -> _Node:
+    """The ``<scene>`` element of the XML file ``path`` (a scene, or a file it includes),
+    or ``error`` naming the file."""
     problem = file_problem(path, MAX_SCENE_BYTES)
     if problem:
-        raise SceneError(problem)
+        raise error(problem)
     try:
         # bytes: expat reads the encoding from the BOM or the XML declaration, as
         # Mitsuba's parser does (a UTF-16 or ISO-8859-1 scene was "cannot read")
         with open(path, "rb") as f:
             text = f.read(MAX_SCENE_BYTES + 1)
     except OSError as e:
-        raise SceneError(f"{path}: cannot read ({e.strerror or e})") from None
-    desc = parse_scene(text, path=path, params=params)
-    desc.path = os.path.abspath(path)
-    return desc
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    return _parse_xml(text, path)
