@@ -570,6 +570,7 @@ class InvertedCDF:
             raise ValueError(f"tol={tol!r}: below 1e-15 the rules' own rounding (about "
                              "1e-16 of the total) is above it: use tol >= 1e-15")
         self._f = pdf
+        self._coarse = None
         self.a, self.b = float(a), float(b)
         self.total = 1.0
         lo = np.linspace(self.a, self.b, pieces + 1)
@@ -578,6 +579,7 @@ class InvertedCDF:
         scale, accepted, peak = 1e-300, 0.0, 0.0
         for _ in range(max_rounds):
             if lo.size > _MAX_PIECES:
+                self._refuse_coarse(tol, f"did not converge within {_MAX_PIECES:,} pieces")
                 raise ValueError(f"pdf: its CDF on [{self.a}, {self.b}] did not converge to "
                                  f"tol={tol} within {_MAX_PIECES:,} pieces (a pdf that is "
                                  "not integrable, or a feature narrower than 1e-13 of the "
@@ -616,6 +618,8 @@ class InvertedCDF:
             # only a lowered max_rounds ends here (pieces stop halving at 1e-13 of the
             # interval within 45 rounds): the pieces left were given an error of inf, and a
             # step at 1/π with max_rounds=10 was refused as "not integrable"
+            self._refuse_coarse(tol, f"did not converge within max_rounds={max_rounds} "
+                                "rounds of halving")
             raise ValueError(f"max_rounds={max_rounds}: the CDF of pdf on [{self.a}, "
                              f"{self.b}] did not reach tol={tol} within {max_rounds} rounds "
                              f"of halving ({lo.size:,} pieces still above it); raise "
@@ -646,6 +650,7 @@ class InvertedCDF:
             # pieces stop splitting at 1e-13 of the interval and are kept with their
             # error: 1/x on (0, 1) built with a CDF error of 0.017, x^-0.9 0.0016 (its
             # total 2 % low) until 4 December; 1/sqrt(x) reaches 2e-9
+            self._refuse_coarse(tol, f"has an error bound of {error:.3g}")
             raise ValueError(f"pdf: its CDF on [{self.a}, {self.b}] has an error bound of "
                              f"{error:.3g} (tol={tol}): a pdf that is not integrable there, "
                              "or a singularity too steep for pieces of 1e-13 of the "
@@ -653,11 +658,29 @@ class InvertedCDF:
         self.total = float(total)
         self._table = _Table(np.concatenate([lo, [hi[-1]]]), cdf, error)
 
+    def _refuse_coarse(self, tol, failure):
+        """A ValueError blaming the precision of the pdf's values, where it returned
+        float32 or float16 ones and its CDF table failed (``failure``, in words): each
+        step of their rounding (a relative 6e-8 in float32) is a jump the refinement
+        chases, and e^-x as float32 on [0, 5] was refused after seconds as "a pdf that
+        is not integrable, or a feature narrower than 1e-13 of the interval"."""
+        if self._coarse is None:
+            return
+        step = float(np.finfo(self._coarse).eps) / 2
+        raise ValueError(f"pdf: returns {self._coarse} values, each rounded to {step:.2g} "
+                         f"of itself: its CDF on [{self.a}, {self.b}] {failure} at "
+                         f"tol={tol}, the steps of that rounding too fine to resolve; "
+                         "return float64 values, or raise tol well above that rounding")
+
     def _eval(self, x):
         """``pdf(x)`` for x (n,): (n,) real numbers, or a ValueError (complex values and
         strings were read as numbers, the imaginary part dropped with a warning, and any
         shape of n values was flattened: an (n/2, 2) array as if it were (n,))."""
-        v = _reals(self._f(x), "pdf")
+        raw = self._f(x)
+        v = _reals(raw, "pdf")
+        kind = getattr(raw, "dtype", None)
+        if kind is not None and kind.kind == "f" and kind.itemsize < 8:
+            self._coarse = kind           # float32 or float16 values (_refuse_coarse)
         if v.shape != np.shape(x):
             raise ValueError(f"pdf returned shape {v.shape} for {np.size(x)} points: expected "
                              f"({np.size(x)},), one value a point")

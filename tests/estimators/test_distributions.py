@@ -381,6 +381,28 @@ def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive():
     assert np.isnan(d.sample([np.nan])).all()
 
 
+@pytest.mark.parametrize("dtype,kw,failure", [
+    (np.float32, {}, "did not converge within 20,000 pieces"),
+    (np.float32, {"pieces": 2, "max_rounds": 8}, "did not converge within max_rounds=8"),
+    (np.float16, {"pieces": 2, "max_rounds": 3}, "did not converge within max_rounds=3")])
+def test_inverted_cdf_blames_a_pdf_of_float32_values_not_its_integrability(monkeypatch, dtype,
+                                                                          kw, failure):
+    """e^-x returned as float32 on [0, 5]: every step of the float32 rounding is a jump
+    the refinement chases, and the pdf was refused, after seconds, as "a pdf that is not
+    integrable, or a feature narrower than 1e-13 of the interval" (found by review). The
+    message names the values' precision and what to do; the advice works."""
+    import estimators.distributions as D
+
+    monkeypatch.setattr(D, "_MAX_PIECES", 20_000)
+    pdf = lambda x: np.exp(-x).astype(dtype)       # noqa: E731
+    with pytest.raises(ValueError, match=rf"pdf: returns {np.dtype(dtype).name} values, each "
+                       rf"rounded to .* of itself: its CDF on \[0.0, 5.0\] {failure}.* "
+                       "return float64 values, or raise tol"):
+        InvertedCDF(pdf, 0.0, 5.0, **kw)
+    assert InvertedCDF(lambda x: np.exp(-x), 0.0, 5.0).cdf_error < 1e-10
+    assert InvertedCDF(pdf, 0.0, 5.0, tol=1e-6).cdf_error < 1e-6
+
+
 def test_inverted_cdf_of_a_narrow_peak_alone_converges():
     """A Gaussian of σ = 3e-5 alone: the first round saw only its tails (mass ~0), and a
     budget fixed from that round asked every piece for ~0 error."""
