@@ -341,7 +341,12 @@ def _fused_loop(kernel, density, n_in: int, n_out: int, inline: bool, inline_den
 def as_rows(name: str, x, n_in: int) -> np.ndarray:
     """``x`` as a C-contiguous (n, n_in) array, float32 kept as float32 and anything
     else as float64 (1-D accepted when n_in is 1)."""
-    a = np.asarray(x)
+    try:
+        a = np.asarray(x)
+    except ValueError as e:
+        # a ragged list (rows of 1 and 2 numbers): numpy's "setting an array element
+        # with a sequence", which named no front end
+        raise ValueError(f"{name}: not an array of numbers ({e})") from None
     # complex, object (None read as NaN), strings, bools: numpy's cast dropped the
     # imaginary part with a warning, or raised a message that named no front end
     if a.dtype.kind not in "fiu":
