@@ -158,9 +158,11 @@ def _density(name: str, v, n: int, x=None) -> np.ndarray:
     return a
 
 
-def _points(name: str, x, n: int):
-    """What ``sample`` returned for n uniforms: n points (a shorter array had been
-    reported as f's wrong shape)."""
+def _points(name: str, x, n: int) -> np.ndarray:
+    """What ``sample`` returned for n uniforms as an array of n points (a shorter array
+    had been reported as f's wrong shape), the array that f and the pdfs then take: a
+    list of points, checked as an array, went to them as the list, and ``x[:, 0]`` in f
+    raised Python's "list indices must be integers or slices, not tuple"."""
     try:
         a = np.asarray(x)
     except ValueError as e:       # a ragged list: numpy's message, naming nothing
@@ -173,7 +175,7 @@ def _points(name: str, x, n: int):
     if a.shape[:1] != (n,):
         raise ValueError(f"{name} returned shape {a.shape} for {n} uniforms: expected "
                          f"{n} points (rows)")
-    return x
+    return a
 
 
 def _checked(fn):

@@ -328,6 +328,21 @@ def test_an_n_by_1_pdf_or_f_gives_the_estimate_of_n_values():
             mc.importance(np.sin, pts, bad, 100)
 
 
+def test_a_sampler_returning_a_list_of_points_gives_f_and_the_pdf_an_array():
+    """The points a sampler returns are checked as an array, and f and the pdf took them
+    as given: from a sampler returning a list of points (``u.tolist()``), ``x[:, 0]`` in
+    f raised Python's "list indices must be integers or slices, not tuple" (found by
+    review). They take the array now, and each estimate is that of the array sampler."""
+    f, pdf = (lambda x: np.sin(x[:, 0])), (lambda x: 2.0 * x[:, 0] / np.pi ** 2)
+    pts = lambda u: np.pi * np.sqrt(u)                     # noqa: E731
+    listed = lambda u: pts(u).tolist()                     # noqa: E731
+    calls = [lambda s: mc.importance(f, s, pdf, 100, seed=2),
+             lambda s: mc.russian_roulette(f, s, pdf, 100, 0.5, seed=2),
+             lambda s: mc.mis(f, [(s, pdf, 100, 1), (pts, pdf, 100, 1)], seed=2)]
+    for call in calls:
+        assert call(listed).value == call(pts).value
+
+
 @pytest.mark.parametrize("heuristic, beta", [("balance", 2.0), ("power", 2.0),
                                              ("power", 3.0)])
 def test_mis_term_at_a_sample_where_its_own_pdf_is_0_is_its_limit(heuristic, beta):
