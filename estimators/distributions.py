@@ -643,7 +643,12 @@ class InvertedCDF:
                              f"{peak:.3g}, below float64's normal range (2.2e-308), where "
                              "they keep too few digits to integrate; scale it up: it need "
                              "not be normalised")
-        cdf = np.concatenate([[0.0], np.cumsum(masses)]) / total
+        # over the running sum's own end, which is then exactly 1: over the total (a
+        # pairwise sum, a few ulps from it) the CDF ended at 1 - 2^-52 and was set to 1 at
+        # b, a step of 2^-52 in the last piece whatever its mass, and u = 1 - 2^-53 (the
+        # clamp of u = 1) was solved there: b = 800, of density 0, for e^-x on [0, 800]
+        running = np.cumsum(masses)
+        cdf = np.concatenate([[0.0], running]) / running[-1]
         cdf[-1] = 1.0
         error = float(errors.sum() / total)
         if not error <= max(1000.0 * tol, 1e-6):

@@ -381,6 +381,21 @@ def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive():
     assert np.isnan(d.sample([np.nan])).all()
 
 
+@pytest.mark.parametrize("pdf,below", [(lambda x: np.exp(-x), 40.0),
+                                       (lambda x: np.where(x < 20.0, np.exp(-x), 0.0), 20.0)],
+                         ids=["exp-underflows", "exp-cut-at-20"])
+def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive_on_a_long_tail(pdf, below):
+    """The CDF table was divided by the pairwise total, a few ulps from the running sum:
+    it ended at 1 - 2^-52 and was set to 1 at b, a step in the last piece whatever its
+    mass, so u = 1 (taken as 1 - 2^-53) and u = 1 - 2^-52 returned b = 800, of density 0,
+    for e^-x on [0, 800] (it underflows from 745) and for e^-x cut at 20 (found by
+    review). They stay where the density is positive, near -ln(2^-53) = 36.7 or below
+    the cut."""
+    d = InvertedCDF(pdf, 0.0, 800.0)
+    x = d.sample(np.array([1.0, 1 - 2 ** -53, 1 - 2 ** -52, np.float32(1 - 2 ** -26)])).ravel()
+    assert np.all(x < below) and np.all(d.pdf(x) > 0), x
+
+
 @pytest.mark.parametrize("dtype,kw,failure", [
     (np.float32, {}, "did not converge within 20,000 pieces"),
     (np.float32, {"pieces": 2, "max_rounds": 8}, "did not converge within max_rounds=8"),
