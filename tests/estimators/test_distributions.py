@@ -381,10 +381,11 @@ def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive():
     assert np.isnan(d.sample([np.nan])).all()
 
 
-@pytest.mark.parametrize("pdf,below", [(lambda x: np.exp(-x), 40.0),
-                                       (lambda x: np.where(x < 20.0, np.exp(-x), 0.0), 20.0)],
-                         ids=["exp-underflows", "exp-cut-at-20"])
-def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive_on_a_long_tail(pdf, below):
+@pytest.mark.parametrize("pdf,below", [
+    (lambda x: np.exp(-x), 40.0),
+    (lambda x: np.where(x < 20.0, np.exp(-x), 0.0), 20.0)],
+    ids=["exp-underflows", "exp-cut"])
+def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive_on_a_tail(pdf, below):
     """The CDF table was divided by the pairwise total, a few ulps from the running sum:
     it ended at 1 - 2^-52 and was set to 1 at b, a step in the last piece whatever its
     mass, so u = 1 (taken as 1 - 2^-53) and u = 1 - 2^-52 returned b = 800, of density 0,
@@ -392,7 +393,8 @@ def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive_on_a_long_tail
     review). They stay where the density is positive, near -ln(2^-53) = 36.7 or below
     the cut."""
     d = InvertedCDF(pdf, 0.0, 800.0)
-    x = d.sample(np.array([1.0, 1 - 2 ** -53, 1 - 2 ** -52, np.float32(1 - 2 ** -26)])).ravel()
+    u = np.array([1.0, 1 - 2 ** -53, 1 - 2 ** -52, np.float32(1 - 2 ** -26)])
+    x = d.sample(u).ravel()
     assert np.all(x < below) and np.all(d.pdf(x) > 0), x
 
 
@@ -400,8 +402,8 @@ def test_inverted_cdf_at_u_of_one_stays_where_the_pdf_is_positive_on_a_long_tail
     (np.float32, {}, "did not converge within 20,000 pieces"),
     (np.float32, {"pieces": 2, "max_rounds": 8}, "did not converge within max_rounds=8"),
     (np.float16, {"pieces": 2, "max_rounds": 3}, "did not converge within max_rounds=3")])
-def test_inverted_cdf_blames_a_pdf_of_float32_values_not_its_integrability(monkeypatch, dtype,
-                                                                          kw, failure):
+def test_inverted_cdf_blames_a_pdf_of_float32_values_not_its_integrability(
+        monkeypatch, dtype, kw, failure):
     """e^-x returned as float32 on [0, 5]: every step of the float32 rounding is a jump
     the refinement chases, and the pdf was refused, after seconds, as "a pdf that is not
     integrable, or a feature narrower than 1e-13 of the interval" (found by review). The
@@ -410,9 +412,10 @@ def test_inverted_cdf_blames_a_pdf_of_float32_values_not_its_integrability(monke
 
     monkeypatch.setattr(D, "_MAX_PIECES", 20_000)
     pdf = lambda x: np.exp(-x).astype(dtype)       # noqa: E731
-    with pytest.raises(ValueError, match=rf"pdf: returns {np.dtype(dtype).name} values, each "
-                       rf"rounded to .* of itself: its CDF on \[0.0, 5.0\] {failure}.* "
-                       "return float64 values, or raise tol"):
+    name = np.dtype(dtype).name
+    with pytest.raises(ValueError, match=rf"pdf: returns {name} values, each rounded to .* "
+                       rf"of itself: its CDF on \[0.0, 5.0\] {failure}.* return float64 "
+                       "values, or raise tol"):
         InvertedCDF(pdf, 0.0, 5.0, **kw)
     assert InvertedCDF(lambda x: np.exp(-x), 0.0, 5.0).cdf_error < 1e-10
     assert InvertedCDF(pdf, 0.0, 5.0, tol=1e-6).cdf_error < 1e-6
