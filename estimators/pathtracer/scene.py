@@ -719,9 +719,9 @@ class _Loader:
             elif node.tag in _REFERENCED:
                 # declared once, used by <ref id=.../> (a sensor's film and sampler, a
                 # film's rfilter, as Mitsuba's own test scenes write them)
+                # one without an id is never used, as Mitsuba builds and ignores it (a
+                # BSDF or texture; it was refused, "needs an id to be referenced")
                 p = self.plugin(node)
-                if not p.id:
-                    self.fail(node, f"a top-level {node.tag} needs an id to be referenced")
                 if p.kind in _SENSOR_PARTS:
                     declared.append((node, p))
             else:
@@ -730,6 +730,10 @@ class _Loader:
         if sensor is None:
             self.fail(root, "the scene has no <sensor>")
         for node, p in declared:
+            if p.id is None:
+                self.fail(node, f"a top-level {p.kind} without an id is never used (a "
+                                "sensor's parts are checked here as the sensor uses them); "
+                                "remove it, or give it an id and reference it")
             if p.id not in self.referenced:
                 # Mitsuba builds it anyway (and refuses it where it is invalid); the
                 # checks here run on the sensor's film and sampler only

@@ -1359,7 +1359,7 @@ def test_a_sensors_film_sampler_and_filter_may_be_declared_at_the_top_and_refere
     for tag, ident, line in (("rfilter", "f", 2), ("sampler", "s", 3), ("film", "film", 4)):
         bare = text.replace(f' id="{ident}">', ">", 1).replace(f'<ref id="{ident}"/>', "")
         assert f"s.xml:{line}: <{tag} " in _error(bare)
-        assert f"a top-level {tag} needs an id to be referenced" in _error(bare)
+        assert f"a top-level {tag} without an id is never used" in _error(bare)
         # declared and never used: the loader's checks would skip it (Mitsuba builds it
         # anyway, and refuses it where it is invalid: file_format jpeg, width -3)
         unused = text.replace(f'<ref id="{ident}"/>', "")
@@ -1506,3 +1506,17 @@ def test_an_included_file_s_faults_are_refused_naming_that_file_and_line(mi, tmp
     assert needle in str(e.value).replace(str(tmp_path) + os.sep, ""), str(e.value)
     with pytest.raises(RuntimeError):
         mi.load_file(str(path))
+
+
+def test_a_top_level_bsdf_or_texture_without_an_id_is_read_and_left_unused_as_in_mitsuba(mi):
+    """Mitsuba builds a top-level BSDF or texture without an id and ignores it; the loader
+    refused the scene ("a top-level bsdf needs an id to be referenced"). It is read (and
+    refused where it is invalid, as Mitsuba refuses it) and nothing uses it."""
+    for extra in ('<bsdf type="diffuse"/>', '<texture type="checkerboard"/>'):
+        text = (f'<scene version="3.0.0"><integrator type="path"/>{_CAMERA}{extra}'
+                '<shape type="sphere"/></scene>')
+        d = parse_scene(text, path="s.xml")
+        assert len(d.shapes) == 1 and d.shapes[0].children == []
+        assert len(mi.load_string(text).shapes()) == 1
+    bad = text.replace('<texture type="checkerboard"/>', '<bsdf type="difuse"/>')
+    assert "s.xml:1: <bsdf type=\"difuse\">" in _error(bad)
