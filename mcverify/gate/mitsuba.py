@@ -658,6 +658,12 @@ def _bsdf_setup(plugin, wi, uv, component):
         si.wi = m.Vector3f(*w)
         si.n = m.Normal3f(0.0, 0.0, 1.0)
         si.sh_frame = m.Frame3f(m.Vector3f(0.0, 0.0, 1.0))
+        # the surface's tangents along u and v, the shading frame's s and t: bumpmap
+        # builds its perturbed normal from them (cross(dp_du, dp_dv)); left at zero,
+        # every draw of a bump-mapped BSDF was NaN with zero weight, all rejected, and
+        # the check passed with nothing tested
+        si.dp_du = m.Vector3f(1.0, 0.0, 0.0)
+        si.dp_dv = m.Vector3f(0.0, 1.0, 0.0)
         si.uv = m.Point2f(*uv)
         return si
 

@@ -471,3 +471,20 @@ def test_the_names_of_bsdf_checks_tell_components_and_texels_apart():
     assert names[0] == "mitsuba.bsdf:plastic@wi=(0,0,1)"     # the defaults' name as before
     assert names[2].endswith("@wi=(0,0,1),component=1")
     assert names[-1].endswith("@wi=(0,0,1),uv=(0.25,0.5)")
+
+
+def test_a_bump_mapped_bsdf_is_sampled_in_its_perturbed_frame():
+    """``bumpmap`` builds its normal from the surface's tangents ``dp_du`` and ``dp_dv``,
+    which the adapters left at zero: every draw was NaN with zero weight, so all were
+    rejected and the check passed with nothing tested (an outside review). With the
+    tangents set, most draws are accepted and they follow the pdf (α = 0.01)."""
+    height = np.random.default_rng(5).random((8, 8, 1)).astype(np.float32)
+    plugin = {"type": "bumpmap", "scale": 0.5, "bsdf": {"type": "diffuse"},
+              "texture": {"type": "bitmap", "bitmap": mvm.mi().Bitmap(height), "raw": True}}
+    subject = mvm.bsdf(plugin, wi=direction(30.0), uv=(0.3, 0.6))
+    r = _check(subject, rejection=True)
+    assert r.passed, (r.p_value, r.failures)
+    assert r.details["rejection"]["acceptance_rate"] > 0.5
+    s, p, f, kw = mvm.bsdf_weighted(plugin, wi=direction(30.0), uv=(0.3, 0.6))
+    wo, pdf, weight = s(np.random.default_rng(2).random((1000, 3)))
+    assert np.isfinite(wo).all() and (weight > 0).any()
