@@ -495,6 +495,7 @@ def _load(plugin, what: str, classes: tuple):
     """A dict (``mi.load_dict``), an XML string (``mi.load_string``) or a loaded plugin."""
     m = _mi()
     if isinstance(plugin, dict):
+        _finite_values(plugin, what)
         loader, arg = m.load_dict, _bitmaps(plugin)
     elif isinstance(plugin, str):
         if not plugin.lstrip().startswith("<"):
@@ -526,6 +527,27 @@ def _load(plugin, what: str, classes: tuple):
                               f"{' or '.join('mitsuba.' + c for c in classes)} (a dict, an "
                               "XML string or a loaded plugin)")
     return plugin
+
+
+def _finite_values(v, where: str) -> None:
+    """Refuse a NaN or infinite number anywhere in a plugin dict (a parameter, an RGB
+    value, a pixel of an inline image). Mitsuba loads them: a rough conductor of
+    α = NaN or a sphere light of radius NaN rejected every draw, and the check passed
+    as 'consistent, nothing else to test'."""
+    if isinstance(v, dict):
+        for k, x in v.items():
+            _finite_values(x, f"{where}[{k!r}]")
+    elif isinstance(v, (list, tuple)):
+        for i, x in enumerate(v):
+            _finite_values(x, f"{where}[{i}]")
+    elif isinstance(v, (numbers.Real, np.ndarray)) and not isinstance(v, bool):
+        a = np.asarray(v)
+        if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
+            shown = v if a.ndim == 0 else f"an array with {int(np.sum(~np.isfinite(a)))} " \
+                                          "NaN or infinite values"
+            raise InvalidArgument(f"{where}={shown}: not a finite number; Mitsuba loads it, "
+                                  "but its draws and pdf are NaN or rejected, so the check "
+                                  "would test nothing")
 
 
 def _bitmaps(d: dict) -> dict:

@@ -215,11 +215,28 @@ def test_float32_directions_near_the_pole_keep_their_angle():
     (lambda: mvm.microfacet("ggx", 0.1, sample_visible="False"),
      "sample_visible='False': must be True or False"),
     (lambda: mvm.phase({"type": "diffuse"}), "expected a mitsuba.PhaseFunction"),
+    # Mitsuba loads NaN and infinite parameters; every draw was rejected and the check
+    # passed as 'consistent, nothing else to test'
+    (lambda: mvm.bsdf({"type": "roughconductor", "alpha": math.nan}, wi=(0, 0, 1)),
+     r"plugin\['alpha'\]=nan: not a finite number"),
+    (lambda: mvm.bsdf({"type": "twosided", "bsdf": {"type": "roughconductor",
+                                                     "alpha": np.float32("inf")}},
+                      wi=(0, 0, 1)), r"plugin\['bsdf'\]\['alpha'\]=inf: not a finite"),
+    (lambda: mvm.bsdf({"type": "diffuse", "reflectance": {"type": "rgb",
+                                                          "value": [0.5, math.nan, 0.5]}},
+                      wi=(0, 0, 1)), r"plugin\['reflectance'\]\['value'\]\[1\]=nan"),
+    (lambda: mvm.emitter({"type": "sphere", "radius": math.nan,
+                          "emitter": {"type": "area"}}, ref=(0, 0, 5)),
+     r"plugin\['radius'\]=nan: not a finite"),
+    (lambda: mvm.emitter({"type": "envmap", "bitmap": np.full((4, 8, 3), np.nan)}),
+     r"plugin\['bitmap'\]=an array with 96 NaN or infinite values"),
+    (lambda: mvm.phase({"type": "hg", "g": math.nan}), r"plugin\['g'\]=nan"),
 ], ids=["wi-length", "wi-size", "wi-nan", "unknown-plugin", "not-xml", "wrong-class",
         "component", "component-bool", "uv-size", "uv-scalar", "uv-str", "uv-nan",
         "delta-emitter", "no-emitter", "ref-size", "distribution", "alpha-zero",
         "alpha-v", "visible-below", "alpha-3", "alpha-1", "alpha-bool", "alpha-str",
-        "visible-str", "phase-class"])
+        "visible-str", "phase-class", "alpha-nan", "nested-inf", "rgb-nan", "radius-nan",
+        "envmap-nan", "g-nan"])
 def test_bad_arguments_raise_invalid_argument(call, match):
     with pytest.raises(mv.InvalidArgument, match=match):
         call()
