@@ -495,6 +495,13 @@ def _load(plugin, what: str, classes: tuple):
     """A dict (``mi.load_dict``), an XML string (``mi.load_string``) or a loaded plugin."""
     m = _mi()
     if isinstance(plugin, dict):
+        if not isinstance(plugin.get("type"), str):
+            # Mitsuba takes a dict without one for a scene ("unreferenced property in
+            # scene plugin", or "got Scene"), and a type of 3 for std::bad_cast
+            got = (f"'type': {plugin['type']!r}, not a string" if "type" in plugin
+                   else f"no 'type' (keys {sorted(map(str, plugin))})")
+            raise InvalidArgument(f"{what}: a dict with {got}; name the plugin, e.g. "
+                                  "{'type': 'roughconductor', 'alpha': 0.2}")
         _finite_values(plugin, what)
         loader, arg = m.load_dict, _bitmaps(plugin)
     elif isinstance(plugin, str):

@@ -231,12 +231,17 @@ def test_float32_directions_near_the_pole_keep_their_angle():
     (lambda: mvm.emitter({"type": "envmap", "bitmap": np.full((4, 8, 3), np.nan)}),
      r"plugin\['bitmap'\]=an array with 96 NaN or infinite values"),
     (lambda: mvm.phase({"type": "hg", "g": math.nan}), r"plugin\['g'\]=nan"),
+    # Mitsuba took these for a scene, or raised std::bad_cast
+    (lambda: mvm.bsdf({"alpha": 0.2}, wi=(0, 0, 1)),
+     r"plugin: a dict with no 'type' \(keys \['alpha'\]\); name the plugin"),
+    (lambda: mvm.emitter({}), r"plugin: a dict with no 'type' \(keys \[\]\)"),
+    (lambda: mvm.phase({"type": 3}), "plugin: a dict with 'type': 3, not a string"),
 ], ids=["wi-length", "wi-size", "wi-nan", "unknown-plugin", "not-xml", "wrong-class",
         "component", "component-bool", "uv-size", "uv-scalar", "uv-str", "uv-nan",
         "delta-emitter", "no-emitter", "ref-size", "distribution", "alpha-zero",
         "alpha-v", "visible-below", "alpha-3", "alpha-1", "alpha-bool", "alpha-str",
         "visible-str", "phase-class", "alpha-nan", "nested-inf", "rgb-nan", "radius-nan",
-        "envmap-nan", "g-nan"])
+        "envmap-nan", "g-nan", "no-type", "empty-dict", "type-int"])
 def test_bad_arguments_raise_invalid_argument(call, match):
     with pytest.raises(mv.InvalidArgument, match=match):
         call()
