@@ -675,7 +675,10 @@ def _bsdf_setup(plugin, wi, uv, component):
     if component is not None and (isinstance(component, bool)
                                   or not isinstance(component, numbers.Integral)
                                   or not 0 <= component < obj.component_count()):
-        raise InvalidArgument(f"component={component!r}: this BSDF has "
+        # 1.0 and "1" read "this BSDF has 2 components (0...1)", as if out of range
+        kind = ("" if isinstance(component, numbers.Integral) and not isinstance(component, bool)
+                else "an integer index, or None for all; ")
+        raise InvalidArgument(f"component={component!r}: {kind}this BSDF has "
                               f"{obj.component_count()} components (0..."
                               f"{obj.component_count() - 1})")
     ctx = m.BSDFContext()

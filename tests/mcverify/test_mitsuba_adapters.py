@@ -236,12 +236,18 @@ def test_float32_directions_near_the_pole_keep_their_angle():
      r"plugin: a dict with no 'type' \(keys \['alpha'\]\); name the plugin"),
     (lambda: mvm.emitter({}), r"plugin: a dict with no 'type' \(keys \[\]\)"),
     (lambda: mvm.phase({"type": 3}), "plugin: a dict with 'type': 3, not a string"),
+    # read as if out of range: "this BSDF has 2 components (0...1)"
+    (lambda: mvm.bsdf({"type": "plastic"}, wi=(0, 0, 1), component=1.0),
+     r"component=1.0: an integer index, or None for all; this BSDF has 2"),
+    (lambda: mvm.bsdf_weighted({"type": "plastic"}, wi=(0, 0, 1), component="0"),
+     r"component='0': an integer index"),
 ], ids=["wi-length", "wi-size", "wi-nan", "unknown-plugin", "not-xml", "wrong-class",
         "component", "component-bool", "uv-size", "uv-scalar", "uv-str", "uv-nan",
         "delta-emitter", "no-emitter", "ref-size", "distribution", "alpha-zero",
         "alpha-v", "visible-below", "alpha-3", "alpha-1", "alpha-bool", "alpha-str",
         "visible-str", "phase-class", "alpha-nan", "nested-inf", "rgb-nan", "radius-nan",
-        "envmap-nan", "g-nan", "no-type", "empty-dict", "type-int"])
+        "envmap-nan", "g-nan", "no-type", "empty-dict", "type-int",
+        "component-float", "component-str"])
 def test_bad_arguments_raise_invalid_argument(call, match):
     with pytest.raises(mv.InvalidArgument, match=match):
         call()
