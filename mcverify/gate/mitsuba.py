@@ -572,14 +572,30 @@ def _bitmaps(d: dict) -> dict:
 
 def _label(plugin, obj) -> str:
     if isinstance(plugin, dict):
-        inner = ",".join(f"{k}={v}" for k, v in plugin.items()
-                         if k != "type" and isinstance(v, (str, int, float)))
+        shown = ((k, _param(v)) for k, v in plugin.items() if k != "type")
+        inner = ",".join(f"{k}={v}" for k, v in shown if v is not None)
         return f"{plugin.get('type', '?')}({inner})" if inner else str(plugin.get("type"))
     if isinstance(plugin, str):
         found = re.search(r'type\s*=\s*"([^"]+)"', plugin)
         if found:
             return found.group(1)
     return str(obj).split("[", 1)[0].strip() or type(obj).__name__
+
+
+def _param(v) -> str | None:
+    """A plugin parameter as a check's name shows it: a number or string, a list of
+    numbers, a nested plugin by its own label; None for what has no short form (an
+    image, a transform). Nested plugins and lists were left out: two-sided diffuse and
+    two-sided rough conductor were both 'twosided', and sphere lights at two centres
+    'sphere', checks of one name (a user suite refuses two)."""
+    if isinstance(v, dict):
+        return _label(v, None)
+    if isinstance(v, (str, numbers.Number)):
+        return f"{v}"
+    if (isinstance(v, (list, tuple)) and v
+            and all(isinstance(c, numbers.Real) for c in v)):
+        return "(" + ",".join(f"{c:g}" for c in v) + ")"
+    return None
 
 
 def _rows(fn, x: np.ndarray, d_out: int):

@@ -516,3 +516,20 @@ def test_a_bump_mapped_bsdf_is_sampled_in_its_perturbed_frame():
     s, p, f, kw = mvm.bsdf_weighted(plugin, wi=direction(30.0), uv=(0.3, 0.6))
     wo, pdf, weight = s(np.random.default_rng(2).random((1000, 3)))
     assert np.isfinite(wo).all() and (weight > 0).any()
+
+
+def test_the_names_of_checks_show_nested_plugins_and_number_lists():
+    """Only a plugin's number and string parameters were in its check's name: two-sided
+    diffuse and two-sided rough conductor were both 'twosided', and sphere lights at two
+    centres both 'sphere' (a user suite refuses two checks of one name)."""
+    names = [mvm.bsdf({"type": "twosided", "bsdf": b}, wi=(0, 0, 1))[3]["name"]
+             for b in ({"type": "diffuse"}, {"type": "roughconductor", "alpha": 0.2})]
+    names += [mvm.emitter({"type": "sphere", "center": c, "emitter": {"type": "area"}},
+                          ref=(0, 0, 0))[3]["name"] for c in ([0, 0, 3], (0, 0.5, 3))]
+    assert names == ["mitsuba.bsdf:twosided(bsdf=diffuse)@wi=(0,0,1)",
+                     "mitsuba.bsdf:twosided(bsdf=roughconductor(alpha=0.2))@wi=(0,0,1)",
+                     "mitsuba.emitter:sphere(center=(0,0,3),emitter=area)@ref=(0,0,0)",
+                     "mitsuba.emitter:sphere(center=(0,0.5,3),emitter=area)@ref=(0,0,0)"]
+    # what has no short form (an inline image) is left out, as before
+    env = mvm.emitter({"type": "envmap", "bitmap": np.ones((4, 8, 3)), "scale": 2.0})
+    assert env[3]["name"] == "mitsuba.emitter:envmap(scale=2.0)@ref=(0,0,0)"
