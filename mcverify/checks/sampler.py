@@ -1068,8 +1068,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
             messages.append(f"every one of the {n} draws was rejected, and the pdf "
                             f"integrates to {total:.3g} (quadrature error bound "
                             f"{err_bound:.2g}; binomial p = {p_value:.3g})"
-                            + (": consistent, nothing else to test" if p_value > alpha
-                               else ""))
+                            + (": consistent, nothing else to test"
+                               if p_value > alpha and not failures else ""))
         elif n_valid == 0:
             failures.append("no valid samples to test")
         if rejection and sub["acceptance"].p_value <= alpha / len(sub):

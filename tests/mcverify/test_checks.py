@@ -760,6 +760,17 @@ def test_a_sampler_rejecting_every_draw_where_none_was_expected_passes(t):
     assert any("nothing else to test" in m for m in r.messages), r.messages
 
 
+def test_every_draw_rejected_with_a_pdf_of_nan_is_not_called_consistent():
+    """Every draw rejected, and a pdf returning NaN (a Mitsuba plugin of a NaN
+    parameter): the check failed on the NaN values, while its message said "consistent,
+    nothing else to test" (an outside review)."""
+    r = mv.check_sampler(lambda u: np.full((len(u), 3), np.nan),
+                         lambda x: np.full(len(x), np.nan), "hemisphere", rejection=True,
+                         seed=5, n_samples=10_000)
+    assert not r.passed and any("NaN/Inf" in f for f in r.failures), r.failures
+    assert not any("consistent" in m for m in r.messages), r.messages
+
+
 def test_a_sampler_rejecting_every_draw_where_some_were_expected_fails():
     """A sampler rejecting every draw where its pdf says 1 draw in 1000 is accepted (100
     expected of 1e5): the acceptance test fails it."""
