@@ -780,12 +780,18 @@ class _Builder:
         if not corners:
             self.fail(s, f"{path}: no faces{_lone_cr(lines)}")
         v, vt, vn = np.array(v, float), np.array(vt, float), np.array(vn, float)
-        for j, word in ((1, "texture coordinates"), (2, "normals"))[:2 - face_normals]:
+        for j, word, key, seen in ((1, "texture coordinates", "vt", vt),
+                                   (2, "normals", "vn", vn))[:2 - face_normals]:
             given = {bool(c[j]) for tri in corners for c in tri}
             if len(given) > 1:
                 self.fail(s, f"{path}: some faces have {word} and some do not (Mitsuba's "
                              f"{word} on those are undefined); give them to every face or "
                              "to none")
+            if given == {False} and len(seen):
+                # Mitsuba allocates them for the file's lines and fills none: its
+                # vertices' normals were left uninitialised (zeros in one run, 9e-24 in
+                # the next), where ours took the last 'vn' for every corner (vn[0 - 1])
+                self._unused_lines(s, path, key, len(seen), word)
         use_vn = len(vn) > 0 and not face_normals
         flip = bool(s.get("flip_tex_coords", True))     # Mitsuba's default: v -> 1 - v
         verts, uvs, normals, faces, key = [], [], [], [], {}
@@ -807,6 +813,13 @@ class _Builder:
         vertex = np.array([key[c] for tri in corners for c in tri])
         normals = np.array(normals, float) if use_vn else None
         return np.array(verts), faces, normals, np.array(uvs), vertex
+
+    def _unused_lines(self, s: Plugin, path: str, key: str, count: int, word: str):
+        """Refuse an OBJ with ``key`` lines ('vt' or 'vn') that no face refers to."""
+        fix = "v/vt" if key == "vt" else "v//vn, or set face_normals"
+        self.fail(s, f"{path}: {count} '{key}' line(s) but no face refers to one "
+                     f"(Mitsuba gives every vertex {word} from memory it never fills, "
+                     f"undefined): refer to them ({fix}) or delete the '{key}' lines")
 
     # ---------------------------------------------------------------- emitters
     def area_light(self, emitter: Plugin, first: int, count: int, kind: int):

@@ -320,6 +320,13 @@ OBJ_BAD = {   # name: (file text, what the message says, Mitsuba refuses it too)
                          False),
     "some-faces-without-normals": (_TRI + "v 1 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\nf 2 4 3\n",
                                    "some faces have normals and some do not", False),
+    # Mitsuba's normals or uv are then uninitialised memory (zeros in one run, 9e-24 in
+    # the next); ours took the last 'vn' for every corner, vn[0 - 1]
+    "normals-no-face-uses": (_TRI + "vn 1 0 0\nf 1 2 3\n", ": 1 'vn' line(s) but no face "
+                             "refers to one", False),
+    "uv-no-face-uses": (_TRI + "vt 0.3 0.3\nvn 0 0 1\nf 1//1 2//1 3//1\n",
+                        ": 1 'vt' line(s) but no face refers to one", False),
+    "uv-index-zero": (_TRI + "vt 0.3 0.3\nf 1/0 2/0 3/0\n", "'vt' line(s) but no face", False),
     # Mitsuba misreads these (no face of 'f 1 2 3#c'; one triangle of the quad)
     "comment-glued-to-face": (_TRI + "f 1 2 3#c\n", ":4: 'f 1 2 3#c': a comment glued to an "
                               "index (3#...)", False),
