@@ -754,6 +754,13 @@ class _Builder:
                     self.fail(s, f"{where}: a comment glued to an index "
                                  f"({t[-1]}#...), which Mitsuba "
                                  "misreads: put a space before '#'")
+                extra = next((tok for tok in t[1:] if any(tok.split("/")[3:])), None)
+                if extra is not None:
+                    # Mitsuba refuses the file ("could not parse line"); the fourth
+                    # index was dropped here and the face rendered
+                    self.fail(s, f"{where}: the corner {extra!r} has more than three "
+                                 "indices (v, v/vt, v//vn or v/vt/vn), which Mitsuba "
+                                 "refuses")
                 idx = [_numbers([p or "0" for p in (tok.split("/") + ["", ""])[:3]],
                                 lambda p: parse_int(p, sign="+-"))
                        for tok in t[1:]]

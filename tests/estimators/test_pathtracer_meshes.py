@@ -311,6 +311,10 @@ OBJ_BAD = {   # name: (file text, what the message says, Mitsuba refuses it too)
                     ":4: 'vn 0 1e300 1e300': not finite in single", True),
     "two-coordinates": ("v 0 0\n" + _TRI + "f 2 3 4\n", ":1: 'v 0 0': needs 3 numbers", True),
     "one-uv": (_TRI + "vt 0.1\nf 1/1 2/1 3/1\n", "'vt 0.1': needs 2 numbers", True),
+    # the fourth index was dropped and the face rendered
+    "four-indices": (_TRI + "vt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1/1 3/1/1\n",
+                     ":6: 'f 1/1/1 2/1/1/1 3/1/1': the corner '2/1/1/1' has more than three "
+                     "indices", True),
     "two-normal-values": (_TRI + "vn 0 1\nf 1//1 2//1 3//1\n", "'vn 0 1': needs 3", True),
     "byte-order-mark": ("\ufeff" + _TRI + "f 1 2 3\n", "starts with a byte-order mark", True),
     "underscore-number": ("v 1_0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", ":1: 'v 1_0 0 0': needs 3",
