@@ -770,6 +770,13 @@ class _Builder:
                     # Mitsuba reads them as huge unsigned indices and refuses the file
                     self.fail(s, f"{where}: negative (relative) indices are not supported "
                                  "(Mitsuba refuses them too)")
+                bare = next((tok for tok in t[1:] if tok.startswith("/")), None)
+                if bare is not None:
+                    # Mitsuba drops such a face without a word; it was refused here as
+                    # one that 'refers to vertex 0', which the file does not say
+                    self.fail(s, f"{where}: the corner {bare!r} has no vertex index "
+                                 "(Mitsuba drops such a face): begin each corner with "
+                                 "its 'v' index")
                 if any(c[0] == 0 for c in idx):
                     self.fail(s, f"{where}: a face refers to vertex 0 (indices start at 1)")
                 for j, (name, seen) in enumerate((("v", v), ("vt", vt), ("vn", vn))):

@@ -331,6 +331,10 @@ OBJ_BAD = {   # name: (file text, what the message says, Mitsuba refuses it too)
     "uv-no-face-uses": (_TRI + "vt 0.3 0.3\nvn 0 0 1\nf 1//1 2//1 3//1\n",
                         ": 1 'vt' line(s) but no face refers to one", False),
     "uv-index-zero": (_TRI + "vt 0.3 0.3\nf 1/0 2/0 3/0\n", "'vt' line(s) but no face", False),
+    # Mitsuba drops the face; it was refused as one that 'refers to vertex 0'
+    "corner-without-vertex": (_TRI + "vt 0 0\nf 1/1 /1 3/1\n", ":5: 'f 1/1 /1 3/1': the "
+                              "corner '/1' has no vertex index", False),
+    "corner-of-a-slash": (_TRI + "f 1 / 2 3\n", "the corner '/' has no vertex index", False),
     # Mitsuba misreads these (no face of 'f 1 2 3#c'; one triangle of the quad)
     "comment-glued-to-face": (_TRI + "f 1 2 3#c\n", ":4: 'f 1 2 3#c': a comment glued to an "
                               "index (3#...)", False),
