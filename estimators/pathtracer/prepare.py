@@ -610,7 +610,10 @@ class _Builder:
                 normals = None
             elif normals is None:   # smooth normals, computed in world space as Mitsuba does
                 faces = np.asarray(faces).reshape(-1, 3)
-                normals = _vertex_normals(wverts, faces, pidx, int(pidx.max()) + 1)
+                normals, cancelled = _vertex_normals(wverts, faces, pidx, int(pidx.max()) + 1)
+                if cancelled.any():
+                    self._cancelled_normals(s, verts[np.argmax(cancelled)],
+                                            len(np.unique(pidx[cancelled])))
             else:
                 # world-space unit normals, as Mitsuba stores them (a non-unit normal in
                 # the file would otherwise weigh more in the interpolation)
@@ -827,6 +830,18 @@ class _Builder:
         vertex = np.array([key[c] for tri in corners for c in tri])
         normals = np.array(normals, float) if use_vn else None
         return np.array(verts), faces, normals, np.array(uvs), vertex
+
+    def _cancelled_normals(self, s: Plugin, where, count: int):
+        """Refuse a mesh whose smooth normal at a vertex (``where``, as in the file)
+        cancels out: Mitsuba's there is rounding noise, or (1, 0, 0) where its sum is
+        exactly 0 (a quad whose two triangles are wound opposite ways rendered a block of
+        0.12 here against Mitsuba's 0.004)."""
+        self.fail(s, f"{self._asset_path(s)}: the smooth normal at the vertex at "
+                     f"({', '.join(f'{x:g}' for x in where)}) cancels out, faces wound "
+                     f"opposite ways sharing it ({count} vertex(es) so), and Mitsuba's "
+                     "normal there is left to rounding or set to (1, 0, 0): wind the "
+                     "faces consistently (a double-sided card: one set of faces and a "
+                     "twosided BSDF), give the mesh normals, or set face_normals")
 
     def _unused_lines(self, s: Plugin, path: str, key: str, count: int, word: str):
         """Refuse an OBJ with ``key`` lines ('vt' or 'vn') that no face refers to."""
@@ -1141,6 +1156,11 @@ _SIMILARITY_TOL = 1e-3
 #: bytes or more (the LF not counted, a CR before it counted)
 _OBJ_LINE_BYTES = 1024
 
+#: A smooth vertex normal whose faces' sum is below this fraction of their weight (faces
+#: wound opposite ways share the vertex) is left to rounding in Mitsuba's float32 sum, up
+#: to 0.6 % of a radian at 1e-5, any direction near 0, and (1, 0, 0) at exactly 0
+_CANCELLED = 1e-5
+
 
 def _lone_cr(lines) -> str:
     """A refusal's hint where an OBJ's ``lines`` (split at LF, as bytes or text) hold a CR
@@ -1163,19 +1183,26 @@ def _numbers(tokens, kind):
 
 def _vertex_normals(verts, faces, pidx, n_positions):
     """Smooth normals for a mesh without them, as Mitsuba computes: each face's normal
-    weighted by its angle at the vertex (Thürmer and Wüthrich), summed per position."""
-    acc = np.zeros((n_positions, 3))
+    weighted by its angle at the vertex (Thürmer and Wüthrich), summed per position; and
+    per corner whether that sum cancels out (below ``_CANCELLED`` of its weight), where
+    Mitsuba's float32 normal is left to rounding."""
+    acc, weight = np.zeros((n_positions, 3)), np.zeros(n_positions)
     p = verts[faces]                                        # (F, 3 corners, 3)
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    area = np.linalg.norm(n, axis=1)
+    n /= np.maximum(area, 1e-300)[:, None]
     for c in range(3):
         e1 = p[:, (c + 1) % 3] - p[:, c]
         e2 = p[:, (c + 2) % 3] - p[:, c]
         cos = np.sum(e1 * e2, axis=1) / np.maximum(
             np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
-        np.add.at(acc, pidx[faces[:, c]], n * np.arccos(np.clip(cos, -1, 1))[:, None])
-    acc /= np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
-    return acc[pidx]
+        angle = np.arccos(np.clip(cos, -1, 1))
+        np.add.at(acc, pidx[faces[:, c]], n * angle[:, None])
+        np.add.at(weight, pidx[faces[:, c]], np.where(area > 0, angle, 0.0))
+    length = np.linalg.norm(acc, axis=1)
+    cancelled = (weight > 0) & (length < _CANCELLED * weight)
+    acc /= np.maximum(length, 1e-300)[:, None]
+    return acc[pidx], cancelled[pidx]
 
 
 def _rectangle():
