@@ -56,21 +56,36 @@ def read_image(path: str, *, raw: bool = False, texture: bool = False) -> np.nda
     ``raw`` (as Mitsuba's ``bitmap`` does); raises OSError naming the file. ``texture``:
     the values a ``bitmap`` texture holds, which Mitsuba 3.9.1 stores in half precision
     where the file has 2 bytes a channel (a 16-bit PNG: decoded, then rounded to half,
-    up to 2^-11 of a texel; an envmap keeps float32)."""
+    up to 2^-11 of a texel; an envmap keeps float32). A texture whose image is already
+    linear Y or RGB in the type it is held in is taken as it is, as Mitsuba's ``bitmap``
+    takes it: an EXR whose channels carry a layer's name (``albedo.R``, ``albedo.G``,
+    ``albedo.B``), which Mitsuba's conversion to RGB, and an envmap's, cannot match."""
     try:
         mi = import_mitsuba()
         bmp = mi.Bitmap(path)
         if raw:
             bmp.set_srgb_gamma(False)
         half = texture and bmp.bytes_per_pixel() == 2 * bmp.channel_count()
-        bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB,
-                          mi.Struct.Type.Float16 if half else mi.Struct.Type.Float32, False)
+        stored = mi.Struct.Type.Float16 if half else mi.Struct.Type.Float32
+        if not (texture and _held_as_it_is(mi, bmp, stored)):
+            bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, stored, False)
         a = np.array(bmp, dtype=np.float64)
     except Exception as e:  # noqa: BLE001 - any decoder failure is a bad file
         raise OSError(f"{path}: cannot read image ({e})") from None
     if a.ndim == 2:
-        a = np.repeat(a[:, :, None], 3, axis=2)
+        a = a[:, :, None]
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
     return a[:, :, :3]
+
+
+def _held_as_it_is(mi, bmp, stored) -> bool:
+    """Whether Mitsuba 3.9.1's ``bitmap`` texture keeps ``bmp`` without converting it:
+    linear Y or RGB already in the type it stores (a converted layered EXR is refused,
+    'don't know how to obtain channel "R"', where Mitsuba renders it)."""
+    pf = mi.Bitmap.PixelFormat
+    return (bmp.pixel_format() in (pf.Y, pf.RGB) and bmp.component_format() == stored
+            and not bmp.srgb_gamma())
 
 
 def non_finite_texels(image: np.ndarray) -> tuple | None:

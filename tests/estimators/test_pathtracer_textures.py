@@ -222,6 +222,27 @@ def test_jpeg_is_read_as_8_bit_srgb(mi, images):
                                rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.parametrize("channels", [("albedo.R", "albedo.G", "albedo.B"), ("rough.Y",)],
+                         ids=["rgb", "y"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float16], ids=["float", "half"])
+def test_an_exr_whose_channels_carry_a_layers_name_is_read_as_mitsuba_reads_it(
+        mi, tmp_path, channels, dtype):
+    """An EXR exported with a layer's name on its channels (albedo.R, albedo.G, albedo.B;
+    rough.Y) is one Mitsuba's ``bitmap`` renders, keeping its values as they are; it was
+    refused, 'cannot read image ([Bitmap] Unable to convert Struct[...]: don't know how to
+    obtain channel "R")' (an outside review). Texel centres and random uv, nearest and
+    bilinear."""
+    img = np.random.default_rng(11).random((5, 7, len(channels))).astype(dtype)
+    mi.Bitmap(img, mi.Bitmap.PixelFormat.MultiChannel, list(channels)).write(
+        str(tmp_path / "layer.exr"))
+    centres = [((i + 0.5) / 7, (j + 0.5) / 5) for j in range(5) for i in range(7)]
+    uvs = np.concatenate([centres, np.random.default_rng(12).uniform(-1, 2, (200, 2))])
+    for filt in ("nearest", "bilinear"):
+        cs, scene = _compiled(mi, tmp_path, _texture_xml(
+            "layer.exr", [("string", "filter_type", filt)]))
+        _lookups_agree(mi, cs, scene, uvs)
+
+
 def test_a_referenced_texture_is_used_not_dropped(mi, images):
     """``<texture id=.../>`` at the top and ``<ref id=... name="reflectance"/>`` in the
     BSDF: the texture is the BSDF's colour (it used to be silently the default 0.5)."""
