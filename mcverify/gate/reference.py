@@ -601,14 +601,16 @@ def _non_finite_image(scene_path: str) -> str | None:
     infinite texel, said in words, or None: Mitsuba renders such a texel as NaN pixels,
     and the build blamed an emitter's value beyond float32's range (an outside review;
     ``render-check``'s loader names the file, ``reference build`` loads no scene of its
-    own). Files that are no image (meshes, includes) are passed over."""
+    own). Files that are no image (meshes, includes) are passed over. Images are read as
+    a texture holds them, which takes an EXR whose channels carry a layer's name (an
+    envmap's conversion refuses it, and its NaN texel was passed over)."""
     from estimators.pathtracer.textures import non_finite_texels, read_image
 
     for name, full in scene_asset_files(scene_path).items():
         if not os.path.isfile(full):
             continue
         try:
-            bad = non_finite_texels(read_image(full))
+            bad = non_finite_texels(read_image(full, texture=True))
         except OSError:
             continue
         if bad:

@@ -877,6 +877,38 @@ def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(t
     assert sorted(os.listdir(tmp_path)) == ["bad.exr", "card.obj", "scene.xml"]
 
 
+def test_a_nan_texel_in_an_exr_with_layer_named_channels_is_named(tmp_path):
+    """An outside review: a bitmap from an EXR whose channels carry a layer's name
+    (albedo.R, albedo.G, albedo.B), which Mitsuba renders, with a NaN texel: the build
+    read it as an envmap, whose conversion to RGB refuses such channels, passed it over
+    and blamed 'a radiance, intensity, irradiance or scale beyond float32's range'. It now
+    names the image and its texel; nothing is written."""
+    from mcverify.errors import InvalidArgument
+
+    mi = mvm._mi()
+    texels = np.full((4, 5, 3), 0.5, dtype=np.float32)
+    texels[2, 3, 1] = np.nan
+    mi.Bitmap(texels, mi.Bitmap.PixelFormat.MultiChannel,
+              ["albedo.R", "albedo.G", "albedo.B"]).write(str(tmp_path / "layer.exr"))
+    scene = tmp_path / "scene.xml"
+    scene.write_text("""<scene version="3.0.0"><integrator type="path"/>
+  <sensor type="orthographic"><transform name="to_world"><lookat origin="0, 0, 5"
+    target="0, 0, 0" up="0, 1, 0"/></transform><film type="hdrfilm">
+    <integer name="width" value="8"/><integer name="height" value="8"/>
+    <rfilter type="box"/></film></sensor>
+  <shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">
+    <string name="filename" value="layer.exr"/><string name="filter_type" value="nearest"/>
+  </texture></bsdf></shape>
+  <emitter type="constant"/></scene>""")
+    with pytest.raises(InvalidArgument, match=r"scene\.xml: Mitsuba's image is not finite "
+                                              r".*: the image layer\.exr has 1 texel\(s\) "
+                                              r"that are not finite, the first at row 2, "
+                                              r"column 3 \(channel 1: nan\).*no reference "
+                                              r"written"):
+        reference.build_reference(str(scene), spp=4, passes=2)
+    assert sorted(os.listdir(tmp_path)) == ["layer.exr", "scene.xml"]
+
+
 def test_the_stamp_and_assets_follow_the_params_the_scene_is_loaded_with(tmp_path):
     """A ``$name`` given as a parameter (``--param tex=b.exr``) replaces the scene's
     ``<default>``: the stamp that keys a loaded scene and the hashes of a job's files
