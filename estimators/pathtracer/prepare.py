@@ -269,8 +269,16 @@ class _Builder:
     def _to_uv(self, tex: Plugin) -> tuple:
         """A texture's ``to_uv`` as the six entries ``TextureStore.add`` takes."""
         m = np.asarray(tex.get("to_uv", np.eye(4)), dtype=np.float64)
-        if np.any(m[2, [0, 1, 3]] != 0) or np.any(m[[0, 1], 2] != 0):
-            self.fail(tex, "to_uv must map the uv plane to itself (x and y only)")
+        off = [(r, c) for r, c in ((0, 2), (1, 2), (2, 0), (2, 1), (2, 3)) if m[r, c] != 0]
+        if off:
+            # Mitsuba keeps rows and columns 0, 1 and 3 and drops the rest: a 9-number
+            # <matrix> written as a homogeneous uv transform lost its offset there
+            entries = ", ".join(f"[{r}][{c}] = {m[r, c]:g}" for r, c in off)
+            self.fail(tex, f"to_uv must map the uv plane to itself (x and y only), but its "
+                           f"4x4 matrix has {entries}, which Mitsuba drops (it renders the "
+                           "texture without them); a 9-number <matrix> is the 3x3 linear "
+                           "part of (x, y, z), not a homogeneous uv transform: give a uv "
+                           "offset with <translate x=\"...\" y=\"...\"/>")
         if tex.type == "bitmap" and not finite_in_float32(m[[0, 0, 0, 1, 1, 1],
                                                              [0, 1, 3, 0, 1, 3]]):
             # Mitsuba stores it in float32 as inf: its bilinear look-up is NaN, its nearest

@@ -180,6 +180,27 @@ def test_a_bitmaps_to_uv_beyond_float32_is_refused(mi, images, filter_type, to_u
     _lookups_agree(mi, cs, scene, np.random.default_rng(4).random((100, 2)))
 
 
+def test_a_to_uv_that_moves_z_is_refused_naming_what_mitsuba_drops(mi, images):
+    """A 9-number <matrix> written as a homogeneous uv transform (offset 0.1, 0.2 in its
+    third column) is the 3x3 linear part of (x, y, z) to Mitsuba, which drops that column
+    from to_uv and renders the texture without the offset. Refused, as before, but the
+    message said only 'to_uv must map the uv plane to itself (x and y only)', which such a
+    matrix seems to do (an outside review); it now names the entries Mitsuba drops and
+    says what a 9-number matrix is and how to give an offset."""
+    xml = _texture_xml("t.exr", []).replace(
+        "</texture>", '<transform name="to_uv"><matrix value="2 0.5 0.1 0 3 0.2 0 0 1"/>'
+                      '</transform></texture>')
+    path = images / "to-uv-3x3.xml"
+    path.write_text(_SCENE.format(defs="", shape="rectangle", shape_props="", texture=xml))
+    with pytest.raises(SceneError, match=r"to_uv must map the uv plane to itself .* has "
+                                         r"\[0\]\[2\] = 0\.1, \[1\]\[2\] = 0\.2, which Mitsuba "
+                                         r"drops .*9-number <matrix> .*<translate"):
+        prepare_scene(str(path))
+    params = mi.traverse(mi.load_file(str(path)))
+    to_uv = np.array(params[next(k for k in params.keys() if k.endswith("to_uv"))].matrix)
+    np.testing.assert_allclose(to_uv, [[2, 0.5, 0], [0, 3, 0], [0, 0, 1]])  # offset dropped
+
+
 @pytest.mark.parametrize("raw", [False, True])
 @pytest.mark.parametrize("image", ["t.png", "t.jpg", "grey.jpg"])
 def test_srgb_png_and_jpeg_decoding_and_raw_match_mitsuba(mi, images, image, raw):
