@@ -59,7 +59,10 @@ def read_image(path: str, *, raw: bool = False, texture: bool = False) -> np.nda
     up to 2^-11 of a texel; an envmap keeps float32). A texture whose image is already
     linear Y or RGB in the type it is held in is taken as it is, as Mitsuba's ``bitmap``
     takes it: an EXR whose channels carry a layer's name (``albedo.R``, ``albedo.G``,
-    ``albedo.B``), which Mitsuba's conversion to RGB, and an envmap's, cannot match."""
+    ``albedo.B``), which Mitsuba's conversion to RGB, and an envmap's, cannot match; where
+    that conversion is needed (an alpha channel, an envmap) the refusal names the
+    channels, not the conversion's structures."""
+    mi = bmp = None
     try:
         mi = import_mitsuba()
         bmp = mi.Bitmap(path)
@@ -71,12 +74,27 @@ def read_image(path: str, *, raw: bool = False, texture: bool = False) -> np.nda
             bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, stored, False)
         a = np.array(bmp, dtype=np.float64)
     except Exception as e:  # noqa: BLE001 - any decoder failure is a bad file
-        raise OSError(f"{path}: cannot read image ({e})") from None
+        raise OSError(f"{path}: {_unreadable(mi, bmp, e, texture)}") from None
     if a.ndim == 2:
         a = a[:, :, None]
     if a.shape[2] == 1:
         a = np.repeat(a, 3, axis=2)
     return a[:, :, :3]
+
+
+def _unreadable(mi, bmp, error: Exception, texture: bool) -> str:
+    """Why an image cannot be read: Mitsuba's words, or, for Y, RGB or XYZ channels (with
+    alpha or not) named by a layer (its conversion then dumps both structures and says
+    'don't know how to obtain channel "R"'), those channels and what Mitsuba does."""
+    if bmp is None or bmp.pixel_format() == mi.Bitmap.PixelFormat.MultiChannel:
+        return f"cannot read image ({error})"
+    names = [bmp.struct_()[i].name for i in range(bmp.channel_count())]
+    if "." not in "".join(names):
+        return f"cannot read image ({error})"
+    use = ("as a texture Mitsuba takes such channels only without alpha, as Y or R, G, B"
+           if texture else "as an environment map Mitsuba cannot read such channels")
+    return (f"cannot read image: its channels are {', '.join(names)}, named by a layer; "
+            f"{use}, and refuses it too: save them as {', '.join(n.rsplit('.', 1)[1] for n in names)}")
 
 
 def _held_as_it_is(mi, bmp, stored) -> bool:

@@ -263,6 +263,35 @@ def test_an_exr_whose_channels_carry_a_layers_name_is_read_as_mitsuba_reads_it(
             "layer.exr", [("string", "filter_type", filt)]))
         _lookups_agree(mi, cs, scene, uvs)
 
+@pytest.mark.parametrize("where, channels", [
+    ("reflectance", ("albedo.R", "albedo.G", "albedo.B", "albedo.A")),
+    ("envmap", ("sky.R", "sky.G", "sky.B"))], ids=["rgba-texture", "rgb-envmap"])
+def test_layer_named_channels_mitsuba_refuses_are_refused_naming_them(mi, tmp_path, where,
+                                                                       channels):
+    """Layer-named channels that Mitsuba must convert (an alpha channel to drop; an envmap,
+    which Mitsuba converts to RGBA) Mitsuba refuses; so do we, but the refusal quoted the
+    conversion's two structures field by field and 'don't know how to obtain channel
+    "R"' (an outside review). It names the channels and the names to save them under."""
+    img = np.full((4, 6, len(channels)), 0.5, np.float32)
+    mi.Bitmap(img, mi.Bitmap.PixelFormat.MultiChannel, list(channels)).write(
+        str(tmp_path / "layer.exr"))
+    if where == "envmap":
+        xml = _SCENE.format(defs='<emitter type="envmap"><string name="filename" '
+                                 'value="layer.exr"/></emitter>', shape="rectangle",
+                            shape_props="", texture="")
+    else:
+        xml = _SCENE.format(defs="", shape="rectangle", shape_props="",
+                            texture=_texture_xml("layer.exr", []))
+    (tmp_path / "s.xml").write_text(xml)
+    names = ", ".join(channels)
+    with pytest.raises(SceneError, match=rf"layer\.exr: cannot read image: its channels are "
+                                         rf"{names}, named by a layer; .*refuses it too: save "
+                                         rf"them as {', '.join(c[-1] for c in channels)}$"):
+        prepare_scene(str(tmp_path / "s.xml"))
+    with pytest.raises(Exception, match="obtain channel"):
+        mi.load_file(str(tmp_path / "s.xml"))
+
+
 
 def test_a_referenced_texture_is_used_not_dropped(mi, images):
     """``<texture id=.../>`` at the top and ``<ref id=... name="reflectance"/>`` in the
