@@ -275,6 +275,26 @@ def test_same_distribution_refuses_arrays_drawn_from_the_same_random_numbers():
             mv.check_same_distribution(draw(), draw(), "interval")
 
 
+def test_same_distribution_takes_independent_stratified_arrays_in_their_order():
+    """Jittered 1-D strata of two independent seeds, in their order: rows i of both lie
+    in one stratum, within 2^-20 of each other in 35 % of rows at 200,000 strata (96 %
+    warped), and the shared-seed refusal took them for paired draws (a read-only review).
+    A pair of rows is now paired only where it is also 1000 times closer than row i of
+    the one to row i + 1 of the other, which strata are not: they pass, uniform and
+    warped, and at 10^7 strata they are compared too."""
+    n = 200_000
+
+    def strata(seed, count=n):
+        return (np.arange(count) + np.random.default_rng(seed).random(count)) / count
+
+    assert mv.check_same_distribution(strata(1), strata(2), "interval").passed
+    warp = lambda u: -np.log1p(-0.99 * u)       # noqa: E731
+    assert mv.check_same_distribution(warp(strata(1)), warp(strata(2)),
+                                      mv.Interval(0.0, 5.0)).passed
+    fine = [strata(s, 10 ** 7)[:70_000] * 140 for s in (1, 2)]
+    assert mv.check_same_distribution(*fine, "interval").passed
+
+
 def test_same_distribution_of_two_samplers_that_reject_everything_says_so():
     """Two samplers that rejected every draw passed check_same_distribution with no
     message, and numpy's "invalid value" warning leaked from the χ² test's 0/0 (an
