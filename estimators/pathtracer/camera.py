@@ -114,34 +114,34 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
     s, f = desc.sensor, desc.film
     w, h = int(f.get("width", 768)), int(f.get("height", 576))
     if w < 1 or h < 1:
-        raise SceneError(f"{desc.path}:{f.line}: <film>: width and height must be >= 1")
+        raise SceneError(f"{f.at(desc.path)}: <film>: width and height must be >= 1")
     aspect = w / h
     to_world = np.asarray(s.get("to_world", np.eye(4)), dtype=np.float64)
     near, far = float(s.get("near_clip", 1e-2)), float(s.get("far_clip", 1e4))
     if not 0.0 < near < far:        # Mitsuba's ProjectiveCamera refuses both
         what = "must be > 0" if not near > 0.0 else f"must be below far_clip={far!r}"
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: "
+        raise SceneError(f"{s.at(desc.path)}: <sensor type=\"{s.type}\">: "
                          f"near_clip={near!r}: {what} (as Mitsuba requires)")
     shutter = float(s.get("shutter_open", 0.0)), float(s.get("shutter_close", 0.0))
     if not shutter[0] <= shutter[1]:    # the time of motion blur: nothing here moves
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: "
+        raise SceneError(f"{s.at(desc.path)}: <sensor type=\"{s.type}\">: "
                          f"shutter_open={shutter[0]!r} is after shutter_close="
                          f"{shutter[1]!r} (Mitsuba refuses it)")
     if s.type == "orthographic":
         if not np.linalg.norm(to_world[:3, 2]) > 0:
-            raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"orthographic\">: "
+            raise SceneError(f"{s.at(desc.path)}: <sensor type=\"orthographic\">: "
                              "to_world maps the view direction (0, 0, 1) to zero")
         return _with_film_filter(desc, Camera(to_world, 1.0, 1.0 / aspect, near, far, w, h,
                                               ORTHOGRAPHIC))
     m3 = to_world[:3, :3]
     if np.max(np.abs(m3 @ m3.T - np.eye(3))) > 1e-3:
         # Mitsuba's has_scale (M Mᵀ ≠ I within 1e-3): a mirror passes, a scale does not
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: to_world "
+        raise SceneError(f"{s.at(desc.path)}: <sensor type=\"perspective\">: to_world "
                          "scales (Mitsuba refuses scale factors in a perspective camera's "
                          "to_world; a mirror such as <scale x=\"-1\"/> is allowed)")
     fov_deg, axis = _field_of_view(desc)
     if not 0.0 < fov_deg < 180.0:
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: fov="
+        raise SceneError(f"{s.at(desc.path)}: <sensor type=\"perspective\">: fov="
                          f"{fov_deg!r}: must be in (0, 180) degrees, as in Mitsuba")
     fov = math.radians(fov_deg)
     if axis == "smaller":
@@ -159,7 +159,7 @@ def camera_from_scene(desc: SceneDescription) -> Camera:
         tan_x = diag * aspect / math.hypot(aspect, 1.0)
         tan_y = diag / math.hypot(aspect, 1.0)
     else:
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"{s.type}\">: fov_axis="
+        raise SceneError(f"{s.at(desc.path)}: <sensor type=\"{s.type}\">: fov_axis="
                          f"{axis!r}; supported: x, y, diagonal, smaller, larger")
     offset = (float(s.get("principal_point_offset_x", 0.0)),
               float(s.get("principal_point_offset_y", 0.0)))
@@ -176,13 +176,13 @@ def _field_of_view(desc: SceneDescription) -> tuple[float, str]:
     s = desc.sensor
     if "fov" in s.props:
         if "focal_length" in s.props:
-            raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: give "
+            raise SceneError(f"{s.at(desc.path)}: <sensor type=\"perspective\">: give "
                              "either fov or focal_length, not both (Mitsuba refuses both)")
         return float(s.props["fov"]), str(s.get("fov_axis", "x")).lower()   # as Mitsuba
     if "fov_axis" in s.props:
         # Mitsuba reads fov_axis only with fov, and refuses it unread ("unreferenced
         # property"); ignoring it would render another view than the file asks for
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: fov_axis "
+        raise SceneError(f"{s.at(desc.path)}: <sensor type=\"perspective\">: fov_axis "
                          "without fov (Mitsuba refuses it as unused; a focal_length spans "
                          "the diagonal)")
     # Mitsuba's rule: a trailing "mm" cut off, then a number with ASCII spaces around it
@@ -194,7 +194,7 @@ def _field_of_view(desc: SceneDescription) -> tuple[float, str]:
     except ValueError:
         focal = float("nan")
     if not (math.isfinite(focal) and focal > 0):
-        raise SceneError(f"{desc.path}:{s.line}: <sensor type=\"perspective\">: "
+        raise SceneError(f"{s.at(desc.path)}: <sensor type=\"perspective\">: "
                          f"focal_length {text!r}: expected a positive length in mm, e.g. "
                          "\"35mm\"")
     return math.degrees(2.0 * math.atan(math.hypot(36.0, 24.0) / (2.0 * focal))), "diagonal"
@@ -209,7 +209,7 @@ def _with_film_filter(desc: SceneDescription, cam: Camera) -> Camera:
     try:
         return cam.with_filter(rf.type, radius=rf.get("radius"), stddev=rf.get("stddev"))
     except ValueError as e:
-        raise SceneError(f"{desc.path}:{rf.line}: <rfilter type=\"{rf.type}\">: {e}") from None
+        raise SceneError(f"{rf.at(desc.path)}: <rfilter type=\"{rf.type}\">: {e}") from None
 
 
 @fused(inline="always")

@@ -61,8 +61,9 @@ class PreparedScene:
     n_triangles: int
     n_lights: int
     bsdf_names: list = field(default_factory=list)
-    #: the scene file's line of each BSDF row's element (0: Mitsuba's default diffuse)
-    #: and of each light's <emitter>, for messages that point into the file
+    #: ``FILE:LINE`` of each BSDF row's element ("": Mitsuba's default diffuse) and of
+    #: each light's <emitter>, in the scene or the file it includes, for messages that
+    #: point into the file
     bsdf_lines: list = field(default_factory=list)
     light_lines: list = field(default_factory=list)
 
@@ -196,9 +197,9 @@ class _Builder:
         self.bsdf_rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.bsdf_ids: dict[int, int] = {}
         self.bsdf_names: list[str] = []
-        self.bsdf_lines: list[int] = []
+        self.bsdf_lines: list[str] = []
         self.lights: list[tuple[np.ndarray, np.ndarray]] = []
-        self.light_lines: list[int] = []
+        self.light_lines: list[str] = []
         self.light_cdf: list[float] = [0.0]
         self.textures = TextureStore()
         self.texture_ids: dict[int, int] = {}
@@ -207,8 +208,12 @@ class _Builder:
         self.env_cond = np.array([[0.0, 1.0, 0.0]])    # unread while there is no envmap
         self.features = 0
 
+    def _where(self, plugin: Plugin) -> str:
+        """``FILE:LINE`` of the plugin's element, "" for one the scene does not declare."""
+        return plugin.at(self.desc.path) if plugin.line else ""
+
     def fail(self, plugin: Plugin, message: str):
-        raise SceneError(f"{self.desc.path}:{plugin.line}: <{plugin.kind} "
+        raise SceneError(f"{plugin.at(self.desc.path)}: <{plugin.kind} "
                          f"type=\"{plugin.type}\">: {message}")
 
     # ---------------------------------------------------------------- textures
@@ -538,7 +543,7 @@ class _Builder:
                                   "which this tracer does not)")
         self.bsdf_rows.append((f, i, tex))
         self.bsdf_names.append(plugin.type if not twosided else f"twosided({plugin.type})")
-        self.bsdf_lines.append(plugin.line)
+        self.bsdf_lines.append(self._where(plugin))
         return len(self.bsdf_rows) - 1
 
     def _normalmap(self, plugin: Plugin, f: np.ndarray, i: np.ndarray, tex: np.ndarray):
@@ -885,7 +890,7 @@ class _Builder:
         else:
             f[layout.LIGHT_AREA] = 4 * math.pi * self.prims[first][layout.SPHERE_RADIUS] ** 2
         self.lights.append((f, i))
-        self.light_lines.append(emitter.line)
+        self.light_lines.append(self._where(emitter))
         self.features |= FEATURE_BITS["light:area"]
         return len(self.lights) - 1
 
@@ -980,7 +985,7 @@ class _Builder:
             self.features |= FEATURE_BITS["light:environment"]
             self.features |= FEATURE_BITS["light:nondelta"]
         self.lights.append((f, i))
-        self.light_lines.append(e.line)
+        self.light_lines.append(self._where(e))
 
     # -------------------------------------------------------------------- all
     def build(self) -> PreparedScene:
@@ -1061,7 +1066,7 @@ class _Builder:
             if delta and samples["emitter_samples"] != 1:
                 source = "emitter_samples" if shading is None else "shading_samples"
                 self.fail(integ, f"{source}={samples['emitter_samples']} with a "
-                                 f"{delta[0].type} light (line {delta[0].line}): Mitsuba "
+                                 f"{delta[0].type} light ({delta[0].line_text()}): Mitsuba "
                                  "3.9.1's direct integrator adds each sample of a delta light "
                                  "without dividing by emitter_samples (mitsuba3 issue 1861), "
                                  "so its image is too bright; not matched: use 1")

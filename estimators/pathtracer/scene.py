@@ -109,9 +109,20 @@ class Plugin:
     line: int
     id: str | None = None
     children: list = field(default_factory=list)
+    origin: str | None = None     # the <include>d file it is declared in (None: the scene)
 
     def get(self, name, default=None):
         return self.props.get(name, default)
+
+    def at(self, scene_path: str) -> str:
+        """``FILE:LINE`` of its element: the included file's where it was declared in one
+        (a missing mesh named there was blamed on the scene file, at the included file's
+        line; a read-only review)."""
+        return f"{self.origin or scene_path}:{self.line}"
+
+    def line_text(self) -> str:
+        """``line N`` of its element, with its included file where it has one."""
+        return f"line {self.line}" + (f" of {self.origin}" if self.origin else "")
 
 
 @dataclass
@@ -452,7 +463,8 @@ class _Loader:
             self.fail(node, f"unsupported {kind} type {ptype!r}{f' ({why})' if why else ''}; "
                             f"supported: {', '.join(sorted(SUPPORTED[kind]))}")
         # $params are substituted in every attribute, the id too, as Mitsuba does
-        p = Plugin(kind, ptype, {}, node.line, self.attr(node, "id", None))
+        p = Plugin(kind, ptype, {}, node.line, self.attr(node, "id", None),
+                   origin=node.origin)
         self.parsing.append(p.id)
         try:
             self._fill(node, kind, ptype, spec, p)
@@ -461,7 +473,7 @@ class _Loader:
         if p.id:
             if p.id in self.ids:
                 self.fail(node, f"id {p.id!r} is already used by the <{self.ids[p.id].kind}> "
-                                f"on line {self.ids[p.id].line} (Mitsuba refuses a "
+                                f"on {self.ids[p.id].line_text()} (Mitsuba refuses a "
                                 "duplicate id too)")
             self.ids[p.id] = p
             self.done[id(node)] = p
@@ -531,7 +543,7 @@ class _Loader:
                     # an area emitter is declared inside its own shape: a <ref> to it is a
                     # second shape (Mitsuba: "An endpoint can be only be attached to a
                     # single shape"); the loader made both shapes emit
-                    self.fail(child, f"area emitter {target!r} (line {ref.line}) already "
+                    self.fail(child, f"area emitter {target!r} ({ref.line_text()}) already "
                                      "belongs to its shape; an emitter is attached to one "
                                      "shape only (Mitsuba refuses it too): give this shape "
                                      "its own <emitter type=\"area\">")
@@ -565,7 +577,7 @@ class _Loader:
                     # Mitsuba keeps such a light as it is (a point light at its own
                     # position, not the shape's surface); rendering the shape as an
                     # area light instead would be silently wrong
-                    self.fail(node, f"a {c.type!r} emitter inside a shape (line {c.line}): "
+                    self.fail(node, f"a {c.type!r} emitter inside a shape ({c.line_text()}): "
                                     "only an area emitter makes a shape emit; put a "
                                     f"{c.type} light at the top level of the scene")
 

@@ -186,7 +186,7 @@ def _declared(scene, kind: str, index: int) -> str:
     """Where the scene file declares BSDF row or light ``index``: a message for its
     checks, so that a failure points at the element (``FILE:LINE: <bsdf type="...">``)."""
     lines = scene.bsdf_lines if kind == "bsdf" else scene.light_lines
-    line = lines[index] if index < len(lines) else 0
+    line = lines[index] if index < len(lines) else ""
     if not line:
         return ("declared nowhere: Mitsuba's default diffuse of a shape without a <bsdf>"
                 if kind == "bsdf" else "declared nowhere in the scene file")
@@ -194,7 +194,7 @@ def _declared(scene, kind: str, index: int) -> str:
             _emitter_label(scene, "", index).split(":", 1)[1].split(":")[0])
     what = what.removeprefix("twosided(").removesuffix(")")
     tag = kind if kind == "bsdf" else "emitter"
-    return f"declared at {scene.desc.path}:{line}: <{tag} type=\"{what}\">"
+    return f"declared at {line}: <{tag} type=\"{what}\">"
 
 
 def _fmt(p) -> str:

@@ -1520,3 +1520,22 @@ def test_a_top_level_bsdf_or_texture_without_an_id_is_read_and_left_unused_as_in
         assert len(mi.load_string(text).shapes()) == 1
     bad = text.replace('<texture type="checkerboard"/>', '<bsdf type="difuse"/>')
     assert "s.xml:1: <bsdf type=\"difuse\">" in _error(bad)
+
+
+def test_what_is_wrong_in_an_included_plugin_is_named_at_its_own_file_and_line(tmp_path):
+    """Faults found after parsing (a missing mesh, when the scene is prepared) and ids
+    declared twice across files name the included file and its line: they named the
+    scene file at the included file's line (a read-only review)."""
+    from estimators.pathtracer import prepare_scene
+
+    path = _include_tree(tmp_path)
+    parts = tmp_path / "sub" / "parts.xml"
+    parts.write_text(parts.read_text().replace('value="m.obj"', 'value="nope.obj"'))
+    with pytest.raises(SceneError) as e:
+        prepare_scene(str(path))
+    assert str(e.value).startswith(f"{parts}:5: <shape type=\"obj\">"), str(e.value)
+    path.write_text(path.read_text().replace("</scene>", '<bsdf type="diffuse" id="mat"/>'
+                                                          "</scene>"))
+    with pytest.raises(SceneError) as e:
+        load_scene(str(path))
+    assert f"already used by the <bsdf> on line 2 of {parts}" in str(e.value), str(e.value)
