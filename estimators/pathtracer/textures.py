@@ -93,7 +93,9 @@ def _unreadable(mi, bmp, error: Exception, texture: bool) -> str:
         return f"cannot read image ({error})"
     use = ("as a texture Mitsuba takes such channels only without alpha, as Y or R, G, B"
            if texture else "as an environment map Mitsuba cannot read such channels")
-    plain = ", ".join(n.rsplit(".", 1)[1] for n in names)
+    # a channel without a layer among them keeps its name (albedo.R, G, B and a bare A:
+    # "[1]" raised IndexError, a crash where Mitsuba refuses the file; a read-only review)
+    plain = ", ".join(n.rsplit(".", 1)[-1] for n in names)
     return (f"cannot read image: its channels are {', '.join(names)}, named by a layer; "
             f"{use}, and refuses it too: save them as {plain}")
 

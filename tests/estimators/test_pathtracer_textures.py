@@ -266,7 +266,11 @@ def test_an_exr_whose_channels_carry_a_layers_name_is_read_as_mitsuba_reads_it(
 
 @pytest.mark.parametrize("where, channels", [
     ("reflectance", ("albedo.R", "albedo.G", "albedo.B", "albedo.A")),
-    ("envmap", ("sky.R", "sky.G", "sky.B"))], ids=["rgba-texture", "rgb-envmap"])
+    ("envmap", ("sky.R", "sky.G", "sky.B")),
+    # a bare alpha beside layer-named colours: the names to save them under raised
+    # IndexError, a crash (a read-only review)
+    ("reflectance", ("A", "albedo.R", "albedo.G", "albedo.B"))],
+    ids=["rgba-texture", "rgb-envmap", "bare-alpha"])
 def test_layer_named_channels_mitsuba_refuses_are_refused_naming_them(mi, tmp_path, where,
                                                                        channels):
     """Layer-named channels that Mitsuba must convert (an alpha channel to drop; an envmap,
