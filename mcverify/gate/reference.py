@@ -220,7 +220,9 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     their names resolved, as Mitsuba resolves them, against the scene's own folder; the
     files an ``<include>`` names are found beside the file that includes it first (Mitsuba
     3.9 renders ``sub/more.xml`` for an include of ``more.xml`` in ``sub/parts.xml``,
-    where the manifest hashed ``more.xml`` beside the scene).
+    where the manifest hashed ``more.xml`` beside the scene), keyed then by its path from
+    the scene's folder (``sub/more.xml``), so that the same name included beside the
+    scene too is hashed as well.
     A ``<path value="DIR"/>`` puts DIR (against the scene's folder) before it, the last
     such element first, wherever it stands: Mitsuba's file resolver (a texture found
     there was rendered while the manifest hashed the file of that name beside the scene,
@@ -229,8 +231,9 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     file a ``--param mesh=b.obj`` names was not the one stamped or hashed)."""
     defaults = {k: str(v).lower() if isinstance(v, bool) else str(v)
                 for k, v in dict(params or {}).items()}
-    names, includes, searched = [], {}, []
-    including = [None]          # the folder of the file being read (None: the scene's)
+    # (name, the folder of the file naming it where an include is looked for beside it)
+    names, includes, searched = [], set(), []
+    including = [None]          # the folder of the included file being read
 
     def substitute(text):
         for key in sorted(defaults, key=len, reverse=True):    # as Mitsuba: longest first
@@ -242,14 +245,14 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
             # a default's value may use the ones before it (value="$base.obj")
             defaults.setdefault(attrib["name"], substitute(attrib.get("value", "")))
         elif tag == "string" and attrib.get("name") == "filename" and "value" in attrib:
-            names.append(attrib["value"])
+            names.append((attrib["value"], None))
         elif tag == "spectrum" and "filename" in attrib:
             # <spectrum name="reflectance" filename="x.spd"/>: Mitsuba reads the file
             # (into RGB in RGB variants), so a changed one changes the image
-            names.append(attrib["filename"])
+            names.append((attrib["filename"], None))
         elif tag == "include" and "filename" in attrib:
-            names.append(attrib["filename"])
-            includes.setdefault(attrib["filename"], including[0])
+            names.append((attrib["filename"], including[0]))
+            includes.add(names[-1])
         elif tag == "path" and "value" in attrib:
             searched.append(attrib["value"])
 
@@ -266,15 +269,22 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     read = {os.path.realpath(scene_path)}
     i = 0
     while i < len(names):           # grows as included files are read
-        name = names[i]
+        name, naming = names[i]
         i += 1
-        if name in out:
-            continue
         real = substitute(name)
-        beside = os.path.join(includes[name], real) if includes.get(name) else None
-        out[name] = full = real if os.path.isabs(real) else \
-            beside if beside and os.path.isfile(beside) else locate(real)
-        if name in includes and os.path.isfile(full) and os.path.realpath(full) not in read:
+        beside = os.path.join(naming, real) if naming and not os.path.isabs(real) else None
+        if beside and os.path.isfile(beside):
+            # keyed by its path from the scene's folder: the same name included from the
+            # scene's folder is another file (a read-only review found one of them left out)
+            full = beside
+            key = os.path.relpath(beside, folder)
+        else:
+            full, key = (real if os.path.isabs(real) else locate(real)), name
+        if key in out:
+            continue
+        out[key] = full
+        if (name, naming) in includes and os.path.isfile(full) and \
+                os.path.realpath(full) not in read:
             read.add(os.path.realpath(full))
             including[0] = os.path.dirname(full)
             _parse_scene(full, start)

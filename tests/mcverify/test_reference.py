@@ -462,7 +462,14 @@ def test_an_include_in_an_included_file_is_hashed_where_mitsuba_finds_it(tmp_pat
     (tmp_path / "s.xml").write_text(
         '<scene version="3.0.0"><include filename="sub/parts.xml"/></scene>')
     files = reference.scene_asset_files(str(tmp_path / "s.xml"))
-    assert files["more.xml"] == os.path.join(str(tmp_path), "sub", "more.xml")
+    assert files == {"sub/parts.xml": str(tmp_path / "sub" / "parts.xml"),
+                     os.path.join("sub", "more.xml"): str(tmp_path / "sub" / "more.xml")}
+    # the same name included beside the scene too is the other file, hashed as well
+    (tmp_path / "s.xml").write_text('<scene version="3.0.0"><include filename="more.xml"/>'
+                                    '<include filename="sub/parts.xml"/></scene>')
+    files = reference.scene_asset_files(str(tmp_path / "s.xml"))
+    assert files["more.xml"] == str(tmp_path / "more.xml")
+    assert files[os.path.join("sub", "more.xml")] == str(tmp_path / "sub" / "more.xml")
     os.remove(tmp_path / "sub" / "more.xml")        # then beside the scene, as Mitsuba
     files = reference.scene_asset_files(str(tmp_path / "s.xml"))
     assert files["more.xml"] == os.path.join(str(tmp_path), "more.xml")
