@@ -1352,8 +1352,10 @@ def main(argv=None) -> int:
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:       # as parse_args says it, with the unquoted glob's hint where it applies
+        # the hint only where every extra is a file argument: an unknown option with it
+        # read as a glob's fault (a read-only review)
         parser.error(f"unrecognized arguments: {' '.join(extra)}"
-                     + _expanded_glob(args, True))
+                     + _expanded_glob(args, not any(e.startswith("-") for e in extra)))
     with _sigterm_unwinds():
         return _main(args)
 

@@ -107,7 +107,7 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
     (["compare", "--test-passes", "p_*.exr"], "expected 1: REF"),
     (["compare", "a.exr", "b.exr", "--test-passes", "p_*.exr"], "expected 1: REF"),
     # the shell expanded an unquoted glob: the option got the first pass, the rest came
-    # as image arguments (until 8 December not said, an outside review)
+    # as image arguments (until 7 December not said, an outside review)
     (["compare", "--test-passes", "p_00.exr", "p_01.exr", "p_02.exr", "cornell-box"],
      "the shell seems to have expanded the glob of --test-passes (it got p_00.exr, the "
      "other files came as image arguments): quote it"),
@@ -116,6 +116,8 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
     (["compare", "cornell-box", "--test-passes", "p_00.exr", "p_01.exr", "p_02.exr"],
      "unrecognized arguments: p_01.exr p_02.exr; the shell seems to have expanded the glob "
      "of --test-passes (it got p_00.exr"),
+    (["compare", "cornell-box", "--test-passes", "p_00.exr", "--bogus"],
+     "unrecognized arguments: --bogus (see"),
     (["compare", "r", "--test-passes", "p_*.exr", "--test-n", "4"],
      "--test-n: not with --test-passes"),
     (["compare", "a.exr", "r"], "a.exr: an image needs --test-var and --test-n"),
@@ -125,7 +127,7 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
     (["compare", "cornell-box", "--test-passes", "p_*.exr", "--ref-spp", "64"],
      "--ref-spp 64: give --test-spp too"),
 ], ids=["no-ref", "two-positionals", "unquoted-test-glob", "unquoted-ref-glob",
-        "unquoted-glob-after-ref",
+        "unquoted-glob-after-ref", "unknown-option-no-glob-hint",
         "n-with-passes", "no-var", "empty-glob", "spp-0",
         "ref-spp-alone"])
 def test_compare_bad_input_exit_2(tmp_path, args, needle):
