@@ -674,8 +674,10 @@ class InvertedCDF:
         step = float(np.finfo(self._coarse).eps) / 2
         raise ValueError(f"pdf: returns {self._coarse} values, each rounded to {step:.2g} "
                          f"of itself: its CDF on [{self.a}, {self.b}] {failure} at "
-                         f"tol={tol}, the steps of that rounding too fine to resolve; "
-                         "return float64 values, or raise tol well above that rounding")
+                         f"tol={tol}, likely the steps of that rounding, too fine to "
+                         "resolve (or a pdf not integrable there, which float64 would "
+                         "not mend); return float64 values, or raise tol well above that "
+                         "rounding")
 
     def _eval(self, x):
         """``pdf(x)`` for x (n,): (n,) real numbers, or a ValueError (complex values and
