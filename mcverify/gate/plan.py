@@ -7,6 +7,8 @@ in ``Check.verifies``. Delta features have nothing to sample and are listed in
 ``NOTHING_TO_SAMPLE`` with the reason. On top of these, the scene's own BSDF and emitter
 instances, with their parameters, are χ²-checked (``tracer_checks``), and each BSDF
 instance's returned pdf and weight are held to its evaluation (``consistency_checks``).
+A path tracer of ``max_depth`` 0 or 1 samples nothing (``nothing_sampled``): all of these
+are then skipped with that reason, and the scene's render check alone runs.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import dataclasses
 from .suites import Check, resolve_suite
 from .tracer_checks import consistency_checks, tracer_checks
 
-__all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "plan"]
+__all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "nothing_sampled", "plan"]
 
 
 def _pairs(kind: str, *subjects: str) -> set[tuple[str, str]]:
@@ -103,6 +105,7 @@ def plan(scene_path: str, suite: str = "default", checks: list[Check] | None = N
 
     desc = load_scene(scene_path)
     all_checks = resolve_suite(suite)[0] if checks is None else checks
+    unsampled = nothing_sampled(desc)
     wanted: dict[str, str] = {}
     for feature in sorted(desc.features):
         needs, why = NEEDS.get(feature, (set(), ""))
@@ -111,15 +114,39 @@ def plan(scene_path: str, suite: str = "default", checks: list[Check] | None = N
                 wanted.setdefault(c.name, f"{feature}: {why}")
     # a check that names nothing it verifies (the user's own, Check's default) runs with
     # any scene: it was skipped as "not needed", and a project's gate ran none of its own
-    keep = [c for c in all_checks if c.name in wanted or not c.verifies]
-    skipped = [(c.name, "not needed by this scene") for c in all_checks
-               if c.name not in wanted and c.verifies]
+    keep = [c for c in all_checks if (c.name in wanted and not unsampled) or not c.verifies]
+    skipped = [(c.name, unsampled if c.name in wanted else "not needed by this scene")
+               for c in all_checks if c.verifies and (unsampled or c.name not in wanted)]
     skipped += [(f, why) for f, why in NOTHING_TO_SAMPLE.items() if f in desc.features]
+    # prepared whatever the depth: a scene the tracer cannot render is refused here
     instances, delta = tracer_checks(scene_path)
-    keep += instances + consistency_checks(scene_path)
+    instances += consistency_checks(scene_path)
+    if unsampled:
+        skipped += [(c.name, unsampled) for c in instances]
+    else:
+        keep += instances
     skipped += delta
     keep.append(_render_check(scene_path))
     return keep, skipped, desc.features
+
+
+def nothing_sampled(desc) -> str:
+    """Why the scene's integrator samples no BSDF and no light, or "" where it does: a
+    path tracer with ``max_depth`` 1 ends each camera ray where it first hits (it adds
+    the emitter it sees there), and one with ``max_depth`` 0 renders black, as Mitsuba's
+    ``path`` does. Its samplers, estimators and instances then decide nothing in the
+    image (the render check still compares it); a failure of one failed such a scene's
+    gate (until 7 December)."""
+    integ = desc.integrator
+    if integ.type != "path":
+        return ""
+    depth = int(integ.get("max_depth", -1))
+    if depth == 0:
+        return "path with max_depth 0: the image is black, nothing is sampled"
+    if depth == 1:
+        return ("path with max_depth 1: camera rays end at their first hit (the emitters "
+                "they see), no BSDF or light is sampled")
+    return ""
 
 
 def _render_check(scene_path: str) -> Check:

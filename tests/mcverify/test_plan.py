@@ -183,3 +183,47 @@ def test_a_constant_environment_plans_uniform_sphere_sampling_only(tmp_path):
     names = _names(plan(str(path))[0])
     assert "sampler:uniform_sphere" in names
     assert not any("cosine_hemisphere" in n for n in names), sorted(names)
+
+
+GLASS_SEEN_DIRECTLY = """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="DEPTH"/></integrator>
+  <sensor type="perspective"><float name="fov" value="45"/><film type="hdrfilm"><rfilter type="box"/></film></sensor>
+  <shape type="sphere"><bsdf type="roughdielectric"><float name="alpha" value="0.001"/><float name="int_ior" value="1.0001"/><float name="ext_ior" value="1"/></bsdf></shape>
+  <shape type="rectangle"><emitter type="area"/></shape>
+</scene>"""
+
+
+def test_a_path_tracer_of_max_depth_0_or_1_plans_its_render_check_only(tmp_path):
+    """An outside review: at max_depth 1 camera rays end where they first hit (0: a black
+    image), so no BSDF or light is sampled, but the plan kept every sampler, estimator and
+    instance check of the scene's materials and lights: this rough dielectric at alpha
+    0.001, eta 1.0001 (a known limit of the chi-square binning, README) failed the gate of
+    a scene whose image never samples it. They are skipped with that reason now; at
+    max_depth 2 they run."""
+    for depth in (0, 1):
+        path = tmp_path / f"d{depth}.xml"
+        path.write_text(GLASS_SEEN_DIRECTLY.replace("DEPTH", str(depth)))
+        checks, skipped, _ = plan(str(path))
+        assert _names(checks) == {f"render:d{depth}"}
+        reasons = dict(skipped)
+        label = (f"sampler:tracer.bsdf:d{depth}/bsdf0:"
+                 "roughdielectric(beckmann,alpha=0.001,eta=1)@wi=0°")
+        assert f"max_depth {depth}" in reasons[label]
+        assert f"max_depth {depth}" in reasons["sampler:uniform_triangle"]
+        assert f"max_depth {depth}" in reasons["unbiased:mis(balance)"]
+        assert reasons["scipy:norm"] == "not needed by this scene"
+    path = tmp_path / "d2.xml"
+    path.write_text(GLASS_SEEN_DIRECTLY.replace("DEPTH", "2"))
+    names = _names(plan(str(path))[0])
+    assert {"sampler:uniform_triangle", "unbiased:mis(balance)",
+            label.replace("d1/", "d2/")} <= names
+
+
+def test_a_user_check_still_runs_at_max_depth_1(tmp_path):
+    from mcverify.gate.suites import Check, resolve_suite
+
+    path = tmp_path / "scene.xml"
+    path.write_text(GLASS_SEEN_DIRECTLY.replace("DEPTH", "1"))
+    mine = Check("mine", lambda seed, stop_alpha=None: None, ("user",))
+    checks, _, _ = plan(str(path), checks=resolve_suite("default")[0] + [mine])
+    assert _names(checks) == {"mine", f"render:{tmp_path.name}"}
