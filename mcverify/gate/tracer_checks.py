@@ -74,9 +74,20 @@ def _bsdf_label(scene, tag: str, b: int) -> str:
         else:
             parts.append(f"alpha={f[layout.ALPHA]:g}")
     if f[layout.ETA] > 0:
-        parts.append(f"eta={f[layout.ETA]:.4g}")
+        parts.append(f"eta={_eta(float(f[layout.ETA]))}")
     params = f"({','.join(parts)})" if parts else ""
     return f"{tag}/bsdf{b}:{scene.bsdf_names[b]}{params}"
+
+
+def _eta(eta: float) -> str:
+    """η to 4 significant digits, or as many more as it takes not to print an η other than
+    1 as 1: a rough dielectric at η = 1.0001 (int_ior 1.0001, ext_ior 1), a known limit of
+    the χ² binning, was labelled ``eta=1``, a value Mitsuba refuses."""
+    for digits in range(4, 18):
+        text = f"{eta:.{digits}g}"
+        if text != "1" or eta == 1.0:
+            return text
+    return repr(eta)
 
 
 def _emitter_label(scene, tag: str, k: int) -> str:
