@@ -227,3 +227,34 @@ def test_a_user_check_still_runs_at_max_depth_1(tmp_path):
     mine = Check("mine", lambda seed, stop_alpha=None: None, ("user",))
     checks, _, _ = plan(str(path), checks=resolve_suite("default")[0] + [mine])
     assert _names(checks) == {"mine", f"render:{tmp_path.name}"}
+
+
+def test_depth_2_under_delta_lights_only_plans_its_render_check_only(tmp_path):
+    """An outside review: a direct integrator (or path at max_depth 2) under a point light
+    reaches the light by its delta sample, and a BSDF-sampled ray finds nothing that
+    emits, so no BSDF is sampled in the image; the plan ran every BSDF sampler and
+    instance check. Skipped with that reason now; an area light, a deeper path or a mask
+    (whose null component carries the ray on) keeps them."""
+    def planned(name, integrator, extra=""):
+        path = tmp_path / f"{name}.xml"
+        path.write_text(DIFFUSE_POINT.replace(
+            "<sensor", integrator + "\n  <sensor").replace("</scene>", extra + "</scene>"))
+        return plan(str(path))
+
+    for name, integrator in (("direct", '<integrator type="direct"/>'),
+                             ("path2", '<integrator type="path"><integer name="max_depth" '
+                                       'value="2"/></integrator>')):
+        checks, skipped, _ = planned(name, integrator)
+        assert _names(checks) == {f"render:{name}"}
+        reasons = dict(skipped)
+        assert "delta sample" in reasons[f"sampler:tracer.bsdf:{name}/bsdf0:diffuse@wi=45°"]
+        assert "delta sample" in reasons["sampler:cosine_hemisphere"]
+    deeper = '<integrator type="path"><integer name="max_depth" value="3"/></integrator>'
+    area = '<shape type="disk"><emitter type="area"/></shape>'
+    mask = '<shape type="disk"><bsdf type="mask"><bsdf type="diffuse"/></bsdf></shape>'
+    for name, integrator, extra in (("deeper", deeper, ""),
+                                    ("area", '<integrator type="direct"/>', area),
+                                    ("mask", '<integrator type="direct"/>', mask)):
+        names = _names(planned(name, integrator, extra)[0])
+        assert {"sampler:cosine_hemisphere",
+                f"sampler:tracer.bsdf:{name}/bsdf0:diffuse@wi=45°"} <= names, name
