@@ -496,8 +496,11 @@ class _Loader:
                 name = self.attr(child, "name")
                 vkind, val = self.value(child)
                 if name not in spec or name == "children":
-                    self.fail(child, f"{kind} {ptype!r} has no property {name!r}; supported: "
-                                     f"{', '.join(k for k in sorted(spec) if k != 'children')}")
+                    # unsupported, not absent: Mitsuba's hdrfilm has crop_offset_x, and
+                    # "has no property" read as a typo in a scene Mitsuba renders
+                    known = ", ".join(k for k in sorted(spec) if k != "children")
+                    self.fail(child, f"{kind} {ptype!r}: unsupported property {name!r}; "
+                                     f"supported: {known or 'none'}")
                 if vkind == "integer" and "integer" not in spec[name] and \
                         "float" in spec[name]:
                     vkind, val = "float", float(val)    # Mitsuba reads an integer as a float
