@@ -113,8 +113,10 @@ class Camera:
 def camera_from_scene(desc: SceneDescription) -> Camera:
     s, f = desc.sensor, desc.film
     w, h = int(f.get("width", 768)), int(f.get("height", 576))
-    if w < 1 or h < 1:
-        raise SceneError(f"{f.at(desc.path)}: <film>: width and height must be >= 1")
+    for name, n in (("width", w), ("height", h)):
+        if n < 1:       # named with its value: a size given by $parameters was a guess
+            raise SceneError(f"{f.at(desc.path)}: <film type=\"{f.type}\">: {name}={n}: "
+                             "must be >= 1")
     aspect = w / h
     to_world = np.asarray(s.get("to_world", np.eye(4)), dtype=np.float64)
     near, far = float(s.get("near_clip", 1e-2)), float(s.get("far_clip", 1e4))

@@ -353,6 +353,25 @@ def test_a_property_the_tracer_does_not_read_is_called_unsupported(body, needle)
                  f'value="45"/>\n{body}</sensor>\n</scene>')
     assert msg.startswith("s.xml:3: <") and needle in msg, msg
 
+
+@pytest.mark.parametrize("size,needle", [
+    ({"w": "0", "h": "8"}, "width=0: must be >= 1"),
+    ({"w": "8", "h": "-3"}, "height=-3: must be >= 1"),
+], ids=["width-0", "height-negative"])
+def test_an_empty_film_is_refused_naming_the_value(size, needle):
+    """A film of no pixels names the film's type and the size it was given: the refusal
+    said "<film>: width and height must be >= 1", and a size given by $parameters left
+    the user to guess which one (Mitsuba loads width 0 and fails in its render with
+    "operands have incompatible sizes")."""
+    d = parse_scene('<scene version="3.0.0"><sensor type="perspective"><float name="fov" '
+                    'value="45"/>\n<film type="hdrfilm"><integer name="width" value="$w"/>'
+                    '<integer name="height" value="$h"/></film></sensor></scene>',
+                    path="s.xml", params=size)
+    with pytest.raises(SceneError) as e:
+        camera_from_scene(d)
+    assert str(e.value).startswith('s.xml:2: <film type="hdrfilm">: ') and \
+        needle in str(e.value), str(e.value)
+
 _CAMERA = ('<sensor type="perspective"><float name="fov" value="40"/><transform name="to_world">'
            '<lookat origin="0,0,5" target="0,0,0" up="0,1,0"/></transform><film type="hdrfilm">'
            '<integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>')
