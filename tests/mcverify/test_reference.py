@@ -969,3 +969,34 @@ def test_passes_that_do_not_fit_at_all_are_not_told_to_use_one(scene_copy, monke
     with pytest.raises(InvalidArgument, match=r"passes=2: .*; not even 2 fit") as e:
         reference.build_reference(str(scene_copy), spp=4, passes=2)
     assert "use at most" not in str(e.value)
+
+
+def test_a_reference_of_an_rgba_film_is_compared_on_its_colour(tmp_path):
+    """A scene whose film has pixel_format rgba: Mitsuba renders R, G, B and A, and the
+    reference kept A (until 7 December), so Mitsuba's own RGBA passes, read on their
+    colour as ``compare`` reads an image under test, were refused against it: "shape
+    (6, 8, 3) differs from the reference's (6, 8, 4)", exit 2. The reference is read on
+    its colour too, and Mitsuba against itself passes (α = 0.01)."""
+    scene = tmp_path / "scene.xml"
+    scene.write_text("""<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="2"/></integrator>
+  <sensor type="perspective"><float name="fov" value="45"/>
+    <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>
+    </transform>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/>
+      <string name="pixel_format" value="rgba"/><rfilter type="box"/></film>
+  </sensor>
+  <shape type="sphere"><float name="radius" value="0.6"/><bsdf type="diffuse"/></shape>
+  <emitter type="constant"><rgb name="radiance" value="0.8, 0.5, 0.3"/></emitter>
+</scene>""")
+    reference.build_reference(str(scene), spp=16, passes=4, seed=1)
+    ref = reference.load_reference(str(scene))
+    assert ref.mean.shape == ref.var.shape == (6, 8, 3) and ref.passes.shape == (4, 6, 8, 3)
+    passes = mvm.render_passes(str(scene), spp=16, seeds=range(100, 104))
+    assert passes.shape == (4, 6, 8, 4)          # Mitsuba's RGBA, alpha last
+    for k, img in enumerate(passes):
+        mvm.write_exr(str(tmp_path / f"pass_{k}.exr"), img)
+    r = subprocess.run(CMD + ["compare", "--test-passes", str(tmp_path / "pass_*.exr"),
+                              str(scene), "--test-spp", "16"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, (r.stdout, r.stderr)
