@@ -278,3 +278,66 @@ def test_mitsubas_huge_floor_is_what_the_note_says():
         return np.mean(img[..., 0] < 0.05)
 
     assert black("1e5") > black("100") + 0.15
+
+
+# A closed furnace: the camera inside a sphere of albedo $rho emitting radiance 1 inward;
+# at max_depth $d every pixel is exactly 1 + rho + ... + rho^(d-1) (a flipped cube too)
+FURNACE = """<scene version="3.0.0">
+  <default name="rho" value="1"/>
+  <default name="d" value="3"/>
+  <default name="flip" value="true"/>
+  <integrator type="path"><integer name="max_depth" value="$d"/></integrator>
+  <sensor type="perspective"><float name="fov" value="60"/>
+    <transform name="to_world"><lookat origin="0,0,0" target="0,0,-1" up="0,1,0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="64"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+      <rfilter type="box"/></film>
+  </sensor>
+  <shape type="{shape}">{size}<boolean name="flip_normals" value="$flip"/>
+    <bsdf type="diffuse"><rgb name="reflectance" value="$rho"/></bsdf>
+    <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+</scene>
+"""
+SPHERE_FURNACE = FURNACE.format(shape="sphere", size='<float name="radius" value="2"/>')
+CUBE_FURNACE = FURNACE.format(shape="cube", size='<transform name="to_world">'
+                              '<scale value="2"/></transform>')
+
+
+@pytest.mark.parametrize("text,flip,noted", [
+    (SPHERE_FURNACE, "true", True),
+    (SPHERE_FURNACE, "false", False),   # its light faces out: nothing lights its inside
+    (CUBE_FURNACE, "true", False),      # a mesh: sampled and weighted alike in Mitsuba
+    (SPHERE_FURNACE.replace('<bsdf type="diffuse"><rgb name="reflectance" value="$rho"/>'
+                            '</bsdf>', ''), "true", False),     # an emitter's default: black
+], ids=["flipped-sphere", "sphere", "flipped-cube", "flipped-sphere-without-bsdf"])
+def test_a_sphere_light_facing_inward_is_noted(tmp_path, text, flip, noted):
+    """Mitsuba 3.9.1 samples a flipped sphere light from a point of its own surface as from
+    inside it but weighs a direction that hits it by the cone pdf wherever float32 puts
+    the point just outside the radius: its closed furnace above comes out 0.17 % bright,
+    where ours is exactly 3 and the gate failed ours naming only the image mean (an
+    outside review). A failing gate says so."""
+    path = tmp_path / "scene.xml"
+    path.write_text(text)
+    notes = _caveats(str(path), {"flip": flip}, None)
+    assert any("flip_normals" in n and "MIS weights" in n for n in notes) == noted, notes
+
+
+def test_mitsubas_inward_sphere_light_is_what_the_note_says(tmp_path):
+    """The note's premise, in Mitsuba 3.9.1 itself: the furnace above at max_depth 2 is 2
+    exactly; Mitsuba's sphere gives 2.0027 (8 × 1024 spp at 8², standard error 5e-5), its
+    flipped cube 2 within its error (4e-4); ours is 2 to rounding in every pixel."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("llvm_ad_rgb")
+
+    def mean(text):
+        scene = mi.load_string(text, d="2")
+        return np.mean([np.array(mi.render(scene, spp=1024, seed=k)).mean() for k in range(8)])
+
+    assert mean(SPHERE_FURNACE) > 2.0015
+    assert mean(CUBE_FURNACE) == pytest.approx(2.0, abs=0.002)
+    from estimators.pathtracer import render
+
+    path = tmp_path / "scene.xml"
+    path.write_text(SPHERE_FURNACE)
+    ours = render(str(path), spp=64, seed=0, params={"d": "2"}, variance=False)
+    assert np.asarray(ours.mean) == pytest.approx(2.0, abs=1e-9)
