@@ -516,7 +516,10 @@ def _not_both_black(mean, ref_mean, path: str, who: str | None) -> None:
                               + " are black in every pixel, so the comparison tested "
                               "nothing; make the scene show the camera some light (a camera "
                               "outside a closed room sees one-sided walls from behind, an "
-                              "emitter may face away, max_depth may stop the paths)")
+                              "emitter may face away, max_depth may stop the paths, "
+                              "hide_emitters hides an environment seen directly, and no "
+                              "path reaches a point, spot or directional light behind "
+                              "glass or a mirror)")
 
 
 def _variant_notice(notice) -> None:
