@@ -556,8 +556,9 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
         # ratio to 1e-300 printed a 300-digit percentage)
         rel = (_percent(diff.mean() / abs(rm.mean()), "+.2%") if rm.mean() != 0
                else "the reference's mean is 0")
+        # the sign said nothing of its side: test minus reference (an outside review)
         messages.append(f"found by {', '.join(found)}: image mean differs by "
-                        f"{diff.mean():+.4g} ({rel})"
+                        f"{diff.mean():+.4g} ({rel}; the test image minus the reference)"
                         f"; {len(rejected_blocks)} blocks and "
                         f"{rejected_px.any(axis=2).mean():.2%} of pixels rejected")
         # where: the printed verdict said how many blocks, never which (only the JSON did)

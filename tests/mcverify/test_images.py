@@ -268,11 +268,12 @@ def test_a_black_reference_s_message_gives_no_percentage():
                           perceptual=False)
     assert not r.passed
     first = r.messages[0]
-    assert "image mean differs by +0.05 (the reference's mean is 0)" in first, first
+    assert "image mean differs by +0.05 (the reference's mean is 0; the test image minus " \
+        "the reference)" in first, first
     assert len(first) < 200, first
     lit = mv.compare_images(ref + 0.55, ref + 0.5, test_var=v, ref_var=v, test_n=4,
                             ref_n=4, perceptual=False)
-    assert "(+10.00%)" in lit.messages[0], lit.messages
+    assert "(+10.00%; the test image minus the reference)" in lit.messages[0], lit.messages
 
 
 def test_a_huge_relative_difference_is_printed_in_a_few_digits():
@@ -288,7 +289,7 @@ def test_a_huge_relative_difference_is_printed_in_a_few_digits():
                           perceptual=False)
     assert not r.passed
     text = " ".join(r.messages)
-    assert "(+5e+31%)" in text and "channel 0, +2e+32%" in text, text
+    assert "(+5e+31%;" in text and "channel 0, +2e+32%" in text, text
     assert not re.search(r"\d{12}", text), text
 
 
