@@ -853,67 +853,52 @@ def test_a_variance_beyond_float32_is_refused_before_writing(tmp_path):
                         r"float32's range .* the first at x=\d+, y=\d+ .*nothing written")
 
 
-def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(tmp_path):
+def _write_plain_exr(path, texels):
+    mvm.write_exr(path, texels)
+
+
+def _write_layered_exr(path, texels):
+    mi = mvm._mi()
+    mi.Bitmap(texels, mi.Bitmap.PixelFormat.MultiChannel,
+              ["albedo.R", "albedo.G", "albedo.B"]).write(path)
+
+
+@pytest.mark.parametrize("write, image", [(_write_plain_exr, "bad.exr"),
+                                          (_write_layered_exr, "layer.exr")],
+                         ids=["rgb", "layer-named"])
+def test_a_texture_with_a_nan_texel_is_named_when_mitsubas_image_is_not_finite(
+        tmp_path, write, image):
     """An outside review: ``reference build`` of a scene whose bitmap holds a NaN texel
     (Mitsuba renders NaN pixels from it) blamed 'a radiance, intensity, irradiance or scale
     beyond float32's range', which the scene had none of. The message now names the image
     and its first non-finite texel; nothing is written. A mesh beside it (no image) is
-    passed over."""
+    passed over. So for an EXR whose channels carry a layer's name (albedo.R, albedo.G,
+    albedo.B), which Mitsuba renders as a texture: the build read it as an envmap, whose
+    conversion refuses such channels, and passed it over (another outside review)."""
     from mcverify.errors import InvalidArgument
 
     texels = np.full((4, 5, 3), 0.5, dtype=np.float32)
     texels[2, 3, 1] = np.nan
-    mvm.write_exr(str(tmp_path / "bad.exr"), texels)
+    write(str(tmp_path / image), texels)
     (tmp_path / "card.obj").write_text("v -1 -1 0\nv 1 -1 0\nv 1 1 0\nf 1 2 3\n")
     scene = tmp_path / "scene.xml"
-    scene.write_text("""<scene version="3.0.0"><integrator type="path"/>
+    scene.write_text(f"""<scene version="3.0.0"><integrator type="path"/>
   <sensor type="orthographic"><transform name="to_world"><lookat origin="0, 0, 5"
     target="0, 0, 0" up="0, 1, 0"/></transform><film type="hdrfilm">
     <integer name="width" value="8"/><integer name="height" value="8"/>
     <rfilter type="box"/></film></sensor>
   <shape type="obj"><string name="filename" value="card.obj"/></shape>
   <shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">
-    <string name="filename" value="bad.exr"/><string name="filter_type" value="nearest"/>
+    <string name="filename" value="{image}"/><string name="filter_type" value="nearest"/>
   </texture></bsdf></shape>
   <emitter type="constant"/></scene>""")
     with pytest.raises(InvalidArgument, match=r"scene\.xml: Mitsuba's image is not finite "
-                                              r".*: the image bad\.exr has 1 texel\(s\) that "
-                                              r"are not finite, the first at row 2, column 3 "
-                                              r"\(channel 1: nan\).*no reference written"):
+                                              rf".*: the image {image.replace('.', '[.]')} "
+                                              r"has 1 texel\(s\) that are not finite, the "
+                                              r"first at row 2, column 3 \(channel 1: nan\)"
+                                              r".*no reference written"):
         reference.build_reference(str(scene), spp=4, passes=2)
-    assert sorted(os.listdir(tmp_path)) == ["bad.exr", "card.obj", "scene.xml"]
-
-
-def test_a_nan_texel_in_an_exr_with_layer_named_channels_is_named(tmp_path):
-    """An outside review: a bitmap from an EXR whose channels carry a layer's name
-    (albedo.R, albedo.G, albedo.B), which Mitsuba renders, with a NaN texel: the build
-    read it as an envmap, whose conversion to RGB refuses such channels, passed it over
-    and blamed 'a radiance, intensity, irradiance or scale beyond float32's range'. It now
-    names the image and its texel; nothing is written."""
-    from mcverify.errors import InvalidArgument
-
-    mi = mvm._mi()
-    texels = np.full((4, 5, 3), 0.5, dtype=np.float32)
-    texels[2, 3, 1] = np.nan
-    mi.Bitmap(texels, mi.Bitmap.PixelFormat.MultiChannel,
-              ["albedo.R", "albedo.G", "albedo.B"]).write(str(tmp_path / "layer.exr"))
-    scene = tmp_path / "scene.xml"
-    scene.write_text("""<scene version="3.0.0"><integrator type="path"/>
-  <sensor type="orthographic"><transform name="to_world"><lookat origin="0, 0, 5"
-    target="0, 0, 0" up="0, 1, 0"/></transform><film type="hdrfilm">
-    <integer name="width" value="8"/><integer name="height" value="8"/>
-    <rfilter type="box"/></film></sensor>
-  <shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap" name="reflectance">
-    <string name="filename" value="layer.exr"/><string name="filter_type" value="nearest"/>
-  </texture></bsdf></shape>
-  <emitter type="constant"/></scene>""")
-    with pytest.raises(InvalidArgument, match=r"scene\.xml: Mitsuba's image is not finite "
-                                              r".*: the image layer\.exr has 1 texel\(s\) "
-                                              r"that are not finite, the first at row 2, "
-                                              r"column 3 \(channel 1: nan\).*no reference "
-                                              r"written"):
-        reference.build_reference(str(scene), spp=4, passes=2)
-    assert sorted(os.listdir(tmp_path)) == ["layer.exr", "scene.xml"]
+    assert sorted(os.listdir(tmp_path)) == sorted([image, "card.obj", "scene.xml"])
 
 
 def test_the_stamp_and_assets_follow_the_params_the_scene_is_loaded_with(tmp_path):
