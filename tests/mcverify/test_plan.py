@@ -219,6 +219,23 @@ def test_a_path_tracer_of_max_depth_0_or_1_plans_its_render_check_only(tmp_path)
             label.replace("d1/", "d2/")} <= names
 
 
+def test_a_masked_emitter_keeps_its_mask_checks_at_max_depth_1(tmp_path):
+    """A read-only review: with a mask in the scene the last vertex's BSDF is sampled
+    still (Mitsuba's valid_ray), so a masked emitter at max_depth 1 shows its radiance ×
+    opacity, the mask's null probability, which its instance check tests; the plan
+    skipped it as "no BSDF or light is sampled"."""
+    path = tmp_path / "mask1.xml"
+    path.write_text(GLASS_SEEN_DIRECTLY.replace("DEPTH", "1").replace(
+        '<shape type="rectangle"><emitter type="area"/></shape>',
+        '<shape type="rectangle"><emitter type="area"/><bsdf type="mask"><float '
+        'name="opacity" value="0.3"/><bsdf type="diffuse"/></bsdf></shape>'))
+    checks, skipped, _ = plan(str(path))
+    names = _names(checks)
+    assert any(n.startswith("sampler:tracer.bsdf:mask1/") and "mask(opacity=0.3" in n
+               for n in names), sorted(names)
+    assert not any("max_depth 1" in why for _, why in skipped), skipped
+
+
 def test_a_user_check_still_runs_at_max_depth_1(tmp_path):
     from mcverify.gate.suites import Check, resolve_suite
 
