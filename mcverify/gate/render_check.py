@@ -227,6 +227,10 @@ def mitsuba_caveats(desc, bounds=None, triangles=None) -> list[str]:
             f"{' or '.join(types)} renders right in both"]
 
 
+#: BSDFs that are a delta lobe alone: never light-sampled, their MIS weight 1
+_DELTA_ONLY = ("dielectric", "conductor", "thindielectric")
+
+
 def _inward_sphere_lights(desc) -> list[str]:
     """The note on sphere emitters with ``flip_normals`` (their light faces inward, onto
     their own inside): Mitsuba 3.9.1's sphere samples a point on its own surface as a
@@ -239,9 +243,19 @@ def _inward_sphere_lights(desc) -> list[str]:
     review: a closed furnace, a camera inside a flipped sphere of radiance 1 and
     albedo 1, max_depth 3, is exactly 3 in ours and 3.005 in Mitsuba; 1 % bright at
     radius 50; a flipped cube of the same is right in both)."""
+    from .plan import nothing_sampled
+
+    def sampled(s):
+        """Its BSDF samples light at its surface: not a delta one alone (no light
+        sampling, an MIS weight of 1), and the path goes on from there."""
+        b = next((c for c in s.children if c.kind == "bsdf"), None)
+        while b is not None and b.type == "twosided" and b.children:
+            b = b.children[0]
+        return b is not None and b.type not in _DELTA_ONLY
+
     spheres = [s for s in desc.shapes if s.type == "sphere" and s.get("flip_normals", False)
-               and {"emitter", "bsdf"} <= {c.kind for c in s.children}]   # else black
-    if not spheres:
+               and any(c.kind == "emitter" for c in s.children) and sampled(s)]
+    if not spheres or nothing_sampled(desc):   # no MIS there (a read-only review)
         return []
     m = np.asarray(spheres[0].get("to_world", np.eye(4)), dtype=np.float64)
     c = (m @ np.append(np.asarray(spheres[0].get("center", np.zeros(3)), float), 1.0))[:3]

@@ -322,6 +322,21 @@ def test_a_sphere_light_facing_inward_is_noted(tmp_path, text, flip, noted):
     assert any("flip_normals" in n and "MIS weights" in n for n in notes) == noted, notes
 
 
+@pytest.mark.parametrize("text,params", [
+    (SPHERE_FURNACE, {"d": "1"}),       # max_depth 1: nothing sampled, no MIS
+    (SPHERE_FURNACE.replace('<bsdf type="diffuse"><rgb name="reflectance" value="$rho"/>'
+                            '</bsdf>', '<bsdf type="dielectric"/>'), {}),   # delta: weight 1
+], ids=["max-depth-1", "delta-bsdf"])
+def test_an_inward_sphere_light_without_mis_there_is_not_noted(tmp_path, text, params):
+    """The note names MIS weights at the sphere's surface: a read-only review found it
+    given at max_depth 1, where nothing is sampled, and on a sphere whose BSDF is a delta
+    lobe alone, never light-sampled, where Mitsuba's error cannot arise."""
+    path = tmp_path / "scene.xml"
+    path.write_text(text)
+    notes = _caveats(str(path), {"flip": "true", **params}, None)
+    assert not any("flip_normals" in n for n in notes), notes
+
+
 def test_mitsubas_inward_sphere_light_is_what_the_note_says(tmp_path):
     """The note's premise, in Mitsuba 3.9.1 itself: the furnace above at max_depth 2 is 2
     exactly; Mitsuba's sphere gives 2.0027 (8 × 1024 spp at 8², standard error 5e-5), its
