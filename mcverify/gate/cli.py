@@ -851,6 +851,16 @@ def _expanded_glob(args, excess: bool) -> str:
             "'out/pass_*.exr', so that compare expands it")
 
 
+def _channels_hint(test_shape, ref_shape) -> str:
+    """Where only the channels differ, one or three: a luminance film's image against an
+    RGB reference (or the other way round) was refused as a bare shape mismatch (an
+    outside review)."""
+    if test_shape[:2] != ref_shape[:2] or {test_shape[2:], ref_shape[2:]} != {(1,), (3,)}:
+        return ""
+    return ("; one channel against three: render both with the film's pixel_format "
+            "(rgb, as the reference scene's film), not one as luminance")
+
+
 def _cmd_compare(args) -> int:
     from . import reference
     from ..checks import compare_images
@@ -935,7 +945,8 @@ def _cmd_compare(args) -> int:
     label = test_image or args.test_passes
     if test.mean.shape != ref_mean.shape:
         raise InvalidArgument(f"{label}: shape {test.mean.shape} differs from the "
-                              f"reference's {ref_mean.shape}")
+                              f"reference's {ref_mean.shape}" + _channels_hint(
+                                  test.mean.shape, ref_mean.shape))
     # half pass images (``pass_stats``): their rounding is no evidence
     stored = [s.precision for s in (test, ref if ref_load is not None else None)
               if s is not None and s.precision is not None]

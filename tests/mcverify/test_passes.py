@@ -486,3 +486,24 @@ def test_an_image_storing_part_of_its_window_is_refused_naming_it(tmp_path, disp
     assert r.returncode == 2 and "crop.exr: its data window" in r.stderr, r.stderr
     whole = _exr_channels(tmp_path / "whole.exr", planes, display=(0, 0, 7, 7))
     assert read_radiance(whole)[0].shape == (8, 8, 3)
+
+
+def test_luminance_passes_against_an_rgb_reference_are_refused_naming_pixel_format(tmp_path):
+    """Passes of a film with pixel_format luminance (one channel) against an RGB reference
+    were refused as a bare "shape (8, 8, 1) differs from the reference's (8, 8, 3)" (an
+    outside review); the refusal now says what differs and what to render. Other shape
+    mismatches keep the bare message."""
+    rng = np.random.default_rng(21)
+    _write(tmp_path / "p", rng.gamma(2.0, 0.5, (4, 8, 8, 1)))
+    _write(tmp_path / "q", rng.gamma(2.0, 0.5, (4, 6, 8, 3)))
+    for name, img in (("rm", rng.gamma(2.0, 0.5, (8, 8, 3))), ("rv", np.full((8, 8, 3), 0.1))):
+        mvm.write_exr(str(tmp_path / f"{name}.exr"), img)
+    ref = ["rm.exr", "--ref-var", "rv.exr", "--ref-n", "16"]
+    r = subprocess.run(CMD + ["compare", "--test-passes", "p/pass_*.exr", *ref],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and "one channel against three" in r.stderr and \
+        "pixel_format" in r.stderr, r.stdout + r.stderr
+    r = subprocess.run(CMD + ["compare", "--test-passes", "q/pass_*.exr", *ref],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and "differs from the reference's (8, 8, 3)" in r.stderr and \
+        "channel" not in r.stderr, r.stdout + r.stderr
