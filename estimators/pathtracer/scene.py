@@ -673,14 +673,13 @@ class _Loader:
             if real in chain:
                 self.fail(node, f"{name!r} includes itself ({' -> '.join(chain + [real])}; "
                                 "Mitsuba stops there too)")
-            sub = _read_scene(full, SceneError)
+            sub = _read_scene(full)
             stack = [sub]
             while stack:                # its elements' messages name its file
                 n = stack.pop()
                 n.origin = full
                 stack += n.children
-            self.check_attributes(sub)
-            self.check_version(sub)
+            self.check_root(sub)
             out += self._spliced(sub.children, os.path.dirname(full), chain + [real],
                                  defaults)
         return out
@@ -697,7 +696,10 @@ class _Loader:
         self.fail(node, f"included file {name!r} not found (looked for "
                         f"{' and '.join(dict.fromkeys(tried))})")
 
-    def check_version(self, root):
+    def check_root(self, root):
+        """A ``<scene>`` element's attributes and version, the scene's or an included
+        file's."""
+        self.check_attributes(root)
         version = self.attr(root, "version")    # Mitsuba requires it too
         if not re.fullmatch(r"[0-9]+\.[0-9]+\.[0-9]+", version.strip(SPACE)):
             self.fail(root, f"version {version!r}: expected major.minor.patch, e.g. 3.0.0")
@@ -707,8 +709,7 @@ class _Loader:
                             "supported here: write it for Mitsuba 3 (version=\"3.0.0\")")
 
     def load(self, root) -> SceneDescription:
-        self.check_attributes(root)
-        self.check_version(root)
+        self.check_root(root)
         self.include_all(root)
         integrator = sensor = None
         shapes, emitters, declared = [], [], []
@@ -804,22 +805,22 @@ def parse_scene(text: str | bytes, *, path: str = "<string>", params: dict | Non
 
 def load_scene(path: str, *, params: dict | None = None) -> SceneDescription:
     """Parse a Mitsuba XML scene file."""
-    desc = _Loader(path, params or {}).load(_read_scene(path, SceneError))
+    desc = _Loader(path, params or {}).load(_read_scene(path))
     desc.path = os.path.abspath(path)
     return desc
 
 
-def _read_scene(path: str, error) -> _Node:
+def _read_scene(path: str) -> _Node:
     """The ``<scene>`` element of the XML file ``path`` (a scene, or a file it includes),
-    or ``error`` naming the file."""
+    or SceneError naming the file."""
     problem = file_problem(path, MAX_SCENE_BYTES)
     if problem:
-        raise error(problem)
+        raise SceneError(problem)
     try:
         # bytes: expat reads the encoding from the BOM or the XML declaration, as
         # Mitsuba's parser does (a UTF-16 or ISO-8859-1 scene was "cannot read")
         with open(path, "rb") as f:
             text = f.read(MAX_SCENE_BYTES + 1)
     except OSError as e:
-        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+        raise SceneError(f"{path}: cannot read ({e.strerror or e})") from None
     return _parse_xml(text, path)
