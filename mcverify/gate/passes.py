@@ -77,10 +77,8 @@ def read_radiance(path: str) -> tuple[np.ndarray, str | None]:
     ``read_float_exr``."""
     names = colour_channels(path)
     img = reference.read_float_exr(path)
-    alpha = [c for c in names if _is_alpha(c)]
-    if alpha and img.shape[2] in (2, 4) and len(names) == img.shape[2]:
-        return img[:, :, :-1], f"{path}: alpha channel ignored"
-    return img, None
+    colour = reference.without_alpha(names, img)
+    return colour, (f"{path}: alpha channel ignored" if colour is not img else None)
 
 
 def pass_files(pattern: str, *, option: str = "--test-passes") -> list[str]:

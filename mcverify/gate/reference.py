@@ -1091,7 +1091,14 @@ def _colour(path: str, img: np.ndarray) -> np.ndarray:
     B and A, and until 7 December its reference kept A, and Mitsuba's own RGBA passes
     were refused against it, "shape (16, 24, 3) differs from the reference's (16, 24, 4)"
     (an outside review)."""
-    names = list(exr_channel_types(path))
+    return without_alpha(list(exr_channel_types(path)), img)
+
+
+def without_alpha(names: list[str], img: np.ndarray) -> np.ndarray:
+    """``img`` (H, W, C) of the OpenEXR channels ``names`` without its alpha, the last
+    channel as read (RGBA -> RGB, YA -> Y), where one of them is an alpha; else ``img``
+    itself. The one rule for the images under test (``passes.read_radiance``) and the
+    reference's."""
     if img.ndim == 3 and img.shape[2] in (2, 4) and len(names) == img.shape[2] \
             and any(is_alpha(c) for c in names):
         return img[:, :, :-1]
