@@ -9,7 +9,9 @@ instances, with their parameters, are χ²-checked (``tracer_checks``), and each
 instance's returned pdf and weight are held to its evaluation (``consistency_checks``).
 A path tracer of ``max_depth`` 0 or 1, or one of depth 2 under delta lights only, samples
 nothing (``nothing_sampled``): all of these are then skipped with that reason, and the
-scene's render check (and a user's own checks that name nothing they verify) run.
+scene's render check (and a user's own checks that name nothing they verify) run. A
+path tracer whose ``max_depth`` is at most its ``rr_depth`` never plays Russian roulette
+(``roulette_unused``): the roulette's estimator check is skipped with that reason.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import dataclasses
 from .suites import Check, resolve_suite
 from .tracer_checks import consistency_checks, tracer_checks
 
-__all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "nothing_sampled", "plan"]
+__all__ = ["NEEDS", "NOTHING_TO_SAMPLE", "nothing_sampled", "plan", "roulette_unused"]
 
 
 def _pairs(kind: str, *subjects: str) -> set[tuple[str, str]]:
@@ -107,16 +109,22 @@ def plan(scene_path: str, suite: str = "default", checks: list[Check] | None = N
     desc = load_scene(scene_path)
     all_checks = resolve_suite(suite)[0] if checks is None else checks
     unsampled = nothing_sampled(desc)
+    no_roulette = roulette_unused(desc)
     wanted: dict[str, str] = {}
+    unused: dict[str, str] = {}
     for feature in sorted(desc.features):
         needs, why = NEEDS.get(feature, (set(), ""))
         for c in all_checks:
-            if c.verifies & needs:
+            hit = c.verifies & needs
+            if hit and no_roulette and hit <= ROULETTE:
+                unused.setdefault(c.name, no_roulette)
+            elif hit:
                 wanted.setdefault(c.name, f"{feature}: {why}")
     # a check that names nothing it verifies (the user's own, Check's default) runs with
     # any scene: it was skipped as "not needed", and a project's gate ran none of its own
     keep = [c for c in all_checks if (c.name in wanted and not unsampled) or not c.verifies]
-    skipped = [(c.name, unsampled if c.name in wanted else "not needed by this scene")
+    skipped = [(c.name, unsampled if c.name in wanted else
+                unused.get(c.name, "not needed by this scene"))
                for c in all_checks if c.verifies and (unsampled or c.name not in wanted)]
     skipped += [(f, why) for f, why in NOTHING_TO_SAMPLE.items() if f in desc.features]
     # prepared whatever the depth: a scene the tracer cannot render is refused here
@@ -160,6 +168,26 @@ def nothing_sampled(desc) -> str:
         return (f"{which} under point, spot and directional lights only: each light is "
                 "reached by its delta sample, a BSDF-sampled ray finds nothing that emits, "
                 "nothing is sampled")
+    return ""
+
+
+#: What only Russian roulette needs verified (``roulette_unused`` drops it).
+ROULETTE = _pairs("unbiased", "russian_roulette")
+
+
+def roulette_unused(desc) -> str:
+    """Why the scene's path tracer never plays Russian roulette, or "" where it may: it
+    plays from ``rr_depth`` bounces on (Mitsuba's default 5), and a path of ``max_depth``
+    vertices ends after ``max_depth`` - 1 bounces, so with 0 <= max_depth <= rr_depth no
+    path reaches it (the roulette's estimator check was planned for such a scene until
+    8 December, an image it decides nothing in)."""
+    integ = desc.integrator
+    if integ.type != "path":
+        return ""
+    depth, rr_depth = int(integ.get("max_depth", -1)), int(integ.get("rr_depth", 5))
+    if 0 <= depth <= rr_depth:
+        return (f"path with max_depth {depth} <= rr_depth {rr_depth}: no path reaches "
+                "Russian roulette")
     return ""
 
 

@@ -233,7 +233,7 @@ def test_a_masked_emitter_keeps_its_mask_checks_at_max_depth_1(tmp_path):
     names = _names(checks)
     assert any(n.startswith("sampler:tracer.bsdf:mask1/") and "mask(opacity=0.3" in n
                for n in names), sorted(names)
-    assert not any("max_depth 1" in why for _, why in skipped), skipped
+    assert not any("first hit" in why for _, why in skipped), skipped
 
 
 def test_a_user_check_still_runs_at_max_depth_1(tmp_path):
@@ -275,3 +275,27 @@ def test_depth_2_under_delta_lights_only_plans_its_render_check_only(tmp_path):
         names = _names(planned(name, integrator, extra)[0])
         assert {"sampler:cosine_hemisphere",
                 f"sampler:tracer.bsdf:{name}/bsdf0:diffuse@wi=45°"} <= names, name
+
+
+def test_russian_roulette_is_planned_only_where_a_path_reaches_rr_depth(tmp_path):
+    """A path of max_depth vertices makes max_depth - 1 bounces and plays Russian roulette
+    from rr_depth bounces on (Mitsuba's default 5), so at max_depth <= rr_depth no path
+    reaches it: its estimator check was planned all the same (veach-mis, max_depth 4)."""
+    def reasons(name, depth, rr=None):
+        rr_line = "" if rr is None else f'<integer name="rr_depth" value="{rr}"/>'
+        path = tmp_path / f"{name}.xml"
+        path.write_text(DIFFUSE_POINT.replace("<sensor", (
+            f'<integrator type="path"><integer name="max_depth" value="{depth}"/>'
+            f'{rr_line}</integrator>\n  <sensor')))
+        checks, skipped, _ = plan(str(path))
+        return _names(checks), dict(skipped)
+
+    rr = "unbiased:russian_roulette(q=0.3)"
+    for name, depth, rr_depth in (("d5", 5, None), ("d3", 3, 3), ("d4", 4, None)):
+        names, why = reasons(name, depth, rr_depth)
+        assert rr not in names
+        assert why[rr] == (f"path with max_depth {depth} <= rr_depth {rr_depth or 5}: "
+                           "no path reaches Russian roulette")
+        assert "unbiased:mis(balance)" in names     # the rest of the path's needs stay
+    for name, depth, rr_depth in (("d6", 6, None), ("d4rr3", 4, 3), ("inf", -1, None)):
+        assert rr in reasons(name, depth, rr_depth)[0], name
