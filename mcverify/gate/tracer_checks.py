@@ -10,7 +10,8 @@ nested in it as its own row; and every emitter with a density
 from ``reference_points``: the camera's position, the centre of the scene's bounds and
 the point half way between (a mesh light whose vertex normals lean off its faces with
 its face normals: ``_face_normals``; a point on the light's own surface is skipped for
-it: ``_on_light``). The subject is ``estimators.pathtracer.sampling`` (the
+it: ``_on_light``), and, where none of those sees the light's emitting side, a point in
+front of it (``_front_point``). The subject is ``estimators.pathtracer.sampling`` (the
 tracer's own kernels, with the parameters the scene gives: α (or α_u, α_v), η,
 distribution, weights, coat tables, blend weights and opacities). Draws can be rejected (zero pdf, a delta lobe, a light's back side), so the
 judge runs with ``rejection=True``: the pdf integrates to the acceptance probability.
@@ -193,6 +194,75 @@ def _on_light(scene, k: int, p) -> bool:
     return bool(np.any(np.abs(np.einsum("tc,tc->t", p - v[:, 0], g)) <= tol))
 
 
+def _light_parts(scene, k: int):
+    """(candidates, centres) of area light ``k``: ``centres`` of its primitives in world
+    space (a triangle's centroid, a disk's or sphere's centre), and ``candidates``, two
+    points by its largest primitive at a distance of half the scene's size, one on each
+    side (along a triangle's or disk's normal; for a sphere, outside it and its centre,
+    where a flipped sphere emits)."""
+    from estimators.pathtracer import layout
+    from estimators.pathtracer.geometry import bvh_bounds
+
+    a = scene.arrays
+    lo, hi = bvh_bounds(a.bvh_nodes)
+    step = 0.5 * float(np.linalg.norm(hi - lo))
+    first = int(a.light_i[k, layout.LIGHT_PRIM])
+    kind = int(a.prim_info[first, layout.PRIM_KIND])
+    if kind == layout.SPHERE:
+        row = a.prims[first]
+        c = row[layout.SPHERE_CENTER:layout.SPHERE_CENTER + 3]
+        out = c + np.array([0.0, 0.0, float(row[layout.SPHERE_RADIUS]) + step])
+        return [out, c], c[None]
+    if kind == layout.DISK:
+        c = a.prims[first, layout.DISK_TO_WORLD:layout.DISK_TO_WORLD + 12].reshape(3, 4)[:, 3]
+        m = a.prims[first, layout.DISK_TO_LOCAL:layout.DISK_TO_LOCAL + 12].reshape(3, 4)
+        n = m[2, :3] / np.linalg.norm(m[2, :3])
+        return [c + step * n, c - step * n], c[None]
+    rows = np.arange(first, first + int(a.light_i[k, layout.LIGHT_PRIM_COUNT]))
+    v = a.prims[rows, :9].reshape(-1, 3, 3)
+    g = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    length = np.linalg.norm(g, axis=1)
+    if not np.any(length > 0.0):
+        return [], v.mean(axis=1)
+    centres, n = v.mean(axis=1), g[int(np.argmax(length))] / length.max()
+    # the face the largest triangle lies in (a rectangle's two halves): its centre
+    face = (g @ n >= (1.0 - 1e-9) * length) & \
+        (np.abs((centres - centres[int(np.argmax(length))]) @ n) <= 1e-9 * step)
+    c = (length[face, None] * centres[face]).sum(axis=0) / length[face].sum()
+    return [c + step * n, c - step * n], centres
+
+
+def _sees_front(scene, k: int, p, centres) -> bool:
+    """Whether the light's pdf is positive from ``p`` along the direction to one of its
+    primitives' ``centres``: ``p`` sees some of its emitting side."""
+    from estimators.pathtracer.sampling import emitter_sampler
+
+    d = centres - np.asarray(p, dtype=np.float64)
+    length = np.linalg.norm(d, axis=1)
+    d, length = d[length > 0.0], length[length > 0.0]
+    if not len(d):
+        return False
+    with np.errstate(invalid="ignore"):
+        return bool(np.any(emitter_sampler(scene, k, p)[1](d / length[:, None]) > 0.0))
+
+
+def _front_point(scene, k: int, refs):
+    """A point in front of area light ``k`` where none of ``refs`` sees its emitting side
+    (a light aimed at a wall or ceiling, away from the camera and the scene's centre),
+    else None: the first of ``_light_parts``' candidates from which the light's pdf is
+    positive. Without it such a light's checks tested nothing: from behind every draw is
+    rejected and the pdf integrates to 0, which a sampler that never draws passes too."""
+    candidates, centres = _light_parts(scene, k)
+    if any(_sees_front(scene, k, p, centres) for p in refs):
+        return None
+    for p in candidates:
+        if _sees_front(scene, k, p, centres):
+            # rounding noise of the transforms (a disk's centre at z = 2.8e-16) is 0
+            scale = float(np.abs(p).max())
+            return tuple(float(c) if abs(c) > 1e-12 * scale else 0.0 for c in p)
+    return None
+
+
 def _declared(scene, kind: str, index: int) -> str:
     """Where the scene file declares BSDF row or light ``index``: a message for its
     checks, so that a failure points at the element (``FILE:LINE: <bsdf type="...">``)."""
@@ -257,8 +327,9 @@ def scene_instances(scene_path: str):
             label += "(face normals)"
         # points that coincide (the camera at the bounds' centre) or print alike: one
         # check each, under a name of its own
+        front = _front_point(scene, k, refs) if area else None
         unique: dict[str, tuple] = {}
-        for p in refs:
+        for p in refs + ([front] if front is not None else []):
             unique.setdefault(_fmt(p), p)
         for where, p in unique.items():
             if area and _on_light(scene, k, p):

@@ -145,12 +145,53 @@ def test_emitters_seen_from_behind_or_from_one_point_plan_and_pass(tmp_path):
     names = [c.name for c in checks if ".emitter:" in c.name]
     assert len(names) == len(set(names)), names
     sphere = [n for n in names if "sphere" in n]
-    assert len(sphere) == 1 and "@ref=(0,0,0)" in sphere[0], names    # all three coincide
+    # all three coincide, inside the sphere (its back side), and a point outside it, which
+    # sees its front (9 + half the bounds' diagonal above its centre), is added
+    assert [n.split("@")[1] for n in sphere] == ["ref=(0,0,0)", "ref=(0,0,24.6)"], names
     n, bad = _family_passes(checks, seed=3, pick=lambda c: ".emitter:" in c.name)
     assert n == len(names) and not bad, bad
     back = [c.run(3) for c in checks if ".emitter:" in c.name and "triangles" in c.name]
     assert any(r.passed and any("draws was rejected" in m for m in r.messages)
                for r in back), [r.summary() for r in back]
+
+
+_AIMED_AWAY = _scene_head("0, 0, 5", "0, 0, 0") + """\
+  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="90"/><scale value="3"/>
+    <translate y="2"/></transform><bsdf type="diffuse"/></shape>
+  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/>
+    <translate y="-1"/></transform><bsdf type="diffuse"/></shape>
+  <shape type="LIGHT">FLIP<transform name="to_world"><rotate x="1" angle="ANGLE"/>
+    <translate y="1.5"/></transform><emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("light,angle,flip", [("rectangle", -90, False), ("disk", -90, False),
+                                              ("rectangle", 90, True)])
+def test_a_light_aimed_away_from_every_reference_point_is_checked_from_its_front(
+        tmp_path, light, angle, flip):
+    """A light aimed at the ceiling (a bounce light), away from the camera, the centre of
+    the bounds and the point between, rejects every draw from all three, where its pdf
+    integrates to 0: its checks passed testing nothing, as would a sampler that never
+    draws a point. A fourth reference point now stands in front of it, on the side the
+    light's pdf says emits (flip_normals turns it), and its check tests the draws."""
+    scene = tmp_path / "aimed.xml"
+    scene.write_text(_AIMED_AWAY.replace("LIGHT", light).replace("ANGLE", str(angle)).replace(
+        "FLIP", '<boolean name="flip_normals" value="true"/>' if flip else ""))
+    checks, _ = tracer_checks(str(scene), 2 ** 16)
+    emitter = [c for c in checks if ".emitter:" in c.name]
+    assert len(emitter) == 4, [c.name for c in emitter]
+    # 1.5 above the origin + half the bounds' diagonal (6 x 3 x 6: 4.5)
+    front = [c for c in emitter if "@ref=(0,6,0)" in c.name]
+    assert len(front) == 1, [c.name for c in emitter]
+    results = {c.name: c.run(5) for c in emitter}
+    tested = {n for n, r in results.items() if r.details.get("n_valid")}
+    assert tested == {front[0].name}, {n: r.details.get("n_valid") for n, r in results.items()}
+    assert all(r.passed for r in results.values()), [r.summary() for r in results.values()]
+    # the light turned towards the camera: two of the points see it, no fourth is added
+    scene.write_text(_AIMED_AWAY.replace("LIGHT", light).replace("ANGLE", "-20").replace(
+        "FLIP", ""))
+    assert len([c for c in tracer_checks(str(scene), 2 ** 16)[0]
+                if ".emitter:" in c.name]) == 3
 
 
 def test_a_plastic_at_grazing_incidence_passes_though_every_draw_is_its_delta_lobe():
@@ -453,8 +494,12 @@ def test_a_reference_point_on_a_light_is_skipped_for_that_light(tmp_path):
     assert [c.name for c in emitters if "@ref=(0,0,0)" in c.name] == \
         ["sampler:tracer.emitter:edge/light1:area:disk@ref=(0,0,0)"]
     assert any("light0" in c.name for c in emitters)
+    # both planar lights face down, away from every other point: each is also checked
+    # from a point below it (until 8 December those checks tested nothing)
+    assert {c.name.split("/")[1] for c in emitters if "-" in c.name.split("@")[1]} == \
+        {"light0:area:triangles@ref=(0,-2.45,0)", "light1:area:disk@ref=(0,-4.45,0)"}
     n, bad = _family_passes(emitters, seed=4)
-    assert n == 7 and not bad, bad
+    assert n == 9 and not bad, bad
 
 
 _ROUGH_GLASS = _scene_head("0, 1, 5", "0, 0, 0") + """\
