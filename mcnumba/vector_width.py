@@ -13,7 +13,11 @@ are bit-identical (no reassociation: numba compiles without fast-math).
 may come first), before any of their numba functions is defined. Numba reads
 ``NUMBA_CPU_FEATURES`` when its code generator starts (at the process's first ``@njit``),
 so it sets that variable, unless the user has set it or ``NUMBA_CPU_NAME``, to the host's
-features with ``-prefer-256-bit``; child processes (workers) inherit it. A process that
+features with ``-prefer-256-bit``; child processes (workers) inherit it. Only numba's
+``config.CPU_FEATURES`` follows it in this process: settings the caller made in code
+before the import (``numba.config.THREADING_LAYER = "workqueue"``, ``BOUNDSCHECK``,
+``CACHE_DIR``) stay as they were (a ``config.reload_config()`` here read every setting
+from the environment again and put those back to their defaults). A process that
 defined numba functions before importing either package keeps its code generator as it
 is. Numba's cache is keyed by the features, so code compiled either way is never
 confused. Set ``NUMBA_CPU_FEATURES`` yourself (for example to
@@ -39,6 +43,21 @@ def prefer_wide_vectors() -> bool:
     features = get_host_cpu_features()      # numba's default ('' if LLVM cannot tell)
     if "+avx512f" not in features.split(","):
         return False
-    os.environ["NUMBA_CPU_FEATURES"] = f"{features},{FEATURE}"
-    config.reload_config()
+    value = f"{features},{FEATURE}"
+    os.environ["NUMBA_CPU_FEATURES"] = value
+    _adopt(config, "NUMBA_CPU_FEATURES", value)
+    config.CPU_FEATURES = value
     return True
+
+
+def _adopt(config, name: str, value: str) -> None:
+    """Tell numba's config that the environment variable ``name`` it last read is
+    ``value`` now: its compiler reloads every setting from the environment at each
+    compilation where a ``NUMBA_`` variable differs from what it last read, which would
+    put the caller's settings made in code back to their defaults. Where numba keeps no
+    such record (another version), its config is reloaded as before."""
+    seen = getattr(getattr(config, "_env_reloader", None), "old_environ", None)
+    if isinstance(seen, dict):
+        seen[name] = value
+    else:
+        config.reload_config()

@@ -192,3 +192,31 @@ def test_whichever_package_comes_first_sets_the_vector_width(first, user_set):
     assert r.returncode == 0, r.stderr
     wide = "+avx512f" in host.split(",") and not user_set
     assert r.stdout.strip() == (host + ",-prefer-256-bit" if wide else host)
+
+
+@pytest.mark.parametrize("first", ["mcverify", "estimators"])
+def test_the_vector_width_keeps_numba_settings_made_in_code(first):
+    """numba's settings made in code before the import (its documented
+    ``numba.config.THREADING_LAYER = ...``) are kept, through the import and the next
+    compilation: the import reloaded numba's whole config from the environment, so they
+    went back to their defaults ('default', None, numba's cache folder)."""
+    probe = ("import numba\n"
+             "numba.config.THREADING_LAYER = 'workqueue'\n"
+             "numba.config.BOUNDSCHECK = 1\n"
+             f"import {first}\n"
+             "numba.njit(lambda x: x + 1)(1)\n"
+             "from numba.core import registry\n"
+             "print(numba.config.THREADING_LAYER, numba.config.BOUNDSCHECK)\n"
+             "print(registry.cpu_target.target_context.codegen()._tm_features)\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES",
+                                                             "NUMBA_CPU_NAME")}
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                       cwd=ROOT, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    settings, features = r.stdout.splitlines()
+    assert settings == "workqueue 1"
+    from numba.core.codegen import get_host_cpu_features
+
+    host = get_host_cpu_features()
+    wide = "+avx512f" in host.split(",")
+    assert features == (host + ",-prefer-256-bit" if wide else host)
