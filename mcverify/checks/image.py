@@ -104,11 +104,21 @@ def _display_scale(ref) -> float:
     return max(float(np.percentile(lum, 99)), 1e-12)
 
 
+def _colour():
+    """colour-science, imported keeping numpy's print options: its import sets
+    ``np.set_printoptions(legacy="1.13")`` for the whole process, so a caller's arrays
+    printed otherwise (``[ 0.5  1. ]`` for ``[0.5 1. ]``) after a ``compare_images``."""
+    with np.printoptions():
+        import colour
+
+    return colour
+
+
 def delta_e2000(test, ref) -> np.ndarray:
     """Per-pixel CIEDE2000 colour difference of two linear-sRGB HDR images (H, W, 3),
     both divided by the reference's 99th-percentile luminance and clipped to [0, 1] (ΔE is
     defined for display colours; 1 is about the smallest difference a person notices)."""
-    import colour
+    colour = _colour()
 
     scale = _display_scale(ref)
     space = colour.RGB_COLOURSPACES["sRGB"]
@@ -122,7 +132,7 @@ def delta_e_itp(test, ref) -> np.ndarray:
     """Per-pixel ΔE ITP (ITU-R BT.2124) of two linear-sRGB HDR images: the reference's
     99th-percentile luminance is shown at 100 cd/m², brighter pixels keep their HDR
     values (ICtCp's PQ encoding covers them); 1 is about a just-noticeable difference."""
-    import colour
+    colour = _colour()
 
     scale = _display_scale(ref)
     # colour's ICtCp takes absolute luminance in cd/m² (1.0 is 1 cd/m²)

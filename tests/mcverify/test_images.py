@@ -256,6 +256,27 @@ def test_a_black_reference_is_compared_without_hdr_flip(level):
                                                                 out.stderr)
 
 
+def test_the_perceptual_metrics_keep_the_caller_s_print_options():
+    """An outside review: colour-science's import sets numpy's print options to
+    ``legacy="1.13"`` for the whole process, so a caller's arrays printed otherwise after
+    their first ``compare_images`` (``[ 0.5  1. ]``). Run in a fresh process, where
+    colour is not imported yet."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np, mcverify as mv\n"
+            "np.set_printoptions(precision=3)\n"
+            "before = np.get_printoptions()\n"
+            "ref = np.full((8, 8, 3), 0.5); v = np.full_like(ref, 1e-4)\n"
+            "r = mv.compare_images(ref + 0.01, ref, test_var=v, ref_var=v, test_n=4, ref_n=4)\n"
+            "assert r.details['delta_e2000_mean'] is not None\n"
+            "print(np.get_printoptions() == before, np.array([0.5, 1.0]))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "True [0.5 1. ]"
+
+
 def test_a_black_reference_s_message_gives_no_percentage():
     """An outside review: a scene whose Mitsuba reference rendered black (an envmap lit
     in its top row only) failed with "image mean differs by +0.05494
