@@ -538,3 +538,29 @@ def test_the_convergence_table_states_its_intervals_confidence(report):
     assert "CI (confidence)" in page
     assert all(r["ci_confidence"] == pytest.approx(0.99) for r in doc["convergence"])
     assert " (99 %)</td>" in page
+
+
+def test_a_report_keeps_the_caller_s_matplotlib_backend_and_figures(tmp_path):
+    """A program or notebook with its own backend and figures makes a report: the plots
+    called ``matplotlib.use("Agg")``, which switched the caller's backend for the rest
+    of the process (an interactive one's ``plt.show()`` then showed nothing; an outside
+    review). Run in a fresh process, as the backend is the process's."""
+    script = (
+        "import matplotlib\n"
+        "matplotlib.use('svg')\n"
+        "import matplotlib.pyplot as plt\n"
+        "plt.plot([1, 2])\n"
+        "import numpy as np, mcverify as mv\n"
+        "from mcverify.gate.report import build_report\n"
+        "from mcverify.result import SuiteResult\n"
+        "r = mv.check_sampler(lambda u: np.sqrt(u), lambda x: np.ones(len(x)), 'interval',\n"
+        "                     n_samples=20_000, seed=0, name='sqrt')\n"
+        "suite = SuiteResult.judge('mine', [r], alpha=0.01, seconds=0.0)\n"
+        f"doc = build_report({str(tmp_path)!r}, suite=suite, study=None, extra_provenance={{}})\n"
+        "assert 'failed_sqrt.png' in doc['images'], doc['images']\n"
+        "print(matplotlib.get_backend(), plt.get_fignums())\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "svg [1]"
+    assert (tmp_path / "failed_sqrt.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

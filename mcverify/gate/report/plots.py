@@ -3,7 +3,12 @@
 A title holding a user's text (a check's name, a scene's) is drawn as plain text
 (``parse_math=False``): matplotlib read ``$...$`` in it as mathtext, so a check named
 ``cost $\\frac$`` ended ``check --report`` with "unexpected ValueError" after the run,
-writing neither the report nor ``--json``/``--junit``."""
+writing neither the report nor ``--json``/``--junit``.
+
+Figures are drawn on an Agg canvas of their own, without pyplot: a program that makes a
+report keeps its own backend and figures (``matplotlib.use("Agg")`` here switched a
+caller's interactive backend for the rest of the process, and ``plt.show()`` then showed
+nothing)."""
 
 from __future__ import annotations
 
@@ -12,19 +17,26 @@ import io
 import numpy as np
 
 
-def _plt():
-    import matplotlib
+def _subplots(rows: int, cols: int, figsize, **kw):
+    """``(figure, axes)`` as ``plt.subplots`` makes them, on an Agg canvas outside
+    pyplot's registry of figures (nothing to close, the backend untouched)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(rows, cols, **kw)
 
-    return plt
+
+def _null_formatter():
+    from matplotlib.ticker import NullFormatter
+
+    return NullFormatter()
 
 
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    _plt().close(fig)
     return buf.getvalue()
 
 
@@ -32,11 +44,10 @@ def _per_integrand(rows: list[dict], draw, xlabel: str) -> bytes:
     """One log-log panel per integrand; ``draw(ax, row, colour)`` plots one estimator's
     row, in the colour of that estimator in every panel (each panel coloured its own
     rows in turn, so one colour meant other estimators in other panels)."""
-    plt = _plt()
     names = list(dict.fromkeys(r["integrand"] for r in rows))
     colours = {e: f"C{i % 10}" for i, e in
                enumerate(dict.fromkeys(r["estimator"] for r in rows))}
-    fig, axes = plt.subplots(1, len(names), figsize=(4.0 * len(names), 3.6), squeeze=False)
+    fig, axes = _subplots(1, len(names), (4.0 * len(names), 3.6), squeeze=False)
     for ax, name in zip(axes[0], names):
         mine = [r for r in rows if r["integrand"] == name]
         for r in mine:
@@ -45,7 +56,7 @@ def _per_integrand(rows: list[dict], draw, xlabel: str) -> bytes:
             first = next(r for r in mine if r["estimator"] == "uniform")
             ns = np.asarray(first["ns"], dtype=float)
             ax.loglog(ns, first["rmse"][0] * (ns / ns[0]) ** -0.5, "k:", lw=1, label="N^-1/2")
-        ax.xaxis.set_minor_formatter(plt.NullFormatter())
+        ax.xaxis.set_minor_formatter(_null_formatter())
         ax.set_title(name, fontsize=9)
         ax.set_xlabel(xlabel)
         ax.set_ylabel("RMSE")
@@ -75,11 +86,10 @@ def histogram(result: dict) -> bytes | None:
     h = result.get("artifacts", {}).get("histogram")
     if not h or "expected" not in h:
         return None
-    plt = _plt()
     obs, exp = np.asarray(h["observed"], float), np.asarray(h["expected"], float)
     z = np.where(exp > 0, (obs - exp) / np.sqrt(np.maximum(exp, 1e-300)),
                  np.where(obs > 0, np.inf, 0.0))
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    fig, axes = _subplots(1, 3, (12, 3.4))
     if obs.ndim == 1:
         centres = 0.5 * (np.asarray(h["edges"][0][1:]) + np.asarray(h["edges"][0][:-1]))
         axes[0].step(centres, obs, where="mid")
@@ -109,10 +119,9 @@ def render_panels(scene: str, a: dict) -> bytes:
     """Ours, Mitsuba (one exposure for both), |ours − Mitsuba| (max over channels), the
     pixel test's BH-adjusted p-map (−log10 p), the ΔE2000, ΔE ITP and HDR-FLIP maps, each with its
     colour bar."""
-    plt = _plt()
     ours, theirs = np.asarray(a["ours"], float), np.asarray(a["mitsuba"], float)
     scale = max(float(np.percentile(theirs, 99)), 1e-12)
-    fig, axes = plt.subplots(1, 7, figsize=(23, 3.4))
+    fig, axes = _subplots(1, 7, (23, 3.4))
     for ax, img, t in ((axes[0], ours, "ours"), (axes[1], theirs, "Mitsuba")):
         ax.imshow(_tonemap(img, scale), interpolation="nearest")
         ax.set_title(t, fontsize=9)
@@ -140,8 +149,7 @@ def render_panels(scene: str, a: dict) -> bytes:
 
 def render_error(rows: list[dict]) -> bytes:
     """RMSE against spp and against seconds, ours and Mitsuba, one column per scene."""
-    plt = _plt()
-    fig, axes = plt.subplots(2, len(rows), figsize=(3.6 * len(rows), 6.4), squeeze=False)
+    fig, axes = _subplots(2, len(rows), (3.6 * len(rows), 6.4), squeeze=False)
     for j, r in enumerate(rows):
         c = r["curve"]
         for i, x in enumerate(("spp", "seconds")):
@@ -149,7 +157,7 @@ def render_error(rows: list[dict]) -> bytes:
             for who, style in (("ours", "o-"), ("mitsuba", "s--")):
                 xs = c["spp"] if x == "spp" else c[f"{who}_seconds"]
                 ax.loglog(xs, np.maximum(c[f"{who}_rmse"], 1e-12), style, ms=3, label=who)
-            ax.xaxis.set_minor_formatter(plt.NullFormatter())
+            ax.xaxis.set_minor_formatter(_null_formatter())
             ax.set_xlabel(x)
             ax.set_ylabel("RMSE")
             ax.legend(fontsize=7)
