@@ -564,3 +564,27 @@ def test_a_report_keeps_the_caller_s_matplotlib_backend_and_figures(tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "svg [1]"
     assert (tmp_path / "failed_sqrt.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_report_is_drawn_alike_whatever_the_caller_s_rcparams(tmp_path):
+    """A caller's own matplotlib style (a notebook's font size, ``text.usetex``) reached
+    the report's plots: with ``text.usetex = True`` every plot was a LaTeX run, and
+    without LaTeX installed ``build_report`` raised "latex could not be found" (an
+    outside review). The plots are drawn in matplotlib's default style, the caller's
+    rcParams left as they were."""
+    import matplotlib
+
+    import mcverify as mv
+    from mcverify.result import SuiteResult
+
+    r = mv.check_sampler(lambda u: np.sqrt(u), lambda x: np.ones(len(x)), "interval",
+                         n_samples=20_000, seed=0, name="sqrt_x $5")
+    suite = SuiteResult.judge("mine", [r], alpha=0.01, seconds=0.0)
+    plain = build_report(str(tmp_path / "plain"), suite=suite, study=None,
+                         extra_provenance={})
+    (image,) = plain["images"]
+    theirs = {"text.usetex": True, "font.size": 23.0, "axes.facecolor": "black"}
+    with matplotlib.rc_context(theirs):
+        build_report(str(tmp_path / "styled"), suite=suite, study=None, extra_provenance={})
+        assert {k: matplotlib.rcParams[k] for k in theirs} == theirs
+    assert (tmp_path / "styled" / image).read_bytes() == (tmp_path / "plain" / image).read_bytes()

@@ -8,13 +8,31 @@ writing neither the report nor ``--json``/``--junit``.
 Figures are drawn on an Agg canvas of their own, without pyplot: a program that makes a
 report keeps its own backend and figures (``matplotlib.use("Agg")`` here switched a
 caller's interactive backend for the rest of the process, and ``plt.show()`` then showed
-nothing)."""
+nothing). They are drawn in matplotlib's default style, whatever the caller's
+``rcParams`` or ``matplotlibrc`` say: a report looks the same from every program, and a
+caller's ``text.usetex = True`` made every plot a LaTeX run (without LaTeX installed,
+``build_report`` raised "latex could not be found"; with it, a check name's ``$`` or
+``_`` was read as TeX, which ``parse_math=False`` does not prevent)."""
 
 from __future__ import annotations
 
+import functools
 import io
 
 import numpy as np
+
+
+def _default_style(plot):
+    """``plot`` drawn (figure, artists and PNG) in matplotlib's default style, the
+    caller's ``rcParams`` put back after it (``matplotlib.style.context``)."""
+    @functools.wraps(plot)
+    def drawn(*args, **kw):
+        from matplotlib import style
+
+        with style.context("default"):
+            return plot(*args, **kw)
+
+    return drawn
 
 
 def _subplots(rows: int, cols: int, figsize, **kw):
@@ -64,6 +82,7 @@ def _per_integrand(rows: list[dict], draw, xlabel: str) -> bytes:
     return _png(fig)
 
 
+@_default_style
 def convergence(rows: list[dict]) -> bytes:
     """RMSE against N, log-log, one panel per integrand, fitted slope in the legend."""
     return _per_integrand(rows, lambda ax, r, c: ax.loglog(
@@ -71,6 +90,7 @@ def convergence(rows: list[dict]) -> bytes:
         label=f"{r['estimator']}: {r['slope']:.2f} [{r['ci'][0]:.2f}, {r['ci'][1]:.2f}]"), "N")
 
 
+@_default_style
 def efficiency(rows: list[dict]) -> bytes:
     """RMSE against wall time per estimate (median), log-log, one panel per integrand."""
     return _per_integrand(rows, lambda ax, r, c: ax.loglog(
@@ -79,6 +99,7 @@ def efficiency(rows: list[dict]) -> bytes:
         "seconds per estimate (median)")
 
 
+@_default_style
 def histogram(result: dict) -> bytes | None:
     """Observed vs expected counts of a sampler check and their standardised difference
     ((O − E)/√E), over the domain's parameter cells: where a sampler and its pdf
@@ -115,6 +136,7 @@ def _tonemap(img: np.ndarray, scale: float) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
 
 
+@_default_style
 def render_panels(scene: str, a: dict) -> bytes:
     """Ours, Mitsuba (one exposure for both), |ours − Mitsuba| (max over channels), the
     pixel test's BH-adjusted p-map (−log10 p), the ΔE2000, ΔE ITP and HDR-FLIP maps, each with its
@@ -147,6 +169,7 @@ def render_panels(scene: str, a: dict) -> bytes:
     return _png(fig)
 
 
+@_default_style
 def render_error(rows: list[dict]) -> bytes:
     """RMSE against spp and against seconds, ours and Mitsuba, one column per scene."""
     fig, axes = _subplots(2, len(rows), (3.6 * len(rows), 6.4), squeeze=False)
