@@ -34,6 +34,11 @@ NO_IMAGE_EFFECT = {
     ("film", "hdrfilm", "file_format"): "the file Mitsuba writes, not the image",
     ("film", "hdrfilm", "component_format"): "the precision Mitsuba stores the image in",
     ("film", "hdrfilm", "compensate"): "ignored by Mitsuba 3.9.1 (it warns)",
+    ("texture", "bitmap", "format"): "the precision texels are held in (float16: each "
+                                     "rounded to half, as a 16-bit PNG's are; tested "
+                                     "texel by texel against Mitsuba)",
+    ("texture", "bitmap", "accel"): "texture hardware of Mitsuba's GPU variants: time only",
+    ("emitter", "envmap", "mis_compensation"): "a sampling strategy: noise only",
     **{("sensor", t, p): reason for t in ("perspective", "orthographic")
        for p, reason in (("focus_distance", "a thin lens's; no effect without an aperture"),
                          ("shutter_open", "motion blur's time: nothing moves, noise only"),

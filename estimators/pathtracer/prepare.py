@@ -229,10 +229,10 @@ class _Builder:
             self.fail(plugin, problem)
         return path
 
-    def _image(self, plugin: Plugin, raw: bool = False) -> np.ndarray:
+    def _image(self, plugin: Plugin, raw: bool = False, half: bool = False) -> np.ndarray:
         path = self._asset_path(plugin, " (the image file)")
         try:
-            img = read_image(path, raw=raw, texture=plugin.kind == "texture")
+            img = read_image(path, raw=raw, texture=plugin.kind == "texture", half=half)
         except OSError as e:
             self.fail(plugin, str(e))
         bad = non_finite_texels(img)
@@ -245,8 +245,14 @@ class _Builder:
         return img
 
     def _bitmap(self, tex: Plugin) -> int:
-        """Store a ``bitmap`` texture with its filter, wrap mode and ``to_uv``."""
-        img = self._image(tex, raw=bool(tex.get("raw", False)))
+        """Store a ``bitmap`` texture with its filter, wrap mode and ``to_uv``, its texels
+        in half precision where its ``format`` is "float16" (``accel``, GPU texture
+        hardware in Mitsuba's CUDA variants, changes nothing here)."""
+        fmt = tex.get("format", "variant")
+        if fmt not in ("variant", "float16"):
+            self.fail(tex, f"format {fmt!r}; supported: variant, float16 (Mitsuba refuses "
+                           "others too)")
+        img = self._image(tex, raw=bool(tex.get("raw", False)), half=fmt == "float16")
         options = {}
         for name, names, default in (("filter_type", layout.FILTERS, "bilinear"),
                                      ("wrap_mode", layout.WRAPS, "repeat")):

@@ -220,11 +220,15 @@ SUPPORTED = {
         "directional": {"irradiance": ("rgb", "float"), "direction": ("vector",),
                         "to_world": ("transform",)},
         "constant": {"radiance": ("rgb", "float")},
-        "envmap": {"filename": ("string",), "scale": ("float",), "to_world": ("transform",)},
+        # mis_compensation changes Mitsuba's sampling of the map, not its image: ours
+        # samples it our own way
+        "envmap": {"filename": ("string",), "scale": ("float",), "to_world": ("transform",),
+                   "mis_compensation": ("boolean",)},
     },
     "texture": {"bitmap": {"filename": ("string",), "filter_type": ("string",),
                            "wrap_mode": ("string",), "raw": ("boolean",),
-                           "to_uv": ("transform",)},
+                           "to_uv": ("transform",), "format": ("string",),
+                           "accel": ("boolean",)},
                 # constant colours only: Mitsuba's may hold textures
                 "checkerboard": {"color0": ("rgb", "float"), "color1": ("rgb", "float"),
                                  "to_uv": ("transform",)}},

@@ -51,7 +51,8 @@ def import_mitsuba(variant: str | None = None):
     return mi
 
 
-def read_image(path: str, *, raw: bool = False, texture: bool = False) -> np.ndarray:
+def read_image(path: str, *, raw: bool = False, texture: bool = False,
+               half: bool = False) -> np.ndarray:
     """(H, W, 3) float64 RGB of an image file, 8-bit sRGB decoded to linear unless
     ``raw`` (as Mitsuba's ``bitmap`` does); raises OSError naming the file. ``texture``:
     the values a ``bitmap`` texture holds, which Mitsuba 3.9.1 stores in half precision
@@ -61,14 +62,15 @@ def read_image(path: str, *, raw: bool = False, texture: bool = False) -> np.nda
     takes it: an EXR whose channels carry a layer's name (``albedo.R``, ``albedo.G``,
     ``albedo.B``), which Mitsuba's conversion to RGB, and an envmap's, cannot match; where
     that conversion is needed (an alpha channel, an envmap) the refusal names the
-    channels, not the conversion's structures."""
+    channels, not the conversion's structures. ``half``: a texture held in half
+    precision whatever the file (a ``bitmap`` of ``format`` "float16")."""
     mi = bmp = None
     try:
         mi = import_mitsuba()
         bmp = mi.Bitmap(path)
         if raw:
             bmp.set_srgb_gamma(False)
-        half = texture and bmp.bytes_per_pixel() == 2 * bmp.channel_count()
+        half = texture and (half or bmp.bytes_per_pixel() == 2 * bmp.channel_count())
         stored = mi.Struct.Type.Float16 if half else mi.Struct.Type.Float32
         if not (texture and _held_as_it_is(mi, bmp, stored)):
             bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, stored, False)

@@ -242,6 +242,34 @@ def test_a_rotated_envmap_is_mitsubas(mi, tmp_path, to_world):
             np.array(env.eval(si)), rtol=2e-4, atol=1e-6)
 
 
+def test_an_envmaps_mis_compensation_is_taken_and_changes_nothing_here(mi, tmp_path):
+    """``mis_compensation`` changes how Mitsuba samples its map (the luminance less its
+    mean), not the image; the loader refused it. Ours samples the map its own way, so the
+    prepared scene is the one without it, and the radiance is Mitsuba's with it."""
+    from estimators.pathtracer.emitters import eval_environment
+
+    img = np.random.default_rng(8).random((8, 16, 3)) * 3
+    mi.Bitmap(img.astype(np.float32)).write(str(tmp_path / "env.exr"))
+    arrays = []
+    for flag in ("", '<boolean name="mis_compensation" value="true"/>'):
+        path = tmp_path / f"s{len(arrays)}.xml"
+        path.write_text(_SCENE.format(bsdf="").replace(
+            "</scene>", f'<emitter type="envmap"><string name="filename" value="env.exr"/>'
+                        f'{flag}</emitter></scene>'))
+        arrays.append(prepare_scene(str(path)).arrays)
+    for name in ("light_f", "light_i", "tex_data", "env_marginal", "env_conditional"):
+        np.testing.assert_array_equal(getattr(arrays[0], name), getattr(arrays[1], name))
+    a, env = arrays[1], mi.load_file(str(path)).environment()
+    si = mi.SurfaceInteraction3f()
+    d = np.random.default_rng(9).normal(size=(100, 3))
+    for v in d / np.linalg.norm(d, axis=1, keepdims=True):
+        si.wi = mi.Vector3f(*(-v))
+        np.testing.assert_allclose(
+            eval_environment(a.light_f, a.light_i, a.tex_data, a.tex_info, a.env_marginal,
+                             a.env_conditional, a.env, *v, False)[:3],
+            np.array(env.eval(si)), rtol=2e-4, atol=1e-6)
+
+
 @pytest.mark.parametrize("to_world", ['<rotate x="1" y="0.5" z="0.3" angle="50"/>',
                                       '<scale value="2"/>', '<scale x="1" y="2"/>'],
                          ids=["non-unit-axis", "uniform-scale", "stretch"])

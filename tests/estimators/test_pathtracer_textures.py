@@ -229,6 +229,32 @@ def test_a_16_bit_png_is_held_in_half_precision_as_mitsuba_holds_it(mi, images, 
         _lookups_agree(mi, cs, scene, uvs, rtol=2e-5)
 
 
+@pytest.mark.parametrize("fmt", ["variant", "float16"])
+@pytest.mark.parametrize("image", ["t.exr", "t.png"])
+def test_a_bitmaps_format_holds_its_texels_as_mitsuba_holds_them(mi, images, image, fmt):
+    """A bitmap's ``format`` "float16" holds its texels in half precision, rounded after
+    decoding (Mitsuba 3.9.1), "variant" in the variant's float32; ``accel`` (GPU texture
+    hardware) changes nothing. The loader refused both properties, where Mitsuba renders
+    them; read as float32, a float16 texture's texels are up to 2^-11 off Mitsuba's.
+    Texel centres and random uv, nearest and bilinear, within float32 rounding."""
+    for filt in ("nearest", "bilinear"):
+        cs, scene = _compiled(mi, images, _texture_xml(
+            image, [("string", "format", fmt), ("boolean", "accel", "false"),
+                    ("string", "filter_type", filt)]))
+        h, w = (6, 10) if image == "t.exr" else (5, 7)
+        centres = [((i + 0.5) / w, (j + 0.5) / h) for j in range(h) for i in range(w)]
+        uvs = np.concatenate([centres, np.random.default_rng(9).random((200, 2))])
+        _lookups_agree(mi, cs, scene, uvs, rtol=2e-5)
+
+
+def test_an_unknown_bitmap_format_is_refused_naming_it(images):
+    path = images / "bad-format.xml"
+    path.write_text(_SCENE.format(defs="", shape="rectangle", shape_props="", texture=(
+        _texture_xml("t.exr", [("string", "format", "half")]))))
+    with pytest.raises(SceneError, match="format 'half'; supported: variant, float16"):
+        prepare_scene(str(path))
+
+
 def test_jpeg_is_read_as_8_bit_srgb(mi, images):
     """The decoded texels are the sRGB curve of the file's 8-bit values (read back
     independently of Mitsuba, with Pillow, which matplotlib requires), and ``raw`` gives
