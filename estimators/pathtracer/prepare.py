@@ -513,7 +513,11 @@ class _Builder:
             f[c1], tex[1], s_mean = self._colour(plugin, "specular_reflectance", 1.0)
             eta = f[layout.ETA] = self._relative_ior(plugin, "polypropylene",
                                                      kind == layout.ROUGHPLASTIC)
-            f[layout.SPECULAR_WEIGHT] = s_mean / (d_mean + s_mean)
+            # a black plastic (both reflectances 0) scatters nothing: Mitsuba's weight is
+            # 0 / 0, NaN, which samples the diffuse lobe only, as 0 does (it was a
+            # ZeroDivisionError, "unexpected" in the CLI)
+            total = d_mean + s_mean
+            f[layout.SPECULAR_WEIGHT] = s_mean / total if total > 0 else 0.0
             i[layout.BSDF_NONLINEAR] = int(bool(plugin.get("nonlinear", False)))
             if kind == layout.PLASTIC:
                 f[layout.COAT_INTERNAL] = fresnel_diffuse_reflectance(1.0 / eta)

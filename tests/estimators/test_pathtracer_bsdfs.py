@@ -169,6 +169,30 @@ def test_delta_sampling_matches_mitsuba(mi, name, xml):
         np.testing.assert_allclose(ours[3:6], np.array(w), rtol=2e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("xml", [
+    '<bsdf type="plastic"><rgb name="diffuse_reflectance" value="0, 0, 0"/>'
+    '<rgb name="specular_reflectance" value="0, 0, 0"/></bsdf>',
+    '<bsdf type="roughplastic"><float name="diffuse_reflectance" value="0"/>'
+    '<float name="specular_reflectance" value="0"/><float name="alpha" value="0.2"/></bsdf>',
+])
+def test_a_black_plastic_scatters_nothing(mi, xml):
+    """A plastic whose two reflectances are both 0 is one Mitsuba loads and renders black
+    (its sampling weight s / (d + s) is 0 / 0, NaN): ours samples the base only (weight
+    0) and scatters nothing, its weights 0, not NaN. It was a ZeroDivisionError in
+    ``prepare_scene``, which the CLI reported as "unexpected" (an outside review)."""
+    arrays = _ours(xml)
+    bsdf = mi.load_string(xml.replace("<bsdf ", '<bsdf version="3.0.0" ', 1))
+    ctx = mi.BSDFContext()
+    rng = np.random.default_rng(5)
+    for wi, wo, u0 in zip(_directions(rng, 50), _directions(rng, 50), rng.random(50)):
+        ours = B.bsdf_eval(-1, *arrays, 0, tuple(wi), tuple(wo), 0.3, 0.6)
+        assert ours[:3] == (0.0, 0.0, 0.0)
+        np.testing.assert_array_equal(np.array(bsdf.eval(ctx, _si(mi, wi),
+                                                         mi.Vector3f(*wo))), 0.0)
+        drawn = B.bsdf_sample(-1, *arrays, 0, tuple(wi), float(u0), 0.3, 0.7, 0.3, 0.6, 1.0)
+        assert drawn[3:6] == (0.0, 0.0, 0.0)
+
+
 def test_fresnel_diffuse_reflectance_matches_mitsuba(mi):
     # Mitsuba evaluates the polynomial fits in float32
     for eta in (1 / 1.49, 1.49, 1.0 / 1.33, 2.4):
