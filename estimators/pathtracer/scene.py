@@ -251,6 +251,9 @@ _TRANSFORM_ATTRIBUTES = {"translate": ("value", "x", "y", "z"),
 #: BSDF properties whose <rgb> is no reflectance (complex index of refraction): Mitsuba
 #: lets them leave [0, 1]
 _UNBOUNDED_RGB = ("eta", "k")
+#: properties Mitsuba reads as a <float> or a named <string> only: its index look-up
+#: refuses an <integer> ("has the wrong type (expected string, got integer)")
+_NO_INTEGER = ("int_ior", "ext_ior")
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 #: the attributes Mitsuba's parser allows on each element (it refuses any other: a typo
 #: such as ``vaule=`` would otherwise leave a default in place without a word)
@@ -506,11 +509,13 @@ class _Loader:
                     self.fail(child, f"{kind} {ptype!r}: unsupported property {name!r}; "
                                      f"supported: {known or 'none'}")
                 if vkind == "integer" and "integer" not in spec[name] and \
-                        "float" in spec[name]:
+                        "float" in spec[name] and name not in _NO_INTEGER:
                     vkind, val = "float", float(val)    # Mitsuba reads an integer as a float
                 if vkind not in spec[name]:
+                    hint = (f" (Mitsuba refuses it too: write <float name=\"{name}\" "
+                            f"value=\"{val}\"/>)" if name in _NO_INTEGER else "")
                     self.fail(child, f"property {name!r} takes {' or '.join(spec[name])}, "
-                                     f"not {vkind}")
+                                     f"not {vkind}{hint}")
                 # a BSDF's colours and a checkerboard's (only a BSDF's colour properties
                 # take one) are reflectances
                 reflectance = kind == "bsdf" or (kind, ptype) == ("texture", "checkerboard")

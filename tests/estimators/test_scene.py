@@ -635,6 +635,28 @@ def test_an_integer_is_read_as_a_float_where_a_float_is_expected():
     assert kids[0].props["radiance"] == 3.0
 
 
+@pytest.mark.parametrize("bsdf", ["dielectric", "thindielectric", "roughdielectric",
+                                  "plastic", "roughplastic"])
+@pytest.mark.parametrize("name", ["int_ior", "ext_ior"])
+def test_an_integer_index_of_refraction_is_refused_as_by_mitsuba(mi, bsdf, name):
+    """Mitsuba 3.9.1 reads an index of refraction as a <float> or a named <string> only:
+    ``<integer name="ext_ior" value="1"/>`` is "the wrong type (expected string, got
+    integer)" there. The loader took it as the float 1 and ``check --scene`` passed a
+    scene whose reference cannot be built; it is refused, naming the element (an outside
+    review)."""
+    ior = "3" if name == "int_ior" else "1"
+    body = f'<shape type="sphere"><bsdf type="{bsdf}"><integer name="{name}" value="{ior}"/>'
+    msg = _error(f'<scene version="3.0.0">\n{SENSOR}\n{body}</bsdf></shape></scene>')
+    assert "s.xml:3" in msg and f'<integer name="{name}">' in msg and "not integer" in msg \
+        and f'<float name="{name}" value="{ior}"/>' in msg, msg
+    with pytest.raises(RuntimeError, match="wrong type"):
+        mi.load_string(f'<scene version="3.0.0">{body}</bsdf></shape></scene>')
+    # the same index as a <float> loads in both
+    fine = body.replace("<integer ", "<float ")
+    parse_scene(f'<scene version="3.0.0">{SENSOR}{fine}</bsdf></shape></scene>', path="s.xml")
+    mi.load_string(f'<scene version="3.0.0">{fine}</bsdf></shape></scene>')
+
+
 def test_malformed_xml_and_missing_sensor():
     assert "not well-formed" in _error('<scene version="3.0.0"><shape></scene>')
     assert "no <sensor>" in _error('<scene version="3.0.0"></scene>')
