@@ -563,7 +563,7 @@ class _Loader:
             elif child.tag == "texture":
                 name = self.attr(child, "name")
                 if name not in spec or "texture" not in spec[name]:
-                    self.fail(child, f"property {name!r} of {kind} {ptype!r} takes no texture")
+                    self.fail(child, _no_texture(kind, ptype, name, spec))
                 set_prop(child, name, self.plugin(child))
             elif child.tag in _PLUGIN_TAGS:
                 if child.tag not in allowed_children:
@@ -833,3 +833,12 @@ def _read_scene(path: str) -> _Node:
     except OSError as e:
         raise SceneError(f"{path}: cannot read ({e.strerror or e})") from None
     return _parse_xml(text, path)
+
+
+def _no_texture(kind: str, ptype: str, name: str, spec: dict) -> str:
+    """The refusal of a texture where the tracer takes none (Mitsuba may: a conductor's
+    ``eta``; 'takes no texture' read as if Mitsuba refused it too, an outside review)."""
+    takes = sorted(p for p, kinds in spec.items() if p != "children" and "texture" in kinds)
+    where = (f"; give a constant value (textures are supported on {', '.join(takes)})"
+             if takes else "; give a constant value")
+    return f"property {name!r} of {kind} {ptype!r}: a texture is not supported there{where}"

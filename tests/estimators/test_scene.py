@@ -1598,3 +1598,19 @@ def test_what_is_wrong_in_an_included_plugin_is_named_at_its_own_file_and_line(t
     with pytest.raises(SceneError) as e:
         load_scene(str(path))
     assert f"already used by the <bsdf> on line 2 of {parts}" in str(e.value), str(e.value)
+
+
+def test_a_texture_where_the_tracer_takes_none_is_refused_naming_where_it_does():
+    """A conductor's eta as a texture (which Mitsuba takes) was refused as "property 'eta'
+    of bsdf 'conductor' takes no texture", read as if no renderer took one: the refusal
+    says the tracer does not, and names the properties of that plugin that take one."""
+    xml = ('<scene version="3.0.0"><shape type="sphere"><bsdf type="{t}"><texture '
+           'type="checkerboard" name="{p}"/></bsdf></shape></scene>')
+    with pytest.raises(SceneError, match=r"property 'eta' of bsdf 'conductor': a texture is "
+                                         r"not supported there; give a constant value "
+                                         r"\(textures are supported on specular_reflectance\)"):
+        parse_scene(xml.format(t="conductor", p="eta"))
+    with pytest.raises(SceneError, match=r"'radius' of shape 'sphere': a texture is not "
+                                         r"supported there; give a constant value$"):
+        parse_scene(xml.replace('<bsdf type="{t}">', "").replace("</bsdf>", "")
+                    .format(p="radius"))
