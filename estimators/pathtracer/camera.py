@@ -31,7 +31,7 @@ import numpy as np
 from .._compile_options import fused
 from .flat import flat_add, flat_add4, flat_get
 from .scene import SceneDescription, SceneError
-from .text_numbers import SPACE, parse_float
+from .text_numbers import SPACE, ascii_lower, parse_float
 
 
 PERSPECTIVE, ORTHOGRAPHIC = 0, 1
@@ -180,7 +180,7 @@ def _field_of_view(desc: SceneDescription) -> tuple[float, str]:
         if "focal_length" in s.props:
             raise SceneError(f"{s.at(desc.path)}: <sensor type=\"perspective\">: give "
                              "either fov or focal_length, not both (Mitsuba refuses both)")
-        return float(s.props["fov"]), str(s.get("fov_axis", "x")).lower()   # as Mitsuba
+        return float(s.props["fov"]), ascii_lower(str(s.get("fov_axis", "x")))   # as Mitsuba
     if "fov_axis" in s.props:
         # Mitsuba reads fov_axis only with fov, and refuses it unread ("unreferenced
         # property"); ignoring it would render another view than the file asks for

@@ -31,8 +31,8 @@ from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIA
 from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene)
-from .text_numbers import (FLOAT32_OVERFLOW, SPACE, finite_in_float32, parse_float,
-                           parse_int, split_words)
+from .text_numbers import (FLOAT32_OVERFLOW, SPACE, ascii_lower, finite_in_float32,
+                           parse_float, parse_int, split_words)
 from .textures import (TextureStore, envmap_sampling_weights, luminance,
                        non_finite_texels, read_image)
 
@@ -328,10 +328,10 @@ class _Builder:
         v = plugin.get(name, default)
         if isinstance(v, str):
             table = _materials()["dielectrics"]
-            if v.lower() not in table:
+            if ascii_lower(v) not in table:
                 self.fail(plugin, f"unknown {name} {v!r}; named indices: "
                                   f"{', '.join(sorted(table))}")
-            return float(table[v.lower()])
+            return float(table[ascii_lower(v)])
         if not v > 0:       # Mitsuba refuses a negative index; 0 would divide by zero
             self.fail(plugin, f"{name} must be > 0, got {v}")
         if v < 2.0 ** -126:
@@ -362,9 +362,10 @@ class _Builder:
         return eta
 
     def _distribution(self, plugin: Plugin) -> int:
-        d = str(plugin.get("distribution", "beckmann")).lower()     # as Mitsuba reads it
+        given = str(plugin.get("distribution", "beckmann"))
+        d = ascii_lower(given)      # as Mitsuba reads it
         if d not in ("ggx", "beckmann"):
-            self.fail(plugin, f"distribution {d!r}; supported: ggx, beckmann")
+            self.fail(plugin, f"distribution {given!r}; supported: ggx, beckmann")
         for name in ("alpha", "alpha_u", "alpha_v"):
             alpha = float(plugin.get(name, 0.1))
             if not alpha >= 0:      # 0 (an exporter's smooth surface) is raised to 1e-4
@@ -1000,13 +1001,13 @@ class _Builder:
     # -------------------------------------------------------------------- all
     def build(self) -> PreparedScene:
         d = self.desc
-        if str(d.film.get("pixel_format", "rgb")).lower() != "rgb":    # any case, as Mitsuba
+        if ascii_lower(str(d.film.get("pixel_format", "rgb"))) != "rgb":    # any case, as Mitsuba
             self.fail(d.film, f"pixel_format {d.film.get('pixel_format')!r}: only rgb is "
                               "supported (the tracer writes 3 channels)")
         for name, allowed in _FILM_FORMATS.items():
             # how Mitsuba writes and stores the image, not what it renders; it refuses
             # other values (case aside)
-            if str(d.film.get(name, allowed[0])).lower() not in allowed:
+            if ascii_lower(str(d.film.get(name, allowed[0]))) not in allowed:
                 self.fail(d.film, f"{name} {d.film.get(name)!r}: Mitsuba takes "
                                   + ", ".join(allowed) + " (any case)")
         shape_bsdf, shape_light, shape_flip = [], [], []

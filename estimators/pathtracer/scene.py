@@ -26,8 +26,8 @@ from xml.parsers import expat
 
 import numpy as np
 
-from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, finite_in_float32,
-                           parse_float, parse_int, split_numbers)
+from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, ascii_lower,
+                           finite_in_float32, parse_float, parse_int, split_numbers)
 from .transform import look_at, matrix, rotate, scale, translate
 
 __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scene"]
@@ -384,9 +384,9 @@ class _Loader:
         if tag == "boolean":
             # any case, no padding: Mitsuba refuses " true" (its numbers may be padded)
             text = self.attr(node, "value")
-            if text.lower() not in ("true", "false"):
+            if ascii_lower(text) not in ("true", "false"):
                 self.fail(node, f"expected true or false, got {text!r}")
-            return "boolean", text.lower() == "true"
+            return "boolean", ascii_lower(text) == "true"
         if tag == "string":
             return "string", self.attr(node, "value")
         if tag == "rgb":

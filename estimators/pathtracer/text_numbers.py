@@ -61,3 +61,14 @@ def split_words(text: str) -> list[str]:
     """The words of ``text``: split at ASCII whitespace (an OBJ line's tokens; Python's
     ``str.split`` also splits at Unicode spaces)."""
     return [t for t in _SPACES.split(text.strip(SPACE)) if t]
+
+
+_ASCII_LOWER = str.maketrans("ABCDEFGHIJKLMNOPQRSTUVWXYZ", "abcdefghijklmnopqrstuvwxyz")
+
+
+def ascii_lower(text: str) -> str:
+    """``text`` with its ASCII letters lowered, as Mitsuba compares names case-blind
+    (``std::tolower`` in the C locale): ``str.lower`` also folds other scripts, so a
+    Kelvin sign (U+212A) read as ``k`` and ``"B\u212a7"`` as the index of BK7, which
+    Mitsuba refuses (an outside review)."""
+    return text.translate(_ASCII_LOWER)

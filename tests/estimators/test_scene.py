@@ -1614,3 +1614,27 @@ def test_a_texture_where_the_tracer_takes_none_is_refused_naming_where_it_does()
                                          r"supported there; give a constant value$"):
         parse_scene(xml.replace('<bsdf type="{t}">', "").replace("</bsdf>", "")
                     .format(p="radius"))
+
+
+@pytest.mark.parametrize("bsdf,prop,value", [
+    ("dielectric", "int_ior", "B\u212a7"),                 # a Kelvin sign, not a K
+    ("roughconductor", "distribution", "BEC\u212aMANN"),
+    ("roughconductor", "distribution", "\uff27\uff27\uff38"),   # full-width GGX
+])
+def test_names_are_compared_case_blind_in_ascii_only_as_mitsuba_compares_them(
+        mi, bsdf, prop, value):
+    """Mitsuba lowers a name's ASCII letters only (std::tolower in the C locale); Python's
+    str.lower also folds other scripts, so a Kelvin sign read as k and the scene loaded in
+    ours where Mitsuba refuses it, and a refusal quoted the lowered value, not the file's
+    (an outside review). Both renderers refuse these now, quoting the value as written."""
+    xml = (f'<scene version="3.0.0"><sensor type="perspective"/><shape type="sphere"><bsdf '
+           f'type="{bsdf}"><string name="{prop}" value="{value}"/></bsdf></shape></scene>')
+    from estimators.pathtracer import prepare_scene
+
+    with pytest.raises(SceneError, match=re.escape(repr(value))):
+        prepare_scene(parse_scene(xml))
+    with pytest.raises(RuntimeError):
+        mi.load_string(xml)
+    assert prepare_scene(parse_scene(xml.replace(value, value.replace("\u212a", "K")
+                                                 .replace("\uff27", "G")
+                                                 .replace("\uff38", "X"))))
