@@ -20,7 +20,7 @@ import threading
 import time
 
 from .._validate import decimal_int
-from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
+from ..errors import EnvironmentProblem, InvalidArgument, MissingReference, interrupted
 from ..result import escape_controls
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -1399,34 +1399,51 @@ def _main(args) -> int:
         _kernel_cache(args.command)
         _hypothesis_home()
         return args.func(args)
-    except (InvalidArgument, EnvironmentProblem) as e:
+    except KeyboardInterrupt:
+        return _stopped()
+    except Exception as e:  # noqa: BLE001 - a crash must not read as "a check failed" (1)
+        if interrupted(e):
+            # Ctrl-C (or SIGTERM) inside a library's import arrives wrapped: Dr.Jit's
+            # extension, interrupted while it initialises, raises ImportError, its
+            # __init__ then NameError, and the run said "unexpected NameError: name
+            # '_drjit_ext' is not defined", exit 2
+            return _stopped()
+        return _failure(e)
+
+
+def _stopped() -> int:
+    """The one line and exit code of a run stopped by Ctrl-C (130) or SIGTERM (143)."""
+    if _TERMINATED:
+        print("mcverify: terminated (SIGTERM; outputs are written whole or not at all)",
+              file=sys.stderr)
+        return EXIT_TERMINATED
+    print("mcverify: interrupted (outputs are written whole or not at all)",
+          file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
+def _failure(e: Exception) -> int:
+    """The one stderr line and exit code of an error that ended a run (called while it
+    is handled: ``MCVERIFY_TRACEBACK`` re-raises it)."""
+    if isinstance(e, (InvalidArgument, EnvironmentProblem)):
         print(f"mcverify: error: {escape_controls(' '.join(str(e).split()))}",
               file=sys.stderr)
         return EXIT_BAD_INPUT
-    except BrokenPipeError:
+    if isinstance(e, BrokenPipeError):
         # the reader closed the pipe (mcverify list | head -3): stop without a message,
         # as command-line tools do, and keep Python's exit-time flush from raising again
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
-    except OSError as e:
+    if isinstance(e, OSError):
         where = f"{e.filename}: " if e.filename else ""
         print(f"mcverify: error: {where}{e.strerror or e}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        if _TERMINATED:
-            print("mcverify: terminated (SIGTERM; outputs are written whole or not at all)",
-                  file=sys.stderr)
-            return EXIT_TERMINATED
-        print("mcverify: interrupted (outputs are written whole or not at all)",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except Exception as e:  # noqa: BLE001 - a crash must not read as "a check failed" (1)
-        if os.environ.get("MCVERIFY_TRACEBACK"):
-            raise
-        text = escape_controls(" ".join(str(e).split()))
-        print(f"mcverify: error: unexpected {type(e).__name__}: {text} (set "
-              "MCVERIFY_TRACEBACK=1 to see where)", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    if os.environ.get("MCVERIFY_TRACEBACK"):
+        raise e
+    text = escape_controls(" ".join(str(e).split()))
+    print(f"mcverify: error: unexpected {type(e).__name__}: {text} (set "
+          "MCVERIFY_TRACEBACK=1 to see where)", file=sys.stderr)
+    return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

@@ -1148,6 +1148,60 @@ def test_sigint_during_reference_build_keeps_old_reference(sandbox, tmp_path):
     assert snapshot(scene) == before
 
 
+def _drjit_interrupted_import():
+    """What ``import mitsuba`` raises when Ctrl-C lands while Dr.Jit's extension
+    initialises (seen with ``timeout -s INT 0.8 mcverify check``): the extension's
+    ImportError, caused by the KeyboardInterrupt, and in handling it drjit's __init__
+    names the module it failed to import."""
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise ImportError("Encountered an error while initializing the extension.") from e
+    except ImportError:
+        raise NameError("name '_drjit_ext' is not defined") from None
+
+
+@pytest.mark.parametrize("sig, rc, said", [(signal.SIGINT, 130, "interrupted"),
+                                           (signal.SIGTERM, 143, "terminated")])
+def test_an_interrupt_a_library_wraps_stops_the_run(tmp_path, monkeypatch, capsys, sig, rc,
+                                                    said):
+    """Ctrl-C or SIGTERM while Mitsuba was imported (Dr.Jit's extension initialising)
+    ended ``reference build`` and ``check`` with "mcverify: error: unexpected NameError:
+    name '_drjit_ext' is not defined", exit 2, as if the install were broken (an outside
+    review). An error caused by the interrupt now stops the run as the interrupt does.
+    (The signal is sent, then the wrapped error raised, where Mitsuba is imported.)"""
+    from mcverify.gate import mitsuba as mvm
+
+    def interrupted_import():
+        os.kill(os.getpid(), sig)       # its handler raises KeyboardInterrupt right here
+        raise AssertionError("the signal was not handled")
+
+    def choose_variant():
+        try:
+            interrupted_import()
+        except KeyboardInterrupt:
+            _drjit_interrupted_import()
+
+    (tmp_path / "scene.xml").write_text(
+        '<scene version="3.0.0"><integrator type="path"/><sensor type="perspective">'
+        '<film type="hdrfilm"><integer name="width" value="4"/>'
+        '<integer name="height" value="4"/></film></sensor></scene>\n')
+    monkeypatch.setattr(mvm, "choose_variant", choose_variant)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    old_term = signal.signal(signal.SIGTERM, signal.SIG_DFL)   # main's own handler goes in
+    try:
+        code = cli.main(["reference", "build", str(tmp_path / "scene.xml"), "--spp", "1",
+                         "--passes", "2"])
+    finally:
+        signal.signal(signal.SIGINT, old)
+        signal.signal(signal.SIGTERM, old_term)
+    err = capsys.readouterr().err
+    assert code == rc, err
+    assert f"mcverify: {said}" in err and "NameError" not in err, err
+    assert sorted(os.listdir(tmp_path)) == ["scene.xml"]
+
+
 # ------------------------------------------------------------------ verdicts, not crashes
 def test_constant_estimator_passes_and_wrong_constant_fails():
     r = mv.check_unbiased(np.full(5000, 0.1), 0.1)
