@@ -956,6 +956,28 @@ def test_passes_that_do_not_fit_at_all_are_not_told_to_use_one(scene_copy, monke
     assert "use at most" not in str(e.value)
 
 
+def test_the_passes_memory_guard_counts_every_scene_of_a_build(scene_copy, monkeypatch):
+    """``reference build A B`` holds the passes of both scenes until the last has
+    rendered, and each scene's passes were checked against half the memory alone: two
+    that each fit were rendered, then ran out of memory together (an outside review).
+    They are refused before any rendering, naming the scenes' count and the most passes
+    that fit; one of them alone is not."""
+    from mcverify import _validate
+    from mcverify.errors import InvalidArgument
+    from mcverify.gate import mitsuba as mvm
+
+    other = scene_copy / "other.xml"
+    shutil.copy(scene_copy / "scene.xml", other)
+    one = reference._pass_bytes(reference.resolve_scene(str(scene_copy))[1], None)
+    monkeypatch.setattr(_validate, "_available_memory", lambda: 2 * 6 * one)  # 6 in half
+    monkeypatch.setattr(mvm, "choose_variant", lambda: pytest.fail("rendered"))
+    with pytest.raises(InvalidArgument, match=r"passes=4 of 2 scenes: needs .*; use at "
+                                               r"most 3, or build fewer scenes at once"):
+        reference.build_references([str(scene_copy), str(other)], spp=1, passes=4)
+    reference._job(str(other), 1, 4, 0, None)      # one of them alone fits
+    assert sorted(os.listdir(scene_copy)) == ["other.xml", "scene.xml"]
+
+
 def test_a_reference_of_an_rgba_film_is_compared_on_its_colour(tmp_path):
     """A scene whose film has pixel_format rgba: Mitsuba renders R, G, B and A, and the
     reference kept A (until 7 December), so Mitsuba's own RGBA passes, read on their
