@@ -143,9 +143,18 @@ def _handshake(address: str, timeout: str) -> None:
 
 
 def _worker_init(threads: int) -> None:
-    # Local worker processes share the machine: numba's parallel loops get an equal
-    # share of the cores each (results do not depend on the thread count).
-    os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+    """Local worker processes share the machine: numba's parallel loops get an equal
+    share of the cores each (results do not depend on the thread count), set as the
+    thread count of the worker's main thread, which runs the units. It was set as
+    ``NUMBA_NUM_THREADS``, which numba had read when the worker imported it, and reads
+    again at each compilation: once a warp's front end had started numba's threads
+    (``numba.get_num_threads``), the next compilation refused the change, and every
+    check of ``check -j 2`` that compiled a function failed, "raised RuntimeError:
+    Cannot set NUMBA_NUM_THREADS to a different value once the threads have been
+    launched" (an outside review)."""
+    import numba
+
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
 
 
 def _lost_errors() -> tuple[type[BaseException], ...]:

@@ -53,6 +53,30 @@ def test_suite_json_is_identical_in_process_on_2_processes_and_on_a_dask_cluster
     assert sorted(name for _, _, name in calls) == sorted(c.name for c in checks)
 
 
+def _threads_then_compile() -> tuple[int, int]:
+    """What a check's unit does in a worker: a warp's front end asks numba's thread count
+    (which starts its threads), then a function compiles."""
+    import numba
+
+    numba.get_num_threads()
+    return numba.njit(lambda x: x + 1)(1), numba.get_num_threads()
+
+
+def test_local_workers_compile_on_their_share_of_the_cores():
+    """Each of ``-j N``'s workers was given its share of the cores as NUMBA_NUM_THREADS,
+    which numba reads again at each compilation and refuses to change once its threads
+    have started: every check of ``mcverify check -j 2`` that compiled a function
+    failed, "raised RuntimeError: Cannot set NUMBA_NUM_THREADS to a different value once
+    the threads have been launched" (an outside review, on 2 cores). The share is the
+    worker's thread count now."""
+    import numba
+
+    share = max(1, min((os.cpu_count() or 1) // 2, numba.config.NUMBA_NUM_THREADS))
+    with Pool(jobs=2) as pool:
+        results = pool.map([Unit("compile", _threads_then_compile, ())])
+    assert results == [(2, share)]
+
+
 def _die_once(marker: str) -> int:
     if not os.path.exists(marker):
         open(marker, "w").close()
