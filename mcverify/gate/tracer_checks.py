@@ -135,7 +135,10 @@ def _face_normals(scene, k: int):
     the density of the sampled directions (which is the face's cosine over the squared
     distance), and the χ² check would fail a tracer that renders as Mitsuba. With face
     normals the check still covers the choice of triangle, the triangle warp and the
-    change to solid angle."""
+    change to solid angle. Each face normal faces the side its vertex normals give (their
+    sum's): a mesh wound against its normals (mirrored in ``to_world``, or exported so)
+    emits along them, and with the winding's normal instead a point lit by the light saw
+    its back, every draw rejected, a check that could not fail (an outside review)."""
     import dataclasses
 
     from estimators.pathtracer import layout
@@ -152,8 +155,9 @@ def _face_normals(scene, k: int):
     along = np.abs(np.einsum("tvc,tc->tv", n, g)) >= (1.0 - 1e-9) * np.linalg.norm(n, axis=2)
     if np.all(along | ~np.any(n != 0.0, axis=2)):
         return scene
+    side = np.where(np.einsum("tc,tc->t", n.sum(axis=1), g) < 0.0, -1.0, 1.0)
     prims = a.prims.copy()
-    prims[rows, 9:18] = 0.0
+    prims[rows, 9:18] = np.tile(side[:, None] * g, 3)
     return dataclasses.replace(scene, arrays=a._replace(prims=prims))
 
 

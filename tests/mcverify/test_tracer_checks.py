@@ -19,7 +19,7 @@ from estimators.pathtracer import layout, prepare_scene
 from estimators.pathtracer.sampling import (bsdf_sampler, bsdf_sampler_with_weight,
                                             emitter_sampler)
 from mcverify.gate.reference import REFERENCE_ROOT
-from mcverify.gate.tracer_checks import tracer_checks
+from mcverify.gate.tracer_checks import reference_points, tracer_checks
 from mcverify.stats import holm
 
 ALPHA = 0.01
@@ -450,6 +450,38 @@ def test_a_bent_mesh_light_with_smooth_normals_passes(tmp_path):
     assert not bad, bad
     flat = _mesh_light_checks(tmp_path, bent, '<boolean name="face_normals" value="true"/>')
     assert not any("face normals" in c.name for c in flat)
+
+
+#: A small dome of six faces around -y (the apex below, the ring above), its file's
+#: smooth normals facing down and out; its faces are wound the other way, as a mesh
+#: mirrored in to_world (or exported so) is: the winding gives face normals facing up.
+DOME_AGAINST_ITS_NORMALS = "v 0 2.2 0\n" + "".join(
+    f"v {0.5 * np.cos(a):.6f} 2.5 {0.5 * np.sin(a):.6f}\n"
+    for a in np.linspace(0.0, 2 * np.pi, 7)[:-1]) + "vn 0 -1 0\n" + "".join(
+    f"vn {0.6 * np.cos(a):.6f} -0.8 {0.6 * np.sin(a):.6f}\n"
+    for a in np.linspace(0.0, 2 * np.pi, 7)[:-1]) + "".join(
+    f"f 1//1 {(j + 1) % 6 + 2}//{(j + 1) % 6 + 2} {j + 2}//{j + 2}\n" for j in range(6))
+
+
+def test_a_mesh_light_wound_against_its_normals_is_checked_from_its_emitting_side(tmp_path):
+    """An outside review: a mesh light whose vertex normals lean off its faces is checked
+    with face normals, and those were the winding's, facing up, where the file's normals
+    (which the renderer emits along, as Mitsuba does) face down: from the scene's centre,
+    below the dome and lit by all of it, every draw was rejected ("the pdf integrates to
+    0: consistent, nothing else to test"), a check that could not fail. The face normals
+    now face the side the vertex normals give, and every point that sees the light's
+    emitting side tests draws. α = 0.01, Holm over the light's checks, seed 5."""
+    checks = _mesh_light_checks(tmp_path, DOME_AGAINST_ITS_NORMALS)
+    scene = prepare_scene(str(tmp_path / "lamp.xml"))
+    centre = reference_points(scene)[1]
+    assert 0.0 < centre[1] < 2.2    # below the apex, which emits towards it
+    assert emitter_sampler(scene, 0, centre)[1](np.array([[0.0, 1.0, 0.0]]))[0] > 0.0
+    assert checks and all("triangles(face normals)@" in c.name for c in checks)
+    results = [c.run(5) for c in checks]
+    empty = [r.name for r in results if r.details.get("n_valid", 1) == 0]
+    assert not empty, empty
+    adjusted = holm([r.p_value for r in results])
+    assert all(p > ALPHA for p in adjusted), list(zip([r.name for r in results], adjusted))
 
 
 def test_a_mesh_light_hiding_part_of_itself_passes(tmp_path):
