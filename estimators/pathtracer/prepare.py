@@ -989,7 +989,8 @@ class _Builder:
                                  "the map black, so its image is not matched")
                 i[layout.LIGHT_TEXTURE] = self.textures.add(img)
                 f[layout.ENV_SCALE] = float(e.get("scale", 1.0))
-                f[layout.ENV_TO_LOCAL:layout.ENV_TO_LOCAL + 9] = np.linalg.inv(m[:3, :3]).ravel()
+                f[layout.ENV_TO_LOCAL:layout.ENV_TO_LOCAL + 9] = np.linalg.inv(
+                    _nearest_rotation(m3)).ravel()
                 pc = PiecewiseConstant2D(envmap_sampling_weights(img))
                 self.env_marg, self.env_cond = pc.marginal_table, pc.conditional_table
             self.env = len(self.lights)
@@ -1227,6 +1228,18 @@ def _vertex_normals(verts, faces, pidx, n_positions):
     cancelled = (weight > 0) & (length < _CANCELLED * weight)
     acc /= np.maximum(length, 1e-300)[:, None]
     return acc[pidx], cancelled[pidx]
+
+
+def _nearest_rotation(m3: np.ndarray) -> np.ndarray:
+    """``m3``, or where it is a rotation (or a mirror) only to the loader's tolerance (a
+    matrix written to 4 decimals) the orthogonal matrix nearest it (its polar factor):
+    an envmap's sampler turns its draws to world space by the inverse's transpose, which
+    is the matrix only where it is orthogonal, and a 4-decimal rotation drew directions
+    5e-5 off unit length, 5e-5 off the pdf of their lookup (an outside review)."""
+    if np.max(np.abs(m3 @ m3.T - np.eye(3))) <= 1e-12:
+        return m3
+    u, _, vt = np.linalg.svd(m3)
+    return u @ vt
 
 
 def _rectangle():
