@@ -203,7 +203,10 @@ def _light_parts(scene, k: int):
     space (a triangle's centroid, a disk's or sphere's centre), and ``candidates``, two
     points by its largest primitive at a distance of half the scene's size, one on each
     side (along a triangle's or disk's normal; for a sphere, outside it and its centre,
-    where a flipped sphere emits)."""
+    where a flipped sphere emits; for a sphere ``centres`` holds the top of its surface
+    too, so that its centre is tried along a direction that has a length: until 8
+    December it was tried towards itself alone, and a sphere light shining on its inside
+    away from the three reference points got no fourth, its checks testing nothing)."""
     from estimators.pathtracer import layout
     from estimators.pathtracer.geometry import bvh_bounds
 
@@ -215,8 +218,9 @@ def _light_parts(scene, k: int):
     if kind == layout.SPHERE:
         row = a.prims[first]
         c = row[layout.SPHERE_CENTER:layout.SPHERE_CENTER + 3]
-        out = c + np.array([0.0, 0.0, float(row[layout.SPHERE_RADIUS]) + step])
-        return [out, c], c[None]
+        r = float(row[layout.SPHERE_RADIUS])
+        out = c + np.array([0.0, 0.0, r + step])
+        return [out, c], np.array([c, c + np.array([0.0, 0.0, r])])
     if kind == layout.DISK:
         c = a.prims[first, layout.DISK_TO_WORLD:layout.DISK_TO_WORLD + 12].reshape(3, 4)[:, 3]
         m = a.prims[first, layout.DISK_TO_LOCAL:layout.DISK_TO_LOCAL + 12].reshape(3, 4)

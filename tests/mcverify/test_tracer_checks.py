@@ -194,6 +194,40 @@ def test_a_light_aimed_away_from_every_reference_point_is_checked_from_its_front
                 if ".emitter:" in c.name]) == 3
 
 
+_FLIPPED_LAMP = _scene_head("0, 0, 5", "0, 0, 0") + """\
+  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/>
+    <translate y="-1"/></transform><bsdf type="diffuse"/></shape>
+  <shape type="sphere"><float name="radius" value="0.2"/><point name="center" x="2" y="1.5" z="0"/>
+    TRANSFORM<boolean name="flip_normals" value="FLIP"/>
+    <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("transform,flip", [("", "true"),
+                                            ('<transform name="to_world"><scale x="-1"/>'
+                                             '</transform>', "false")],
+                         ids=["flip_normals", "mirrored"])
+def test_a_sphere_light_shining_inwards_is_checked_from_its_centre(tmp_path, transform, flip):
+    """An outside review: a small sphere light that shines on its inside (flip_normals, or
+    a to_world that mirrors it, as Mitsuba renders it too) is seen from behind by every
+    reference point outside it, and the fourth point its centre, where it emits, was never
+    added: the direction from the centre to the centre was the one tried, which has no
+    length, so all its checks passed testing nothing. The centre is now tried along a
+    direction to the sphere's surface, and its check tests the draws. α = 0.01, Holm over
+    the light's checks, seed 5."""
+    scene = tmp_path / "lamp.xml"
+    scene.write_text(_FLIPPED_LAMP.replace("TRANSFORM", transform).replace("FLIP", flip)
+                     .replace('x="2" y="1.5"', 'x="-2" y="1.5"' if transform else 'x="2" y="1.5"'))
+    emitter = [c for c in tracer_checks(str(scene), 2 ** 16)[0] if ".emitter:" in c.name]
+    centre = [c for c in emitter if "@ref=(2,1.5,0)" in c.name]
+    assert len(centre) == 1, [c.name for c in emitter]
+    results = [c.run(5) for c in emitter]
+    tested = [r.name for r in results if r.details.get("n_valid")]
+    assert tested == [centre[0].name], [(r.name, r.details.get("n_valid")) for r in results]
+    adjusted = holm([r.p_value for r in results])
+    assert all(p > ALPHA for p in adjusted), list(zip([r.name for r in results], adjusted))
+
+
 def test_a_plastic_at_grazing_incidence_passes_though_every_draw_is_its_delta_lobe():
     """At θ_i = 90° (wi_z = 6e-17) the plastic's Fresnel reflectance is 1: every draw
     goes to its specular lobe (NaN rows) and its diffuse part keeps 1e-16 of the mass.
