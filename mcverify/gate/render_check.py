@@ -530,7 +530,9 @@ def _not_both_black(mean, ref_mean, path: str, who: str | None) -> None:
                               + " are black in every pixel, so the comparison tested "
                               "nothing; make the scene show the camera some light (a camera "
                               "outside a closed room sees one-sided walls from behind, an "
-                              "emitter may face away, max_depth may stop the paths, "
+                              "emitter may face away (a sphere light mirrored by a "
+                              "negative scale in to_world shines inwards, in Mitsuba "
+                              "too), max_depth may stop the paths, "
                               "hide_emitters hides an environment seen directly, and no "
                               "path reaches a point, spot or directional light behind "
                               "glass or a mirror)")

@@ -341,6 +341,8 @@ def test_a_black_reference_is_refused_as_testing_nothing(tmp_path):
     # the causes it lists include hide_emitters and delta lights behind glass, which an
     # outside review met and the message did not name
     assert "hide_emitters" in str(e.value) and "behind glass" in str(e.value), str(e.value)
+    # and a sphere light mirrored by its to_world, which shines inwards (an outside review)
+    assert "negative scale in to_world shines inwards" in str(e.value), str(e.value)
 
     def lit(path, spp, seed):       # light where Mitsuba has none: compared, and fails
         return np.full((8, 8, 3), 0.5), np.full((8, 8, 3), 0.01), 16
