@@ -343,7 +343,8 @@ class _Loader:
         return value
 
     def numbers(self, node, text, count):
-        want = "a number" if count == 1 else f"{count} numbers"
+        want = ("a number" if count == 1 else "3 numbers, or one for all three"
+                if count == 3 else f"{count} numbers")
         # one number is the value alone (padded by ASCII spaces): Mitsuba refuses
         # "0.5," and ",0.5" for a <float>, though a list's tokenizer skips empty items
         tokens = [text.strip(SPACE)] if count == 1 else split_numbers(text)

@@ -887,7 +887,8 @@ _RGB = ('<shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value
      '</transform></shape>', "expected a number, got '90,'"),
     ('<shape type="sphere"><transform name="to_world"><translate x="1,"/>'
      '</transform></shape>', "expected a number, got '1,'"),
-    (_RGB.format("0.1_0, 0.2, 0.3"), "expected 3 numbers"),
+    # an <rgb> takes one number for all three: the message says so (an outside review)
+    (_RGB.format("0.1_0, 0.2, 0.3"), "expected 3 numbers, or one for all three"),
     (_RGB.format("0.5\u20030.2\u20030.1"), "expected 3 numbers"),  # em spaces
     (_HIDE.format(" true"), "expected true or false, got ' true'"),
     (_HIDE.format("False "), "expected true or false, got 'False '"),
