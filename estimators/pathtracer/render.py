@@ -187,16 +187,32 @@ def _render_iv(spp, seed, passes, pdf_scale, params, variance, general=None,
 _FILM_BYTES_PER_PIXEL = 64
 
 
-def _film_fits(cs) -> None:
+#: Bytes a pixel of each pass takes while a render in passes holds them: its mean in
+#: float64 (24), the stack of them (24) and ``RenderResult.passes`` in float32 (12).
+_PASS_BYTES_PER_PIXEL = 60
+
+
+def _film_fits(cs, passes: int) -> None:
     """Refuse, naming the film, a render whose image buffers exceed this machine's
     physical memory (a 100000 × 100000 film failed in numpy's allocation, naming an
-    array shape; an outside review)."""
-    need = cs.width * cs.height * _FILM_BYTES_PER_PIXEL
+    array shape; an outside review), and, naming ``passes``, one whose pass images,
+    all held until the last pass, do (passes=10**6 of a 64 x 64 film, 229 GiB, would
+    render every pass and then fail in numpy's allocation; an outside review)."""
+    pixels = cs.width * cs.height
+    need = pixels * _FILM_BYTES_PER_PIXEL
     have = _memory.physical_bytes()
     if have is not None and need > have:
         raise ValueError(f"film {cs.width} x {cs.height}: its image buffers need "
                          f"{need / 2**30:.3g} GiB, more than this machine's "
                          f"{have / 2**30:.3g} GiB of memory")
+    if passes > 1 and have is not None and need + passes * pixels * _PASS_BYTES_PER_PIXEL > have:
+        most = (have - need) // (pixels * _PASS_BYTES_PER_PIXEL)
+        raise ValueError(f"passes={passes}: the pass images of the {cs.width} x {cs.height} "
+                         f"film, all held until the last pass, need "
+                         f"{passes * pixels * _PASS_BYTES_PER_PIXEL / 2**30:.3g} GiB, more "
+                         f"than this machine's {have / 2**30:.3g} GiB of memory: "
+                         + (f"use at most {most} passes" if most >= 2 else
+                            "render in one pass (passes=1)"))
 
 
 def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
@@ -236,7 +252,7 @@ def render(scene, *, spp: int | None = None, seed: int = 0, passes: int = 1,
                                          if passes > 1 else "")
                          + ": a stratified or multijitter sampler takes fewer than 2^31 "
                          "samples a pixel (its strata are 31-bit)")
-    _film_fits(cs)
+    _film_fits(cs, passes)
     if passes > 1:
         return _render_passes(cs, spp, seed, int(passes), general, pdf_scale, progress)
     if spp < 2 and variance:

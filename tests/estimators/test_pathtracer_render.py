@@ -628,6 +628,24 @@ def test_a_film_larger_than_the_machines_memory_is_refused_by_its_size(tmp_path,
         render(str(path), spp=4, passes=passes)
 
 
+def test_passes_whose_images_exceed_the_machines_memory_are_refused_first(monkeypatch):
+    """Every pass image is held until the last pass has rendered: passes=10**6 of a
+    64 x 64 film (229 GiB) rendered pass after pass before numpy's allocation could
+    fail, naming no argument (an outside review). Refused before any rendering (no progress call),
+    naming passes and the most that fit (here in 1 MiB: 1000 passes of 16 x 16 take
+    15 MB at 60 bytes a pixel a pass)."""
+    monkeypatch.setattr("estimators._memory.physical_bytes", lambda: 1 << 20)
+    scene = prepare_scene("reference/scenes/cornell-box/scene.xml", params={"res": 16})
+    calls = []
+    with pytest.raises(ValueError, match=r"passes=1000: the pass images of the 16 x 16 "
+                       r"film.*use at most 67 passes"):
+        render(scene, spp=1000, passes=1000, progress=lambda d, t: calls.append(d))
+    assert calls == []
+    with pytest.raises(ValueError, match=r"passes=100.*render in one pass"):
+        monkeypatch.setattr("estimators._memory.physical_bytes", lambda: 40_000)
+        render(scene, spp=100, passes=100)
+
+
 @pytest.mark.filterwarnings("error::RuntimeWarning")     # inf pixels are said, not warned
 def test_a_render_in_passes_counts_the_nonfinite_samples_of_every_pass(tmp_path):
     """A point light of 1.7e308 overflows some samples to inf. With passes, the stats
