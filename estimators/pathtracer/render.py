@@ -164,8 +164,8 @@ def _render_iv(spp, seed, passes, pdf_scale, params, variance, general=None,
                progress=None) -> None:
     """render()'s arguments, checked before the scene is compiled: a ValueError names the
     parameter (no silent coercion of '64' or 2.5)."""
-    if spp is not None:
-        _integer("spp", spp, 1)
+    if spp is not None:     # the kernel counts samples in int64 (10**30 was an
+        _integer("spp", spp, 1, 2 ** 63 - 1)        # OverflowError naming nothing)
     _integer("seed", seed, 0, 2 ** 63 - 1)
     _integer("passes", passes, 1)
     if isinstance(pdf_scale, bool) or not isinstance(pdf_scale, numbers.Real) \

@@ -195,6 +195,9 @@ def test_render_reports_progress_and_rejects_bad_arguments():
         render(scene, spp=1)
     with pytest.raises(ValueError, match="seed"):
         render(scene, spp=2, seed=-1)
+    # the kernel counts samples in int64: "OverflowError: int too big to convert"
+    with pytest.raises(ValueError, match=r"spp=10{30}: must be in \[1, 9223372036854775807\]"):
+        render(scene, spp=10 ** 30)
     with pytest.raises(ValueError, match="general='yes'"):     # it was taken as true
         render(scene, spp=2, general="yes")
     with pytest.raises(ValueError, match="progress=3"):         # a TypeError per tile
