@@ -89,11 +89,18 @@ def _run(name: str, *args) -> None:
 
 def _floats(name: str, v) -> np.ndarray:
     """``v`` as float64, or ValueError naming ``name`` (numpy's "could not convert string
-    to float: 'abc'" named nothing)."""
+    to float: 'abc'" named nothing). Only real numbers, as the warps' front ends take:
+    until 7 December a complex u lost its imaginary part (numpy's ComplexWarning) and a
+    None in a list of u became NaN, each drawn from without a word."""
     try:
-        return np.asarray(v, dtype=np.float64)
+        a = np.asarray(v)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{name}={v!r}: not numbers ({e})") from None
+    if a.dtype.kind not in "biuf":
+        shown = f"{name}={v!r}" if a.size <= 3 else name    # one vector or row, not n
+        raise ValueError(f"{shown}: not numbers (an array of {a.dtype}; expected real "
+                         "numbers)")
+    return a.astype(np.float64)
 
 
 def _rows(name: str, x) -> np.ndarray:

@@ -261,6 +261,17 @@ def test_front_ends_refuse_bad_input():
         emitter_sampler(scene, 0, ("a", 0, 0))
     with pytest.raises(ValueError, match="u=.*: not numbers"):
         sample([["a", "b", "c"]])
+    # a complex u lost its imaginary part (a ComplexWarning), a None became a NaN row,
+    # and a complex wi was read as its real part, each without an error, until 7 December
+    with pytest.raises(ValueError, match="u: not numbers.*complex128"):
+        sample(np.full((2, 3), 0.5 + 0.5j))
+    with pytest.raises(ValueError, match=r"u=\[\[0.1, 0.2, None\]\]: not numbers.*object"):
+        sample([[0.1, 0.2, None]])
+    with pytest.raises(ValueError, match="wi=.*: not numbers.*complex128"):
+        bsdf_sampler(scene, 2, (0.0, 0.0, 1.0 + 0j))
+    _, pdf = emitter_sampler(scene, 0, (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="direction=.*: not numbers.*complex128"):
+        pdf(np.array([[0.0, 1.0, 1j]]))
 
 
 def test_a_float32_unit_wi_is_taken_as_its_float64_normalisation():
