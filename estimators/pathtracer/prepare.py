@@ -30,7 +30,7 @@ from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
 from .meshes import read_ply
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
-                    file_problem, load_scene)
+                    file_problem, load_scene, scene_path)
 from .text_numbers import (FLOAT32_OVERFLOW, SPACE, ascii_lower, finite_in_float32,
                            parse_float, parse_int, split_words)
 from .textures import (TextureStore, envmap_sampling_weights, luminance,
@@ -1271,13 +1271,13 @@ def prepare_scene(scene, *, params: dict | None = None) -> PreparedScene:
     ``params`` override the scene's ``<default>`` values, so they need a path: a
     description or a prepared scene has its values already (they were ignored until 4
     December, an unknown name too)."""
-    if params and not isinstance(scene, (str, os.PathLike)):
+    if params and not isinstance(scene, (str, bytes, os.PathLike)):
         raise ValueError(f"params={params!r}: scene parameters apply when the scene is read "
                          f"from its file; this {type(scene).__name__} was read already: give "
                          "its path, or load_scene(path, params=...) / "
                          "prepare_scene(path, params=...)")
     if isinstance(scene, PreparedScene):
         return scene
-    desc = scene if isinstance(scene, SceneDescription) else load_scene(str(scene),
-                                                                        params=params)
+    desc = scene if isinstance(scene, SceneDescription) else load_scene(
+        scene_path(scene, "scene", ", a SceneDescription or a PreparedScene"), params=params)
     return _Builder(desc).build()

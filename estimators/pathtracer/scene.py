@@ -810,14 +810,30 @@ def parse_scene(text: str | bytes, *, path: str = "<string>", params: dict | Non
                 ) -> SceneDescription:
     """Parse scene XML text, or a file's bytes in the encoding its BOM or XML declaration
     names (``params`` override ``<default>`` values)."""
+    if not isinstance(text, (str, bytes)):
+        raise TypeError(f"text: expected the scene's XML as str or bytes (load_scene reads "
+                        f"a file), got {type(text).__name__}")
     return _Loader(path, params or {}).load(_parse_xml(text, path))
 
 
 def load_scene(path: str, *, params: dict | None = None) -> SceneDescription:
-    """Parse a Mitsuba XML scene file."""
+    """Parse a Mitsuba XML scene file (``path``: a str, bytes or ``os.PathLike``)."""
+    path = scene_path(path, "path")
     desc = _Loader(path, params or {}).load(_read_scene(path))
     desc.path = os.path.abspath(path)
     return desc
+
+
+def scene_path(value, name: str, also: str = "") -> str:
+    """``value`` as a scene file's path: a str, an ``os.PathLike`` or bytes (decoded as
+    the file system does); else TypeError naming ``name`` (``also``: what else it may
+    be). None raised os.stat's TypeError, naming nothing, and an int was taken as a file
+    descriptor, read and closed (an outside review); bytes reached ``str()`` as
+    "b'scene.xml'" in ``prepare_scene`` and ``render``."""
+    if isinstance(value, (str, bytes, os.PathLike)):
+        return os.fsdecode(value)
+    raise TypeError(f"{name}: expected a scene file's path (str or os.PathLike{also}), "
+                    f"got {type(value).__name__}")
 
 
 def _read_scene(path: str) -> _Node:

@@ -1639,3 +1639,35 @@ def test_names_are_compared_case_blind_in_ascii_only_as_mitsuba_compares_them(
     assert prepare_scene(parse_scene(xml.replace(value, value.replace("\u212a", "K")
                                                  .replace("\uff27", "G")
                                                  .replace("\uff38", "X"))))
+
+
+
+def test_a_scene_argument_that_is_not_a_path_is_refused_naming_it(tmp_path):
+    """An outside review: load_scene(None) raised os.stat's TypeError naming nothing,
+    load_scene(3) took 3 as a file descriptor (reading and closing the caller's open
+    file), and a bytes path worked in load_scene but reached prepare_scene and render as
+    "b'...'" ("cannot read"). Now bytes are a path everywhere and the rest is refused."""
+    import os
+
+    from estimators.pathtracer import load_scene, prepare_scene
+
+    path = tmp_path / "s.xml"
+    path.write_text('<scene version="3.0.0"><sensor type="perspective"/>'
+                    '<shape type="sphere"/></scene>')
+    assert prepare_scene(os.fsencode(path)).desc.path == str(path)
+    assert load_scene(os.fsencode(path)).path == str(path)
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        for bad in (None, fd, 1.5):
+            with pytest.raises(TypeError, match=r"^path: expected a scene file's path "
+                                                r"\(str or os.PathLike\), got "):
+                load_scene(bad)
+            with pytest.raises(TypeError, match=r"^scene: expected a scene file's path "
+                                                r"\(str or os.PathLike, a SceneDescription "
+                                                r"or a PreparedScene\), got "):
+                prepare_scene(bad)
+        os.fstat(fd)            # the caller's descriptor is still open
+    finally:
+        os.close(fd)
+    with pytest.raises(TypeError, match=r"^text: expected the scene's XML as str or bytes"):
+        parse_scene(None)
