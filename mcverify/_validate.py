@@ -202,13 +202,17 @@ def negatives(v: np.ndarray) -> tuple[int, tuple, float] | None:
     return int(np.count_nonzero(bad)), first, float(v[first])
 
 
-def few_bins_note(name: str, n: int, n_bins: int) -> str | None:
+def few_bins_note(name: str, n: int, n_bins: int, limit: str | None = None) -> str | None:
     """A message when a χ² test pooled its histogram into so few bins (fewer than 5
-    expected per cell elsewhere) that it can detect only gross errors."""
+    expected per cell elsewhere) that it can detect only gross errors. ``limit``: why
+    there are so few cells whatever ``n`` (an interval holding few values of the points'
+    type), where more samples would not help; until 7 December the note said to draw
+    more there too (an outside review)."""
     if n_bins >= 5:
         return None
     return (f"{name}={n}: the χ² test pooled its histogram into {n_bins} bin(s), so it has "
-            "almost no power (a wrong sampler may pass); draw more samples")
+            "almost no power (a wrong sampler may pass); "
+            + (f"more samples would not help: {limit}" if limit else "draw more samples"))
 
 
 def seed(name: str, v) -> int:

@@ -708,6 +708,40 @@ def test_cells_merged_at_an_atom_are_not_put_down_to_float32():
     assert not any("atom" in m for m in r.messages), r.messages
 
 
+def test_an_interval_too_fine_for_the_points_type_says_more_samples_would_not_help():
+    """A float32 time in seconds since 1970 on a millisecond's shutter: Interval(1.7e9,
+    1.7e9 + 1e-3) holds no float32 value but the one just below it, so the χ² test has
+    one cell whatever n; the note said "draw more samples" (until 7 December, an outside
+    review), which 10 times as many did not change. It now names the cause and the way
+    out, in check_sampler and check_same_distribution; the advice stays where n is short."""
+    a, b = 1.7e9, 1.7e9 + 1e-3
+    dom = mv.Interval(a, b)
+
+    def s32(u):
+        return (a + (b - a) * u[:, 0]).astype(np.float32)
+
+    def pdf(x):
+        return np.full(len(x), 1.0 / (b - a))
+
+    for r in (mv.check_sampler(s32, pdf, dom, n_samples=20_000, seed=1),
+              mv.check_same_distribution(s32, s32, dom, n_samples=20_000, seed=1)):
+        note = [m for m in r.messages if "almost no power" in m]
+        assert len(note) == 1 and "draw more samples" not in note[0], r.messages
+        assert "more samples would not help" in note[0], note
+        assert "holds too few float32 values for more than 1 cell(s)" in note[0], note
+        assert "x - a, on Interval(0, " in note[0], note
+    # float64 points on an interval of 3 float64 values: the same, in float64
+    a, b = 1.0, 1.0 + 2.0 ** -51
+    r = mv.check_sampler(lambda u: a + (b - a) * u[:, 0], lambda x: np.full(len(x), 1 / (b - a)),
+                         mv.Interval(a, b), n_samples=20_000, seed=1)
+    assert any("more samples would not help" in m and "few float64 values" in m
+               for m in r.messages), r.messages
+    # too few samples on an interval with values to spare: still "draw more samples"
+    r = mv.check_sampler(lambda u: u[:, 0].astype(np.float32), lambda x: np.ones(len(x)),
+                         "interval", n_samples=10, seed=1)
+    assert any("draw more samples" in m for m in r.messages), r.messages
+
+
 def test_float32_points_near_the_south_pole_keep_their_polar_parameter():
     """On the sphere 1 + z of a float32 point within 1e-4 of the south pole is 0 or a
     multiple of 6e-8; the domain takes it from the tangential components, as at the
