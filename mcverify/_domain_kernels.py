@@ -189,7 +189,19 @@ def _to_point_rows(kind, args, s, out, i0, i1):
     for i in range(i0, i1):
         s0 = s[i, 0]
         if kind == INTERVAL:
-            out[i, 0] = args[0] + (args[1] - args[0]) * s0
+            # Within half an ulp of an end, a + (b - a)·s rounds to the end itself: on
+            # Interval(1000, 1001) the cubature's nodes beside a read the pdf at a, where
+            # a correct pdf may be singular (0.5 / sqrt(x - a)), and the check failed,
+            # "pdf returned ... NaN/Inf values" (on Interval(0, 1), where x = s, it
+            # passed; until 7 December, an outside review). Such a point rounds to the
+            # end's neighbour inside instead; only s = 0 and s = 1 are the ends.
+            a, b = args[0], args[1]
+            x = a + (b - a) * s0
+            if s0 > 0.0 and x <= a:
+                x = np.nextafter(a, b)
+            elif s0 < 1.0 and x >= b:
+                x = np.nextafter(b, a)
+            out[i, 0] = x
             continue
         s1 = s[i, 1]
         if kind == SQUARE:

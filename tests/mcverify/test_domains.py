@@ -708,6 +708,38 @@ def test_cells_merged_at_an_atom_are_not_put_down_to_float32():
     assert not any("atom" in m for m in r.messages), r.messages
 
 
+@pytest.mark.parametrize("a", [1000.0, -7.5])
+def test_a_pdf_singular_at_an_interval_end_away_from_0_is_integrated(a):
+    """The cubature's nodes within half an ulp of an end of Interval(a, a + 1) mapped to
+    the end itself, where 0.5 / sqrt(x - a), a correct pdf, is inf: the check failed,
+    "pdf returned 0 negative and 105 NaN/Inf values (first: pdf([1000.0]) = inf)",
+    where on Interval(0, 1) it passed (until 7 December, an outside review). A
+    parameter strictly inside now maps to a point strictly inside. Seeded, α = 0.01."""
+    dom = mv.Interval(a, a + 1.0)
+    x = dom.to_point(np.array([[0.0], [1e-17], [1.0 - 2.0 ** -53], [1.0]]))[:, 0]
+    assert x[0] == a and x[3] == a + 1.0
+    assert a < x[1] == np.nextafter(a, np.inf) and a + 1.0 > x[2] == np.nextafter(a + 1, a)
+
+    def at_a(x):
+        with np.errstate(divide="ignore"):
+            return 0.5 / np.sqrt(x[:, 0] - a)
+
+    def at_b(x):
+        with np.errstate(divide="ignore"):
+            return 0.5 / np.sqrt(a + 1.0 - x[:, 0])
+
+    for seed in range(3):
+        r = mv.check_sampler(lambda u: a + u[:, 0] ** 2, at_a, dom, n_samples=50_000,
+                             seed=seed, alpha=0.01)
+        assert r.passed, (seed, r.failures)
+        r = mv.check_sampler(lambda u: a + 1.0 - u[:, 0] ** 2, at_b, dom, n_samples=50_000,
+                             seed=seed, alpha=0.01)
+        assert r.passed, (seed, r.failures)
+    wrong = mv.check_sampler(lambda u: a + u[:, 0] ** 2.1, at_a, dom, n_samples=50_000,
+                             seed=0, alpha=0.01)
+    assert not wrong.passed and not any("NaN/Inf" in f for f in wrong.failures), wrong
+
+
 def test_an_interval_too_fine_for_the_points_type_says_more_samples_would_not_help():
     """A float32 time in seconds since 1970 on a millisecond's shutter: Interval(1.7e9,
     1.7e9 + 1e-3) holds no float32 value but the one just below it, so the χ² test has
