@@ -226,8 +226,14 @@ def _thin_leaves(density, lo, width, budget, n_samples, tau):
     scale = width[leaf, j[leaf]] * n_lines
 
     def line_density(t):
+        # A line's node within a few ulps of t·K's integer part rounds onto its leaf's
+        # end, which on the domain's edge may be where the density is singular: clipped
+        # below 1 as the corners are (until 7 December a disk pdf 1 / (2π sqrt(1 - r²)),
+        # uniform hemisphere directions projected, was read at r² = 1, 72064 times
+        # "NaN/Inf", and a hemisphere's 1 / (4π sqrt(z)) at z = 0; an outside review).
         k = np.minimum((t[:, 0] * n_lines).astype(np.int64), n_lines - 1)
-        return density(base[k] + (t[:, 0] * n_lines - k)[:, None] * step[k]) * scale[k]
+        s = base[k] + (t[:, 0] * n_lines - k)[:, None] * step[k]
+        return density(np.clip(s, 0.0, _S_MAX, out=s)) * scale[k]
 
     # The leaf's mass is Σ_q w_q · width_o · line_q with Σ w_q = 1, so each line may
     # carry an error up to the leaf's budget / width_o.
