@@ -352,4 +352,16 @@ def as_domain(domain) -> Domain:
         return _BY_NAME[domain]()
     raise InvalidArgument(
         f"domain={domain!r}: expected one of {sorted(_BY_NAME)} or a Domain object "
-        "such as mcverify.Interval(a, b)")
+        "such as mcverify.Interval(a, b)" + _domain_hint(domain))
+
+
+def _domain_hint(domain) -> str:
+    """What the user likely meant: an instance where the class was given
+    (``domain=mv.Hemisphere``), the name where its case or spaces differ (``"Disk"``);
+    until 7 December both met the bare list of names (an outside review)."""
+    if isinstance(domain, type) and issubclass(domain, Domain):
+        call = "Interval(a, b)" if issubclass(domain, Interval) else f"{domain.__name__}()"
+        return f"; that is the class {domain.__name__}, not a domain: pass an instance, {call}"
+    if isinstance(domain, str) and domain.strip().lower() in _BY_NAME:
+        return f"; did you mean {domain.strip().lower()!r}?"
+    return ""
