@@ -1245,6 +1245,12 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
         # the width is read from the array: a transposed (d, n) one was "expected (n, n)"
         raise InvalidArgument(f"sample returned shape {x.shape}: expected ({n}, d), a row "
                               "of d coordinates per draw; transposed? return points.T")
+    if x.ndim > 2:
+        # read as 1-D points, it was told "expected (n, 1) or (n,)": wrong for directions
+        # rotated as column vectors, (R @ v[..., None]) of shape (n, 3, 1) (until
+        # 7 December, an outside review)
+        raise InvalidArgument(f"sample returned shape {x.shape}: expected ({n}, d), a row "
+                              f"of d coordinates per draw, or ({n},)")
     validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
     u2 = validate.points("inverse", inverse(x), n, k)
     if atol is None:

@@ -263,6 +263,11 @@ API = [
                                                            n_samples=100), InvalidArgument,
      "sample returned shape (2, 100): expected (100, d), a row of d coordinates per draw; "
      "transposed? return points.T"),
+    # directions rotated as column vectors: until 7 December "expected (100, 1) or (n,)"
+    ("inverse-sample-3d", lambda: mv.check_inverse(lambda u: u[:, :, None], lambda x: x, 2,
+                                                   n_samples=100), InvalidArgument,
+     "sample returned shape (100, 2, 1): expected (100, d), a row of d coordinates per "
+     "draw, or (100,)"),
     ("sampler-sample-dim-1e7", _sampler(sample_dim=10 ** 7, n_samples=100_000),
      InvalidArgument, "sample_dim=10000000: 65536 rows of it need"),
     # estimators
