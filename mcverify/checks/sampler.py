@@ -234,6 +234,17 @@ def _merge_note(dom: Domain, pilot_s, pilot_edges, edges, res, dtype) -> list[st
     return out
 
 
+def _cells_limit(dom: Domain, res, dtype) -> str | None:
+    """Why the χ² test has fewer than 5 cells whatever n (``few_bins_note``'s ``limit``):
+    a ``resolution`` of fewer cells (``resolution=(1, 1)`` was told to draw more samples
+    until 7 December, an outside review), or the points' type (``_type_limit``)."""
+    cells = int(np.prod(res))
+    if cells < 5:
+        return (f"the resolution, {tuple(res)}, has {cells} cell(s): give one of at least "
+                "5 cells")
+    return _type_limit(dom, dtype)
+
+
 def _type_limit(dom: Domain, dtype) -> str | None:
     """Why an interval has fewer than 5 cells whatever n, where the points' ``dtype``
     holds too few values on it to cut it finer (``few_bins_note``'s ``limit``); else
@@ -963,7 +974,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     # χ² counts are its sums.
     hist_edges, starts = _fine_edges(dom, edges, dtype) if m == 1 else (edges, None)
     merge_notes = _merge_note(dom, pilot_s, pilot_edges, edges, res, dtype)   # once
-    type_limit = _type_limit(dom, dtype)
+    cells_limit = _cells_limit(dom, res, dtype)
     hist = _Histogram(dom, hist_edges, rejection=rejection)
     density = _Density(pdf, dom)
     integrated: list = []
@@ -1053,7 +1064,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         full = stats.chi2_gof(counts, expected)
         sub["chi2"] = full
         # more samples would not help where the pdf has no mass (that failure is reported)
-        note = validate.few_bins_note("n_samples", n, full.n_bins, type_limit) \
+        note = validate.few_bins_note("n_samples", n, full.n_bins, cells_limit) \
             if n_valid and total > 0 else None
         if note:
             messages.append(note)
@@ -1402,7 +1413,7 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
     label, smp, _, size = min(sides, key=lambda side: side[3])      # the smaller sample
     # where a side has no valid point (reported in failures) more samples would not help
     note = validate.few_bins_note("n_samples" if callable(smp) else f"len({label})", size,
-                                  sub["chi2"].n_bins, _type_limit(dom, dtype)) \
+                                  sub["chi2"].n_bins, _cells_limit(dom, res, dtype)) \
         if ha.sum() and hb.sum() else None
     if note:
         messages.append(note)

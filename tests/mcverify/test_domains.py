@@ -759,6 +759,17 @@ def test_a_pdf_singular_at_an_interval_end_away_from_0_is_integrated(a):
     assert not wrong.passed and not any("NaN/Inf" in f for f in wrong.failures), wrong
 
 
+def test_a_resolution_of_fewer_than_5_cells_says_more_samples_would_not_help():
+    """resolution=(1, 1) leaves the χ² test one cell whatever n; the note said "draw more
+    samples" until 7 December (an outside review). It now names the resolution."""
+    for r in (mv.check_sampler(lambda u: u, lambda x: 1.0, "square", n_samples=20_000,
+                               resolution=(1, 1), seed=1),
+              mv.check_same_distribution(lambda u: u, lambda u: u, "square", n_samples=20_000,
+                                         resolution=(1, 2), seed=1)):
+        assert any("more samples would not help: the resolution, (1, " in m and
+                   "give one of at least 5 cells" in m for m in r.messages), r.messages
+
+
 def test_a_pdf_singular_at_the_disks_rim_or_the_horizon_is_integrated():
     """Uniform hemisphere directions projected onto the disk have the density
     1 / (2π sqrt(1 - r²)), singular at the rim; 1 / (4π sqrt(z)) on the hemisphere is
