@@ -342,9 +342,10 @@ def _cmd_check(args) -> int:
         if any(c.name == planned[-1].name for c in selected):
             _precheck_render(args.scene)
         if planned and not selected:      # -k left nothing: no gate may pass on no check
+            suite_option = f" --suite {given_suite}" if given_suite else ""
             raise InvalidArgument(f"-k {args.k!r}: matches none of the {len(planned)} "
-                                  f"checks the scene needs; `mcverify plan {args.scene}` "
-                                  "lists them")
+                                  f"checks the scene needs; `mcverify plan {args.scene}"
+                                  f"{suite_option}` lists them")
         extra["scene"] = os.path.abspath(args.scene)
     elif args.budget is not None:
         from .budget import plan_budget
@@ -526,7 +527,11 @@ def _cmd_plan(args) -> int:
     if (args.scene is None) == (args.scene_option is None):
         raise InvalidArgument("plan: name one scene, as SCENE.xml or --scene SCENE.xml")
     args.scene = _scene_file(args.scene if args.scene is not None else args.scene_option)
-    checks, skipped, features = _plan(args.scene, args.suite)
+    # the suites `check --scene` plans from: --suite, else [tool.mcverify]'s, else default
+    # (plan read the built-in default whatever the table said, and listed other checks)
+    args.alpha = args.seed = 0   # not used by plan
+    args.suite, suite_checks, _, _ = _suite_checks(args)
+    checks, skipped, features = _plan(args.scene, args.suite, suite_checks)
     _precheck_render(args.scene)
     print(f"scene {args.scene} uses: {', '.join(sorted(features))}")
     print(f"checks ({len(checks)}):")
@@ -1115,7 +1120,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="a Mitsuba XML scene, its folder or a reference name")
     pl.add_argument("--scene", dest="scene_option", metavar="SCENE.xml",
                     help="the same, spelt as for mcverify check --scene")
-    pl.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
+    pl.add_argument("--suite", metavar="SUITE", help=any_suite_help)
     pl.add_argument("-v", "--verbose", action="store_true",
                     help="also list the checks the scene does not need")
     _add_refs_option(pl)

@@ -545,3 +545,27 @@ def test_an_environment_problem_in_a_check_names_the_check(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and err == "mcverify: error: check 'my.gpu[kernel]': no GPU\n", err
     assert not (tmp_path / "r.json").exists()
+
+
+def test_plan_lists_the_checks_check_scene_runs_under_the_tables_suite(project, capsys):
+    """`mcverify plan` planned from the built-in default suite whatever the project's
+    [tool.mcverify] table said, and its --suite took default or full only: it listed
+    sampler:uniform_sphere for a scene whose `check --scene` ran the table's checks, and
+    `check --scene S -k sampler:uniform_sphere` exited 2, "matches none of the checks the
+    scene needs; `mcverify plan S` lists them", pointing at a list holding it."""
+    from mcverify.gate import cli
+
+    scene = os.path.join(ROOT, "reference", "scenes", "white-furnace", "scene.xml")
+    _pyproject(project, '[tool.mcverify]\nsuite = "mine.checks:good"\n')
+    assert cli.main(["plan", scene]) == 0
+    listed = capsys.readouterr().out.split("skipped")[0].split()
+    assert "sqrt" in listed and "sqrt-again" in listed
+    assert "sampler:uniform_sphere" not in listed
+    # the command line wins over the table, and takes what check's --suite takes
+    assert cli.main(["plan", scene, "--suite", "default"]) == 0
+    assert "sampler:uniform_sphere" in capsys.readouterr().out.split("skipped")[0]
+    assert cli.main(["plan", scene, "--suite", "mine.checks:bad"]) == 0
+    assert "sqrt*1.1" in capsys.readouterr().out.split("skipped")[0]
+    # check --scene's hint names the suite it planned from, so the plan it names is its own
+    assert cli.main(["check", "--scene", scene, "--suite", "full", "-k", "nosuch"]) == 2
+    assert f"`mcverify plan {scene} --suite full` lists them" in capsys.readouterr().err
