@@ -590,6 +590,8 @@ def _cmd_report(args) -> int:
     if args.no_suite and args.k:
         raise InvalidArgument(f"-k {args.k!r}: selects checks of the suite, which "
                               "--no-suite leaves out")
+    if args.no_suite:
+        _suite_options_unused(args)
     show = None if args.quiet else _progress(sys.stderr, alpha=0.01)
     suite = None
     extra = {}
@@ -634,6 +636,23 @@ def _cmd_report(args) -> int:
     for name in failed:
         print(f"FAIL {name}")
     return EXIT_FAILED if failed else EXIT_OK
+
+
+def _suite_options_unused(args) -> None:
+    """``report --no-suite`` with an option that acts on the suite alone (``--suite``,
+    ``-j``, ``--dask``, ``--dask-scheduler-file``): the study and renders ran in this
+    process, and the report was written, as if the option had been used."""
+    given = getattr(args, "_given_once", {})
+    if "suite" in given:
+        raise InvalidArgument(f"--suite {args.suite}: the suite's checks, which --no-suite "
+                              "leaves out; drop one of them")
+    where = ("-j", args.jobs if args.jobs != 1 else None), ("--dask", args.dask), \
+        ("--dask-scheduler-file", args.dask_scheduler_file)
+    for option, value in where:
+        if value is not None:
+            raise InvalidArgument(f"{option} {value}: runs the suite's checks on worker "
+                                  "processes, which --no-suite leaves out (the convergence "
+                                  "study and renders run in this process); drop one of them")
 
 
 def _cmd_bench(args) -> int:

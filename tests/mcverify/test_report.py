@@ -588,3 +588,21 @@ def test_a_report_is_drawn_alike_whatever_the_caller_s_rcparams(tmp_path):
         build_report(str(tmp_path / "styled"), suite=suite, study=None, extra_provenance={})
         assert {k: matplotlib.rcParams[k] for k in theirs} == theirs
     assert (tmp_path / "styled" / image).read_bytes() == (tmp_path / "plain" / image).read_bytes()
+
+
+@pytest.mark.parametrize("extra,needle", [
+    (["-j", "2"], "-j 2: runs the suite's checks on worker processes"),
+    (["--dask", "tcp://127.0.0.1:1"], "--dask tcp://127.0.0.1:1: runs the suite's checks"),
+    (["--suite", "full"], "--suite full: the suite's checks"),
+], ids=["jobs", "dask", "suite"])
+def test_cli_report_refuses_suite_options_with_no_suite(tmp_path, capsys, extra, needle):
+    """`report --no-suite` ran its convergence study and renders in this process whatever
+    -j, --dask or --suite said (they apply to the suite's checks alone), and wrote the
+    report, exit 0, as if they had been used; -k was refused there already."""
+    from mcverify.gate.cli import main
+
+    rc = main(["report", "--no-suite", "--renders", "none", "-q", "--out",
+               str(tmp_path / "rep"), *extra])
+    err = capsys.readouterr().err
+    assert rc == 2 and needle in err and "--no-suite" in err, err
+    assert not (tmp_path / "rep").exists()
