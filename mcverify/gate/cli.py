@@ -269,7 +269,14 @@ def _no_check(args) -> str:
     """Why nothing is selected: ``-k`` matches no check, or the suite has none."""
     if args.k is None:
         return f"suite {args.suite!r} has no checks"
-    return (f"-k {args.k!r}: matches no check of suite {args.suite!r}; `mcverify list` "
+    # the suite given on the command line, which a bare `mcverify list` does not list (it
+    # lists the table's or the default suite: sampler:uniform_disk_polar, where `check
+    # --suite mitsuba -k uniform_disk_polar` had matched nothing)
+    given = getattr(args, "_given_once", {}).get("suite")
+    if args.command == "report":    # a built-in suite always, never the table's
+        given = args.suite
+    listing = "mcverify list" + (f" --suite {given}" if given else "")
+    return (f"-k {args.k!r}: matches no check of suite {args.suite!r}; `{listing}` "
             "shows the names")
 
 

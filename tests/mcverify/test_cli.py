@@ -198,3 +198,27 @@ def test_a_threading_layer_numba_cannot_load_exits_2_naming_it(layer, needle):
     assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr
     assert f"NUMBA_THREADING_LAYER='{layer}'" in r.stderr
+
+
+@pytest.mark.parametrize("argv,hint", [
+    (["check", "--suite", "mitsuba", "-k", "uniform_disk_polar"],
+     "`mcverify list --suite mitsuba` shows the names"),
+    (["list", "--suite", "full", "-k", "no-such-check"],
+     "`mcverify list --suite full` shows the names"),
+    (["check", "-k", "no-such-check"], "`mcverify list` shows the names"),
+    # report runs a built-in suite whatever a [tool.mcverify] table names, which a bare
+    # `mcverify list` would list
+    (["report", "--renders", "none", "-k", "no-such-check", "--out", "rep"],
+     "`mcverify list --suite default` shows the names"),
+], ids=["check-suite", "list-suite", "default", "report"])
+def test_a_k_matching_nothing_points_at_the_list_of_the_suite_given(argv, hint, tmp_path,
+                                                                    monkeypatch, capsys):
+    """`check --suite mitsuba -k uniform_disk_polar` said "matches no check of suite
+    'mitsuba'; `mcverify list` shows the names", and `mcverify list` (the default suite)
+    showed sampler:uniform_disk_polar: the hint listed another suite than the one given."""
+    from mcverify.gate import cli
+
+    monkeypatch.chdir(tmp_path)         # no [tool.mcverify] table above
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert hint in err, err
