@@ -140,13 +140,21 @@ def _writable(option: str, path: str | None, inputs=()) -> None:
 
 
 def _distinct_outputs(*pairs) -> None:
-    """Two output options naming the same file would overwrite each other."""
-    given = [(o, p) for o, p in pairs if p]
-    for i, (o1, p1) in enumerate(given):
-        for o2, p2 in given[i + 1:]:
-            if os.path.realpath(p1) == os.path.realpath(p2):
+    """Two output options naming the same file would overwrite each other; one naming a
+    folder the other is written into (``--junit out --report out``) would fail the
+    second write at the run's end, after the first (each path alone is writable)."""
+    given = [(o, p, os.path.realpath(p)) for o, p in pairs if p]
+    for i, (o1, p1, r1) in enumerate(given):
+        for o2, p2, r2 in given[i + 1:]:
+            if r1 == r2:
                 raise InvalidArgument(f"{o1} {p1} and {o2} {p2}: the same file; give "
                                       "two paths")
+            for (oa, pa, ra), (ob, pb, rb) in (((o1, p1, r1), (o2, p2, r2)),
+                                               ((o2, p2, r2), (o1, p1, r1))):
+                if rb.startswith(ra.rstrip(os.sep) + os.sep):
+                    raise InvalidArgument(
+                        f"{o1} {p1} and {o2} {p2}: {oa} names a file to write and {ob} "
+                        f"a file inside it, as a folder; give paths apart")
 
 
 def _verdict(r, check, alpha: float | None) -> str:

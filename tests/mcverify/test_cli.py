@@ -222,3 +222,24 @@ def test_a_k_matching_nothing_points_at_the_list_of_the_suite_given(argv, hint, 
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert hint in err, err
+
+
+@pytest.mark.parametrize("outputs,needle", [
+    (["--junit", "out", "--report", "out"], "--junit out and --report out/report.json"),
+    (["--json", "out/x.json", "--junit", "out"], "--json out/x.json and --junit out"),
+    (["--junit", "a/b", "--json", "a/b/c/d.json"], "--json a/b/c/d.json and --junit a/b: --junit names a file "
+                                            "to write and --json a file inside it"),
+], ids=["junit-is-report-folder", "junit-is-json-folder", "deeper"])
+def test_an_output_that_is_another_outputs_folder_exits_2_before_any_work(
+        outputs, needle, tmp_path, monkeypatch, capsys):
+    """`check --junit out --report out` (or `--json out/x.json --junit out`) passed the
+    checks before any work, ran every check, wrote the first file and then failed on the
+    second, 'out: File exists' or 'out: is a directory', exit 2 with one output written:
+    one path named a file to write and a folder another output is written into."""
+    from mcverify.gate import cli
+
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["check", "-q", "-k", "uniform_disk_polar", *outputs]) == 2
+    out, err = capsys.readouterr()
+    assert needle in err and "passed" not in out, out + err
+    assert list(tmp_path.iterdir()) == []
