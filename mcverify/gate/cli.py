@@ -596,8 +596,12 @@ def _cmd_report(args) -> int:
         if "" in [s.strip() for s in scenes]:   # was refused as "scene ''", not naming it
             raise InvalidArgument(f"--renders {args.renders!r}: an empty scene name; give "
                                   "comma-separated reference scenes, 'all' or 'none'")
+        by_file = {}                    # a scene spelt two ways (its name, its folder)
+        for s in scenes:                # was rendered twice, two rows of the report
+            # before any work (it was checked after the suite)
+            by_file.setdefault(os.path.realpath(resolve_scene(s)[1]), s)
+        scenes = list(by_file.values())
         for s in scenes:
-            resolve_scene(s)            # before any work (it was checked after the suite)
             try:                        # a stale or corrupt reference too, before any work
                 load_reference(s)
             except MissingReference:

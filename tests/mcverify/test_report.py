@@ -606,3 +606,28 @@ def test_cli_report_refuses_suite_options_with_no_suite(tmp_path, capsys, extra,
     err = capsys.readouterr().err
     assert rc == 2 and needle in err and "--no-suite" in err, err
     assert not (tmp_path / "rep").exists()
+
+
+def test_cli_report_renders_a_scene_named_twice_once(tmp_path, capsys, monkeypatch):
+    """`--renders white-furnace,reference/scenes/white-furnace/` rendered the scene twice
+    and listed it as two rows of the report (each scene was kept once by its spelling
+    alone), where `reference build` builds such a scene once."""
+    from mcverify.errors import InvalidArgument
+    from mcverify.gate import cli, reference
+    from mcverify.gate.report import renders, study
+
+    monkeypatch.setattr(study, "run_study", lambda **k: [])
+    rendered = []
+
+    def run_renders(scenes, **kw):
+        rendered.extend(scenes)
+        raise InvalidArgument("stop here")
+
+    monkeypatch.setattr(renders, "run_renders", run_renders)
+    monkeypatch.setattr(cli, "_variant_provenance", lambda: {})
+    folder = os.path.join(reference.REFERENCE_ROOT, "white-furnace")
+    rc = cli.main(["report", "--no-suite", "--renders",
+                   f"white-furnace,{folder}{os.sep},{folder}/scene.xml", "-q",
+                   "--out", str(tmp_path / "out")])
+    assert rc == 2 and "stop here" in capsys.readouterr().err
+    assert rendered == ["white-furnace"]
