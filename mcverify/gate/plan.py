@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from ..errors import InvalidArgument
 from .suites import Check, resolve_suite
 from .tracer_checks import consistency_checks, tracer_checks
 
@@ -130,13 +131,28 @@ def plan(scene_path: str, suite: str = "default", checks: list[Check] | None = N
     # prepared whatever the depth: a scene the tracer cannot render is refused here
     instances, delta = tracer_checks(scene_path)
     instances += consistency_checks(scene_path)
+    render = _render_check(scene_path)
+    _names_apart(all_checks, instances + [render])
     if unsampled:
         skipped += [(c.name, unsampled) for c in instances]
     else:
         keep += instances
     skipped += delta
-    keep.append(_render_check(scene_path))
+    keep.append(render)
     return keep, skipped, desc.features
+
+
+def _names_apart(suite_checks: list[Check], own: list[Check]) -> None:
+    """A suite's check named as one the plan adds (a project's own render check named
+    ``render:SCENE``) ran beside it: two results of one name and one seed (seeds derive
+    from names), two JUnit testcases alike."""
+    ours = {c.name for c in own}
+    for c in suite_checks:
+        if c.name in ours:
+            raise InvalidArgument(f"check {c.name!r}: a check of the suite has the name of "
+                                  "one of the scene's own checks (its render check, or an "
+                                  "instance check the plan adds); rename it (seeds derive "
+                                  "from names)")
 
 
 def nothing_sampled(desc) -> str:

@@ -299,3 +299,20 @@ def test_russian_roulette_is_planned_only_where_a_path_reaches_rr_depth(tmp_path
         assert "unbiased:mis(balance)" in names     # the rest of the path's needs stay
     for name, depth, rr_depth in (("d6", 6, None), ("d4rr3", 4, 3), ("inf", -1, None)):
         assert rr in reasons(name, depth, rr_depth)[0], name
+
+
+def test_a_suite_check_named_as_a_check_the_plan_adds_is_refused():
+    """A project's own check named like the scene's render check ('render:white-furnace',
+    a render check of its own) ran beside it under `check --scene`: two results of one
+    name, one seed (seeds derive from names), two JUnit testcases alike. The names of a
+    run's checks are unique across its suites; so they are against the plan's own."""
+    import pytest
+
+    from mcverify.errors import InvalidArgument
+    from mcverify.gate.suites import Check
+
+    scene = os.path.join(REFERENCE_ROOT, "white-furnace", "scene.xml")
+    for name in ("render:white-furnace",
+                 "sampler:tracer.bsdf:white-furnace/bsdf0:diffuse@wi=45°"):
+        with pytest.raises(InvalidArgument, match=f"check {name!r}.*the scene's own"):
+            plan(scene, checks=[Check(name, lambda seed: None)])
