@@ -199,6 +199,12 @@ def _pool(args):
     return Pool(jobs=args.jobs, dask=args.dask, dask_scheduler_file=args.dask_scheduler_file)
 
 
+def _pool_inputs(args) -> list[str]:
+    """The executor's input file, ``--dask-scheduler-file``: an output naming it replaced
+    it with the run's results, and every later run (and client) refused it."""
+    return [args.dask_scheduler_file] if args.dask_scheduler_file else []
+
+
 def _add_pool_options(parser) -> None:
     parser.add_argument("-j", "--jobs", type=decimal_int, default=1, metavar="N",
                         help="run independent units (checks, passes) on N local worker "
@@ -333,7 +339,7 @@ def _cmd_check(args) -> int:
     args.suite, checks, skipped, extra = _suite_checks(args)
     # the scene, its reference (the render check reads it), the project's pyproject.toml
     # and a user suite's module are inputs: an output path naming one would replace it
-    inputs = _suite_sources(args.suite, extra)
+    inputs = _suite_sources(args.suite, extra) + _pool_inputs(args)
     if args.scene:
         from .reference import reference_files
 
@@ -581,7 +587,7 @@ def _cmd_report(args) -> int:
     from .report.study import run_study
 
     out = args.out
-    _report_files("--out", out)     # before the suite's minutes of work
+    _report_files("--out", out, _pool_inputs(args))     # before the suite's minutes of work
     scenes = []
     if args.renders != "none":
         from . import reference
@@ -1039,7 +1045,8 @@ def _cmd_render_check(args) -> int:
     from . import reference
 
     _, scene_path = reference.resolve_scene(args.scene)
-    _writable("--json", args.json, [scene_path] + reference.reference_files(scene_path))
+    _writable("--json", args.json, [scene_path] + reference.reference_files(scene_path)
+              + _pool_inputs(args))
     params = _params(args.param)
     if args.passes < 2 or args.spp < 1:
         raise InvalidArgument(f"--spp {args.spp} --passes {args.passes}: need --passes >= 2 "

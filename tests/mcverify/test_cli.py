@@ -243,3 +243,25 @@ def test_an_output_that_is_another_outputs_folder_exits_2_before_any_work(
     out, err = capsys.readouterr()
     assert needle in err and "passed" not in out, out + err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv", [
+    ["check", "-q", "-k", "uniform_disk_polar", "--json", "sched.json"],
+    ["render-check", "white-furnace", "-q", "--json", "sched.json"],
+    ["report", "-q", "--renders", "none", "--out", "."],
+], ids=["check", "render-check", "report"])
+def test_an_output_naming_the_dask_scheduler_file_exits_2_before_any_work(
+        argv, tmp_path, monkeypatch, capsys):
+    """`--dask-scheduler-file sched.json --json sched.json` was no input to the output
+    checks: the run connected, ran every check on the cluster and replaced the scheduler
+    file with its results, which every later run (and client) then refused, 'not a JSON
+    object with a string address'."""
+    from mcverify.gate import cli
+
+    monkeypatch.chdir(tmp_path)
+    sched = tmp_path / ("report.json" if argv[0] == "report" else "sched.json")
+    sched.write_text('{"address": "tcp://127.0.0.1:1"}')
+    assert cli.main([*argv, "--dask-scheduler-file", str(sched)]) == 2
+    err = capsys.readouterr().err
+    assert "is also an input" in err and str(sched) in err, err
+    assert sched.read_text() == '{"address": "tcp://127.0.0.1:1"}'
