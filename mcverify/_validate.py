@@ -269,9 +269,30 @@ def as_array(what, v) -> np.ndarray:
         raise InvalidArgument(f"{what}: not an array of numbers ({e})") from None
 
 
+def not_a_tuple(name: str, x, n: int) -> None:
+    """InvalidArgument where a sampler of points returned ``(points, pdf)`` or
+    ``(points, pdf, weight)``, the tuple ``check_pdf_consistency``'s sampler returns: a
+    BSDF's one ``sample`` handed to ``check_sampler`` failed as numpy's "inhomogeneous
+    shape", or in 1-D and in ``check_inverse`` as points of shape (2, n), "transposed?
+    return points.T" (an outside review). A sequence of ``n`` rows is points."""
+    if not isinstance(x, (tuple, list)) or len(x) not in (2, 3) or len(x) == n:
+        return
+    try:
+        rows = len(x[0])
+    except TypeError:
+        return
+    if rows == n:
+        parts = "(points, pdf)" if len(x) == 2 else "(points, pdf, weight)"
+        raise InvalidArgument(f"{name} returned a {type(x).__name__} of {len(x)} arrays, "
+                              f"{parts} as check_pdf_consistency's sampler returns them: "
+                              f"this check takes the points alone; pass lambda u: "
+                              f"{name}(u)[0]")
+
+
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
     """Output of a user callable as an (n, dim) array (float32 kept, anything else as
     float64), or InvalidArgument."""
+    not_a_tuple(name, x, n)
     a = as_array(lambda: f"{name} returned {_show(x)}", x)
     if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers")

@@ -1249,6 +1249,7 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     name = validate.label(name, f"inverse:{_name_of(inverse, 'inverse')}")
     u = np.random.default_rng(seed).random((n, k))
     x = validate.draw("sample", sample, u)
+    validate.not_a_tuple("sample", x, n)
     x = validate.as_array(lambda: f"sample returned {validate._show(x)}", x)
     # the points' dimension is the sampler's own; their rows and dtype are checked here,
     # so that a short or non-numeric output is blamed on sample, not on inverse

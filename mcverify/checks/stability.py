@@ -95,6 +95,8 @@ def _call(what, fn, arg):
     except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
         return None, f"{what} raised {type(e).__name__}: {e}"
     try:        # a ragged list (numpy's bare ValueError), masked values (read as data)
+        if what == "sample":                # (points, pdf): numpy's "inhomogeneous shape"
+            validate.not_a_tuple(what, v, len(arg))
         a = validate.as_array(lambda: f"{what} returned {v!r:.80}", v)
     except InvalidArgument as e:
         return None, str(e)

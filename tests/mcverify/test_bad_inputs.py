@@ -268,6 +268,30 @@ API = [
                                                    n_samples=100), InvalidArgument,
      "sample returned shape (100, 2, 1): expected (100, d), a row of d coordinates per "
      "draw, or (100,)"),
+    # a BSDF's one sample(u) -> (points, pdf), check_pdf_consistency's, handed to the
+    # checks that take points: numpy's "inhomogeneous shape", or in 1-D and in
+    # check_inverse points of shape (2, n) with "transposed? return points.T" (an
+    # outside review)
+    ("sampler-sample-tuple",
+     lambda: mv.check_sampler(lambda u: (W.sample_cosine_hemisphere(u),
+                                         W.cosine_hemisphere_pdf(W.sample_cosine_hemisphere(u))),
+                              W.cosine_hemisphere_pdf, "hemisphere", n_samples=100_000),
+     InvalidArgument, "sample returned a tuple of 2 arrays, (points, pdf) as "
+     "check_pdf_consistency's sampler returns them: this check takes the points alone; "
+     "pass lambda u: sample(u)[0]"),
+    ("sampler-sample-tuple-1d",
+     lambda: mv.check_sampler(lambda u: (u[:, 0], np.ones(len(u)), np.ones(len(u))),
+                              lambda x: np.ones(len(x)), "interval", n_samples=100_000),
+     InvalidArgument, "sample returned a tuple of 3 arrays, (points, pdf, weight)"),
+    ("same-dist-sample-tuple",
+     lambda: mv.check_same_distribution(lambda u: u, lambda u: [u, np.ones(len(u))],
+                                        "square",
+                                        n_samples=20_000),
+     InvalidArgument, "sample_b returned a list of 2 arrays, (points, pdf)"),
+    ("inverse-sample-tuple", lambda: mv.check_inverse(lambda u: (u[:, 0], np.ones(len(u))),
+                                                      lambda x: x, 1, n_samples=100),
+     InvalidArgument, "sample returned a tuple of 2 arrays, (points, pdf) as "
+     "check_pdf_consistency's sampler returns them"),
     ("sampler-sample-dim-1e7", _sampler(sample_dim=10 ** 7, n_samples=100_000),
      InvalidArgument, "sample_dim=10000000: 65536 rows of it need"),
     # estimators

@@ -141,6 +141,14 @@ def test_a_ragged_or_masked_return_is_a_finding_not_a_crash():
     assert not r.passed and "pdf returned" in r.details["problem"]
 
 
+def test_a_sampler_returning_points_and_pdf_is_told_to_return_the_points():
+    """A BSDF's sample(u) -> (points, pdf), check_pdf_consistency's sampler, failed as
+    numpy's "inhomogeneous shape" (an outside review)."""
+    r = mv.check_stability(lambda u: (u, np.ones(len(u))), "square", max_examples=5)
+    assert not r.passed
+    assert ("sample returned a tuple of 2 arrays, (points, pdf) as check_pdf_consistency's "
+            "sampler returns them: this check takes the points alone") in r.details["problem"]
+
 def test_a_path_space_sampler_of_many_dimensions_is_checked_in_bounded_memory():
     """3^d corners were built for every d until 6 December: sample_dim=30 (a path-space
     sampler) asked for 2e14 rows and ran out of memory. Above MAX_CORNER_DIM each edge
