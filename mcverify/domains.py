@@ -342,6 +342,27 @@ def _refuse_custom(domain: Domain) -> None:
                 "to one of those, or subclass one for its repr or default_resolution only")
 
 
+def why_outside(domain: Domain, x) -> str:
+    """What puts the point ``x``, outside ``domain``, there, for a failure message ("" on
+    the interval and square, where its coordinates say it): a direction 1e-3 longer
+    than 1, z = 0.66, read as "outside the hemisphere" and nothing more, which sent a
+    user after the frame, not the normalisation (an outside review)."""
+    x = np.asarray(x, dtype=np.float64).ravel()
+    tol = domain.tolerance
+    if domain.kind in (kernels.SPHERE, kernels.HEMISPHERE) and x.size == 3:
+        norm = float(np.sqrt(np.sum(x * x)))
+        if abs(norm - 1.0) > tol:
+            return f"; its length is {norm:.7g}, not 1 within {tol:g}: normalise the direction"
+        if domain.kind == kernels.HEMISPHERE and x[2] < -tol:
+            return (f"; its z = {x[2]:.6g} is below the horizon: the hemisphere is z >= 0 "
+                    "about the normal, in the local frame")
+    if domain.kind == kernels.DISK and x.size == 2:
+        r = float(np.hypot(x[0], x[1]))
+        if r * r > 1.0 + tol:
+            return f"; its radius is {r:.7g}, beyond 1"
+    return ""
+
+
 def as_domain(domain) -> Domain:
     """A ``Domain`` from a name (``"interval"``, ``"square"``, ``"disk"``, ``"sphere"``,
     ``"hemisphere"``) or a ``Domain`` instance (a built-in one: ``_refuse_custom``)."""

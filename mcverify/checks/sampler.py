@@ -25,7 +25,7 @@ from .. import _uniform_stream as stream
 from .. import _validate as validate
 from .. import stats
 from ..errors import InvalidArgument
-from ..domains import Domain, as_domain
+from ..domains import Domain, as_domain, why_outside
 from ..quadrature import gauss_legendre_01, integrate_cells, merge_leaves
 from ..result import CheckResult
 
@@ -98,6 +98,8 @@ def _status_failures(n_status, examples, domain: Domain, what="sample", rejectio
                         "rejection=True")
             elif code == kernels.NONFINITE and rejection and np.isnan(x).any():
                 hint = "; a rejected draw is a row of NaN in every coordinate"
+            elif code == kernels.OUTSIDE:
+                hint = why_outside(domain, x)
             failures.append(f"{int(n_status[code])} {what}s {text.format(domain.name)} "
                             f"(first: {origin}x={x.tolist()}){hint}")
     return failures

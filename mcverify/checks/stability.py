@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from .. import _validate as validate
-from ..domains import as_domain
+from ..domains import as_domain, why_outside
 from ..errors import InvalidArgument
 from ..result import CheckResult
 from .sampler import _name_of
@@ -132,7 +132,8 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
     inside = domain.inside(x)
     for i in np.flatnonzero(~rejected & ~(finite & inside)):
         problems[i] = (f"point {x[i].tolist()} is not finite" if not finite[i] else
-                       f"point {x[i].tolist()} lies outside the {domain!r}")
+                       f"point {x[i].tolist()} lies outside the {domain!r}"
+                       + why_outside(domain, x[i]))
     good = np.flatnonzero(~rejected & finite & inside)
     if pdf is not None and len(good):
         p, raised = _call("pdf", pdf, x[good])

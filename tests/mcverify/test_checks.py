@@ -76,6 +76,25 @@ def test_nan_outside_and_negative_pdf_are_failures_with_examples():
     assert any("negative" in f for f in r.failures)
 
 
+@pytest.mark.parametrize("scale,flip,domain,needle", [
+    (1 + 1e-3, 1, "hemisphere", "its length is 1.001, not 1 within 1e-05: normalise the direction"),
+    (1 - 1e-3, 1, "sphere", "its length is 0.999, not 1 within 1e-05"),
+    (1.0, -1, "hemisphere", "is below the horizon: the hemisphere is z >= 0 about the normal"),
+])
+def test_a_point_outside_says_what_puts_it_there(scale, flip, domain, needle):
+    """A direction 1e-3 off unit length, z = 0.66, failed as "outside the hemisphere"
+    and no more, which sent the user after the frame (an outside review)."""
+    r = mv.check_sampler(lambda u: W.sample_cosine_hemisphere(u) * [scale, scale, flip * scale],
+                         W.cosine_hemisphere_pdf, domain, n_samples=10_000)
+    assert not r.passed and any(f"lie outside the {domain} domain" in f and needle in f
+                                for f in r.failures), r.failures
+    r = mv.check_stability(lambda u: W.sample_cosine_hemisphere(u) * [scale, scale, flip * scale],
+                           domain, max_examples=5)
+    assert not r.passed and needle in r.details["problem"], r.details["problem"]
+    r = mv.check_sampler(lambda u: 1.01 * W.sample_uniform_disk_polar(u),
+                         W.uniform_disk_pdf, "disk", n_samples=10_000)
+    assert any("; its radius is 1.009639, beyond 1" in f for f in r.failures), r.failures
+
 def test_samples_where_pdf_integrates_to_zero():
     # Sampler covers the whole disk, pdf claims only the right half.
     r = mv.check_sampler(W.sample_uniform_disk_polar,
