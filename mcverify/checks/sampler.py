@@ -816,7 +816,41 @@ def _where_pdf_is_zero(pdf, dom: Domain, pilot_s, pilot_x):
             s = pilot_s[idx].copy()
             s[:, j] = np.clip(s[:, j] + step, 0.0, 1.0)
             idx = idx[validate.values("pdf", pdf(dom.to_point(s)), idx.size) == 0]
-    return idx.size, (dom.to_point(pilot_s[idx[:1]])[0] if idx.size else None)
+    return idx.size, (dom.to_point(pilot_s[idx]) if idx.size else None)
+
+
+#: Where the pdf has its mass when a sampler's directions are mistaken in one of the
+#: classic ways: the reflection of its points through the origin and in the plane z = 0.
+_MIRRORS = (("-x", np.array([-1.0, -1.0, -1.0]),
+             "directions reversed (towards the surface or the light, not away)"),
+            ("x mirrored in z = 0", np.array([1.0, 1.0, -1.0]),
+             "directions mirrored in the surface (z negated)"))
+
+
+def _mirror_note(pdf, dom: Domain, zero_x, n_pilot: int) -> str:
+    """What to say where nearly all the pilot's points lie where the pdf is 0 and the pdf
+    is positive at nearly all of them reversed (or mirrored in z = 0): a BSDF sampler
+    reflecting ``-wi`` (``wi`` taken as pointing towards the surface) draws every
+    direction reversed, and so does a light sampler returning the light-to-point
+    direction; on the sphere this failed as "the sampler puts mass where the pdf has
+    none" and no more (an outside review). A sampler wrong in half its draws (y and z
+    swapped) gets no such guess."""
+    if dom.kind != kernels.SPHERE or zero_x is None or zero_x.shape[0] < 0.9 * n_pilot:
+        return ""
+    found = []
+    for what, sign, why in _MIRRORS:
+        try:        # a guess only: a pdf that cannot take these points gets none
+            with np.errstate(all="ignore"):
+                q = validate.values("pdf", pdf(zero_x * sign), zero_x.shape[0])
+        except Exception:      # noqa: BLE001 - its own points were judged already
+            return ""
+        k = int(np.count_nonzero(q > 0))
+        if k >= 0.9 * zero_x.shape[0]:
+            found.append((f"at {what} for {k}", why))
+    if not found:
+        return ""
+    return (f"; the pdf is positive {' and '.join(w for w, _ in found)} of them: "
+            + ", or ".join(y for _, y in found) + "?")
 
 
 def _screening_pdf(pdf, dom: Domain, pilot_s, pilot_x):
@@ -968,7 +1002,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
     pilot_s, dtype, pilot_x = None, None, None
     if pilot:
         pilot_s, dtype, pilot_x = _pilot(sample, "sample", pilot_seq, n, k, dom, rejection)
-    n_zero, zero_at = _where_pdf_is_zero(pdf, dom, pilot_s, pilot_x)
+    n_zero, zero_x = _where_pdf_is_zero(pdf, dom, pilot_s, pilot_x)
+    zero_note = _mirror_note(pdf, dom, zero_x, 0 if pilot_s is None else pilot_s.shape[0])
     uniforms = _uniform_chunks(main_seq, n_budget, k, chunk)
     pilot_edges = _edges(pilot_s, res)
     edges = dom.rounding_edges(pilot_edges, dtype)
@@ -1076,8 +1111,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         if n_zero:
             failures.append(f"{n_zero} of the pilot draw's {pilot_s.shape[0]} points lie "
                             f"where the pdf is 0, at the point and {ZERO_REACH:g} about it "
-                            f"in each parameter (first x = {np.round(zero_at, 6).tolist()}): "
-                            "the sampler puts mass where the pdf has none")
+                            f"in each parameter (first x = {np.round(zero_x[0], 6).tolist()}): "
+                            f"the sampler puts mass where the pdf has none{zero_note}")
         if m == 2:
             for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):
                 sub[label] = stats.chi2_gof(counts.sum(axis=axis), expected.sum(axis=axis))

@@ -95,6 +95,35 @@ def test_a_point_outside_says_what_puts_it_there(scale, flip, domain, needle):
                          W.uniform_disk_pdf, "disk", n_samples=10_000)
     assert any("; its radius is 1.009639, beyond 1" in f for f in r.failures), r.failures
 
+def _tilted_cosine(u):
+    """A cosine lobe about (0.6, 0, 0.8), as a light's or a BSDF lobe's directions."""
+    x = W.sample_cosine_hemisphere(u)
+    c, s = 0.8, 0.6
+    return np.stack([c * x[:, 0] + s * x[:, 2], x[:, 1], -s * x[:, 0] + c * x[:, 2]], axis=1)
+
+
+def _tilted_cosine_pdf(x):
+    return np.maximum(0.6 * x[:, 0] + 0.8 * x[:, 2], 0.0) / np.pi
+
+
+def test_directions_reversed_on_the_sphere_are_named_as_a_guess():
+    """A sampler returning every direction reversed (a BSDF reflecting -wi, a light
+    sampler's light-to-point direction) failed as "the sampler puts mass where the pdf
+    has none" and no more (an outside review); a sampler wrong in half its draws (y and
+    z swapped) gets no such guess."""
+    r = mv.check_sampler(lambda u: -_tilted_cosine(u), _tilted_cosine_pdf, "sphere",
+                         n_samples=100_000)
+    text = " ".join(r.failures)
+    assert not r.passed
+    assert ("the sampler puts mass where the pdf has none; the pdf is positive at -x for "
+            "10000 of them: directions reversed (towards the surface or the light, not "
+            "away)?") in text, text
+    r = mv.check_sampler(lambda u: _tilted_cosine(u)[:, [0, 2, 1]], _tilted_cosine_pdf,
+                         "sphere", n_samples=100_000)
+    text = " ".join(r.failures)
+    assert not r.passed and "the sampler puts mass where the pdf has none" in text, text
+    assert "the pdf is positive at" not in text, text
+
 def test_samples_where_pdf_integrates_to_zero():
     # Sampler covers the whole disk, pdf claims only the right half.
     r = mv.check_sampler(W.sample_uniform_disk_polar,
