@@ -355,7 +355,8 @@ def why_outside(domain: Domain, x) -> str:
             return f"; its length is {norm:.7g}, not 1 within {tol:g}: normalise the direction"
         if domain.kind == kernels.HEMISPHERE and x[2] < -tol:
             return (f"; its z = {x[2]:.6g} is below the horizon: the hemisphere is z >= 0 "
-                    "about the normal, in the local frame")
+                    "about the normal, in the local frame (a lobe that transmits is judged "
+                    "on the sphere)")
     if domain.kind == kernels.DISK and x.size == 2:
         r = float(np.hypot(x[0], x[1]))
         if r * r > 1.0 + tol:

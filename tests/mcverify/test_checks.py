@@ -79,7 +79,8 @@ def test_nan_outside_and_negative_pdf_are_failures_with_examples():
 @pytest.mark.parametrize("scale,flip,domain,needle", [
     (1 + 1e-3, 1, "hemisphere", "its length is 1.001, not 1 within 1e-05: normalise the direction"),
     (1 - 1e-3, 1, "sphere", "its length is 0.999, not 1 within 1e-05"),
-    (1.0, -1, "hemisphere", "is below the horizon: the hemisphere is z >= 0 about the normal"),
+    (1.0, -1, "hemisphere", "is below the horizon: the hemisphere is z >= 0 about the normal, "
+     "in the local frame (a lobe that transmits is judged on the sphere)"),
 ])
 def test_a_point_outside_says_what_puts_it_there(scale, flip, domain, needle):
     """A direction 1e-3 off unit length, z = 0.66, failed as "outside the hemisphere"
