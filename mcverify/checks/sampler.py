@@ -1563,8 +1563,10 @@ def _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha, ks=Non
     if w:
         w = w[0]
         nb_cell = float(b[tuple(w["cell"])])
+        # a marginal's parameter by its name, as check_sampler gives it: "parameter 0"
+        # told no one that it is 1 - z on the hemisphere (an outside review)
         at = (_cell_at(dom, w) if where is None else
-              f"parameter {where} in "
+              f"{_AXIS_NAMES.get(dom.name, ('parameter 0', 'parameter 1'))[where]} in "
               f"{_axis_span(dom, where, w['param_lo'][0], w['param_hi'][0])} "
               f"(the {'first' if where == 0 else 'second'} axis' marginal)")
         out.append(f"largest discrepancy at {at}: sample_a {w['observed']:.0f} and sample_b "

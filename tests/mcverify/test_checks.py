@@ -125,6 +125,21 @@ def test_directions_reversed_on_the_sphere_are_named_as_a_guess():
     assert not r.passed and "the sampler puts mass where the pdf has none" in text, text
     assert "the pdf is positive at" not in text, text
 
+def _polar_cosine(u):
+    r, phi = np.sqrt(u[:, 0]), 2 * np.pi * u[:, 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1 - u[:, 0])], axis=1)
+
+
+def test_same_distribution_names_a_marginals_parameter_as_check_sampler_does():
+    """A marginal's cell was "at parameter 0 in [...]", which told no one that it is
+    1 - z on the hemisphere (an outside review)."""
+    def wider(u):
+        return _polar_cosine(np.stack([u[:, 0] ** 1.05, u[:, 1]], axis=1))
+    r = mv.check_same_distribution(_polar_cosine, wider, "hemisphere", n_samples=200_000)
+    assert not r.passed
+    assert r.messages[-1].startswith("largest discrepancy at 1 - z in ["), r.messages
+    assert "(the first axis' marginal)" in r.messages[-1], r.messages
+
 def test_samples_where_pdf_integrates_to_zero():
     # Sampler covers the whole disk, pdf claims only the right half.
     r = mv.check_sampler(W.sample_uniform_disk_polar,
