@@ -827,6 +827,34 @@ _MIRRORS = (("-x", np.array([-1.0, -1.0, -1.0]),
              "directions mirrored in the surface (z negated)"))
 
 
+#: Integrals that name a classic mistake: (factor, domains or None for any, the guess).
+_TELLING_INTEGRALS = (
+    (2.0, (kernels.SPHERE, kernels.HEMISPHERE),
+     "a density per projected solid angle (divided by cos θ) where one per solid angle "
+     "is meant"),
+    (0.5, (kernels.SPHERE, kernels.HEMISPHERE),
+     "a density per solid angle where one per projected solid angle (divided by cos θ) "
+     "is meant"),
+    (np.pi, None, "a factor π too many (1/π left out)"),
+    (1.0 / np.pi, None, "a factor 1/π too many"),
+    (2.0 * np.pi, None, "a factor 2π too many (the azimuth's 1/(2π) left out)"),
+    (0.5 / np.pi, None, "a factor 1/(2π) too many"),
+    (4.0 * np.pi, None, "a factor 4π too many (1/(4π) left out)"),
+    (0.25 / np.pi, None, "a factor 1/(4π) too many"),
+)
+
+
+def _integral_note(total: float, dom: Domain) -> str:
+    """A guess at the mistake where a pdf integrates to a telling factor (within 0.5 %):
+    2 on the sphere or hemisphere is a density per projected solid angle given for one
+    per solid angle, π, 2π or 4π a normalisation left out; until 8 December such a pdf
+    failed as 'integrates to 2, not 1' and no more (an outside review)."""
+    for factor, kinds, why in _TELLING_INTEGRALS:
+        if (kinds is None or dom.kind in kinds) and abs(total / factor - 1.0) <= 5e-3:
+            return f"; {why}?"
+    return ""
+
+
 def _mirror_note(pdf, dom: Domain, zero_x, n_pilot: int) -> str:
     """What to say where nearly all the pilot's points lie where the pdf is 0 and the pdf
     is positive at nearly all of them reversed (or mirrored in z = 0): a BSDF sampler
@@ -1090,7 +1118,8 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
                         "point (x^-0.9 at 0) can look unnormalised so; check its integral "
                         "analytically" if unconverged and abs(total - 1.0) < 0.01 else "")
                 failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain, "
-                                f"not 1 (quadrature error bound {err_bound:.2g}){hint}")
+                                f"not 1 (quadrature error bound {err_bound:.2g}){hint}"
+                                f"{_integral_note(total, dom)}")
             expected = mass * n_valid
         messages = list(merge_notes)
         if unconverged:

@@ -1333,3 +1333,27 @@ def test_a_float32_expected_value_widens_only_its_own_comparison():
     for expected in (1.0, np.float32(1.0)):
         r = mv.check_convergence(est, expected, n_seeds=16)
         assert r.statistic is not None and r.passed, r.summary()
+
+
+@pytest.mark.parametrize("pdf,domain,guess", [
+    (lambda x: np.full(len(x), 1.0 / np.pi), "hemisphere",
+     "a density per projected solid angle (divided by cos θ) where one per solid angle is "
+     "meant?"),
+    (lambda x: x[:, 2] / (2.0 * np.pi), "hemisphere",
+     "a density per solid angle where one per projected solid angle (divided by cos θ) is "
+     "meant?"),
+    (lambda x: np.full(len(x), 1.0), "sphere", "a factor 4π too many (1/(4π) left out)?"),
+    (lambda x: x[:, 2], "hemisphere", "a factor π too many (1/π left out)?"),
+])
+def test_a_pdf_integrating_to_a_telling_factor_gets_a_guess(pdf, domain, guess):
+    """An outside review: a cosine sampler's pdf given per projected solid angle (1/π)
+    integrates to 2 over the hemisphere, and the failure said 'integrates to 2, not 1' and
+    no more; factors that name a classic mistake (2 or 1/2 on the sphere, π, 2π, 4π and
+    their inverses anywhere) now add the guess. Any other integral gets none."""
+    sample = W.sample_uniform_sphere if domain == "sphere" else W.sample_cosine_hemisphere
+    r = mv.check_sampler(sample, pdf, domain, n_samples=20_000, seed=1, sample_dim=2)
+    note = next(m for m in r.failures if "integrates to" in m)
+    assert not r.passed and note.endswith("; " + guess), note
+    r = mv.check_sampler(sample, lambda x: 1.3 * pdf(x), domain, n_samples=20_000, seed=1,
+                         sample_dim=2)
+    assert not next(m for m in r.failures if "integrates to" in m).endswith("?")
