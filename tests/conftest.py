@@ -1,4 +1,6 @@
 import os
+import subprocess
+import sys
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -114,3 +116,16 @@ def numba_threads():
     before = numba.get_num_threads()
     yield numba.set_num_threads
     numba.set_num_threads(before)
+
+
+@pytest.fixture
+def run_python():
+    """``run(code, timeout=120)``: ``code`` run by a fresh interpreter (for state that is
+    the process's: imports, numpy's print options, matplotlib's backend, environment
+    variables read once), asserted to exit 0; returns its stdout, stripped."""
+    def run(code: str, timeout: float = 120) -> str:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             timeout=timeout)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip()
+    return run

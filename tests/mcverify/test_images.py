@@ -234,14 +234,11 @@ def test_colour_differences_are_zero_for_identical_images_and_grow_with_a_shift(
 
 
 @pytest.mark.parametrize("level", [0.0, 1e-8], ids=["black", "near-black"])
-def test_a_black_reference_is_compared_without_hdr_flip(level):
+def test_a_black_reference_is_compared_without_hdr_flip(level, run_python):
     """flip-evaluator exits the whole process on a reference whose maximum luminance is
     below about 1.2e-7 (its exposure range is reversed): render-check died (exit 134) on
     a scene not in the repository whose only light was hidden at max_depth 1. Run in a
     subprocess so that a regression fails this test instead of killing pytest."""
-    import subprocess
-    import sys
-
     code = (f"import numpy as np, mcverify as mv\n"
             f"ref = np.full((8, 8, 3), {level}); test = ref + 0.01\n"
             f"v = np.full_like(ref, 1e-4)\n"
@@ -250,20 +247,14 @@ def test_a_black_reference_is_compared_without_hdr_flip(level):
             f"assert 'flip' not in r.artifacts and r.details['delta_e2000_mean'] is not None\n"
             f"assert r.artifacts['delta_e_itp'].shape == (8, 8)\n"
             f"print('ok')\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 0 and out.stdout.strip() == "ok", (out.returncode, out.stdout,
-                                                                out.stderr)
+    assert run_python(code) == "ok"
 
 
-def test_the_perceptual_metrics_keep_the_caller_s_print_options():
+def test_the_perceptual_metrics_keep_the_caller_s_print_options(run_python):
     """An outside review: colour-science's import sets numpy's print options to
     ``legacy="1.13"`` for the whole process, so a caller's arrays printed otherwise after
     their first ``compare_images`` (``[ 0.5  1. ]``). Run in a fresh process, where
     colour is not imported yet."""
-    import subprocess
-    import sys
-
     code = ("import numpy as np, mcverify as mv\n"
             "np.set_printoptions(precision=3)\n"
             "before = np.get_printoptions()\n"
@@ -271,10 +262,7 @@ def test_the_perceptual_metrics_keep_the_caller_s_print_options():
             "r = mv.compare_images(ref + 0.01, ref, test_var=v, ref_var=v, test_n=4, ref_n=4)\n"
             "assert r.details['delta_e2000_mean'] is not None\n"
             "print(np.get_printoptions() == before, np.array([0.5, 1.0]))\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "True [0.5 1. ]"
+    assert run_python(code) == "True [0.5 1. ]"
 
 
 def test_a_black_reference_s_message_gives_no_percentage():

@@ -540,7 +540,7 @@ def test_the_convergence_table_states_its_intervals_confidence(report):
     assert " (99 %)</td>" in page
 
 
-def test_a_report_keeps_the_caller_s_matplotlib_backend_and_figures(tmp_path):
+def test_a_report_keeps_the_caller_s_matplotlib_backend_and_figures(tmp_path, run_python):
     """A program or notebook with its own backend and figures makes a report: the plots
     called ``matplotlib.use("Agg")``, which switched the caller's backend for the rest
     of the process (an interactive one's ``plt.show()`` then showed nothing; an outside
@@ -559,10 +559,7 @@ def test_a_report_keeps_the_caller_s_matplotlib_backend_and_figures(tmp_path):
         f"doc = build_report({str(tmp_path)!r}, suite=suite, study=None, extra_provenance={{}})\n"
         "assert 'failed_sqrt.png' in doc['images'], doc['images']\n"
         "print(matplotlib.get_backend(), plt.get_fignums())\n")
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "svg [1]"
+    assert run_python(script) == "svg [1]"
     assert (tmp_path / "failed_sqrt.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
