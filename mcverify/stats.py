@@ -398,7 +398,15 @@ class TailResult:
 def hill_tail_index(x, *, k: int | None = None, confidence: float = 0.999) -> TailResult:
     """Hill's estimator of the tail index from the ``k`` largest |x - median|.
 
-    ``k`` defaults to ``round(sqrt(n))``, a standard bias/variance compromise.
+    ``k`` defaults to ``round(sqrt(n))``, a standard bias/variance compromise, but to no
+    more than a tenth of the m samples off the median (and no fewer than sqrt(m)): the
+    tail of an estimator that is mostly one value (Russian roulette's zeros) is the tail
+    of its other values, and Hill's estimator must take a small share of those. With
+    sqrt(n) it took nearly all of them, the body down to 0, not a tail: bounded
+    estimators, roulette with q = 0.01 of f = x on [0, 1] (values up to 100, about 100
+    survivors in 10,000), had tail index 0.5, upper bound 0.7, and were called "variance
+    appears infinite" on half the seeds, of a lognormal(0, 1) on every seed at n = 1e5
+    (an outside review). Samples with no atom at their median keep k = sqrt(n).
     ``max_share`` is the largest single sample's share of the sum of squared
     deviations: near 1 means one sample dominates the variance estimate.
 
@@ -413,7 +421,10 @@ def hill_tail_index(x, *, k: int | None = None, confidence: float = 0.999) -> Ta
     ss = float(np.sum((y - y.mean()) ** 2))
     max_share = float(np.max((y - y.mean()) ** 2) / ss) if ss > 0 else 0.0
     n = dev.size
-    k = int(round(np.sqrt(n))) if k is None else int(k)
+    if k is None:
+        m = np.count_nonzero(dev)
+        k = min(round(np.sqrt(n)), max(round(np.sqrt(m)), m // 10))
+    k = int(k)
     k = max(2, min(k, n - 1))
     top = np.partition(dev, n - k - 1)[n - k - 1:]
     threshold = top.min()
