@@ -471,15 +471,18 @@ def variance_test(x, expected_variance: float, *, rounding: float = 0.0) -> Vari
     ``expected_variance == 0`` is the zero-variance ("perfect estimate") case: p = 1 iff
     the sample variance is 0 to rounding (≤ (1e-12 · max|x|)² · n, or ≤ (``rounding`` ·
     max|x|)², the values' own precision: float32 estimates are constant only to float32's
-    ulps), else p = 0.
+    ulps), else p = 0. It is judged on x / max|x|: on x itself the variance of estimates
+    below 1e-165 underflowed to 0 (uniform noise of that size passed as constant) and
+    (1e-12 · max|x|)² overflowed above 1e154 (Python's OverflowError; an outside review).
     """
     x = np.asarray(x, dtype=np.float64).ravel()
     n = x.size
-    s2 = float(np.var(x, ddof=1)) if n > 1 else 0.0
+    with np.errstate(over="ignore", under="ignore"):
+        s2 = float(np.var(x, ddof=1)) if n > 1 else 0.0
     if expected_variance == 0.0:
-        scale = float(np.max(np.abs(x))) if n else 0.0
-        ok = s2 <= max((1e-12 * max(scale, 1e-300)) ** 2 * n,
-                       (rounding * max(scale, 1e-300)) ** 2)
+        y, _ = _by_largest(x)
+        v = float(np.var(y, ddof=1)) if n > 1 else 0.0
+        ok = v <= max(1e-24 * n, rounding ** 2)
         return VarianceTestResult(s2, 0.0, 0.0 if ok else np.inf, 1.0 if ok else 0.0, n)
     # z is scale-free: computed on x / max|x|, so that the fourth moment cannot overflow
     y, c = _by_largest(x)

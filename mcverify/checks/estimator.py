@@ -267,18 +267,19 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
     with np.errstate(over="ignore", invalid="ignore"):
         r = stats.variance_test(x, ev, rounding=_rounding(samples))
     messages = []
-    # the zero-variance test's statistic is +inf for any variance above rounding: only
-    # the variance itself can overflow there
-    if not np.isfinite(r.variance) or (ev > 0.0 and not (np.isfinite(r.statistic)
-                                                          or r.statistic == -np.inf)):
+    if ev == 0.0:
+        # judged on the samples' own scale: neither an underflowing nor an overflowing
+        # variance matters to it, only how it is shown
+        p = None
+        if r.p_value == 0.0:
+            failures.append(f"expected zero variance (p ∝ f), measured "
+                            f"{_variance_shown(r.variance, x)}")
+    elif not (np.isfinite(r.variance) and (np.isfinite(r.statistic)
+                                           or r.statistic == -np.inf)):
         failures.append(f"the samples' variance or its standard error overflows float64 "
                         f"(largest |x| = {np.abs(x).max():.3g}): rescale the estimates "
                         "(e.g. divide f by a constant) before testing")
         p = None
-    elif ev == 0.0:
-        p = None
-        if r.p_value == 0.0:
-            failures.append(f"expected zero variance (p ∝ f), measured {r.variance:.3g}")
     else:
         p = r.p_value
         if p <= alpha:
@@ -291,6 +292,15 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
                        seconds=time.perf_counter() - t0,
                        details={"variance": r.variance, "expected_variance": ev},
                        messages=tuple(messages), failures=tuple(failures))
+
+
+def _variance_shown(variance: float, x: np.ndarray) -> str:
+    """A variance that is not 0 as text: itself where float64 holds it, else the standard
+    deviation (estimates of 1e-200 have a variance that underflows to 0, of 1e200 one
+    that overflows)."""
+    if np.isfinite(variance) and variance > 0.0:
+        return f"{variance:.3g}"
+    return f"a standard deviation of {stats.scaled_std(x, ddof=1):.3g}"
 
 
 def _rmse_rounding(v) -> float:

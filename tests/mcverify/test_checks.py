@@ -465,6 +465,22 @@ def test_zero_variance_when_p_proportional_to_f():
         f"expected zero variance (p ∝ f), measured {np.var(x / 2, ddof=1):.3g}",), r.failures
 
 
+@pytest.mark.parametrize("scale", [1e-200, 1e-170, 1e200, 1e300])
+def test_zero_variance_is_judged_at_the_samples_own_scale(scale):
+    """check_variance(x, 0) compared the variance of x itself with (1e-12 · max|x|)²:
+    noise of 1e-170 or 1e-200 has a variance that underflows to 0 and passed as a
+    perfect estimator, and at 1e200 the tolerance's square raised Python's bare
+    OverflowError (an outside review). It is now judged on x / max|x|: noise fails,
+    naming its standard deviation where float64 cannot hold its variance, and a
+    constant, or one to rounding, passes at any scale."""
+    u = np.random.default_rng(3).random(1000)
+    r = mv.check_variance(scale * u)
+    assert not r.passed and r.failures[0].startswith("expected zero variance"), r.failures
+    assert f"{scale * np.std(u, ddof=1):.3g}" in r.failures[0], r.failures
+    assert mv.check_variance(np.full(1000, scale)).passed
+    assert mv.check_variance(scale * (1 + 1e-15 * (np.arange(1000) % 3))).passed
+
+
 def test_a_perfect_float32_estimator_is_constant_to_float32_rounding():
     """A float32 renderer's f/p with p ∝ f is constant only to float32's ulps: its
     estimates of 0.1 are 0.1f ± an ulp (7e-9). Both checks allowed float64's rounding
