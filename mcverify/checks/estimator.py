@@ -204,7 +204,9 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
         if given and x.size > 1 else expected
     tt = stats.ttest_mean(x, near) if x.size > 1 else None
     tail = stats.hill_tail_index(x) if x.size >= _MIN_TAIL_SAMPLES else None
-    if tail is None:
+    if tt is None:      # NaN/Inf removed: the failure above says how many
+        failures.append(f"{x.size} finite sample(s) left: the t-test needs at least 2")
+    elif tail is None:
         messages.append(f"{x.size} samples: too few to test for a heavy tail; the t-test "
                         "assumes finite variance")
     heavy = tail is not None and tail.upper < _FINITE_VARIANCE_INDEX
@@ -224,7 +226,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
                         "f does not")
     elif tail is not None and tail.index < 4:
         messages.append(f"heavy tail (index {tail.index:.2f}): the mean converges slowly")
-    p = tt.p_value if tt is not None else 1.0
+    p = tt.p_value if tt is not None else None     # no test: not p = 1
     if tt is not None and p <= alpha:
         messages.append(f"mean {tt.mean:.6g} ± {tt.std_error:.2g} differs from {expected:.6g} "
                         f"by {abs(tt.statistic):.1f} standard errors")

@@ -469,6 +469,18 @@ def test_unbiased_says_the_variance_may_be_infinite_below_index_2():
     assert not any("infinite" in m for m in r.messages), r.messages
 
 
+@pytest.mark.parametrize("finite", [0, 1])
+def test_unbiased_of_fewer_than_two_finite_samples_reports_no_p_value(finite):
+    """Estimates that are all NaN but for `finite` of them: no t-test can run, yet the
+    result had p_value 1.0 ("FAIL unbiased p=1") and the note "0 samples: too few to
+    test for a heavy tail; the t-test assumes finite variance", as if a t-test had been
+    done (an outside review). It now has no p-value and says why, as check_variance
+    does."""
+    r = mv.check_unbiased(np.r_[np.full(100, np.nan), np.ones(finite)], 1.0)
+    assert not r.passed and r.p_value is None and not r.messages
+    assert r.failures[-1] == f"{finite} finite sample(s) left: the t-test needs at least 2"
+
+
 def test_zero_variance_when_p_proportional_to_f():
     u = np.random.default_rng(7).random(10_000)
     x = np.sqrt(u)                                  # p(x) = 2x on [0, 1]
