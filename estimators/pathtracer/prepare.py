@@ -249,10 +249,16 @@ class _Builder:
         in half precision where its ``format`` is "float16" (``accel``, GPU texture
         hardware in Mitsuba's CUDA variants, changes nothing here)."""
         fmt = tex.get("format", "variant")
-        if fmt not in ("variant", "float16"):
-            self.fail(tex, f"format {fmt!r}; supported: variant, float16 (Mitsuba refuses "
-                           "others too)")
-        img = self._image(tex, raw=bool(tex.get("raw", False)), half=fmt == "float16")
+        if fmt in ("auto", "uint8"):
+            # Mitsuba 3.9.1 takes these (texels held in the file's own type, or in 8 bits)
+            self.fail(tex, f"format {fmt!r} is not supported by the tracer; supported: "
+                           "variant, float16 (or fp16)")
+        if fmt not in ("variant", "float16", "fp16"):
+            self.fail(tex, f"format {fmt!r}; Mitsuba takes auto, variant, float16 (or fp16) "
+                           "and uint8, and refuses others; the tracer supports variant and "
+                           "float16")
+        img = self._image(tex, raw=bool(tex.get("raw", False)),
+                          half=fmt in ("float16", "fp16"))
         options = {}
         for name, names, default in (("filter_type", layout.FILTERS, "bilinear"),
                                      ("wrap_mode", layout.WRAPS, "repeat")):
