@@ -269,30 +269,45 @@ def as_array(what, v) -> np.ndarray:
         raise InvalidArgument(f"{what}: not an array of numbers ({e})") from None
 
 
-def not_a_tuple(name: str, x, n: int) -> None:
+def not_a_tuple(name: str, x, n: int, dim: int | None = None) -> None:
     """InvalidArgument where a sampler of points returned ``(points, pdf)`` or
     ``(points, pdf, weight)``, the tuple ``check_pdf_consistency``'s sampler returns: a
     BSDF's one ``sample`` handed to ``check_sampler`` failed as numpy's "inhomogeneous
     shape", or in 1-D and in ``check_inverse`` as points of shape (2, n), "transposed?
-    return points.T" (an outside review). A sequence of ``n`` rows is points."""
+    return points.T" (an outside review). A sequence of ``n`` rows is points. Arrays of
+    ``n`` values each, as many as the domain's ``dim`` (> 1), are the points' coordinates
+    as columns, ``(x, y, z)``, and are told to stack them (a read-only review: they were
+    told to pass ``sample(u)[0]``, a 1-D array); where ``dim`` is not known (the points'
+    dimension is the sampler's own) both readings are given."""
     if not isinstance(x, (tuple, list)) or len(x) not in (2, 3) or len(x) == n:
         return
     try:
         rows = len(x[0])
     except TypeError:
         return
-    if rows == n:
-        parts = "(points, pdf)" if len(x) == 2 else "(points, pdf, weight)"
-        raise InvalidArgument(f"{name} returned a {type(x).__name__} of {len(x)} arrays, "
-                              f"{parts} as check_pdf_consistency's sampler returns them: "
-                              f"this check takes the points alone; pass lambda u: "
-                              f"{name}(u)[0]")
+    if rows != n:
+        return
+    kind = type(x).__name__
+    columns = all(np.ndim(c) == 1 and len(c) == n for c in x)
+    stack = "return np.stack(..., axis=-1), a row of coordinates per draw"
+    if columns and dim is not None and dim > 1 and len(x) == dim:
+        raise InvalidArgument(f"{name} returned a {kind} of {len(x)} arrays of {n} values, "
+                              f"the points' coordinates as columns: {stack}")
+    parts = "(points, pdf)" if len(x) == 2 else "(points, pdf, weight)"
+    pick = f"this check takes the points alone; pass lambda u: {name}(u)[0]"
+    if columns and dim is None:
+        raise InvalidArgument(f"{name} returned a {kind} of {len(x)} arrays of {n} values: "
+                              f"if they are {parts}, as check_pdf_consistency's sampler "
+                              f"returns them, {pick}; if they are the points' coordinates "
+                              f"as columns, {stack}")
+    raise InvalidArgument(f"{name} returned a {kind} of {len(x)} arrays, {parts} as "
+                          f"check_pdf_consistency's sampler returns them: {pick}")
 
 
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
     """Output of a user callable as an (n, dim) array (float32 kept, anything else as
     float64), or InvalidArgument."""
-    not_a_tuple(name, x, n)
+    not_a_tuple(name, x, n, dim)
     a = as_array(lambda: f"{name} returned {_show(x)}", x)
     if not real_dtype(a.dtype):
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers")

@@ -288,10 +288,20 @@ API = [
                                         "square",
                                         n_samples=20_000),
      InvalidArgument, "sample_b returned a list of 2 arrays, (points, pdf)"),
+    # check_inverse knows no point dimension: 2 arrays of n values may be either
     ("inverse-sample-tuple", lambda: mv.check_inverse(lambda u: (u[:, 0], np.ones(len(u))),
                                                       lambda x: x, 1, n_samples=100),
-     InvalidArgument, "sample returned a tuple of 2 arrays, (points, pdf) as "
-     "check_pdf_consistency's sampler returns them"),
+     InvalidArgument, "sample returned a tuple of 2 arrays of 100 values: if they are "
+     "(points, pdf), as check_pdf_consistency's sampler returns them, this check takes the "
+     "points alone; pass lambda u: sample(u)[0]; if they are the points' coordinates as "
+     "columns, return np.stack(..., axis=-1)"),
+    # the coordinates as columns, (x, y, z): they were told to pass sample(u)[0], a 1-D
+    # array (a read-only review)
+    ("sampler-sample-columns",
+     lambda: mv.check_sampler(lambda u: tuple(W.sample_uniform_sphere(u).T),
+                              W.uniform_sphere_pdf, "sphere", n_samples=100_000),
+     InvalidArgument, "values, the points' coordinates as columns: return "
+     "np.stack(..., axis=-1), a row of coordinates per draw"),
     ("sampler-sample-dim-1e7", _sampler(sample_dim=10 ** 7, n_samples=100_000),
      InvalidArgument, "sample_dim=10000000: 65536 rows of it need"),
     # estimators
