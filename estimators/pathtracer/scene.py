@@ -342,9 +342,14 @@ class _Loader:
                       f"{node.attrib[name]!r}: a '$' that names no parameter")
         return value
 
-    def numbers(self, node, text, count):
+    def numbers(self, node, text, count, broadcast=True):
+        """``count`` numbers of ``text`` as Mitsuba reads them; with ``broadcast``, one
+        number stands for all three of a triple (an <rgb>, a point, a translate), which a
+        <lookat>'s origin, target and up do not take (Mitsuba: "expected 3 values in
+        vector"; a read-only review found origin="5" taken as (5, 5, 5))."""
+        broadcast = broadcast and count == 3
         want = ("a number" if count == 1 else "3 numbers, or one for all three"
-                if count == 3 else f"{count} numbers")
+                if broadcast else f"{count} numbers")
         # one number is the value alone (padded by ASCII spaces): Mitsuba refuses
         # "0.5," and ",0.5" for a <float>, though a list's tokenizer skips empty items
         tokens = [text.strip(SPACE)] if count == 1 else split_numbers(text)
@@ -352,7 +357,7 @@ class _Loader:
             vals = [parse_float(t) for t in tokens]
         except ValueError:
             self.fail(node, f"expected {want}, got {text!r}")
-        if len(vals) == 1 and count == 3:
+        if len(vals) == 1 and broadcast:
             vals = vals * 3
         if len(vals) != count:
             self.fail(node, f"expected {want}, got {text!r}")
@@ -406,10 +411,10 @@ class _Loader:
             self.check_attributes(op)     # Mitsuba refuses others (a typo, not a default)
             try:
                 if op.tag == "lookat":
-                    t = look_at(self.numbers(op, self.attr(op, "origin"), 3),
-                                self.numbers(op, self.attr(op, "target"), 3),
-                                self.numbers(op, self.attr(op, "up"), 3)
-                                if "up" in op.attrib else None)
+                    def triple(k):
+                        return self.numbers(op, self.attr(op, k), 3, broadcast=False)
+                    t = look_at(triple("origin"), triple("target"),
+                                triple("up") if "up" in op.attrib else None)
                 elif op.tag == "translate":
                     t = translate(self._xyz(op, 0.0))
                 elif op.tag == "scale":

@@ -1671,3 +1671,19 @@ def test_a_scene_argument_that_is_not_a_path_is_refused_naming_it(tmp_path):
         os.close(fd)
     with pytest.raises(TypeError, match=r"^text: expected the scene's XML as str or bytes"):
         parse_scene(None)
+
+
+@pytest.mark.parametrize("attr", ["origin", "target", "up"])
+def test_a_lookat_takes_three_numbers_each_as_mitsuba_does(mi, attr):
+    """A read-only review: a <lookat> origin="5" was taken as (5, 5, 5), as one number is
+    for an <rgb> or a translate, where Mitsuba refuses it ("expected 3 values in vector"),
+    so check --scene passed a scene whose reference build then failed."""
+    values = {"origin": "0, 0, 5", "target": "0, 0, 0", "up": "0, 1, 0"}
+    values[attr] = "5"
+    look = " ".join(f'{k}="{v}"' for k, v in values.items())
+    xml = ('<scene version="3.0.0"><sensor type="perspective"><transform name="to_world">'
+           f'<lookat {look}/></transform></sensor><shape type="sphere"/></scene>')
+    with pytest.raises(SceneError, match="expected 3 numbers, got '5'"):
+        parse_scene(xml)
+    with pytest.raises(RuntimeError, match="expected 3 values"):
+        mi.load_string(xml)
