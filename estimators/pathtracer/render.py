@@ -187,8 +187,11 @@ def _render_iv(spp, seed, passes, pdf_scale, params, variance, general=None,
 _FILM_BYTES_PER_PIXEL = 64
 
 
-#: Bytes a pixel of each pass takes while a render in passes holds them: its mean in
-#: float64 (24), the stack of them (24) and ``RenderResult.passes`` in float32 (12).
+#: Bytes a pixel of each pass takes while a render in passes holds them, at most: its
+#: mean in float64 (24) and the stack of them (24); then the stack and numpy's variance
+#: temporary (24 + 24), then the stack and ``RenderResult.passes`` in float32 (24 + 12).
+#: The means are let go once stacked (held through the variance, the peak was 72; a
+#: read-only review); 60 keeps a margin.
 _PASS_BYTES_PER_PIXEL = 60
 
 
@@ -405,6 +408,7 @@ def _render_passes(cs, spp, seed, passes, general, pdf_scale, progress) -> Rende
         nonfinite += stats["nonfinite_samples"]
         compile_seconds += stats["compile_seconds"]
     m = np.stack(means)
+    del means       # the stack holds them now: _PASS_BYTES_PER_PIXEL counts them once
     stats = dict(stats, passes=passes, spp_per_pass=per, nonfinite_samples=nonfinite,
                  compile_seconds=compile_seconds,
                  samples_per_second=cs.width * cs.height * per * passes / seconds)

@@ -669,3 +669,25 @@ def test_a_render_in_passes_counts_the_nonfinite_samples_of_every_pass(tmp_path)
     counts = [s["nonfinite_samples"] for s in alone]
     assert counts[-1] < sum(counts)
     assert r.stats["nonfinite_samples"] == sum(counts)
+
+
+def test_a_render_in_passes_holds_no_more_than_its_guard_counts():
+    """The passes' memory guard counts _PASS_BYTES_PER_PIXEL (60) a pixel a pass; the pass
+    means stayed referenced through the stack's variance, whose temporary is another
+    float64 image a pass: 74-81 bytes a pixel a pass at the peak (tracemalloc, 64 x 64,
+    8 and 32 passes), so a render the guard let through could exceed the memory it
+    checked (a read-only review). Now the means are let go once stacked."""
+    import tracemalloc
+
+    from estimators.pathtracer.render import _PASS_BYTES_PER_PIXEL
+
+    ps = prepare_scene("reference/scenes/white-furnace/scene.xml", params={"res": "64"})
+    render(ps, spp=2, passes=2, seed=0)         # compiled and warm before measuring
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        render(ps, spp=32, passes=32, seed=0)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    assert peak / (ps.width * ps.height * 32) <= _PASS_BYTES_PER_PIXEL, peak
