@@ -330,10 +330,16 @@ def rebuild_command(name: str, scene_path: str, manifest: dict | None = None) ->
     defaults: a splatting-filter scene's reference of 64 passes × 64 spp, rebuilt by the
     bare command at 16 × 256, was then refused by ``render-check`` at its defaults; and
     with its ``--seed`` where that is not 0, so that the command builds the same bits
-    (a reference built with ``--seed 5`` was to be rebuilt at seed 0)."""
+    (a reference built with ``--seed 5`` was to be rebuilt at seed 0). A name that
+    resolves in a folder other than the bundled scenes (``--refs DIR``,
+    ``$MCVERIFY_REFS``) comes with ``--refs DIR``: without it the pasted command rebuilt
+    the checkout's scene of that name, and DIR's stayed stale."""
     named = os.path.join(REFERENCE_ROOT, name, "scene.xml")
-    spec = name if os.path.abspath(named) == os.path.abspath(scene_path) else scene_path
-    return f"mcverify reference build {shlex.quote(spec)}{_build_options(manifest)}"
+    if os.path.abspath(named) != os.path.abspath(scene_path):
+        return f"mcverify reference build {shlex.quote(scene_path)}{_build_options(manifest)}"
+    refs = ("" if os.path.abspath(REFERENCE_ROOT) == os.path.abspath(BUNDLED_ROOT)
+            else f" --refs {shlex.quote(REFERENCE_ROOT)}")
+    return f"mcverify reference build {shlex.quote(name)}{_build_options(manifest)}{refs}"
 
 
 def _build_options(manifest: dict | None) -> str:

@@ -215,6 +215,33 @@ def test_the_rebuild_command_of_a_stale_reference_keeps_its_counts(scene_copy):
 
 
 
+def test_the_rebuild_command_of_a_scene_under_refs_names_that_folder(scene_copy, tmp_path):
+    """A stale reference of a scene found by name in ``--refs DIR`` named the command
+    `mcverify reference build cornell-box`, without ``--refs``: pasted into a shell, the
+    name resolved in the checkout's (or ``$MCVERIFY_REFS``') scenes, which it rebuilt,
+    and DIR's stayed stale. The command names DIR, and run as printed it rebuilds DIR's
+    (here with ``$MCVERIFY_REFS`` an empty folder, so the bare name would find nothing)."""
+    import shlex
+    scene = scene_copy / "scene.xml"
+    scene.write_text(scene.read_text().replace('name="res" value="64"', 'name="res" value="8"'))
+    reference.build_reference(str(scene_copy), spp=4, passes=2)
+    scene.write_text(scene.read_text().replace('value="17, 12, 4"', 'value="18, 12, 4"'))
+    refs = str(scene_copy.parent)
+    out = subprocess.run(CMD + ["render-check", "cornell-box", "--refs", refs, "-q"],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 2 and "stale" in out.stderr, out.stderr
+    command = shlex.split(out.stderr.split("run `", 1)[1].split("`", 1)[0])
+    assert command[:4] == ["mcverify", "reference", "build", "cornell-box"]
+    assert command[command.index("--refs") + 1] == refs
+    empty = tmp_path / "elsewhere"
+    empty.mkdir()
+    env = dict(os.environ, MCVERIFY_REFS=str(empty))
+    rebuilt = subprocess.run(CMD + command[1:] + ["-q"], capture_output=True, text=True,
+                             cwd=empty, env=env)
+    assert rebuilt.returncode == 0, rebuilt.stderr
+    assert reference.load_reference(str(scene_copy)).n == 2
+
+
 def test_the_rebuild_command_keeps_the_seed_so_it_builds_the_same_bits(scene_copy):
     """A reference built with ``--seed 5`` was to be rebuilt by a command without it, at
     seed 0: other pass seeds, other bits (the manifest kept the pass seeds only, not the
