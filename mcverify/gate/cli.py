@@ -886,7 +886,9 @@ def _expanded_glob(args, excess: bool) -> str:
     option took the first file and the others came as image arguments (``excess``), and
     the refusal listed them as images given in excess, or (after REF) as unrecognized
     arguments, never saying why (an outside review: ``--test-passes p_*.exr REF`` over
-    16 passes, 'got 16 image argument(s)')."""
+    16 passes, 'got 16 image argument(s)'). Both options are named where neither holds a
+    glob (it named --test-passes alone, while the files it listed were the reference
+    side's)."""
     if not excess:
         return ""
     given = [(opt, v) for opt, v in (("--test-passes", getattr(args, "test_passes", None)),
@@ -894,6 +896,11 @@ def _expanded_glob(args, excess: bool) -> str:
              if v is not None and not glob.has_magic(v)]
     if not given:
         return ""
+    if len(given) == 2:
+        return ("; the shell seems to have expanded the globs of --test-passes and "
+                f"--ref-passes (they got {given[0][1]} and {given[1][1]}, the other files "
+                "came as image arguments): quote them, as in --test-passes "
+                "'out/pass_*.exr', so that compare expands them")
     opt, first = given[0]
     return (f"; the shell seems to have expanded the glob of {opt} (it got {first}, "
             f"the other files came as image arguments): quote it, as in {opt} "

@@ -116,6 +116,12 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
     (["compare", "cornell-box", "--test-passes", "p_00.exr", "p_01.exr", "p_02.exr"],
      "unrecognized arguments: p_01.exr p_02.exr; the shell seems to have expanded the glob "
      "of --test-passes (it got p_00.exr"),
+    # both unquoted: both named (until 7 December only --test-passes, while the files
+    # listed as unrecognized were the reference side's; an outside review)
+    (["compare", "--test-passes", "p_0.exr", "p_1.exr", "--ref-passes", "r_0.exr",
+      "r_1.exr"], "unrecognized arguments: r_1.exr; the shell seems to have expanded the "
+     "globs of --test-passes and --ref-passes (they got p_0.exr and r_0.exr, the other "
+     "files came as image arguments): quote them"),
     (["compare", "cornell-box", "--test-passes", "p_00.exr", "--bogus"],
      "unrecognized arguments: --bogus (see"),
     (["compare", "r", "--test-passes", "p_*.exr", "--test-n", "4"],
@@ -127,7 +133,7 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
     (["compare", "cornell-box", "--test-passes", "p_*.exr", "--ref-spp", "64"],
      "--ref-spp 64: give --test-spp too"),
 ], ids=["no-ref", "two-positionals", "unquoted-test-glob", "unquoted-ref-glob",
-        "unquoted-glob-after-ref", "unknown-option-no-glob-hint",
+        "unquoted-glob-after-ref", "unquoted-globs-both-sides", "unknown-option-no-glob-hint",
         "n-with-passes", "no-var", "empty-glob", "spp-0",
         "ref-spp-alone"])
 def test_compare_bad_input_exit_2(tmp_path, args, needle):
