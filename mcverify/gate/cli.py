@@ -14,6 +14,7 @@ import dataclasses
 import glob
 import json
 import os
+import re
 import signal
 import sys
 import threading
@@ -907,6 +908,31 @@ def _expanded_glob(args, excess: bool) -> str:
             "'out/pass_*.exr', so that compare expands it")
 
 
+_COUNTS_NOTE = re.compile(r"check test_spp=(\d+) and ref_spp=(\d+) \(samples per value, "
+                          r"e\.g\. per pass\)")
+
+
+def _counts_note(message: str, args, ref_named: bool) -> str:
+    """``compare_images``' note on the two sides' per-sample variances in ``compare``'s
+    words: it said "check test_spp=64 and ref_spp=64", names of parameters the user never
+    gave, and an image whose --test-var was the variance of its mean, not of the
+    --test-n values averaged into it, was noted so with both counts right (an outside
+    review). It names the options, and each variance image given, as what else to
+    check."""
+    def say(m):
+        ref = (f"the reference's {m.group(2)} samples per pass (its manifest)" if ref_named
+               else f"--ref-spp {m.group(2)}")
+        text = (f"check --test-spp {m.group(1)} and {ref}, the samples in each value "
+                "averaged into a pixel (e.g. a pass)")
+        for opt, var, n in (("--test-var", args.test_var, args.test_n),
+                            ("--ref-var", args.ref_var, args.ref_n)):
+            if var is not None:
+                text += (f", and that {opt} ({var}) is the variance of the {n} values "
+                         "averaged into each pixel, not of their mean")
+        return text
+    return _COUNTS_NOTE.sub(say, message)
+
+
 def _channels_hint(test_shape, ref_shape) -> str:
     """Where only the channels differ, one or three: a luminance film's image against an
     RGB reference (or the other way round) was refused as a bare shape mismatch (an
@@ -1014,6 +1040,8 @@ def _cmd_compare(args) -> int:
                             **(dict(test_spp=args.test_spp, ref_spp=ref_spp)
                                if args.test_spp is not None else {}),
                             precision=stored[0] if stored else None)
+    result = dataclasses.replace(result, messages=tuple(
+        _counts_note(m, args, ref_load is None) for m in result.messages))
     for note in test.notes + (() if ref_load is None else ref.notes):
         print(f"notice: {note}", file=sys.stderr)
     if args.test_spp is None and min(test.n, ref_n) < FEW_PASSES:

@@ -86,6 +86,27 @@ def test_compare_two_renderers_pass_folders_end_to_end(tmp_path):
     assert r.returncode == 2 and "is on both sides of the comparison" in r.stderr, r.stderr
 
 
+def test_compare_notes_the_sample_counts_by_its_options_and_a_variance_of_the_mean(tmp_path):
+    """An image whose --test-var is the variance of its mean, not of the --test-n passes
+    averaged into it (a renderer's "variance of the estimate", n times too small), with
+    the right counts: the note said "check test_spp=64 and ref_spp=64", names of
+    ``compare_images``' parameters the user never gave, and counts that were right. It
+    names the options and says what else to check."""
+    ref = _write(tmp_path / "ref", _mitsuba_passes(0))
+    passes = _mitsuba_passes(1000).astype(np.float64)
+    mean, var = str(tmp_path / "mean.exr"), str(tmp_path / "var.exr")
+    mvm.write_exr(mean, passes.mean(0).astype(np.float32))
+    mvm.write_exr(var, (passes.var(0, ddof=1) / 16).astype(np.float32))
+    r = subprocess.run(CMD + ["compare", mean, "--ref-passes", ref, "--test-var", var,
+                              "--test-n", "16", "--test-spp", "64", "--ref-spp", "64"],
+                       capture_output=True, text=True, timeout=300)
+    note = [line for line in r.stdout.splitlines() if "note: per sample" in line]
+    assert r.returncode in (0, 1) and len(note) == 1, r.stdout + r.stderr
+    assert "test_spp=" not in note[0] and "check --test-spp 64 and --ref-spp 64" in note[0]
+    assert f"that --test-var ({var}) is the variance of the 16 values averaged into " \
+           "each pixel, not of their mean" in note[0], note[0]
+
+
 def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
     """A reference of 2 passes compared without --test-spp: the variance floor is off,
     and passes that all missed a rare path read as confident evidence; ``compare`` says
