@@ -299,6 +299,34 @@ def _samples_per_value(n, spp: int) -> int | None:
     return spp // n if whole and 0 < n <= spp and spp % n == 0 else None
 
 
+def _spp_example(scene, spp: int, passes: int, params) -> int:
+    """An ``spp`` near the one asked that the gate takes with ``passes``: at least
+    ``MIN_SPP_PER_PASS`` a pass, and for a scene whose filter splats the reference's
+    samples a pass (or, without a reference, what its sampler renders for the count):
+    such a scene compares only at equal samples per pass, and 512 was suggested for an
+    orthogonal sampler's scene whose reference has 121 a pass, then refused (an outside
+    review). A scene that cannot be read yet gets the plain example (it is refused
+    after, naming what is wrong)."""
+    from . import mitsuba as mvm
+    from . import reference
+
+    per = max(spp // passes, MIN_SPP_PER_PASS)
+    try:
+        _, path = reference.resolve_scene(scene)
+        subject = _compiled(path, tuple(sorted((params or {}).items())), (),
+                            reference.scene_stamp(path, params))
+        if not subject.camera.splats:
+            return per * passes
+        if not params:
+            try:
+                return int(reference.load_reference(path).manifest["spp"]) * passes
+            except (MissingReference, InvalidArgument, EnvironmentProblem):
+                pass
+        return mvm.sampler_rounds(subject.desc.sampler, per) * passes
+    except (InvalidArgument, EnvironmentProblem):
+        return per * passes
+
+
 def _samples_kept(path, subject, spp: int, passes: int) -> None:
     """Refuse, before Mitsuba renders a reference for a scene whose filter splats, a
     count of samples per pass that the scene's sampler rounds (stratified: up to a
@@ -611,11 +639,11 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                                   "<default> values)")
     else:
         if spp % passes:    # the passes are equal: none of the spp may be dropped unsaid
-            # the example is one the next check accepts: spp=100, passes=16 suggested 96,
+            # the example is one the next checks accept: spp=100, passes=16 suggested 96,
             # 6 a pass, which was then refused as fewer than 32 a pass
             raise InvalidArgument(f"spp={spp}, passes={passes}: spp must be a multiple of "
                                   f"passes (each pass renders spp / passes samples); e.g. "
-                                  f"spp={max(spp // passes, MIN_SPP_PER_PASS) * passes}")
+                                  f"spp={_spp_example(scene, spp, passes, params)}")
         if passes < 2 or spp < MIN_SPP_PER_PASS * passes:
             raise InvalidArgument(f"spp={spp}, passes={passes}: need passes >= 2 and at least "
                                   f"{MIN_SPP_PER_PASS} samples per pass (pass means of fewer "

@@ -443,6 +443,36 @@ def test_render_check_suggests_an_spp_it_accepts(spp, passes):
     assert "/nonexistent/scene.xml" in str(info.value), str(info.value)
 
 
+def _suggested(scene, spp, passes):
+    with pytest.raises(InvalidArgument) as info:
+        mv.render_check(scene, spp=spp, passes=passes, build_missing=False)
+    return int(str(info.value).rsplit("e.g. spp=", 1)[1])
+
+
+def test_render_check_suggests_the_samples_a_pass_a_splatting_scene_compares_at(tmp_path):
+    """A scene whose filter splats compares only at its reference's samples a pass (or,
+    with no reference yet, at the count its sampler renders): spp=100, passes=16
+    suggested 512 there, which the next check refused, wanting 1024 (a committed
+    reference of 64 a pass), or 1936 for an orthogonal sampler's 121 (an outside
+    review). The suggestion is now one those checks take."""
+    from mcverify.gate.render_check import _compiled, _samples_kept
+
+    ref = reference.load_reference("filters-gaussian")
+    per = int(ref.manifest["spp"])
+    assert _suggested("filters-gaussian", 100, 16) == per * 16
+    assert _suggested("cornell-box", 100, 16) == 32 * 16           # a box filter: any
+    scene = tmp_path / "ortho" / "scene.xml"
+    scene.parent.mkdir()
+    shutil.copy(os.path.join(reference.REFERENCE_ROOT, "filters-gaussian", "scene.xml"),
+                scene)
+    scene.write_text(scene.read_text().replace('type="independent"', 'type="orthogonal"'))
+    assert 'type="orthogonal"' in scene.read_text()
+    suggested = _suggested(str(scene), 100, 16)
+    assert suggested == 49 * 16, suggested          # 32 a pass: a prime's square, 7²
+    _samples_kept(str(scene), _compiled(str(scene), (), (), reference.scene_stamp(
+        str(scene), None)), suggested, 16)          # taken: no InvalidArgument
+
+
 SCENES = [
     ("obj-dev-zero", "obj-dev-zero.xml", "/dev/zero is not a regular file"),
     ("obj-over-cap", "obj-huge.xml", "MiB limit"),
