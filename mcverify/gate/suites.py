@@ -224,7 +224,11 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
                                         sample_dim=w.sample_dim, name="sampler:" + w.name,
                                         batches=BATCHES, stop_alpha=stop_alpha)
 
-        out.append(Check("sampler:" + w.name, run, ("mitsuba", SCALABLE),
+        # not SCALABLE: --budget keeps Mitsuba's warps at the profile's n, whose seeded
+        # streams do not hold the u at which Mitsuba 3.9.1's Beckmann warp returns a
+        # horizon direction of pdf 0 (or NaN); at the 5.4e7 a 20 s budget gave it, it
+        # failed on each of 4 seeds, a false failure of the gate (an outside review)
+        out.append(Check("sampler:" + w.name, run, ("mitsuba",),
                          frozenset({("sampler", w.name)}), sequential=True))
         if w.invert is not None:
             def run_inv(seed, w=w):
@@ -421,9 +425,12 @@ def build_suite(name: str = "default", n_overrides: tuple[tuple[str, int], ...] 
                                   "pairs")
         check, n = pair
         if check not in scalable:
-            raise InvalidArgument(f"n_overrides: {check!r} is not a sampler check of suite "
-                                  f"{name!r} (`mcverify list --suite {name}` names them; "
-                                  "only those tagged scalable take an n)")
+            what = ("keeps its n (Mitsuba's own warps stay at the suite's n)"
+                    if check in {c.name for c in out} and "mitsuba" in check else
+                    "is not a sampler check of suite " + repr(name))
+            raise InvalidArgument(f"n_overrides: {check!r} {what} (`mcverify list --suite "
+                                  f"{name}` names them; only those tagged scalable take an "
+                                  "n)")
         validate.integer(f"n_overrides[{check!r}]", n, minimum=1)
     return _sourced(out, build_suite, name, *((tuple(n_overrides),) if n_overrides else ()))
 

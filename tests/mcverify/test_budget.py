@@ -271,11 +271,15 @@ def test_detectable_contamination_counts_the_acceptance_test(dom, sample, pdf):
     ((("sampler:ggx(alpha=0.5)", 1 << 17),), "not a sampler check of suite 'default'"),
     ((("sampler:cosine_hemisphere ", 1 << 17),), "not a sampler check of suite 'default'"),
     ((("inverse:cosine_hemisphere", 1 << 17),), "not a sampler check of suite 'default'"),
+    # Mitsuba's Beckmann warp fails at the n a budget gave it (its own horizon bug, on 4
+    # of 4 seeds at 5.4e7): Mitsuba's warps keep the suite's n (an outside review)
+    ((("sampler:mitsuba.beckmann", 1 << 17),), "'sampler:mitsuba.beckmann' keeps its n"),
     ((("sampler:cosine_hemisphere", 0),), "must be >= 1"),
     ((("sampler:cosine_hemisphere", 1.5e6),), "must be an integer"),
     ((("sampler:cosine_hemisphere", "131072"),), "must be an integer"),
     ((("sampler:cosine_hemisphere",),), "(check name, n_samples) pairs"),
-], ids=["other-suite", "typo", "not-scalable", "zero", "float", "string", "not-a-pair"])
+], ids=["other-suite", "typo", "not-scalable", "mitsuba-warp", "zero", "float", "string",
+        "not-a-pair"])
 def test_build_suite_refuses_n_overrides_it_cannot_apply(overrides, needle):
     """The README's rerun recipe gives a budget run's chosen n to ``build_suite``: an
     override it could not apply was silently dropped (a rerun at other n than the JSON
