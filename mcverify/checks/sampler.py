@@ -847,7 +847,7 @@ _TELLING_INTEGRALS = (
 def _integral_note(total: float, dom: Domain) -> str:
     """A guess at the mistake where a pdf integrates to a telling factor (within 0.5 %):
     2 on the sphere or hemisphere is a density per projected solid angle given for one
-    per solid angle, π, 2π or 4π a normalisation left out; until 8 December such a pdf
+    per solid angle, π, 2π or 4π a normalisation left out; until 7 December such a pdf
     failed as 'integrates to 2, not 1' and no more (an outside review)."""
     for factor, kinds, why in _TELLING_INTEGRALS:
         if (kinds is None or dom.kind in kinds) and abs(total / factor - 1.0) <= 5e-3:

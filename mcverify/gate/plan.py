@@ -196,7 +196,7 @@ def roulette_unused(desc) -> str:
     plays from ``rr_depth`` bounces on (Mitsuba's default 5), and a path of ``max_depth``
     vertices ends after ``max_depth`` - 1 bounces, so with 0 <= max_depth <= rr_depth no
     path reaches it (the roulette's estimator check was planned for such a scene until
-    8 December, an image it decides nothing in)."""
+    7 December, an image it decides nothing in)."""
     integ = desc.integrator
     if integ.type != "path":
         return ""

@@ -572,7 +572,7 @@ def test_a_reference_point_on_a_light_is_skipped_for_that_light(tmp_path):
         ["sampler:tracer.emitter:edge/light1:area:disk@ref=(0,0,0)"]
     assert any("light0" in c.name for c in emitters)
     # both planar lights face down, away from every other point: each is also checked
-    # from a point below it (until 8 December those checks tested nothing)
+    # from a point below it (until 7 December those checks tested nothing)
     assert {c.name.split("/")[1] for c in emitters if "-" in c.name.split("@")[1]} == \
         {"light0:area:triangles@ref=(0,-2.45,0)", "light1:area:disk@ref=(0,-4.45,0)"}
     n, bad = _family_passes(emitters, seed=4)
