@@ -290,9 +290,14 @@ def not_a_tuple(name: str, x, n: int, dim: int | None = None) -> None:
     kind = type(x).__name__
     columns = all(np.ndim(c) == 1 and len(c) == n for c in x)
     stack = "return np.stack(..., axis=-1), a row of coordinates per draw"
-    if columns and dim is not None and dim > 1 and len(x) == dim:
+    if columns and dim is not None and dim > 1:
+        # on a domain of points of dim coordinates a 1-D array is no points: never (points,
+        # pdf); (θ, φ) on the sphere are parameters, not its 3 coordinates (a read-only
+        # review: told to pass sample(u)[0], which failed again)
+        also = ("" if len(x) == dim else f"; the {dim} coordinates of the domain's points, "
+                "not their parameters")
         raise InvalidArgument(f"{name} returned a {kind} of {len(x)} arrays of {n} values, "
-                              f"the points' coordinates as columns: {stack}")
+                              f"the points' coordinates as columns? {stack}{also}")
     parts = "(points, pdf)" if len(x) == 2 else "(points, pdf, weight)"
     pick = f"this check takes the points alone; pass lambda u: {name}(u)[0]"
     if columns and dim is None:

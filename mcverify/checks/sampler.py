@@ -831,10 +831,10 @@ _MIRRORS = (("-x", np.array([-1.0, -1.0, -1.0]),
 _TELLING_INTEGRALS = (
     (2.0, (kernels.SPHERE, kernels.HEMISPHERE),
      "a density per projected solid angle (divided by cos θ) where one per solid angle "
-     "is meant"),
+     "is meant, or the hemisphere's 1/(2π) where the sphere's 1/(4π) is"),
     (0.5, (kernels.SPHERE, kernels.HEMISPHERE),
-     "a density per solid angle where one per projected solid angle (divided by cos θ) "
-     "is meant"),
+     "the sphere's 1/(4π) where the hemisphere's 1/(2π) is meant, or a lobe's weight "
+     "of 1/2 applied twice"),
     (np.pi, None, "a factor π too many (1/π left out)"),
     (1.0 / np.pi, None, "a factor 1/π too many"),
     (2.0 * np.pi, None, "a factor 2π too many (the azimuth's 1/(2π) left out)"),

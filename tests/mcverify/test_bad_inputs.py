@@ -300,8 +300,14 @@ API = [
     ("sampler-sample-columns",
      lambda: mv.check_sampler(lambda u: tuple(W.sample_uniform_sphere(u).T),
                               W.uniform_sphere_pdf, "sphere", n_samples=100_000),
-     InvalidArgument, "values, the points' coordinates as columns: return "
+     InvalidArgument, "values, the points' coordinates as columns? return "
      "np.stack(..., axis=-1), a row of coordinates per draw"),
+    # (θ, φ) on the sphere: parameters, never (points, pdf) on a 3-D domain
+    ("sampler-sample-angles",
+     lambda: mv.check_sampler(lambda u: (np.arccos(1 - 2 * u[:, 0]), 2 * np.pi * u[:, 1]),
+                              W.uniform_sphere_pdf, "sphere", n_samples=100_000),
+     InvalidArgument, "a row of coordinates per draw; the 3 coordinates of the domain's "
+     "points, not their parameters"),
     ("sampler-sample-dim-1e7", _sampler(sample_dim=10 ** 7, n_samples=100_000),
      InvalidArgument, "sample_dim=10000000: 65536 rows of it need"),
     # estimators

@@ -504,7 +504,8 @@ def test_zero_variance_is_judged_at_the_samples_own_scale(scale):
     r = mv.check_variance(scale * u)
     assert not r.passed and r.failures[0].startswith("expected zero variance"), r.failures
     assert f"{scale * np.std(u, ddof=1):.3g}" in r.failures[0], r.failures
-    assert mv.check_variance(np.full(1000, scale)).passed
+    constant = mv.check_variance(np.full(1000, scale))
+    assert constant.passed and constant.details["variance"] == 0.0, constant.details
     assert mv.check_variance(scale * (1 + 1e-15 * (np.arange(1000) % 3))).passed
 
 
@@ -1402,10 +1403,12 @@ def test_a_float32_expected_value_widens_only_its_own_comparison():
 @pytest.mark.parametrize("pdf,domain,guess", [
     (lambda x: np.full(len(x), 1.0 / np.pi), "hemisphere",
      "a density per projected solid angle (divided by cos θ) where one per solid angle is "
-     "meant?"),
-    (lambda x: x[:, 2] / (2.0 * np.pi), "hemisphere",
-     "a density per solid angle where one per projected solid angle (divided by cos θ) is "
-     "meant?"),
+     "meant, or the hemisphere's 1/(2π) where the sphere's 1/(4π) is?"),
+    # the check integrates per solid angle: 1/2 is the sphere's constant on the hemisphere
+    # (a read-only review: it was called a density per solid angle, which is never wrong)
+    (lambda x: np.full(len(x), 0.25 / np.pi), "hemisphere",
+     "the sphere's 1/(4π) where the hemisphere's 1/(2π) is meant, or a lobe's weight of 1/2 "
+     "applied twice?"),
     (lambda x: np.full(len(x), 1.0), "sphere", "a factor 4π too many (1/(4π) left out)?"),
     (lambda x: x[:, 2], "hemisphere", "a factor π too many (1/π left out)?"),
 ])
