@@ -434,19 +434,27 @@ def _cmd_check(args) -> int:
                 f"{plan.predicted_seconds:.1f}s; start-up {plan.startup_seconds:.1f}s, "
                 f"calibration {plan.calibration_seconds:.1f}s with the fixed-size checks "
                 f"and canaries it also timed)")
+        # Mitsuba's own warps keep the suite's n (not scalable): said, not left out of a
+        # line about "sampler checks" (a read-only review)
+        kept = [r for r in result.results
+                if r.name.startswith("sampler:") and r.name not in plan.n_samples]
+        tail = (f"; {len(kept)} kept the suite's n, Mitsuba's own warps, which a budget "
+                f"does not scale ({', '.join(f'{r.name} at {r.n_samples:,}' for r in kept)})"
+                if kept else "")
         if ns and seen:
             worst = max(seen, key=seen.get)
             print(f"{head}: sampler checks at n = {ns[0]:,} to {ns[-1]:,}; each catches "
                   f"uniform contamination of {100 * seen[worst]:.2g} % or less at 95 % "
-                  f"power (worst: {worst})")
+                  f"power (worst: {worst}){tail}")
         elif ns:
             # said, not left out: a uniform pdf is what uniform contamination leaves alone
             print(f"{head}: sampler checks at n = {ns[0]:,} to {ns[-1]:,}; their pdfs are "
-                  "uniform, which uniform contamination does not change: no power figure")
+                  f"uniform, which uniform contamination does not change: no power "
+                  f"figure{tail}")
         else:
             # said, not left out: a -k without sampler checks has nothing to scale
-            print(f"{head}: no sampler check selected, nothing to scale; every check ran "
-                  "at its fixed size")
+            print(f"{head}: no sampler check of ours selected, nothing to scale; every "
+                  f"check ran at its fixed size{tail}")
     n = len(result.results)
     print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
           f" (family-wise alpha={args.alpha} by {result.correction}; canaries "

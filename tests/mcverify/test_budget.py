@@ -178,7 +178,20 @@ def test_cli_budget_without_a_sampler_check_says_so():
                         "inverse:cosine_hemisphere", "-q"],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "budget 2s" in r.stdout and "no sampler check selected" in r.stdout, r.stdout
+    assert "budget 2s" in r.stdout and "no sampler check of ours selected" in r.stdout, \
+        r.stdout
+
+
+def test_cli_budget_says_mitsubas_warps_kept_their_n():
+    """Mitsuba's own warps are not scaled by a budget (its Beckmann warp's horizon bug):
+    the budget line said "no sampler check selected" of a run that ran one (a read-only
+    review); it names them and their n."""
+    r = subprocess.run([sys.executable, "-m", "mcverify", "check", "--budget", "2", "-k",
+                        "sampler:mitsuba.uniform_sphere", "-q"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert ("1 kept the suite's n, Mitsuba's own warps, which a budget does not scale "
+            "(sampler:mitsuba.uniform_sphere at 1,000,000)") in r.stdout, r.stdout
 
 
 def test_cli_budget_of_uniform_pdfs_says_what_it_took():
