@@ -8,6 +8,9 @@ Fixtures:
   failures and messages (p-value, worst cell, ``u -> x -> u'`` chain) and the seeds
   (the check's, where it records one, and ``--mcverify-seed``) when it did not pass.
 
+Both are session-scoped, so fixtures of any scope (a session fixture that renders a
+reference once with the seed) can use them.
+
 The run's ``--mcverify-seed`` is in pytest's header.
 
 Under pytest-xdist (``-n N``), each worker's numba parallel loops get an equal share of
@@ -86,12 +89,14 @@ def pytest_report_header(config):
     return f"mcverify: --mcverify-seed={config.getoption('mcverify_seed')}"
 
 
-@pytest.fixture
+# Session-scoped, as the run's seed and checker are: a session fixture that renders a
+# reference once with the seed could not request them (pytest's ScopeMismatch).
+@pytest.fixture(scope="session")
 def mcverify_seed(request) -> int:
     return request.config.getoption("--mcverify-seed")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def assert_check(request):
     run_seed = request.config.getoption("mcverify_seed")
 

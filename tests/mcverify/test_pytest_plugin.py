@@ -113,3 +113,21 @@ def test_the_seed_is_in_the_header_and_in_a_failure(tmp_path):
     assert r.returncode == pytest.ExitCode.TESTS_FAILED, (r.stdout, r.stderr)
     assert "mcverify: --mcverify-seed=41" in r.stdout, r.stdout
     assert "check seed=42; run with --mcverify-seed=41" in r.stdout, r.stdout
+
+
+def test_the_fixtures_serve_a_session_scoped_fixture(tmp_path):
+    """Both fixtures were function-scoped, so a session fixture that renders a reference
+    once with the run's seed (or a module fixture that checks it) stopped every test with
+    pytest's ScopeMismatch; the seed and the checker are the run's, not a test's."""
+    (tmp_path / "test_x.py").write_text(
+        "import pytest\n"
+        "import mcverify as mv\n"
+        "@pytest.fixture(scope='session')\n"
+        "def ref(mcverify_seed, assert_check):\n"
+        "    return mcverify_seed, assert_check(mv.check_unbiased([1.0, 1.0], 1.0))\n"
+        "def test_x(ref, mcverify_seed):\n"
+        "    assert ref[0] == mcverify_seed == 5 and ref[1].passed\n")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        "--mcverify-seed", "5", str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
