@@ -19,9 +19,9 @@ processes do: N workers each running every core's worth of OpenMP threads wait f
 descheduled threads and spin (measured on 2 cores, ``-n 2``, three of mcverify's judge
 test files: 115-124 s wall and 181-196 s of CPU with two threads a worker, 75 s and
 96-100 s with one). The mcverify runs a test starts get the same share (the worker sets
-``MCVERIFY_NUM_THREADS``, which the CLI reads): a CLI run of 2 threads beside a busy
-worker paid about 7 ms for every parallel loop it started, waiting for its descheduled
-second thread. Results do
+``MCVERIFY_NUM_THREADS``, which the CLI reads, unless the user set it): a CLI run of 2
+threads beside a busy worker paid about 7 ms for every parallel loop it started, waiting
+for its descheduled second thread. Results do
 not depend on the thread count. ``--mcverify-all-threads`` keeps numba's default in every
 worker.
 
@@ -80,8 +80,10 @@ def pytest_configure(config):
         numba.set_num_threads(threads)
         # The mcverify runs the tests start read the share from the environment (not
         # NUMBA_NUM_THREADS: numba re-reads that in this process too, and refuses a change
-        # once its threads run).
-        os.environ["MCVERIFY_NUM_THREADS"] = str(threads)
+        # once its threads run). A value the user set is theirs: it was overwritten, so
+        # MCVERIFY_NUM_THREADS=1 pytest -n 2 ran those runs on half the cores each.
+        if not os.environ.get("MCVERIFY_NUM_THREADS", "").strip():
+            os.environ["MCVERIFY_NUM_THREADS"] = str(threads)
 
 
 def pytest_report_header(config):

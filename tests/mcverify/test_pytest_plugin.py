@@ -131,3 +131,21 @@ def test_the_fixtures_serve_a_session_scoped_fixture(tmp_path):
                         "--mcverify-seed", "5", str(tmp_path / "test_x.py")],
                        cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
+
+
+def test_a_thread_count_the_user_set_is_kept_for_the_runs_tests_start(tmp_path):
+    """Each pytest-xdist worker set MCVERIFY_NUM_THREADS to its share whatever it held:
+    ``MCVERIFY_NUM_THREADS=1 pytest -n 2`` on 4 threads ran the tests' mcverify commands
+    on 2 threads each."""
+    import os
+
+    (tmp_path / "test_x.py").write_text(
+        "import os\n"
+        "def test_x():\n"
+        "    assert os.environ['PYTEST_XDIST_WORKER'] and "
+        "os.environ['MCVERIFY_NUM_THREADS'] == '1'\n")
+    env = {**os.environ, "MCVERIFY_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "4"}
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        "-n", "2", str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
