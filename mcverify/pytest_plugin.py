@@ -5,8 +5,9 @@ Fixtures:
 - ``mcverify_seed``: the seed for this run (``--mcverify-seed``, default 0), so a CI
   job can pin or vary it.
 - ``assert_check``: call it on a ``CheckResult``; it fails the test with the check's
-  failures and messages (p-value, worst cell, ``u -> x -> u'`` chain) and the seeds
-  (the check's, where it records one, and ``--mcverify-seed``) when it did not pass.
+  failures and messages (p-value, worst cell, ``u -> x -> u'`` chain), the line of the
+  call (``failed at tests/test_x.py:12``) and the seeds (the check's, where it records
+  one, and ``--mcverify-seed``) when it did not pass.
 
 Both are session-scoped, so fixtures of any scope (a session fixture that renders a
 reference once with the seed) can use them.
@@ -35,6 +36,7 @@ Example::
 from __future__ import annotations
 
 import os
+import sys
 
 import pytest
 
@@ -91,6 +93,18 @@ def pytest_report_header(config):
     return f"mcverify: --mcverify-seed={config.getoption('mcverify_seed')}"
 
 
+def _caller(rootpath) -> str:
+    """``file:line`` of the call of ``assert_check`` (the failure has no traceback, and two
+    checks of one sampler in a test read alike), past the frames that hide themselves
+    from tracebacks (``__tracebackhide__``, a user's helper), as pytest reads them."""
+    frame = sys._getframe(2)
+    while frame.f_back is not None and frame.f_locals.get("__tracebackhide__"):
+        frame = frame.f_back
+    path = os.path.abspath(frame.f_code.co_filename)
+    rel = os.path.relpath(path, rootpath)
+    return f"{path if rel.startswith(os.pardir) else rel}:{frame.f_lineno}"
+
+
 # Session-scoped, as the run's seed and checker are: a session fixture that renders a
 # reference once with the seed could not request them (pytest's ScopeMismatch).
 @pytest.fixture(scope="session")
@@ -113,6 +127,7 @@ def assert_check(request):
             # the summary line carries the failures already; messages not repeated
             lines = [result.summary(), *dict.fromkeys(m for m in result.messages
                                                       if m not in result.failures)]
+            lines.append(f"failed at {_caller(request.config.rootpath)}")
             seed = result.details.get("seed")
             lines.append(("" if seed is None else f"check seed={seed}; ")
                          + f"run with --mcverify-seed={run_seed}")

@@ -149,3 +149,26 @@ def test_a_thread_count_the_user_set_is_kept_for_the_runs_tests_start(tmp_path):
                         "-n", "2", str(tmp_path / "test_x.py")],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
+
+
+def test_a_failure_says_which_call_failed(tmp_path):
+    """A failed check showed its summary and nothing of where: in a test that checks the
+    same sampler twice (two resolutions) the two failures read alike. The line of the
+    assert_check call is given, or of the call of a helper that hides itself from
+    tracebacks (``__tracebackhide__``), as pytest's own frames are read."""
+    (tmp_path / "test_x.py").write_text(
+        "import mcverify as mv\n"
+        "def helper(assert_check, r):\n"
+        "    __tracebackhide__ = True\n"
+        "    assert_check(r)\n"
+        "def test_x(assert_check):\n"
+        "    assert_check(mv.check_unbiased([1.0, 1.0], 1.0))\n"
+        "    assert_check(mv.check_unbiased([0.0, 1.0] * 50, 2.0))\n"
+        "def test_y(assert_check):\n"
+        "    helper(assert_check, mv.check_unbiased([0.0, 1.0] * 50, 2.0))\n")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.TESTS_FAILED, (r.stdout, r.stderr)
+    assert "failed at test_x.py:7\n" in r.stdout, r.stdout
+    assert "failed at test_x.py:9\n" in r.stdout, r.stdout
