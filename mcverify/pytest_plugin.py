@@ -109,11 +109,15 @@ def _caller(rootpath) -> str:
 # reference once with the seed could not request them (pytest's ScopeMismatch).
 @pytest.fixture(scope="session")
 def mcverify_seed(request) -> int:
+    """The seed of this run for mcverify checks (``--mcverify-seed``, default 0; in
+    pytest's header): pass it as the checks' ``seed``."""
     return request.config.getoption("--mcverify-seed")
 
 
 @pytest.fixture(scope="session")
 def assert_check(request):
+    """Call it on a mcverify ``CheckResult``: returns it if it passed, else fails the test
+    with its summary and messages, the line of the call and the seeds to rerun it."""
     run_seed = request.config.getoption("mcverify_seed")
 
     def check(result):

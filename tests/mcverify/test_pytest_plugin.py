@@ -172,3 +172,17 @@ def test_a_failure_says_which_call_failed(tmp_path):
     assert r.returncode == pytest.ExitCode.TESTS_FAILED, (r.stdout, r.stderr)
     assert "failed at test_x.py:7\n" in r.stdout, r.stdout
     assert "failed at test_x.py:9\n" in r.stdout, r.stdout
+
+
+def test_pytest_fixtures_describes_both_fixtures(tmp_path):
+    """``pytest --fixtures``, where a team finds what a plugin offers, said "no docstring
+    available" for both."""
+    (tmp_path / "test_x.py").write_text("def test_x():\n    pass\n")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
+                        "--fixtures", str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
+    ours = r.stdout.split("fixtures defined from mcverify.pytest_plugin")[1]
+    ours = ours.split("fixtures defined from")[0].split("=====")[0]
+    assert "no docstring" not in ours and "--mcverify-seed" in ours, ours
+    assert "CheckResult" in ours, ours
