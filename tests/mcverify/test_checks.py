@@ -201,6 +201,10 @@ def test_inverse_round_trip_and_wrong_inverse():
     bad = mv.check_inverse(lambda u: W.sample_uniform_cone(u, 0.5),
                            lambda x: W.invert_uniform_cone(x, 0.6), 2)
     assert not bad.passed and "u=" in bad.failures[0] and "-> u'=" in bad.failures[0]
+    # the worst round trip is said once: in the failure, not again as a message (an
+    # outside review); a passing check gives it as its message
+    assert not any("-> u'=" in m for m in bad.messages), bad.messages
+    assert ok.messages[0].startswith("worst round trip: u=")
 
 
 def _disk32(u):
