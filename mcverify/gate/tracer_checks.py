@@ -127,6 +127,20 @@ def _both_sides(bi, b: int) -> bool:
     return bool(bi[b, layout.BSDF_TWOSIDED]) or kind == layout.ROUGHDIELECTRIC
 
 
+def _light_triangles(a, k: int):
+    """(rows, vertices (t, 3, 3), cross products (t, 3), their lengths) of the triangles
+    of area light ``k`` in the prepared arrays ``a``: twice its triangles' areas and
+    their unnormalised face normals, which ``_face_normals``, ``_on_light`` and
+    ``_light_parts`` all read."""
+    from estimators.pathtracer import layout
+
+    first = int(a.light_i[k, layout.LIGHT_PRIM])
+    rows = np.arange(first, first + int(a.light_i[k, layout.LIGHT_PRIM_COUNT]))
+    v = a.prims[rows, :9].reshape(-1, 3, 3)
+    g = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    return rows, v, g, np.linalg.norm(g, axis=1)
+
+
 def _face_normals(scene, k: int):
     """``scene``, or a copy whose area light ``k`` has its triangles' vertex normals
     dropped where they are not all along the face normals. A mesh light's samples carry
@@ -147,10 +161,8 @@ def _face_normals(scene, k: int):
     first = int(a.light_i[k, layout.LIGHT_PRIM])
     if a.prim_info[first, layout.PRIM_KIND] != layout.TRIANGLE:
         return scene
-    rows = np.arange(first, first + int(a.light_i[k, layout.LIGHT_PRIM_COUNT]))
-    v = a.prims[rows, :9].reshape(-1, 3, 3)
-    g = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    g /= np.maximum(np.linalg.norm(g, axis=1), 1e-300)[:, None]
+    rows, _, g, length = _light_triangles(a, k)
+    g /= np.maximum(length, 1e-300)[:, None]
     n = a.prims[rows, 9:18].reshape(-1, 3, 3)
     along = np.abs(np.einsum("tvc,tc->tv", n, g)) >= (1.0 - 1e-9) * np.linalg.norm(n, axis=2)
     if np.all(along | ~np.any(n != 0.0, axis=2)):
@@ -190,10 +202,7 @@ def _on_light(scene, k: int, p) -> bool:
         m = a.prims[first, layout.DISK_TO_LOCAL:layout.DISK_TO_LOCAL + 12].reshape(3, 4)
         # local z is the plane's signed distance over the length of the matrix's z row
         return abs(float(m[2, :3] @ p + m[2, 3])) <= tol * float(np.linalg.norm(m[2, :3]))
-    rows = np.arange(first, first + int(a.light_i[k, layout.LIGHT_PRIM_COUNT]))
-    v = a.prims[rows, :9].reshape(-1, 3, 3)
-    g = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    length = np.linalg.norm(g, axis=1)
+    _, v, g, length = _light_triangles(a, k)
     g, v = g[length > 0.0] / length[length > 0.0, None], v[length > 0.0]
     return bool(np.any(np.abs(np.einsum("tc,tc->t", p - v[:, 0], g)) <= tol))
 
@@ -204,7 +213,7 @@ def _light_parts(scene, k: int):
     points by its largest primitive at a distance of half the scene's size, one on each
     side (along a triangle's or disk's normal; for a sphere, outside it and its centre,
     where a flipped sphere emits; for a sphere ``centres`` holds the top of its surface
-    too, so that its centre is tried along a direction that has a length: until 8
+    too, so that its centre is tried along a direction that has a length: until 7
     December it was tried towards itself alone, and a sphere light shining on its inside
     away from the three reference points got no fourth, its checks testing nothing)."""
     from estimators.pathtracer import layout
@@ -226,16 +235,13 @@ def _light_parts(scene, k: int):
         m = a.prims[first, layout.DISK_TO_LOCAL:layout.DISK_TO_LOCAL + 12].reshape(3, 4)
         n = m[2, :3] / np.linalg.norm(m[2, :3])
         return [c + step * n, c - step * n], c[None]
-    rows = np.arange(first, first + int(a.light_i[k, layout.LIGHT_PRIM_COUNT]))
-    v = a.prims[rows, :9].reshape(-1, 3, 3)
-    g = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    length = np.linalg.norm(g, axis=1)
+    _, v, g, length = _light_triangles(a, k)
     if not np.any(length > 0.0):
         return [], v.mean(axis=1)
-    centres, n = v.mean(axis=1), g[int(np.argmax(length))] / length.max()
+    i = int(np.argmax(length))
+    centres, n = v.mean(axis=1), g[i] / length[i]
     # the face the largest triangle lies in (a rectangle's two halves): its centre
-    face = (g @ n >= (1.0 - 1e-9) * length) & \
-        (np.abs((centres - centres[int(np.argmax(length))]) @ n) <= 1e-9 * step)
+    face = (g @ n >= (1.0 - 1e-9) * length) & (np.abs((centres - centres[i]) @ n) <= 1e-9 * step)
     c = (length[face, None] * centres[face]).sum(axis=0) / length[face].sum()
     return [c + step * n, c - step * n], centres
 
