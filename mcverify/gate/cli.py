@@ -245,8 +245,9 @@ def _variant_provenance() -> dict:
 def _suite_checks(args):
     """The suite(s) to run: ``--suite``, else ``[tool.mcverify]`` of the project's
     pyproject.toml, else "default". Fills in ``args.alpha``/``args.seed`` from the table
-    where the command line left them; user suites import from the table's ``path`` and
-    the current directory. Returns (suite name, checks, skipped, provenance)."""
+    where the command line left them (commands without those options, ``list`` and
+    ``plan``, have none to fill); user suites import from the table's ``path`` and the
+    current directory. Returns (suite name, checks, skipped, provenance)."""
     from . import suites
     from .usersuite import find_config
 
@@ -256,10 +257,10 @@ def _suite_checks(args):
     config = find_config()
     names = (args.suite,) if args.suite else (config.suites if config and config.suites
                                               else ("default",))
-    if args.alpha is None:
-        args.alpha = config.alpha if config and config.alpha is not None else 0.01
-    if args.seed is None:
-        args.seed = config.seed if config and config.seed is not None else 0
+    for key, default in (("alpha", 0.01), ("seed", 0)):
+        if getattr(args, key, default) is None:
+            table = getattr(config, key) if config else None
+            setattr(args, key, table if table is not None else default)
     roots = [os.path.join(config.root, p) for p in config.path] if config else []
     roots.append(".")
     checks, skipped, origin = [], [], {}
@@ -559,7 +560,6 @@ def _cmd_plan(args) -> int:
     args.scene = _scene_file(args.scene if args.scene is not None else args.scene_option)
     # the suites `check --scene` plans from: --suite, else [tool.mcverify]'s, else default
     # (plan read the built-in default whatever the table said, and listed other checks)
-    args.alpha = args.seed = 0   # not used by plan
     args.suite, suite_checks, _, _ = _suite_checks(args)
     checks, skipped, features = _plan(args.scene, args.suite, suite_checks)
     _precheck_render(args.scene)
@@ -580,7 +580,6 @@ def _cmd_plan(args) -> int:
 def _cmd_list(args) -> int:
     from . import suites
 
-    args.alpha = args.seed = 0   # not used by list
     args.suite, checks, _, _ = _suite_checks(args)
     selected = suites.select(checks, args.k)
     if not selected:
