@@ -78,6 +78,14 @@ def _compiled(scene_path: str, params: tuple, plant: tuple, stamp: tuple):
     return subject.planted(**dict(plant)) if plant else subject
 
 
+def _subject(path: str, params: dict | None):
+    """Our tracer's scene at ``path`` with ``params``, unplanted (``_compiled``'s key)."""
+    from . import reference
+
+    return _compiled(path, tuple(sorted((params or {}).items())), (),
+                     reference.scene_stamp(path, params))
+
+
 #: Shapes whose surface interaction Mitsuba 3.9.1 computes as ``ray(pi.t)`` (its
 #: sphere.cpp, disk.cpp), not from the hit's own (u, v) as a mesh's.
 _POINT_FROM_RAY = ("sphere", "disk")
@@ -313,8 +321,7 @@ def _spp_example(scene, spp: int, passes: int, params) -> int:
     per = max(spp // passes, MIN_SPP_PER_PASS)
     try:
         _, path = reference.resolve_scene(scene)
-        subject = _compiled(path, tuple(sorted((params or {}).items())), (),
-                            reference.scene_stamp(path, params))
+        subject = _subject(path, params)
         if not subject.camera.splats:
             return per * passes
         if not params:
@@ -664,8 +671,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # for it. A splatting filter compares only at equal samples per pass (below): a
         # reference made here for such a scene gets ours, over 64 passes (as the
         # committed ones)
-        subject = _compiled(path, tuple(sorted((params or {}).items())), (),
-                            reference.scene_stamp(path, params)) if ours else None
+        subject = _subject(path, params) if ours else None
         splats = ours and subject.camera.splats
         made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:

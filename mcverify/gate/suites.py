@@ -220,7 +220,7 @@ def _mitsuba_checks(profile: Profile) -> list[Check]:
     for w in mv_mitsuba.mitsuba_warps():
         def run(seed, stop_alpha=None, w=w):
             return checks.check_sampler(w.sample, w.pdf, w.domain, seed=seed,
-                                        n_samples=profile.n("sampler:" + w.name, n),
+                                        n_samples=n,
                                         sample_dim=w.sample_dim, name="sampler:" + w.name,
                                         batches=BATCHES, stop_alpha=stop_alpha)
 
