@@ -342,8 +342,10 @@ def check_stability(sample, domain, *, sample_dim: int | None = None, pdf=None,
         u = [float(v) for v in found]
         details.update(u=u, problem=what)
         failures.append(f"u={u}: {what}")
-    messages = (f"{tried} values of u tried: {chosen} of edge values, then a search of "
-                f"up to {m} (seed {seed})",)
+    plan = f"{chosen} of edge values, then a search of up to {m} (seed {seed})"
+    tried_text = f"{tried} value{'' if tried == 1 else 's'} of u tried"
+    messages = (f"{tried_text} until the first failure, of {plan}" if failures
+                else f"{tried_text}: {plan}",)
     return CheckResult(name=name, passed=not failures, p_value=None, statistic=None,
                        alpha=0.0, n_samples=tried, seconds=time.perf_counter() - t0,
                        details=details, messages=messages, failures=tuple(failures))

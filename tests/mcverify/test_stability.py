@@ -22,6 +22,12 @@ def test_an_exponential_by_log_u_fails_at_u_zero():
                            max_examples=200)
     assert not r.passed and r.details["u"] == [0.0]
     assert "is not finite" in r.failures[0] and r.p_value is None
+    # it stops at the first failure, and says so (it read "1 values of u tried: the 9^1
+    # corners of edge values, then a search of up to 200", a search that never ran)
+    assert r.messages == ("1 value of u tried until the first failure, of the 9^1 corners "
+                          "of edge values, then a search of up to 200 (seed 0)",)
+    assert mv.check_stability(lambda u: u, mv.Interval(0, 1), sample_dim=1,
+                              max_examples=10).messages[0].startswith("19 values of u tried: ")
 
 
 def test_a_point_off_the_domain_a_density_at_the_horizon_and_an_inverse_past_one():
