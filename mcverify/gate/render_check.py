@@ -86,6 +86,27 @@ def _subject(path: str, params: dict | None):
                      reference.scene_stamp(path, params))
 
 
+def _sample_count_params(path: str, params: dict) -> None:
+    """Refuse ``params`` that set the scene's sampler's ``sample_count`` (a
+    ``<default name="spp">`` read by ``<integer name="sample_count" value="$spp"/>``): the
+    gate sets the samples itself, ours from ``spp`` (in all, split over the passes) and the
+    reference's from its build, so such a parameter changed nothing but the check's name
+    (``render:cornell-box,spp=4096`` rendered 1024 spp; an outside review's
+    found-not-fixed)."""
+    from estimators.pathtracer.scene import load_scene
+
+    def count(given):
+        return load_scene(path, params=given).sampler.get("sample_count")
+
+    asked = count(params)
+    for name in sorted(params):
+        if count({k: v for k, v in params.items() if k != name}) != asked:
+            raise InvalidArgument(f"params: {name}={params[name]} sets {path}'s sampler "
+                                  "sample_count, which the render check sets itself: ours "
+                                  "from spp (in all, split over the passes; --spp on the "
+                                  "command line), the reference's from its build")
+
+
 #: Shapes whose surface interaction Mitsuba 3.9.1 computes as ``ray(pi.t)`` (its
 #: sphere.cpp, disk.cpp), not from the hit's own (u, v) as a mesh's.
 _POINT_FROM_RAY = ("sphere", "disk")
@@ -672,6 +693,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # reference made here for such a scene gets ours, over 64 passes (as the
         # committed ones)
         subject = _subject(path, params) if ours else None
+        if params:
+            _sample_count_params(path, params)
         splats = ours and subject.camera.splats
         made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:

@@ -449,6 +449,24 @@ def test_render_check_suggests_an_spp_it_accepts(spp, passes):
     assert "/nonexistent/scene.xml" in str(info.value), str(info.value)
 
 
+@pytest.mark.parametrize("given", [{"samples": 4096}, {"samples": 8, "res": 8}])
+def test_render_check_refuses_a_parameter_that_sets_the_samplers_count(tmp_path, given):
+    """The gate sets the samples itself (ours from spp, the reference's from its build), so
+    a scene parameter feeding the sampler's ``sample_count`` changed nothing but the
+    check's name: ``--param spp=4096`` rendered 1024 spp as ``render:cornell-box,spp=4096``.
+    Refused, whatever the parameter's name, before any reference is built."""
+    text = open(FURNACE).read().replace('name="spp"', 'name="samples"').replace(
+        "$spp", "$samples")
+    scene = tmp_path / "scene.xml"
+    scene.write_text(text)
+    with pytest.raises(InvalidArgument, match=r"params: samples=\d+ sets .*scene\.xml's "
+                                              "sampler sample_count"):
+        mv.render_check(str(scene), spp=64, passes=2, params=given)
+    assert os.listdir(tmp_path) == ["scene.xml"]          # no reference built
+    # a parameter that leaves the count alone is taken (the reference is built in memory)
+    assert mv.render_check(str(scene), spp=64, passes=2, params={"res": 4}).passed
+
+
 def _suggested(scene, spp, passes):
     with pytest.raises(InvalidArgument) as info:
         mv.render_check(scene, spp=spp, passes=passes, build_missing=False)
@@ -779,6 +797,8 @@ CLI = [
     ("reference-xxe", ["reference", "build", "{d}/scenes/xxe.xml"], "DOCTYPE"),
     ("render-check-seed", ["render-check", "{d}/ref-ok", "--seed", str(2 ** 63)], "--seed"),
     ("render-check-param", ["render-check", "{d}/ref-ok", "--param", "nosuch=3"], "nosuch"),
+    ("render-check-param-spp", ["render-check", "{d}/ref-ok", "--param", "spp=4096"],
+     "spp=4096 sets"),
     ("render-check-param-form", ["render-check", "{d}/ref-ok", "--param", "oops"],
      "--param 'oops'"),
     ("render-check-param-twice", ["render-check", "{d}/ref-ok", "--param", "res=8",
