@@ -369,7 +369,8 @@ def ttest_mean(x, expected: float) -> TTestResult:
     t = (mean - expected) / se
     y, c = _by_largest(x)             # the skewness of x / max|x|: its cube cannot overflow
     d = y - mean / c
-    gamma = float(np.mean(d ** 3) / np.mean(d * d) ** 1.5)
+    d2 = d * d                        # d ** 3 is pow() per value: 28x slower at 1e7
+    gamma = float(np.mean(d2 * d) / np.mean(d2) ** 1.5)
     s = t / np.sqrt(n)
     # Hall's cubic, (1 + γs/3)³ - 1 over γ, flattens where 1 + γs/3 -> 0: a mean far
     # off on the side opposite the skew (3 light hits among 10,000 samples where 16
@@ -418,8 +419,10 @@ def hill_tail_index(x, *, k: int | None = None, confidence: float = 0.999) -> Ta
     # the share is scale-free: on x / max|x|, whose squares neither overflow (1e300
     # gave NaN) nor underflow (1e-170 gave 0, "no sample dominates")
     y, _ = _by_largest(x)
-    ss = float(np.sum((y - y.mean()) ** 2))
-    max_share = float(np.max((y - y.mean()) ** 2) / ss) if ss > 0 else 0.0
+    sq = y - y.mean()
+    sq *= sq
+    ss = float(np.sum(sq))
+    max_share = float(np.max(sq) / ss) if ss > 0 else 0.0
     n = dev.size
     if k is None:
         m = np.count_nonzero(dev)
@@ -487,7 +490,8 @@ def variance_test(x, expected_variance: float, *, rounding: float = 0.0) -> Vari
     # z is scale-free: computed on x / max|x|, so that the fourth moment cannot overflow
     y, c = _by_largest(x)
     d = y - y.mean()
-    m4, v = np.float64(np.mean(d ** 4)), np.float64(np.var(y, ddof=1))
+    d *= d                            # d ** 4 is pow() per value, as d ** 3 above
+    m4, v = np.float64(np.mean(d * d)), np.float64(np.var(y, ddof=1))
     se = np.sqrt(max(m4 - v ** 2, 0.0) / n + 2.0 * v ** 2 / (n * (n - 1)))
     if se == 0.0:      # constant samples: their variance is 0, the claim is not
         return VarianceTestResult(s2, expected_variance, -np.inf, 0.0, n)
