@@ -626,3 +626,19 @@ def test_points_and_pdf_values_that_are_not_real_numbers_of_the_documented_shape
     by review)."""
     with pytest.raises(ValueError, match=match):
         call()
+
+
+@pytest.mark.parametrize("a, b, n, k", [(-3.0, 0.6, 18, 15), (-3.0, 0.1, 30, 29),
+                                        (-3.0, 0.3, 32, 29)])
+def test_pc1d_sample_after_zero_pieces_ending_near_zero_has_density(a, b, n, k):
+    """u = 0 after k zero-weight pieces draws the start of piece k; where that start is
+    near 0 and a is not, a + (b - a)·r rounds it by an ulp of a, thousands of ulps of
+    the point, and the ulp-by-ulp correction (64 steps) left it in piece k - 1: on
+    [-3, 0.6] with 18 pieces, x = 3e-322 of density 0 (an outside review)."""
+    v = np.ones(n)
+    v[:k] = 0.0
+    d = PiecewiseConstant1D(v, a, b)
+    x = d.sample([0.0, d.cdf[k], 1.0])
+    assert np.all(d.pdf(x) > 0), x.ravel()
+    assert np.all((x >= a + k * (b - a) / n - 1e-12) & (x <= b))
+    np.testing.assert_allclose(x[0, 0], a + k * (b - a) / n, atol=1e-14)
