@@ -479,8 +479,12 @@ class PiecewiseConstant2D:
         self.marginal_table = _guided(self.marginal_cdf)
         self.conditional_table = _guided_rows(self.conditional_cdf)
         # the mean of |values|: of values / max, times max, where their sum overflows
+        # (rows of finite sums whose total overflows too: (2, 1) of 1e308 gave inf)
         with np.errstate(over="ignore"):
             self.integral = total / v.size * scale
+        if not np.isfinite(self.integral):
+            m = float(v.max())
+            self.integral = float(np.mean(v / m)) * m
 
     def sample(self, u):
         """``u`` (n, 2) -> points (n, 2) = (x, y); a NaN in either coordinate of a u gives
