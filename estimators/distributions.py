@@ -49,12 +49,23 @@ def _reals(values, name: str) -> np.ndarray:
     return a.astype(np.float64)
 
 
+def _finite_nonnegative(w: np.ndarray, name: str) -> None:
+    """A ValueError naming ``w``'s first entry that is NaN, infinite or negative, by its
+    index (a row and column in 2-D), and its value: "entries must be finite and >= 0"
+    alone left a user to search a 4096 × 2048 environment map for its one NaN pixel."""
+    bad = ~(np.isfinite(w) & (w >= 0))
+    if bad.any():
+        at = np.unravel_index(int(np.argmax(bad)), w.shape)
+        where = at[0] if len(at) == 1 else tuple(int(i) for i in at)
+        raise ValueError(f"{name}: entry {where} is {float(w[at])!r}; entries must be "
+                         "finite and >= 0")
+
+
 def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
     w = _reals(weights, name)
     if w.ndim != 1 or w.size == 0:
         raise ValueError(f"{name}: expected a non-empty 1-D array, got shape {w.shape}")
-    if not np.all(np.isfinite(w)) or np.any(w < 0):
-        raise ValueError(f"{name}: entries must be finite and >= 0")
+    _finite_nonnegative(w, name)
     with np.errstate(over="ignore"):
         cdf = np.concatenate([[0.0], np.cumsum(w)])
     total = norm = cdf[-1]
@@ -466,6 +477,7 @@ class PiecewiseConstant2D:
         v = np.abs(_reals(values, "values"))
         if v.ndim != 2 or 0 in v.shape:
             raise ValueError(f"values: expected a non-empty 2-D array, got shape {v.shape}")
+        _finite_nonnegative(v, "values")      # by its pixel, not the sum of its row
         self.values = v
         with np.errstate(over="ignore"):
             rows = v.sum(axis=1)

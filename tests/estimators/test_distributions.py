@@ -645,3 +645,19 @@ def test_pc1d_sample_after_zero_pieces_ending_near_zero_has_density(a, b, n, k):
     assert np.all(d.pdf(x) > 0), x.ravel()
     assert np.all((x >= a + k * (b - a) / n - 1e-12) & (x <= b))
     np.testing.assert_allclose(x[0, 0], a + k * (b - a) / n, atol=1e-14)
+
+
+@pytest.mark.parametrize("make, table, message", [
+    (DiscreteDistribution, [1.0, -2.0, 3.0], "weights: entry 1 is -2.0"),
+    (DiscreteDistribution, [1.0, 2.0, np.inf], "weights: entry 2 is inf"),
+    (PiecewiseConstant1D, [0.0, np.nan, 1.0], "values: entry 1 is nan"),
+    (PiecewiseConstant1D, np.r_[np.ones(9), -np.inf][::-1], "values: entry 0 is inf"),
+    (PiecewiseConstant2D, [[1.0, 2.0], [3.0, np.nan]], r"values: entry \(1, 1\) is nan"),
+    (PiecewiseConstant2D, [[1.0, np.inf, np.nan]], r"values: entry \(0, 1\) is inf"),
+], ids=["negative", "inf", "nan", "reversed", "nan-2d", "inf-2d"])
+def test_a_table_entry_that_is_nan_infinite_or_negative_is_named(make, table, message):
+    """The refusal said "entries must be finite and >= 0" and no more, and in 2-D it was
+    raised from the rows' sums: a NaN pixel of an environment map was left to be
+    searched for (an outside review). It names the first such entry and its value."""
+    with pytest.raises(ValueError, match="^" + message + "; entries must be finite and >= 0$"):
+        make(table)
