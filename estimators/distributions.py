@@ -442,23 +442,29 @@ class PiecewiseConstant1D:
         as ``pdf`` finds it from (x - a) / (b - a): the affine map's rounding put a point
         drawn at the start of a piece after zero-weight pieces one ulp into the last of
         them, of density 0 (an outside review: 4-10 % of u on the CDF's steps, u = 0
-        among them, on intervals other than [0, 1]). The steps start at one ulp of x and
-        double: the map's rounding is an ulp of a or b, thousands of x's own ulps where a
-        piece ends near 0 (on [-3, 0.6] with 18 pieces, the 16th starts at 0), and 64
-        single ulps left u = 0 after 15 zero-weight pieces at x = 3e-322, of density 0."""
+        among them, on intervals other than [0, 1]). 64 ulps of x first, then 64 of the
+        larger bound: the map's rounding is an ulp of a or b, thousands of x's own ulps
+        where a piece starts near 0 (on [-3, 0.6] with 18 pieces the 16th starts at 0,
+        and u = 0 after 15 zero-weight pieces was left at x = 3e-322, of density 0).
+        Steps of fixed size: steps that doubled ran to inf where pieces are narrower
+        than an ulp of x ([1e15, 1e15 + 1] in 1000 pieces), which the fixed ones only
+        straddle."""
         n = self.values.size
         drawn = np.isfinite(r)
         i = np.minimum((np.where(drawn, r, 0.0) * n).astype(np.int64), n - 1)
-        step = np.spacing(np.abs(x))
-        for _ in range(2200):       # doubling from 2^-1074 passes 1e308 within these
+        coarse = float(np.spacing(max(abs(self.a), abs(self.b))))
+        for k in range(128):
             t = np.clip(np.where(drawn, (x - self.a) / (self.b - self.a), 0.0), 0.0, 1.0)
             j = np.minimum((t * n).astype(np.int64), n - 1)
             low, high = drawn & (j < i), drawn & (j > i)
             if not (low.any() or high.any()):
                 break
-            x = np.where(low, x + step, np.where(high, x - step, x))
-            step = 2.0 * step
-        return x
+            if k < 64:
+                x = np.where(low, np.nextafter(x, np.inf),
+                             np.where(high, np.nextafter(x, -np.inf), x))
+            else:
+                x = np.where(low, x + coarse, np.where(high, x - coarse, x))
+        return np.clip(x, self.a, self.b)
 
     def pdf(self, x):
         t = (_unit(x, "x") - self.a) / (self.b - self.a)

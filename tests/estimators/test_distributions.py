@@ -661,3 +661,13 @@ def test_a_table_entry_that_is_nan_infinite_or_negative_is_named(make, table, me
     searched for (an outside review). It names the first such entry and its value."""
     with pytest.raises(ValueError, match="^" + message + "; entries must be finite and >= 0$"):
         make(table)
+
+
+@pytest.mark.parametrize("a, b, n", [(1e15, 1e15 + 1.0, 1000), (-1e16, 1e16, 1000)])
+def test_pc1d_pieces_narrower_than_an_ulp_give_points_inside_the_interval(a, b, n):
+    """Where pieces are narrower than an ulp of x, no float lies in most of them: the
+    correction into the drawn piece straddles it and stops, leaving a finite point in
+    [a, b] (steps that doubled, tried in this review, ran to inf and NaN)."""
+    d = PiecewiseConstant1D(np.random.default_rng(0).random(n), a, b)
+    x = d.sample(np.linspace(0.0, 1.0, 101))
+    assert np.all(np.isfinite(x) & (x >= a) & (x <= b))
