@@ -467,8 +467,13 @@ class PiecewiseConstant1D:
         return np.clip(x, self.a, self.b)
 
     def pdf(self, x):
-        t = (_unit(x, "x") - self.a) / (self.b - self.a)
-        return _nan_where_nan(t, _pc1d_batch_kernel(self.table, t, 1)[:, 0] / (self.b - self.a))
+        """Density at points (n,) or (n, 1); 0 outside [a, b], tested on x itself: the
+        map (x - a) / (b - a) rounds an ulp beyond b to 1 (b = 0.6 with a = -3), which
+        was given the last piece's density."""
+        x = _unit(x, "x")
+        t = (x - self.a) / (self.b - self.a)
+        p = _pc1d_batch_kernel(self.table, t, 1)[:, 0] / (self.b - self.a)
+        return _nan_where_nan(t, np.where((x < self.a) | (x > self.b), 0.0, p))
 
     def invert(self, x):
         t = (_unit(x, "x") - self.a) / (self.b - self.a)
