@@ -74,6 +74,8 @@ class CheckResult:
     samples, points outside the domain, a pdf that does not integrate to 1, ...) and the
     p-value, if the check has one, exceeds ``alpha``. ``p_value`` is None for checks
     that are deterministic (e.g. an inverse round trip).
+    ``bool(result)`` is ``passed``, so ``assert result`` fails a test where the check
+    failed.
 
     ``details`` holds small JSON-able facts (sub-test p-values, worst cells, seeds);
     ``artifacts`` holds the large arrays a report draws (a histogram with its expected
@@ -92,6 +94,11 @@ class CheckResult:
     messages: tuple[str, ...] = ()
     failures: tuple[str, ...] = ()
     artifacts: dict = field(default_factory=dict, repr=False)
+
+    def __bool__(self) -> bool:
+        # ``assert mv.check_sampler(...)`` held for every result, a failed one too: a
+        # dataclass is always true. It is the verdict now, as ``passed`` says.
+        return bool(self.passed)
 
     @staticmethod
     def decide(p_value, alpha, failures) -> bool:
@@ -145,6 +152,9 @@ class SuiteResult:
     @property
     def passed(self) -> bool:
         return all(r.passed for r in self.results) and self.canary_bitten
+
+    def __bool__(self) -> bool:
+        return self.passed             # as CheckResult's: ``assert suite`` is the verdict
 
     @classmethod
     def judge(cls, name, results, *, alpha, correction="holm", **kw) -> "SuiteResult":

@@ -124,3 +124,15 @@ def test_details_that_hold_themselves_are_written_as_their_repr(tmp_path):
     got = json.loads((tmp_path / "r.json").read_text())["results"][0]["details"]
     # (the judged result's details are a copy with p_adjusted: its "self" is the original)
     assert got["self"]["self"] == "{...}" and got["l"] == [[1.0, 2.0], [1.0, 2.0], "[...]"]
+
+
+def test_a_result_is_true_only_where_it_passed():
+    """``assert mv.check_sampler(...)`` held for a failed check as for a passed one: a
+    dataclass without ``__bool__`` is always true, so a user's test that asserted the
+    result itself (not ``.passed``) could never fail. A result's truth is its verdict."""
+    failed, ok = _r("a", 1e-9), _r("b", 0.5)
+    assert not failed and ok
+    assert [bool(r) for r in (failed, ok)] == [False, True]
+    assert not SuiteResult.judge("s", [failed, ok], alpha=0.01, seconds=1.0)
+    assert SuiteResult.judge("s", [ok], alpha=0.01, seconds=1.0)
+    assert not SuiteResult.judge("s", [ok], alpha=0.01, seconds=1.0, canary=(ok,))
