@@ -66,6 +66,25 @@ def json_text(doc) -> str:
     return json.dumps(_jsonable(doc), indent=2, allow_nan=False) + "\n"
 
 
+def _same(a, b) -> bool:
+    """``a == b`` for a result's fields: arrays compared as arrays (their ``==`` is an
+    array, which a dict's or a tuple's comparison cannot read as true or false) and NaN
+    equal to NaN, so a result equals its copy, pickled or deep-copied."""
+    if a is b:
+        return True
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        nan = a.dtype.kind in "fc" and b.dtype.kind in "fc"
+        return a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=nan))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and type(a) is type(b):
+        return len(a) == len(b) and all(map(_same, a, b))
+    if isinstance(a, (float, np.floating)) and isinstance(b, (float, np.floating)):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    return bool(a == b)
+
+
 @dataclass(frozen=True)
 class CheckResult:
     """One check's verdict.
@@ -94,6 +113,16 @@ class CheckResult:
     messages: tuple[str, ...] = ()
     failures: tuple[str, ...] = ()
     artifacts: dict = field(default_factory=dict, repr=False)
+
+    def __eq__(self, other) -> bool:
+        # the dataclass's own compared the fields as tuples: a result holding arrays (a
+        # histogram, a p-value map) raised "The truth value of an array ... is ambiguous"
+        # against its own pickled copy, and one with a NaN was unequal to it
+        if type(other) is not type(self):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+    __hash__ = None         # its details and artifacts are dicts: no hash, as before
 
     def __bool__(self) -> bool:
         # ``assert mv.check_sampler(...)`` held for every result, a failed one too: a

@@ -1,4 +1,5 @@
 import json
+from dataclasses import replace
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -136,3 +137,22 @@ def test_a_result_is_true_only_where_it_passed():
     assert not SuiteResult.judge("s", [failed, ok], alpha=0.01, seconds=1.0)
     assert SuiteResult.judge("s", [ok], alpha=0.01, seconds=1.0)
     assert not SuiteResult.judge("s", [ok], alpha=0.01, seconds=1.0, canary=(ok,))
+
+
+def test_a_result_equals_its_copies():
+    """Results come back from worker processes pickled: a result holding arrays in its
+    artifacts (check_sampler's histogram, compare_images' p-value map) raised "The truth
+    value of an array with more than one element is ambiguous" on ``==`` against its own
+    copy (and so on ``in`` and ``index`` over a list of results), and one with a NaN in its
+    details was unequal to its pickled copy. A result equals its copies, not another."""
+    import copy
+    import pickle
+
+    r = _r("a", 0.5)
+    nan = replace(r, details={"worst": {"u": [float("nan"), 0.5]}}, statistic=float("nan"))
+    for x in (r, nan):
+        assert pickle.loads(pickle.dumps(x)) == x and copy.deepcopy(x) == x
+        assert x in [pickle.loads(pickle.dumps(x))]
+    other = replace(r, artifacts={"histogram": {"observed": np.ones(3)}})
+    assert other != r and replace(r, details={"seed": 2}) != r and r != r.to_dict()
+    assert replace(r, artifacts={"histogram": {"observed": np.zeros(4)}}) != r
