@@ -95,6 +95,8 @@ class CheckResult:
     that are deterministic (e.g. an inverse round trip).
     ``bool(result)`` is ``passed``, so ``assert result`` fails a test where the check
     failed.
+    ``str(result)`` (``print``) is its ``summary()`` and ``messages``, a line each;
+    ``repr`` gives every field.
 
     ``details`` holds small JSON-able facts (sub-test p-values, worst cells, seeds);
     ``artifacts`` holds the large arrays a report draws (a histogram with its expected
@@ -148,6 +150,11 @@ class CheckResult:
             p += f" p_adj={padj:.3g}"
         why = ("  " + "; ".join(self.failures)) if self.failures else ""
         return f"{verdict} {self.name}{p} ({self.seconds:.2f}s){why}"
+
+    def __str__(self) -> str:
+        # print(result) was the dataclass's repr: a failed compare_images' 50 rejected
+        # blocks, some 7,000 characters of details, before the messages saying where
+        return "\n".join([self.summary(), *("  " + m for m in self.messages)])
 
     def to_dict(self, *, arrays: bool = False) -> dict:
         """JSON-able dict. ``artifacts`` (bulky arrays) are left out unless
