@@ -271,7 +271,8 @@ def check_variance(samples, expected_variance: float = 0.0, *, alpha: float = 0.
         x = x[np.isfinite(x)]
     if x.size < 2:
         failures.append(f"{x.size} finite sample(s) left: a variance needs at least 2")
-        return CheckResult(name=name, passed=False, p_value=None, statistic=float("nan"),
+        # no statistic, None as every check gives it (NaN was written "nan" in the JSON)
+        return CheckResult(name=name, passed=False, p_value=None, statistic=None,
                            alpha=alpha, n_samples=int(x.size),
                            seconds=time.perf_counter() - t0,
                            details={"variance": None, "expected_variance": ev},

@@ -1,5 +1,6 @@
 """The judge's teeth: correct subjects pass, planted bugs fail (seeded, α = 0.01)."""
 
+import json
 import warnings
 
 import numba
@@ -10,6 +11,7 @@ from scipy import stats as scipy_stats
 import mcverify as mv
 from estimators import warps as W
 from mcverify.checks.sampler import STREAM_BLOCK as STREAM_BLOCK_FOR_TESTS
+from mcverify.result import json_text
 
 
 def cosine(u):
@@ -603,9 +605,11 @@ def test_a_known_variance_is_tested_at_its_level_and_a_wrong_one_says_why():
 @pytest.mark.parametrize("samples", [np.full(10, np.nan), np.r_[np.inf, 1.0, np.nan]])
 def test_variance_of_too_few_finite_samples_fails_saying_so(samples):
     """All but one sample NaN/Inf: a failed check naming both problems (it was a
-    ZeroDivisionError)."""
+    ZeroDivisionError), with no statistic: None, as every check's verdict without one
+    (it was NaN, the string "nan" in its JSON where a number or null is read)."""
     r = mv.check_variance(samples, 1.0)
     assert not r.passed and any("NaN/Inf" in f for f in r.failures)
+    assert r.statistic is None and json.loads(json_text(r.to_dict()))["statistic"] is None
     assert any("a variance needs at least 2" in f for f in r.failures), r.failures
 
 
