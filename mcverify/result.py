@@ -192,6 +192,22 @@ class SuiteResult:
     def __bool__(self) -> bool:
         return self.passed             # as CheckResult's: ``assert suite`` is the verdict
 
+    def __str__(self) -> str:
+        """What ``mcverify check`` prints of it: each failed check (its summary and
+        messages), each canary not bitten, and a last line with the counts (``print``
+        gave the dataclass's repr: every check's details, thousands of characters each
+        for a failed image)."""
+        failed = [r for r in self.results if not r.passed]
+        lines = [str(r) for r in failed]
+        lines += [f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected"
+                  for c in self.canary if c.passed]
+        lines.append(f"suite {self.name}: {len(self.results) - len(failed)} passed, "
+                     f"{len(failed)} failed (family-wise alpha={self.alpha:g} by "
+                     f"{self.correction}; canaries "
+                     f"{'bitten' if self.canary_bitten else 'NOT bitten'}; "
+                     f"{self.seconds:.1f}s)")
+        return "\n".join(lines)
+
     @classmethod
     def judge(cls, name, results, *, alpha, correction="holm", **kw) -> "SuiteResult":
         """Re-judge ``results`` at family-wise level ``alpha``: adjusted p-values by

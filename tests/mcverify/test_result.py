@@ -171,3 +171,18 @@ def test_print_shows_the_verdict_and_its_messages_not_the_details():
     assert len(str(r)) < 600 and "rejected_fraction" in repr(r)
     failed = _r("s", 0.5, ["pdf integrates to 1.1"])
     assert str(failed) == failed.summary() and "pdf integrates to 1.1" in str(failed)
+
+
+def test_print_of_a_suite_names_its_failures_and_counts():
+    """``print(suite)`` gave every check's full repr, details and all; it is what
+    ``mcverify check`` prints: the failed checks, a canary not bitten, the counts."""
+    big = {"blocks": [{"pixels": [i, i], "p_adjusted": 0.0} for i in range(50)]}
+    fail = replace(_r("b", 1e-9), details=big, messages=("clearest block: y 0-3",))
+    suite = SuiteResult.judge("s", [_r("a", 0.5), fail], alpha=0.01, seconds=1.0,
+                              canary=(_r("planted", 0.5),))
+    lines = str(suite).splitlines()
+    assert lines[0].startswith("FAIL b p=1e-09 p_adj=2e-09")
+    assert lines[1:] == ["  clearest block: y 0-3",
+                         "FAIL judge has no teeth: planted bug 'planted' was not rejected",
+                         "suite s: 1 passed, 1 failed (family-wise alpha=0.01 by holm; "
+                         "canaries NOT bitten; 1.0s)"]
