@@ -154,7 +154,8 @@ class CheckResult:
     def __str__(self) -> str:
         # print(result) was the dataclass's repr: a failed compare_images' 50 rejected
         # blocks, some 7,000 characters of details, before the messages saying where
-        return "\n".join([self.summary(), *("  " + m for m in self.messages)])
+        # (the lines mcverify check prints for a failed check)
+        return "\n".join([self.summary(), *("    " + m for m in self.messages)])
 
     def to_dict(self, *, arrays: bool = False) -> dict:
         """JSON-able dict. ``artifacts`` (bulky arrays) are left out unless
@@ -192,21 +193,26 @@ class SuiteResult:
     def __bool__(self) -> bool:
         return self.passed             # as CheckResult's: ``assert suite`` is the verdict
 
+    def toothless(self) -> list[str]:
+        """A line for each canary (planted bug) the judge did not reject."""
+        return [f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected"
+                + ("" if c.p_value is None else f" (p={c.p_value:.3g})")
+                for c in self.canary if c.passed]
+
+    def counts(self) -> str:
+        """``N passed, M failed (family-wise alpha=A by holm; canaries bitten; Ts)``."""
+        failed = sum(not r.passed for r in self.results)
+        return (f"{len(self.results) - failed} passed, {failed} failed (family-wise "
+                f"alpha={self.alpha:g} by {self.correction}; canaries "
+                f"{'bitten' if self.canary_bitten else 'NOT bitten'}; {self.seconds:.1f}s)")
+
     def __str__(self) -> str:
         """What ``mcverify check`` prints of it: each failed check (its summary and
         messages), each canary not bitten, and a last line with the counts (``print``
         gave the dataclass's repr: every check's details, thousands of characters each
         for a failed image)."""
-        failed = [r for r in self.results if not r.passed]
-        lines = [str(r) for r in failed]
-        lines += [f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected"
-                  for c in self.canary if c.passed]
-        lines.append(f"suite {self.name}: {len(self.results) - len(failed)} passed, "
-                     f"{len(failed)} failed (family-wise alpha={self.alpha:g} by "
-                     f"{self.correction}; canaries "
-                     f"{'bitten' if self.canary_bitten else 'NOT bitten'}; "
-                     f"{self.seconds:.1f}s)")
-        return "\n".join(lines)
+        return "\n".join([*(str(r) for r in self.results if not r.passed),
+                          *self.toothless(), f"suite {self.name}: {self.counts()}"])
 
     @classmethod
     def judge(cls, name, results, *, alpha, correction="holm", **kw) -> "SuiteResult":

@@ -411,15 +411,8 @@ def _cmd_check(args) -> int:
             if not r.failures and r.p_value is not None and r.p_value <= args.alpha and r.passed:
                 print(f"PASS {r.name}: p={r.p_value:.3g} is no alarm after Holm "
                       f"(p_adj={r.details.get('p_adjusted'):.3g})")
-    for r in failed:
-        print(r.summary())
-        for m in r.messages:
-            print(f"    {m}")
-    if not result.canary_bitten:
-        for c in result.canary:
-            if c.passed:
-                print(f"FAIL judge has no teeth: planted bug {c.name!r} was not rejected "
-                      f"(p={c.p_value:.3g})")
+    for line in [*map(str, failed), *result.toothless()]:
+        print(line)
     if skipped and not args.scene:
         reasons = {}
         for _, why in skipped:
@@ -456,10 +449,7 @@ def _cmd_check(args) -> int:
             # said, not left out: a -k without sampler checks has nothing to scale
             print(f"{head}: no sampler check of ours selected, nothing to scale; every "
                   f"check ran at its fixed size{tail}")
-    n = len(result.results)
-    print(f"mcverify check --suite {args.suite}: {n - len(failed)} passed, {len(failed)} failed"
-          f" (family-wise alpha={args.alpha} by {result.correction}; canaries "
-          f"{'bitten' if result.canary_bitten else 'NOT bitten'}; {result.seconds:.1f}s)")
+    print(f"mcverify check --suite {args.suite}: {result.counts()}")
     # written after the verdict is printed: a write that fails (exit 2) loses no result;
     # flushed first, so that a --json /dev/stdout follows the text instead of cutting it
     sys.stdout.flush()

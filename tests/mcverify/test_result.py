@@ -167,7 +167,7 @@ def test_print_shows_the_verdict_and_its_messages_not_the_details():
     r = mv.compare_images(a * 1.2, a, test_var=v, ref_var=v, test_n=100, ref_n=100)
     lines = str(r).splitlines()
     assert lines[0] == r.summary() and lines[0].startswith("FAIL image p=0")
-    assert lines[1:] == ["  " + m for m in r.messages] and "clearest block" in lines[2]
+    assert lines[1:] == ["    " + m for m in r.messages] and "clearest block" in lines[2]
     assert len(str(r)) < 600 and "rejected_fraction" in repr(r)
     failed = _r("s", 0.5, ["pdf integrates to 1.1"])
     assert str(failed) == failed.summary() and "pdf integrates to 1.1" in str(failed)
@@ -182,7 +182,8 @@ def test_print_of_a_suite_names_its_failures_and_counts():
                               canary=(_r("planted", 0.5),))
     lines = str(suite).splitlines()
     assert lines[0].startswith("FAIL b p=1e-09 p_adj=2e-09")
-    assert lines[1:] == ["  clearest block: y 0-3",
-                         "FAIL judge has no teeth: planted bug 'planted' was not rejected",
+    assert lines[1:] == ["    clearest block: y 0-3",
+                         "FAIL judge has no teeth: planted bug 'planted' was not rejected "
+                         "(p=0.5)",
                          "suite s: 1 passed, 1 failed (family-wise alpha=0.01 by holm; "
                          "canaries NOT bitten; 1.0s)"]
