@@ -157,6 +157,11 @@ class CheckResult:
         # (the lines mcverify check prints for a failed check)
         return "\n".join([self.summary(), *("    " + m for m in self.messages)])
 
+    def _repr_pretty_(self, printer, cycle) -> None:
+        # IPython and Jupyter show a bare result with this, not repr (some 7,000
+        # characters of details for a failed image)
+        printer.text(str(self))
+
     def to_dict(self, *, arrays: bool = False) -> dict:
         """JSON-able dict. ``artifacts`` (bulky arrays) are left out unless
         ``arrays=True`` (reports ask for them on failed checks)."""
@@ -213,6 +218,8 @@ class SuiteResult:
         for a failed image)."""
         return "\n".join([*(str(r) for r in self.results if not r.passed),
                           *self.toothless(), f"suite {self.name}: {self.counts()}"])
+
+    _repr_pretty_ = CheckResult._repr_pretty_
 
     @classmethod
     def judge(cls, name, results, *, alpha, correction="holm", **kw) -> "SuiteResult":

@@ -187,3 +187,19 @@ def test_print_of_a_suite_names_its_failures_and_counts():
                          "(p=0.5)",
                          "suite s: 1 passed, 1 failed (family-wise alpha=0.01 by holm; "
                          "canaries NOT bitten; 1.0s)"]
+
+
+def test_a_notebook_shows_a_result_as_print_does():
+    """Jupyter and IPython display a bare result through ``_repr_pretty_`` where it has
+    one, else ``repr``: some 7,000 characters of details for a failed image."""
+    shown = []
+
+    class Printer:                          # IPython's pretty printer, as far as used
+        def text(self, t):
+            shown.append(t)
+
+    fail = replace(_r("b", 1e-9), messages=("clearest block: y 0-3",))
+    suite = SuiteResult.judge("s", [_r("a", 0.5), fail], alpha=0.01, seconds=1.0)
+    for r in (fail, suite):
+        r._repr_pretty_(Printer(), False)
+        assert shown.pop() == str(r)
