@@ -34,7 +34,7 @@ Public API
 Every randomised function takes ``seed``; the same seed gives the same result.
 
 Layers: this package's core (``stats``, ``quadrature``, ``domains``, ``checks``,
-``sequential`` (group-sequential looks), ``result``, ``errors``, ``pytest_plugin``) imports neither the subject (``estimators``)
+``sequential`` (group-sequential looks), ``result``, ``errors``) imports neither the subject (``estimators``)
 nor Mitsuba; ``mcverify.gate`` composes them (suites, scene plans, the render check,
 references, the Mitsuba adapters, bench, report, CLI). ``render_check`` is re-exported
 from the gate lazily, so ``import mcverify`` loads neither.

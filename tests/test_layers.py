@@ -8,7 +8,9 @@
   exception is the lazy re-export of ``render_check`` in ``mcverify.__getattr__``;
 - within ``mcverify``, Mitsuba and Dr.Jit are imported by ``mcverify/gate/mitsuba.py``
   only; within ``estimators``, only by the image reader and the materials generator
-  (Mitsuba's bitmap codec and spectral tables as data sources, never its rendering).
+  (Mitsuba's bitmap codec and spectral tables as data sources, never its rendering);
+- the pytest plugin (``_mcverify_pytest``, loaded by every pytest run where mcverify is
+  installed) imports only pytest and the standard library until a test uses mcverify.
 """
 
 import ast
@@ -105,6 +107,19 @@ def test_mitsuba_is_imported_in_one_module_of_mcverify():
     assert not {k: v for k, v in bad.items() if v}
     assert not {rel: _hits(rel, MITSUBA) for rel in files("estimators")
                 if _hits(rel, MITSUBA)}
+
+
+def test_the_pytest_plugin_imports_only_pytest_until_a_test_uses_mcverify():
+    """pytest loads the plugin (``_mcverify_pytest``, a top-level module) in every run of
+    an environment where mcverify is installed: at module level it imports the standard
+    library and pytest, and inside functions the judge's core only (as
+    ``mcverify.pytest_plugin`` it imported the package, numba and scipy in every run)."""
+    found = imports("_mcverify_pytest.py")
+    top = {mod for mod, func in found if func is None}
+    assert top <= {"__future__", "__future__.annotations", "os", "sys", "pytest"}, top
+    lazy = {mod for mod, func in found if func is not None}
+    assert lazy and all(_under(m, "mcverify") for m in lazy), lazy
+    assert not [m for m in lazy if _under(m, "mcverify.gate")], lazy
 
 
 @pytest.mark.parametrize("code", [

@@ -65,7 +65,7 @@ def test_a_seed_that_is_not_decimal_digits_is_refused(tmp_path):
     ({"PYTEST_XDIST_WORKER_COUNT": "1", "PYTEST_XDIST_WORKER": "gw0"}, 4, None),
 ])
 def test_xdist_workers_get_an_equal_share_of_numbas_threads(monkeypatch, env, total, want):
-    from mcverify.pytest_plugin import worker_threads
+    from _mcverify_pytest import worker_threads
 
     for k in ("PYTEST_XDIST_WORKER_COUNT", "PYTEST_XDIST_WORKER"):
         monkeypatch.delenv(k, raising=False)
@@ -79,7 +79,7 @@ def test_this_run_shares_the_cores_unless_told_not_to(pytestconfig):
     (this test runs in the worker's main thread), a lone process all of them."""
     import numba
 
-    from mcverify.pytest_plugin import worker_threads
+    from _mcverify_pytest import worker_threads
 
     total = numba.config.NUMBA_NUM_THREADS
     share = worker_threads(total)
@@ -182,7 +182,49 @@ def test_pytest_fixtures_describes_both_fixtures(tmp_path):
                         "--fixtures", str(tmp_path / "test_x.py")],
                        cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
-    ours = r.stdout.split("fixtures defined from mcverify.pytest_plugin")[1]
+    ours = r.stdout.split("fixtures defined from _mcverify_pytest")[1]
     ours = ours.split("fixtures defined from")[0].split("=====")[0]
     assert "no docstring" not in ours and "--mcverify-seed" in ours, ours
     assert "CheckResult" in ours, ours
+
+
+@pytest.mark.parametrize("xdist", [[], ["-n", "2"]], ids=["serial", "xdist"])
+def test_a_suite_that_never_uses_mcverify_is_left_alone(tmp_path, xdist):
+    """The plugin was ``mcverify.pytest_plugin``: loading it imported the package, so every
+    pytest run of an environment with mcverify installed imported numba and scipy and set
+    ``NUMBA_CPU_FEATURES`` on AVX-512 hosts (the user's own numba kernels then compiled
+    and cached anew), also in test suites that never use mcverify (an outside review)."""
+    import os
+
+    (tmp_path / "test_x.py").write_text(
+        "import os, sys\n"
+        "def test_x():\n"
+        "    heavy = [m for m in ('mcverify', 'numba', 'scipy') if m in sys.modules]\n"
+        "    assert not heavy and 'NUMBA_CPU_FEATURES' not in os.environ, heavy\n")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("NUMBA_CPU_FEATURES", "MCVERIFY_NUM_THREADS")}
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
+                        *xdist, str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
+    assert "mcverify: --mcverify-seed=0" in r.stdout, r.stdout     # the plugin was loaded
+
+
+def test_an_xdist_worker_shares_the_cores_with_numba_imported_by_a_test(tmp_path):
+    """The plugin no longer imports numba itself: a worker whose tests import it late (in
+    a test's body, after collection) runs its numba loops on its share from the next test
+    on (``--dist loadfile``: one worker runs the file, in order)."""
+    import os
+
+    (tmp_path / "test_x.py").write_text(
+        "def test_imports_numba():\n"
+        "    import numba  # noqa: F401\n"
+        "def test_after_it():\n"
+        "    import numba\n"
+        "    assert numba.get_num_threads() == 2, numba.get_num_threads()\n")
+    env = {**os.environ, "NUMBA_NUM_THREADS": "4"}
+    env.pop("MCVERIFY_NUM_THREADS", None)
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        "-n", "2", "--dist", "loadfile", str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)

@@ -1,4 +1,14 @@
-"""pytest plugin for renderer projects' own test suites (entry point ``pytest11``).
+"""mcverify's pytest plugin, for renderer projects' own test suites (entry point
+``pytest11``, name ``mcverify``: ``-p no:mcverify`` turns it off).
+
+A top-level module, apart from the ``mcverify`` package: pytest loads every installed
+plugin in every run, also of test suites that never use mcverify, and importing the
+package imports numba and scipy (0.34 s) and, on an AVX-512 host, sets
+``NUMBA_CPU_FEATURES`` (``mcnumba.vector_width``), under which a user's own numba
+kernels compile and cache anew. As ``mcverify.pytest_plugin`` it did all that in every
+pytest run of an environment where mcverify was installed (until 7 December; an
+outside review). This module imports only pytest and the standard library; mcverify,
+and numba, are imported where a test uses them.
 
 Fixtures:
 
@@ -22,8 +32,9 @@ test files: 115-124 s wall and 181-196 s of CPU with two threads a worker, 75 s 
 96-100 s with one). The mcverify runs a test starts get the same share (the worker sets
 ``MCVERIFY_NUM_THREADS``, which the CLI reads, unless the user set it): a CLI run of 2
 threads beside a busy worker paid about 7 ms for every parallel loop it started, waiting
-for its descheduled second thread. Results do
-not depend on the thread count. ``--mcverify-all-threads`` keeps numba's default in every
+for its descheduled second thread. The share applies once numba is imported (from the
+first test after a test's own ``import numba``). Results do not depend on the thread
+count. ``--mcverify-all-threads`` keeps numba's default in every
 worker.
 
 Example::
@@ -42,9 +53,9 @@ import pytest
 
 
 def _decimal_int(text):
-    """``--mcverify-seed``'s type: decimal digits only (``_validate.decimal_int``; imported
-    when the option is given, so that loading the plugin stays light)."""
-    from ._validate import decimal_int
+    """``--mcverify-seed``'s type: decimal digits only (``mcverify._validate.decimal_int``;
+    imported when the option is given, so that loading the plugin stays light)."""
+    from mcverify._validate import decimal_int
 
     return decimal_int(text)
 
@@ -67,25 +78,61 @@ def worker_threads(total: int) -> int | None:
     return max(1, total // workers)
 
 
+def _numba_threads() -> int | None:
+    """numba's thread pool size for this process, as numba computes it
+    (``NUMBA_NUM_THREADS``, else the CPUs this process may run on), without importing
+    numba where it is not imported yet; None where the variable is not a whole number
+    (numba refuses it as it is imported, and says so then)."""
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        return numba.config.NUMBA_NUM_THREADS
+    given = os.environ.get("NUMBA_NUM_THREADS", "").strip()
+    if given:
+        return int(given) if given.isdigit() and given.isascii() else None
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+_SHARE = pytest.StashKey[int]()
+
+
+def _apply_share(config) -> None:
+    """Give this thread's numba loops the worker's share once numba is imported: at the
+    start, or before the first test after it (the tests' modules import it as they are
+    collected, or a test does). The plugin imports no numba of its own: a test suite may
+    never use it."""
+    share = config.stash.get(_SHARE, None)
+    if share is not None and "numba" in sys.modules:
+        del config.stash[_SHARE]
+        sys.modules["numba"].set_num_threads(share)
+
+
 def pytest_configure(config):
     seed = config.getoption("mcverify_seed")
     if not 0 <= seed <= 2 ** 63 - 1:        # as mcverify check --seed
         raise pytest.UsageError(f"--mcverify-seed={seed}: must be in [0, 2**63 - 1]")
-    # numba's thread count is per thread: this sets the worker's main thread, which
-    # runs the tests.
     if config.getoption("mcverify_all_threads"):
         return
-    import numba
+    total = _numba_threads()
+    threads = None if total is None else worker_threads(total)
+    if threads is None:
+        return
+    # The mcverify runs the tests start read the share from the environment (not
+    # NUMBA_NUM_THREADS: numba re-reads that in this process too, and refuses a change
+    # once its threads run). A value the user set is theirs: it was overwritten, so
+    # MCVERIFY_NUM_THREADS=1 pytest -n 2 ran those runs on half the cores each.
+    if not os.environ.get("MCVERIFY_NUM_THREADS", "").strip():
+        os.environ["MCVERIFY_NUM_THREADS"] = str(threads)
+    # numba's thread count is per thread: this sets the worker's main thread, which
+    # runs the tests.
+    config.stash[_SHARE] = threads
+    _apply_share(config)
 
-    threads = worker_threads(numba.config.NUMBA_NUM_THREADS)
-    if threads is not None:
-        numba.set_num_threads(threads)
-        # The mcverify runs the tests start read the share from the environment (not
-        # NUMBA_NUM_THREADS: numba re-reads that in this process too, and refuses a change
-        # once its threads run). A value the user set is theirs: it was overwritten, so
-        # MCVERIFY_NUM_THREADS=1 pytest -n 2 ran those runs on half the cores each.
-        if not os.environ.get("MCVERIFY_NUM_THREADS", "").strip():
-            os.environ["MCVERIFY_NUM_THREADS"] = str(threads)
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    _apply_share(item.config)
 
 
 def pytest_report_header(config):
