@@ -176,6 +176,28 @@ def _verdict(r, check, alpha: float | None) -> str:
     return f"pending (p={r.p_value:.2g}; Holm across all checks decides)"
 
 
+#: The terminal stream whose progress line was written without its newline, to be
+#: overwritten by the next one; empty where none is.
+_OPEN_LINE: list = []
+
+
+def _overwrite(stream, text: str, done: bool) -> None:
+    """``text`` over a terminal's progress line, left open for the next unless ``done``."""
+    stream.write("\r\033[K" + text + ("\n" if done and text else ""))
+    stream.flush()
+    _OPEN_LINE[:] = [] if done else [stream]
+
+
+def _end_progress_line() -> None:
+    """End a terminal's open progress line, so that the line that ends a run (an error,
+    an interrupt) starts a line of its own: it was written on the same line, "[1/6] ok ok
+    (0.0s)mcverify: error: check 'gpu': no GPU here"."""
+    for stream in _OPEN_LINE:
+        stream.write("\n")
+        stream.flush()
+    _OPEN_LINE.clear()
+
+
 def _progress(stream, verdicts: bool = True, alpha: float | None = None):
     """Progress lines ``[i/total] name verdict (seconds)``. ``alpha``: the family-wise
     level the results are judged at later (None: each result's verdict is final)."""
@@ -185,10 +207,10 @@ def _progress(stream, verdicts: bool = True, alpha: float | None = None):
         verdict = _verdict(r, check, alpha) if verdicts else "done"
         line = f"[{i}/{total}] {r.name} {verdict} ({r.seconds:.1f}s)"
         if tty:
-            stream.write("\r\033[K" + line + ("\n" if i == total else ""))
+            _overwrite(stream, line, i == total)
         else:
             stream.write(line + "\n")
-        stream.flush()
+            stream.flush()
 
     return show
 
@@ -1093,11 +1115,9 @@ def _cmd_render_check(args) -> int:
     tty = sys.stderr.isatty() and not args.quiet
 
     def show(done, total):
-        if tty:
-            sys.stderr.write(f"\r\033[K[render] {100 * done // total}%")
-            if done == total:
-                sys.stderr.write("\r\033[K")
-            sys.stderr.flush()
+        if tty:     # the last one clears the line
+            _overwrite(sys.stderr, "" if done == total else f"[render] {100 * done // total}%",
+                       done == total)
 
     with _pool(args) as pool:
         result = render_check(args.scene, spp=args.spp, passes=args.passes, seed=args.seed,
@@ -1495,6 +1515,7 @@ def _main(args) -> int:
 
 def _stopped() -> int:
     """The one line and exit code of a run stopped by Ctrl-C (130) or SIGTERM (143)."""
+    _end_progress_line()
     if _TERMINATED:
         print("mcverify: terminated (SIGTERM; outputs are written whole or not at all)",
               file=sys.stderr)
@@ -1507,6 +1528,7 @@ def _stopped() -> int:
 def _failure(e: Exception) -> int:
     """The one stderr line and exit code of an error that ended a run (called while it
     is handled: ``MCVERIFY_TRACEBACK`` re-raises it)."""
+    _end_progress_line()
     if isinstance(e, (InvalidArgument, EnvironmentProblem)):
         print(f"mcverify: error: {escape_controls(' '.join(str(e).split()))}",
               file=sys.stderr)

@@ -569,3 +569,36 @@ def test_plan_lists_the_checks_check_scene_runs_under_the_tables_suite(project, 
     # check --scene's hint names the suite it planned from, so the plan it names is its own
     assert cli.main(["check", "--scene", scene, "--suite", "full", "-k", "nosuch"]) == 2
     assert f"`mcverify plan {scene} --suite full` lists them" in capsys.readouterr().err
+
+
+def test_the_line_that_ends_a_run_is_not_written_onto_a_terminals_progress_line(
+        monkeypatch, tmp_path):
+    """On a terminal each progress line is overwritten by the next ("\\r\\033[K", no
+    newline until the last check): a run that an error ended wrote its error on the same
+    line, "[1/6] ok ok (0.0s)mcverify: error: check 'my.gpu': no GPU" (an outside
+    review). The open line is ended first."""
+    import io
+
+    from mcverify.errors import EnvironmentProblem
+    from mcverify.gate import cli
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    def no_gpu(seed):
+        raise EnvironmentProblem("no GPU")
+
+    def ok(seed):
+        return mv.CheckResult("ok", True, 0.5, 1.0, 0.01, 10, 0.0)
+
+    import types
+    mod = types.ModuleType("tty_progress_suite")
+    mod.suite = [Check("ok", ok), Check("my.gpu", no_gpu)]
+    monkeypatch.setitem(sys.modules, mod.__name__, mod)
+    term = Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    assert cli.main(["check", "--suite", "tty_progress_suite:suite"]) == 2
+    lines = term.getvalue().split("\n")
+    assert lines[0].endswith("[1/6] ok ok (0.0s)"), lines
+    assert lines[1] == "mcverify: error: check 'my.gpu': no GPU", lines
