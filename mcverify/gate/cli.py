@@ -158,6 +158,15 @@ def _distinct_outputs(*pairs) -> None:
                         f"a file inside it, as a folder; give paths apart")
 
 
+def _shown(text) -> str:
+    """``text`` as a line of the terminal or CI log shows it: the characters a terminal
+    acts on (an ANSI escape, BEL, NUL or carriage return in an exception's text that a
+    check's message quotes) written as their escapes (``\\x1b``), as the error line and
+    the JUnit file write them: they reached stdout raw, where they coloured, rang or hid
+    the verdict's text."""
+    return escape_controls(text).replace("\r", "\\r")
+
+
 def _verdict(r, check, alpha: float | None) -> str:
     """What the final verdict on ``r`` will be, as far as it is known now.
 
@@ -205,7 +214,7 @@ def _progress(stream, verdicts: bool = True, alpha: float | None = None):
 
     def show(i, total, r, check=None):
         verdict = _verdict(r, check, alpha) if verdicts else "done"
-        line = f"[{i}/{total}] {r.name} {verdict} ({r.seconds:.1f}s)"
+        line = f"[{i}/{total}] {_shown(r.name)} {verdict} ({r.seconds:.1f}s)"
         if tty:
             _overwrite(stream, line, i == total)
         else:
@@ -431,10 +440,10 @@ def _cmd_check(args) -> int:
     if not args.quiet:  # the checks whose progress line said "pending", now judged
         for r in result.results:
             if not r.failures and r.p_value is not None and r.p_value <= args.alpha and r.passed:
-                print(f"PASS {r.name}: p={r.p_value:.3g} is no alarm after Holm "
+                print(f"PASS {_shown(r.name)}: p={r.p_value:.3g} is no alarm after Holm "
                       f"(p_adj={r.details.get('p_adjusted'):.3g})")
     for line in [*map(str, failed), *result.toothless()]:
-        print(line)
+        print(_shown(line))
     if skipped and not args.scene:
         reasons = {}
         for _, why in skipped:
@@ -679,7 +688,7 @@ def _cmd_report(args) -> int:
     failed += [f"render:{row['scene']}" for row in (renders[0] if renders else ())
                if not row.get("passed", True)]
     for name in failed:
-        print(f"FAIL {name}")
+        print(f"FAIL {_shown(name)}")
     return EXIT_FAILED if failed else EXIT_OK
 
 
@@ -1068,9 +1077,7 @@ def _cmd_compare(args) -> int:
               "that all missed a rare bright path have a low mean and a low variance, "
               "which reads as confident evidence; give --test-spp (and --ref-spp) to floor "
               "each side's variance at the other's", file=sys.stderr)
-    print(result.summary())
-    for m in result.messages:
-        print(f"    {m}")
+    print(_shown(result))    # its summary line and messages
     _print_visibility(result.details)
     sys.stdout.flush()
     if args.json:   # after the verdict is printed (and flushed), as in `check`
@@ -1126,9 +1133,7 @@ def _cmd_render_check(args) -> int:
                               (lambda m: print(f"notice: {m}", file=sys.stderr)),
                               progress=show if tty else None, pool=pool)
     d = result.details
-    print(result.summary())
-    for m in result.messages:
-        print(f"    {m}")
+    print(_shown(result))    # its summary line and messages
     print(f"    ours: {d['ours_spp']} spp in {d['ours_passes']} passes, {d['ours_seconds']:.2f}s "
           f"({d['ours_samples_per_second'] / 1e6:.2f} M samples/s, {d['ours_kernel']}); "
           f"relMSE {d['relmse']:.3g}; found by: {', '.join(d['found_by']) or 'nothing'}")

@@ -602,3 +602,31 @@ def test_the_line_that_ends_a_run_is_not_written_onto_a_terminals_progress_line(
     lines = term.getvalue().split("\n")
     assert lines[0].endswith("[1/6] ok ok (0.0s)"), lines
     assert lines[1] == "mcverify: error: check 'my.gpu': no GPU", lines
+
+
+def test_a_failed_checks_verdict_lines_escape_what_a_terminal_would_act_on(monkeypatch,
+                                                                           capsys):
+    """A check whose subject raised an error with an ANSI colour code (quoting a tool's
+    coloured output) or a carriage return printed it raw in its FAIL line and messages on stdout:
+    the terminal or CI log coloured the rest of the log, or showed only the text after
+    the '\\r'. They are written as escapes, as the error line and the JUnit file write
+    them (an outside review)."""
+    from mcverify.gate import cli
+
+    def raises(seed):
+        raise RuntimeError("\x1b[1;31mTypingError\x1b[0m: bad")
+
+    def fails(seed):
+        return mv.CheckResult("my.msg\x07", False, 0.0, 1.0, 0.01, 10, 0.0,
+                              messages=("50%\rall draws NaN\x00",))
+
+    import types
+    mod = types.ModuleType("control_chars_suite")
+    mod.suite = [Check("my.raises", raises), Check("my.msg\x07", fails)]
+    monkeypatch.setitem(sys.modules, mod.__name__, mod)
+    assert cli.main(["check", "--suite", "control_chars_suite:suite"]) == 1
+    out, err = capsys.readouterr()
+    assert "raised RuntimeError: \\x1b[1;31mTypingError\\x1b[0m: bad" in out, out
+    assert "FAIL my.msg\\x07 p=0" in out and "    50%\\rall draws NaN\\x00" in out, out
+    assert "[2/6] my.msg\\x07 pending" in err, err
+    assert not any(c in out + err for c in "\x1b\x07\x00\r"), out + err
