@@ -105,6 +105,10 @@ def _writable(option: str, path: str | None, inputs=()) -> None:
         return
     if not path.strip():
         raise InvalidArgument(f"{option} {path!r}: empty path; give a file path")
+    if path == "-":     # was written as a file named '-', where a pipe read nothing
+        raise InvalidArgument(f"{option} -: is not stdout here (it would be a file named "
+                              "'-'); give a file path, or /dev/stdout, where the file "
+                              "follows the printed lines")
     try:
         target, how = output_target(path)
     except InvalidArgument as e:

@@ -630,3 +630,24 @@ def test_a_failed_checks_verdict_lines_escape_what_a_terminal_would_act_on(monke
     assert "FAIL my.msg\\x07 p=0" in out and "    50%\\rall draws NaN\\x00" in out, out
     assert "[2/6] my.msg\\x07 pending" in err, err
     assert not any(c in out + err for c in "\x1b\x07\x00\r"), out + err
+
+
+@pytest.mark.parametrize("option", ["--json", "--junit"])
+def test_an_output_path_of_a_dash_is_refused_not_written_as_a_file_named_dash(
+        monkeypatch, tmp_path, capsys, option):
+    """`mcverify check --json - | jq .passed`, as many tools read '-', got the printed
+    verdict on the pipe and a file named '-' in the current folder, exit 0 (an outside
+    review). It exits 2 before any work, saying what to give instead."""
+    from mcverify.gate import cli
+
+    import types
+    mod = types.ModuleType("dash_output_suite")
+    mod.suite = [Check("ok", lambda seed: mv.CheckResult("ok", True, 0.5, 1.0, 0.01, 10,
+                                                         0.0))]
+    monkeypatch.setitem(sys.modules, mod.__name__, mod)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["check", "-q", "--suite", "dash_output_suite:suite", option, "-"]) == 2
+    out, err = capsys.readouterr()
+    assert err.startswith(f"mcverify: error: {option} -: is not stdout here") and \
+        "/dev/stdout" in err and out == "", err
+    assert not (tmp_path / "-").exists()
