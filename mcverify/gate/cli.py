@@ -194,6 +194,13 @@ def _verdict(r, check, alpha: float | None) -> str:
 _OPEN_LINE: list = []
 
 
+def _overwrites(stream) -> bool:
+    """Whether ``stream`` is a terminal that can overwrite a line ("\\r\\033[K"): not
+    where ``TERM=dumb`` says it cannot (Emacs' compilation and shell buffers, which are
+    terminals and showed each progress line as '^[[K[3/8] …', all on one line)."""
+    return stream.isatty() and os.environ.get("TERM") != "dumb"
+
+
 def _overwrite(stream, text: str, done: bool) -> None:
     """``text`` over a terminal's progress line, left open for the next unless ``done``."""
     stream.write("\r\033[K" + text + ("\n" if done and text else ""))
@@ -214,7 +221,7 @@ def _end_progress_line() -> None:
 def _progress(stream, verdicts: bool = True, alpha: float | None = None):
     """Progress lines ``[i/total] name verdict (seconds)``. ``alpha``: the family-wise
     level the results are judged at later (None: each result's verdict is final)."""
-    tty = stream.isatty()
+    tty = _overwrites(stream)
 
     def show(i, total, r, check=None):
         verdict = _verdict(r, check, alpha) if verdicts else "done"
@@ -1123,7 +1130,7 @@ def _cmd_render_check(args) -> int:
     except SceneError as e:
         raise InvalidArgument(str(e)) from None
     reference.precheck_scene(scene_path)      # and Mitsuba's needs, before the notice
-    tty = sys.stderr.isatty() and not args.quiet
+    tty = _overwrites(sys.stderr) and not args.quiet
 
     def show(done, total):
         if tty:     # the last one clears the line

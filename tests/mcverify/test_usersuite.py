@@ -596,6 +596,7 @@ def test_the_line_that_ends_a_run_is_not_written_onto_a_terminals_progress_line(
     mod = types.ModuleType("tty_progress_suite")
     mod.suite = [Check("ok", ok), Check("my.gpu", no_gpu)]
     monkeypatch.setitem(sys.modules, mod.__name__, mod)
+    monkeypatch.setenv("TERM", "xterm")     # one that overwrites its lines
     term = Terminal()
     monkeypatch.setattr(sys, "stderr", term)
     assert cli.main(["check", "--suite", "tty_progress_suite:suite"]) == 2
@@ -651,3 +652,30 @@ def test_an_output_path_of_a_dash_is_refused_not_written_as_a_file_named_dash(
     assert err.startswith(f"mcverify: error: {option} -: is not stdout here") and \
         "/dev/stdout" in err and out == "", err
     assert not (tmp_path / "-").exists()
+
+
+def test_a_dumb_terminal_gets_one_progress_line_a_check(monkeypatch):
+    """A terminal whose TERM is dumb (Emacs' compilation and shell buffers) cannot move
+    back over a line: each progress line was written over the last with "\\r\\033[K",
+    shown as '^[[K[1/5] ok ok (0.0s)^[[K[2/5] …' on one line (an outside review). It
+    gets the lines a log file gets."""
+    import io
+
+    from mcverify.gate import cli
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    import types
+    mod = types.ModuleType("dumb_terminal_suite")
+    mod.suite = [Check("ok", lambda seed: mv.CheckResult("ok", True, 0.5, 1.0, 0.01, 10,
+                                                         0.0))]
+    monkeypatch.setitem(sys.modules, mod.__name__, mod)
+    monkeypatch.setenv("TERM", "dumb")
+    term = Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    assert cli.main(["check", "--suite", "dumb_terminal_suite:suite"]) == 0
+    lines = term.getvalue().splitlines()
+    assert lines[0] == "[1/5] ok ok (0.0s)" and len(lines) == 5, lines
+    assert "\x1b" not in term.getvalue() and "\r" not in term.getvalue()
