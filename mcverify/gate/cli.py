@@ -1137,12 +1137,16 @@ def _cmd_render_check(args) -> int:
             _overwrite(sys.stderr, "" if done == total else f"[render] {100 * done // total}%",
                        done == total)
 
-    with _pool(args) as pool:
-        result = render_check(args.scene, spp=args.spp, passes=args.passes, seed=args.seed,
-                              alpha=args.alpha, params=params,
-                              notice=None if args.quiet else
-                              (lambda m: print(f"notice: {m}", file=sys.stderr)),
-                              progress=show if tty else None, pool=pool)
+    try:
+        with _pool(args) as pool:
+            result = render_check(args.scene, spp=args.spp, passes=args.passes,
+                                  seed=args.seed, alpha=args.alpha, params=params,
+                                  notice=None if args.quiet else
+                                  (lambda m: print(f"notice: {m}", file=sys.stderr)),
+                                  progress=show if tty else None, pool=pool)
+    finally:
+        if _OPEN_LINE:  # a render decided early stops short of 100 %: its verdict was
+            _overwrite(sys.stderr, "", True)  # written on, "[render] 25%FAIL render:…"
     d = result.details
     print(_shown(result))    # its summary line and messages
     print(f"    ours: {d['ours_spp']} spp in {d['ours_passes']} passes, {d['ours_seconds']:.2f}s "

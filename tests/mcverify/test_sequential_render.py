@@ -78,3 +78,30 @@ def test_few_passes_keep_the_gate_calibrated(passes):
             assert r.details["tests"] == ["global", "blocks", "pixels"]
         failed += not r.passed
     assert failed <= 1, failed
+
+
+def test_render_check_on_a_terminal_clears_its_percentage_when_it_stops_early(
+        monkeypatch, capsys):
+    """`mcverify render-check` on a terminal shows "[render] N%" over one line, cleared
+    at 100 %; a render decided at its first look stops at 25 %, and the line stayed, so
+    the verdict printed after it read "[render] 25%FAIL render:white-furnace…" (an
+    outside review). The line is cleared whenever the render check ends."""
+    import functools
+    import io
+    import sys
+
+    from mcverify.gate import cli, render_check
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(render_check, "render_check", functools.partial(
+        render_check.render_check, plant={"light_scale": 1.5}))
+    monkeypatch.setenv("TERM", "xterm")
+    term = Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    assert cli.main(["render-check", "white-furnace", "--spp", "256", "--passes", "8"]) == 1
+    assert "stopped early" in capsys.readouterr().out
+    assert "[render] 25%" in term.getvalue() and term.getvalue().endswith("\r\x1b[K"), \
+        term.getvalue()
