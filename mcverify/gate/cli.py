@@ -1092,7 +1092,18 @@ def _cmd_compare(args) -> int:
     _print_visibility(result.details)
     sys.stdout.flush()
     if args.json:   # after the verdict is printed (and flushed), as in `check`
-        write_json(result, args.json, provenance=provenance(command="compare"))
+        # what was compared: the JSON named only the test side (compare:LABEL), not the
+        # reference it was held to, its counts or a reference's manifest
+        write_json(result, args.json, provenance=provenance(
+            command="compare", test=os.path.abspath(label),
+            test_files=[os.path.abspath(f) for f in test_files], test_n=test.n,
+            test_spp=args.test_spp,     # a reference by name or folder: its scene file
+            reference=os.path.abspath(ref_image or args.ref_passes) if ref_load is not None
+            else os.path.abspath(reference.resolve_scene(ref_image)[1]),
+            reference_files=[os.path.abspath(f) for f in ref_files]
+            if ref_load is not None else None,
+            ref_n=ref_n, ref_spp=ref_spp, correlated=correlated,
+            reference_manifest=None if ref_load is not None else r.manifest))
     return EXIT_OK if result.passed else EXIT_FAILED
 
 

@@ -534,3 +534,34 @@ def test_luminance_passes_against_an_rgb_reference_are_refused_naming_pixel_form
                        capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert r.returncode == 2 and "differs from the reference's (8, 8, 3)" in r.stderr and \
         "channel" not in r.stderr, r.stdout + r.stderr
+
+
+def test_compare_json_names_what_was_compared(tmp_path):
+    """`compare --json`'s file named the test side alone ("compare:out/pass_*.exr"), and
+    its provenance only the command: a CI artifact of a failed compare did not say which
+    reference (or which version of it) the render was held to, nor the counts (an
+    outside review). It now records both sides' files and n, and a reference's manifest."""
+    import json
+
+    from mcverify.gate import cli
+
+    rng = np.random.default_rng(5)
+    passes = _write(tmp_path / "mine", rng.random((4, 64, 64, 3)).astype(np.float32))
+    out = tmp_path / "r.json"
+    assert cli.main(["compare", "--test-passes", passes, "white-furnace", "--json",
+                     str(out)]) in (0, 1)
+    p = json.loads(out.read_text())["provenance"]
+    _, scene = reference.resolve_scene("white-furnace")
+    assert p["reference"] == os.path.abspath(scene) and p["ref_n"] == 16
+    assert p["reference_manifest"] == reference.load_reference("white-furnace").manifest
+    assert p["test"] == passes and p["test_n"] == 4 and len(p["test_files"]) == 4
+    m, v = str(tmp_path / "m.exr"), str(tmp_path / "v.exr")
+    mvm.write_exr(m, rng.random((8, 8, 3)).astype(np.float32))
+    mvm.write_exr(v, rng.random((8, 8, 3)).astype(np.float32))
+    ref = str(tmp_path / "ref.exr")
+    mvm.write_exr(ref, rng.random((8, 8, 3)).astype(np.float32))
+    assert cli.main(["compare", m, ref, "--test-var", v, "--test-n", "5", "--ref-var", v,
+                     "--ref-n", "7", "--json", str(out)]) in (0, 1)
+    p = json.loads(out.read_text())["provenance"]
+    assert p["reference"] == ref and p["reference_files"] == [ref, v]
+    assert (p["test_n"], p["ref_n"], p["reference_manifest"]) == (5, 7, None)
