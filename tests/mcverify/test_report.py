@@ -628,3 +628,22 @@ def test_cli_report_renders_a_scene_named_twice_once(tmp_path, capsys, monkeypat
                    "--out", str(tmp_path / "out")])
     assert rc == 2 and "stop here" in capsys.readouterr().err
     assert rendered == ["white-furnace"]
+
+
+def test_control_characters_in_a_message_are_escaped_in_the_page(tmp_path):
+    """A check that raised with an ANSI colour code (quoting a tool's coloured output),
+    a BEL or a NUL put them into report.html raw: NUL shown as U+FFFD, the escape
+    invisible, and an HTML validator refused the page (an outside review). They are
+    written as escapes, as the JUnit file writes them; the JSON keeps the text."""
+    from mcverify.result import CheckResult, SuiteResult
+
+    failed = CheckResult("mine\x07", False, None, None, 0.01, 1, 0.0,
+                         failures=("raised RuntimeError: \x1b[31mno\x1b[0m GPU\x00",))
+    build_report(str(tmp_path), suite=SuiteResult.judge("mine:suite", [failed], alpha=0.01,
+                                                         seconds=0.0),
+                 study=None)
+    page = (tmp_path / "report.html").read_text()
+    assert "\\x1b[31mno\\x1b[0m GPU\\x00" in page and "mine\\x07" in page
+    assert not any(c in page for c in "\x1b\x07\x00")
+    assert json.loads((tmp_path / "report.json").read_text())["verification"]["results"][0][
+        "failures"] == ["raised RuntimeError: \x1b[31mno\x1b[0m GPU\x00"]

@@ -15,7 +15,8 @@ import json
 import os
 
 from ...provenance import provenance
-from ...result import SuiteResult, atomic_write, json_text, output_target
+from ...result import (SuiteResult, atomic_write, escape_controls, json_text,
+                      output_target)
 from . import plots
 
 __all__ = ["build_report", "prepare_report", "render_html", "files_touched"]
@@ -140,7 +141,11 @@ def _unique(prefix: str, name: str, taken) -> str:
 
 
 def _e(v) -> str:
-    return html.escape(str(v))
+    """``v`` as page text: HTML's specials escaped, and the characters HTML cannot hold
+    (an ANSI escape, NUL, BEL in an exception's text that a check quotes) written as
+    their escapes (``\\x1b``), as the JUnit file writes them: they went into the page
+    raw, NUL shown as U+FFFD, an escape invisible, and an HTML validator refused it."""
+    return html.escape(escape_controls(v))
 
 
 def _fmt(v, spec=".3g"):
