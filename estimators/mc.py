@@ -334,6 +334,32 @@ def rqmc(f, a, b, n: int, *, seed: int = 0, replicates: int = 16) -> Estimate:
     return Estimate(e.value, e.std_error, n * r, e.samples)
 
 
+def _mis_terms(fx, p, counts, i, ex):
+    """Technique i's terms ``w_i f / p_i`` at its samples from every technique's pdf
+    ``p`` (techniques × samples), with ``w_i = (n_i p_i)^β / Σ_j (n_j p_j)^β``.
+
+    Computed from ratios, never from n_j p_j or a power of it: f n_i r_i^(β-1) /
+    (t Σ_j r_j^β) / m, with m = max_j p_j, r_j = n_j (p_j / m) / t and t = max_j n_j p_j
+    / m. Formed as products, n_j p_j overflowed (a pdf above 1.8e308 / n_j) and a power of
+    it with a large β; an infinite pdf (a delta strategy's) made inf / inf: each gave a
+    NaN estimate without a word. Limits where the formula has none:
+    - own pdf 0, another's not: (0 / t)^(β-1) is 0 for β > 1 and 1 for balance, so the
+      balance term is f n_i / Σ n_j p_j (it was 0 · f / 0 = NaN);
+    - a pdf of inf at the point: the term is f / inf = 0 (w_i ≤ 1 over an infinite
+      p_i; or w_i = 0 where another technique's density is infinite), so a delta
+      strategy's samples add nothing and the others' are weighed as without it;
+    - every pdf 0: f / 0, as in ``importance`` (inf where f is not 0)."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        m = p.max(axis=0)
+        finite = np.isfinite(m) & (m > 0)
+        q = counts[:, None] * (p / np.where(finite, m, 1.0))     # n_j p_j / m, finite
+        t = q.max(axis=0)
+        r = q / np.where(finite, t, 1.0)                         # in [0, 1]
+        s = t * np.sum(r ** ex, axis=0)
+        inner = fx * (counts[i] * r[i] ** (ex - 1.0) / s) / m
+        return np.where(fx == 0.0, 0.0, np.where(finite, inner, fx / m))
+
+
 @_checked
 def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
         beta: float = 2.0) -> Estimate:
@@ -342,6 +368,8 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
     ``techniques``: a list (or any iterable) of ``(sample, pdf, n_i, sample_dim)``;
     every technique's pdf is evaluated at every technique's samples. ``heuristic``: ``"balance"``
     (``w_i = n_i p_i / Σ_j n_j p_j``) or ``"power"`` (exponent ``beta``, 2 by default).
+    The weights are computed from ratios of the pdfs (``_mis_terms``): a pdf of inf (a
+    delta strategy's) contributes its limit, 0, and huge pdfs do not overflow.
     When all n_i are equal, ``samples`` holds per index k the sum over techniques of
     their k-th terms (i.i.d. estimates of the integral); otherwise None.
     """
@@ -377,21 +405,9 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
         x = _points(f"techniques[{len(cols)}] sample",
                     sample(np.random.default_rng(s).random((n_i, int(k)))), n_i)
         fx = _values("f", f(x), n_i, x)
-        pj = np.stack([_density(f"techniques[{j}] pdf", t[1](x), n_i, x) * c
-                       for j, (t, c) in enumerate(zip(techniques, counts))])   # n_j p_j(x)
-        own = pj[len(cols)]
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            # (n_j p_j / max_j n_j p_j)^beta: the same weights, no overflow of a power
-            # (beta ~ 250 made value and error NaN)
-            top = pj.max(axis=0)
-            # w f / p_i = f n_i (n_i p_i / top)^(beta-1) / (top Σ_j (n_j p_j / top)^beta):
-            # w · f / p_i was 0 · f / 0 = NaN at a sample where its own pdf is 0 and
-            # another's is not (the balance term f n_i / Σ n_j p_j is finite there); where
-            # every pdf is 0 it is f / 0, as in ``importance``
-            s = top * np.sum((pj / top) ** ex, axis=0)
-            terms = np.where(fx == 0.0, 0.0,
-                             np.where(top > 0, fx * n_i * (own / top) ** (ex - 1.0) / s,
-                                      fx / top))
+        pj = np.stack([_density(f"techniques[{j}] pdf", t[1](x), n_i, x)
+                       for j, t in enumerate(techniques)])
+        terms = _mis_terms(fx, pj, np.asarray(counts, dtype=np.float64), len(cols), ex)
         value += terms.mean()
         var += terms.var(ddof=1) / n_i if n_i > 1 else np.inf
         cols.append(terms)

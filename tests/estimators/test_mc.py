@@ -373,6 +373,28 @@ def test_mis_term_at_a_sample_where_its_own_pdf_is_0_is_its_limit(heuristic, bet
     assert e.value == pytest.approx(want, rel=1e-12)
 
 
+@pytest.mark.parametrize("heuristic", ["balance", "power"])
+def test_mis_with_an_infinite_or_overflowing_n_p_gives_its_limit_not_nan(heuristic):
+    """The weights were formed from n_j p_j and its powers: a delta strategy's pdf of inf
+    made inf / inf, and a pdf of 1e308 (a lobe 1e-308 wide) times n_j = 10 overflowed;
+    either made value, error and samples NaN without a word (an outside review). The
+    terms are their limits now: a delta technique's samples add f / inf = 0, the other
+    technique's are weighed as without it, and the narrow lobe's integral comes out."""
+    one = lambda x: np.ones(len(x))                                  # noqa: E731
+    uniform = (lambda u: u[:, 0], one, 20, 1)
+    delta = (lambda u: np.full(len(u), 0.5),
+             lambda x: np.where(x == 0.5, np.inf, 0.0), 20, 1)
+    f = lambda x: x ** 2                                             # noqa: E731
+    e = mc.mis(f, [uniform, delta], seed=4, heuristic=heuristic)
+    alone = mc.mis(f, [uniform], seed=4, heuristic=heuristic)      # the same uniforms
+    assert e.value == alone.value and e.std_error == alone.std_error
+    assert np.isfinite(e.samples).all()
+    lobe = (lambda u: 1e-308 * u[:, 0], lambda x: np.full(len(x), 1e308), 10, 1)
+    e = mc.mis(one, [lobe, lobe], seed=4, heuristic=heuristic)      # ∫ over [0, 1e-308]
+    assert e.value == pytest.approx(1e-308, rel=1e-12)
+    assert np.isfinite(e.std_error)
+
+
 def test_a_sample_count_beyond_the_machines_memory_is_refused_by_name():
     """n = 10**13 ended in numpy's "Unable to allocate 72.8 TiB", naming no argument (an
     outside review)."""
