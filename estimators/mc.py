@@ -48,13 +48,29 @@ class Estimate:
     samples: np.ndarray = field(repr=False, default=None)
 
 
+def _at_scale(v: np.ndarray) -> tuple[np.ndarray, float]:
+    """``v`` divided by its largest magnitude, and that magnitude (1 where v is all 0):
+    squares of terms of 1e-170 underflowed to 0 and of 1e155 overflowed to inf."""
+    top = float(np.max(np.abs(v))) if v.size else 0.0
+    top = top if 0.0 < top < np.inf else 1.0
+    return v / top, top
+
+
+def _standard_error(terms: np.ndarray) -> float:
+    """The standard error of the mean of ``terms``, their sample standard deviation over
+    √n, at the terms' own scale (until 7 December np.std of terms of 1e-170 was 0 and of
+    1e155 inf: an estimate said to be exact, or to have no error bound). inf for one
+    term or an infinite one (p = 0 where f is not), NaN where a term is NaN."""
+    if terms.size < 2 or not np.isfinite(terms).all():
+        return np.nan if np.isnan(terms).any() else np.inf
+    unit, top = _at_scale(terms)
+    return float(np.std(unit, ddof=1) / np.sqrt(terms.size) * top)
+
+
 def _from_terms(terms, n_evals=None) -> Estimate:
     terms = np.asarray(terms, dtype=np.float64).ravel()
-    if terms.size > 1 and np.isfinite(terms).all():
-        se = float(np.std(terms, ddof=1) / np.sqrt(terms.size))
-    else:   # one term, or an infinite one (p = 0 where f is not): no finite error
-        se = np.nan if np.isnan(terms).any() else np.inf
-    return Estimate(float(np.mean(terms)), se, int(n_evals or terms.size), terms)
+    return Estimate(float(np.mean(terms)), _standard_error(terms), int(n_evals or terms.size),
+                    terms)
 
 
 def _bound(name: str, v) -> np.ndarray:
@@ -285,7 +301,8 @@ def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     paired = vals.reshape(m0 // 2, 2, -1)
     pairs = paired.mean(axis=1).ravel()
     value = float(vals.mean())
-    se = float(np.sqrt(np.sum((paired[:, 0] - paired[:, 1]) ** 2)) / vals.size)
+    unit, top = _at_scale(paired[:, 0] - paired[:, 1])
+    se = float(np.sqrt(np.sum(unit ** 2)) / vals.size * top)
     return Estimate(value, se, int(vals.size), pairs)
 
 
@@ -400,7 +417,7 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
     for i, (t, c) in enumerate(zip(techniques, counts)):
         k = _count(t[3], f"techniques[{i}] sample_dim")
         _fits(c, k, f"techniques[{i}]: n_i={c}, sample_dim={k}")
-    value, var, cols = 0.0, 0.0, []
+    value, errors, cols = 0.0, [], []
     for (sample, _pdf, n_i, k), s in zip(techniques, seqs):
         x = _points(f"techniques[{len(cols)}] sample",
                     sample(np.random.default_rng(s).random((n_i, int(k)))), n_i)
@@ -409,10 +426,14 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
                        for j, t in enumerate(techniques)])
         terms = _mis_terms(fx, pj, np.asarray(counts, dtype=np.float64), len(cols), ex)
         value += terms.mean()
-        var += terms.var(ddof=1) / n_i if n_i > 1 else np.inf
+        errors.append(_standard_error(terms))
         cols.append(terms)
     samples = np.sum(cols, axis=0) if len(set(counts)) == 1 else None
-    return Estimate(float(value), float(np.sqrt(var)), int(sum(counts)), samples)
+    # each technique's error at its own scale, added in quadrature without squaring
+    # (the sum of their variances underflowed to 0 for terms of 1e-160); an infinite
+    # term's error is inf, as in ``importance`` (its variance inf - inf was NaN)
+    se = np.nan if np.isnan(errors).any() else math.hypot(*errors)
+    return Estimate(float(value), float(se), int(sum(counts)), samples)
 
 
 @_checked

@@ -395,6 +395,42 @@ def test_mis_with_an_infinite_or_overflowing_n_p_gives_its_limit_not_nan(heurist
     assert np.isfinite(e.std_error)
 
 
+SCALED = {
+    "uniform": lambda f: mc.uniform(f, 0.0, 1.0, 1000, seed=1),
+    "importance": lambda f: mc.importance(f, lambda u: u, lambda x: np.ones(len(x)), 1000,
+                                          seed=1),
+    "stratified": lambda f: mc.stratified(f, 0.0, 1.0, 1000, seed=1),
+    "rqmc": lambda f: mc.rqmc(f, 0.0, 1.0, 256, seed=1),
+    "antithetic": lambda f: mc.antithetic(lambda x: f(x) * x, 0.0, 1.0, 1000, seed=1),
+    "mis": lambda f: mc.mis(f, [(lambda u: u, lambda x: np.ones(len(x)), 1000, 1),
+                                (lambda u: np.sqrt(u), lambda x: 2.0 * x[:, 0], 500, 1)],
+                            seed=1),
+}
+
+
+@pytest.mark.parametrize("scale", [1e-170, 1e160])
+@pytest.mark.parametrize("name", list(SCALED))
+def test_the_standard_error_is_that_of_the_same_estimate_at_scale_1(name, scale):
+    """The standard error squared the terms at their own scale: f = 1e-170 x gave an
+    error of 0 (mis already at 1e-160, its variances summed), an estimate said to be
+    exact, and f = 1e160 x an error of inf (an outside review). It is now the error at
+    scale 1 times the scale."""
+    at_1 = SCALED[name](lambda x: np.ravel(x))
+    scaled = SCALED[name](lambda x: scale * np.ravel(x))
+    assert scaled.std_error / scale == pytest.approx(at_1.std_error, rel=1e-9)
+
+
+def test_mis_with_an_infinite_term_has_an_infinite_standard_error_as_importance_does():
+    """f = 1 where every technique's pdf is 0 gives an infinite term; importance's
+    standard error is inf there and mis's was NaN, the variance inf - inf (an outside
+    review), with numpy's 'invalid value encountered in subtract' warning."""
+    zero = lambda x: np.zeros(len(x))                                 # noqa: E731
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        e = mc.mis(lambda x: np.ones(len(x)), [(lambda u: u[:, 0], zero, 10, 1)], seed=0)
+    assert e.value == np.inf and e.std_error == np.inf
+
+
 def test_a_sample_count_beyond_the_machines_memory_is_refused_by_name():
     """n = 10**13 ended in numpy's "Unable to allocate 72.8 TiB", naming no argument (an
     outside review)."""
