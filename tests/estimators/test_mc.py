@@ -431,6 +431,23 @@ def test_mis_with_an_infinite_term_has_an_infinite_standard_error_as_importance_
     assert e.value == np.inf and e.std_error == np.inf
 
 
+def test_mis_with_unequal_counts_gives_replicates_for_check_unbiased():
+    """samples was None unless every n_i was equal, so a renderer's usual split (1000
+    BSDF and 500 light samples) left check_unbiased nothing to test: it raised 'must be
+    a 1-D array of numbers, got dtype object' (an outside review). samples now holds
+    gcd(n_i) i.i.d. replicates, each from n_i / gcd samples of every technique, whose
+    mean is the value; seeded, α = 0.01."""
+    techs = [(sin_sampler, sin_pdf, 20_000, 1), (linear_sampler, linear_pdf, 10_000, 1)]
+    e = mc.mis(np.sin, techs, seed=3, heuristic="power")
+    assert e.samples.shape == (10_000,)
+    assert np.mean(e.samples) == pytest.approx(e.value, rel=1e-12)
+    assert mv.check_unbiased(e.samples, 2.0).passed
+    same = [(sin_sampler, sin_pdf, 500, 1), (linear_sampler, linear_pdf, 500, 1)]
+    e = mc.mis(np.sin, same, seed=3)                   # equal n_i: the k-th terms' sums
+    assert e.samples.shape == (500,)
+    assert mc.mis(np.sin, same[:1] + [(linear_sampler, linear_pdf, 7, 1)]).samples.shape == (1,)
+
+
 def test_a_sample_count_beyond_the_machines_memory_is_refused_by_name():
     """n = 10**13 ended in numpy's "Unable to allocate 72.8 TiB", naming no argument (an
     outside review)."""
