@@ -361,8 +361,12 @@ def samples_1d(name: str, v, *, minimum: int = 2) -> np.ndarray:
     if not (real_dtype(raw.dtype) or raw.dtype == np.bool_):
         # strings ("1", "2") were read as numbers (found by a probe); booleans stay 0/1,
         # a hit-or-miss estimator's values (found by review)
-        raise InvalidArgument(f"{name}: must be a 1-D array of numbers, got dtype "
-                              f"{raw.dtype}")
+        got = f"dtype {raw.dtype}"
+        if raw.dtype == object and raw.ndim == 0:
+            # None, a dict, a generator, which numpy wraps whole: "got dtype object" said
+            # nothing of what was given (an outside review)
+            got = f"{type(v).__name__} {v!r:.60}"
+        raise InvalidArgument(f"{name}: must be a 1-D array of numbers, got {got}")
     a = raw.astype(np.float64, copy=False)
     if a.ndim != 1:
         raise InvalidArgument(f"{name}: must be 1-D, got shape {a.shape}")
