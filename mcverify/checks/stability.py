@@ -120,6 +120,13 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
     x, raised = _call("sample", sample, rows.copy())
     if raised:
         return -1, raised
+    n, dim = rows.shape[0], domain.dim
+    if dim > 1 and x.shape == (dim, n) and x.shape != (n, dim):
+        # reshaped to (n, dim), a (dim, n) array's rows mixed coordinates of several
+        # points: a correct cosine sampler returning mi.Vector3f (numpy's (3, n)) failed
+        # at u = [0, 0], "its length is 1.22, not 1: normalise the direction"
+        return -1, (f"sample returned shape {x.shape} for {n} u: expected ({n}, {dim}); "
+                    "transposed? return points.T")
     try:
         x = domain.points(x)
     except (ValueError, TypeError) as e:

@@ -155,6 +155,23 @@ def test_a_sampler_returning_points_and_pdf_is_told_to_return_the_points():
     assert ("sample returned a tuple of 2 arrays, (points, pdf) as check_pdf_consistency's "
             "sampler returns them: this check takes the points alone") in r.details["problem"]
 
+
+def test_points_returned_transposed_are_a_finding_not_mixed_rows():
+    """A (3, n) return (np.stack(..., axis=0), or Dr.Jit's mi.Vector3f as numpy sees it)
+    was reshaped to (n, 3), each row mixing coordinates of several points: a correct
+    cosine sampler failed at u = [0, 0], "its length is 1.224745, not 1 within 1e-05:
+    normalise the direction" (an outside review)."""
+    def cosine_rows(u):                                     # (3, n), a Dr.Jit layout
+        r, phi = np.sqrt(u[:, 0]), 2.0 * np.pi * u[:, 1]
+        return np.stack([r * np.cos(phi), r * np.sin(phi),
+                         np.sqrt(np.maximum(0.0, 1.0 - u[:, 0]))])
+    r = mv.check_stability(cosine_rows, "hemisphere", max_examples=5)
+    assert not r.passed and "normalise" not in r.details["problem"]
+    assert "sample returned shape (3, 1) for 1 u: expected (1, 3); transposed? return points.T" \
+        in r.details["problem"]
+    r = mv.check_stability(lambda u: cosine_rows(u).T, "hemisphere", max_examples=5)
+    assert r.passed, r.failures
+
 def test_a_path_space_sampler_of_many_dimensions_is_checked_in_bounded_memory():
     """3^d corners were built for every d until 6 December: sample_dim=30 (a path-space
     sampler) asked for 2e14 rows and ran out of memory. Above MAX_CORNER_DIM each edge
