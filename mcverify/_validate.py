@@ -35,6 +35,43 @@ def draw(name: str, sample, u: np.ndarray):
             e.add_note(f"mcverify called {name} with uniform numbers u of shape {u.shape}: "
                        f"{u.shape[1]} a draw; pass sample_dim=K where it takes K")
         raise
+    except Exception as e:
+        compiled_note(e, name, sample, u, "uniform numbers u", "draw")
+        raise
+
+
+def call(name: str, f, x, what: str = "points x"):
+    """``f(x)`` for a pdf, an inverse or an ``f`` of points (n, d), with
+    ``compiled_note`` on what numba refuses."""
+    try:
+        return f(x)
+    except Exception as e:
+        compiled_note(e, name, f, x, what, "point")
+        raise
+
+
+def _compiled(f) -> bool:
+    """A numba function: a jitted dispatcher (``@njit``) or a ``@vectorize`` or
+    ``@guvectorize`` ufunc (numba's or a plain ``np.ufunc``); numba is not imported."""
+    return isinstance(f, np.ufunc) or type(f).__module__.split(".")[0] == "numba"
+
+
+def compiled_note(e: BaseException, name: str, f, arg, what: str, row: str) -> None:
+    """A note on numba's refusal of the batch mcverify hands a compiled callable: an
+    ``@njit`` function of one draw's numbers raised "not enough arguments: expected 2,
+    got 1", a float32-only signature "No matching definition for argument type(s)
+    array(float64, 2d, C)", a function of one row a TypingError pages long, nothing of
+    what mcverify had passed or what to change (an outside review)."""
+    numba_error = type(e).__module__.split(".")[0] == "numba"
+    if not hasattr(e, "add_note") or not _compiled(f) or not (
+            numba_error or isinstance(e, TypeError)):
+        return
+    a = np.asarray(arg)
+    e.add_note(f"mcverify called {name} with one {a.dtype} array of {what}, shape "
+               f"{a.shape}, a row per {row}: a numba function must take that batch; one "
+               f"of a single {row}'s numbers, or compiled for other types (a float32-only "
+               "signature), cannot: loop over the rows in an @njit function, or convert "
+               "in a Python wrapper (lambda a: f(a.astype(np.float32)))")
 
 
 def integer(name: str, v, *, minimum: int | None = None, maximum: int | None = None) -> int:

@@ -217,14 +217,14 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     statistic = 0.0
     if rows.size:
         xs = x[rows]
-        q_raw = pdf(xs)
+        q_raw = validate.call("pdf", pdf, xs)
         q_raw = _not_half("pdf", validate.as_array(
             lambda: f"pdf returned {validate._show(q_raw)}", q_raw))
         q = validate.values("pdf", q_raw, rows.size)
         dtypes.append(q_raw.dtype)      # a float32 pdf(x) is float32's rounding too
         value = None
         if f is not None:
-            value = _channels("f", f(xs), rows.size, dtypes)
+            value = _channels("f", validate.call("f", f, xs), rows.size, dtypes)
             if value.shape[1] != w.shape[1]:
                 raise InvalidArgument(f"f returned {value.shape[1]} channels, the weight has "
                                       f"{w.shape[1]}")

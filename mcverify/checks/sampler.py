@@ -893,7 +893,7 @@ def _screening_pdf(pdf, dom: Domain, pilot_s, pilot_x):
         with np.errstate(all="ignore"):
             return validate.values("pdf", pdf(np.asarray(pilot_x, dtype=np.float64)), n)
     except Exception:      # noqa: BLE001 - the mapped points are the pdf's own domain
-        return validate.values("pdf", pdf(dom.to_point(pilot_s)), n)
+        return validate.values("pdf", validate.call("pdf", pdf, dom.to_point(pilot_s)), n)
 
 
 def _default_resolution(dom: Domain, n: int) -> tuple[int, ...]:
@@ -1330,7 +1330,7 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
         raise InvalidArgument(f"sample returned shape {x.shape}: expected ({n}, d), a row "
                               f"of d coordinates per draw, or ({n},)")
     validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
-    u2 = validate.points("inverse", inverse(x), n, k)
+    u2 = validate.points("inverse", validate.call("inverse", inverse, x), n, k)
     if atol is None:
         single = np.float32 in (np.asarray(x).dtype, np.asarray(u2).dtype)
         atol = ATOL32 if single else ATOL64

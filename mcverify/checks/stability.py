@@ -93,7 +93,13 @@ def _call(what, fn, arg):
     try:
         v = fn(arg)
     except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
-        return None, f"{what} raised {type(e).__name__}: {e}"
+        # numba refusing the batch is no fault of the u it was found at: say what it got
+        validate.compiled_note(e, what, fn, arg, *(("uniform numbers u", "draw")
+                                                   if what == "sample" else
+                                                   ("points x", "point")))
+        notes = getattr(e, "__notes__", ())
+        return None, f"{what} raised {type(e).__name__}: {e}" + "".join(
+            f" ({n})" for n in notes[-1:])
     try:        # a ragged list (numpy's bare ValueError), masked values (read as data)
         if what == "sample":                # (points, pdf): numpy's "inhomogeneous shape"
             validate.not_a_tuple(what, v, len(arg))

@@ -1640,3 +1640,55 @@ def test_a_sampler_taking_more_uniforms_than_given_is_told_about_sample_dim(chec
     if sys.version_info >= (3, 11):
         assert any("u of shape (" in n and ", 2): 2 a draw; pass sample_dim=K" in n
                    for n in notes), notes
+
+
+def _numba_subjects():
+    """Samplers and pdfs as a team writes them in numba, each unable to take the batch
+    mcverify hands it: a function of one draw's two numbers, one of one row, and one
+    compiled for float32 only (u is float64)."""
+    from numba import njit
+
+    @njit
+    def of_two_numbers(u0, u1):
+        return np.array([u0, u1])
+
+    @njit
+    def of_one_row(x):
+        return max(x[0], 0.0)
+
+    @njit("float32[:,:](float32[:,:])")
+    def float32_only(u):
+        return u.copy()
+
+    return of_two_numbers, of_one_row, float32_only
+
+
+@pytest.mark.parametrize("which,check", [
+    (0, lambda s, p: mv.check_sampler(s, lambda x: 1.0, "square", n_samples=10_000)),
+    (2, lambda s, p: mv.check_same_distribution(lambda u: u, s, "square", n_samples=10_000)),
+    (2, lambda s, p: mv.check_inverse(lambda u: u, s, 2, n_samples=1000)),
+    (1, lambda s, p: mv.check_sampler(lambda u: u, p, "square", n_samples=10_000)),
+    (1, lambda s, p: mv.check_pdf_consistency(lambda u: (u, np.ones(len(u))), p,
+                                              sample_dim=2, n_samples=1000)),
+], ids=["sample-of-two-numbers", "sample-float32-only", "inverse-float32-only",
+        "pdf-of-one-row", "pdf_consistency-pdf-of-one-row"])
+def test_a_numba_function_that_cannot_take_the_batch_is_told_what_it_was_given(which, check):
+    """numba's refusal reached the user bare: "not enough arguments: expected 2, got 1"
+    (an @njit function of one draw's numbers), "No matching definition for argument
+    type(s) array(float64, 2d, C)" (a float32-only signature), a TypingError pages long
+    (a pdf of one row), nothing saying what mcverify had passed or what to change (an
+    outside review). numba's error is raised as it was, with a note."""
+    subjects = _numba_subjects()
+    with pytest.raises(Exception) as e:
+        check(subjects[which], subjects[which])
+    notes = getattr(e.value, "__notes__", [])
+    assert sys.version_info < (3, 11) or any("with one float64 array of" in n and "a numba function must take that batch"
+               in n and "loop over the rows in an @njit function" in n for n in notes), notes
+
+
+def test_check_stability_says_what_a_numba_sampler_was_given():
+    """The same refusal in check_stability read as a finding at u = [0, 0], as if that u
+    were the cause (an outside review)."""
+    of_two_numbers = _numba_subjects()[0]
+    r = mv.check_stability(of_two_numbers, "square", max_examples=5)
+    assert not r.passed and "a numba function must take that batch" in r.details["problem"]
