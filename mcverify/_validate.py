@@ -346,6 +346,16 @@ def not_a_tuple(name: str, x, n: int, dim: int | None = None) -> None:
                           f"check_pdf_consistency's sampler returns them: {pick}")
 
 
+def transposed(raw, verb: str = "return") -> str:
+    """The hint for points given as (d, n): ``points.T``, but ``np.array(points).T`` for a
+    Dr.Jit array (``mi.Vector3f``, which numpy reads as (3, n)), which has no ``.T``: its
+    ``.T`` raised "TypeError: 'mitsuba.Vector3f' is not a matrix or tensor type" (an
+    outside review). drjit is not imported: its arrays derive from ``drjit.ArrayBase``."""
+    if any(c.__module__.split(".")[0] == "drjit" for c in type(raw).__mro__):
+        return f"; transposed? {verb} np.array(points).T (a Dr.Jit array has no .T)"
+    return f"; transposed? {verb} points.T"
+
+
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
     """Output of a user callable as an (n, dim) array (float32 kept, anything else as
     float64), or InvalidArgument."""
@@ -367,8 +377,7 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
         # of check_same_distribution and check_inverse give (an outside review)
         raise InvalidArgument(f"{name} returned shape {a.shape} for {n} rows: expected "
                               f"({n}, {dim})" + (" or (n,)" if dim == 1 else "")
-                              + ("; transposed? return points.T"
-                                 if dim > 1 and a.shape == (dim, n) else ""))
+                              + (transposed(x) if dim > 1 and a.shape == (dim, n) else ""))
     return a if a.dtype == np.float32 else a.astype(np.float64, copy=False)
 
 

@@ -48,7 +48,7 @@ def _parts(out, n: int):
         raise InvalidArgument(
             f"sample's points: shape {x.shape}, expected ({n}, d), a row of d >= 1 "
             f"coordinates per draw, or ({n},) on an interval"
-            + ("; transposed? return points.T" if x.ndim == 2 and x.shape[1] == n else ""))
+            + (validate.transposed(out[0]) if x.ndim == 2 and x.shape[1] == n else ""))
     x = validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
     p_raw = _not_half("sample's pdf", validate.as_array("sample's pdf", out[1]))
     p = validate.values("sample's pdf", p_raw, n)

@@ -1314,15 +1314,15 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
                     width=("sample_dim", k), least=min(n, 1000))
     name = validate.label(name, f"inverse:{_name_of(inverse, 'inverse')}")
     u = np.random.default_rng(seed).random((n, k))
-    x = validate.draw("sample", sample, u)
-    validate.not_a_tuple("sample", x, n)
-    x = validate.as_array(lambda: f"sample returned {validate._show(x)}", x)
+    raw = validate.draw("sample", sample, u)
+    validate.not_a_tuple("sample", raw, n)
+    x = validate.as_array(lambda: f"sample returned {validate._show(raw)}", raw)
     # the points' dimension is the sampler's own; their rows and dtype are checked here,
     # so that a short or non-numeric output is blamed on sample, not on inverse
     if x.ndim == 2 and x.shape[0] != n and x.shape[1] == n:
         # the width is read from the array: a transposed (d, n) one was "expected (n, n)"
         raise InvalidArgument(f"sample returned shape {x.shape}: expected ({n}, d), a row "
-                              "of d coordinates per draw; transposed? return points.T")
+                              "of d coordinates per draw" + validate.transposed(raw))
     if x.ndim > 2:
         # read as 1-D points, it was told "expected (n, 1) or (n,)": wrong for directions
         # rotated as column vectors, (R @ v[..., None]) of shape (n, 3, 1) (until

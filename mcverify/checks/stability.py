@@ -87,11 +87,14 @@ def _first_problem(rows, sample, pdf, inverse, domain, rejection):
     return None
 
 
-def _call(what, fn, arg):
+def _call(what, fn, arg, raw=None):
     """(what ``fn(arg)`` returned as an array, None), or (None, why that is a finding):
-    it raised, or (pdf, inverse) returned something that is not real numbers."""
+    it raised, or (pdf, inverse) returned something that is not real numbers. ``raw``, a
+    list, is given what ``fn`` returned as it was (a Dr.Jit array's hint differs)."""
     try:
         v = fn(arg)
+        if raw is not None:
+            raw.append(v)
     except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
         # numba refusing the batch is no fault of the u it was found at: say what it got
         validate.compiled_note(e, what, fn, arg, *(("uniform numbers u", "draw")
@@ -123,7 +126,8 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
     """``_first_problem`` of one call per callable: (-1, message) where one raised."""
     # a copy: a sampler remapping u in place (u *= 2; u -= 1) changed the corners kept
     # here, reported at u = -1.0 and re-tried changed until 7 December
-    x, raised = _call("sample", sample, rows.copy())
+    raw = []
+    x, raised = _call("sample", sample, rows.copy(), raw)
     if raised:
         return -1, raised
     n, dim = rows.shape[0], domain.dim
@@ -131,8 +135,8 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
         # reshaped to (n, dim), a (dim, n) array's rows mixed coordinates of several
         # points: a correct cosine sampler returning mi.Vector3f (numpy's (3, n)) failed
         # at u = [0, 0], "its length is 1.22, not 1: normalise the direction"
-        return -1, (f"sample returned shape {x.shape} for {n} u: expected ({n}, {dim}); "
-                    "transposed? return points.T")
+        return -1, (f"sample returned shape {x.shape} for {n} u: expected ({n}, {dim})"
+                    + validate.transposed(raw[0]))
     try:
         x = domain.points(x)
     except (ValueError, TypeError) as e:
