@@ -51,7 +51,7 @@ def _parts(out, n: int):
             + (validate.transposed(out[0]) if x.ndim == 2 and x.shape[1] == n else ""))
     x = validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
     p_raw = _not_half("sample's pdf", validate.as_array("sample's pdf", out[1]))
-    p = validate.values("sample's pdf", p_raw, n)
+    p = validate.values("sample's pdf", out[1], n)     # out[1]: a Dr.Jit array's width
     w_raw = None if len(out) == 2 else validate.as_array("sample's weight", out[2])
     return x, p, p_raw.dtype, w_raw
 
@@ -217,10 +217,10 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
     statistic = 0.0
     if rows.size:
         xs = x[rows]
-        q_raw = validate.call("pdf", pdf, xs)
+        q_out = validate.call("pdf", pdf, xs)
         q_raw = _not_half("pdf", validate.as_array(
-            lambda: f"pdf returned {validate._show(q_raw)}", q_raw))
-        q = validate.values("pdf", q_raw, rows.size)
+            lambda: f"pdf returned {validate._show(q_out)}", q_out))
+        q = validate.values("pdf", q_out, rows.size)   # q_out: a Dr.Jit array's width
         dtypes.append(q_raw.dtype)      # a float32 pdf(x) is float32's rounding too
         value = None
         if f is not None:

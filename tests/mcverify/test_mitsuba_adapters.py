@@ -569,3 +569,36 @@ def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
     finally:
         if ours is not None:
             mitsuba.set_variant(ours)
+
+
+def test_mitsubas_own_constant_warp_pdf_is_one_number_for_every_point():
+    """mi.warp.square_to_uniform_sphere_pdf returns a Dr.Jit Float of width 1, the
+    constant as Dr.Jit broadcasts it: check_sampler and check_pdf_consistency refused it,
+    "pdf returned shape (1,): expected (2000,) or one number for all points", where
+    check_stability took it (an outside review). Seeded, α = 0.01."""
+    import mitsuba
+
+    ours = mitsuba.variant()
+    mitsuba.set_variant("llvm_ad_rgb")
+    try:
+        def sample(u):
+            return np.array(mitsuba.warp.square_to_uniform_sphere(
+                mitsuba.Point2f(u[:, 0], u[:, 1]))).T
+
+        def pdf(x):
+            return mitsuba.warp.square_to_uniform_sphere_pdf(
+                mitsuba.Vector3f(x[:, 0], x[:, 1], x[:, 2]))
+
+        r = mv.check_sampler(sample, pdf, "sphere", n_samples=20_000)
+        assert r.passed, r.failures
+        r = mv.check_pdf_consistency(lambda u: (sample(u), pdf(sample(u))), pdf,
+                                     sample_dim=2, n_samples=2000)
+        assert r.passed, r.failures
+        # the planted bug, the hemisphere's constant on the sphere, still fails
+        half = lambda x: mitsuba.warp.square_to_uniform_hemisphere_pdf(    # noqa: E731
+            mitsuba.Vector3f(x[:, 0], x[:, 1], x[:, 2]))
+        r = mv.check_sampler(sample, half, "sphere", n_samples=20_000)
+        assert not r.passed and "integrates to 2" in " ".join(r.failures), r.failures
+    finally:
+        if ours is not None:
+            mitsuba.set_variant(ours)
