@@ -1097,9 +1097,11 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
             # Accepted draws: Binomial(n, P) with P = ∫pdf; given their number, the accepted
             # points are i.i.d. with density pdf / P.
             if total > 1.0 + norm_tol:
+                # the guess too: a BSDF (checked so, its draws below the horizon rejected)
+                # with a pdf divided by cos θ got none until 7 December (an outside review)
                 failures.append(f"pdf integrates to {total:.6g} over the {dom.name} domain: "
                                 f"above 1, so it is no acceptance probability (quadrature "
-                                f"error bound {err_bound:.2g})")
+                                f"error bound {err_bound:.2g}){_integral_note(total, dom)}")
             # ∫pdf is known to within the quadrature's error bound: the draws are tested
             # against the rate in total ± 2·bound nearest the observed one (the same
             # tolerance as the normalisation test without rejection). A light seen small

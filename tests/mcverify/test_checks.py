@@ -1432,3 +1432,23 @@ def test_a_pdf_integrating_to_a_telling_factor_gets_a_guess(pdf, domain, guess):
     r = mv.check_sampler(sample, lambda x: 1.3 * pdf(x), domain, n_samples=20_000, seed=1,
                          sample_dim=2)
     assert not next(m for m in r.failures if "integrates to" in m).endswith("?")
+
+
+def test_a_bsdf_pdf_divided_by_cos_gets_the_guess_with_rejection():
+    """A BSDF is checked with rejection=True (its draws below the horizon are rejected),
+    where a pdf integrating above 1 failed as 'above 1, so it is no acceptance
+    probability' and no more: a user's Mitsuba BSDF whose pdf was divided by cos θ
+    (1/π on the hemisphere, 2 over the sphere) got no guess (an outside review)."""
+    def sample(u):
+        x = W.sample_cosine_hemisphere(u)
+        x[u[:, 0] > 0.9] = np.nan                       # rejected draws
+        return x
+
+    per_projected = lambda x: np.where(x[:, 2] > 0.0, 1.0 / np.pi, 0.0)  # noqa: E731
+    r = mv.check_sampler(sample, per_projected, "sphere", n_samples=20_000, seed=1,
+                         rejection=True)
+    note = next(m for m in r.failures if "integrates to" in m)
+    assert not r.passed and "no acceptance probability" in note, note
+    assert note.endswith("; a density per projected solid angle (divided by cos θ) where "
+                         "one per solid angle is meant, or the hemisphere's 1/(2π) where "
+                         "the sphere's 1/(4π) is?"), note
