@@ -563,6 +563,9 @@ def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
                 check()
         r = mv.check_stability(cosine, "hemisphere", max_examples=5)
         assert not r.passed and hint in r.details["problem"]
+        u = np.random.default_rng(0).random((2, 5000, 2))
+        with pytest.raises(mv.InvalidArgument, match=re.escape(hint.replace("return", "pass"))):
+            mv.check_same_distribution(cosine(u[0]), cosine(u[1]), "hemisphere")
         r = mv.check_sampler(lambda u: np.array(cosine(u)).T, pdf, "hemisphere",
                              n_samples=10_000)
         assert r.passed, r.failures
