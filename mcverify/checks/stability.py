@@ -119,7 +119,7 @@ def _call(what, fn, arg, raw=None):
         # its real part (np.emath.sqrt(z - 1) as a pdf, 0, passed until 7 December),
         # booleans as 0 and 1, None as NaN
         return None, f"{what} returned dtype {a.dtype} values, not real numbers"
-    return np.asarray(a, dtype=np.float64).reshape(-1), None
+    return np.asarray(a, dtype=np.float64), None
 
 
 def _batch(rows, sample, pdf, inverse, domain, rejection):
@@ -156,6 +156,7 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
         p, raised = _call("pdf", pdf, x[good])
         if raised:
             return -1, raised
+        p = p.reshape(-1)
         if p.size == 1:             # one number: that density everywhere (a constant pdf)
             p = np.broadcast_to(p, len(good))
         if p.size != len(good):
@@ -164,9 +165,17 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
             problems.setdefault(good[j], f"pdf {float(p[j])!r} at x={x[good[j]].tolist()} "
                                          "(must be finite and >= 0)")
     if inverse is not None and len(good):
-        back, raised = _call("inverse", inverse, x[good])
+        raw_back = []
+        back, raised = _call("inverse", inverse, x[good], raw_back)
         if raised:
             return -1, raised
+        m, k = len(good), rows.shape[1]
+        if k > 1 and back.shape == (k, m) and back.shape != (m, k):
+            # flattened row by row, a (k, n) inverse paired each point with others' u:
+            # Mitsuba's concentric disk inverse (mi.Point2f, numpy's (2, n)) was reported
+            # as [-2.4e-07, -2.4e-07] at x = (-0.707, -0.707), its own [-2.4e-07, 0]
+            return -1, (f"inverse returned shape {back.shape} for {m} points: expected "
+                        f"({m}, {k})" + validate.transposed(raw_back[0]))
         if back.size != len(good) * rows.shape[1]:
             return -1, (f"inverse returned {back.size} values for {len(good)} points of "
                         f"{rows.shape[1]} uniform numbers each")

@@ -172,6 +172,25 @@ def test_points_returned_transposed_are_a_finding_not_mixed_rows():
     r = mv.check_stability(lambda u: cosine_rows(u).T, "hemisphere", max_examples=5)
     assert r.passed, r.failures
 
+
+def test_an_inverse_returned_transposed_is_a_finding_not_mixed_rows():
+    """An inverse returning (k, n) (Dr.Jit's mi.Point2f as numpy reads it) was flattened
+    and read row by row, pairing each point with other points' u: an inverse wrong at
+    x = (1 - 2^-53, 0) only was reported as [1.5, 1.5] there, its own value [1.0, 1.5],
+    and a correct one passed, where check_inverse refuses it (an outside review)."""
+    def inverse_rows(x):
+        back = x.copy()
+        back[x[:, 0] > 0.99, 1] = 1.5               # planted: wrong where x0 is near 1
+        return back.T
+
+    r = mv.check_stability(lambda u: u.copy(), "square", inverse=inverse_rows, max_examples=5)
+    assert not r.passed and "[1.5, 1.5]" not in r.details["problem"]
+    assert ("inverse returned shape (2, 1) for 1 points: expected (1, 2); transposed? "
+            "return points.T") in r.details["problem"]
+    r = mv.check_stability(lambda u: u.copy(), "square", inverse=lambda x: x.T.copy(),
+                           max_examples=5)
+    assert not r.passed and "transposed?" in r.details["problem"]
+
 def test_a_path_space_sampler_of_many_dimensions_is_checked_in_bounded_memory():
     """3^d corners were built for every d until 6 December: sample_dim=30 (a path-space
     sampler) asked for 2e14 rows and ran out of memory. Above MAX_CORNER_DIM each edge
