@@ -352,14 +352,14 @@ def _drjit(v) -> bool:
     return any(c.__module__.split(".")[0] == "drjit" for c in type(v).__mro__)
 
 
-def transposed(raw, verb: str = "return") -> str:
+def transposed(raw, verb: str = "return", noun: str = "points") -> str:
     """The hint for points given as (d, n): ``points.T``, but ``np.array(points).T`` for a
     Dr.Jit array (``mi.Vector3f``, which numpy reads as (3, n)), which has no ``.T``: its
     ``.T`` raised "TypeError: 'mitsuba.Vector3f' is not a matrix or tensor type" (an
     outside review). drjit is not imported: its arrays derive from ``drjit.ArrayBase``."""
     if _drjit(raw):
-        return f"; transposed? {verb} np.array(points).T (a Dr.Jit array has no .T)"
-    return f"; transposed? {verb} points.T"
+        return f"; transposed? {verb} np.array({noun}).T (a Dr.Jit array has no .T)"
+    return f"; transposed? {verb} {noun}.T"
 
 
 def points(name: str, x, n: int, dim: int) -> np.ndarray:

@@ -52,7 +52,7 @@ def _parts(out, n: int):
     x = validate.points("sample", x, n, x.shape[1] if x.ndim == 2 else 1)
     p_raw = _not_half("sample's pdf", validate.as_array("sample's pdf", out[1]))
     p = validate.values("sample's pdf", out[1], n)     # out[1]: a Dr.Jit array's width
-    w_raw = None if len(out) == 2 else validate.as_array("sample's weight", out[2])
+    w_raw = None if len(out) == 2 else out[2]          # as given: a Dr.Jit array's hint
     return x, p, p_raw.dtype, w_raw
 
 
@@ -68,7 +68,10 @@ def _channels(what: str, v, n: int, dtypes: list) -> np.ndarray:
     if a.shape == (n,):
         a = a.reshape(n, 1)
     if a.ndim != 2 or a.shape[0] != n:
-        raise InvalidArgument(f"{what}: shape {a.shape}, expected ({n},) or ({n}, channels)")
+        # a (channels, n) array, Dr.Jit's mi.Color3f as numpy reads it, got no hint
+        raise InvalidArgument(f"{what}: shape {a.shape}, expected ({n},) or ({n}, channels)"
+                              + (validate.transposed(v, noun="values")
+                                 if a.ndim == 2 and a.shape[1] == n else ""))
     return a.astype(np.float64, copy=False)
 
 

@@ -566,6 +566,13 @@ def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
         u = np.random.default_rng(0).random((2, 5000, 2))
         with pytest.raises(mv.InvalidArgument, match=re.escape(hint.replace("return", "pass"))):
             mv.check_same_distribution(cosine(u[0]), cosine(u[1]), "hemisphere")
+        # an RGB weight as Dr.Jit gives it, mi.Color3f: numpy's (3, n)
+        rgb = lambda x: mitsuba.Color3f(0.5, 0.4, 0.3) * mitsuba.Float(x[:, 2])  # noqa: E731
+        with pytest.raises(mv.InvalidArgument, match=re.escape(
+                hint.replace("points", "values"))):
+            mv.check_pdf_consistency(lambda u: (np.array(cosine(u)).T, 1.0,
+                                                rgb(np.array(cosine(u)).T)),
+                                     pdf, f=lambda x: 0.0, sample_dim=2, n_samples=1000)
         r = mv.check_sampler(lambda u: np.array(cosine(u)).T, pdf, "hemisphere",
                              n_samples=10_000)
         assert r.passed, r.failures

@@ -154,6 +154,33 @@ def test_a_constant_weight_or_value_is_that_number_for_every_row():
     assert not bad.passed and "returned weights differ" in bad.failures[0]
 
 
+def test_weights_or_values_returned_per_channel_are_told_to_transpose():
+    """An RGB weight or f(x) given as (3, n), channels first (a Dr.Jit mi.Color3f as
+    numpy reads it), was refused as "shape (3, 1000), expected (1000,) or (1000,
+    channels)", no word of the transposition that the points' refusal names (an outside
+    review)."""
+    rgb = np.array([0.5, 0.4, 0.3])
+
+    def rgb_rows(u):
+        x, p = _good(u)
+        return x, p, np.repeat(rgb[:, None], len(u), axis=1)       # (3, n)
+
+    with pytest.raises(mv.InvalidArgument, match=r"sample's weight: shape \(3, 1000\), "
+                       r"expected .*; transposed\? return values\.T"):
+        mv.check_pdf_consistency(rgb_rows, _cos_pdf, f=lambda x: 0.0, sample_dim=2,
+                                 n_samples=1000)
+    with pytest.raises(mv.InvalidArgument, match=r"f: shape \(3, 1000\), "
+                       r"expected .*; transposed\? return values\.T"):
+        mv.check_pdf_consistency(lambda u: (*_good(u), rgb_rows(u)[2].T), _cos_pdf,
+                                 sample_dim=2, f=lambda x: rgb[:, None] * _cos_pdf(x),
+                                 n_samples=1000)
+    ok = mv.check_pdf_consistency(lambda u: (*_good(u), rgb_rows(u)[2].T), _cos_pdf,
+                                  sample_dim=2,
+                                  f=lambda x: (rgb[:, None] * _cos_pdf(x)).T,
+                                  n_samples=1000)
+    assert ok.passed, ok.failures
+
+
 def test_weights_without_f_are_not_compared_and_say_so():
     r = mv.check_pdf_consistency(_weighted, _cos_pdf, sample_dim=2, n_samples=1000)
     assert r.passed and "max_weight_rel_error" not in r.details
