@@ -37,16 +37,20 @@ def _rounding(samples) -> float:
     return _ROUNDING
 
 
-def _value_rounding(v) -> float:
-    """How far the true value may lie from ``v`` given as float32 (np.float32(0.1), a
-    float32 renderer's reference): half a float32 ulp of it; 0 for any other type. It
-    widens only the comparison with ``v``: float32's 64-eps allowance for samples, taken
-    for a float32 expected value until 7 December, let float64 estimates of spread
-    below 7.6e-6 of the value through with a bias of that size (0.5 + 3e-6 against
-    np.float32(0.5): passed, "constant to rounding")."""
+def _expected(v) -> tuple[float, float]:
+    """``expected`` validated as a real number, and how far the true value may lie from
+    it given as float32 (np.float32(0.1), a float32 renderer's reference): half a
+    float32 ulp of it; 0 for any other type. It widens only the comparison with ``v``:
+    float32's 64-eps allowance for samples, taken for a float32 expected value until
+    7 December, let float64 estimates of spread below 7.6e-6 of the value through with a
+    bias of that size (0.5 + 3e-6 against np.float32(0.5): passed, "constant to
+    rounding"). Validated first: a float32 array (a Dr.Jit mi.Float, numpy's (1,)
+    float32) reached np.float32 and raised numpy's bare TypeError, "only 0-dimensional
+    arrays can be converted to Python scalars" (an outside review)."""
+    x = validate.real("expected", v)
     if np.asarray(v).dtype != np.float32:
-        return 0.0
-    return 0.5 * float(np.spacing(np.abs(np.float32(v))))
+        return x, 0.0
+    return x, 0.5 * float(np.spacing(np.abs(np.float32(v))))
 
 
 def _takes(name: str, fn, args: tuple, takes: str) -> None:
@@ -154,8 +158,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
     # np.float32(0.1), "expected is 0.100000001490116" (until 7 December); the true value
     # lies within `given` of it
     rounding = _rounding(samples)
-    given = _value_rounding(expected)
-    expected = validate.real("expected", expected)
+    expected, given = _expected(expected)
     alpha = validate.probability("alpha", alpha)
     failures, messages = [], []
     finite = np.isfinite(x)
@@ -389,8 +392,7 @@ def check_convergence(estimate, expected, *, ns=(256, 1024, 4096, 16384, 65536),
     t0 = time.perf_counter()
     validate.callable_("estimate", estimate)
     rounding = _ROUNDING                # raised to float32's by float32 estimates
-    given = _value_rounding(expected)   # a float32 expected: its own rounding, absolute
-    expected = validate.real("expected", expected)
+    expected, given = _expected(expected)   # a float32 expected: its own rounding, absolute
     if isinstance(ns, (str, bytes)) or not hasattr(ns, "__iter__"):
         raise InvalidArgument(f"ns={ns!r}: must be a sequence of sample counts")
     ns = [validate.integer(f"ns[{i}]", n, minimum=1) for i, n in enumerate(ns)]

@@ -552,6 +552,20 @@ def test_a_float32_expected_value_is_compared_within_float32_rounding():
     assert not mv.check_unbiased(np.full(1000, 0.1), float(np.float32(0.1))).passed
 
 
+@pytest.mark.parametrize("call", [
+    lambda e: mv.check_unbiased(np.full(1000, 0.1), e),
+    lambda e: mv.check_convergence(lambda n, s: 0.1, e, ns=[64, 256], n_seeds=4),
+], ids=["check_unbiased", "check_convergence"])
+def test_a_float32_array_as_expected_is_refused_naming_it(call):
+    """A float32 array as `expected` (a Dr.Jit mi.Float of width 1, the sum of a
+    Dr.Jit integrand, reads as float32 (1,) in numpy) reached the float32 rounding
+    allowance before validation and raised numpy's bare TypeError, "only 0-dimensional
+    arrays can be converted to Python scalars" (an outside review)."""
+    for bad in (np.array([0.1], dtype=np.float32), np.full(3, 0.1, dtype=np.float32)):
+        with pytest.raises(mv.InvalidArgument, match=r"^expected=.*: must be a real number"):
+            call(bad)
+
+
 @pytest.mark.parametrize("scale", [1e-160, 1e-200, 1e-300, 1e-305])
 def test_unbiased_at_tiny_scales_tests_the_mean(scale):
     """Estimates near the bottom of float64's range: their squares underflow, and the
