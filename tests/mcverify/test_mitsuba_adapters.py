@@ -535,6 +535,15 @@ def test_the_names_of_checks_show_nested_plugins_and_number_lists():
     assert env[3]["name"] == "mitsuba.emitter:envmap(scale=2.0)@ref=(0,0,0)"
 
 
+def _llvm_variant() -> str:
+    """llvm_ad_rgb, where a Dr.Jit array holds n points; the test skips where Mitsuba
+    cannot compute in it here (no LLVM: the gate then runs scalar_rgb, whose Dr.Jit types
+    hold one point, so the case cannot arise), as ``_other_variant`` does."""
+    if mvm.choose_variant().variant != "llvm_ad_rgb":
+        pytest.skip("needs Mitsuba's llvm_ad_rgb variant (LLVM) for Dr.Jit arrays of n points")
+    return "llvm_ad_rgb"
+
+
 def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
     """A user's Dr.Jit sampler returns mi.Vector3f, which numpy reads as (3, n): the
     checks' hint, "transposed? return points.T", sent its author to a TypeError ("not a
@@ -545,7 +554,7 @@ def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
     import mitsuba
 
     ours = mitsuba.variant()
-    mitsuba.set_variant("llvm_ad_rgb")              # a Dr.Jit array of n points
+    mitsuba.set_variant(_llvm_variant())            # a Dr.Jit array of n points
     try:
         def cosine(u):
             return mitsuba.warp.square_to_cosine_hemisphere(
@@ -589,7 +598,7 @@ def test_mitsubas_own_constant_warp_pdf_is_one_number_for_every_point():
     import mitsuba
 
     ours = mitsuba.variant()
-    mitsuba.set_variant("llvm_ad_rgb")
+    mitsuba.set_variant(_llvm_variant())
     try:
         def sample(u):
             return np.array(mitsuba.warp.square_to_uniform_sphere(
