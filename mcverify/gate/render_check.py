@@ -92,7 +92,10 @@ def _sample_count_params(path: str, params: dict) -> None:
     gate sets the samples itself, ours from ``spp`` (in all, split over the passes) and the
     reference's from its build, so such a parameter changed nothing but the check's name
     (``render:cornell-box,spp=4096`` rendered 1024 spp; an outside review's
-    found-not-fixed)."""
+    found-not-fixed). Each whole-number parameter is probed with its value plus one: one
+    that moves the count sets it, whatever its name and its default's value (a parameter
+    with no ``<default>``, taken when given, is probed as given)."""
+    from estimators.pathtracer import SceneError
     from estimators.pathtracer.scene import load_scene
 
     def count(given):
@@ -100,7 +103,14 @@ def _sample_count_params(path: str, params: dict) -> None:
 
     asked = count(params)
     for name in sorted(params):
-        if count({k: v for k, v in params.items() if k != name}) != asked:
+        text = str(params[name]).strip()
+        if not text.lstrip("+-").isdigit() or not text.isascii():
+            continue                # no sample_count reads it: it would not have loaded
+        try:
+            moved = count({**params, name: str(int(text) + 1)}) != asked
+        except SceneError:          # the value plus one is refused elsewhere in the scene
+            continue
+        if moved:
             raise InvalidArgument(f"params: {name}={params[name]} sets {path}'s sampler "
                                   "sample_count, which the render check sets itself: ours "
                                   "from spp (in all, split over the passes; --spp on the "

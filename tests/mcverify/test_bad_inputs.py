@@ -468,6 +468,24 @@ def test_render_check_refuses_a_parameter_that_sets_the_samplers_count(tmp_path,
     assert mv.render_check(str(scene), spp=64, passes=2, params={"res": 4}).passed
 
 
+def test_the_sample_count_probe_takes_parameters_without_a_default(tmp_path):
+    """The probe loaded the scene without each given parameter: one read with no
+    <default> (legal where it is given, as Mitsuba's -D) raised "unexpected SceneError"
+    (a read-only review); and the count's own parameter at its default's value (spp=64
+    where <default name="spp" value="64"/>) moved nothing and was taken."""
+    text = open(FURNACE).read()
+    scene = tmp_path / "scene.xml"
+    scene.write_text(text.replace('<default name="max_depth" value="64"/>', ""))
+    assert mv.render_check(str(scene), spp=64, passes=2,
+                           params={"max_depth": 3, "res": 4}).passed
+    with pytest.raises(InvalidArgument, match="params: spp=64 sets"):
+        mv.render_check(str(scene), spp=64, passes=2, params={"spp": 64, "max_depth": 3})
+    nodefault = tmp_path / "nodefault.xml"
+    nodefault.write_text(text.replace('<default name="spp" value="64"/>', ""))
+    with pytest.raises(InvalidArgument, match="params: spp=8 sets"):
+        mv.render_check(str(nodefault), spp=64, passes=2, params={"spp": 8})
+
+
 def _suggested(scene, spp, passes):
     with pytest.raises(InvalidArgument) as info:
         mv.render_check(scene, spp=spp, passes=passes, build_missing=False)
