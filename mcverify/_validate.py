@@ -346,7 +346,7 @@ def not_a_tuple(name: str, x, n: int, dim: int | None = None) -> None:
                           f"check_pdf_consistency's sampler returns them: {pick}")
 
 
-def _drjit(v) -> bool:
+def drjit(v) -> bool:
     """A Dr.Jit array (``mi.Float``, ``mi.Vector3f``): its classes derive from
     ``drjit.ArrayBase``; drjit is not imported."""
     return any(c.__module__.split(".")[0] == "drjit" for c in type(v).__mro__)
@@ -357,7 +357,7 @@ def transposed(raw, verb: str = "return", noun: str = "points") -> str:
     Dr.Jit array (``mi.Vector3f``, which numpy reads as (3, n)), which has no ``.T``: its
     ``.T`` raised "TypeError: 'mitsuba.Vector3f' is not a matrix or tensor type" (an
     outside review). drjit is not imported: its arrays derive from ``drjit.ArrayBase``."""
-    if _drjit(raw):
+    if drjit(raw):
         return f"; transposed? {verb} np.array({noun}).T (a Dr.Jit array has no .T)"
     return f"; transposed? {verb} {noun}.T"
 
@@ -395,7 +395,7 @@ def values(name: str, v, n: int) -> np.ndarray:
         raise InvalidArgument(f"{name} returned dtype {a.dtype}: expected real numbers "
                               f"(first value {_show(a.flat[0] if a.size else None)})")
     a = a.astype(np.float64, copy=False)
-    if a.shape == () or (a.shape == (1,) and _drjit(v)):
+    if a.shape == () or (a.shape == (1,) and drjit(v)):
         # a Dr.Jit array of width 1 is its one number broadcast, as Dr.Jit reads it:
         # Mitsuba's own mi.warp.square_to_uniform_sphere_pdf returns one, and was
         # refused as "shape (1,): expected (n,)" until 7 December (an outside review)

@@ -63,6 +63,11 @@ def _channels(what: str, v, n: int, dtypes: list) -> np.ndarray:
     if not validate.real_dtype(a.dtype):
         raise InvalidArgument(f"{what}: dtype {a.dtype}, expected real numbers")
     dtypes.append(a.dtype)
+    if validate.drjit(v) and a.ndim in (1, 2) and a.shape[-1] == 1:
+        # a Dr.Jit array of width 1 is one value for every row, as for the pdf: a constant
+        # albedo's mi.Color3f (numpy's (3, 1)) or an mi.Float was refused (a read-only
+        # review)
+        a = np.full(n, a[0]) if a.ndim == 1 else np.broadcast_to(a[:, 0], (n, a.shape[0]))
     if a.shape == ():
         a = np.full(n, a)
     if a.shape == (n,):

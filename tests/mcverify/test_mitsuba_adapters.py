@@ -590,6 +590,44 @@ def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
             mitsuba.set_variant(ours)
 
 
+def test_a_constant_dr_jit_weight_or_value_is_one_for_every_row():
+    """A diffuse BSDF of a literal albedo returns its weight as mi.Color3f(0.5, 0.4, 0.3),
+    numpy's (3, 1), or a grey one as an mi.Float of width 1: check_pdf_consistency took a
+    width-1 Dr.Jit pdf as one number but refused such a weight or f(x), "shape (3, 1),
+    expected (1000,) or (1000, channels)" (a read-only review)."""
+    import mitsuba
+
+    ours = mitsuba.variant()
+    mitsuba.set_variant(_llvm_variant())
+    try:
+        def sample(u):
+            return np.array(mitsuba.warp.square_to_cosine_hemisphere(
+                mitsuba.Point2f(u[:, 0], u[:, 1]))).T
+
+        def pdf(x):
+            return x[:, 2] / np.pi
+
+        albedo = (0.5, 0.4, 0.3)
+        for weight, f in ((mitsuba.Color3f(*albedo),
+                           lambda x: np.outer(x[:, 2] / np.pi, albedo)),
+                          (mitsuba.Float(0.5), lambda x: 0.5 * x[:, 2] / np.pi)):
+            def draw(u, weight=weight):
+                x = sample(u)
+                return x, pdf(x), weight
+
+            r = mv.check_pdf_consistency(draw, pdf, sample_dim=2, f=f, n_samples=1000)
+            assert r.passed, r.failures
+        # and a wrong constant still fails, channel by channel
+        r = mv.check_pdf_consistency(lambda u: (sample(u), pdf(sample(u)),
+                                                mitsuba.Color3f(0.5, 0.4, 0.6)),
+                                     pdf, sample_dim=2, n_samples=1000,
+                                     f=lambda x: np.outer(x[:, 2] / np.pi, albedo))
+        assert not r.passed, r.failures
+    finally:
+        if ours is not None:
+            mitsuba.set_variant(ours)
+
+
 def test_mitsubas_own_constant_warp_pdf_is_one_number_for_every_point():
     """mi.warp.square_to_uniform_sphere_pdf returns a Dr.Jit Float of width 1, the
     constant as Dr.Jit broadcasts it: check_sampler and check_pdf_consistency refused it,
