@@ -94,7 +94,10 @@ def _numba_threads() -> int | None:
     return max(1, os.cpu_count() or 1)
 
 
-_SHARE = pytest.StashKey[int]()
+#: the attribute of pytest's config holding the worker's share until numba is imported
+#: (an attribute, not ``config.stash``: the plugin loads in every pytest run, and
+#: ``pytest.StashKey`` needs pytest 7, which mcverify does not require)
+_SHARE = "_mcverify_thread_share"
 
 
 def _apply_share(config) -> None:
@@ -102,9 +105,9 @@ def _apply_share(config) -> None:
     start, or before the first test after it (the tests' modules import it as they are
     collected, or a test does). The plugin imports no numba of its own: a test suite may
     never use it."""
-    share = config.stash.get(_SHARE, None)
+    share = getattr(config, _SHARE, None)
     if share is not None and "numba" in sys.modules:
-        del config.stash[_SHARE]
+        setattr(config, _SHARE, None)
         sys.modules["numba"].set_num_threads(share)
 
 
@@ -126,7 +129,7 @@ def pytest_configure(config):
         os.environ["MCVERIFY_NUM_THREADS"] = str(threads)
     # numba's thread count is per thread: this sets the worker's main thread, which
     # runs the tests.
-    config.stash[_SHARE] = threads
+    setattr(config, _SHARE, threads)
     _apply_share(config)
 
 

@@ -395,8 +395,10 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         # density on the square, a hair right of a leaf's midpoint in every cell it
         # crosses, missed 2e-4 of the mass with an error bound of 1.6e-7, and the
         # normalisation test failed the correct pdf on 12 % of seeds). A converged leaf's
-        # sliver is within its budget (the test above); a stopped one's error is left out
-        # and counted as unconverged (an integrable singularity's corner is unbounded).
+        # sliver is within its budget (the test above). A stopped leaf (at the depth
+        # limit) gets none: its error counts as unconverged where it exceeds the budget,
+        # not otherwise, and an integrable singularity's corner is unbounded (x^-0.95
+        # got a bound of 5). Such a leaf is at floating point's resolution.
         step = (outside > node_max - node_min) & ~thin & ~stopped
         sliver = np.where(step, outside * area * band, 0.0)
         np.add.at(mass, owner[done], fine[done])

@@ -124,8 +124,6 @@ class CheckResult:
             return NotImplemented
         return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
 
-    __hash__ = None         # its details and artifacts are dicts: no hash, as before
-
     def __bool__(self) -> bool:
         # ``assert mv.check_sampler(...)`` held for every result, a failed one too: a
         # dataclass is always true. It is the verdict now, as ``passed`` says.
@@ -154,7 +152,8 @@ class CheckResult:
     def __str__(self) -> str:
         # print(result) was the dataclass's repr: a failed compare_images' 50 rejected
         # blocks, some 7,000 characters of details, before the messages saying where
-        # (the lines mcverify check prints for a failed check)
+        # (the lines mcverify check prints for a failed check, which also escapes the
+        # control characters a terminal would act on)
         return "\n".join([self.summary(), *("    " + m for m in self.messages)])
 
     def _repr_pretty_(self, printer, cycle) -> None:
@@ -212,8 +211,9 @@ class SuiteResult:
                 f"{'bitten' if self.canary_bitten else 'NOT bitten'}; {self.seconds:.1f}s)")
 
     def __str__(self) -> str:
-        """What ``mcverify check`` prints of it: each failed check (its summary and
-        messages), each canary not bitten, and a last line with the counts (``print``
+        """What ``mcverify check`` prints of it (which also escapes control characters):
+        each failed check (its summary and messages), each canary not bitten, and a last
+        line with the counts (``print``
         gave the dataclass's repr: every check's details, thousands of characters each
         for a failed image)."""
         return "\n".join([*(str(r) for r in self.results if not r.passed),

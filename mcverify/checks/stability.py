@@ -174,8 +174,9 @@ def _batch(rows, sample, pdf, inverse, domain, rejection):
             # flattened row by row, a (k, n) inverse paired each point with others' u:
             # Mitsuba's concentric disk inverse (mi.Point2f, numpy's (2, n)) was reported
             # as [-2.4e-07, -2.4e-07] at x = (-0.707, -0.707), its own [-2.4e-07, 0]
-            return -1, (f"inverse returned shape {back.shape} for {m} points: expected "
-                        f"({m}, {k})" + validate.transposed(raw_back[0]))
+            return -1, (f"inverse returned shape {back.shape} for {m} "
+                        f"point{'s' * (m != 1)}: expected ({m}, {k})"
+                        + validate.transposed(raw_back[0]))
         if back.size != len(good) * rows.shape[1]:
             return -1, (f"inverse returned {back.size} values for {len(good)} points of "
                         f"{rows.shape[1]} uniform numbers each")

@@ -185,7 +185,7 @@ def test_an_inverse_returned_transposed_is_a_finding_not_mixed_rows():
 
     r = mv.check_stability(lambda u: u.copy(), "square", inverse=inverse_rows, max_examples=5)
     assert not r.passed and "[1.5, 1.5]" not in r.details["problem"]
-    assert ("inverse returned shape (2, 1) for 1 points: expected (1, 2); transposed? "
+    assert ("inverse returned shape (2, 1) for 1 point: expected (1, 2); transposed? "
             "return points.T") in r.details["problem"]
     r = mv.check_stability(lambda u: u.copy(), "square", inverse=lambda x: x.T.copy(),
                            max_examples=5)
