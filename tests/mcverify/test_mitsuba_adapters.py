@@ -5,6 +5,7 @@ Statistical tests are seeded and each runs at α = 0.01 (check_sampler's default
 few binomial checks of acceptance use |z| < 4.5 (two-sided p ≈ 7e-6 each).
 """
 
+import contextlib
 import math
 
 import numpy as np
@@ -535,6 +536,21 @@ def test_the_names_of_checks_show_nested_plugins_and_number_lists():
     assert env[3]["name"] == "mitsuba.emitter:envmap(scale=2.0)@ref=(0,0,0)"
 
 
+@contextlib.contextmanager
+def _llvm():
+    """Mitsuba in its llvm_ad_rgb variant for the block (``_llvm_variant``), the process's
+    variant put back after it."""
+    import mitsuba
+
+    ours = mitsuba.variant()
+    mitsuba.set_variant(_llvm_variant())
+    try:
+        yield mitsuba
+    finally:
+        if ours is not None:
+            mitsuba.set_variant(ours)
+
+
 def _llvm_variant() -> str:
     """llvm_ad_rgb, where a Dr.Jit array holds n points; the test skips where Mitsuba
     cannot compute in it here (no LLVM: the gate then runs scalar_rgb, whose Dr.Jit types
@@ -551,11 +567,7 @@ def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
     (an outside review). The sampler so fixed passes (seeded, α = 0.01)."""
     import re
 
-    import mitsuba
-
-    ours = mitsuba.variant()
-    mitsuba.set_variant(_llvm_variant())            # a Dr.Jit array of n points
-    try:
+    with _llvm() as mitsuba:                        # a Dr.Jit array of n points
         def cosine(u):
             return mitsuba.warp.square_to_cosine_hemisphere(
                 mitsuba.Point2f(u[:, 0], u[:, 1]))
@@ -585,9 +597,6 @@ def test_a_dr_jit_sampler_returning_vector3f_is_told_how_to_transpose_it():
         r = mv.check_sampler(lambda u: np.array(cosine(u)).T, pdf, "hemisphere",
                              n_samples=10_000)
         assert r.passed, r.failures
-    finally:
-        if ours is not None:
-            mitsuba.set_variant(ours)
 
 
 def test_a_constant_dr_jit_weight_or_value_is_one_for_every_row():
@@ -595,11 +604,7 @@ def test_a_constant_dr_jit_weight_or_value_is_one_for_every_row():
     numpy's (3, 1), or a grey one as an mi.Float of width 1: check_pdf_consistency took a
     width-1 Dr.Jit pdf as one number but refused such a weight or f(x), "shape (3, 1),
     expected (1000,) or (1000, channels)" (a read-only review)."""
-    import mitsuba
-
-    ours = mitsuba.variant()
-    mitsuba.set_variant(_llvm_variant())
-    try:
+    with _llvm() as mitsuba:
         def sample(u):
             return np.array(mitsuba.warp.square_to_cosine_hemisphere(
                 mitsuba.Point2f(u[:, 0], u[:, 1]))).T
@@ -623,9 +628,6 @@ def test_a_constant_dr_jit_weight_or_value_is_one_for_every_row():
                                      pdf, sample_dim=2, n_samples=1000,
                                      f=lambda x: np.outer(x[:, 2] / np.pi, albedo))
         assert not r.passed, r.failures
-    finally:
-        if ours is not None:
-            mitsuba.set_variant(ours)
 
 
 def test_mitsubas_own_constant_warp_pdf_is_one_number_for_every_point():
@@ -633,11 +635,7 @@ def test_mitsubas_own_constant_warp_pdf_is_one_number_for_every_point():
     constant as Dr.Jit broadcasts it: check_sampler and check_pdf_consistency refused it,
     "pdf returned shape (1,): expected (2000,) or one number for all points", where
     check_stability took it (an outside review). Seeded, α = 0.01."""
-    import mitsuba
-
-    ours = mitsuba.variant()
-    mitsuba.set_variant(_llvm_variant())
-    try:
+    with _llvm() as mitsuba:
         def sample(u):
             return np.array(mitsuba.warp.square_to_uniform_sphere(
                 mitsuba.Point2f(u[:, 0], u[:, 1]))).T
@@ -656,6 +654,3 @@ def test_mitsubas_own_constant_warp_pdf_is_one_number_for_every_point():
             mitsuba.Vector3f(x[:, 0], x[:, 1], x[:, 2]))
         r = mv.check_sampler(sample, half, "sphere", n_samples=20_000)
         assert not r.passed and "integrates to 2" in " ".join(r.failures), r.failures
-    finally:
-        if ours is not None:
-            mitsuba.set_variant(ours)

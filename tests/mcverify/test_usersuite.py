@@ -520,22 +520,27 @@ def test_a_stability_check_leaves_no_hypothesis_folder_in_the_project(project, t
     assert not (tmp_path / "home" / ".cache" / "mcverify" / "hypothesis" / "constants").exists()
 
 
+def _ok(seed):
+    """A user's check that passes."""
+    return mv.CheckResult("ok", True, 0.5, 1.0, 0.01, 10, 0.0)
+
+
+def _no_gpu(seed):
+    """A user's check that meets its environment."""
+    from mcverify.errors import EnvironmentProblem
+
+    raise EnvironmentProblem("no GPU")
+
+
 def test_an_environment_problem_in_a_check_names_the_check(tmp_path, capsys):
     """A user's check that meets its environment (raises EnvironmentProblem: "no GPU")
     stops the run, exit 2, as the README says; the line said "mcverify: error: no GPU",
     naming no check among the suite's, and no output file is written."""
-    from mcverify.errors import EnvironmentProblem
     from mcverify.gate import cli
-
-    def no_gpu(seed):
-        raise EnvironmentProblem("no GPU")
-
-    def ok(seed):
-        return mv.CheckResult("ok", True, 0.5, 1.0, 0.01, 10, 0.0)
 
     import types
     mod = types.ModuleType("env_problem_suite")
-    mod.suite = [Check("ok", ok), Check("my.gpu[kernel]", no_gpu)]
+    mod.suite = [Check("ok", _ok), Check("my.gpu[kernel]", _no_gpu)]
     sys.modules[mod.__name__] = mod
     try:
         rc = cli.main(["check", "-q", "--suite", "env_problem_suite:suite", "--json",
@@ -579,22 +584,15 @@ def test_the_line_that_ends_a_run_is_not_written_onto_a_terminals_progress_line(
     review). The open line is ended first."""
     import io
 
-    from mcverify.errors import EnvironmentProblem
     from mcverify.gate import cli
 
     class Terminal(io.StringIO):
         def isatty(self):
             return True
 
-    def no_gpu(seed):
-        raise EnvironmentProblem("no GPU")
-
-    def ok(seed):
-        return mv.CheckResult("ok", True, 0.5, 1.0, 0.01, 10, 0.0)
-
     import types
     mod = types.ModuleType("tty_progress_suite")
-    mod.suite = [Check("ok", ok), Check("my.gpu", no_gpu)]
+    mod.suite = [Check("ok", _ok), Check("my.gpu", _no_gpu)]
     monkeypatch.setitem(sys.modules, mod.__name__, mod)
     monkeypatch.setenv("TERM", "xterm")     # one that overwrites its lines
     term = Terminal()
