@@ -57,6 +57,9 @@ _inline = exact(inline="always")
 
 # ----------------------------------------------------------------------- helpers
 _DISK_RIM = 1.0 + 8.0 * 2.0 ** -52
+#: The least z of a visible normal: float32's least subnormal, 2^-149, which a float32
+#: point keeps (``sample_ggx_vndf_kernel``).
+_HORIZON_Z = 2.0 ** -149
 
 
 @_jit
@@ -386,7 +389,7 @@ def sample_ggx_vndf_kernel(u, p):
     """Visible normals of GGX (Heitz 2018) for the outgoing direction
     ``w = (p[1], p[2], p[3])`` (unit, z > 0) and roughness ``p[0] = α``. u[0] = 1 is
     taken as 1 - 2^-53, as Beckmann's: r = 1 put h on the visible hemisphere's edge,
-    where w · h = 0, of density 0."""
+    where w · h = 0, of density 0 (the front end takes a float32 u0 = 1 as 1 - 2^-24)."""
     alpha = p[0]
     vx, vy, vz = alpha * p[1], alpha * p[2], p[3]
     inv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
@@ -398,19 +401,35 @@ def sample_ggx_vndf_kernel(u, p):
     else:
         t1x, t1y, t1z = 1.0, 0.0, 0.0
     t2x, t2y, t2z = vy * t1z - vz * t1y, vz * t1x - vx * t1z, vx * t1y - vy * t1x
-    r = math.sqrt(min(u[0], ONE_MINUS_EPSILON))
+    v = min(u[0], ONE_MINUS_EPSILON)
+    r = math.sqrt(v)
     sin_phi, cos_phi = _sincos_two_pi(u[1])
     a = r * cos_phi
-    b = r * sin_phi
+    b0 = r * sin_phi
     s = 0.5 * (1.0 + vz)
-    b = (1.0 - s) * _safe_sqrt(1.0 - a * a) + s * b
-    c = _safe_sqrt(1.0 - a * a - b * b)
+    # c = √(1 - a² - b²) without cancelling at the disk's rim, where 1 - a² - b² of the
+    # rounded a, b came out 0 for 0.5-20 % of u1 once u0 was within 2^-51 of 1 (u0 = 1
+    # included): h had w · h = 0 or lay on the horizon, of density 0. With e = 1 - r² =
+    # 1 - u0 (exact there) and t = √(1 - a²) = √(sin²φ + e cos²φ): (t - b0)(t + b0) = e,
+    # the factor that cancels taken as e over the other; t - b = s (t - b0) and t + b =
+    # 2 (1 - s) t + s (t + b0), both without a difference of like terms.
+    e = 1.0 - v
+    t = math.sqrt(sin_phi * sin_phi + e * cos_phi * cos_phi)
+    upper = b0 > 0.0
+    t_minus = e / (t + b0) if upper else t - b0
+    t_plus = t + b0 if upper else e / (t - b0)
+    b = (1.0 - s) * t + s * b0
+    c = _safe_sqrt(s * t_minus * (2.0 * (1.0 - s) * t + s * t_plus))
     nx = a * t1x + b * t2x + c * vx
     ny = a * t1y + b * t2y + c * vy
     nz = a * t1z + b * t2z + c * vz
     hx, hy, hz = alpha * nx, alpha * ny, max(0.0, nz)
     inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    return (hx * inv, hy * inv, hz * inv)
+    # at least float32's least subnormal: the disk's lower rim maps to the horizon, and
+    # nz there, within 1e-16 of 0, is a difference of terms near 1 that rounds to <= 0
+    # (for up to 20 % of u1 at u0 = 1 - 2^-53): h on the horizon, of density D = 0.
+    # The true h lies above it, where D is positive. NaN stays NaN (max returns it first).
+    return (hx * inv, hy * inv, max(hz * inv, _HORIZON_Z))
 
 
 @_jit
@@ -712,6 +731,34 @@ _TRIANGLE_LIFT = _stepwise_lift(lambda w: w[:, 0] + w[:, 1] > 1.0, _triangle_ste
 _BELOW_ONE_F32 = np.float32(1.0 - 2.0 ** -24)
 
 
+def _float32_one_below(sample):
+    """The sampler with a float32 u0 of 1 taken as the largest float32 below 1, not as
+    the kernel's 1 - 2^-53: the visible normals' h at u0 = 1 - 2^-53 lies within 1e-8
+    of the edge where w · h = 0, which a float32 point cannot resolve (w · h of the
+    stored point came out <= 0, density 0, for 2 % of u1 at the default parameters)."""
+    def clamped(u):
+        u = np.asarray(u)
+        if u.dtype != np.float32 or u.ndim != 2 or not u.shape[1] or \
+                not (u[:, 0] == 1.0).any():
+            return u
+        u = u.copy()
+        u[u[:, 0] == 1.0, 0] = _BELOW_ONE_F32
+        return u
+
+    def front(u, *params):
+        return sample(clamped(u), *params)
+
+    def with_pdf(u, *params):
+        return sample.with_pdf(clamped(u), *params)
+
+    functools.update_wrapper(front, sample)
+    functools.update_wrapper(with_pdf, sample.with_pdf)
+    front.kernel, front.loop = sample.kernel, sample.loop
+    with_pdf.loop = sample.with_pdf.loop
+    front.with_pdf = with_pdf
+    return front
+
+
 def _below_one(invert):
     """An inverse whose float32 output stays in [0, 1): the kernels clamp u to the
     float64 ``ONE_MINUS_EPSILON``, which rounds to 1.0 in float32, so float32 results are
@@ -793,6 +840,7 @@ sample_ggx_vndf, ggx_vndf_pdf, _ = _triple(
     "ggx_vndf", 2, 3, sample_ggx_vndf_kernel, _ggx_vndf_pdf_kernel, None,
     "GGX visible normals (Heitz 2018): ``sample_ggx_vndf(u, alpha, wx, wy, wz)``, "
     "pdf G1(w) max(0, w·h) D(h) / w_z.", inline=_ALL)
+sample_ggx_vndf = _float32_one_below(sample_ggx_vndf)
 sample_exponential, exponential_pdf, invert_exponential = _triple(
     "exponential", 1, 1, _sample_exponential_kernel, _exponential_pdf_kernel,
     _invert_exponential_kernel,

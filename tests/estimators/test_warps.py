@@ -738,6 +738,26 @@ def test_u0_of_one_gives_a_point_of_positive_density(name, params, dtype):
         np.testing.assert_array_equal(x, w.sample(below, *params))
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("params", [
+    (0.3, 0.6, 0.0, 0.8), (1e-4, 0.6, 0.0, 0.8), (1e3, 0.6, 0.0, 0.8), (0.3, 0.0, 0.0, 1.0),
+    (1.0, -0.6, 0.48, 0.64), (0.3, float(np.sqrt(1 - 1e-16)), 0.0, 1e-8)])
+def test_visible_normals_near_u0_of_one_have_positive_density(params, dtype):
+    """c = √(1 - a² - b²) cancelled at the disk's rim: for u0 within 2^-51 of 1 (u0 = 1,
+    taken as 1 - 2^-53, among them) it came out 0 for 0.5-20 % of u1, putting h where
+    w · h = 0 (or, through it, below the horizon), of density 0, so f / pdf was inf
+    (an outside review; the test above tries three u1 only). It is now taken from
+    1 - u0, exact there."""
+    from estimators.warps import ONE_MINUS_EPSILON, sample_ggx_vndf
+
+    u1 = np.linspace(0.0, 1.0, 4001)
+    for u0 in (1.0, ONE_MINUS_EPSILON, 1.0 - 2.0 ** -52, 1.0 - 2.0 ** -51):
+        u = np.stack([np.full_like(u1, u0), u1], axis=-1).astype(dtype)
+        x, pdf = sample_ggx_vndf.with_pdf(u, *params)
+        bad = ~(np.isfinite(pdf) & (pdf > 0))
+        assert not bad.any(), (u0, bad.sum(), u[bad][:3], x[bad][:3])
+
+
 def test_the_cone_inverse_at_the_south_pole_of_the_whole_sphere():
     """cos θ_max = -1: the cone is the sphere, and its inverse at (0, 0, -1) divided 0 by
     0 (an outside review); the uniform sphere's inverse gives u0 = 1 - 2^-53 there."""
