@@ -213,9 +213,19 @@ def _uniform_sphere_pdf_kernel(x, p):
     return _INV_FOUR_PI
 
 
+@_inline
+def _one_minus_z(x):
+    """1 - z of a unit x: sin²θ / (1 + z) above the equator, where 1 - z itself cancels
+    near the pole; 1 - z below it (the south pole's 0 / 0 would be NaN)."""
+    return (x[0] * x[0] + x[1] * x[1]) / (1.0 + x[2]) if x[2] > 0.0 else 1.0 - x[2]
+
+
 @_jit
 def _invert_uniform_sphere_kernel(x, p):
-    return (_clamp_u(0.5 * (1.0 - x[2])), _azimuth_u(x[0], x[1]))
+    # u0 = (1 - z) / 2 from the tangential components: (1 - z) itself gave u0 = 0 for
+    # u0 = 1e-20 and lost 8e-8 of u0 = 1e-10 (every float32 u0 below 3e-8, as z rounds
+    # to 1), where the cone of cos θ_max = -1, the same sphere, kept them
+    return (_clamp_u(0.5 * _one_minus_z(x)), _azimuth_u(x[0], x[1]))
 
 
 @_jit
@@ -271,8 +281,7 @@ def _uniform_cone_pdf_kernel(x, p):
 def _invert_uniform_cone_kernel(x, p):
     # 1 - cos θ = sin²θ / (1 + cos θ): no cancellation near the pole; 1 - cos θ itself
     # below the equator (the south pole's 0 / 0 was a NaN where cos θ_max = -1)
-    one_minus_cos = (x[0] * x[0] + x[1] * x[1]) / (1.0 + x[2]) if x[2] > 0.0 else 1.0 - x[2]
-    return (_clamp_u(one_minus_cos / (1.0 - p[0])), _azimuth_u(x[0], x[1]))
+    return (_clamp_u(_one_minus_z(x) / (1.0 - p[0])), _azimuth_u(x[0], x[1]))
 
 
 # --------------------------------------------------------------- power-cosine lobe

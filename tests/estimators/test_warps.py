@@ -758,6 +758,22 @@ def test_visible_normals_near_u0_of_one_have_positive_density(params, dtype):
         assert not bad.any(), (u0, bad.sum(), u[bad][:3], x[bad][:3])
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_the_sphere_inverse_keeps_u0_near_the_north_pole(dtype):
+    """u0 = (1 - z) / 2 cancelled near the pole, where the module computes 1 - cos θ from
+    the tangential components (the cone's inverse did, so the cone of cos θ_max = -1,
+    the same sphere, kept u0): u0 = 1e-20 came back 0, 1e-10 with a relative error of
+    8e-8, and in float32, where z rounds to 1, every u0 below 3e-8 came back 0 (an
+    outside review)."""
+    from estimators import warps as W
+
+    u = np.array([[1e-20, 0.3], [1e-10, 0.7], [3e-6, 0.1], [0.2, 0.4], [0.9, 0.6]],
+                 dtype=dtype)
+    back = W.invert_uniform_sphere(W.sample_uniform_sphere(u))
+    rtol = 1e-6 if dtype == np.float32 else 1e-14
+    np.testing.assert_allclose(back, u, rtol=rtol)
+
+
 def test_the_cone_inverse_at_the_south_pole_of_the_whole_sphere():
     """cos θ_max = -1: the cone is the sphere, and its inverse at (0, 0, -1) divided 0 by
     0 (an outside review); the uniform sphere's inverse gives u0 = 1 - 2^-53 there."""
