@@ -19,6 +19,7 @@ it), imported lazily.
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 
@@ -34,21 +35,31 @@ _fast = fused(_nrt=False)    # array arguments, no allocation: see emitters.py
 _IDENTITY_UV = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 
 
+#: Held while Mitsuba is imported and its variant set. Mitsuba's import puts another
+#: module in ``sys.modules["mitsuba"]`` part-way (``mitsuba_alias``), and a thread
+#: importing it meanwhile got the first one, which has no ``variant``: scenes with an
+#: image prepared from several threads at once failed, "cannot read image (module
+#: 'mitsuba' has no attribute 'variant')" (an outside review).
+MITSUBA_IMPORT = threading.RLock()
+
+
 def import_mitsuba(variant: str | None = None):
     """The ``mitsuba`` module, its variant set (``variant``, or ``scalar_rgb`` if none is
     set yet), with at least two Dr.Jit worker threads: with one (a process confined to
     one CPU, e.g. ``taskset -c 0``), Mitsuba 3.9's OpenEXR reader waits forever on its
-    thread pool, in ``Bitmap`` and in loading any scene with an EXR texture."""
-    import drjit as dr
-    import mitsuba as mi
+    thread pool, in ``Bitmap`` and in loading any scene with an EXR texture. One thread
+    at a time (``MITSUBA_IMPORT``)."""
+    with MITSUBA_IMPORT:
+        import drjit as dr
+        import mitsuba as mi
 
-    if dr.thread_count() < 2:
-        dr.set_thread_count(2)
-    if variant is not None:
-        mi.set_variant(variant)
-    elif mi.variant() is None:
-        mi.set_variant("scalar_rgb")
-    return mi
+        if dr.thread_count() < 2:
+            dr.set_thread_count(2)
+        if variant is not None:
+            mi.set_variant(variant)
+        elif mi.variant() is None:
+            mi.set_variant("scalar_rgb")
+        return mi
 
 
 def read_image(path: str, *, raw: bool = False, texture: bool = False,

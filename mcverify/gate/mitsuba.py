@@ -95,9 +95,12 @@ def _probe(lib: str) -> bool:
 @lru_cache(maxsize=1)
 def choose_variant() -> VariantChoice:
     """Pick the Mitsuba variant for this process (probed once, in a subprocess)."""
+    from estimators.pathtracer.textures import MITSUBA_IMPORT
+
     forced = os.environ.get("MCVERIFY_MITSUBA_VARIANT")
     try:
-        import mitsuba
+        with MITSUBA_IMPORT:        # one thread at a time: see there
+            import mitsuba
     except ImportError as e:  # pragma: no cover - mitsuba is a dependency
         # `make setup` alone meant nothing where mcverify was installed with pip
         raise EnvironmentProblem(f"mitsuba is not importable ({e}); install it (`pip install "
@@ -180,8 +183,10 @@ def _mi():
 
 
 def mitsuba_version() -> str:
-    import mitsuba as mi
+    from estimators.pathtracer.textures import MITSUBA_IMPORT
 
+    with MITSUBA_IMPORT:
+        import mitsuba as mi
     return mi.__version__
 
 
@@ -203,10 +208,9 @@ def chi2_cosine_hemisphere(n: int):
     import contextlib
     import io
 
+    mi = _mi()      # first: Mitsuba imported one thread at a time (see _mitsuba)
     import drjit as dr
     from mitsuba.chi2 import ChiSquareTest, SphericalDomain
-
-    mi = _mi()
 
     def run():
         with contextlib.redirect_stdout(io.StringIO()):   # its log goes to stdout

@@ -639,6 +639,40 @@ def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images):
     assert lines[0] == "(6, 10, 3)" and lines[-1].endswith("loaded"), r.stdout
 
 
+def test_images_are_read_from_several_threads_of_a_new_process(images):
+    """Mitsuba's import puts another module in ``sys.modules`` part-way: threads reading
+    an image at once in a process that had not imported it got the first module, and
+    all but one failed, "cannot read image (module 'mitsuba' has no attribute
+    'variant')" (an outside review: scenes with an envmap rendered from a thread pool).
+    Six threads leave a barrier together in a fresh process (Mitsuba not yet imported),
+    each reading the EXR, then choosing the adapters' variant and its version."""
+    import subprocess
+    import sys
+
+    code = ("import threading\n"
+            "from estimators.pathtracer import textures\n"
+            "from mcverify.gate import mitsuba\n"
+            "gate, errors = threading.Barrier(6), []\n"
+            "def read(i):\n"
+            "    gate.wait()\n"
+            "    try:\n"
+            f"        shape = textures.read_image({str(images / 't.exr')!r}).shape\n"
+            "        assert shape == (6, 10, 3), shape\n"
+            "        if i % 2:\n"
+            "            mitsuba.choose_variant.cache_clear()\n"
+            "            mitsuba.choose_variant(), mitsuba.mitsuba_version()\n"
+            "    except Exception as e:\n"
+            "        errors.append(repr(e))\n"
+            "threads = [threading.Thread(target=read, args=(i,)) for i in range(6)]\n"
+            "[t.start() for t in threads]\n"
+            "[t.join() for t in threads]\n"
+            "print(errors)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.splitlines()[-1] == "[]", r.stdout[-2000:]
+
+
 @pytest.mark.parametrize("props", [
     "",                                                        # Mitsuba's 0.4 and 0.2
     '<rgb name="color0" value="0.9, 0.3, 0.05"/><float name="color1" value="0.15"/>',
