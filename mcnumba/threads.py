@@ -11,7 +11,7 @@ at 28.1 -> 27.8 and 60.1 -> 57.2 ns a point on one thread).
 
 The thread count is numba's (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS``
 and ``numba.set_num_threads`` set), so that whoever limited numba's threads limits
-these too. Each thread gets at least ``grain`` items, and fewer than two threads' worth
+these too; it is read without starting numba's threading layer (``get_num_threads``). Each thread gets at least ``grain`` items, and fewer than two threads' worth
 run on the caller's thread alone: handing work to another thread costs about 50 µs
 (``ThreadPoolExecutor`` round trip, AMD Zen 1), so a thread's share should take longer.
 """
@@ -47,9 +47,26 @@ def _pool() -> ThreadPoolExecutor:
         return _POOL[0]
 
 
+def get_num_threads() -> int:
+    """``numba.get_num_threads()`` (the calling thread's count), without starting numba's
+    threading layer where nothing has started it yet: numba's own starts it, and these
+    loops never use it. Started, a GNU OpenMP layer (numba's default where TBB is
+    missing) kills a ``fork``ed child at its first ``parallel=True`` loop, "Terminating:
+    fork() called from a process already using GNU OpenMP": a renderer that checked a
+    sampler with mcverify, then rendered in a ``multiprocessing`` pool, hung on workers
+    that had died (an outside review). Until the layer starts, no thread can have set a
+    count (``numba.set_num_threads`` starts it), so the count is numba's
+    ``NUMBA_NUM_THREADS``."""
+    parallel = getattr(getattr(numba, "np", None), "ufunc", None)
+    parallel = getattr(parallel, "parallel", None)
+    if getattr(parallel, "_is_initialized", True):      # started, or laid out otherwise
+        return numba.get_num_threads()
+    return max(1, int(numba.config.NUMBA_NUM_THREADS))
+
+
 def threads_for(count: int, grain: int = MIN_BLOCKS) -> int:
     """How many threads ``run_ranges`` uses for ``count`` items."""
-    return max(1, min(numba.get_num_threads(), count // grain))
+    return max(1, min(get_num_threads(), count // grain))
 
 
 def run_ranges(loop, count: int, *args, grain: int = MIN_BLOCKS) -> None:

@@ -19,9 +19,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import get_num_threads
 
-from mcnumba.threads import run_split
+from mcnumba.threads import get_num_threads, run_split
 
 from .. import _memory
 from . import _kernel

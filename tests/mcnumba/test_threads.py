@@ -106,6 +106,37 @@ def test_a_forked_child_gets_threads_of_its_own(numba_threads):
     assert got == [(0, 2 * MIN_BLOCKS), (2 * MIN_BLOCKS, 4 * MIN_BLOCKS)]
 
 
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="no fork")
+def test_a_check_leaves_numbas_threading_layer_unstarted_for_a_forked_child(run_python):
+    """The loops read numba's thread count without starting its threading layer, which
+    they never use: started (``numba.get_num_threads()`` starts it), a GNU OpenMP layer
+    killed a forked child at its first ``parallel=True`` loop, "Terminating: fork()
+    called from a process already using GNU OpenMP", and a renderer's
+    ``multiprocessing`` pool, forked after a ``check_sampler``, hung on its dead workers
+    (an outside review). A fresh process checks a sampler, then forks a child that runs
+    a ``prange`` loop."""
+    out = run_python(
+        "import os\n"
+        "import numpy as np\n"
+        "from numba import njit, prange\n"
+        "from numba.np.ufunc import parallel\n"
+        "import mcverify as mv\n"
+        "r = mv.check_sampler(lambda u: np.sqrt(u), lambda x: 2 * x[:, 0], 'interval',\n"
+        "                     n_samples=100_000, seed=1)\n"
+        "print(r.passed, parallel._is_initialized)\n"
+        "@njit(parallel=True)\n"
+        "def total(a):\n"
+        "    s = 0.0\n"
+        "    for i in prange(a.size):\n"
+        "        s += a[i]\n"
+        "    return s\n"
+        "pid = os.fork()\n"
+        "if pid == 0:\n"
+        "    os._exit(0 if total(np.ones(1000)) == 1000.0 else 3)\n"
+        "print(os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]))\n", timeout=300)
+    assert out.splitlines()[-2:] == ["True False", "0"], out
+
+
 def test_run_split_runs_the_given_ranges_skipping_empty_ones(numba_threads):
     numba_threads(numba.config.NUMBA_NUM_THREADS)
     loop, calls = _recorder()
