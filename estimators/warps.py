@@ -746,7 +746,10 @@ def _float32_one_below(sample):
     of the edge where w · h = 0, which a float32 point cannot resolve (w · h of the
     stored point came out <= 0, density 0, for 2 % of u1 at the default parameters)."""
     def clamped(u):
-        u = np.asarray(u)
+        try:
+            u = np.asarray(u)
+        except ValueError:      # ragged: the front end refuses it, naming the sampler
+            return u
         if u.dtype != np.float32 or u.ndim != 2 or not u.shape[1] or \
                 not (u[:, 0] == 1.0).any():
             return u

@@ -11,8 +11,9 @@ at 28.1 -> 27.8 and 60.1 -> 57.2 ns a point on one thread).
 
 The thread count is numba's (``numba.get_num_threads()``, which ``NUMBA_NUM_THREADS``
 and ``numba.set_num_threads`` set), so that whoever limited numba's threads limits
-these too; it is read without starting numba's threading layer (``get_num_threads``). Each thread gets at least ``grain`` items, and fewer than two threads' worth
-run on the caller's thread alone: handing work to another thread costs about 50 µs
+these too; it is read without starting numba's threading layer (``get_num_threads``).
+Each thread gets at least ``grain`` items, and fewer than two threads' worth run on the
+caller's thread alone: handing work to another thread costs about 50 µs
 (``ThreadPoolExecutor`` round trip, AMD Zen 1), so a thread's share should take longer.
 """
 

@@ -19,6 +19,7 @@ it), imported lazily.
 from __future__ import annotations
 
 import math
+import os
 import threading
 
 import numpy as np
@@ -41,6 +42,18 @@ _IDENTITY_UV = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 #: image prepared from several threads at once failed, "cannot read image (module
 #: 'mitsuba' has no attribute 'variant')" (an outside review).
 MITSUBA_IMPORT = threading.RLock()
+
+
+def _new_import_lock() -> None:
+    """A fresh lock in a forked child: one held by another thread of the parent at the
+    fork (importing Mitsuba) would stay held in the child, whose next image read waited
+    forever (a read-only review)."""
+    global MITSUBA_IMPORT
+    MITSUBA_IMPORT = threading.RLock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_new_import_lock)
 
 
 def import_mitsuba(variant: str | None = None):

@@ -175,10 +175,13 @@ def _mi():
     so an ``mi.set_variant("scalar_rgb")`` after the adapters chose ``llvm_ad_rgb`` made
     their next call fail with a bare TypeError ("only 0-dimensional arrays can be
     converted to Python scalars")."""
+    from estimators.pathtracer.textures import MITSUBA_IMPORT
+
     mi = _mitsuba()
     variant = choose_variant().variant
-    if mi.variant() != variant:
-        mi.set_variant(variant)
+    with MITSUBA_IMPORT:        # as import_mitsuba sets it: one thread at a time
+        if mi.variant() != variant:
+            mi.set_variant(variant)
     return mi
 
 

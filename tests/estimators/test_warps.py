@@ -567,6 +567,11 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
                                                           "numbers"),
     (lambda W, u: W.sample_ggx.with_pdf([[0.1], [0.1, 0.2]], 0.5), "sample_ggx.with_pdf: "
                                                                    "not an array"),
+    # the visible normals' float32 wrapper read u first: numpy's bare error (a review)
+    (lambda W, u: W.sample_ggx_vndf([[0.1], [0.1, 0.2]], 0.3, 0.6, 0.0, 0.8),
+     "sample_ggx_vndf: not an array of numbers"),
+    (lambda W, u: W.sample_ggx_vndf.with_pdf([[0.1], [0.1, 0.2]], 0.3, 0.6, 0.0, 0.8),
+     "sample_ggx_vndf.with_pdf: not an array"),
 ], ids=["missing", "too-few", "extra", "negative-alpha", "huge-alpha", "tiny-alpha-pdf",
         "beckmann-huge-alpha", "vndf-tiny-alpha", "nan", "string", "cone-1.5",
         "power-negative", "vndf-not-unit", "sigma-0", "tent-negative", "tent-subnormal",
@@ -574,7 +579,8 @@ def test_the_concentric_disks_rim_points_have_the_disks_density():
         "linear-zero", "exponential-sigma-t-underflows", "exponential-tiny-sigma",
         "interval-span-overflows", "interval-span-subnormal", "interval-one-ulp-is-fine",
         "int-beyond-float", "complex-points", "object-points",
-        "string-points", "ragged-points", "ragged-points-with-pdf"])
+        "string-points", "ragged-points", "ragged-points-with-pdf", "ragged-vndf",
+        "ragged-vndf-with-pdf"])
 def test_warp_parameters_are_checked_by_name(call, needle):
     """The kernels read their parameters by position: a missing one was read past its
     array's end (sample_ggx(u) sampled α = 0), and values outside a warp's definition gave
