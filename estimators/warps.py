@@ -672,6 +672,12 @@ def _kept_within(sample, pdf, lift):
             density[moved] = pdf(x[moved], *params)
         return x, density
 
+    return _like(sample, front, with_pdf)
+
+
+def _like(sample, front, with_pdf):
+    """``front`` and its ``with_pdf``, wrappers of the sampler ``sample``, given its names,
+    docstrings, kernel and loops, as the other front ends have them."""
     functools.update_wrapper(front, sample)
     functools.update_wrapper(with_pdf, sample.with_pdf)
     front.kernel, front.loop = sample.kernel, sample.loop
@@ -763,12 +769,7 @@ def _float32_one_below(sample):
     def with_pdf(u, *params):
         return sample.with_pdf(clamped(u), *params)
 
-    functools.update_wrapper(front, sample)
-    functools.update_wrapper(with_pdf, sample.with_pdf)
-    front.kernel, front.loop = sample.kernel, sample.loop
-    with_pdf.loop = sample.with_pdf.loop
-    front.with_pdf = with_pdf
-    return front
+    return _like(sample, front, with_pdf)
 
 
 def _below_one(invert):
