@@ -362,6 +362,31 @@ def transposed(raw, verb: str = "return", noun: str = "points") -> str:
     return f"; transposed? {verb} {noun}.T"
 
 
+#: Where a direction's two angles (θ, φ) lie, in radians and in degrees: θ in [0, π], φ
+#: in [-π, π) or [0, 2π) (renderers differ), as the hint spells them.
+_ANGLES = (("radians", np.pi, ("π", "-π", "2π"), ""),
+           ("degrees", 180.0, ("180", "-180", "360"), " of np.radians(θ, φ)"))
+
+
+def angles(a, verb: str = "return") -> str:
+    """The hint for directions given as (n, 2) where unit vectors (n, 3) are meant, where
+    every row could be a (θ, φ) pair and not all lie in [0, 1] (u itself, or a square's
+    points): until 7 December such a sampler was told 'expected (n, 3)' and no more (an
+    outside review)."""
+    if a.ndim != 2 or a.shape[1] != 2 or not a.size or not np.isfinite(a).all() \
+            or (a.min() >= 0.0 and a.max() <= 1.0):
+        return ""
+    theta, phi = a[:, 0], a[:, 1]
+    for unit, half, (pi, minus_pi, two_pi), convert in _ANGLES:
+        # in degrees, some value beyond 2π (angles below it read as radians if at all)
+        if theta.min() >= 0.0 and theta.max() <= half and phi.min() >= -half \
+                and phi.max() <= 2.0 * half and (half == np.pi or np.abs(a).max() > 2 * np.pi):
+            return (f"; the first column lies in [0, {pi}] and the second in "
+                    f"[{minus_pi}, {two_pi}]: (θ, φ) angles in {unit}? {verb} unit vectors "
+                    f"(sin θ cos φ, sin θ sin φ, cos θ){convert}")
+    return ""
+
+
 def points(name: str, x, n: int, dim: int) -> np.ndarray:
     """Output of a user callable as an (n, dim) array (float32 kept, anything else as
     float64), or InvalidArgument."""
@@ -383,7 +408,8 @@ def points(name: str, x, n: int, dim: int) -> np.ndarray:
         # of check_same_distribution and check_inverse give (an outside review)
         raise InvalidArgument(f"{name} returned shape {a.shape} for {n} rows: expected "
                               f"({n}, {dim})" + (" or (n,)" if dim == 1 else "")
-                              + (transposed(x) if dim > 1 and a.shape == (dim, n) else ""))
+                              + (transposed(x) if dim > 1 and a.shape == (dim, n) else "")
+                              + (angles(a) if dim == 3 and a.shape == (n, 2) else ""))
     return a if a.dtype == np.float32 else a.astype(np.float64, copy=False)
 
 

@@ -1436,7 +1436,8 @@ def check_same_distribution(sample_a, sample_b, domain, *, n_samples: int = 1_00
             raise InvalidArgument(
                 f"{label}: an array of shape {x.shape}, expected (n, {dom.dim}), a row of "
                 f"{dom.dim} coordinates per point on {dom!r}"
-                + (validate.transposed(smp, "pass") if x.shape[0] == dom.dim else ""))
+                + (validate.transposed(smp, "pass") if x.shape[0] == dom.dim else "")
+                + (validate.angles(x, "pass") if dom.dim == 3 else ""))
         sides.append((label, validate.points(label, x, x.shape[0], dom.dim), None, x.shape[0]))
     if all(seq is None for _, _, seq, _ in sides):
         _shared_draws_iv(dom, sides[0][1], sides[1][1], rejection)

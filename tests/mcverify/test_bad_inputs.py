@@ -260,6 +260,28 @@ API = [
                                         n_samples=20_000),
      InvalidArgument, "returned shape (3, 2000) for 2000 rows: expected (2000, 3); "
      "transposed? return points.T"),
+    # directions as (θ, φ) pairs, another renderer's convention: until 7 December
+    # "expected (10000, 3)" and no more (an outside review); u itself gets no guess
+    ("sampler-sample-theta-phi",
+     lambda: mv.check_sampler(lambda u: np.stack([np.arccos(W.sample_cosine_hemisphere(u)[:, 2]),
+                                                  2 * np.pi * u[:, 1] - np.pi], axis=1),
+                              W.cosine_hemisphere_pdf, "hemisphere", n_samples=100_000),
+     InvalidArgument, "sample returned shape (10000, 2) for 10000 rows: expected (10000, 3); "
+     "the first column lies in [0, π] and the second in [-π, 2π]: (θ, φ) angles in "
+     "radians? return unit vectors (sin θ cos φ, sin θ sin φ, cos θ)"),
+    ("sampler-sample-theta-phi-degrees",
+     lambda: mv.check_sampler(lambda u: np.stack([np.degrees(np.arccos(1 - 2 * u[:, 0])),
+                                                  360 * u[:, 1]], axis=1),
+                              W.uniform_sphere_pdf, "sphere", n_samples=100_000),
+     InvalidArgument, "(θ, φ) angles in degrees? return unit vectors (sin θ cos φ, "
+     "sin θ sin φ, cos θ) of np.radians(θ, φ)"),
+    ("same-dist-array-theta-phi",
+     lambda: mv.check_same_distribution(
+         np.random.default_rng(1).random((5000, 2)) * [np.pi / 2, 2 * np.pi],
+         W.sample_cosine_hemisphere, "hemisphere"),
+     InvalidArgument, "sample_a: an array of shape (5000, 2), expected (n, 3), a row of 3 "
+     "coordinates per point on Hemisphere(); the first column lies in [0, π] and the "
+     "second in [-π, 2π]: (θ, φ) angles in radians? pass unit vectors"),
     ("inverse-sample-transposed", lambda: mv.check_inverse(lambda u: u.T, lambda x: x, 2,
                                                            n_samples=100), InvalidArgument,
      "sample returned shape (2, 100): expected (100, d), a row of d coordinates per draw; "
@@ -431,6 +453,17 @@ def test_api_bad_input(call, exc, needle):
         call()
     assert needle in str(info.value), str(info.value)
     assert snapshot(os.path.dirname(FURNACE)) == before
+
+
+@pytest.mark.parametrize("sample", [lambda u: u, lambda u: 2 * u - 1,
+                                    lambda u: np.stack([4 * u[:, 0], u[:, 1]], axis=1)],
+                         ids=["u", "square", "theta-beyond-pi"])
+def test_two_columns_that_cannot_be_angles_get_no_angles_guess(sample):
+    """The (θ, φ) guess is for columns within [0, π] and [-π, 2π] (or 180 and 360), not
+    all in [0, 1]: u itself, a square's points or values beyond π get none."""
+    with pytest.raises(InvalidArgument) as info:
+        mv.check_sampler(sample, W.uniform_sphere_pdf, "sphere", n_samples=100_000)
+    assert str(info.value).endswith("expected (10000, 3)"), str(info.value)
 
 
 @pytest.mark.parametrize("spp,passes", [(100, 16), (1000, 16), (10, 3), (1000, 3)])
