@@ -364,6 +364,51 @@ def why_outside(domain: Domain, x) -> str:
     return ""
 
 
+#: Half-spaces a hemisphere's directions may be about in another convention: (axis, sign,
+#: the points' half-space, the guess).
+_OTHER_UPS = ((1, 1.0, "y >= 0", "a hemisphere about +y (a y-up renderer's)? the checks' "
+               "hemisphere is about +z: rotate into the local frame, (x, y, z) -> (x, -z, y)"),
+              (0, 1.0, "x >= 0", "a hemisphere about +x? the checks' hemisphere is about "
+               "+z: rotate into the local frame"),
+              (2, -1.0, "z <= 0", "directions reversed or mirrored in the surface (about "
+               "-z, not +z)?"))
+
+
+def convention_note(domain: Domain, x) -> str:
+    """A guess at another renderer's convention where points of one call of the sampler
+    (``x``, all its rows) lie outside ``domain``: unit vectors all in another half-space
+    than z >= 0, about half of them below the horizon (a y-up cosine lobe), or disk
+    points all (r, φ) pairs, r in [0, 1] and φ spanning more than π within [-π, 2π]. Until
+    7 December such samplers were told "its z = -0.58 is below the horizon" or "its radius
+    is 5.7, beyond 1" and no more (an outside review). "" where nothing fits: a guess
+    only for a whole call's points."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim == 2:
+        x = x[~np.isnan(x).all(axis=1)]         # rejected draws (rejection=True)
+    if x.ndim != 2 or x.shape[0] < 100 or not np.isfinite(x).all():
+        return ""
+    tol, n = domain.tolerance, x.shape[0]
+    if domain.kind == kernels.HEMISPHERE and x.shape[1] == 3:
+        if np.abs(np.sqrt(np.sum(x * x, axis=1)) - 1.0).max() > tol:
+            return ""
+        below = np.count_nonzero(x[:, 2] < -tol) / n
+        for axis, sign, name, why in _OTHER_UPS:
+            # about +x or +y: z of both signs, as a lobe about the horizontal axis has
+            if (sign * x[:, axis]).min() >= -tol and (axis == 2 or 0.1 <= below <= 0.9):
+                return f"; all {n} points of a call have {name}: {why}"
+    if domain.kind == kernels.DISK and x.shape[1] == 2:
+        r, phi = x[:, 0], x[:, 1]
+        for top, (span, two) in ((np.pi, ("π", "2π")), (180.0, ("180", "360"))):
+            if r.min() >= 0.0 and r.max() <= 1.0 + tol and phi.min() >= -top \
+                    and phi.max() <= 2 * top and phi.max() - phi.min() > top \
+                    and (top == np.pi or np.abs(phi).max() > 2 * np.pi):
+                unit, of = ("", "") if top == np.pi else (" in degrees", " of np.radians(φ)")
+                return (f"; all {n} points of a call have x in [0, 1] and y in [-{span}, "
+                        f"{two}]: (r, φ) polar coordinates{unit}? return (r cos φ, "
+                        f"r sin φ){of}")
+    return ""
+
+
 def as_domain(domain) -> Domain:
     """A ``Domain`` from a name (``"interval"``, ``"square"``, ``"disk"``, ``"sphere"``,
     ``"hemisphere"``) or a ``Domain`` instance (a built-in one: ``_refuse_custom``)."""

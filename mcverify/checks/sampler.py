@@ -25,7 +25,7 @@ from .. import _uniform_stream as stream
 from .. import _validate as validate
 from .. import stats
 from ..errors import InvalidArgument
-from ..domains import Domain, as_domain, why_outside
+from ..domains import Domain, as_domain, convention_note, why_outside
 from ..quadrature import gauss_legendre_01, integrate_cells, merge_leaves
 from ..result import CheckResult
 
@@ -80,9 +80,10 @@ def _uniforms(seq, n, k):
 _STATUS_TEXT = {kernels.NONFINITE: "are NaN/Inf", kernels.OUTSIDE: "lie outside the {} domain"}
 
 
-def _status_failures(n_status, examples, domain: Domain, what="sample", rejection=False):
+def _status_failures(n_status, examples, domain: Domain, what="sample", rejection=False,
+                     outside_note=""):
     """Failure messages for NaN/Inf points and points outside the domain, each with its
-    first example ``(u, x)``."""
+    first example ``(u, x)``; ``outside_note`` (``convention_note``) ends the latter's."""
     failures = []
     for code, text in _STATUS_TEXT.items():
         if n_status[code]:
@@ -99,7 +100,7 @@ def _status_failures(n_status, examples, domain: Domain, what="sample", rejectio
             elif code == kernels.NONFINITE and rejection and np.isnan(x).any():
                 hint = "; a rejected draw is a row of NaN in every coordinate"
             elif code == kernels.OUTSIDE:
-                hint = why_outside(domain, x)
+                hint = why_outside(domain, x) + outside_note
             failures.append(f"{int(n_status[code])} {what}s {text.format(domain.name)} "
                             f"(first: {origin}x={x.tolist()}){hint}")
     return failures
@@ -134,6 +135,7 @@ class _Histogram:
         self.flat = np.zeros(int(np.prod(self.shape)), dtype=np.int64)
         self.n_status = np.zeros(kernels.N_STATUS, dtype=np.int64)
         self.examples = {}
+        self.outside_note = None     # convention_note of the first call with points outside
 
     def add(self, x, u=None):
         d = self.domain
@@ -142,6 +144,8 @@ class _Histogram:
                                                 *self.lut0, self.e1, *self.lut1,
                                                 len(self.edges), self.rejection, self.flat)
         self.n_status += codes
+        if codes[kernels.OUTSIDE] and self.outside_note is None:
+            self.outside_note = convention_note(d, x)
         for c in _STATUS_TEXT:
             if first[c] >= 0 and c not in self.examples:
                 i = int(first[c])
@@ -153,7 +157,7 @@ class _Histogram:
 
     def failures(self, what="sample"):
         return _status_failures(self.n_status, self.examples, self.domain, what,
-                                self.rejection)
+                                self.rejection, self.outside_note or "")
 
 
 def _stream_batches(sample, uniforms, dim, hist: _Histogram, bounds, name="sample"):

@@ -127,6 +127,49 @@ def test_directions_reversed_on_the_sphere_are_named_as_a_guess():
     assert not r.passed and "the sampler puts mass where the pdf has none" in text, text
     assert "the pdf is positive at" not in text, text
 
+def _y_up_cosine(u):
+    """A cosine lobe about +y, a y-up renderer's local frame."""
+    return W.sample_cosine_hemisphere(u)[:, [0, 2, 1]]
+
+
+@pytest.mark.parametrize("sample,pdf,domain,guess", [
+    (_y_up_cosine, lambda x: np.maximum(x[:, 1], 0.0) / np.pi, "hemisphere",
+     "; all 20000 points of a call have y >= 0: a hemisphere about +y (a y-up renderer's)? "
+     "the checks' hemisphere is about +z: rotate into the local frame, (x, y, z) -> "
+     "(x, -z, y)"),
+    (lambda u: -W.sample_cosine_hemisphere(u), W.cosine_hemisphere_pdf, "hemisphere",
+     "; all 20000 points of a call have z <= 0: directions reversed or mirrored in the "
+     "surface (about -z, not +z)?"),
+    (lambda u: np.stack([np.sqrt(u[:, 0]), 2 * np.pi * u[:, 1] - np.pi], axis=1),
+     W.uniform_disk_pdf, "disk",
+     "; all 20000 points of a call have x in [0, 1] and y in [-π, 2π]: (r, φ) polar "
+     "coordinates? return (r cos φ, r sin φ)"),
+    (lambda u: np.stack([np.sqrt(u[:, 0]), 360 * u[:, 1]], axis=1), W.uniform_disk_pdf,
+     "disk", "; all 20000 points of a call have x in [0, 1] and y in [-180, 360]: (r, φ) "
+     "polar coordinates in degrees? return (r cos φ, r sin φ) of np.radians(φ)"),
+], ids=["y-up", "reversed", "r-phi", "r-phi-degrees"])
+def test_points_outside_in_another_convention_get_a_guess(sample, pdf, domain, guess):
+    """An outside review: a y-up cosine sampler was told 'its z = -0.58 is below the
+    horizon', polar disk points (r, φ) 'its radius is 5.7, beyond 1', and no more; where
+    every point of a call fits another convention, the failure now names it."""
+    r = mv.check_sampler(sample, pdf, domain, n_samples=20_000, seed=1)
+    note = next(f for f in r.failures if "outside the" in f)
+    assert not r.passed and note.endswith(guess), note
+
+
+@pytest.mark.parametrize("sample,pdf,domain", [
+    (W.sample_uniform_sphere, W.uniform_sphere_pdf, "hemisphere"),
+    (lambda u: 1.01 * W.sample_uniform_disk_polar(u), W.uniform_disk_pdf, "disk"),
+    (lambda u: 1.001 * W.sample_cosine_hemisphere(u), W.cosine_hemisphere_pdf, "hemisphere"),
+    (lambda u: np.where(u[:, :1] > 0.99, [[1.0, 1.0, -1.0]], 1.0)
+     * W.sample_cosine_hemisphere(u), W.cosine_hemisphere_pdf, "hemisphere"),
+], ids=["sphere", "disk-too-wide", "too-long", "one-percent-below"])
+def test_points_outside_in_no_other_convention_get_no_guess(sample, pdf, domain):
+    r = mv.check_sampler(sample, pdf, domain, n_samples=20_000, seed=1)
+    note = next(f for f in r.failures if "outside the" in f)
+    assert not r.passed and "of a call have" not in note, note
+
+
 def _polar_cosine(u):
     r, phi = np.sqrt(u[:, 0]), 2 * np.pi * u[:, 1]
     return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1 - u[:, 0])], axis=1)
