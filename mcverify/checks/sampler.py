@@ -839,6 +839,16 @@ _TELLING_INTEGRALS = (
     (0.5, (kernels.SPHERE, kernels.HEMISPHERE),
      "the sphere's 1/(4π) where the hemisphere's 1/(2π) is meant, or a lobe's weight "
      "of 1/2 applied twice"),
+    # another measure: a density per dθ dφ, where dω = sin θ dθ dφ (an outside review)
+    (2.0 / np.pi, (kernels.SPHERE, kernels.HEMISPHERE),
+     "a density per dθ dφ (uniform in θ and φ) where one per solid angle is meant: "
+     "divide it by sin θ"),
+    (np.pi / 4.0, (kernels.SPHERE, kernels.HEMISPHERE),
+     "a density per dθ dφ (a uniform one's, sin θ / (4π) or sin θ / (2π)) where one per "
+     "solid angle is meant: divide it by sin θ"),
+    (2.0 / 3.0, (kernels.HEMISPHERE,),
+     "a density per dθ dφ (the cosine lobe's, cos θ sin θ / π) where one per solid angle "
+     "is meant: divide it by sin θ"),
     (np.pi, None, "a factor π too many (1/π left out)"),
     (1.0 / np.pi, None, "a factor 1/π too many"),
     (2.0 * np.pi, None, "a factor 2π too many (the azimuth's 1/(2π) left out)"),

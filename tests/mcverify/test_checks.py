@@ -1476,6 +1476,16 @@ def test_a_float32_expected_value_widens_only_its_own_comparison():
      "applied twice?"),
     (lambda x: np.full(len(x), 1.0), "sphere", "a factor 4π too many (1/(4π) left out)?"),
     (lambda x: x[:, 2], "hemisphere", "a factor π too many (1/π left out)?"),
+    # a density per dθ dφ given per solid angle (an outside review)
+    (lambda x: np.full(len(x), 0.5 / np.pi ** 2), "sphere",
+     "a density per dθ dφ (uniform in θ and φ) where one per solid angle is meant: divide "
+     "it by sin θ?"),
+    (lambda x: np.sqrt(np.maximum(1 - x[:, 2] ** 2, 0)) / (4 * np.pi), "sphere",
+     "a density per dθ dφ (a uniform one's, sin θ / (4π) or sin θ / (2π)) where one per "
+     "solid angle is meant: divide it by sin θ?"),
+    (lambda x: x[:, 2] * np.sqrt(np.maximum(1 - x[:, 2] ** 2, 0)) / np.pi, "hemisphere",
+     "a density per dθ dφ (the cosine lobe's, cos θ sin θ / π) where one per solid angle "
+     "is meant: divide it by sin θ?"),
 ])
 def test_a_pdf_integrating_to_a_telling_factor_gets_a_guess(pdf, domain, guess):
     """An outside review: a cosine sampler's pdf given per projected solid angle (1/π)
