@@ -702,6 +702,20 @@ def _axis_span(dom, j, lo, hi) -> str:
     return _span(lo, hi, 4, closed=hi == 1.0 and not (j == 1 and dom._azimuth_axis))
 
 
+def _rounded(point, decimals: int) -> list:
+    """A point's coordinates to ``decimals`` decimals, or to as many significant digits
+    where that keeps more: a point on ``Interval(3.6e-7, 8.3e-7)`` (a wavelength in
+    metres) was shown as ``x≈[0.0]`` beside its cell [5.81985e-07, 5.82526e-07) until
+    7 December (an outside review)."""
+    out = []
+    for c in np.asarray(point, dtype=np.float64).ravel().tolist():
+        mag = abs(c)
+        d = decimals if mag == 0 or not np.isfinite(c) else \
+            max(decimals, decimals - 1 - int(np.floor(np.log10(mag))))
+        out.append(round(c, d))
+    return out
+
+
 def _cell_at(dom, w) -> str:
     """Where a grid cell of ``_worst_cells`` is: its centre and its extent. The centre
     alone misled where the cell is wide: a cone 10 % wider than its pdf about the pole,
@@ -709,12 +723,12 @@ def _cell_at(dom, w) -> str:
     its rim (until 7 December; an outside review)."""
     if dom.param_dim == 1:
         x = dom.to_point(np.array([[w["param_lo"][0]], [w["param_hi"][0]]]))[:, 0]
-        return (f"x≈{np.round(w['point'], 4).tolist()} (the cell "
+        return (f"x≈{_rounded(w['point'], 4)} (the cell "
                 f"{_span(x[0], x[1], 6, closed=w['param_hi'][0] == 1.0)})")
     names = _AXIS_NAMES.get(dom.name, ("parameter 0", "parameter 1"))
     extent = ", ".join(f"{a} in {_axis_span(dom, j, lo, hi)}" for j, (a, lo, hi) in
                        enumerate(zip(names, w["param_lo"], w["param_hi"])))
-    return f"x≈{np.round(w['point'], 4).tolist()} (the cell {extent})"
+    return f"x≈{_rounded(w['point'], 4)} (the cell {extent})"
 
 
 def _sampler_discrepancy(dom, edges, counts, expected, sub, alpha, worst, ks=None
@@ -1156,7 +1170,7 @@ def check_sampler(sample, pdf, domain, *, n_samples: int = 1_000_000, resolution
         if n_zero:
             failures.append(f"{n_zero} of the pilot draw's {pilot_s.shape[0]} points lie "
                             f"where the pdf is 0, at the point and {ZERO_REACH:g} about it "
-                            f"in each parameter (first x = {np.round(zero_x[0], 6).tolist()}): "
+                            f"in each parameter (first x = {_rounded(zero_x[0], 6)}): "
                             f"the sampler puts mass where the pdf has none{zero_note}")
         if m == 2:
             for axis, label in ((1, "chi2_axis0"), (0, "chi2_axis1")):

@@ -1205,6 +1205,29 @@ def test_a_cell_is_printed_with_the_digits_that_tell_its_ends_apart():
     assert _span(0.25, 0.2512345678, 6) == "[0.25, 0.251235)"
 
 
+def test_a_point_at_the_scale_of_metres_is_printed_with_its_digits():
+    """A wavelength sampler in metres on Interval(3.6e-7, 8.3e-7), missing its last
+    fifth, was reported at "x≈[0.0] (the cell [...e-07, ...e-07))" and, with a pdf of 0
+    there, "first x = [0.0]": the centre was rounded to 4 decimals (an outside review).
+    Coordinates keep 4 (6) significant digits where the decimals would lose them."""
+    a, b = 3.6e-7, 8.3e-7
+    r = mv.check_sampler(lambda u: a + 0.8 * (b - a) * u[:, 0],
+                         lambda x: np.full(len(x), 1 / (b - a)), mv.Interval(a, b),
+                         n_samples=20_000, seed=1)
+    (m,) = [m for m in r.messages if m.startswith("largest discrepancy")]
+    centre = float(m.split("x≈[")[1].split("]")[0])
+    assert a + 0.8 * (b - a) < centre < b, m
+    r = mv.check_sampler(lambda u: a + (b - a) * u[:, 0],
+                         lambda x: np.where(np.ravel(x) < 6e-7, 1 / (6e-7 - a), 0.0),
+                         mv.Interval(a, b), n_samples=20_000, seed=1)
+    (f,) = [f for f in r.failures if "where the pdf is 0" in f]
+    first = float(f.split("first x = [")[1].split("]")[0])
+    assert 6e-7 <= first <= b, f
+    from mcverify.checks.sampler import _rounded
+    assert _rounded([0.1555049, 368.20594, 0.0], 4) == [0.1555, 368.2059, 0.0]
+    assert _rounded([5.8225556e-07, -0.0123456], 4) == [5.823e-07, -0.01235]
+
+
 def test_a_failure_names_where_the_rejecting_test_saw_it():
     """The "largest discrepancy" was the full grid's worst cell whatever sub-test had
     rejected: a sampler whose x follows 1.015·x^0.015 (too few points near x = 0), caught
