@@ -139,6 +139,26 @@ def test_inverted_cdf_sampling_converges_in_a_few_newton_steps(pdf, a, b):
     assert np.max(np.abs(d.cdf(x) - u)) <= 1e-14
 
 
+@pytest.mark.parametrize("a, w, bound", [(0.0, 1e-10, 1e-14), (5e-7, 1e-10, 1e-11)],
+                         ids=["[0, 1e-10]", "metres"])
+def test_inverted_cdf_sampling_on_a_small_scale_is_as_accurate(a, w, bound):
+    """xtol was taken times max(1, |a|, |b|): on an interval of values below 1, a
+    spectral line in metres, [5e-7, 5e-7 + 1e-10], that is 1e-14 absolute, 1e-4 of the
+    width, and Newton stopped after its first step, |F(x) - u| up to 6e-9 (8e-9 on
+    [0, 1e-10]) where the same pdf in nm came within 1e-12 (an outside review). Now
+    times max(|a|, |b|): at the rounding of x, in as few steps."""
+    c = a + w / 2
+    pdf = lambda t: np.exp(-0.5 * ((t - c) / (w / 10)) ** 2) + 0.1 * np.abs(t - c) / w
+    d = InvertedCDF(pdf, a, a + w)
+    calls = []
+    d._f = lambda t, f=d._f: calls.append(np.size(t)) or f(t)
+    u = np.random.default_rng(8).random(100_000)
+    x = d.sample(u)[:, 0]
+    d._f = pdf
+    assert sum(calls) / u.size <= 6 * 11, sum(calls) / u.size
+    assert np.max(np.abs(d.cdf(x) - u)) <= bound
+
+
 @pytest.mark.parametrize("call,match", [
     (lambda: DiscreteDistribution([]), "non-empty"),
     (lambda: DiscreteDistribution([1.0, -1.0]), ">= 0"),
