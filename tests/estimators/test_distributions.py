@@ -120,6 +120,18 @@ def test_inverted_cdf_of_sin_and_a_discontinuous_pdf():
     assert inv.passed, inv.failures
 
 
+def _sampled_in_few_steps(d, pdf):
+    """1e5 seeded u and ``d``'s samples of them, asserting a few Newton steps each (11
+    pdf evaluations a step: 10 for the partial integral, 1 for the derivative)."""
+    calls = []
+    d._f = lambda t, f=d._f: calls.append(np.size(t)) or f(t)
+    u = np.random.default_rng(8).random(100_000)
+    x = d.sample(u)[:, 0]
+    d._f = pdf
+    assert sum(calls) / u.size <= 6 * 11, sum(calls) / u.size
+    return u, x
+
+
 @pytest.mark.parametrize("pdf, a, b", [(np.sin, 0.0, np.pi),
                                         (lambda t: np.where(t < 0.3, 1.0, 5.0), 0.0, 1.0),
                                         (lambda t: np.exp(-t), 0.0, 30.0)],
@@ -130,12 +142,7 @@ def test_inverted_cdf_sampling_converges_in_a_few_newton_steps(pdf, a, b):
     1 for the derivative). A root hit exactly used to be left for bisection, which then
     crawled down to xtol in ~20 steps."""
     d = InvertedCDF(pdf, a, b)
-    calls = []
-    d._f = lambda t, f=d._f: calls.append(np.size(t)) or f(t)
-    u = np.random.default_rng(8).random(100_000)
-    x = d.sample(u)[:, 0]
-    d._f = pdf
-    assert sum(calls) / u.size <= 6 * 11, sum(calls) / u.size
+    u, x = _sampled_in_few_steps(d, pdf)
     assert np.max(np.abs(d.cdf(x) - u)) <= 1e-14
 
 
@@ -150,12 +157,7 @@ def test_inverted_cdf_sampling_on_a_small_scale_is_as_accurate(a, w, bound):
     c = a + w / 2
     pdf = lambda t: np.exp(-0.5 * ((t - c) / (w / 10)) ** 2) + 0.1 * np.abs(t - c) / w
     d = InvertedCDF(pdf, a, a + w)
-    calls = []
-    d._f = lambda t, f=d._f: calls.append(np.size(t)) or f(t)
-    u = np.random.default_rng(8).random(100_000)
-    x = d.sample(u)[:, 0]
-    d._f = pdf
-    assert sum(calls) / u.size <= 6 * 11, sum(calls) / u.size
+    u, x = _sampled_in_few_steps(d, pdf)
     assert np.max(np.abs(d.cdf(x) - u)) <= bound
 
 
