@@ -877,10 +877,34 @@ def _integral_note(total: float, dom: Domain) -> str:
     2 on the sphere or hemisphere is a density per projected solid angle given for one
     per solid angle, π, 2π or 4π a normalisation left out; until 7 December such a pdf
     failed as 'integrates to 2, not 1' and no more (an outside review)."""
-    for factor, kinds, why in _TELLING_INTEGRALS:
+    for factor, kinds, why in _TELLING_INTEGRALS + _interval_factors(dom):
         if (kinds is None or dom.kind in kinds) and abs(total / factor - 1.0) <= 5e-3:
             return f"; {why}?"
     return ""
+
+
+def _interval_factors(dom: Domain) -> tuple:
+    """An interval's telling integrals, as ``_TELLING_INTEGRALS``' rows: its width w = b - a
+    (a pdf not divided by it) and 1/w (divided twice), where w is not near 1, and the
+    powers of 1000 (a density per another unit: per μm where per nm is meant). Until
+    7 December a pdf on Interval(360, 830) per μm failed as 'integrates to 1000, not 1',
+    and one not divided by the width as 'integrates to 2' and no more (outside reviews)."""
+    if dom.kind != kernels.INTERVAL:
+        return ()
+    width = float(dom.b) - float(dom.a)
+    rows = []
+    if abs(width - 1.0) > 0.01 and 0.0 < width < np.inf:
+        rows += [(width, None, f"a density not divided by the interval's width, b - a = "
+                               f"{width:.6g}"),
+                 (1.0 / width, None, f"a density divided by the interval's width, b - a = "
+                                     f"{width:.6g}, twice")]
+    for k in (1, 2, 3):
+        scale = 1000.0 ** k
+        rows += [(scale, None, f"a density per a unit {scale:g} times smaller than x's "
+                               "(per μm where x is in nm, per nm where it is in μm)"),
+                 (1.0 / scale, None, f"a density per a unit {scale:g} times larger than x's "
+                                     "(per nm where x is in μm, per metre where it is in mm)")]
+    return tuple(rows)
 
 
 def _mirror_note(pdf, dom: Domain, zero_x, n_pilot: int) -> str:

@@ -1524,6 +1524,34 @@ def test_a_pdf_integrating_to_a_telling_factor_gets_a_guess(pdf, domain, guess):
     assert not next(m for m in r.failures if "integrates to" in m).endswith("?")
 
 
+@pytest.mark.parametrize("scale, guess", [
+    (470.0, "a density not divided by the interval's width, b - a = 470?"),
+    (1.0 / 470.0, "a density divided by the interval's width, b - a = 470, twice?"),
+    (1000.0, "a density per a unit 1000 times smaller than x's (per μm where x is in nm, "
+             "per nm where it is in μm)?"),
+    (1e-3, "a density per a unit 1000 times larger than x's (per nm where x is in μm, per "
+           "metre where it is in mm)?"),
+])
+def test_an_interval_pdf_off_by_its_width_or_a_unit_gets_a_guess(scale, guess):
+    """A wavelength sampler on Interval(360, 830) whose pdf is given per μm (1000 times
+    the density per nm) failed as 'integrates to 1000, not 1', and one not divided by the
+    width as 'integrates to 470' and no more (outside reviews); now with the guess. A
+    factor that names nothing (1.3) gets none; nor does the width on an interval of width
+    about 1."""
+    sample = lambda u: 360.0 + 470.0 * u[:, 0]                   # noqa: E731
+    pdf = lambda x: np.full(len(x), 1.0 / 470.0)                # noqa: E731
+    for factor, said in ((scale, guess), (1.3, None)):
+        r = mv.check_sampler(sample, lambda x, f=factor: f * pdf(x), mv.Interval(360, 830),
+                             n_samples=20_000, seed=1)
+        note = next(m for m in r.failures if "integrates to" in m)
+        assert not r.passed and (note.endswith("; " + said) if said else
+                                 not note.endswith("?")), note
+    r = mv.check_sampler(lambda u: u[:, 0] * 1.001, lambda x: np.ones(len(x)),
+                         mv.Interval(0, 1.001), n_samples=20_000, seed=1)
+    note = next(m for m in r.failures if "integrates to" in m)
+    assert "width" not in note and not note.endswith("?"), note
+
+
 def test_a_bsdf_pdf_divided_by_cos_gets_the_guess_with_rejection():
     """A BSDF is checked with rejection=True (its draws below the horizon are rejected),
     where a pdf integrating above 1 failed as 'above 1, so it is no acceptance
