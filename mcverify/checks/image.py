@@ -28,6 +28,7 @@ different (p = 0) by its values alone, to float32 resolution at the image's scal
 from __future__ import annotations
 
 import math
+import re
 import time
 
 import numpy as np
@@ -291,6 +292,12 @@ _EXACT_NOTE = ("note: {k} rejected pixel(s) have zero variance on both sides ({n
                "(few samples of a rare path: 0, or its one hit) passes coincide by chance "
                "and such a difference is no evidence: give more passes, or more samples a "
                "pass")
+
+#: The counts in the note on the sides' per-sample variances (``check test_spp=64 and
+#: ref_spp=64 (samples per value, e.g. per pass)``), which ``compare`` and ``render_check``
+#: re-word in their own terms: one pattern for the note's one wording.
+SPP_NOTE = re.compile(r"check test_spp=(\d+) and ref_spp=(\d+) \(samples per value, "
+                      r"e\.g\. per pass\)")
 
 #: Bytes a pixel takes at compare_images' peak, above its inputs (tracemalloc, at 512²
 #: and 1024²: 434 without the perceptual metrics, 710 with them), and for each pass

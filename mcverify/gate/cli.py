@@ -14,7 +14,6 @@ import dataclasses
 import glob
 import json
 import os
-import re
 import signal
 import sys
 import threading
@@ -947,10 +946,6 @@ def _expanded_glob(args, excess: bool) -> str:
             "'out/pass_*.exr', so that compare expands it")
 
 
-_COUNTS_NOTE = re.compile(r"check test_spp=(\d+) and ref_spp=(\d+) \(samples per value, "
-                          r"e\.g\. per pass\)")
-
-
 def _counts_note(message: str, args, ref_named: bool) -> str:
     """``compare_images``' note on the two sides' per-sample variances in ``compare``'s
     words: it said "check test_spp=64 and ref_spp=64", names of parameters the user never
@@ -958,6 +953,8 @@ def _counts_note(message: str, args, ref_named: bool) -> str:
     --test-n values averaged into it, was noted so with both counts right (an outside
     review). It names the options, and each variance image given, as what else to
     check."""
+    from ..checks.image import SPP_NOTE
+
     def say(m):
         ref = (f"the reference's {m.group(2)} samples per pass (its manifest)" if ref_named
                else f"--ref-spp {m.group(2)}")
@@ -969,7 +966,7 @@ def _counts_note(message: str, args, ref_named: bool) -> str:
                 text += (f", and that {opt} ({var}) is the variance of the {n} values "
                          "averaged into each pixel, not of their mean")
         return text
-    return _COUNTS_NOTE.sub(say, message)
+    return SPP_NOTE.sub(say, message)
 
 
 def _channels_hint(test_shape, ref_shape) -> str:

@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from .. import _validate as validate
-from ..checks.image import ROUNDING, TESTS, compare_images, perceptual_metrics
+from ..checks.image import ROUNDING, SPP_NOTE, TESTS, compare_images, perceptual_metrics
 from ..errors import EnvironmentProblem, InvalidArgument, MissingReference
 from ..result import CheckResult
 from .executors import Pool, Unit, same_source, source_fingerprint
@@ -473,17 +473,13 @@ def _returned_by(message: str, who: str) -> str:
                                         lambda m: _RETURNED[m.group(0)], message)
 
 
-_COUNTS_NOTE = re.compile(r"check test_spp=(\d+) and ref_spp=(\d+) \(samples per value, "
-                          r"e\.g\. per pass\)")
-
-
 def _counts_named(message: str, who: str, n) -> str:
     """``compare_images``' note on the two sides' per-sample variances, for a renderer of
     one's own: it said "check test_spp=64 and ref_spp=64", counts the gate derives (spp /
     n), where what to check is what the renderer returned: a renderer 1 % too bright that
     returned its samples' variance with n = 16 passes passed, p = 0.15, the note naming
     only parameters the user never gave (an outside review)."""
-    return _COUNTS_NOTE.sub(
+    return SPP_NOTE.sub(
         lambda m: f"check what renderer={who} returned: n={n} values of {m.group(1)} "
                   f"samples each (spp / n), and the variance of those values, not of single "
                   f"samples (the reference's values are of {m.group(2)} samples)", message)
