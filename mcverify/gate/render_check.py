@@ -86,7 +86,7 @@ def _subject(path: str, params: dict | None):
                      reference.scene_stamp(path, params))
 
 
-def _sample_count_params(path: str, params: dict) -> None:
+def _sample_count_params(path: str, params: dict, asked) -> None:
     """Refuse ``params`` that set the scene's sampler's ``sample_count`` (a
     ``<default name="spp">`` read by ``<integer name="sample_count" value="$spp"/>``): the
     gate sets the samples itself, ours from ``spp`` (in all, split over the passes) and the
@@ -94,14 +94,14 @@ def _sample_count_params(path: str, params: dict) -> None:
     (``render:cornell-box,spp=4096`` rendered 1024 spp; an outside review's
     found-not-fixed). Each whole-number parameter is probed with its value plus one: one
     that moves the count sets it, whatever its name and its default's value (a parameter
-    with no ``<default>``, taken when given, is probed as given)."""
+    with no ``<default>``, taken when given, is probed as given). ``asked``: the count
+    with ``params`` as given (the prepared scene's)."""
     from estimators.pathtracer import SceneError
     from estimators.pathtracer.scene import load_scene
 
     def count(given):
         return load_scene(path, params=given).sampler.get("sample_count")
 
-    asked = count(params)
     for name in sorted(params):
         text = str(params[name]).strip()
         if not text.lstrip("+-").isdigit() or not text.isascii():
@@ -700,7 +700,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # committed ones)
         subject = _subject(path, params) if ours else None
         if params:
-            _sample_count_params(path, params)
+            _sample_count_params(path, params, subject.desc.sampler.get("sample_count"))
         splats = ours and subject.camera.splats
         made = {"spp": spp // passes, "passes": 64} if splats else {}
         if params:
