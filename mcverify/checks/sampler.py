@@ -685,6 +685,11 @@ _AXIS_NAMES = {"square": ("x", "y"), "disk": ("r²", "φ / 2π"),
                "sphere": ("(1 - z) / 2", "φ / 2π"), "hemisphere": ("1 - z", "φ / 2π")}
 
 
+def _axis_names(dom) -> tuple[str, str]:
+    """The names of a 2-D domain's two parameters, as the failures print them."""
+    return _AXIS_NAMES.get(dom.name, ("parameter 0", "parameter 1"))
+
+
 def _span(lo, hi, digits, closed=False) -> str:
     """``[lo, hi)``, or ``[lo, hi]`` where ``closed`` (a last cell holds its end), at the
     fewest significant digits from ``digits`` up that tell the ends apart: the cell one
@@ -725,7 +730,7 @@ def _cell_at(dom, w) -> str:
         x = dom.to_point(np.array([[w["param_lo"][0]], [w["param_hi"][0]]]))[:, 0]
         return (f"x≈{_rounded(w['point'], 4)} (the cell "
                 f"{_span(x[0], x[1], 6, closed=w['param_hi'][0] == 1.0)})")
-    names = _AXIS_NAMES.get(dom.name, ("parameter 0", "parameter 1"))
+    names = _axis_names(dom)
     extent = ", ".join(f"{a} in {_axis_span(dom, j, lo, hi)}" for j, (a, lo, hi) in
                        enumerate(zip(names, w["param_lo"], w["param_hi"])))
     return f"x≈{_rounded(w['point'], 4)} (the cell {extent})"
@@ -762,7 +767,7 @@ def _sampler_discrepancy(dom, edges, counts, expected, sub, alpha, worst, ks=Non
     if not w:
         return []
     w = w[0]
-    axis = _AXIS_NAMES.get(dom.name, ("parameter 0", "parameter 1"))[j]
+    axis = _axis_names(dom)[j]
     return [f"largest discrepancy in the {'first' if j == 0 else 'second'} axis' marginal, "
             f"{axis} in {_axis_span(dom, j, w['param_lo'][0], w['param_hi'][0])}: observed "
             f"{w['observed']:.0f}, expected {w['expected']:.1f}"]
@@ -1653,7 +1658,7 @@ def _two_sample_discrepancy(dom, edges, ha, hb, sub, sides, hists, alpha, ks=Non
         # a marginal's parameter by its name, as check_sampler gives it: "parameter 0"
         # told no one that it is 1 - z on the hemisphere (an outside review)
         at = (_cell_at(dom, w) if where is None else
-              f"{_AXIS_NAMES.get(dom.name, ('parameter 0', 'parameter 1'))[where]} in "
+              f"{_axis_names(dom)[where]} in "
               f"{_axis_span(dom, where, w['param_lo'][0], w['param_hi'][0])} "
               f"(the {'first' if where == 0 else 'second'} axis' marginal)")
         out.append(f"largest discrepancy at {at}: sample_a {w['observed']:.0f} and sample_b "
