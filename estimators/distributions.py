@@ -83,6 +83,19 @@ def _cdf_of(weights: np.ndarray, name: str) -> tuple[np.ndarray, float]:
     return cdf, float(total)
 
 
+def _table_integral(values: np.ndarray, total: float, width: float = 1.0) -> float:
+    """∫ of a table's piecewise-constant density over a domain of ``width``: the mean of
+    the (finite, non-negative) ``values``, their sum ``total`` over their count, times
+    ``width``; the mean taken of values / max, times max, where the sum overflows. One
+    rule for ``PiecewiseConstant1D`` and ``PiecewiseConstant2D``."""
+    with np.errstate(over="ignore"):
+        integral = total * width / values.size
+        if np.isfinite(integral):
+            return float(integral)
+        m = float(values.max())
+        return float(np.mean(values / m)) * m * width
+
+
 @exact(inline="always")
 def _search(cdf, u, lo, hi):
     """Largest i in [lo, hi] with cdf[i] <= u (lo if none): a binary search."""
@@ -421,12 +434,7 @@ class PiecewiseConstant1D:
         self.a, self.b = float(a), float(b)
         #: ∫ |f| over [a, b] (the normalisation of the density): the mean of |values|
         #: times b - a, the mean taken of values / max where their sum overflows.
-        with np.errstate(over="ignore"):
-            self.integral = total * (b - a) / self.values.size
-        if not np.isfinite(self.integral) and np.all(np.isfinite(self.values)):
-            m = float(self.values.max())
-            with np.errstate(over="ignore"):
-                self.integral = float(np.mean(self.values / m)) * m * (b - a)
+        self.integral = _table_integral(self.values, total, b - a)
 
     def sample(self, u):
         """``u`` (n,) or (n, 1) -> points (n, 1) on [a, b], each in the piece the kernel
@@ -504,10 +512,7 @@ class PiecewiseConstant2D:
         # the mean of |values|: of values / max, times max, where their sum overflows
         # (rows of finite sums whose total overflows too: (2, 1) of 1e308 gave inf)
         with np.errstate(over="ignore"):
-            self.integral = total / v.size * scale
-        if not np.isfinite(self.integral):
-            m = float(v.max())
-            self.integral = float(np.mean(v / m)) * m
+            self.integral = _table_integral(v, total * scale)
 
     def sample(self, u):
         """``u`` (n, 2) -> points (n, 2) = (x, y); a NaN in either coordinate of a u gives
