@@ -379,12 +379,13 @@ def _mis_terms(fx, p, counts, i, ex):
 
 @_checked
 def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
-        beta: float = 2.0) -> Estimate:
+        beta: float | None = None) -> Estimate:
     """Multi-sample MIS (Veach): ``Σ_i 1/n_i Σ_k w_i(X_ik) f(X_ik)/p_i(X_ik)``.
 
     ``techniques``: a list (or any iterable) of ``(sample, pdf, n_i, sample_dim)``;
     every technique's pdf is evaluated at every technique's samples. ``heuristic``: ``"balance"``
-    (``w_i = n_i p_i / Σ_j n_j p_j``) or ``"power"`` (exponent ``beta``, 2 by default).
+    (``w_i = n_i p_i / Σ_j n_j p_j``) or ``"power"`` (exponent ``beta``, 2 by default);
+    a ``beta`` other than 1 with the balance heuristic is refused (it has no exponent).
     The weights are computed from ratios of the pdfs (``_mis_terms``): a pdf of inf (a
     delta strategy's) contributes its limit, 0, and huge pdfs do not overflow.
     ``samples`` holds g = gcd(n_i) i.i.d. estimates of the integral, replicate r the
@@ -401,6 +402,12 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
     techniques = list(techniques)
     if not techniques:
         raise ValueError("techniques: need at least one (sample, pdf, n, sample_dim)")
+    if heuristic == "balance" and beta is not None and beta != 1:
+        # until 7 December beta=3 with the balance heuristic was ignored without a word
+        raise ValueError(f"beta={beta!r}: the balance heuristic has no exponent (it is the "
+                         "power heuristic at beta=1); pass heuristic='power' to use beta")
+    if heuristic == "power" and beta is None:
+        beta = 2.0
     if heuristic == "power" and (isinstance(beta, bool) or not isinstance(beta, numbers.Real)
                                  or not (math.isfinite(beta) and beta > 0)):
         # beta <= 0 gives a technique weight where its pdf is 0: biased (0.875 for 1)

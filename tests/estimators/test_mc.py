@@ -210,6 +210,9 @@ def test_stratified_and_rqmc_converge_faster():
     (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10, 1)], heuristic="power",
                     beta=float("nan")), "beta=nan"),
     (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10)]), r"techniques\[0\]: expected"),
+    # until 7 December beta was ignored without a word under the balance heuristic
+    (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10, 1)], beta=3.0),
+     "beta=3.0: the balance heuristic has no exponent"),
     # found by a probe: a bare TypeError, the wrong callable named, or a silent estimate
     (lambda: mc.mis(np.sin, [(1, 2, 10, 1)]), r"techniques\[0\] sample=1: must be callable"),
     (lambda: mc.mis(np.sin, [(sin_sampler, "p", 10, 1)]), r"techniques\[0\] pdf='p'"),
@@ -238,7 +241,7 @@ def test_stratified_and_rqmc_converge_faster():
         "n", "sobol-n", "sobol-n-2^31", "sobol-n-2^64", "sobol-d",
         "no-techniques", "heuristic", "q", "q-string",
         "f-scalar", "f-2-columns", "pdf-scalar", "beta-0", "beta-nan", "technique-3",
-        "mis-not-callable", "mis-pdf-not-callable", "importance-short-sample",
+        "beta-balance", "mis-not-callable", "mis-pdf-not-callable", "importance-short-sample",
         "importance-negative-pdf", "roulette-negative-pdf", "mis-negative-pdf", "f-complex",
         "f-strings", "f-ragged", "sample-strings", "sample-complex", "mis-sample-ragged"])
 def test_bad_input(call, match):
@@ -343,7 +346,7 @@ def test_a_sampler_returning_a_list_of_points_gives_f_and_the_pdf_an_array():
         assert call(listed).value == call(pts).value
 
 
-@pytest.mark.parametrize("heuristic, beta", [("balance", 2.0), ("power", 2.0),
+@pytest.mark.parametrize("heuristic, beta", [("balance", None), ("power", 2.0),
                                              ("power", 3.0)])
 def test_mis_term_at_a_sample_where_its_own_pdf_is_0_is_its_limit(heuristic, beta):
     """w_i f / p_i was computed as 0 · f / 0 = NaN at a sample where its own technique's
@@ -511,3 +514,14 @@ def test_an_infinite_term_gives_an_infinite_std_error_without_a_warning():
     assert e.value == np.inf and e.std_error == np.inf
     assert mc.importance(lambda x: np.ones(len(x)), lambda u: u * 0.5 + 0.5, half_pdf,
                          100).std_error < np.inf
+
+
+def test_mis_beta_defaults_to_2_for_power_and_1_is_balance():
+    """beta=None means 2 for the power heuristic; beta=1 with the balance heuristic is the
+    balance heuristic itself (the power heuristic at 1), and is accepted."""
+    techs = [(sin_sampler, sin_pdf, 40, 1),
+             (lambda u: u * np.pi, lambda x: np.full(len(x), 1 / np.pi), 40, 1)]
+    assert (mc.mis(np.sin, techs, seed=3, heuristic="power").value
+            == mc.mis(np.sin, techs, seed=3, heuristic="power", beta=2.0).value)
+    assert (mc.mis(np.sin, techs, seed=3, beta=1).value == mc.mis(np.sin, techs, seed=3).value
+            == mc.mis(np.sin, techs, seed=3, heuristic="power", beta=1.0).value)
