@@ -1140,10 +1140,11 @@ def _cmd_render_check(args) -> int:
     reference.precheck_scene(scene_path)      # and Mitsuba's needs, before the notice
     tty = _overwrites(sys.stderr) and not args.quiet
 
-    def show(done, total):
-        if tty:     # the last one clears the line
-            _overwrite(sys.stderr, "" if done == total else f"[render] {100 * done // total}%",
+    def show_as(what):
+        def show(done, total):   # the last one clears the line
+            _overwrite(sys.stderr, "" if done == total else f"[{what}] {100 * done // total}%",
                        done == total)
+        return show if tty else None
 
     try:
         with _pool(args) as pool:
@@ -1151,7 +1152,10 @@ def _cmd_render_check(args) -> int:
                                   seed=args.seed, alpha=args.alpha, params=params,
                                   notice=None if args.quiet else
                                   (lambda m: print(f"notice: {m}", file=sys.stderr)),
-                                  progress=show if tty else None, pool=pool)
+                                  progress=show_as("render"), pool=pool,
+                                  # a missing reference is built first: a minute or
+                                  # more of Mitsuba with no progress until 7 December
+                                  reference_progress=show_as("reference"))
     finally:
         if _OPEN_LINE:  # a render decided early stops short of 100 %: its verdict was
             _overwrite(sys.stderr, "", True)  # written on, "[render] 25%FAIL render:…"

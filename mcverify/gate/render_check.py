@@ -618,7 +618,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                  params: dict | None = None, pdf_scale: float = 1.0,
                  plant: dict | None = None, build_missing: bool = True, notice=None,
                  progress=None, stop_alpha: float | None = None,
-                 pool: Pool | None = None) -> CheckResult:
+                 pool: Pool | None = None, reference_progress=None) -> CheckResult:
     """Render ``scene`` (a reference name or a scene.xml path) and compare the image with
     Mitsuba's reference by ``compare_images``.
 
@@ -640,7 +640,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
     when ``params`` is empty; a missing one is built first (``notice(message)`` says so);
     a stale or corrupt one is an error. With ``params`` (XML ``$`` overrides, e.g.
     ``{"max_depth": 2}``) the reference is rendered on the fly with the same overrides
-    (16 passes × 64 spp)."""
+    (16 passes × 64 spp). ``reference_progress(done, total)`` counts the passes of a
+    reference built or rendered here (Mitsuba's, a minute or more on a large scene)."""
     from ..sequential import run_sequential
     from . import reference
 
@@ -699,6 +700,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
         # reference made here for such a scene gets ours, over 64 passes (as the
         # committed ones)
         subject = _subject(path, params) if ours else None
+        ref_progress = (None if reference_progress is None else
+                        lambda done, total, *_: reference_progress(done, total))
         if params:
             _sample_count_params(path, params, subject.desc.sampler.get("sample_count"))
         splats = ours and subject.camera.splats
@@ -708,7 +711,7 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                 _samples_kept(path, subject, spp, passes)
             _variant_notice(notice)
             ref, _ = reference.render_reference(path, params=params, seed=seed + 1, pool=pool,
-                                                **made)
+                                                progress=ref_progress, **made)
         else:
             try:
                 ref = reference.load_reference(path)
@@ -721,7 +724,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
                     notice(f"{name}: no reference yet; building it with Mitsuba (once)")
                 _variant_notice(notice)
                 try:
-                    reference.build_reference(path, pool=pool, **made)
+                    reference.build_reference(path, pool=pool, progress=ref_progress,
+                                              **made)
                 except InvalidArgument as e:    # a file named ref in the way, a scene
                     # Mitsuba renders non-finite: no reference, so no verdict on ours
                     # (check --scene failed the render check for it, exit 1)

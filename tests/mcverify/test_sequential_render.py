@@ -105,3 +105,35 @@ def test_render_check_on_a_terminal_clears_its_percentage_when_it_stops_early(
     assert "stopped early" in capsys.readouterr().out
     assert "[render] 25%" in term.getvalue() and term.getvalue().endswith("\r\x1b[K"), \
         term.getvalue()
+
+
+def test_render_check_on_a_terminal_shows_the_reference_build(monkeypatch, tmp_path):
+    """A scene with no reference yet is rendered by Mitsuba first (16 passes of 256 spp at
+    the scene's size: a minute or more on a large scene), and `render-check` showed only
+    the notice, no progress, until 7 December. The build's passes show as
+    "[reference] N%", then our render's as "[render] N%"."""
+    import functools
+    import io
+    import os
+    import shutil
+    import sys
+
+    from mcverify.gate import cli, reference
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    scene = tmp_path / "furnace"
+    shutil.copytree(os.path.dirname(reference.resolve_scene("white-furnace")[1]), scene,
+                    ignore=shutil.ignore_patterns("ref"))
+    monkeypatch.setattr(reference, "build_reference", functools.partial(
+        reference.build_reference, spp=32, passes=4))
+    monkeypatch.setenv("TERM", "xterm")
+    term = Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    assert cli.main(["render-check", str(scene / "scene.xml"), "--spp", "64",
+                     "--passes", "2"]) == 0
+    shown = term.getvalue()
+    assert "no reference yet" in shown and "[reference] 40%" in shown, shown
+    assert shown.rindex("[reference] ") < shown.index("[render] 50%"), shown
