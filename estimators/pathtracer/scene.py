@@ -301,6 +301,11 @@ class _Loader:
         self.done: dict[int, Plugin] = {}      # id(node) -> its plugin, once parsed
         self.by_id: dict | None = None         # later_ids(), built at the first <ref> ahead
         self.parsing: list[str] = []           # the ids being parsed, outermost first
+        # area emitters declared at the top level with an id, for the one shape whose
+        # <ref> attaches them (Mitsuba's own Cornell box, cbox-rgb.xml, is so written)
+        self.top_nodes: set[int] = set()       # id() of the top-level elements
+        self.free_area: set[int] = set()       # id() of such emitters' plugins
+        self.attached: dict[str, _Node] = {}   # such an emitter's id -> its shape's <ref>
 
     def fail(self, node, message):
         raise SceneError(f"{node.origin or self.path}:{node.line}: <{node.tag}"
@@ -478,6 +483,8 @@ class _Loader:
         # $params are substituted in every attribute, the id too, as Mitsuba does
         p = Plugin(kind, ptype, {}, node.line, self.attr(node, "id", None),
                    origin=node.origin)
+        if (kind, ptype) == ("emitter", "area") and id(node) in self.top_nodes:
+            self.free_area.add(id(p))
         self.parsing.append(p.id)
         try:
             self._fill(node, kind, ptype, spec, p)
@@ -558,13 +565,7 @@ class _Loader:
                 if ref.kind not in allowed_children:
                     self.fail(child, f"a {ref.kind} cannot go inside {kind} {ptype!r}")
                 if ref.kind == "emitter" and ref.type == "area":
-                    # an area emitter is declared inside its own shape: a <ref> to it is a
-                    # second shape (Mitsuba: "An endpoint can be only be attached to a
-                    # single shape"); the loader made both shapes emit
-                    self.fail(child, f"area emitter {target!r} ({ref.line_text()}) already "
-                                     "belongs to its shape; an emitter is attached to one "
-                                     "shape only (Mitsuba refuses it too): give this shape "
-                                     "its own <emitter type=\"area\">")
+                    self.attach(child, target, ref)
                 p.children.append(ref)
             elif child.tag == "texture":
                 name = self.attr(child, "name")
@@ -598,6 +599,26 @@ class _Loader:
                     self.fail(node, f"a {c.type!r} emitter inside a shape ({c.line_text()}): "
                                     "only an area emitter makes a shape emit; put a "
                                     f"{c.type} light at the top level of the scene")
+
+    def attach(self, ref, target, emitter):
+        """Attach the area emitter ``emitter`` (id ``target``) to the shape whose ``<ref>``
+        is ``ref``: one declared at the top level, to one shape, as Mitsuba does (it was
+        refused as "must be inside a <shape>", and Mitsuba's cbox-rgb.xml with it).
+        Mitsuba refuses a second shape ("An endpoint can be only be attached to a single
+        shape"); the loader made both shapes emit until 6 December."""
+        if id(emitter) not in self.free_area:
+            self.fail(ref, f"area emitter {target!r} ({emitter.line_text()}) already "
+                           "belongs to the shape it is declared in; an emitter is attached "
+                           "to one shape only (Mitsuba refuses it too): give this shape its "
+                           "own <emitter type=\"area\">")
+        if target in self.attached:
+            first = self.attached[target]
+            self.fail(ref, f"area emitter {target!r} ({emitter.line_text()}) is already "
+                           f"attached to the shape of the <ref> on line {first.line}"
+                           f"{f' of {first.origin}' if first.origin else ''}; an emitter is "
+                           "attached to one shape only (Mitsuba refuses it too): give this "
+                           "shape its own <emitter type=\"area\">")
+        self.attached[target] = ref
 
     def declared_later(self, ref, target):
         """Parse the plugin of id ``target`` that the document declares after ``ref``
@@ -727,8 +748,9 @@ class _Loader:
         self.check_root(root)
         self.include_all(root)
         integrator = sensor = None
-        shapes, emitters, declared = [], [], []
+        shapes, emitters, declared, free = [], [], [], []
         self.index_ids(root)
+        self.top_nodes = {id(node) for node in root.children}
         for node in root.children:
             if node.tag == "default":
                 self.default(node)
@@ -745,7 +767,11 @@ class _Loader:
                 shapes.append(self.plugin(node))
             elif node.tag == "emitter":
                 if self.attr(node, "type", None) == "area":
-                    self.fail(node, "an area emitter must be inside a <shape>")
+                    if self.attr(node, "id", None) is None:
+                        self.fail(node, "an area emitter must be inside a <shape>, or have "
+                                        "an id that one shape's <ref> names")
+                    free.append((node, self.plugin(node)))     # its shape's <ref> takes it
+                    continue
                 emitters.append(self.plugin(node))
             elif node.tag in _REFERENCED:
                 # declared once, used by <ref id=.../> (a sensor's film and sampler, a
@@ -760,6 +786,12 @@ class _Loader:
                                 "integrator, sensor, shape, emitter, " + ", ".join(_REFERENCED))
         if sensor is None:
             self.fail(root, "the scene has no <sensor>")
+        for node, p in free:
+            if p.id not in self.attached:
+                # Mitsuba drops it without a word: no light where the scene meant one
+                self.fail(node, f"area emitter {p.id!r} is attached to no shape: no <shape> "
+                                f"holds <ref id=\"{p.id}\"/> (Mitsuba drops it and renders "
+                                "no light); reference it from the shape that emits")
         for node, p in declared:
             if p.id is None:
                 self.fail(node, f"a top-level {p.kind} without an id is never used (a "

@@ -603,6 +603,45 @@ def test_an_area_emitter_referenced_by_a_second_shape_is_refused(mi):
                                     "<scene version=\"3.0.0\"><integrator type=\"path\"/>"))
 
 
+@pytest.mark.parametrize("before", [True, False], ids=["declared-first", "referenced-first"])
+def test_a_top_level_area_emitter_is_attached_to_the_shape_that_references_it(mi, before):
+    """Mitsuba attaches an area emitter declared at the top level, with an id, to the one
+    shape whose ``<ref>`` names it, as its own Cornell box (cbox-rgb.xml, the emitter after
+    the included shapes) does; the loader refused it, "an area emitter must be inside a
+    <shape>" declared first and "already belongs to its shape ... (Mitsuba refuses it
+    too)" referenced first."""
+    light = '<emitter type="area" id="L"><rgb name="radiance" value="2, 3, 4"/></emitter>'
+    shapes = '<shape type="sphere"/>\n<shape type="disk"><ref id="L"/></shape>'
+    body = f"{light}\n{shapes}" if before else f"{shapes}\n{light}"
+    text = f'<scene version="3.0.0">\n{_CAMERA}\n{body}</scene>'
+    desc = parse_scene(text, path="s.xml")
+    emits = [[c.props.get("radiance") for c in s.children if c.kind == "emitter"]
+             for s in desc.shapes]
+    assert [s.type for s in desc.shapes] == ["sphere", "disk"] and emits[0] == []
+    assert len(emits[1]) == 1 and np.array_equal(emits[1][0], [2, 3, 4]) and not desc.emitters
+    scene = mi.load_string(text)
+    assert [s.emitter() is not None for s in scene.shapes()].count(True) == 1
+    assert len(scene.emitters()) == 1
+
+
+def test_a_top_level_area_emitter_on_two_shapes_or_none_is_refused(mi):
+    """A top-level area emitter referenced by two shapes is refused, as Mitsuba refuses it;
+    one no shape references is refused where Mitsuba drops it (no light, no word)."""
+    light = '<emitter type="area" id="L"/>'
+    two = (f'<scene version="3.0.0">\n{_CAMERA}\n{light}\n<shape type="sphere"><ref id="L"/>'
+           '</shape>\n<shape type="disk"><ref id="L"/></shape></scene>')
+    msg = _error(two)
+    assert "s.xml:5" in msg and "'L'" in msg and "line 4" in msg and "one shape" in msg, msg
+    with pytest.raises(RuntimeError):
+        mi.load_string(two)
+    none = f'<scene version="3.0.0">\n{_CAMERA}\n{light}\n<shape type="sphere"/></scene>'
+    msg = _error(none)
+    assert "s.xml:3" in msg and "attached to no shape" in msg and '<ref id="L"/>' in msg, msg
+    assert len(mi.load_string(none).emitters()) == 0
+    msg = _error(none.replace(' id="L"', ""))
+    assert "s.xml:3" in msg and "inside a <shape>" in msg, msg
+
+
 @pytest.mark.parametrize("ops", [
     '<matrix value="0.5 0 0 0  0 0 0 1  0 0 0.5 0  0 0 0 1"/>',
     '<scale x="2" y="0" z="1"/>',
