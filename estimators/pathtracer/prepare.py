@@ -218,12 +218,16 @@ class _Builder:
 
     # ---------------------------------------------------------------- textures
     def _asset_path(self, plugin: Plugin, what: str = "") -> str:
-        """The file the plugin's ``filename`` names (relative to the scene's folder),
-        checked to be a regular file within the cap; refused naming the plugin."""
+        """The file the plugin's ``filename`` names (relative: in the scene's ``<path>``
+        folders, the last one first, else in the scene's folder, as Mitsuba's file
+        resolver looks), checked to be a regular file within the cap; refused naming the
+        plugin."""
         name = plugin.get("filename")
         if not name:
             self.fail(plugin, f"set <string name=\"filename\" .../>{what}")
-        path = name if os.path.isabs(name) else os.path.join(self.dir, name)
+        path = name if os.path.isabs(name) else next(
+            (p for p in (os.path.join(d, name) for d in self.desc.search)
+             if os.path.exists(p)), os.path.join(self.dir, name))
         problem = file_problem(path, MAX_ASSET_BYTES)
         if problem:
             self.fail(plugin, problem)

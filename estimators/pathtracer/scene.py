@@ -135,6 +135,10 @@ class SceneDescription:
     emitters: list
     path: str
     features: set = field(default_factory=set)
+    #: the folders of the scene's ``<path value="DIR"/>`` elements, the last one first:
+    #: a relative file name is looked for in each, then beside the scene (Mitsuba's file
+    #: resolver)
+    search: list = field(default_factory=list)
 
 
 # What each plugin type accepts: property name -> allowed value kinds. Nested plugins are
@@ -258,7 +262,7 @@ _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector"
 #: the attributes Mitsuba's parser allows on each element (it refuses any other: a typo
 #: such as ``vaule=`` would otherwise leave a default in place without a word)
 _ATTRIBUTES = {"scene": ("version",), "default": ("name", "value"), "ref": ("id", "name"),
-               "include": ("filename",),
+               "include": ("filename",), "path": ("value",),
                "transform": ("name",), "point": ("name", "value", "x", "y", "z"),
                "vector": ("name", "value", "x", "y", "z"),
                **{t: ("name", "value") for t in ("float", "integer", "boolean", "string", "rgb")}}
@@ -298,6 +302,7 @@ class _Loader:
         # a <ref> may name a plugin declared after it, as in Mitsuba: the elements with
         # an id, each with the top-level <default>s before it (load fills them in)
         self.later: list[tuple[_Node, list]] = []
+        self.search: list[str] = []            # <path> folders, the last one first
         self.done: dict[int, Plugin] = {}      # id(node) -> its plugin, once parsed
         self.by_id: dict | None = None         # later_ids(), built at the first <ref> ahead
         self.parsing: list[str] = []           # the ids being parsed, outermost first
@@ -690,21 +695,33 @@ class _Loader:
         by line): a file's includes are found beside it first, then beside the scene;
         the included file is a whole ``<scene>`` with its version; a ``$param`` in the
         name takes the ``<default>``s before it. Files its elements name (meshes,
-        textures) are found against the scene's own folder, as Mitsuba finds them."""
-        scene = os.path.realpath(self.path) if os.path.isfile(self.path) else self.path
-        root.children = self._spliced(root.children, os.path.dirname(self.path), [scene], [])
+        textures) are found against the scene's own folder, as Mitsuba finds them.
 
-    def _spliced(self, children, folder, chain, defaults):
+        Mitsuba's file resolver is modelled by ``resolver``, the folders a name is looked
+        for in, in order: the scene's folder; a ``<path value="DIR"/>`` (``search_folder``)
+        puts DIR first, and is taken out of the elements; an included file is read with a
+        copy that has its own folder first, dropped after it, so that its ``<path>``s
+        serve its own includes only. The scene's own ``<path>`` folders are where the
+        files its elements name are looked for first (``SceneDescription.search``)."""
+        scene = os.path.realpath(self.path) if os.path.isfile(self.path) else self.path
+        resolver = [os.path.dirname(self.path)]
+        root.children = self._spliced(root.children, resolver, [scene], [])
+        self.search = resolver[:-1]
+
+    def _spliced(self, children, resolver, chain, defaults):
         out = []
         for node in children:
             if node.tag == "default":
                 defaults.append(node)
+            if node.tag == "path":
+                resolver.insert(0, self.search_folder(node, resolver, defaults))
+                continue
             if node.tag != "include":
                 out.append(node)
                 continue
             self.check_attributes(node)
             name = self.with_defaults(defaults, lambda: self.attr(node, "filename"))
-            full = self.included_file(node, name, folder)
+            full = self.included_file(node, name, resolver)
             real = os.path.realpath(full)
             if real in chain:
                 self.fail(node, f"{name!r} includes itself ({' -> '.join(chain + [real])}; "
@@ -716,16 +733,36 @@ class _Loader:
                 n.origin = full
                 stack += n.children
             self.check_root(sub)
-            out += self._spliced(sub.children, os.path.dirname(full), chain + [real],
-                                 defaults)
+            out += self._spliced(sub.children, [os.path.dirname(full)] + resolver,
+                                 chain + [real], defaults)
         return out
 
-    def included_file(self, node, name, folder):
-        """The file an ``<include>`` names: as given where absolute, else beside the file
-        that includes it, else beside the scene (Mitsuba 3.9's order: a nested include
-        of ``more.xml`` in ``sub/parts.xml`` is ``sub/more.xml`` where that exists)."""
-        tried = [name] if os.path.isabs(name) else [
-            os.path.join(folder, name), os.path.join(os.path.dirname(self.path), name)]
+    def search_folder(self, node, resolver, defaults):
+        """The folder a top-level ``<path value="DIR"/>`` adds to the places file names are
+        looked for (Mitsuba's own documentation scenes start with ``<path
+        value="../../common"/>``; refused by line until 7 December): DIR as given where
+        absolute, else against the folder of the file it is in (``resolver[-1]`` for the
+        scene, ``resolver[0]`` for an included file), else against each of ``resolver``
+        (Mitsuba's order); a folder that is not there is refused, as Mitsuba refuses it."""
+        self.check_attributes(node)
+        value = self.with_defaults(defaults, lambda: self.attr(node, "value"))
+        here = resolver[0] if len(resolver) > 1 else resolver[-1]
+        tried = [value] if os.path.isabs(value) else list(dict.fromkeys(
+            os.path.join(d, value) for d in [here] + resolver))
+        for full in tried:
+            if os.path.isdir(full):
+                return os.path.abspath(full)
+        self.fail(node, f"folder {value!r} not found (looked for {' and '.join(tried)}; "
+                        "Mitsuba refuses it too)")
+
+    def included_file(self, node, name, resolver):
+        """The file an ``<include>`` names: as given where absolute, else in each folder of
+        ``resolver`` in turn (``_spliced``): the ``<path>`` folders read before it in the
+        same file, the last one first, then beside the file that includes it, then as the
+        file that included that one looked (Mitsuba 3.9's order: a nested include of
+        ``more.xml`` in ``sub/parts.xml`` is ``sub/more.xml`` where that exists)."""
+        tried = [name] if os.path.isabs(name) else list(dict.fromkeys(
+            os.path.join(d, name) for d in resolver))
         for full in tried:
             if os.path.isfile(full):
                 return full
@@ -814,7 +851,8 @@ class _Loader:
             film.children.append(Plugin("rfilter", "gaussian", {}, film.line))
         sampler = next((c for c in sensor.children if c.kind == "sampler"), None) or \
             Plugin("sampler", "independent", {}, sensor.line)
-        desc = SceneDescription(integrator, sensor, film, sampler, shapes, emitters, self.path)
+        desc = SceneDescription(integrator, sensor, film, sampler, shapes, emitters, self.path,
+                                search=list(self.search))
         desc.features = _features(desc)
         return desc
 

@@ -223,8 +223,9 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     where the manifest hashed ``more.xml`` beside the scene), keyed then by its path from
     the scene's folder (``sub/more.xml``), so that the same name included beside the
     scene too is hashed as well.
-    A ``<path value="DIR"/>`` puts DIR (against the scene's folder) before it, the last
-    such element first, wherever it stands: Mitsuba's file resolver (a texture found
+    A ``<path value="DIR"/>`` of the scene's (not an included file's) puts DIR (against
+    the scene's folder) before it, the last such element first, wherever it stands:
+    Mitsuba's file resolver (a texture found
     there was rendered while the manifest hashed the file of that name beside the scene,
     or recorded it as missing). ``params`` (a dict, or its sorted items): the ``$name``
     values the scene is loaded with, over its ``<default>``s, as Mitsuba takes them (the
@@ -253,7 +254,9 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
         elif tag == "include" and "filename" in attrib:
             names.append((attrib["filename"], including[0]))
             includes.add(names[-1])
-        elif tag == "path" and "value" in attrib:
+        elif tag == "path" and "value" in attrib and including[0] is None:
+            # an included file's <path> serves its own includes only: Mitsuba parses it
+            # with a copy of its file resolver, dropped after it (the loader does the same)
             searched.append(attrib["value"])
 
     def locate(real):
