@@ -1396,6 +1396,26 @@ def test_a_narrow_cone_passes_with_an_even_number_of_rows(omc, seed):
     assert not mv.check_sampler(sample, lambda x: 1.001 * pdf(x), "sphere", **kw).passed
 
 
+@pytest.mark.parametrize("omc,domain", [(1.0822e-5, "sphere"), (5e-7, "hemisphere")])
+def test_a_narrow_cones_rim_row_is_integrated_at_a_few_samples(omc, domain):
+    """At 3e4 samples the rim of a sun-sized cone (1 - cos θ = 1.08e-5 on the sphere; a
+    cone of 1e-3 rad on the hemisphere) lies a hair beyond the pilot's last point, in a
+    row of 22 to 44 cells holding 1e-4 to 3e-4 of the mass, a fraction of a count each:
+    the cells with counts were re-integrated, the others of the row kept no mass, and the
+    correct sampler failed "pdf integrates to 0.9997" on 7 of these 10 seeds (an outside
+    review). The massless cells of such a row are now integrated around the pilot points.
+    α = 0.01 per check: more than 2 failures in 10 has probability 1.1e-4. A sampler
+    10 % wider than its pdf and a pdf 3 % high still fail."""
+    c = 1 - omc
+    sample, pdf = _cone(c)
+    kw = dict(n_samples=30_000)
+    results = [mv.check_sampler(sample, pdf, domain, seed=s, **kw) for s in range(10)]
+    assert not [r.failures for r in results if any("integrates" in f for f in r.failures)]
+    assert sum(not r.passed for r in results) <= 2, [r.p_value for r in results]
+    assert not mv.check_sampler(_cone(1 - 1.1 * omc)[0], pdf, domain, seed=0, **kw).passed
+    assert not mv.check_sampler(sample, lambda x: 1.03 * pdf(x), domain, seed=0, **kw).passed
+
+
 def test_guided_cuts_end_on_a_subnormal_cell_and_a_wrong_sampler_there_fails():
     """A cell 1e-315 wide holding one pilot value made the cuts' width 0 and the loop
     never ended (MemoryError; found by review). Through the check: samples where the pdf
