@@ -287,6 +287,19 @@ def real_dtype(dtype) -> bool:
     return np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)
 
 
+def host(v):
+    """``v``, or a torch tensor's values where numpy can read them, ``v.detach().cpu()``:
+    numpy cannot read a tensor that requires grad (a differentiable renderer's sampler,
+    pdf or estimate), and every check raised torch's bare RuntimeError "Can't call
+    numpy() on Tensor that requires grad" from inside mcverify (an outside review), nor
+    one on a GPU. The checks read values only; the caller's tensor and graph are left
+    as they are. torch is not imported: a tensor is what has ``detach`` and ``cpu``
+    methods (numpy, JAX and Dr.Jit arrays have neither)."""
+    if callable(getattr(v, "detach", None)) and callable(getattr(v, "cpu", None)):
+        return v.detach().cpu()
+    return v
+
+
 def as_array(what, v) -> np.ndarray:
     """``np.asarray(v)``, or InvalidArgument saying ``what`` is wrong (a string, or a
     function of no arguments that makes it: a repr of a million points costs about a
@@ -294,6 +307,7 @@ def as_array(what, v) -> np.ndarray:
     (``[[1, 2], [3]]``) raised numpy's bare ValueError, naming nothing. A masked array
     with masked values is refused: ``np.asarray`` keeps the values under the mask
     (``np.ma.sqrt(-1.0)``'s is -1.0) and the checks would read them as data."""
+    v = host(v)
     if np.ma.is_masked(v):
         what = what() if callable(what) else what
         raise InvalidArgument(f"{what}: a masked array with {int(np.ma.count_masked(v))} "

@@ -32,7 +32,7 @@ def _rounding(samples) -> float:
     float32's precision where they are float32. A float32 renderer's perfect estimator
     (p ∝ f) is constant only to float32's ulps (0.1f ± 7e-9), which float64's allowance
     took for a bias and a variance. (Float16, 64 of whose ulps are 6 %, keeps float64's.)"""
-    if np.asarray(samples).dtype == np.float32:
+    if np.asarray(validate.host(samples)).dtype == np.float32:
         return 64 * float(np.finfo(np.float32).eps)
     return _ROUNDING
 
@@ -125,7 +125,7 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
             while len(drawn) < b:
                 v = samples(len(drawn))
                 validate.samples_1d(f"samples({len(drawn)})", v)
-                drawn.append(np.asarray(v))     # its own dtype: float32 rounds as float32
+                drawn.append(np.asarray(validate.host(v)))     # its own dtype: float32 rounds as float32
             r = check_unbiased(np.concatenate(drawn), expected, alpha=alpha, name=name)
             upper = r.details.get("tail_index_upper")
             # An early look neither stops nor counts where its verdict is no
@@ -328,7 +328,7 @@ def _rmse_rounding(v) -> float:
     perfect estimator's mean, summed pairwise in float32, errs by up to 1.2 eps; 64 of
     them, ``_rounding``'s allowance for one value, would take a float32 estimator of
     real noise, RMSE 4e-6 at large N, for an exact one)."""
-    if np.asarray(v).dtype == np.float32:
+    if np.asarray(validate.host(v)).dtype == np.float32:
         return 4 * float(np.finfo(np.float32).eps)
     return _ROUNDING
 
@@ -336,7 +336,7 @@ def _rmse_rounding(v) -> float:
 def _estimate(estimate, n: int, seed: int) -> tuple[float, float]:
     """One estimate as a float and its relative rounding (``_rmse_rounding``), or
     InvalidArgument saying what ``estimate`` returned."""
-    out = estimate(n, seed)
+    out = validate.host(estimate(n, seed))     # a tensor's values (validate.host)
     try:    # None would become NaN, a complex number lose its imaginary part
         value = None if out is None or np.iscomplexobj(out) else \
             np.asarray(out, dtype=np.float64)

@@ -1,0 +1,84 @@
+"""Subjects written in PyTorch or JAX, whose callables return their own tensors: each
+check reads them as numpy reads them. torch and jax are not imported (CI has neither):
+each test's stand-in reproduces the library's behaviour that the test is about."""
+
+import numpy as np
+import pytest
+
+import mcverify as mv
+
+
+class _GradTensor:
+    """A torch tensor with ``requires_grad=True`` as numpy meets it: ``np.asarray``
+    raises torch's RuntimeError until ``.detach()`` (torch 2.13 raises this one)."""
+
+    def __init__(self, a, grad=True):
+        self._a, self._grad = np.asarray(a), grad
+
+    def __array__(self, dtype=None, copy=None):
+        if self._grad:
+            raise RuntimeError("Can't call numpy() on Tensor that requires grad. Use "
+                               "tensor.detach().numpy() instead.")
+        return self._a if dtype is None else self._a.astype(dtype)
+
+    def detach(self):
+        return _GradTensor(self._a, grad=False)
+
+    def cpu(self):
+        return self
+
+    def __len__(self):
+        return len(self._a)
+
+
+def _grad(f):
+    return lambda *a: _GradTensor(f(*a))
+
+
+def _sample(u):
+    return np.sqrt(u)
+
+
+def _pdf(x):
+    return 4.0 * x[:, 0] * x[:, 1]
+
+
+_EST = np.pi * np.sin(np.random.default_rng(1).random(2000) * np.pi)
+_IMG = np.random.default_rng(2).random((4, 4))
+
+_CALLS = {
+    "sampler-points": lambda t: mv.check_sampler(t(_sample), _pdf, "square", n_samples=4000),
+    "sampler-pdf": lambda t: mv.check_sampler(_sample, t(_pdf), "square", n_samples=4000),
+    "pdf-consistency": lambda t: mv.check_pdf_consistency(
+        lambda u: (t(_sample)(u), t(lambda u: _pdf(_sample(u)))(u)), t(_pdf),
+        sample_dim=2, n_samples=500),
+    "inverse": lambda t: mv.check_inverse(t(_sample), t(np.square), 2, n_samples=500),
+    "stability": lambda t: mv.check_stability(t(_sample), "square", sample_dim=2,
+                                              pdf=t(_pdf), max_examples=20),
+    "same-distribution": lambda t: mv.check_same_distribution(
+        t(_sample), _sample, "square", n_samples=2000),
+    "unbiased": lambda t: mv.check_unbiased(t(lambda: _EST)(), 2.0),
+    "unbiased-batches": lambda t: mv.check_unbiased(
+        t(lambda b: _EST[b * 500:(b + 1) * 500]), 2.0, batches=4),
+    "variance": lambda t: mv.check_variance(t(lambda: np.full(100, 2.0))()),
+    "convergence": lambda t: mv.check_convergence(
+        t(lambda n, s: np.random.default_rng(s).random(n).mean()), 0.5,
+        ns=(64, 256, 1024), n_seeds=8),
+    "images": lambda t: mv.compare_images(
+        t(lambda: _IMG)(), _IMG, test_var=t(lambda: _IMG)(), ref_var=_IMG,
+        test_n=16, ref_n=16),
+}
+
+
+@pytest.mark.parametrize("check", list(_CALLS), ids=list(_CALLS))
+def test_a_tensor_that_requires_grad_is_read_detached(check):
+    """A differentiable renderer's sampler, pdf or estimate returning a torch tensor
+    with ``requires_grad=True``: every check raised torch's bare "Can't call numpy() on
+    Tensor that requires grad" from inside mcverify (an outside review). Its values are
+    read, detached, with the verdict numpy's arrays get."""
+    with pytest.raises(RuntimeError, match="requires grad"):
+        np.asarray(_GradTensor([1.0]))      # the stand-in fails as torch does
+    r = _CALLS[check](_grad)
+    plain = _CALLS[check](lambda f: f)
+    assert r.passed and plain.passed
+    assert r.p_value == plain.p_value and r.statistic == plain.statistic
