@@ -37,6 +37,7 @@ def draw(name: str, sample, u: np.ndarray):
         raise
     except Exception as e:
         compiled_note(e, name, sample, u, "uniform numbers u", "draw")
+        tensor_note(e, name, u, "uniform numbers u")
         raise
 
 
@@ -47,7 +48,24 @@ def call(name: str, f, x, what: str = "points x"):
         return f(x)
     except Exception as e:
         compiled_note(e, name, f, x, what, "point")
+        tensor_note(e, name, x, what)
         raise
+
+
+def tensor_note(e: BaseException, name: str, arg, what: str) -> None:
+    """A note on a callable written for torch tensors (``u.sqrt()``, ``torch.sqrt(u)``,
+    ``u.clamp(0, 1)``) given the numpy array every check passes: torch's or Python's
+    "'numpy.ndarray' object has no attribute 'clamp'" or "sqrt(): argument 'input'
+    (position 1) must be Tensor, not numpy.ndarray" escaped from the user's code with
+    nothing saying what mcverify had passed or how to wrap it (an outside review). An
+    AttributeError or TypeError naming numpy.ndarray, as both libraries word it."""
+    if not hasattr(e, "add_note") or not isinstance(e, (AttributeError, TypeError)) \
+            or "numpy.ndarray" not in str(e) or not isinstance(arg, np.ndarray):
+        return
+    e.add_note(f"mcverify called {name} with {what} as a numpy array ({arg.dtype}, "
+               f"shape {arg.shape}); a function of torch tensors takes it wrapped: pass "
+               f"lambda a: {name}(torch.from_numpy(a)) (what it returns is read through "
+               "np.asarray, a tensor as t.detach().cpu())")
 
 
 def _compiled(f) -> bool:

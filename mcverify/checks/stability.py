@@ -100,6 +100,8 @@ def _call(what, fn, arg, raw=None):
         validate.compiled_note(e, what, fn, arg, *(("uniform numbers u", "draw")
                                                    if what == "sample" else
                                                    ("points x", "point")))
+        validate.tensor_note(e, what, arg, "uniform numbers u" if what == "sample"
+                             else "points x")
         notes = getattr(e, "__notes__", ())
         return None, f"{what} raised {type(e).__name__}: {e}" + "".join(
             f" ({n})" for n in notes[-1:])

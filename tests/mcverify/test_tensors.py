@@ -82,3 +82,42 @@ def test_a_tensor_that_requires_grad_is_read_detached(check):
     plain = _CALLS[check](lambda f: f)
     assert r.passed and plain.passed
     assert r.p_value == plain.p_value and r.statistic == plain.statistic
+
+
+def _torch_sqrt(t):
+    """``torch.sqrt`` as it refuses a numpy array (torch 2.13's words)."""
+    if isinstance(t, np.ndarray):
+        raise TypeError("sqrt(): argument 'input' (position 1) must be Tensor, not "
+                        "numpy.ndarray")
+    return t.sqrt()
+
+
+_TORCH_ONLY = {
+    # u.clamp is a tensor's method; numpy's AttributeError is the one torch users meet
+    "sampler-method": lambda: mv.check_sampler(lambda u: u.clamp(0.0, 1.0), _pdf,
+                                               "square", n_samples=2000),
+    "sampler-function": lambda: mv.check_sampler(_torch_sqrt, _pdf, "square",
+                                                 n_samples=2000),
+    "pdf": lambda: mv.check_sampler(_sample, lambda x: 4.0 * _torch_sqrt(x).prod(1),
+                                    "square", n_samples=2000),
+    "pdf-consistency": lambda: mv.check_pdf_consistency(
+        lambda u: (_sample(u), _pdf(_sample(u))), lambda x: _torch_sqrt(x), sample_dim=2,
+        n_samples=100),
+    "inverse": lambda: mv.check_inverse(_sample, lambda x: x.square(), 2, n_samples=100),
+}
+
+
+@pytest.mark.parametrize("check", list(_TORCH_ONLY), ids=list(_TORCH_ONLY))
+def test_a_function_of_torch_tensors_is_told_to_wrap_u(check):
+    """A sampler, pdf or inverse written for torch tensors, given the numpy array every
+    check passes, raised "'numpy.ndarray' object has no attribute 'clamp'" or torch's
+    "must be Tensor, not numpy.ndarray" and nothing else (an outside review): its own
+    error still, with a note of what mcverify passed and how to wrap it."""
+    with pytest.raises((AttributeError, TypeError), match="numpy.ndarray") as e:
+        _TORCH_ONLY[check]()
+    assert "(torch.from_numpy(a))" in "".join(getattr(e.value, "__notes__", ()))
+
+
+def test_stability_tells_a_function_of_torch_tensors_to_wrap_u():
+    r = mv.check_stability(_torch_sqrt, "square", sample_dim=2, max_examples=10)
+    assert not r.passed and "sample(torch.from_numpy(a))" in r.failures[0]
