@@ -126,7 +126,23 @@ def probability(name: str, v) -> float:
     return float(v)
 
 
+def scalar(v):
+    """``v``, or the number a 0-d array of real numbers holds, as a numpy scalar of its
+    type: JAX's ``jnp.float32(0.5)`` and any jnp arithmetic on scalars give a 0-d
+    ``Array``, torch's a 0-d tensor, which every real argument refused as "must be a
+    real number" (an outside review: the float32 ``expected`` the README names,
+    ``np.float32(np.pi)``, written in JAX). Arrays of one element, (1,), stay arrays."""
+    if isinstance(v, (numbers.Real, str, bytes)) or v is None:
+        return v
+    try:
+        a = np.asarray(host(v))
+    except Exception:       # noqa: BLE001 - not an array: refused as it is
+        return v
+    return a[()] if a.shape == () and real_dtype(a.dtype) else v
+
+
 def real(name: str, v, *, finite: bool = True, minimum: float | None = None) -> float:
+    v = scalar(v)
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
         raise InvalidArgument(f"{name}={_show(v)}: must be a real number")
     try:

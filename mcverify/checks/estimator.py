@@ -48,6 +48,7 @@ def _expected(v) -> tuple[float, float]:
     float32) reached np.float32 and raised numpy's bare TypeError, "only 0-dimensional
     arrays can be converted to Python scalars" (an outside review)."""
     x = validate.real("expected", v)
+    v = validate.scalar(v)          # a 0-d tensor's number, its type kept
     if np.asarray(v).dtype != np.float32:
         return x, 0.0
     return x, 0.5 * float(np.spacing(np.abs(np.float32(v))))

@@ -121,3 +121,31 @@ def test_a_function_of_torch_tensors_is_told_to_wrap_u(check):
 def test_stability_tells_a_function_of_torch_tensors_to_wrap_u():
     r = mv.check_stability(_torch_sqrt, "square", sample_dim=2, max_examples=10)
     assert not r.passed and "sample(torch.from_numpy(a))" in r.failures[0]
+
+
+class _JaxArray:
+    """A JAX ``Array`` as numpy meets it: read through ``__array__``, no Python number
+    (``jnp.float32(0.5)`` is a 0-d one); ``numbers.Real`` does not know it."""
+
+    def __init__(self, a):
+        self._a = np.asarray(a)
+
+    def __array__(self, dtype=None, copy=None):
+        return self._a if dtype is None else self._a.astype(dtype)
+
+
+@pytest.mark.parametrize("wrap", [_JaxArray, _GradTensor], ids=["jax", "torch-grad"])
+def test_a_0d_array_is_a_real_argument(wrap):
+    """``expected=jnp.float32(0.5)`` (a 0-d JAX Array) or a 0-d torch tensor was refused
+    as "must be a real number" (an outside review); it is its number, a float32 one
+    standing for half its ulp as ``np.float32(0.5)`` does."""
+    x = np.full(1000, 0.5, dtype=np.float32)
+    for expected in (np.float32(0.5), np.float64(0.5)):
+        r = mv.check_unbiased(x, wrap(expected))
+        assert r.to_dict() | {"seconds": 0} == mv.check_unbiased(x, expected).to_dict() | {
+            "seconds": 0}
+    assert mv.check_convergence(lambda n, s: np.random.default_rng(s).random(n).mean(),
+                                wrap(0.5), ns=(64, 256, 1024), n_seeds=8).passed
+    assert mv.check_variance(np.full(10, 2.0), wrap(0.0)).passed
+    with pytest.raises(mv.InvalidArgument, match=r"must be a real number"):
+        mv.check_unbiased(x, wrap([0.5]))       # one element of an array stays refused
