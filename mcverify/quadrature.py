@@ -324,6 +324,8 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
     else:
         noise = np.broadcast_to(np.asarray(noise, dtype=np.float64), (n_cells,))
 
+    # whether each leaf's parent met its own budget (the start's leaves have none)
+    parent_ok = np.zeros(lo.shape[0], dtype=bool)
     level = start_level
     while lo.shape[0]:
         c_lo, c_w = _children(lo, width)
@@ -355,8 +357,15 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         # integrable singularity there (the arcsine's 1/√(1 - x)) would be evaluated at
         # the singular point itself.
         bottom = ~np.all(width > _RESOLVABLE * np.spacing(np.abs(lo) + width), axis=1)
-        done = (((err <= budget) & ~hidden) | (level >= max_level) | bottom
-                | ~np.isfinite(err))
+        # A leaf whose nodes lie on both sides of the support's edge (a cone's rim crossing
+        # it off the axes) is accepted only where its parent met its budget too: the two
+        # rules' errors on a step can agree by chance, |fine - coarse| then undershooting
+        # the true error 20-40 times, and a correct sun-sized cone 60° from the pole
+        # failed the normalisation test on 3 to 4 in 20 seeds of 1e5 samples as
+        # 'integrates to 0.99968' (until 7 December, an outside review).
+        edge = (node_min <= 0.0) & (node_max > 0.0)
+        done = (((err <= budget) & ~hidden & (parent_ok | ~edge)) | (level >= max_level)
+                | bottom | ~np.isfinite(err))
         stopped = (level >= max_level) | bottom
         thin = np.zeros_like(done)
         # not converged: a boundary layer, or a rule error above the budget
@@ -412,6 +421,7 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         if not refine.any():
             break
         sel = np.repeat(refine, 2 ** m)
+        parent_ok = np.repeat((err <= budget)[refine], 2 ** m)
         lo, width = c_lo[sel], c_w[sel]
         coarse = fine_parts[sel]
         owner = np.repeat(owner[refine], 2 ** m)
