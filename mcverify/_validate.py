@@ -348,10 +348,23 @@ def as_array(what, v) -> np.ndarray:
                               "masked values; the checks read every value (fill them, "
                               "e.g. .filled(np.nan), or leave them out)")
     try:
-        return np.asarray(v)
+        a = np.asarray(v)
     except (ValueError, TypeError) as e:
         what = what() if callable(what) else what
+        if "BFloat16" in str(e):    # torch's "Got unsupported ScalarType BFloat16"
+            raise InvalidArgument(f"{what}: {_BFLOAT16}") from None
         raise InvalidArgument(f"{what}: not an array of numbers ({e})") from None
+    if a.dtype.name == "bfloat16":  # JAX's (ml_dtypes'), which numpy holds as its own
+        what = what() if callable(what) else what
+        raise InvalidArgument(f"{what}: {_BFLOAT16}")
+    return a
+
+
+#: bfloat16 values, a differentiable renderer's: refused as "not an array of numbers" or
+#: "dtype bfloat16: expected real numbers" with nothing saying what to do (an outside
+#: review); 8 significant bits, 0.4 % rounding, fewer than float16's 11 (refused too)
+_BFLOAT16 = ("bfloat16 values (8 significant bits: 0.4 % rounding); judge a float32 "
+             "version: t.float() of a torch tensor, x.astype(np.float32) of a JAX array")
 
 
 def not_a_tuple(name: str, x, n: int, dim: int | None = None) -> None:

@@ -126,7 +126,8 @@ def check_unbiased(samples, expected, *, alpha: float = 0.01, name: str = "unbia
             while len(drawn) < b:
                 v = samples(len(drawn))
                 validate.samples_1d(f"samples({len(drawn)})", v)
-                drawn.append(np.asarray(validate.host(v)))     # its own dtype: float32 rounds as float32
+                # its own dtype: float32 rounds as float32
+                drawn.append(np.asarray(validate.host(v)))
             r = check_unbiased(np.concatenate(drawn), expected, alpha=alpha, name=name)
             upper = r.details.get("tail_index_upper")
             # An early look neither stops nor counts where its verdict is no

@@ -149,3 +149,42 @@ def test_a_0d_array_is_a_real_argument(wrap):
     assert mv.check_variance(np.full(10, 2.0), wrap(0.0)).passed
     with pytest.raises(mv.InvalidArgument, match=r"must be a real number"):
         mv.check_unbiased(x, wrap([0.5]))       # one element of an array stays refused
+
+
+class _BFloat16Tensor:
+    """A torch bfloat16 tensor as numpy meets it: ``np.asarray`` raises torch's
+    TypeError (torch 2.13: "Got unsupported ScalarType BFloat16")."""
+
+    def __init__(self, a):
+        self._a = np.asarray(a)
+
+    def __array__(self, dtype=None, copy=None):
+        raise TypeError("Got unsupported ScalarType BFloat16")
+
+    def detach(self):
+        return self
+
+    def cpu(self):
+        return self
+
+    def __len__(self):
+        return len(self._a)
+
+
+@pytest.mark.parametrize("call", [
+    lambda: mv.check_sampler(lambda u: _BFloat16Tensor(_sample(u)), _pdf, "square",
+                             n_samples=4000),
+    lambda: mv.check_sampler(_sample, lambda x: _BFloat16Tensor(_pdf(x)), "square",
+                             n_samples=4000),
+    lambda: mv.check_unbiased(_BFloat16Tensor(_EST), 2.0),
+    lambda: mv.compare_images(_BFloat16Tensor(_IMG), _IMG, test_var=_IMG, ref_var=_IMG,
+                              test_n=16, ref_n=16),
+], ids=["points", "pdf", "estimates", "image"])
+def test_bfloat16_is_refused_saying_to_judge_a_float32_version(call):
+    """bfloat16 (a differentiable renderer's) was refused as "not an array of numbers
+    (Got unsupported ScalarType BFloat16)" (JAX's as "dtype bfloat16: expected real
+    numbers") with nothing saying what to do (an outside review); it is refused naming
+    bfloat16 and the conversion to float32."""
+    with pytest.raises(mv.InvalidArgument, match=r"bfloat16 values .*judge a float32 "
+                                                 r"version: t\.float\(\)"):
+        call()
