@@ -316,3 +316,37 @@ def test_a_suite_check_named_as_a_check_the_plan_adds_is_refused():
                  "sampler:tracer.bsdf:white-furnace/bsdf0:diffuse@wi=45°"):
         with pytest.raises(InvalidArgument, match=f"check {name!r}.*the scene's own"):
             plan(scene, checks=[Check(name, lambda seed: None)])
+
+
+def test_check_scene_gates_a_splatting_film_at_its_references_samples_per_pass(tmp_path):
+    """A gaussian-filtered scene (Mitsuba's default filter, that of its documentation
+    scenes) whose reference the user built with other samples per pass than the render
+    check's 64 (``reference build``'s default 256, or ``render-check --spp 128 --passes
+    4``'s 32): ``check --scene`` failed its render check, exit 1, "raised
+    InvalidArgument: ... our passes need the reference's 32 samples per pass: spp=512
+    with passes=16", an option ``check`` does not have. The check now renders the
+    reference's count a pass; a reference of fewer than 32 a pass exits 2 saying how to
+    rebuild it."""
+    from mcverify.errors import EnvironmentProblem
+    from mcverify.gate import reference
+    from mcverify.gate.suites import _run_guarded
+
+    import pytest
+
+    path = tmp_path / "scene.xml"
+    path.write_text(DIFFUSE_POINT.replace('<rfilter type="box"/>', '<integer name="width" '
+                                          'value="6"/><integer name="height" value="4"/>'
+                                          '<rfilter type="gaussian"/>').replace(
+        "<sensor", '<integrator type="path"/><sensor', 1).replace(
+        "<film", '<transform name="to_world"><lookat origin="0, 1, -4" target="0, 0, 0" '
+                 'up="0, 1, 0"/></transform><film', 1))
+    reference.build_reference(str(path), spp=40, passes=2)
+    render = [c for c in plan(str(path))[0] if c.name.startswith("render:")]
+    r = _run_guarded(render[0], 0)
+    assert r.passed, r.failures
+    assert (r.details["ours_spp"], r.details["ours_passes"]) == (640, 16)
+    reference.build_reference(str(path), spp=8, passes=2)
+    with pytest.raises(EnvironmentProblem, match=r"its reference has 8 samples per pass; "
+                                                 r".*at least 32; run `mcverify reference "
+                                                 r"build .*scene.xml --spp 64 --passes 64`"):
+        _run_guarded(render[0], 0)
