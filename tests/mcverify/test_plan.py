@@ -350,3 +350,19 @@ def test_check_scene_gates_a_splatting_film_at_its_references_samples_per_pass(t
                                                  r".*at least 32; run `mcverify reference "
                                                  r"build .*scene.xml --spp 64 --passes 64`"):
         _run_guarded(render[0], 0)
+
+
+def test_check_scene_exits_2_where_its_render_check_compares_nothing(tmp_path):
+    """A scene whose reference and render are black in every pixel (here a camera inside
+    a sphere) is refused by ``render-check``, exit 2: the comparison tested nothing.
+    ``check --scene`` failed its render check instead, exit 1 ("FAIL render:... raised
+    InvalidArgument"), as if our tracer were wrong; now exit 2 naming the scene."""
+    path = tmp_path / "scene.xml"
+    path.write_text(DIFFUSE_POINT.replace("<sensor", '<integrator type="path"/><sensor', 1)
+                    .replace('<rfilter', '<integer name="width" value="6"/><integer '
+                             'name="height" value="4"/><rfilter', 1))
+    r = subprocess.run(CMD + ["check", "--scene", str(path), "-k", "render:", "-q"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "black in every pixel" in r.stderr and str(path) in r.stderr
+    assert "Traceback" not in r.stderr
