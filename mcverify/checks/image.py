@@ -27,6 +27,7 @@ different (p = 0) by its values alone, to float32 resolution at the image's scal
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import time
@@ -321,98 +322,123 @@ def _fits(shape, perceptual, test_passes, ref_passes) -> None:
                   "perceptual=False saves 280 a pixel" if perceptual is True else None)
 
 
-def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
+#: Ways a renderer may store a correct image other than the reference does, each undone
+#: on the test side by a function of an image array and the axis of its rows (0 for a
+#: mean or variance (H, W[, C]), 1 for pass images (K, H, W[, C])): flips and a
+#: transpose of the pixel grid, and channels in reverse order (OpenCV's BGR).
+_LAYOUTS = (
+    ("flipped vertically (row 0 at the bottom, as OpenGL stores an image): flip its rows",
+     lambda x, o: np.flip(x, o)),
+    ("flipped horizontally: flip its columns", lambda x, o: np.flip(x, o + 1)),
+    ("rotated by 180°: flip its rows and its columns", lambda x, o: np.flip(x, (o, o + 1))),
+    ("transposed (column-major, rows and columns swapped): transpose it",
+     lambda x, o: np.swapaxes(x, o, o + 1)),
+    ("in BGR order (OpenCV's): reverse its channels", lambda x, o: x[..., ::-1]),
+)
+
+#: Constant factors with a likely cause, named where the test image is within 1 % of one
+#: of them times the reference.
+_FACTORS = ((2.0, "2 (an exposure of +1 stop)"), (0.5, "1/2 (an exposure of -1 stop)"),
+            (math.pi, "π (irradiance against radiance, or a BSDF's 1/π left out)"),
+            (1 / math.pi, "1/π (radiance against irradiance, or a BSDF's 1/π twice)"),
+            (4 * math.pi, "4π (a point light's power against its intensity)"),
+            (1 / (4 * math.pi), "1/(4π) (a point light's intensity against its power)"))
+
+
+def _srgb_decoded(x):
+    """sRGB's decoding (IEC 61966-2-1) of display values in [0, 1] to linear ones, and its
+    derivative (the delta method carries a variance through it)."""
+    x = np.clip(x, 0.0, 1.0)
+    low = x <= 0.04045
+    base = (x + 0.055) / 1.055
+    return (np.where(low, x / 12.92, base ** 2.4),
+            np.where(low, 1 / 12.92, 2.4 / 1.055 * base ** 1.4))
+
+
+def _factor_named(k: float) -> str:
+    for value, text in _FACTORS:
+        if abs(k / value - 1) <= 0.01:
+            return f"{k:.4g} times the reference, about {text}: divide it by that"
+    return (f"{k:.4g} times the reference everywhere (a constant factor: an emitter's "
+            "strength, the exposure, a unit): find where the factor comes from")
+
+
+def _undone(test_mean, test_var, test_passes, ref_mean, n):
+    """(description, (mean, var, passes) undone) of each convention the test image may
+    have been stored in: ``_LAYOUTS`` where the undone grid has the reference's shape, a
+    constant factor (the ratio of the image means), and sRGB encoding where every value
+    lies in [0, 1]."""
+    tm, tv = (validate.as_array(k, a) for k, a in (("test_mean", test_mean),
+                                                    ("test_var", test_var)))
+    tp = None if test_passes is None else validate.as_array("test_passes", test_passes)
+    rm = validate.as_array("ref_mean", ref_mean)
+    for text, undo in _LAYOUTS:
+        if "BGR" in text and (tm.ndim != 3 or tm.shape[2] != 3):
+            continue
+        if undo(tm, 0).shape == rm.shape:
+            yield text, (undo(tm, 0), undo(tv, 0), None if tp is None else undo(tp, 1))
+    tm, tv = tm.astype(np.float64), tv.astype(np.float64)
+    tp = None if tp is None else tp.astype(np.float64)
+    k = float(tm.sum() / rm.sum()) if rm.sum() > 0 and tm.sum() > 0 else math.nan
+    if math.isfinite(k) and k != 1.0:
+        yield _factor_named(k), (tm / k, tv / k ** 2, None if tp is None else tp / k)
+    if tm.min() >= 0.0 and tm.max() <= 1.0 and (tp is None or (tp.min() >= 0.0 and
+                                                                tp.max() <= 1.0)):
+        linear, slope = _srgb_decoded(tm)
+        yield ("sRGB-encoded (gamma, a display image): compare the linear values the "
+               "renderer computed, before its output transform",
+               (linear if tp is None else _srgb_decoded(tp)[0].mean(axis=0),
+                tv * slope ** 2, None if tp is None else _srgb_decoded(tp)[0]))
+
+
+def _misfit(tm, tv, rm, rv, nt, nr) -> float:
+    """How far a test image is from the reference: the mean over pixels of the squared
+    Welch statistic, each clipped at 100 (a black pixel of zero variance against a lit
+    one counts as 100, not as infinity). A screen for ``_convention``, never a verdict."""
+    tm, tv, rm, rv = (np.asarray(a, dtype=np.float64) for a in (tm, tv, rm, rv))
+    se2 = np.maximum(tv / nt + rv / nr, 1e-300)
+    with np.errstate(over="ignore"):
+        return float(np.mean(np.minimum((tm - rm) ** 2 / se2, 100.0)))
+
+
+def _convention(test_mean, ref_mean, kw):
+    """Where a comparison failed: the convention of ``_undone`` which, undone, brings the
+    test image closest to the reference, if the same comparison then passes (a note
+    saying so and ``{"guess", "p_value"}``), else None. A guess never changes the
+    verdict; it tells a user whose correct renderer wrote its image another way
+    (upside down, gamma-encoded, a factor π off) where to look."""
+    nt, nr = int(kw["test_n"]), int(kw["ref_n"])
+    rv = validate.as_array("ref_var", kw["ref_var"])
+    candidates = list(_undone(test_mean, kw["test_var"], kw["test_passes"], ref_mean, nt))
+    if not candidates:
+        return None
+    misfits = [_misfit(m, v, ref_mean, rv, nt, nr) for _, (m, v, _) in candidates]
+    best = int(np.argmin(misfits))
+    if not misfits[best] < _misfit(test_mean, kw["test_var"], ref_mean, rv, nt, nr):
+        return None
+    text, (m, v, p) = candidates[best]
+    # the undone image in the type the test side was stored in: its rounding no evidence
+    stored = [a.dtype for a in (validate.as_array("test_mean", test_mean),
+                                validate.as_array("test_var", kw["test_var"]))
+              if np.issubdtype(a.dtype, np.floating)]
+    if kw["precision"] is not None:
+        stored.append(_floating_type("precision", kw["precision"]))
+    precision = max(stored, key=lambda d: np.finfo(d).eps) if stored else None
+    undone = _compare_images(m, ref_mean, **{**kw, "test_var": v, "test_passes": p,
+                                             "precision": precision}, perceptual=False)
+    if not undone.passed:
+        return None
+    return {"message": f"note: the test image looks {text}; so undone it agrees with the "
+                       f"reference (p = {undone.p_value:.3g})",
+            "details": {"guess": text, "p_value": float(undone.p_value)}}
+
+
+def _compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                    alpha: float = 0.01, block: int = 8, name: str = "image",
                    tests=TESTS, test_passes=None, ref_passes=None,
                    perceptual: bool = True, test_spp=None, ref_spp=None,
                    precision=None) -> CheckResult:
-    """Test that two renders have the same expected value in every pixel.
-
-    Parameters
-    ----------
-    test_mean, ref_mean : arrays (H, W) or (H, W, C)
-        Per-pixel means.
-    test_var, ref_var : arrays of the same shape
-        Per-pixel sample variance of the ``test_n`` / ``ref_n`` i.i.d. values (samples,
-        or independent passes) averaged into each mean.
-    test_n, ref_n : int
-        Values per pixel (>= 2).
-    alpha : float
-        Family-wise level of the whole comparison.
-    block : int
-        Block side in pixels for the block tests (8: 64 blocks on a 64 × 64 image); blocks
-        of half and twice the side are tested too (``block_sides``), all under one Holm
-        correction.
-    tests : sequence of {"global", "blocks", "pixels"}, or one of them as a string
-        The tests to run, each at α / len(tests) (all three by default). The render
-        gate's early looks, on a few passes, leave out the pixel t-tests: a pixel's
-        variance from 4 passes is too uncertain on caustic pixels, while image and block
-        means pool many pixels.
-    test_passes, ref_passes : arrays (K, H, W[, C]), optional
-        The i.i.d. pass images averaged into ``test_mean``/``ref_mean`` (K = ``test_n`` /
-        ``ref_n``). Given both, the global and block tests estimate the variance of
-        image and block means from the pass-level means (Welch t, K - 1 degrees of
-        freedom a side): valid when pixels within a pass are correlated, as a splatting
-        reconstruction filter makes them. ``details["pixels_correlated"]`` says which.
-    test_spp, ref_spp : int, optional
-        Samples per pixel behind each of a side's values (samples per pass). Given both,
-        the test side's per-pixel variance is taken as at least the reference's scaled
-        to the test side's samples, ``ref_var * ref_spp / test_spp``, and the
-        reference's at least the test side's likewise: a few passes can
-        miss rare bright paths altogether (a caustic), and then their mean and their
-        variance both come out low, while the reference, with many more samples, has
-        seen them. Where the tested renderer has the lower variance this costs power,
-        never calibration. ``details["variance_floor"]`` says what was raised. Measured
-        on the Cornell box (ours, 16 passes of 64 spp, against fresh 16 × 256-spp
-        references): 2 false alarms in 20 without it, 0 with it.
-    perceptual : bool
-        Also measure how visible the difference is (:func:`perceptual_metrics`: ΔE2000,
-        ΔE ITP, HDR-FLIP; 3-channel images). They decide nothing; the render gate computes
-        them once, on its last look's image.
-    precision : numpy floating type, optional
-        The coarsest type the images were stored in before they were converted (half
-        EXR passes that ``mcverify compare`` averages in float64): its rounding is no
-        evidence, as for arrays of that type. Default: the arrays' own types.
-
-    Returns
-    -------
-    CheckResult
-        ``details``: ``found_by`` (which tests rejected), ``global``, ``blocks``
-        (rejected blocks with their position and relative difference),
-        ``rejected_fraction`` of pixels, ``relmse``, ``smape``, ``delta_e2000_mean`` and
-        ``_p99``, ``delta_e_itp_mean`` and ``_p99``, ``flip_mean`` and ``_p99`` (CIEDE2000,
-        ITU-R BT.2124 ΔE ITP and HDR-FLIP; 3-channel images with ``perceptual``, else
-        None). ``artifacts``: ``p_map`` (per-pixel BH-adjusted p-values, the minimum over
-        channels), ``delta_e2000``, ``delta_e_itp`` and ``flip`` maps; left out of JSON by
-        default.
-
-    Notes
-    -----
-    Pixel means of independent renders are independent across pixels (not across the
-    channels of a pixel), so a channel's image mean has variance
-    :math:`\\sum_p (s_{t,p}^2/n_t + s_{r,p}^2/n_r) / P^2`, and a block mean likewise;
-    each side's sum is an estimate with Satterthwaite's degrees of freedom
-    :math:`(n - 1)(\\sum_p v_p)^2 / \\sum_p v_p^2` (:math:`v_p = s_p^2/n`; the ratio
-    taken as the smaller of the two sides', ``_block_variances``), and the
-    difference is tested with Student's t (``stats.welch_t_pooled_beyond``), not as a
-    z-score: with a reference of 2 or 3 passes, where a few pixels carry a block's
-    variance, the sum has few degrees of freedom and a z-test raised false alarms in
-    half of all seeds (``tests/mcverify/test_images.py``).
-    Welch's t per pixel takes its degrees of freedom from ``stats.welch_dof`` (the
-    Welch–Satterthwaite value at a conservative end of the variances' uncertainty). With
-    pass images, the image (block) mean of pass k, :math:`g_k`, is i.i.d. over k on each
-    side, and the difference of the two sides' averages of :math:`g_k` is Welch-t
-    tested with the sample variances of the :math:`g_k`.
-
-    Examples
-    --------
-    >>> import numpy as np, mcverify as mv
-    >>> rng = np.random.default_rng(0)
-    >>> a = rng.gamma(2.0, 0.5, (32, 32, 3, 64)); b = rng.gamma(2.0, 0.5, (32, 32, 3, 64))
-    >>> mv.compare_images(a.mean(-1), b.mean(-1), test_var=a.var(-1, ddof=1),
-    ...                   ref_var=b.var(-1, ddof=1), test_n=64, ref_n=64).passed
-    True
-    """
+    """``compare_images`` without its guess of the test image's convention."""
     t0 = time.perf_counter()
     stored = () if precision is None else (_floating_type("precision", precision),)
     rel_rounding, tiny = _rounding(test_mean, ref_mean, test_var, ref_var, test_passes,
@@ -644,3 +670,106 @@ def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
                        p_value=p_value, statistic=float(diff.mean()), alpha=alpha,
                        n_samples=int(min(nt, nr)), seconds=time.perf_counter() - t0,
                        details=details, messages=tuple(messages), artifacts=maps)
+
+
+def compare_images(test_mean, ref_mean, *, test_var, ref_var, test_n, ref_n,
+                   alpha: float = 0.01, block: int = 8, name: str = "image",
+                   tests=TESTS, test_passes=None, ref_passes=None,
+                   perceptual: bool = True, test_spp=None, ref_spp=None,
+                   precision=None) -> CheckResult:
+    """Test that two renders have the same expected value in every pixel.
+
+    Parameters
+    ----------
+    test_mean, ref_mean : arrays (H, W) or (H, W, C)
+        Per-pixel means.
+    test_var, ref_var : arrays of the same shape
+        Per-pixel sample variance of the ``test_n`` / ``ref_n`` i.i.d. values (samples,
+        or independent passes) averaged into each mean.
+    test_n, ref_n : int
+        Values per pixel (>= 2).
+    alpha : float
+        Family-wise level of the whole comparison.
+    block : int
+        Block side in pixels for the block tests (8: 64 blocks on a 64 × 64 image); blocks
+        of half and twice the side are tested too (``block_sides``), all under one Holm
+        correction.
+    tests : sequence of {"global", "blocks", "pixels"}, or one of them as a string
+        The tests to run, each at α / len(tests) (all three by default). The render
+        gate's early looks, on a few passes, leave out the pixel t-tests: a pixel's
+        variance from 4 passes is too uncertain on caustic pixels, while image and block
+        means pool many pixels.
+    test_passes, ref_passes : arrays (K, H, W[, C]), optional
+        The i.i.d. pass images averaged into ``test_mean``/``ref_mean`` (K = ``test_n`` /
+        ``ref_n``). Given both, the global and block tests estimate the variance of
+        image and block means from the pass-level means (Welch t, K - 1 degrees of
+        freedom a side): valid when pixels within a pass are correlated, as a splatting
+        reconstruction filter makes them. ``details["pixels_correlated"]`` says which.
+    test_spp, ref_spp : int, optional
+        Samples per pixel behind each of a side's values (samples per pass). Given both,
+        the test side's per-pixel variance is taken as at least the reference's scaled
+        to the test side's samples, ``ref_var * ref_spp / test_spp``, and the
+        reference's at least the test side's likewise: a few passes can
+        miss rare bright paths altogether (a caustic), and then their mean and their
+        variance both come out low, while the reference, with many more samples, has
+        seen them. Where the tested renderer has the lower variance this costs power,
+        never calibration. ``details["variance_floor"]`` says what was raised. Measured
+        on the Cornell box (ours, 16 passes of 64 spp, against fresh 16 × 256-spp
+        references): 2 false alarms in 20 without it, 0 with it.
+    perceptual : bool
+        Also measure how visible the difference is (:func:`perceptual_metrics`: ΔE2000,
+        ΔE ITP, HDR-FLIP; 3-channel images). They decide nothing; the render gate computes
+        them once, on its last look's image.
+    precision : numpy floating type, optional
+        The coarsest type the images were stored in before they were converted (half
+        EXR passes that ``mcverify compare`` averages in float64): its rounding is no
+        evidence, as for arrays of that type. Default: the arrays' own types.
+
+    Returns
+    -------
+    CheckResult
+        ``details``: ``found_by`` (which tests rejected), ``global``, ``blocks``
+        (rejected blocks with their position and relative difference),
+        ``rejected_fraction`` of pixels, ``relmse``, ``smape``, ``delta_e2000_mean`` and
+        ``_p99``, ``delta_e_itp_mean`` and ``_p99``, ``flip_mean`` and ``_p99`` (CIEDE2000,
+        ITU-R BT.2124 ΔE ITP and HDR-FLIP; 3-channel images with ``perceptual``, else
+        None). ``artifacts``: ``p_map`` (per-pixel BH-adjusted p-values, the minimum over
+        channels), ``delta_e2000``, ``delta_e_itp`` and ``flip`` maps; left out of JSON by
+        default.
+
+    Notes
+    -----
+    Pixel means of independent renders are independent across pixels (not across the
+    channels of a pixel), so a channel's image mean has variance
+    :math:`\\sum_p (s_{t,p}^2/n_t + s_{r,p}^2/n_r) / P^2`, and a block mean likewise;
+    each side's sum is an estimate with Satterthwaite's degrees of freedom
+    :math:`(n - 1)(\\sum_p v_p)^2 / \\sum_p v_p^2` (:math:`v_p = s_p^2/n`; the ratio
+    taken as the smaller of the two sides', ``_block_variances``), and the
+    difference is tested with Student's t (``stats.welch_t_pooled_beyond``), not as a
+    z-score: with a reference of 2 or 3 passes, where a few pixels carry a block's
+    variance, the sum has few degrees of freedom and a z-test raised false alarms in
+    half of all seeds (``tests/mcverify/test_images.py``).
+    Welch's t per pixel takes its degrees of freedom from ``stats.welch_dof`` (the
+    Welch–Satterthwaite value at a conservative end of the variances' uncertainty). With
+    pass images, the image (block) mean of pass k, :math:`g_k`, is i.i.d. over k on each
+    side, and the difference of the two sides' averages of :math:`g_k` is Welch-t
+    tested with the sample variances of the :math:`g_k`.
+
+    Examples
+    --------
+    >>> import numpy as np, mcverify as mv
+    >>> rng = np.random.default_rng(0)
+    >>> a = rng.gamma(2.0, 0.5, (32, 32, 3, 64)); b = rng.gamma(2.0, 0.5, (32, 32, 3, 64))
+    >>> mv.compare_images(a.mean(-1), b.mean(-1), test_var=a.var(-1, ddof=1),
+    ...                   ref_var=b.var(-1, ddof=1), test_n=64, ref_n=64).passed
+    True
+    """
+    kw = dict(test_var=test_var, ref_var=ref_var, test_n=test_n, ref_n=ref_n, alpha=alpha,
+              block=block, name=name, tests=tests, test_passes=test_passes,
+              ref_passes=ref_passes, test_spp=test_spp, ref_spp=ref_spp, precision=precision)
+    result = _compare_images(test_mean, ref_mean, perceptual=perceptual, **kw)
+    guess = None if result.passed else _convention(test_mean, ref_mean, kw)
+    if guess is None:
+        return dataclasses.replace(result, details={**result.details, "convention": None})
+    return dataclasses.replace(result, messages=result.messages + (guess["message"],),
+                               details={**result.details, "convention": guess["details"]})

@@ -150,7 +150,8 @@ def test_a_sample_count_far_off_the_variances_is_noted():
     var = np.full(ref.shape, 0.01)
     kw = dict(test_var=var, ref_var=var, test_n=16, ref_n=16, perceptual=False)
     right = mv.compare_images(ref * 1.1, ref, **kw, test_spp=64, ref_spp=64)
-    assert not right.passed and not any(m.startswith("note:") for m in right.messages)
+    assert not right.passed and not any(m.startswith("note: per sample")
+                                        for m in right.messages)
     wrong = mv.compare_images(ref * 1.1, ref, **kw, test_spp=64 * 16 * 16, ref_spp=64)
     assert wrong.details["variance_floor"]["per_sample_variance_ratio"] == 256.0
     assert any("note: per sample, the test side's variance is 256 times" in m
@@ -613,3 +614,85 @@ def test_pixels_of_zero_variance_from_few_discrete_passes_are_noted_as_no_eviden
         r = mv.compare_images(tm, rm, test_var=tv, ref_var=rv, test_n=nt, ref_n=nr,
                               perceptual=False)
         assert not any("zero variance on both sides" in m for m in r.messages), r.messages
+
+
+def _scene_pair(seed=0, shape=(24, 24, 3), n=16, wrong=None):
+    """A correct render and its reference of one scene whose expected image is no
+    symmetric pattern (a ramp down, a ramp across, a bright square off the centre, each
+    channel its own level): gamma pass values, ``n`` a side. ``wrong`` brightens a block
+    of the test side by 50 % (a real bug, which no convention undoes)."""
+    h, w, c = shape
+    y, x = np.mgrid[0:h, 0:w] / max(h, w)
+    mu = (0.2 + 2 * y + 0.5 * x)[..., None] * np.array([1.0, 0.6, 0.3])[:c]
+    mu[2:7, 3:9] *= 8.0
+    rng = np.random.default_rng(seed)
+    a = rng.gamma(30.0, mu[..., None] / 30.0, shape + (n,))
+    b = rng.gamma(30.0, mu[..., None] / 30.0, shape + (n,))
+    if wrong is not None:
+        a[wrong] *= 1.5
+    return dict(test_mean=a.mean(-1), ref_mean=b.mean(-1), test_var=a.var(-1, ddof=1),
+                ref_var=b.var(-1, ddof=1), test_n=n, ref_n=n, perceptual=False)
+
+
+#: A correct image stored in another renderer's convention (its grid, and a factor), and
+#: a word of the guess.
+CONVENTIONS = [("flipud", lambda x: x[::-1], 1.0, "flipped vertically"),
+               ("fliplr", lambda x: x[:, ::-1], 1.0, "flipped horizontally"),
+               ("rot180", lambda x: x[::-1, ::-1], 1.0, "rotated by 180"),
+               ("transposed", lambda x: x.transpose(1, 0, 2), 1.0, "transposed"),
+               ("bgr", lambda x: x[..., ::-1], 1.0, "BGR"),
+               ("times-pi", lambda x: x, np.pi, "about π"),
+               ("times-2", lambda x: x, 2.0, "about 2"),
+               ("times-1.03", lambda x: x, 1.03, "a constant factor")]
+
+
+@pytest.mark.parametrize("convention", CONVENTIONS, ids=[c[0] for c in CONVENTIONS])
+def test_a_correct_image_in_another_convention_fails_naming_the_convention(convention):
+    """A correct render stored upside down (OpenGL's rows), mirrored, transposed, in
+    OpenCV's BGR order or a constant factor off failed with blocks and pixels rejected
+    and nothing saying why; it still fails (the verdict, p and messages unchanged), and a
+    note names the convention which, undone, passes the same comparison."""
+    _, stored, factor, word = convention
+    kw = _scene_pair()
+    kw["test_mean"] = stored(kw["test_mean"]) * factor
+    kw["test_var"] = stored(kw["test_var"]) * factor ** 2
+    r = mv.compare_images(**kw)
+    plain = mv.checks.image._compare_images(**kw)
+    assert not r.passed and r.p_value == plain.p_value
+    assert r.messages[:-1] == plain.messages
+    assert r.messages[-1].startswith("note: the test image looks") and word in r.messages[-1]
+    assert word in r.details["convention"]["guess"]
+    assert r.details["convention"]["p_value"] > ALPHA
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_no_convention_is_guessed_where_none_holds(seed):
+    """A correct image passes with no guess; a wrong one (a block 50 % bright), stored as
+    is or upside down, fails with none: no flip or factor makes it agree."""
+    assert mv.compare_images(**_scene_pair(seed)).details["convention"] is None
+    for stored in (lambda x: x, lambda x: x[::-1]):
+        kw = _scene_pair(seed, wrong=np.s_[14:20, 12:18])
+        kw["test_mean"], kw["test_var"] = stored(kw["test_mean"]), stored(kw["test_var"])
+        r = mv.compare_images(**kw)
+        assert not r.passed and r.details["convention"] is None
+        assert not any("looks" in m for m in r.messages)
+
+
+def test_a_gamma_encoded_image_is_named():
+    """A correct render whose mean was sRGB-encoded for display (its variance carried
+    through the encoding) fails, and the note names the encoding; the same image linear
+    passes with no note."""
+    kw = _scene_pair()
+    scale = 1.2 * max(kw["test_mean"].max(), kw["ref_mean"].max())   # values in [0, 1]
+    for k in ("test_mean", "ref_mean"):
+        kw[k] = kw[k] / scale
+    for k in ("test_var", "ref_var"):
+        kw[k] = kw[k] / scale ** 2
+    assert mv.compare_images(**kw).details["convention"] is None
+    m = kw["test_mean"]
+    slope = np.where(m <= 0.0031308, 12.92, 1.055 / 2.4 * np.maximum(m, 1e-12) ** (1 / 2.4 - 1))
+    kw["test_mean"] = np.where(m <= 0.0031308, 12.92 * m, 1.055 * m ** (1 / 2.4) - 0.055)
+    kw["test_var"] = kw["test_var"] * slope ** 2
+    r = mv.compare_images(**kw)
+    assert not r.passed and "sRGB-encoded" in r.messages[-1]
+    assert r.details["convention"]["guess"].startswith("sRGB-encoded")
