@@ -61,11 +61,30 @@ def _as_image(name, a, shape=None):
     if a.size == 0:
         raise InvalidArgument(f"{name}: empty image (shape {a.shape}); nothing to compare")
     if shape is not None and a.shape != shape:
-        raise InvalidArgument(f"{name}: shape {a.shape} differs from test_mean's {shape}")
+        raise InvalidArgument(f"{name}: shape {a.shape} differs from test_mean's {shape}"
+                              + (shape_hint(shape, a.shape) if name == "ref_mean" else ""))
     if not np.all(np.isfinite(a)):
         raise InvalidArgument(f"{name}: contains NaN/Inf at "
                               f"{np.argwhere(~np.isfinite(a))[0].tolist()}")
     return a
+
+
+def shape_hint(test_shape, ref_shape) -> str:
+    """What a test image's shape (H, W, C) suggests where it is not the reference's: a
+    transposed (column-major) grid, another resolution, an alpha channel. Without it
+    an RGBA image was refused as "ref_mean: shape (16, 24, 3) differs from test_mean's
+    (16, 24, 4)", blaming the reference and naming no cause (an outside review)."""
+    (th, tw, tc), (rh, rw, rc) = test_shape, ref_shape
+    if (th, tw) == (rw, rh) and th != tw and tc == rc:
+        return ("; the test image's rows and columns are the reference's swapped: a "
+                "column-major (transposed) image? transpose it")
+    if tc == rc and th * rw == tw * rh and th != rh:
+        return (f"; the test image has {th / rh:.3g} times the reference's resolution: "
+                f"render it at the reference's {rw} x {rh} pixels")
+    if (th, tw) == (rh, rw) and tc == rc + 1:
+        return (f"; one channel more than the reference: an alpha? compare the colour "
+                f"channels, test_mean[..., :{rc}] (its variance's too)")
+    return ""
 
 
 #: Relative differences that are rounding, not evidence, between inputs of float32 or finer

@@ -696,3 +696,20 @@ def test_a_gamma_encoded_image_is_named():
     r = mv.compare_images(**kw)
     assert not r.passed and "sRGB-encoded" in r.messages[-1]
     assert r.details["convention"]["guess"].startswith("sRGB-encoded")
+
+
+@pytest.mark.parametrize("stored,hint", [
+    (lambda x: x.transpose(1, 0, 2), "column-major (transposed)"),
+    (lambda x: x[::2, ::2], "0.5 times the reference's resolution"),
+    (lambda x: np.concatenate([x, np.ones(x.shape[:2] + (1,))], -1), "an alpha?")],
+    ids=["transposed", "half-resolution", "rgba"])
+def test_a_test_image_of_another_shape_is_refused_saying_what_it_looks_like(stored, hint):
+    """A non-square render stored transposed, at half the resolution or with an alpha
+    channel was refused as a bare shape mismatch; the refusal now says which."""
+    kw = _scene_pair(shape=(16, 24, 3))
+    kw["test_mean"], kw["test_var"] = stored(kw["test_mean"]), stored(kw["test_var"])
+    with pytest.raises(mv.InvalidArgument, match=r"ref_mean: shape .*" + re.escape(hint)):
+        mv.compare_images(**kw)
+    kw["test_mean"] = kw["test_mean"][:-1]
+    with pytest.raises(mv.InvalidArgument, match=r"differs from test_mean's \(\d+, \d+, \d\)$"):
+        mv.compare_images(**kw)
