@@ -155,6 +155,24 @@ def _caller(rootpath) -> str:
     return f"{path if rel.startswith(os.pardir) else rel}:{frame.f_lineno}"
 
 
+class _CheckFailed(pytest.fail.Exception):
+    """``pytest.fail(msg, pytrace=False)`` whose report keeps the notes added to it on its
+    way out: pytest reports such a failure by its message alone, so in the caller's
+    ``@given`` test the note hypothesis adds, ``Failing test case: test_x(a=3)``, was
+    dropped, and which example failed went unsaid (until 7 December; an outside review)."""
+
+    def __str__(self) -> str:
+        return "\n".join([self.msg, *map(str, getattr(self, "__notes__", ()))])
+
+    __repr__ = __str__
+
+
+# reported as pytest.fail's are, "Failed: FAIL ..." (pytest's outcomes live in builtins
+# for this), not "_mcverify_pytest._CheckFailed: ..."
+_CheckFailed.__module__ = "builtins"
+_CheckFailed.__name__ = _CheckFailed.__qualname__ = "Failed"
+
+
 # Session-scoped, as the run's seed and checker are: a session fixture that renders a
 # reference once with the seed could not request them (pytest's ScopeMismatch).
 @pytest.fixture(scope="session")
@@ -185,7 +203,7 @@ def assert_check(request):
             seed = result.details.get("seed")
             lines.append(("" if seed is None else f"check seed={seed}; ")
                          + f"run with --mcverify-seed={run_seed}")
-            pytest.fail("\n".join(lines), pytrace=False)
+            raise _CheckFailed("\n".join(lines), pytrace=False)
         return result
 
     return check

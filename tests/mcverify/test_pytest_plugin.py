@@ -174,6 +174,27 @@ def test_a_failure_says_which_call_failed(tmp_path):
     assert "failed at test_x.py:9\n" in r.stdout, r.stdout
 
 
+def test_a_failure_in_a_given_test_says_which_example_failed(tmp_path):
+    """assert_check fails the test with pytest.fail(pytrace=False), whose report is the
+    message alone: in the caller's ``@given`` test ("stable for every roughness") the
+    note hypothesis adds with the failing example, ``Failing test case: test_x(a=3)``,
+    was dropped, and the user learnt that some parameter failed, not which."""
+    (tmp_path / "test_x.py").write_text(
+        "import mcverify as mv\n"
+        "from hypothesis import given, settings, strategies as st\n"
+        "@settings(max_examples=20, deadline=None, database=None, derandomize=True)\n"
+        "@given(a=st.integers(0, 5))\n"
+        "def test_x(a, assert_check):\n"
+        "    assert_check(mv.check_unbiased([0.0, 1.0] * 50, 0.5 if a < 3 else 2.0))\n")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        str(tmp_path / "test_x.py")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == pytest.ExitCode.TESTS_FAILED, (r.stdout, r.stderr)
+    assert "failed at test_x.py:6\n" in r.stdout, r.stdout
+    assert "a=3," in r.stdout, r.stdout
+    assert "test_x.py::test_x - Failed: FAIL unbiased" in r.stdout, r.stdout
+
+
 def test_pytest_fixtures_describes_both_fixtures(tmp_path):
     """``pytest --fixtures``, where a team finds what a plugin offers, said "no docstring
     available" for both."""
