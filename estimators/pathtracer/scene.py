@@ -741,12 +741,14 @@ class _Loader:
         """The folder a top-level ``<path value="DIR"/>`` adds to the places file names are
         looked for (Mitsuba's own documentation scenes start with ``<path
         value="../../common"/>``; refused by line until 7 December): DIR as given where
-        absolute, else against the folder of the file it is in (``resolver[-1]`` for the
-        scene, ``resolver[0]`` for an included file), else against each of ``resolver``
-        (Mitsuba's order); a folder that is not there is refused, as Mitsuba refuses it."""
+        absolute, else against the folder of the file it is in, else against each of
+        ``resolver`` (Mitsuba's order); a folder that is not there is refused, as Mitsuba
+        refuses it. (Until a read-only review the folder "of the file" was the previous
+        ``<path>``'s once there was one: ``<path value="a"/><path value="b"/>`` took
+        ``a/b`` where both it and ``b`` were there, and Mitsuba ``b``.)"""
         self.check_attributes(node)
         value = self.with_defaults(defaults, lambda: self.attr(node, "value"))
-        here = resolver[0] if len(resolver) > 1 else resolver[-1]
+        here = os.path.dirname(node.origin or self.path)
         tried = [value] if os.path.isabs(value) else list(dict.fromkeys(
             os.path.join(d, value) for d in [here] + resolver))
         for full in tried:

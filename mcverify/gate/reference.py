@@ -223,18 +223,27 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     where the manifest hashed ``more.xml`` beside the scene), keyed then by its path from
     the scene's folder (``sub/more.xml``), so that the same name included beside the
     scene too is hashed as well.
-    A ``<path value="DIR"/>`` of the scene's (not an included file's) puts DIR (against
-    the scene's folder) before it, the last such element first, wherever it stands:
-    Mitsuba's file resolver (a texture found
-    there was rendered while the manifest hashed the file of that name beside the scene,
-    or recorded it as missing). ``params`` (a dict, or its sorted items): the ``$name``
-    values the scene is loaded with, over its ``<default>``s, as Mitsuba takes them (the
-    file a ``--param mesh=b.obj`` names was not the one stamped or hashed)."""
+    A ``<path value="DIR"/>`` is read as Mitsuba's file resolver reads it, as our
+    loader does (``estimators.pathtracer.scene._Loader._spliced``): DIR against the folder
+    of the file it is in, else against the resolver's folders; it puts DIR first for the
+    ``<include>``s after it in its file, and a ``<path>`` of the scene's (not an included
+    file's, which Mitsuba reads with a copy of its resolver) for every file an element
+    names, the last such element first, wherever it stands (a texture found there was
+    rendered while the manifest hashed the file of that name beside the scene, or
+    recorded it as missing; until a read-only review an included file's ``<path>`` was
+    ignored, and the file its include named went unhashed). An include found elsewhere
+    than beside the scene is keyed by its path from the scene's folder. ``params`` (a
+    dict, or its sorted items): the ``$name`` values the scene is loaded with, over its
+    ``<default>``s, as Mitsuba takes them (the file a ``--param mesh=b.obj`` names was
+    not the one stamped or hashed)."""
     defaults = {k: str(v).lower() if isinstance(v, bool) else str(v)
                 for k, v in dict(params or {}).items()}
-    # (name, the folder of the file naming it where an include is looked for beside it)
-    names, includes, searched = [], set(), []
-    including = [None]          # the folder of the included file being read
+    folder = os.path.dirname(os.path.abspath(scene_path))
+    # (name, None) for a file an element names, found at the end through the scene's own
+    # resolver; (name, folders) for an <include>, looked for in the resolver's folders as
+    # they stood at it in the file being read
+    names, includes = [], set()
+    reading = {"here": folder, "resolver": [folder]}        # the file being read
 
     def substitute(text):
         for key in sorted(defaults, key=len, reverse=True):    # as Mitsuba: longest first
@@ -252,46 +261,48 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
             # (into RGB in RGB variants), so a changed one changes the image
             names.append((attrib["filename"], None))
         elif tag == "include" and "filename" in attrib:
-            names.append((attrib["filename"], including[0]))
+            names.append((attrib["filename"], tuple(reading["resolver"])))
             includes.add(names[-1])
-        elif tag == "path" and "value" in attrib and including[0] is None:
-            # an included file's <path> serves its own includes only: Mitsuba parses it
-            # with a copy of its file resolver, dropped after it (the loader does the same)
-            searched.append(attrib["value"])
-
-    def locate(real):
-        for d in reversed(searched):
-            full = os.path.join(folder, substitute(d), real)
-            if os.path.exists(full):
-                return full
-        return os.path.join(folder, real)
+        elif tag == "path" and "value" in attrib:
+            d = substitute(attrib["value"])
+            found = _first(d, [reading["here"]] + reading["resolver"], os.path.isdir)
+            if found is not None:       # else Mitsuba refuses the scene
+                reading["resolver"].insert(0, os.path.abspath(found))
 
     _parse_scene(scene_path, start)
-    folder = os.path.dirname(os.path.abspath(scene_path))
+    scene_resolver = list(reading["resolver"])      # the files elements name are found in
     out: dict[str, str] = {}
     read = {os.path.realpath(scene_path)}
     i = 0
     while i < len(names):           # grows as included files are read
-        name, naming = names[i]
+        name, at = names[i]
         i += 1
         real = substitute(name)
-        beside = os.path.join(naming, real) if naming and not os.path.isabs(real) else None
-        if beside and os.path.isfile(beside):
-            # keyed by its path from the scene's folder: the same name included from the
-            # scene's folder is another file (a read-only review found one of them left out)
-            full = beside
-            key = os.path.relpath(beside, folder)
-        else:
-            full, key = (real if os.path.isabs(real) else locate(real)), name
+        full = _first(real, scene_resolver if at is None else at, os.path.exists) \
+            or os.path.join(folder, real)
+        # an include found elsewhere than beside the scene keyed by its path from there:
+        # the same name included beside the scene too is another file (a read-only
+        # review found one of them left out)
+        key = name if at is None or full == os.path.join(folder, real) \
+            or os.path.isabs(real) else os.path.relpath(full, folder)
         if key in out:
             continue
         out[key] = full
-        if (name, naming) in includes and os.path.isfile(full) and \
+        if (name, at) in includes and os.path.isfile(full) and \
                 os.path.realpath(full) not in read:
             read.add(os.path.realpath(full))
-            including[0] = os.path.dirname(full)
+            reading["here"] = os.path.dirname(full)
+            reading["resolver"] = [reading["here"]] + list(at)
             _parse_scene(full, start)
     return out
+
+
+def _first(name: str, folders, there) -> str | None:
+    """``name`` where absolute, else the first of ``folders``/``name`` for which
+    ``there(path)`` holds (Mitsuba's file resolver), None where none does."""
+    if os.path.isabs(name):
+        return name
+    return next((p for p in (os.path.join(d, name) for d in folders) if there(p)), None)
 
 
 def scene_stamp(scene_path: str, params=None) -> tuple:

@@ -1794,3 +1794,25 @@ def test_a_path_element_naming_no_folder_is_refused_as_in_mitsuba(mi, tmp_path):
     path.write_text(f'<scene version="3.0.0">\n<path vaule="nowhere"/>\n{_CAMERA}</scene>')
     with pytest.raises(SceneError, match=r"scene.xml:2: <path>.*vaule"):
         load_scene(str(path))
+
+
+@pytest.mark.parametrize("nested", [True, False], ids=["both-there", "only-nested"])
+def test_a_second_path_is_taken_against_its_file_not_the_first_path(mi, tmp_path, nested):
+    """``<path value="a"/><path value="b"/>``: b is looked for beside the file first, then
+    in the resolver's folders (a/b where only that is there). The loader took a/b first
+    (the previous ``<path>`` read as the file's folder), where Mitsuba takes b (a
+    read-only review)."""
+    from estimators.pathtracer import prepare_scene
+
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    (tmp_path / "a" / "b" / "m.obj").write_text(_tris(4))
+    if nested:
+        (tmp_path / "b").mkdir()
+        (tmp_path / "b" / "m.obj").write_text(_tris(3))
+    path = tmp_path / "scene.xml"
+    path.write_text(f'<scene version="3.0.0"><path value="a"/><path value="b"/>'
+                    f'<integrator type="path"/>{_CAMERA}<emitter type="constant"/>'
+                    '<shape type="obj"><string name="filename" value="m.obj"/></shape></scene>')
+    want = 3 if nested else 4
+    assert sum(s.face_count() for s in mi.load_file(str(path)).shapes()) == want
+    assert prepare_scene(str(path)).n_triangles == want

@@ -437,6 +437,40 @@ def test_an_included_file_s_path_element_does_not_move_the_scene_s_files(tmp_pat
     assert len(values) == 1 and np.allclose(values[0], 0.75), values
 
 
+def test_the_files_hashed_through_path_elements_are_those_mitsuba_reads(tmp_path):
+    """An included file's ``<path>`` serves its own includes: sub/parts.xml's ``<path
+    value="x"/><include filename="inc.xml"/>`` reads sub/x/inc.xml, which the manifest
+    left out (it looked for inc.xml beside the scene); a second ``<path>`` is taken
+    against the file's folder, then the first's (only a/b there: a/b/m.obj, which the
+    manifest recorded as m.obj beside the scene). A read-only review; Mitsuba reads the
+    same files (told apart by their triangles)."""
+    tri = "v 0 0 {z}\nv 1 0 {z}\nv 0 1 {z}\nf 1 2 3\n"
+    for d in ("sub/x", "a/b"):
+        (tmp_path / d).mkdir(parents=True)
+    (tmp_path / "a" / "b" / "m.obj").write_text(tri.format(z=0) + tri.format(z=1)
+                                                .replace("f 1 2 3", "f 4 5 6"))
+    (tmp_path / "m.obj").write_text(tri.format(z=0))
+    (tmp_path / "sub" / "x" / "inc.xml").write_text(
+        '<scene version="3.0.0"><shape type="obj"><string name="filename" value="m.obj"/>'
+        '</shape></scene>')
+    (tmp_path / "sub" / "parts.xml").write_text(
+        '<scene version="3.0.0"><path value="x"/><include filename="inc.xml"/></scene>')
+    src = _textured_furnace(4, "t.exr", '<path value="a"/><path value="b"/>'
+                                        '<include filename="sub/parts.xml"/>')
+    (tmp_path / "scene.xml").write_text(src)
+    files = reference.scene_asset_files(str(tmp_path / "scene.xml"))
+    assert files[os.path.join("sub", "x", "inc.xml")] == str(tmp_path / "sub/x/inc.xml")
+    assert files["m.obj"] == str(tmp_path / "a" / "b" / "m.obj")
+    mvm.write_exr(str(tmp_path / "t.exr"), np.full((2, 2, 3), 0.5, np.float32))
+    mi = mvm._mi()
+    faces = [s.face_count() for s in mi.load_file(str(tmp_path / "scene.xml")).shapes()
+             if s.is_mesh()]
+    assert faces == [2], faces      # a/b/m.obj, through sub/x/inc.xml
+    from estimators.pathtracer import prepare_scene
+
+    assert prepare_scene(str(tmp_path / "scene.xml")).n_triangles == 2      # and ours
+
+
 def test_ours_renders_the_file_found_through_a_path_element_as_mitsuba_does(tmp_path):
     """A scene whose texture is found through ``<path value="tex"/>`` (refused by our
     loader until 7 December): ours reads ``tex/t.exr`` as Mitsuba does, not the file of
