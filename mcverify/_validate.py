@@ -144,7 +144,11 @@ def scalar(v):
 def real(name: str, v, *, finite: bool = True, minimum: float | None = None) -> float:
     v = scalar(v)
     if isinstance(v, bool) or not isinstance(v, numbers.Real):
-        raise InvalidArgument(f"{name}={_show(v)}: must be a real number")
+        # a 0-d bfloat16 (torch's torch.bfloat16, JAX's bfloat16) gets what to do with it
+        # (a read-only review: "must be a real number" and no more)
+        bf16 = "bfloat16" in str(getattr(v, "dtype", "")).lower()
+        raise InvalidArgument(f"{name}={_show(v)}: must be a real number"
+                              + (f"; {_BFLOAT16}" if bf16 else ""))
     try:
         # an integer or fraction beyond float64's range (10**400) raised OverflowError
         # or numpy's TypeError from isfinite, naming nothing (the final review)

@@ -155,6 +155,8 @@ class _BFloat16Tensor:
     """A torch bfloat16 tensor as numpy meets it: ``np.asarray`` raises torch's
     TypeError (torch 2.13: "Got unsupported ScalarType BFloat16")."""
 
+    dtype = "torch.bfloat16"
+
     def __init__(self, a):
         self._a = np.asarray(a)
 
@@ -177,9 +179,10 @@ class _BFloat16Tensor:
     lambda: mv.check_sampler(_sample, lambda x: _BFloat16Tensor(_pdf(x)), "square",
                              n_samples=4000),
     lambda: mv.check_unbiased(_BFloat16Tensor(_EST), 2.0),
+    lambda: mv.check_unbiased(_EST, _BFloat16Tensor(2.0)),
     lambda: mv.compare_images(_BFloat16Tensor(_IMG), _IMG, test_var=_IMG, ref_var=_IMG,
                               test_n=16, ref_n=16),
-], ids=["points", "pdf", "estimates", "image"])
+], ids=["points", "pdf", "estimates", "expected", "image"])
 def test_bfloat16_is_refused_saying_to_judge_a_float32_version(call):
     """bfloat16 (a differentiable renderer's) was refused as "not an array of numbers
     (Got unsupported ScalarType BFloat16)" (JAX's as "dtype bfloat16: expected real
@@ -188,3 +191,29 @@ def test_bfloat16_is_refused_saying_to_judge_a_float32_version(call):
     with pytest.raises(mv.InvalidArgument, match=r"bfloat16 values .*judge a float32 "
                                                  r"version: t\.float\(\)"):
         call()
+
+
+class _TorchLike:
+    """A torch tensor as numpy meets it: its ``dtype`` is torch's (``torch.float32``),
+    none of numpy's, and ``np.asarray`` reads its values."""
+
+    dtype = "torch.float32"
+
+    def __init__(self, a):
+        self._a = np.asarray(a)
+
+    def __array__(self, dtype=None, copy=None):
+        return self._a if dtype is None else self._a.astype(dtype)
+
+
+@pytest.mark.parametrize("store", [np.float32, np.float16])
+def test_images_given_as_torch_tensors_are_read_by_their_values_type(store):
+    """Every image given as a torch tensor raised numpy's bare "Cannot interpret
+    'torch.float32' as a data type": the images' rounding read their ``dtype``, which is
+    torch's. Their values' type is read, float16's rounding kept (the verdict as for the
+    same numpy arrays)."""
+    a = _IMG.astype(store)
+    got = mv.compare_images(_TorchLike(a), a, test_var=_TorchLike(a), ref_var=a,
+                            test_n=16, ref_n=16)
+    want = mv.compare_images(a, a, test_var=a, ref_var=a, test_n=16, ref_n=16)
+    assert got.passed and got.p_value == want.p_value
