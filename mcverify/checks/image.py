@@ -398,7 +398,7 @@ def _factor_named(k: float) -> str:
             "strength, the exposure, a unit): find where the factor comes from")
 
 
-def _undone(test_mean, test_var, test_passes, ref_mean, n):
+def _undone(test_mean, test_var, test_passes, ref_mean):
     """(description, (mean, var, passes) undone) of each convention the test image may
     have been stored in: ``_LAYOUTS`` where the undone grid has the reference's shape, a
     constant factor (the ratio of the image means), and sRGB encoding where every value
@@ -444,7 +444,7 @@ def _convention(test_mean, ref_mean, kw):
     (upside down, gamma-encoded, a factor π off) where to look."""
     nt, nr = int(kw["test_n"]), int(kw["ref_n"])
     rv = validate.as_array("ref_var", kw["ref_var"])
-    candidates = list(_undone(test_mean, kw["test_var"], kw["test_passes"], ref_mean, nt))
+    candidates = list(_undone(test_mean, kw["test_var"], kw["test_passes"], ref_mean))
     if not candidates:
         return None
     misfits = [_misfit(m, v, ref_mean, rv, nt, nr) for _, (m, v, _) in candidates]

@@ -979,6 +979,18 @@ def _channels_hint(test_shape, ref_shape) -> str:
             "(rgb, as the reference scene's film), not one as luminance")
 
 
+def _shape_hint(test_shape, ref_shape) -> str:
+    """``_channels_hint``, else what ``compare_images`` says of such shapes (a transposed
+    image, another resolution, an alpha channel; until 7 December the CLI gave none of
+    it, an outside review's found-not-fixed)."""
+    from ..checks.image import shape_hint
+
+    hint = _channels_hint(test_shape, ref_shape)
+    if hint or len(test_shape) != 3 or len(ref_shape) != 3:
+        return hint
+    return shape_hint(test_shape, ref_shape)
+
+
 def _cmd_compare(args) -> int:
     from . import reference
     from ..checks import compare_images
@@ -1063,7 +1075,7 @@ def _cmd_compare(args) -> int:
     label = test_image or args.test_passes
     if test.mean.shape != ref_mean.shape:
         raise InvalidArgument(f"{label}: shape {test.mean.shape} differs from the "
-                              f"reference's {ref_mean.shape}" + _channels_hint(
+                              f"reference's {ref_mean.shape}" + _shape_hint(
                                   test.mean.shape, ref_mean.shape))
     # half pass images (``pass_stats``): their rounding is no evidence
     stored = [s.precision for s in (test, ref if ref_load is not None else None)

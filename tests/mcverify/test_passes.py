@@ -534,6 +534,13 @@ def test_luminance_passes_against_an_rgb_reference_are_refused_naming_pixel_form
                        capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert r.returncode == 2 and "differs from the reference's (8, 8, 3)" in r.stderr and \
         "channel" not in r.stderr, r.stdout + r.stderr
+    # another resolution of the same aspect is named, as compare_images names it (until
+    # 7 December the CLI's refusal did not say)
+    _write(tmp_path / "d", rng.gamma(2.0, 0.5, (4, 16, 16, 3)))
+    r = subprocess.run(CMD + ["compare", "--test-passes", "d/pass_*.exr", *ref],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and "2 times the reference's resolution" in r.stderr, \
+        r.stdout + r.stderr
 
 
 def test_compare_json_names_what_was_compared(tmp_path):
