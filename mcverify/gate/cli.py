@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import difflib
 import glob
 import json
 import os
@@ -83,8 +84,19 @@ class _Parser(argparse.ArgumentParser):
             kw["action"] = _Once
         return super().add_argument(*args, **kw)
 
+    def _check_value(self, action, value):
+        # a misspelt command or choice: "did you mean", as argparse says it from 3.14 on
+        if action.choices is not None and value not in action.choices:
+            close = difflib.get_close_matches(value, list(action.choices), n=1)
+            if close:
+                raise argparse.ArgumentError(action, f"invalid choice: {value!r}; did you "
+                                                     f"mean {close[0]!r}?")
+        super()._check_value(action, value)
+
     def error(self, message):  # one line, exit 2 (argparse's own convention too)
-        self.exit(EXIT_BAD_INPUT, f"mcverify: error: {message} (see `mcverify --help`)\n")
+        # this parser's own help: a command's options are in `mcverify check --help`,
+        # not in `mcverify --help`, which every error named (an outside review)
+        self.exit(EXIT_BAD_INPUT, f"mcverify: error: {message} (see `{self.prog} --help`)\n")
 
 
 def _same_file(a: str, b: str) -> bool:
@@ -1511,10 +1523,58 @@ def main(argv=None) -> int:
     if extra:       # as parse_args says it, with the unquoted glob's hint where it applies
         # the hint only where every extra is a file argument: an unknown option with it
         # read as a glob's fault (a read-only review)
-        parser.error(f"unrecognized arguments: {' '.join(extra)}"
-                     + _expanded_glob(args, not any(e.startswith("-") for e in extra)))
+        command = _command_parser(parser, args)
+        command.error(f"unrecognized arguments: {' '.join(extra)}"
+                      + _unknown_option_hint(parser, command, extra)
+                      + _expanded_glob(args, not any(e.startswith("-") for e in extra)))
     with _sigterm_unwinds():
         return _main(args)
+
+
+def _subcommands(parser) -> dict:
+    """The parsers of ``parser``'s commands (or of ``reference``'s actions), by name."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices
+    return {}
+
+
+def _command_parser(parser, args):
+    """The parser of the command ``args`` ran: ``mcverify reference build``'s for it."""
+    for name, sub in _subcommands(parser).items():
+        if name in (args.command, getattr(args, "action", None)):
+            return _command_parser(sub, args)
+    return parser
+
+
+def _options(parser) -> dict:
+    """Every option string of every command, to the commands that take it."""
+    found = {}
+    for sub in _subcommands(parser).values():
+        for option in sub._option_string_actions:
+            found.setdefault(option, []).append(sub.prog.removeprefix("mcverify "))
+        for option, commands in _options(sub).items():
+            found.setdefault(option, []).extend(commands)
+    return found
+
+
+def _unknown_option_hint(parser, command, extra) -> str:
+    """Where the first unknown option of ``extra`` is: another command's (``check --spp``:
+    render-check's), or one of this command's misspelt (``--sed``: ``--seed``). argparse
+    said "unrecognized arguments: --sed 3" alone, as Python before 3.14 does."""
+    option = next((e.split("=", 1)[0] for e in extra if e.startswith("-") and len(e) > 1),
+                  None)
+    if option is None:
+        return ""
+    own = command.prog.removeprefix("mcverify ")
+    if option in parser._option_string_actions:
+        return f"; {option} goes before the command: mcverify {option}"
+    elsewhere = [c for c in _options(parser).get(option, []) if c != own]
+    if elsewhere:
+        named = ", ".join(elsewhere[:-1]) + " and " * (len(elsewhere) > 1) + elsewhere[-1]
+        return f"; {option} is an option of {named}, not of {own}"
+    close = difflib.get_close_matches(option, list(command._option_string_actions), n=1)
+    return f"; did you mean {close[0]}?" if close else ""
 
 
 def _threading_layer(command: str) -> None:

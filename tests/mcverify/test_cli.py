@@ -265,3 +265,36 @@ def test_an_output_naming_the_dask_scheduler_file_exits_2_before_any_work(
     err = capsys.readouterr().err
     assert "is also an input" in err and str(sched) in err, err
     assert sched.read_text() == '{"address": "tcp://127.0.0.1:1"}'
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["check", "--sed", "3"], "unrecognized arguments: --sed 3; did you mean --seed? "
+                              "(see `mcverify check --help`)"),
+    (["check", "--spp", "16"], "--spp is an option of bench, reference build and "
+                               "render-check, not of check (see `mcverify check --help`)"),
+    (["list", "--json=x.json"], "--json is an option of check, bench, compare and "
+                                "render-check, not of list (see `mcverify list --help`)"),
+    (["check", "--version"], "--version goes before the command: mcverify --version"),
+    (["render-check", "cornell-box", "--seed"], "argument --seed: expected one argument "
+                                                "(see `mcverify render-check --help`)"),
+    (["reference", "build", "--pases", "4"], "did you mean --passes? (see `mcverify "
+                                             "reference build --help`)"),
+    (["chek"], "invalid choice: 'chek'; did you mean 'check'? (see `mcverify --help`)"),
+    (["report", "--suite", "ful"], "invalid choice: 'ful'; did you mean 'full'?"),
+    (["check", "foo"], "unrecognized arguments: foo (see `mcverify check --help`)"),
+], ids=["misspelt", "another-commands", "another-commands-with-value", "top-level",
+        "missing-value", "nested-command", "command", "choice", "no-hint"])
+def test_a_usage_error_points_at_the_commands_help_and_the_option_meant(argv, needle,
+                                                                       capsys):
+    """Every usage error ended "(see `mcverify --help`)", a page that lists the commands
+    but none of their options, and a misspelt or misplaced option was "unrecognized
+    arguments: --sed 3" alone (argparse before Python 3.14 suggests nothing): the error
+    now names the command's own help, the option meant where one is close, and the
+    commands that take an option given to another (an outside review)."""
+    from mcverify.gate import cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and needle in err, err
+    assert len(err.strip().splitlines()) == 1
