@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 import threading
+import textwrap
 import time
 
 from .._validate import decimal_int
@@ -44,6 +45,16 @@ output files (--json, --junit) are written when the run ends: a regular file is 
 atomically, a symlink is followed to its target, a FIFO or device (/dev/stdout) is
 written into, missing folders are made; paths are checked before any work; an option
 given twice exits 2"""
+
+
+def _command_epilog(ok: str, failed: str | None = None) -> str:
+    """A command's exit codes: what its own 0 (and 1, where it judges) mean, then those
+    every command shares. Only check, compare and render-check showed any: ``report
+    --help`` did not say that a failed check exits 1, nor ``bench --help`` that no
+    ratio does."""
+    lines = EPILOG.splitlines()
+    own = [f"  0    {ok}"] + ([f"  1    {failed}"] if failed else [])
+    return "\n".join(lines[:1] + own + lines[3:])
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter):
@@ -75,6 +86,8 @@ class _Once(argparse.Action):
 class _Parser(argparse.ArgumentParser):
     def __init__(self, *a, **kw):
         kw.setdefault("formatter_class", _Formatter)
+        if kw.get("description"):   # the raw formatter keeps the epilog's layout, not this
+            kw["description"] = textwrap.fill(kw["description"], 88)
         super().__init__(*a, **kw)
 
     def add_argument(self, *args, **kw):
@@ -1231,7 +1244,13 @@ def build_parser() -> argparse.ArgumentParser:
     seed_help = f"master seed, 0 to {MAX_SEED}; each check's seed derives from it"
     quiet_help = "no progress lines on stderr"
 
-    c = sub.add_parser("check", help="run a verification suite (the CI gate)", epilog=EPILOG)
+    c = sub.add_parser("check", help="run a verification suite (the CI gate)",
+                       description="Run a verification suite (the CI gate): each check draws "
+                       "seeded samples and all are judged at one family-wise alpha; a line "
+                       "per check on stderr, the verdict on stdout.",
+                       epilog=_command_epilog("all checks passed (and every canary was "
+                                              "bitten)", "a check failed or a canary "
+                                              "survived"))
     c.add_argument("--suite", metavar="SUITE", help=any_suite_help)
     c.add_argument("--scene", metavar="SCENE.xml",
                    help="plan the checks from a scene (and run its render check): a scene "
@@ -1262,13 +1281,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_refs_option(c)
     c.set_defaults(func=_cmd_check)
 
-    ls = sub.add_parser("list", help="list the checks of a suite")
+    ls = sub.add_parser("list", help="list the checks of a suite",
+                        description="List the checks of a suite, one name a line: the "
+                        "names -k selects from. Runs nothing.",
+                        epilog=_command_epilog("the checks were listed"))
     ls.add_argument("--suite", metavar="SUITE", help=any_suite_help)
     ls.add_argument("-k", metavar="PATTERN", help="only checks whose name contains PATTERN "
                     "(or matches it as a glob); default: all; no match exits 2")
     ls.set_defaults(func=_cmd_list)
 
-    pl = sub.add_parser("plan", help="the checks a scene needs, and what is skipped")
+    pl = sub.add_parser("plan", help="the checks a scene needs, and what is skipped",
+                        description="The checks a scene needs (its BSDFs, emitters, "
+                        "textures and integrator), and what is skipped and why: what "
+                        "`mcverify check --scene` runs. Runs nothing.",
+                        epilog=_command_epilog("the plan was printed"))
     pl.add_argument("scene", metavar="SCENE.xml", nargs="?",
                     help="a Mitsuba XML scene, its folder or a reference name")
     pl.add_argument("--scene", dest="scene_option", metavar="SCENE.xml",
@@ -1279,7 +1305,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_refs_option(pl)
     pl.set_defaults(func=_cmd_plan)
 
-    rp = sub.add_parser("report", help="convergence, efficiency and verification report")
+    rp = sub.add_parser("report", help="convergence, efficiency and verification report",
+                        description="Convergence, efficiency and verification report: "
+                        "runs the suite, a convergence study and the reference renders, "
+                        "and writes report.json, report.html and its PNGs into --out.",
+                        epilog=_command_epilog(
+                            "the report was written and found nothing wrong",
+                            "a check failed, a canary survived, or a convergence row or a "
+                            "render was\n       judged wrong (the report is written all "
+                            "the same)"))
     rp.add_argument("--out", default=os.path.join("reports", "report"), metavar="DIR",
                     help="folder for report.json, report.html and the PNGs")
     rp.add_argument("--suite", choices=("default", "full"), default="default", help=suite_help)
@@ -1296,7 +1330,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_refs_option(rp)
     rp.set_defaults(func=_cmd_report)
 
-    b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios")
+    b = sub.add_parser("bench", help="run time, ours vs Mitsuba, as ratios",
+                       description="Run time, ours vs Mitsuba, as ratios: a measurement, "
+                       "not a verdict.",
+                       epilog=_command_epilog("the timings were printed (whatever the "
+                                              "ratios: bench judges nothing)"))
     b.add_argument("--json", metavar="PATH", help="write the timings as JSON; default: none")
     b.add_argument("--repeats", type=decimal_int, default=5,
                    help="timed repetitions per workload, at least (a workload is also "
@@ -1311,10 +1349,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_refs_option(b)
     b.set_defaults(func=_cmd_bench)
 
-    ref = sub.add_parser("reference", help="Mitsuba reference renders")
+    ref = sub.add_parser("reference", help="Mitsuba reference renders",
+                         description="Mitsuba reference renders, which render-check, "
+                         "compare and check --scene compare against.")
     rsub = ref.add_subparsers(dest="action", required=True, parser_class=_Parser,
                               metavar="ACTION")
-    rb = rsub.add_parser("build", help="(re)render references with per-pixel variance")
+    rb = rsub.add_parser("build", help="(re)render references with per-pixel variance",
+                         description="(Re)render references with Mitsuba, with per-pixel "
+                         "variance from independent passes, into a folder beside each "
+                         "scene file (ref/ beside a scene.xml, ref-NAME beside any other: "
+                         "mean.exr, var.exr, manifest.json), replacing the one there.",
+                         epilog=_command_epilog("the references were written"))
     rb.add_argument("scenes", nargs="*", metavar="SCENE",
                     help="reference names or scene.xml paths (default: all)")
     rb.add_argument("--spp", type=decimal_int, default=256,
@@ -1331,7 +1376,9 @@ def build_parser() -> argparse.ArgumentParser:
     rb.set_defaults(func=_cmd_reference_build)
 
     cp = sub.add_parser("compare", help="compare any renderer's EXR with a reference",
-                        epilog=EPILOG)
+                        description="Compare any renderer's EXR with a reference, pixel by "
+                        "pixel (per-pixel Welch t-tests at one family-wise alpha).",
+                        epilog=_command_epilog("the images agree", "the images differ"))
     cp.add_argument("images", nargs="*", metavar="IMAGE",
                     help="TEST.exr REF; only REF with --test-passes, only TEST.exr with "
                          "--ref-passes, none with both. TEST.exr: the image under test "
@@ -1378,7 +1425,11 @@ def build_parser() -> argparse.ArgumentParser:
     cp.set_defaults(func=_cmd_compare)
 
     rc = sub.add_parser("render-check", help="our path tracer against the scene's Mitsuba "
-                        "reference, pixel by pixel", epilog=EPILOG)
+                        "reference, pixel by pixel",
+                        description="Render the scene with our path tracer and compare it "
+                        "with its Mitsuba reference, pixel by pixel (a missing reference "
+                        "is built first).",
+                        epilog=_command_epilog("the images agree", "the images differ"))
     rc.add_argument("scene", metavar="SCENE", help="scene.xml path or reference name")
     rc.add_argument("--spp", type=decimal_int, default=1024,
                     help="samples per pixel IN ALL, split over --passes (at least "

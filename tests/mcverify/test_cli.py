@@ -298,3 +298,33 @@ def test_a_usage_error_points_at_the_commands_help_and_the_option_meant(argv, ne
     err = capsys.readouterr().err
     assert e.value.code == 2 and needle in err, err
     assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["check"], ["Run a verification suite", "  1    a check failed or a canary survived"]),
+    (["list"], ["List the checks of a suite", "  0    the checks were listed", "  2    "]),
+    (["plan"], ["The checks a scene needs", "  0    the plan was printed", "  2    "]),
+    (["report"], ["writes report.json, report.html", "  1    a check failed, a canary "
+                  "survived, or a convergence row"]),
+    (["bench"], ["not a verdict", "bench judges nothing", "  2    "]),
+    (["reference", "build"], ["replacing the one there", "  0    the references were "
+                              "written", "  2    "]),
+    (["compare"], ["Compare any renderer's EXR", "  1    the images differ"]),
+    (["render-check"], ["Render the scene with our path tracer", "  1    the images differ"]),
+], ids=["check", "list", "plan", "report", "bench", "reference-build", "compare",
+        "render-check"])
+def test_each_commands_help_says_what_it_does_and_what_it_exits_with(argv, says, capsys):
+    """`mcverify COMMAND --help` began with the options: no line said what the command
+    does, and list, plan, report, bench and reference build stated no exit code, so
+    `report --help` did not say that a failed check exits 1 (a CI gate's question), nor
+    `bench --help` that no ratio does (an outside review). Each says both now."""
+    from mcverify.gate import cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(argv + ["--help"])
+    out = capsys.readouterr().out
+    assert e.value.code == 0
+    for text in says:
+        assert text in out, (text, out)
+    if argv[0] in ("list", "plan", "bench", "reference"):   # they judge nothing
+        assert "\n  1    " not in out, out
