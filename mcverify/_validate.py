@@ -121,9 +121,12 @@ def label(v, default: str) -> str:
 
 
 def probability(name: str, v) -> float:
-    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not (0.0 < v < 1.0):
+    # a 0-d array is its number here too: alpha=jnp.float32(0.05) was refused as "must
+    # be a number strictly between 0 and 1" (a review of the README's 0-d sentence)
+    x = scalar(v)
+    if isinstance(x, bool) or not isinstance(x, numbers.Real) or not (0.0 < x < 1.0):
         raise InvalidArgument(f"{name}={_show(v)}: must be a number strictly between 0 and 1")
-    return float(v)
+    return float(x)
 
 
 def scalar(v):

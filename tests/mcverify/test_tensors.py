@@ -151,6 +151,24 @@ def test_a_0d_array_is_a_real_argument(wrap):
         mv.check_unbiased(x, wrap([0.5]))       # one element of an array stays refused
 
 
+@pytest.mark.parametrize("wrap", [_JaxArray, _GradTensor], ids=["jax", "torch-grad"])
+def test_a_0d_array_is_a_probability(wrap):
+    """``alpha=jnp.float32(0.05)`` (what jnp arithmetic such as ``0.05 / jnp.array(k)``
+    gives) was refused as "alpha=Array(0.05, dtype=float32): must be a number strictly
+    between 0 and 1", a value that is (a review of the 0-d sentence); it is its number,
+    the verdict that of the Python float, and one outside (0, 1) is still refused."""
+    x = np.random.default_rng(3).normal(1.0, 1.0, 1000)
+    for alpha in (np.float32(0.05), np.float64(0.05)):
+        r = mv.check_unbiased(x, 1.0, alpha=wrap(alpha))
+        assert r.alpha == float(alpha) and r.p_value == mv.check_unbiased(x, 1.0).p_value
+    assert mv.check_sampler(_sample, _pdf, "square", n_samples=4000,
+                            alpha=wrap(0.05)).alpha == 0.05
+    assert mv.compare_images(_IMG, _IMG, test_var=_IMG, ref_var=_IMG, test_n=4, ref_n=4,
+                             alpha=wrap(0.05)).passed
+    with pytest.raises(mv.InvalidArgument, match=r"alpha=.*: must be a number strictly"):
+        mv.check_unbiased(x, 1.0, alpha=wrap(1.5))
+
+
 class _BFloat16Tensor:
     """A torch bfloat16 tensor as numpy meets it: ``np.asarray`` raises torch's
     TypeError (torch 2.13: "Got unsupported ScalarType BFloat16")."""
