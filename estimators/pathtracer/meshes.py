@@ -1,4 +1,5 @@
-"""PLY triangle meshes, read as Mitsuba 3's ``ply`` shape reads them.
+"""PLY and serialized triangle meshes, read as Mitsuba 3's ``ply`` and ``serialized``
+shapes read them.
 
 Formats ``ascii``, ``binary_little_endian`` and ``binary_big_endian`` (version 1.0), the
 scalar types of the PLY standard and Mitsuba's aliases (``uint8`` ... ``float64``,
@@ -14,9 +15,9 @@ scalar types of the PLY standard and Mitsuba's aliases (``uint8`` ... ``float64`
   read past and ignored: they change no image unless a texture reads them, which the
   tracer does not support.
 
-Refused, with ``SceneError`` naming the file and what is wrong: a malformed header, a
-truncated body, trailing content after the last element (Mitsuba refuses it too),
-non-triangle faces, vertex indices out of range, an ASCII integer field written as a
+PLY files refused, with ``SceneError`` naming the file and what is wrong: a malformed
+header, a truncated body, trailing content after the last element (Mitsuba refuses it
+too), non-triangle faces, vertex indices out of range, an ASCII integer field written as a
 float (``2.0``), non-finite positions or uv, positions,
 normals or uv stored as integers (Mitsuba would read them normalised to [0, 1] through
 an sRGB curve), a list property other than the face's indices, and two sets of uv names
@@ -26,10 +27,17 @@ A reader of our own rather than ``plyfile``: the rules above are Mitsuba's, not 
 standard's (which allows polygons and integer coordinates), so they would have to be
 checked on top of any general reader; with fixed three-index faces every element is a
 fixed-size record, which numpy's structured dtypes read in one call.
+
+Mitsuba's ``serialized`` meshes (``read_serialized``): versions 3 and 4, any mesh of
+a file by ``shape_index``, positions, normals and uv in single or double precision,
+vertex colours read past; a file whose header, end-of-file dictionary or zlib stream is
+broken, that ends early, or whose triangles refer to vertices it lacks is refused, as
+are non-finite positions, normals or uv (Mitsuba holds them as NaN).
 """
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +45,7 @@ import numpy as np
 from .scene import SceneError
 from .text_numbers import FLOAT32_OVERFLOW
 
-__all__ = ["PlyMesh", "read_ply", "write_ply"]
+__all__ = ["PlyMesh", "read_ply", "read_serialized", "write_ply"]
 
 # PLY type names (standard and Mitsuba's aliases) -> numpy type codes
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -365,3 +373,143 @@ def write_ply(path: str, vertices, faces, *, normals=None, uvs=None, uv_names=("
             for row in rec.tolist():
                 out.write(" ".join(repr(x) if isinstance(x, float) else str(x)
                                    for x in row).encode() + b"\n")
+
+
+# ------------------------------------------------------------------ Mitsuba's serialized
+#: the format identifier and the versions Mitsuba 3.9.1 reads (3: uint32 offsets in the
+#: end-of-file dictionary, 4: uint64 offsets and a name per mesh)
+SERIALIZED_MAGIC = 0x041C
+SERIALIZED_VERSIONS = (3, 4)
+#: the flags word's bits that change the layout (0x0010, "face normals", and 0x1000,
+#: single precision, are ignored by Mitsuba 3.9.1: single is what is not double)
+_HAS_NORMALS, _HAS_UVS, _HAS_COLOURS, _DOUBLE = 0x0001, 0x0002, 0x0008, 0x2000
+#: compressed bytes fed to zlib at a time (the inflated data grows only as it is read)
+_INFLATE_CHUNK = 1 << 20
+
+
+class _Inflated:
+    """The zlib stream of one mesh, inflated as far as it is read; ``read`` refuses a
+    stream that is corrupt, ends early or inflates beyond ``cap`` bytes."""
+
+    def __init__(self, data: memoryview, fail, cap: int):
+        self._data, self._fail, self._cap = data, fail, cap
+        self._z, self._fed, self._buf, self._pos = zlib.decompressobj(), 0, bytearray(), 0
+
+    def read(self, n: int, what: str) -> bytes:
+        while len(self._buf) - self._pos < n:
+            if self._z.eof or self._fed >= len(self._data):
+                self._fail(f"truncated: its compressed data ends {len(self._buf)} bytes in, "
+                           f"short of {what}")
+            chunk = self._data[self._fed:self._fed + _INFLATE_CHUNK]
+            self._fed += len(chunk)
+            try:
+                self._buf += self._z.decompress(chunk)
+            except zlib.error as e:
+                self._fail(f"its compressed data is corrupt (zlib: {e})")
+            if len(self._buf) > self._cap:
+                self._fail(f"its mesh inflates beyond {self._cap} bytes")
+        out = bytes(self._buf[self._pos:self._pos + n])
+        self._pos += n
+        return out
+
+    def name(self) -> None:
+        """Read past a version 4 mesh's NUL-terminated name."""
+        while self.read(1, "the mesh's name (a NUL-terminated string)") != b"\0":
+            pass
+
+
+def _serialized_offset(data: bytes, version: int, shape_index: int, fail) -> int:
+    """Where mesh ``shape_index`` starts, from the end-of-file dictionary (as Mitsuba
+    seeks it: mesh 0 starts the file, the dictionary is read for the others only)."""
+    if shape_index == 0:
+        return 0
+    if len(data) < 8:
+        fail(f"shape_index={shape_index}, but the file is too short to hold the "
+             "end-of-file dictionary of its meshes")
+    count = int(np.frombuffer(data, "<u4", 1, len(data) - 4)[0])
+    if shape_index >= count:
+        # Mitsuba reads one entry past the dictionary at shape_index == count
+        fail(f"shape_index={shape_index}, but the file holds {count} mesh"
+             f"{'' if count == 1 else 'es'} (indices 0 to {count - 1})")
+    size = 8 if version == 4 else 4
+    at = len(data) - 4 - size * (count - shape_index)
+    if at < 0:
+        fail(f"its end-of-file dictionary claims {count} meshes, more than the file holds")
+    offset = int(np.frombuffer(data, f"<u{size}", 1, at)[0])
+    if offset > len(data) - 4 or data[offset:offset + 4] != data[:4]:
+        fail(f"the end-of-file dictionary puts mesh {shape_index} at byte {offset}, "
+             "where no mesh header is")
+    return offset
+
+
+def read_serialized(path: str, shape_index: int = 0, *, normals: bool = True,
+                    cap: int = 1 << 30) -> PlyMesh:
+    """Mesh ``shape_index`` of a Mitsuba ``.serialized`` file (versions 3 and 4, single or
+    double precision, with or without normals, uv and vertex colours, which are read
+    past), as Mitsuba 3.9.1's ``serialized`` shape reads it; ``SceneError`` naming the
+    file and the problem. ``normals=False`` reads past the normals (``face_normals``).
+    ``cap``: the most bytes one mesh may inflate to."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        raise SceneError(f"cannot read {path} ({e.strerror})") from None
+
+    def fail(msg):
+        raise SceneError(f"{path}: not a serialized mesh Mitsuba reads: {msg}")
+
+    if len(data) < 4:
+        fail(f"{len(data)} bytes, shorter than its 4-byte header")
+    magic, version = (int(x) for x in np.frombuffer(data, "<u2", 2))
+    if magic != SERIALIZED_MAGIC:
+        fail(f"it starts with 0x{magic:04X}, not the format identifier 0x041C")
+    if version not in SERIALIZED_VERSIONS:
+        fail(f"format version {version}; Mitsuba reads versions 3 and 4")
+    if shape_index < 0:
+        fail(f"shape_index={shape_index}; it must be >= 0")
+    start = _serialized_offset(data, version, shape_index, fail) + 4
+    where = f"mesh {shape_index}" if shape_index else "the mesh"
+
+    def fail_mesh(msg):
+        fail(f"{where}: {msg}")
+
+    z = _Inflated(memoryview(data)[start:], fail_mesh, cap)
+    flags = int(np.frombuffer(z.read(4, "the flags"), "<u4")[0])
+    if version == 4:
+        z.name()
+    n_verts, n_faces = (int(x) for x in np.frombuffer(z.read(16, "the counts"), "<u8"))
+    ftype = np.dtype("<f8" if flags & _DOUBLE else "<f4")
+    widths = (3, 3 * bool(flags & _HAS_NORMALS), 2 * bool(flags & _HAS_UVS),
+              3 * bool(flags & _HAS_COLOURS))
+    size = n_verts * sum(widths) * ftype.itemsize + n_faces * 12
+    if size > cap:
+        fail_mesh(f"its {n_verts} vertices and {n_faces} triangles would take {size} "
+                  f"bytes, beyond the {cap} bytes a mesh may take")
+
+    def array(width, what):
+        raw = z.read(n_verts * width * ftype.itemsize, what)
+        return np.frombuffer(raw, ftype).reshape(n_verts, width).astype(np.float64)
+
+    verts = array(3, f"its {n_verts} vertex positions")
+    _refuse_unstorable(verts, path, "a non-finite position")
+    vnormals = array(3, "its vertex normals") if widths[1] else None
+    if not normals:
+        vnormals = None
+    elif vnormals is not None:
+        _refuse_unstorable(vnormals, path, "a normal that is not finite",
+                           "; Mitsuba renders its triangles black")
+    uvs = array(2, "its texture coordinates") if widths[2] else None
+    if uvs is not None:
+        _refuse_unstorable(uvs, path, "texture coordinates that are not finite")
+    if widths[3]:
+        array(3, "its vertex colours")
+    faces = np.frombuffer(z.read(n_faces * 12, f"its {n_faces} triangles"),
+                          "<u4").reshape(n_faces, 3).astype(np.int64)
+    if n_faces == 0:
+        raise SceneError(f"{path}: {where} has no triangles")
+    bad = faces >= n_verts
+    if bad.any():
+        k = int(np.argmax(bad.any(axis=1)))
+        fail_mesh(f"triangle {k} refers to vertex {int(faces[k][bad[k]][0])}; the mesh "
+                  f"has {n_verts} vertices")
+    return PlyMesh(verts, faces, vnormals, uvs)

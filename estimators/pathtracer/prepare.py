@@ -2,10 +2,10 @@
 ``arrays`` is a ``layout.SceneArrays``). Nothing is compiled here: numba compiles the
 kernel in ``render``.
 
-Shapes become primitives (rectangles and cubes two triangles a face, OBJ and PLY meshes
-their triangles; spheres and disks stay analytic), BSDFs and emitters become rows of
-parameter tables, images become one texture store, and the whole is indexed by the SAH
-hierarchy.
+Shapes become primitives (rectangles and cubes two triangles a face, OBJ, PLY and
+serialized meshes their triangles; spheres and disks stay analytic), BSDFs and emitters
+become rows of parameter tables, images become one texture store, and the whole is
+indexed by the SAH hierarchy.
 Mitsuba's defaults apply wherever the XML is silent (a shape without a BSDF is diffuse
 0.5, or black if it emits; roughconductor and roughplastic default to Beckmann α = 0.1;
 dielectric to BK7 in air; plastic to polypropylene in air; conductor to a perfect mirror).
@@ -28,7 +28,7 @@ from .bsdfs import fresnel_diffuse_reflectance, rough_coat_tables
 from .camera import Camera, camera_from_scene
 from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
-from .meshes import read_ply
+from .meshes import read_ply, read_serialized
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
                     file_problem, load_scene, scene_path)
 from .text_numbers import (FLOAT32_OVERFLOW, SPACE, ascii_lower, finite_in_float32,
@@ -657,9 +657,9 @@ class _Builder:
             if np.linalg.det(lin) < 0:          # keep the normal Mitsuba's transform gives
                 faces = [(a, c, b) for a, b, c in faces]
             self._triangles(verts @ lin.T + off, faces, None, uvs)
-        elif s.type in ("obj", "ply"):
+        elif s.type in ("obj", "ply", "serialized"):
             verts, faces, normals, uvs, pidx = (self._obj(s) if s.type == "obj"
-                                                else self._ply(s))
+                                                else self._indexed_mesh(s))
             wverts = verts @ lin.T + off
             if s.get("face_normals", False):
                 normals = None
@@ -728,13 +728,16 @@ class _Builder:
         self.info += [(kind, index)] * (len(self.prims) - n_before)
         return n_before, len(self.prims) - n_before, kind
 
-    def _ply(self, s: Plugin):
-        """A PLY mesh as (vertices, faces, the file's normals or None, uvs, the position
-        index of each vertex): per vertex when the file has uv, else one vertex per face
-        corner with Mitsuba's barycentric uv."""
+    def _indexed_mesh(self, s: Plugin):
+        """A PLY or serialized mesh as (vertices, faces, the file's normals or None, uvs,
+        the position index of each vertex): per vertex when the file has uv, else one
+        vertex per face corner with Mitsuba's barycentric uv."""
         path = self._asset_path(s)      # refuses a missing file naming the shape itself
+        normals = not s.get("face_normals", False)
         try:
-            mesh = read_ply(path, normals=not s.get("face_normals", False))
+            mesh = (read_ply(path, normals=normals) if s.type == "ply" else
+                    read_serialized(path, s.get("shape_index", 0), normals=normals,
+                                    cap=MAX_ASSET_BYTES))
         except SceneError as e:
             self.fail(s, str(e))
         verts, faces, normals, uvs = mesh.vertices, mesh.faces, mesh.normals, mesh.uvs

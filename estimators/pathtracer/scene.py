@@ -9,7 +9,7 @@ Supported: ``scene``, ``default`` and ``$param`` substitution, ``ref``/``id``,
 integrators ``path`` and ``direct``, sensors ``perspective`` and ``orthographic`` with
 film ``hdrfilm``, ``rfilter`` ``box``, ``gaussian`` (the default) and ``tent``, samplers
 ``independent``, ``stratified``, ``multijitter``, ``orthogonal``; shapes ``rectangle``,
-``cube``, ``disk``, ``sphere``, ``obj``, ``ply``; BSDFs ``diffuse``, ``conductor``,
+``cube``, ``disk``, ``sphere``, ``obj``, ``ply``, ``serialized``; BSDFs ``diffuse``, ``conductor``,
 ``roughconductor``, ``dielectric``, ``roughdielectric``, ``thindielectric``, ``plastic``,
 ``roughplastic``, ``twosided``, ``blendbsdf``, ``mask``; emitters ``area``, ``point``,
 ``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values, ``bitmap`` and
@@ -184,7 +184,12 @@ SUPPORTED = {
                                **{mesh: {"filename": ("string",),
                                          "face_normals": ("boolean",),
                                          "flip_tex_coords": ("boolean",)}
-                                  for mesh in ("obj", "ply")}}.items()},
+                                  for mesh in ("obj", "ply")},
+                               # Mitsuba's serialized takes no flip_tex_coords (it
+                               # refuses it as unreferenced): its uv are read as stored
+                               "serialized": {"filename": ("string",),
+                                              "shape_index": ("integer",),
+                                              "face_normals": ("boolean",)}}.items()},
     "bsdf": {
         "diffuse": {"reflectance": _TEX},
         "conductor": {"material": ("string",), "eta": ("rgb", "float"), "k": ("rgb", "float"),

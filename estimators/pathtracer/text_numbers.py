@@ -27,7 +27,8 @@ INT32 = (-2 ** 31, 2 ** 31 - 1)
 #: integer properties Mitsuba 3.9.1 holds to 32 bits (it refuses max_depth 2^31 when it
 #: builds the integrator); a sampler's seed has its own range, [0, 2^32 - 1]
 INT32_PROPERTIES = ("max_depth", "rr_depth", "sample_count", "width", "height",
-                    "emitter_samples", "bsdf_samples", "shading_samples", "samples_per_pass")
+                    "emitter_samples", "bsdf_samples", "shading_samples", "samples_per_pass",
+                    "shape_index")
 
 
 def finite_in_float32(values) -> bool:

@@ -50,6 +50,7 @@ NEEDS: dict[str, tuple[set[tuple[str, str]], str]] = {
     "emitter:area:cube": _MESH_LIGHT,
     "emitter:area:obj": _MESH_LIGHT,
     "emitter:area:ply": _MESH_LIGHT,
+    "emitter:area:serialized": _MESH_LIGHT,
     "emitter:area:disk": (_pairs("sampler", "uniform_disk_concentric")
                           | _pairs("inverse", "uniform_disk_concentric"),
                           "disk lights are sampled by area"),
