@@ -235,3 +235,18 @@ def test_images_given_as_torch_tensors_are_read_by_their_values_type(store):
                             test_n=16, ref_n=16)
     want = mv.compare_images(a, a, test_var=a, ref_var=a, test_n=16, ref_n=16)
     assert got.passed and got.p_value == want.p_value
+
+
+def test_a_failing_comparison_of_tensors_that_require_grad_is_judged_and_guessed():
+    """The convention guess of a failing comparison read the images by np.asarray and
+    raised torch's "Can't call numpy() on Tensor that requires grad", where the
+    comparison itself had read them (a read-only review): a correct image 1.3 times the
+    reference fails, naming the factor, on either side."""
+    ref = np.random.default_rng(3).gamma(2.0, 0.5, (12, 12, 3)) + 0.5
+    var = np.full(ref.shape, 0.01)
+    r = mv.compare_images(_GradTensor(ref * 1.3), ref, test_var=_GradTensor(var * 1.69),
+                          ref_var=var, test_n=16, ref_n=16, perceptual=False)
+    assert not r.passed and "1.3 times the reference" in r.messages[-1], r.messages
+    r = mv.compare_images(ref * 1.3, _GradTensor(ref), test_var=var * 1.69,
+                          ref_var=_GradTensor(var), test_n=16, ref_n=16, perceptual=False)
+    assert not r.passed and r.details["convention"] is not None, r.messages
