@@ -86,6 +86,11 @@ class _Once(argparse.Action):
 class _Parser(argparse.ArgumentParser):
     def __init__(self, *a, **kw):
         kw.setdefault("formatter_class", _Formatter)
+        # no prefixes of options: `reference build --sp 4` (a typo of --seed, or of
+        # --spp) rebuilt every reference at 4 spp as --spp 4, and `check --sui default`
+        # ran as --suite (until 7 December; a read-only review's accident); a prefix is
+        # now an unknown option, with "did you mean" (_unknown_option_hint)
+        kw.setdefault("allow_abbrev", False)
         if kw.get("description"):   # the raw formatter keeps the epilog's layout, not this
             kw["description"] = textwrap.fill(kw["description"], 88)
         super().__init__(*a, **kw)

@@ -282,8 +282,15 @@ def test_an_output_naming_the_dask_scheduler_file_exits_2_before_any_work(
     (["chek"], "invalid choice: 'chek'; did you mean 'check'? (see `mcverify --help`)"),
     (["report", "--suite", "ful"], "invalid choice: 'ful'; did you mean 'full'?"),
     (["check", "foo"], "unrecognized arguments: foo (see `mcverify check --help`)"),
+    # a prefix of an option is no option: `reference build --sp 4` rebuilt every
+    # reference at 4 spp as --spp 4 until 7 December (a read-only review's accident)
+    (["reference", "build", "--sp", "4"], "unrecognized arguments: --sp; did you mean "
+                                          "--spp?"),
+    (["check", "--sui", "default"], "unrecognized arguments: --sui default; did you mean "
+                                    "--suite?"),
 ], ids=["misspelt", "another-commands", "another-commands-with-value", "top-level",
-        "missing-value", "nested-command", "command", "choice", "no-hint"])
+        "missing-value", "nested-command", "command", "choice", "no-hint", "prefix-build",
+        "prefix-check"])
 def test_a_usage_error_points_at_the_commands_help_and_the_option_meant(argv, needle,
                                                                        capsys):
     """Every usage error ended "(see `mcverify --help`)", a page that lists the commands
