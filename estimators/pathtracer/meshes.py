@@ -413,9 +413,16 @@ class _Inflated:
         return out
 
     def name(self) -> None:
-        """Read past a version 4 mesh's NUL-terminated name."""
-        while self.read(1, "the mesh's name (a NUL-terminated string)") != b"\0":
-            pass
+        """Read past a version 4 mesh's NUL-terminated name, a chunk at a time (a byte a
+        call took 1.2 s for a 3 MB name; a read-only review)."""
+        while True:
+            end = self._buf.find(b"\0", self._pos)
+            if end >= 0:
+                self._pos = end + 1
+                return
+            self._pos = len(self._buf)
+            if self.read(1, "the mesh's name (a NUL-terminated string)") == b"\0":
+                return
 
 
 def _serialized_offset(data: bytes, version: int, shape_index: int, fail) -> int:
@@ -438,7 +445,7 @@ def _serialized_offset(data: bytes, version: int, shape_index: int, fail) -> int
     offset = int(np.frombuffer(data, f"<u{size}", 1, at)[0])
     if offset > len(data) - 4 or data[offset:offset + 4] != data[:4]:
         fail(f"the end-of-file dictionary puts mesh {shape_index} at byte {offset}, "
-             "where no mesh header is")
+             "where the file's header (its format identifier and version) is not")
     return offset
 
 
