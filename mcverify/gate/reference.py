@@ -236,14 +236,28 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     dict, or its sorted items): the ``$name`` values the scene is loaded with, over its
     ``<default>``s, as Mitsuba takes them (the file a ``--param mesh=b.obj`` names was
     not the one stamped or hashed)."""
+    return _asset_files_and_namers(scene_path, params)[0]
+
+
+def scene_asset_namers(scene_path: str, params=None) -> dict[str, str]:
+    """The file that names each of ``scene_asset_files``'s names (the scene, or the
+    included file the name is written in), by the same key: a staleness message said
+    "textures/museum.exr (named by bsdf_diffuse.xml)" of a scene that names it only
+    through ``<include filename="include/matpreview.xml"/>``, Mitsuba's own
+    material-preview scenes."""
+    return _asset_files_and_namers(scene_path, params)[1]
+
+
+def _asset_files_and_namers(scene_path: str, params=None):
     defaults = {k: str(v).lower() if isinstance(v, bool) else str(v)
                 for k, v in dict(params or {}).items()}
     folder = os.path.dirname(os.path.abspath(scene_path))
     # (name, None) for a file an element names, found at the end through the scene's own
     # resolver; (name, folders) for an <include>, looked for in the resolver's folders as
     # they stood at it in the file being read
-    names, includes = [], set()
-    reading = {"here": folder, "resolver": [folder]}        # the file being read
+    names, includes, namers = [], set(), []
+    reading = {"here": folder, "resolver": [folder],        # the file being read
+               "file": os.path.abspath(scene_path)}
 
     def substitute(text):
         for key in sorted(defaults, key=len, reverse=True):    # as Mitsuba: longest first
@@ -256,12 +270,15 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
             defaults.setdefault(attrib["name"], substitute(attrib.get("value", "")))
         elif tag == "string" and attrib.get("name") == "filename" and "value" in attrib:
             names.append((attrib["value"], None))
+            namers.append(reading["file"])
         elif tag == "spectrum" and "filename" in attrib:
             # <spectrum name="reflectance" filename="x.spd"/>: Mitsuba reads the file
             # (into RGB in RGB variants), so a changed one changes the image
             names.append((attrib["filename"], None))
+            namers.append(reading["file"])
         elif tag == "include" and "filename" in attrib:
             names.append((attrib["filename"], tuple(reading["resolver"])))
+            namers.append(reading["file"])
             includes.add(names[-1])
         elif tag == "path" and "value" in attrib:
             d = substitute(attrib["value"])
@@ -272,6 +289,7 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     _parse_scene(scene_path, start)
     scene_resolver = list(reading["resolver"])      # the files elements name are found in
     out: dict[str, str] = {}
+    named_by: dict[str, str] = {}
     read = {os.path.realpath(scene_path)}
     i = 0
     while i < len(names):           # grows as included files are read
@@ -288,13 +306,24 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
         if key in out:
             continue
         out[key] = full
+        named_by[key] = namers[i - 1]
         if (name, at) in includes and os.path.isfile(full) and \
                 os.path.realpath(full) not in read:
             read.add(os.path.realpath(full))
             reading["here"] = os.path.dirname(full)
             reading["resolver"] = [reading["here"]] + list(at)
+            reading["file"] = full
             _parse_scene(full, start)
-    return out
+    return out, named_by
+
+
+def _named_by(scene_path: str, asset: str) -> str:
+    """The file that names ``asset``, and the scene that includes it where that is
+    another file (``include/m.xml, included by scene.xml``)."""
+    namer = scene_asset_namers(scene_path).get(asset)
+    if namer is None or os.path.realpath(namer) == os.path.realpath(scene_path):
+        return scene_path
+    return f"{namer}, included by {scene_path}"
 
 
 def _first(name: str, folders, there) -> str | None:
@@ -1089,8 +1118,9 @@ def _load(name: str, path: str) -> Reference:
             if "$" in asset:
                 now_file = scene_asset_files(path)[asset]
                 named += f" = {os.path.relpath(now_file, os.path.dirname(path) or '.')}"
-            raise EnvironmentProblem(f"{mpath}: stale: {named} (named by {path}) {what} "
-                                     f"since the reference was built; {rebuild}")
+            raise EnvironmentProblem(f"{mpath}: stale: {named} (named by "
+                                     f"{_named_by(path, asset)}) {what} since the "
+                                     f"reference was built; {rebuild}")
     labels = IMAGES + ((PASSES,) if "passes_sha256" in manifest else ())
     for label in labels:
         key = label.replace(".exr", "_sha256")

@@ -1,6 +1,7 @@
 """Reference renders and the compare gate, end to end through the CLI (real Mitsuba)."""
 
 import os
+import re
 import shutil
 import json
 import subprocess
@@ -572,6 +573,10 @@ def test_an_include_in_an_included_file_is_hashed_where_mitsuba_finds_it(tmp_pat
 
 
 def test_a_texture_changed_in_an_included_file_makes_the_reference_stale(tmp_path):
+    """The message names the included file that names the texture, and the scene that
+    includes it: it said "t.exr (named by scene.xml)", a file without that name (Mitsuba's
+    material-preview scenes name museum.exr in include/matpreview.xml; an outside
+    review)."""
     shutil.copy(os.path.join(SCENES, "textures", "checker.exr"), tmp_path / "t.exr")
     src = open(os.path.join(SCENES, "white-furnace", "scene.xml")).read()
     src = src.replace('<default name="res" value="64"/>', '<default name="res" value="4"/>')
@@ -587,7 +592,9 @@ def test_a_texture_changed_in_an_included_file_makes_the_reference_stale(tmp_pat
     assert set(reference.load_reference(str(tmp_path)).manifest["assets_sha256"]) == {
         "mat.xml", "t.exr"}
     (tmp_path / "t.exr").write_bytes((tmp_path / "t.exr").read_bytes() + b"\0")
-    with pytest.raises(EnvironmentProblem, match=r"stale: t.exr \(named by .*\) changed"):
+    mat, scene = re.escape(str(tmp_path / "mat.xml")), re.escape(str(tmp_path / "scene.xml"))
+    with pytest.raises(EnvironmentProblem, match=rf"stale: t.exr \(named by {mat}, included "
+                                                 rf"by {scene}\) changed"):
         reference.load_reference(str(tmp_path))
 
 
