@@ -279,8 +279,8 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/></sensor>')
 
 
 @pytest.mark.parametrize("body,needles", [
-    ('<shape type="serialized"><string name="filename" value="a.serialized"/></shape>',
-     ["s.xml:3", "unsupported shape type 'serialized'", "rectangle"]),
+    ('<shape type="cylinder"><float name="radius" value="0.5"/></shape>',
+     ["s.xml:3", "unsupported shape type 'cylinder'", "rectangle"]),
     ('<shape type="sphere"><float name="radiuss" value="1"/></shape>',
      ["s.xml:3", "unsupported property 'radiuss'", "radius"]),
     ('<emitter type="area"><rgb name="radiance" value="1"/></emitter>',
