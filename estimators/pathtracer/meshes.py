@@ -37,6 +37,7 @@ are non-finite positions, normals or uv (Mitsuba holds them as NaN).
 
 from __future__ import annotations
 
+import struct
 import zlib
 from dataclasses import dataclass
 
@@ -45,7 +46,8 @@ import numpy as np
 from .scene import SceneError
 from .text_numbers import FLOAT32_OVERFLOW
 
-__all__ = ["PlyMesh", "read_ply", "read_serialized", "write_ply"]
+__all__ = ["PlyMesh", "read_ply", "read_serialized", "serialized_mesh", "write_ply",
+           "write_serialized"]
 
 # PLY type names (standard and Mitsuba's aliases) -> numpy type codes
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -323,6 +325,35 @@ def _mesh(vertex, face, path, read_normals=True) -> PlyMesh:
         raise SceneError(f"{path}: face {k} refers to vertex {int(faces[k][bad[k]][0])}; "
                          f"the file has {len(verts)} vertices")
     return PlyMesh(verts, faces, normals, uvs)
+
+
+def serialized_mesh(vertices, faces, *, normals=None, uvs=None, colours=None,
+                    double: bool = False, version: int = 4, name: str = "mesh",
+                    flags: int = 0) -> bytes:
+    """One mesh in Mitsuba's ``serialized`` format: the uncompressed identifier and
+    version, then the zlib stream (level 9) of its flags (``flags`` added to those the
+    arrays given set), its NUL-terminated name (version 4), its counts and arrays, and
+    uint32 indices; several are concatenated by ``write_serialized``."""
+    flags |= 0x2000 if double else 0x1000
+    flags |= (normals is not None) * 0x1 | (uvs is not None) * 0x2 | (colours is not None) * 0x8
+    ftype = "<f8" if double else "<f4"
+    body = struct.pack("<I", flags) + (name.encode() + b"\0" if version == 4 else b"")
+    body += struct.pack("<QQ", len(vertices), len(faces))
+    body += b"".join(np.asarray(a, ftype).tobytes()
+                     for a in (vertices, normals, uvs, colours) if a is not None)
+    body += np.asarray(faces, "<u4").tobytes()
+    return struct.pack("<HH", 0x041C, version) + zlib.compress(body, 9)
+
+
+def write_serialized(path, meshes, version: int = 4) -> str:
+    """Write ``serialized_mesh`` streams as one file with the end-of-file dictionary of
+    their offsets (uint64 in version 4, uint32 in version 3) and their count."""
+    offsets = np.cumsum([0] + [len(m) for m in meshes[:-1]])
+    with open(path, "wb") as out:
+        out.write(b"".join(meshes))
+        out.write(np.asarray(offsets, "<u8" if version == 4 else "<u4").tobytes())
+        out.write(struct.pack("<I", len(meshes)))
+    return str(path)
 
 
 def write_ply(path: str, vertices, faces, *, normals=None, uvs=None, uv_names=("u", "v"),

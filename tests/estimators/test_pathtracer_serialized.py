@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from estimators.pathtracer import prepare_scene
-from estimators.pathtracer.meshes import read_serialized, write_ply
+from estimators.pathtracer.meshes import (read_serialized, serialized_mesh, write_ply,
+                                          write_serialized)
 from estimators.pathtracer.scene import SceneError
 
 # a bent 3 × 3 grid with distinct positions, normals (not unit: Mitsuba normalises
@@ -26,31 +27,7 @@ FACES = np.array([[r * 3 + c, r * 3 + c + 1, r * 3 + c + 4] for r in range(2) fo
                  + [[r * 3 + c, r * 3 + c + 4, r * 3 + c + 3] for r in range(2) for c in range(2)])
 
 
-def mesh_stream(v, f, *, normals=None, uvs=None, colours=None, double=False, version=4,
-                name="grid", flags=0):
-    """One mesh as the format stores it: the uncompressed identifier and version, then a
-    zlib stream of flags, (version 4) a NUL-terminated name, the counts and arrays."""
-    flags |= 0x2000 if double else 0x1000
-    flags |= (normals is not None) * 0x1 | (uvs is not None) * 0x2 | (colours is not None) * 0x8
-    ftype = "<f8" if double else "<f4"
-    body = struct.pack("<I", flags) + (name.encode() + b"\0" if version == 4 else b"")
-    body += struct.pack("<QQ", len(v), len(f))
-    body += b"".join(np.asarray(a, ftype).tobytes() for a in (v, normals, uvs, colours)
-                     if a is not None)
-    return struct.pack("<HH", 0x041C, version) + zlib.compress(body + np.asarray(f, "<u4").tobytes())
-
-
-def write_serialized(path, streams, version=4):
-    """Concatenated mesh streams and the end-of-file dictionary of their offsets."""
-    offsets = np.cumsum([0] + [len(s) for s in streams[:-1]])
-    with open(path, "wb") as out:
-        out.write(b"".join(streams))
-        out.write(np.asarray(offsets, "<u8" if version == 4 else "<u4").tobytes())
-        out.write(struct.pack("<I", len(streams)))
-    return str(path)
-
-
-# name: (keyword arguments of mesh_stream)
+# name: (keyword arguments of serialized_mesh)
 KINDS = {
     "bare-single": {},
     "normals-uv-single": {"normals": NORMALS, "uvs": UVS},
@@ -65,9 +42,9 @@ def _two_meshes(tmp_path, kind):
     """A file of two meshes: a bare triangle, then the grid as ``kind`` says."""
     extra = dict(KINDS[kind])
     version = extra.get("version", 4)
-    first = mesh_stream(VERTS[:3] * 2, [[0, 1, 2]], version=version)
+    first = serialized_mesh(VERTS[:3] * 2, [[0, 1, 2]], version=version)
     return write_serialized(tmp_path / f"{kind}.serialized",
-                            [first, mesh_stream(VERTS, FACES, **extra)], version)
+                            [first, serialized_mesh(VERTS, FACES, **extra)], version)
 
 
 @pytest.mark.mitsuba
@@ -101,7 +78,7 @@ def test_mesh_0_of_a_file_without_a_dictionary_reads_as_mitsuba_reads_it(mi, tmp
     stream (a writer that leaves the dictionary out) loads as mesh 0, and anything after
     the zlib stream is not read."""
     path = tmp_path / "lone.serialized"
-    path.write_bytes(mesh_stream(VERTS, FACES, uvs=UVS) + b"not read")
+    path.write_bytes(serialized_mesh(VERTS, FACES, uvs=UVS) + b"not read")
     theirs = mi.load_dict({"type": "serialized", "filename": str(path)})
     ours = read_serialized(str(path))
     np.testing.assert_array_equal(ours.faces.ravel(), np.array(theirs.faces_buffer()))
@@ -133,14 +110,14 @@ BAD = {
                                                  "meshes (indices 0 to 1)", True),
     "index-beyond": (lambda good: good, 7, "shape_index=7, but the file holds 2 meshes",
                      True),
-    "no-dictionary": (lambda good: mesh_stream(VERTS, FACES), 1,
+    "no-dictionary": (lambda good: serialized_mesh(VERTS, FACES), 1,
                       "end-of-file dictionary claims", False),
-    "vertex-out-of-range": (lambda good: mesh_stream(VERTS, [[0, 1, 9]]), 0,
+    "vertex-out-of-range": (lambda good: serialized_mesh(VERTS, [[0, 1, 9]]), 0,
                             "triangle 0 refers to vertex 9; the mesh has 9 vertices",
                             False),
-    "nan-position": (lambda good: mesh_stream(np.where(VERTS == 1, np.nan, VERTS), FACES), 0,
+    "nan-position": (lambda good: serialized_mesh(np.where(VERTS == 1, np.nan, VERTS), FACES), 0,
                      "a non-finite position", False),
-    "no-triangles": (lambda good: mesh_stream(VERTS, np.zeros((0, 3))), 0,
+    "no-triangles": (lambda good: serialized_mesh(VERTS, np.zeros((0, 3))), 0,
                      "the mesh has no triangles", False),
 }
 
