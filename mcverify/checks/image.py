@@ -399,10 +399,10 @@ def _factor_named(k: float) -> str:
 
 
 def _undone(test_mean, test_var, test_passes, ref_mean):
-    """(description, (mean, var, passes) undone, kind) of each convention the test image
-    may have been stored in: ``_LAYOUTS`` where the undone grid has the reference's shape
-    (kind "layout"), a constant factor (the ratio of the image means, "factor"), and sRGB
-    encoding where every value lies in [0, 1] ("srgb")."""
+    """(description, (mean, var, passes) undone) of each convention the test image may
+    have been stored in: ``_LAYOUTS`` where the undone grid has the reference's shape, a
+    constant factor (the ratio of the image means), and sRGB encoding where every value
+    lies in [0, 1]."""
     tm, tv = (validate.as_array(k, a) for k, a in (("test_mean", test_mean),
                                                     ("test_var", test_var)))
     tp = None if test_passes is None else validate.as_array("test_passes", test_passes)
@@ -411,21 +411,19 @@ def _undone(test_mean, test_var, test_passes, ref_mean):
         if "BGR" in text and (tm.ndim != 3 or tm.shape[2] != 3):
             continue
         if undo(tm, 0).shape == rm.shape:
-            yield (text, (undo(tm, 0), undo(tv, 0), None if tp is None else undo(tp, 1)),
-                   "layout")
+            yield text, (undo(tm, 0), undo(tv, 0), None if tp is None else undo(tp, 1))
     tm, tv = tm.astype(np.float64), tv.astype(np.float64)
     tp = None if tp is None else tp.astype(np.float64)
     k = float(tm.sum() / rm.sum()) if rm.sum() > 0 and tm.sum() > 0 else math.nan
     if math.isfinite(k) and k != 1.0:
-        yield (_factor_named(k), (tm / k, tv / k ** 2, None if tp is None else tp / k),
-               "factor")
+        yield _factor_named(k), (tm / k, tv / k ** 2, None if tp is None else tp / k)
     if tm.min() >= 0.0 and tm.max() <= 1.0 and (tp is None or (tp.min() >= 0.0 and
                                                                 tp.max() <= 1.0)):
         linear, slope = _srgb_decoded(tm)
         yield ("sRGB-encoded (gamma, a display image): compare the linear values the "
                "renderer computed, before its output transform",
                (linear if tp is None else _srgb_decoded(tp)[0].mean(axis=0),
-                tv * slope ** 2, None if tp is None else _srgb_decoded(tp)[0]), "srgb")
+                tv * slope ** 2, None if tp is None else _srgb_decoded(tp)[0]))
 
 
 def _misfit(tm, tv, rm, rv, nt, nr) -> float:
@@ -438,25 +436,26 @@ def _misfit(tm, tv, rm, rv, nt, nr) -> float:
         return float(np.mean(np.minimum((tm - rm) ** 2 / se2, 100.0)))
 
 
-#: How far undoing a convention must move the test image, as the mean clipped squared
-#: Welch statistic of the undone image against the image as given (``_misfit``; about 1
-#: where the two differ by noise alone), for the convention to be offered as a guess; a
-#: factor, seen in the image mean rather than pixel by pixel, must lie this many of its
-#: standard errors from 1
-_DISTINCT, _DISTINCT_Z = 4.0, 5.0
+#: The level at which the undone image must differ from the image as given (``_moves``)
+_MOVES_ALPHA = 1e-3
 
 
-def _moves(kind, undone, tm, tv, rm, rv, nt, nr) -> bool:
-    """Whether undoing a convention (``_undone``'s ``kind`` and arrays) moves the test
-    image by well over its noise, so that its guess can explain a failure rather than
-    reword a false alarm (``_convention``)."""
+def _moves(undone, raw, kw) -> bool:
+    """Whether undoing a convention moves the test image beyond its noise: the comparison
+    itself, at ``_MOVES_ALPHA``, of the undone image against the image as given, fails (a
+    grid of another shape moved by definition). On a false alarm of a flat or symmetric
+    image a flip, BGR or a factor near 1 is fresh noise that then passes the rerun, and
+    4 of 5 false alarms in 800 seeds of two correct flat renders carried such a guess,
+    "looks flipped horizontally"; a mean squared statistic over all pixels, tried first,
+    missed a small bright object flipped on a large background and, for a factor,
+    overflowed at 1e152 (read-only reviews)."""
     m, v, _ = undone
-    if kind == "factor":
-        st, sr = float(tm.sum()), float(rm.sum())
-        k = st / sr
-        se = abs(k) * math.sqrt(float(tv.sum()) / nt / st ** 2 + float(rv.sum()) / nr / sr ** 2)
-        return abs(k - 1.0) > _DISTINCT_Z * se
-    return m.shape != tm.shape or _misfit(m, v, tm, tv, nt, nt) > _DISTINCT
+    if m.shape != raw[0].shape:
+        return True
+    nt = kw["test_n"]
+    return not _compare_images(m, raw[0], test_var=v, ref_var=raw[1], test_n=nt, ref_n=nt,
+                               alpha=_MOVES_ALPHA, block=kw["block"],
+                               perceptual=False).passed
 
 
 def _convention(test_mean, ref_mean, kw):
@@ -465,10 +464,7 @@ def _convention(test_mean, ref_mean, kw):
     saying so and ``{"guess", "p_value"}``), else None. A guess never changes the
     verdict; it tells a user whose correct renderer wrote its image another way
     (upside down, gamma-encoded, a factor π off) where to look. Only a convention whose
-    undoing moves the test image by well over its noise (``_DISTINCT``) is offered: on a
-    false alarm of a flat or symmetric image, a flip or a factor near 1 is fresh noise
-    that then passes, and 4 of 5 false alarms in 800 seeds of two correct flat renders
-    carried such a note, "looks flipped horizontally" (a read-only review)."""
+    undoing moves the test image beyond its noise (``_moves``) is offered."""
     nt, nr = int(kw["test_n"]), int(kw["ref_n"])
     # read once, as the comparison read them (a torch tensor that requires grad raised
     # from np.asarray here, where the comparison had read it; a read-only review)
@@ -476,14 +472,13 @@ def _convention(test_mean, ref_mean, kw):
         ("test_mean", test_mean), ("test_var", kw["test_var"]), ("ref_mean", ref_mean),
         ("ref_var", kw["ref_var"]))]
     tm, tv, rm, rv = (np.asarray(a, dtype=np.float64) for a in raw)
-    candidates = [(text, undone) for text, undone, kind in
-                  _undone(test_mean, kw["test_var"], kw["test_passes"], ref_mean)
-                  if _moves(kind, undone, tm, tv, rm, rv, nt, nr)]
+    candidates = list(_undone(raw[0], raw[1], kw["test_passes"], raw[2]))
     if not candidates:
         return None
     misfits = [_misfit(m, v, rm, rv, nt, nr) for _, (m, v, _) in candidates]
     best = int(np.argmin(misfits))
-    if not misfits[best] < _misfit(tm, tv, rm, rv, nt, nr):
+    if not misfits[best] < _misfit(tm, tv, rm, rv, nt, nr) \
+            or not _moves(candidates[best][1], raw, kw):
         return None
     text, (m, v, p) = candidates[best]
     # the undone image in the type the test side was stored in: its rounding no evidence

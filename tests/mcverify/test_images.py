@@ -731,3 +731,18 @@ def test_a_false_alarm_of_a_flat_image_gets_no_convention_guess():
         failed += not r.passed
         assert r.details["convention"] is None, (seed, r.messages)
     assert failed >= 3, failed
+
+
+def test_a_small_object_flipped_on_a_flat_background_is_named():
+    """A 4 × 4 bright object off the centre of a flat 64 × 64 background, stored upside
+    down: a criterion of the mean squared statistic over all pixels diluted the object's
+    few pixels and gave no guess (a read-only review); whether the undoing moves the
+    image is the comparison's own verdict, which sees a few pixels."""
+    mu = np.full((64, 64, 3), 0.3)
+    mu[10:14, 40:44] = 1.5
+    rng = np.random.default_rng(5)
+    a = rng.gamma(30.0, mu[..., None] / 30.0, mu.shape + (16,))
+    b = rng.gamma(30.0, mu[..., None] / 30.0, mu.shape + (16,))
+    r = mv.compare_images(a.mean(-1)[::-1], b.mean(-1), test_var=a.var(-1, ddof=1)[::-1],
+                          ref_var=b.var(-1, ddof=1), test_n=16, ref_n=16, perceptual=False)
+    assert not r.passed and "flipped vertically" in r.details["convention"]["guess"]
