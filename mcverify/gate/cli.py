@@ -1629,6 +1629,12 @@ def _unknown_option_hint(parser, command, extra) -> str:
     if elsewhere:
         named = ", ".join(elsewhere[:-1]) + " and " * (len(elsewhere) > 1) + elsewhere[-1]
         return f"; {option} is an option of {named}, not of {own}"
+    # an option it begins first (`--pa`: --passes, where difflib's nearest was --spp;
+    # a read-only review), else the nearest by spelling
+    begun = sorted(o for o in command._option_string_actions if o.startswith(option))
+    if begun:
+        return "; did you mean " + ", ".join(begun[:-1]) + " or " * (len(begun) > 1) \
+            + begun[-1] + "?"
     close = difflib.get_close_matches(option, list(command._option_string_actions), n=1)
     return f"; did you mean {close[0]}?" if close else ""
 

@@ -288,9 +288,13 @@ def test_an_output_naming_the_dask_scheduler_file_exits_2_before_any_work(
                                           "--spp?"),
     (["check", "--sui", "default"], "unrecognized arguments: --sui default; did you mean "
                                     "--suite?"),
+    # the option a prefix begins before the nearest by spelling (--pa was "--spp?")
+    (["reference", "build", "--pa", "4"], "did you mean --passes?"),
+    (["compare", "x.exr", "--ref-s", "4"], "did you mean --ref-spp?"),
+    (["bench", "--re", "1"], "did you mean --refs or --repeats?"),
 ], ids=["misspelt", "another-commands", "another-commands-with-value", "top-level",
         "missing-value", "nested-command", "command", "choice", "no-hint", "prefix-build",
-        "prefix-check"])
+        "prefix-check", "prefix-begun", "prefix-begun-2", "prefix-several"])
 def test_a_usage_error_points_at_the_commands_help_and_the_option_meant(argv, needle,
                                                                        capsys):
     """Every usage error ended "(see `mcverify --help`)", a page that lists the commands
