@@ -318,12 +318,17 @@ def _asset_files_and_namers(scene_path: str, params=None):
 
 
 def _named_by(scene_path: str, asset: str) -> str:
-    """The file that names ``asset``, and the scene that includes it where that is
-    another file (``include/m.xml, included by scene.xml``)."""
+    """The file that names ``asset``, and the scene whose includes reach it where that is
+    another file (``include/m.xml, through the includes of scene.xml``), both as the
+    scene's path was given (a nested include was said to be "included by" the scene,
+    and an absolute path stood beside a relative one; a read-only review)."""
     namer = scene_asset_namers(scene_path).get(asset)
     if namer is None or os.path.realpath(namer) == os.path.realpath(scene_path):
         return scene_path
-    return f"{namer}, included by {scene_path}"
+    folder = os.path.dirname(scene_path)
+    shown = os.path.join(folder, os.path.relpath(namer, os.path.dirname(
+        os.path.abspath(scene_path))))
+    return f"{shown}, through the includes of {scene_path}"
 
 
 def _first(name: str, folders, there) -> str | None:

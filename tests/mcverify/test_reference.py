@@ -593,8 +593,8 @@ def test_a_texture_changed_in_an_included_file_makes_the_reference_stale(tmp_pat
         "mat.xml", "t.exr"}
     (tmp_path / "t.exr").write_bytes((tmp_path / "t.exr").read_bytes() + b"\0")
     mat, scene = re.escape(str(tmp_path / "mat.xml")), re.escape(str(tmp_path / "scene.xml"))
-    with pytest.raises(EnvironmentProblem, match=rf"stale: t.exr \(named by {mat}, included "
-                                                 rf"by {scene}\) changed"):
+    with pytest.raises(EnvironmentProblem, match=rf"stale: t.exr \(named by {mat}, through "
+                                                 rf"the includes of {scene}\) changed"):
         reference.load_reference(str(tmp_path))
 
 
