@@ -17,14 +17,10 @@ from estimators.pathtracer.meshes import (read_serialized, serialized_mesh, writ
                                           write_serialized)
 from estimators.pathtracer.scene import SceneError
 
-# a bent 3 × 3 grid with distinct positions, normals (not unit: Mitsuba normalises
-# them) and uv, all exact in float32
-_G = np.array([-1.0, 0.0, 1.0])
-VERTS = np.array([[x, y, 0.25 * x * y + 0.125 * y] for y in _G for x in _G])
-NORMALS = np.array([[-0.25 * y, -0.25 * x - 0.125, 1.0] for y in _G for x in _G])
-UVS = (VERTS[:, :2] + 1) / 2
-FACES = np.array([[r * 3 + c, r * 3 + c + 1, r * 3 + c + 4] for r in range(2) for c in range(2)]
-                 + [[r * 3 + c, r * 3 + c + 4, r * 3 + c + 3] for r in range(2) for c in range(2)])
+# the PLY tests' bent 3 × 3 grid: distinct positions, normals (not unit: Mitsuba
+# normalises them) and uv, all exact in float32
+from test_pathtracer_meshes import (_FACES as FACES, _NORMALS as NORMALS,  # noqa: E402
+                                    _SCENE, _UVS as UVS, _VERTS as VERTS)
 
 
 # name: (keyword arguments of serialized_mesh)
@@ -140,17 +136,6 @@ def test_mitsuba_refuses_them_too(mi, tmp_path, case):
         mi.load_dict({"type": "serialized", "filename": path, "shape_index": index})
 
 
-_SCENE = """<scene version="3.0.0">
-  <integrator type="path"><integer name="max_depth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world">
-      <lookat origin="0.5, -2, 2.5" target="0, 0, 0" up="0, 0, 1"/></transform>
-    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="12"/>
-    <rfilter type="box"/></film></sensor>
-  {mesh}
-  <emitter type="point"><point name="position" x="1" y="-1" z="3"/>
-    <rgb name="intensity" value="8, 6, 4"/></emitter>
-</scene>"""
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))

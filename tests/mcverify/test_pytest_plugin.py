@@ -151,6 +151,13 @@ def test_a_thread_count_the_user_set_is_kept_for_the_runs_tests_start(tmp_path):
     assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
 
 
+def _pytest_on(path):
+    """pytest run on one generated test file, in its folder."""
+    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                           str(path)], cwd=path.parent, capture_output=True, text=True,
+                          timeout=300)
+
+
 def test_a_failure_says_which_call_failed(tmp_path):
     """A failed check showed its summary and nothing of where: in a test that checks the
     same sampler twice (two resolutions) the two failures read alike. The line of the
@@ -166,9 +173,7 @@ def test_a_failure_says_which_call_failed(tmp_path):
         "    assert_check(mv.check_unbiased([0.0, 1.0] * 50, 2.0))\n"
         "def test_y(assert_check):\n"
         "    helper(assert_check, mv.check_unbiased([0.0, 1.0] * 50, 2.0))\n")
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                        str(tmp_path / "test_x.py")],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    r = _pytest_on(tmp_path / "test_x.py")
     assert r.returncode == pytest.ExitCode.TESTS_FAILED, (r.stdout, r.stderr)
     assert "failed at test_x.py:7\n" in r.stdout, r.stdout
     assert "failed at test_x.py:9\n" in r.stdout, r.stdout
@@ -186,9 +191,7 @@ def test_a_failure_in_a_given_test_says_which_example_failed(tmp_path):
         "@given(a=st.integers(0, 5))\n"
         "def test_x(a, assert_check):\n"
         "    assert_check(mv.check_unbiased([0.0, 1.0] * 50, 0.5 if a < 3 else 2.0))\n")
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                        str(tmp_path / "test_x.py")],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    r = _pytest_on(tmp_path / "test_x.py")
     assert r.returncode == pytest.ExitCode.TESTS_FAILED, (r.stdout, r.stderr)
     assert "failed at test_x.py:6\n" in r.stdout, r.stdout
     assert "a=3," in r.stdout, r.stdout
