@@ -402,7 +402,7 @@ def mis(f, techniques, *, seed: int = 0, heuristic: str = "balance",
     techniques = list(techniques)
     if not techniques:
         raise ValueError("techniques: need at least one (sample, pdf, n, sample_dim)")
-    if heuristic == "balance" and beta is not None and beta != 1:
+    if heuristic == "balance" and beta is not None and (isinstance(beta, bool) or beta != 1):
         # until 7 December beta=3 with the balance heuristic was ignored without a word
         raise ValueError(f"beta={beta!r}: the balance heuristic has no exponent (it is the "
                          "power heuristic at beta=1); pass heuristic='power' to use beta")

@@ -213,6 +213,8 @@ def test_stratified_and_rqmc_converge_faster():
     # until 7 December beta was ignored without a word under the balance heuristic
     (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10, 1)], beta=3.0),
      "beta=3.0: the balance heuristic has no exponent"),
+    (lambda: mc.mis(np.sin, [(sin_sampler, sin_pdf, 10, 1)], beta=True),
+     "beta=True: the balance heuristic has no exponent"),
     # found by a probe: a bare TypeError, the wrong callable named, or a silent estimate
     (lambda: mc.mis(np.sin, [(1, 2, 10, 1)]), r"techniques\[0\] sample=1: must be callable"),
     (lambda: mc.mis(np.sin, [(sin_sampler, "p", 10, 1)]), r"techniques\[0\] pdf='p'"),
@@ -241,7 +243,7 @@ def test_stratified_and_rqmc_converge_faster():
         "n", "sobol-n", "sobol-n-2^31", "sobol-n-2^64", "sobol-d",
         "no-techniques", "heuristic", "q", "q-string",
         "f-scalar", "f-2-columns", "pdf-scalar", "beta-0", "beta-nan", "technique-3",
-        "beta-balance", "mis-not-callable", "mis-pdf-not-callable", "importance-short-sample",
+        "beta-balance", "beta-bool", "mis-not-callable", "mis-pdf-not-callable", "importance-short-sample",
         "importance-negative-pdf", "roulette-negative-pdf", "mis-negative-pdf", "f-complex",
         "f-strings", "f-ragged", "sample-strings", "sample-complex", "mis-sample-ragged"])
 def test_bad_input(call, match):
