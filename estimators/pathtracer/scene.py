@@ -315,7 +315,7 @@ class _Loader:
         # <ref> attaches them (Mitsuba's own Cornell box, cbox-rgb.xml, is so written)
         self.top_nodes: set[int] = set()       # id() of the top-level elements
         self.free_area: set[int] = set()       # id() of such emitters' plugins
-        self.attached: dict[str, _Node] = {}   # such an emitter's id -> its shape's <ref>
+        self.attached: dict[str, tuple] = {}   # such an emitter's id -> (its <ref>, shape)
 
     def fail(self, node, message):
         raise SceneError(f"{node.origin or self.path}:{node.line}: <{node.tag}"
@@ -575,7 +575,7 @@ class _Loader:
                 if ref.kind not in allowed_children:
                     self.fail(child, f"a {ref.kind} cannot go inside {kind} {ptype!r}")
                 if ref.kind == "emitter" and ref.type == "area":
-                    self.attach(child, target, ref)
+                    self.attach(child, target, ref, p)
                 p.children.append(ref)
             elif child.tag == "texture":
                 name = self.attr(child, "name")
@@ -610,8 +610,8 @@ class _Loader:
                                     "only an area emitter makes a shape emit; put a "
                                     f"{c.type} light at the top level of the scene")
 
-    def attach(self, ref, target, emitter):
-        """Attach the area emitter ``emitter`` (id ``target``) to the shape whose ``<ref>``
+    def attach(self, ref, target, emitter, shape):
+        """Attach the area emitter ``emitter`` (id ``target``) to ``shape``, whose ``<ref>``
         is ``ref``: one declared at the top level, to one shape, as Mitsuba does (it was
         refused as "must be inside a <shape>", and Mitsuba's cbox-rgb.xml with it).
         Mitsuba refuses a second shape ("An endpoint can be only be attached to a single
@@ -622,13 +622,18 @@ class _Loader:
                            "to one shape only (Mitsuba refuses it too): give this shape its "
                            "own <emitter type=\"area\">")
         if target in self.attached:
-            first = self.attached[target]
+            first, holder = self.attached[target]
+            if holder is shape:     # "already attached to the shape of the <ref> on line N"
+                # named this very shape (two reviews)
+                self.fail(ref, f"a second <ref> to area emitter {target!r} in this shape "
+                               f"(the first on line {first.line}); a shape holds one "
+                               "emitter (Mitsuba refuses a second too)")
             self.fail(ref, f"area emitter {target!r} ({emitter.line_text()}) is already "
                            f"attached to the shape of the <ref> on line {first.line}"
                            f"{f' of {first.origin}' if first.origin else ''}; an emitter is "
                            "attached to one shape only (Mitsuba refuses it too): give this "
                            "shape its own <emitter type=\"area\">")
-        self.attached[target] = ref
+        self.attached[target] = (ref, shape)
 
     def declared_later(self, ref, target):
         """Parse the plugin of id ``target`` that the document declares after ``ref``

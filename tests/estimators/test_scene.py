@@ -640,6 +640,14 @@ def test_a_top_level_area_emitter_on_two_shapes_or_none_is_refused(mi):
     assert len(mi.load_string(none).emitters()) == 0
     msg = _error(none.replace(' id="L"', ""))
     assert "s.xml:3" in msg and "inside a <shape>" in msg, msg
+    # two <ref>s in one shape: that shape's second emitter, not "another shape's" (it
+    # read "already attached to the shape of the <ref> on line 4"; two reviews)
+    twice = (f'<scene version="3.0.0">\n{_CAMERA}\n{light}\n<shape type="sphere">'
+             '<ref id="L"/>\n<ref id="L"/></shape></scene>')
+    msg = _error(twice)
+    assert "s.xml:5" in msg and "a second <ref> to area emitter 'L' in this shape" in msg, msg
+    with pytest.raises(RuntimeError):
+        mi.load_string(twice)
 
 
 @pytest.mark.parametrize("ops", [
