@@ -520,7 +520,11 @@ def _cmd_check(args) -> int:
             # said, not left out: a -k without sampler checks has nothing to scale
             print(f"{head}: no sampler check of ours selected, nothing to scale; every "
                   f"check ran at its fixed size{tail}")
-    print(f"mcverify check --suite {args.suite}: {result.counts()}")
+    # a scene's run says so: its checks are the plan's, not the suite's (it read
+    # "mcverify check --suite default" after `check --scene X`; an outside review)
+    what = (f"--scene {args.scene}" + (f" --suite {given_suite}" if given_suite else "")
+            if args.scene else f"--suite {args.suite}")
+    print(f"mcverify check {what}: {result.counts()}")
     # written after the verdict is printed: a write that fails (exit 2) loses no result;
     # flushed first, so that a --json /dev/stdout follows the text instead of cutting it
     sys.stdout.flush()

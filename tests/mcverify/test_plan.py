@@ -366,3 +366,15 @@ def test_check_scene_exits_2_where_its_render_check_compares_nothing(tmp_path):
     assert r.returncode == 2, r.stdout + r.stderr
     assert "black in every pixel" in r.stderr and str(path) in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_check_scene_says_it_ran_the_scenes_plan(capsys):
+    """`check --scene X` ended "mcverify check --suite default: 1 passed", the suite's
+    name for a run whose checks the scene's plan chose (an outside review); it names the
+    scene, and the suite only where one was given."""
+    from mcverify.gate import cli
+
+    scene = os.path.join(REFERENCE_ROOT, "white-furnace", "scene.xml")
+    assert cli.main(["check", "--scene", scene, "-k", "inverse:cosine", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert f"mcverify check --scene {scene}: 1 passed" in out, out
