@@ -398,15 +398,12 @@ def _factor_named(k: float) -> str:
             "strength, the exposure, a unit): find where the factor comes from")
 
 
-def _undone(test_mean, test_var, test_passes, ref_mean):
-    """(description, (mean, var, passes) undone) of each convention the test image may
-    have been stored in: ``_LAYOUTS`` where the undone grid has the reference's shape, a
-    constant factor (the ratio of the image means), and sRGB encoding where every value
-    lies in [0, 1]."""
-    tm, tv = (validate.as_array(k, a) for k, a in (("test_mean", test_mean),
-                                                    ("test_var", test_var)))
+def _undone(tm, tv, test_passes, rm):
+    """(description, (mean, var, passes) undone) of each convention the test image (its
+    mean and variance arrays ``tm``, ``tv``) may have been stored in: ``_LAYOUTS`` where
+    the undone grid has the reference's (``rm``) shape, a constant factor (the ratio of
+    the image means), and sRGB encoding where every value lies in [0, 1]."""
     tp = None if test_passes is None else validate.as_array("test_passes", test_passes)
-    rm = validate.as_array("ref_mean", ref_mean)
     for text, undo in _LAYOUTS:
         if "BGR" in text and (tm.ndim != 3 or tm.shape[2] != 3):
             continue
@@ -420,10 +417,10 @@ def _undone(test_mean, test_var, test_passes, ref_mean):
     if tm.min() >= 0.0 and tm.max() <= 1.0 and (tp is None or (tp.min() >= 0.0 and
                                                                 tp.max() <= 1.0)):
         linear, slope = _srgb_decoded(tm)
+        passes = None if tp is None else _srgb_decoded(tp)[0]      # decoded once
         yield ("sRGB-encoded (gamma, a display image): compare the linear values the "
                "renderer computed, before its output transform",
-               (linear if tp is None else _srgb_decoded(tp)[0].mean(axis=0),
-                tv * slope ** 2, None if tp is None else _srgb_decoded(tp)[0]))
+               (linear if passes is None else passes.mean(axis=0), tv * slope ** 2, passes))
 
 
 def _misfit(tm, tv, rm, rv, nt, nr) -> float:
