@@ -327,35 +327,6 @@ def _mesh(vertex, face, path, read_normals=True) -> PlyMesh:
     return PlyMesh(verts, faces, normals, uvs)
 
 
-def serialized_mesh(vertices, faces, *, normals=None, uvs=None, colours=None,
-                    double: bool = False, version: int = 4, name: str = "mesh",
-                    flags: int = 0) -> bytes:
-    """One mesh in Mitsuba's ``serialized`` format: the uncompressed identifier and
-    version, then the zlib stream (level 9) of its flags (``flags`` added to those the
-    arrays given set), its NUL-terminated name (version 4), its counts and arrays, and
-    uint32 indices; several are concatenated by ``write_serialized``."""
-    flags |= 0x2000 if double else 0x1000
-    flags |= (normals is not None) * 0x1 | (uvs is not None) * 0x2 | (colours is not None) * 0x8
-    ftype = "<f8" if double else "<f4"
-    body = struct.pack("<I", flags) + (name.encode() + b"\0" if version == 4 else b"")
-    body += struct.pack("<QQ", len(vertices), len(faces))
-    body += b"".join(np.asarray(a, ftype).tobytes()
-                     for a in (vertices, normals, uvs, colours) if a is not None)
-    body += np.asarray(faces, "<u4").tobytes()
-    return struct.pack("<HH", 0x041C, version) + zlib.compress(body, 9)
-
-
-def write_serialized(path, meshes, version: int = 4) -> str:
-    """Write ``serialized_mesh`` streams as one file with the end-of-file dictionary of
-    their offsets (uint64 in version 4, uint32 in version 3) and their count."""
-    offsets = np.cumsum([0] + [len(m) for m in meshes[:-1]])
-    with open(path, "wb") as out:
-        out.write(b"".join(meshes))
-        out.write(np.asarray(offsets, "<u8" if version == 4 else "<u4").tobytes())
-        out.write(struct.pack("<I", len(meshes)))
-    return str(path)
-
-
 def write_ply(path: str, vertices, faces, *, normals=None, uvs=None, uv_names=("u", "v"),
               fmt: str = "binary_little_endian", vertex_type: str = "float",
               index_type: str = "int", count_type: str = "uchar") -> None:
@@ -414,6 +385,7 @@ SERIALIZED_VERSIONS = (3, 4)
 #: the flags word's bits that change the layout (0x0010, "face normals", and 0x1000,
 #: single precision, are ignored by Mitsuba 3.9.1: single is what is not double)
 _HAS_NORMALS, _HAS_UVS, _HAS_COLOURS, _DOUBLE = 0x0001, 0x0002, 0x0008, 0x2000
+_SINGLE = 0x1000        # written by ``serialized_mesh``, as Mitsuba writes it
 #: compressed bytes fed to zlib at a time (the inflated data grows only as it is read)
 _INFLATE_CHUNK = 1 << 20
 
@@ -551,3 +523,33 @@ def read_serialized(path: str, shape_index: int = 0, *, normals: bool = True,
         fail_mesh(f"triangle {k} refers to vertex {int(faces[k][bad[k]][0])}; the mesh "
                   f"has {n_verts} vertices")
     return PlyMesh(verts, faces, vnormals, uvs)
+
+
+def serialized_mesh(vertices, faces, *, normals=None, uvs=None, colours=None,
+                    double: bool = False, version: int = 4, name: str = "mesh",
+                    flags: int = 0) -> bytes:
+    """One mesh in Mitsuba's ``serialized`` format: the uncompressed identifier and
+    version, then the zlib stream (level 9) of its flags (``flags`` added to those the
+    arrays given set), its NUL-terminated name (version 4), its counts and arrays, and
+    uint32 indices; several are concatenated by ``write_serialized``."""
+    flags |= _DOUBLE if double else _SINGLE
+    flags |= ((normals is not None) * _HAS_NORMALS | (uvs is not None) * _HAS_UVS
+              | (colours is not None) * _HAS_COLOURS)
+    ftype = "<f8" if double else "<f4"
+    body = struct.pack("<I", flags) + (name.encode() + b"\0" if version == 4 else b"")
+    body += struct.pack("<QQ", len(vertices), len(faces))
+    body += b"".join(np.asarray(a, ftype).tobytes()
+                     for a in (vertices, normals, uvs, colours) if a is not None)
+    body += np.asarray(faces, "<u4").tobytes()
+    return struct.pack("<HH", SERIALIZED_MAGIC, version) + zlib.compress(body, 9)
+
+
+def write_serialized(path, meshes, version: int = 4) -> str:
+    """Write ``serialized_mesh`` streams as one file with the end-of-file dictionary of
+    their offsets (uint64 in version 4, uint32 in version 3) and their count."""
+    offsets = np.cumsum([0] + [len(m) for m in meshes[:-1]])
+    with open(path, "wb") as out:
+        out.write(b"".join(meshes))
+        out.write(np.asarray(offsets, "<u8" if version == 4 else "<u4").tobytes())
+        out.write(struct.pack("<I", len(meshes)))
+    return str(path)
