@@ -30,7 +30,7 @@ from .geometry import build_bvh, pack_bvh
 from .layout import DISK, FEATURE_BITS, INFINITE_DEPTH, PRIM_WIDTH, SPHERE, TRIANGLE
 from .meshes import read_ply, read_serialized
 from .scene import (MAX_ASSET_BYTES, TRANSMISSIVE, Plugin, SceneDescription, SceneError,
-                    file_problem, load_scene, scene_path)
+                    file_problem, first_found, load_scene, scene_path)
 from .text_numbers import (FLOAT32_OVERFLOW, SPACE, ascii_lower, finite_in_float32,
                            parse_float, parse_int, split_words)
 from .textures import (TextureStore, envmap_sampling_weights, luminance,
@@ -225,9 +225,7 @@ class _Builder:
         name = plugin.get("filename")
         if not name:
             self.fail(plugin, f"set <string name=\"filename\" .../>{what}")
-        path = name if os.path.isabs(name) else next(
-            (p for p in (os.path.join(d, name) for d in self.desc.search)
-             if os.path.exists(p)), os.path.join(self.dir, name))
+        path = first_found(name, self.desc.search) or os.path.join(self.dir, name)
         problem = file_problem(path, MAX_ASSET_BYTES)
         if problem:
             self.fail(plugin, problem)

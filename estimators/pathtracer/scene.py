@@ -44,6 +44,22 @@ MAX_SCENE_BYTES = 16 << 20
 MAX_ASSET_BYTES = 1 << 30
 
 
+def resolved_candidates(name: str, folders) -> list[str]:
+    """The paths Mitsuba's file resolver tries for ``name``: itself where absolute, else
+    ``folder/name`` for each of ``folders`` in turn, each path once."""
+    if os.path.isabs(name):
+        return [name]
+    return list(dict.fromkeys(os.path.join(d, name) for d in folders))
+
+
+def first_found(name: str, folders, there=os.path.exists) -> str | None:
+    """The first of ``resolved_candidates`` for which ``there(path)`` holds, None where
+    none does: the loader's ``<path>`` and ``<include>``, the files a scene names
+    (``prepare``) and the reference's hashing (``mcverify.gate.reference``) look up
+    names so, one rule for all four."""
+    return next((p for p in resolved_candidates(name, folders) if there(p)), None)
+
+
 def file_problem(path: str, limit: int) -> str | None:
     """Why ``path`` cannot be read as a scene file or asset (missing, not a regular file,
     larger than ``limit`` bytes), or None."""
@@ -758,14 +774,13 @@ class _Loader:
         ``a/b`` where both it and ``b`` were there, and Mitsuba ``b``.)"""
         self.check_attributes(node)
         value = self.with_defaults(defaults, lambda: self.attr(node, "value"))
-        here = os.path.dirname(node.origin or self.path)
-        tried = [value] if os.path.isabs(value) else list(dict.fromkeys(
-            os.path.join(d, value) for d in [here] + resolver))
-        for full in tried:
-            if os.path.isdir(full):
-                return os.path.abspath(full)
-        self.fail(node, f"folder {value!r} not found (looked for {' and '.join(tried)}; "
-                        "Mitsuba refuses it too)")
+        folders = [os.path.dirname(node.origin or self.path)] + resolver
+        found = first_found(value, folders, os.path.isdir)
+        if found is not None:
+            return os.path.abspath(found)
+        self.fail(node, f"folder {value!r} not found (looked for "
+                        f"{' and '.join(resolved_candidates(value, folders))}; Mitsuba "
+                        "refuses it too)")
 
     def included_file(self, node, name, resolver):
         """The file an ``<include>`` names: as given where absolute, else in each folder of
@@ -773,13 +788,11 @@ class _Loader:
         same file, the last one first, then beside the file that includes it, then as the
         file that included that one looked (Mitsuba 3.9's order: a nested include of
         ``more.xml`` in ``sub/parts.xml`` is ``sub/more.xml`` where that exists)."""
-        tried = [name] if os.path.isabs(name) else list(dict.fromkeys(
-            os.path.join(d, name) for d in resolver))
-        for full in tried:
-            if os.path.isfile(full):
-                return full
+        found = first_found(name, resolver, os.path.isfile)
+        if found is not None:
+            return found
         self.fail(node, f"included file {name!r} not found (looked for "
-                        f"{' and '.join(dict.fromkeys(tried))})")
+                        f"{' and '.join(resolved_candidates(name, resolver))})")
 
     def check_root(self, root):
         """A ``<scene>`` element's attributes and version, the scene's or an included

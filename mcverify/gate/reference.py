@@ -249,6 +249,8 @@ def scene_asset_namers(scene_path: str, params=None) -> dict[str, str]:
 
 
 def _asset_files_and_namers(scene_path: str, params=None):
+    from estimators.pathtracer.scene import first_found
+
     defaults = {k: str(v).lower() if isinstance(v, bool) else str(v)
                 for k, v in dict(params or {}).items()}
     folder = os.path.dirname(os.path.abspath(scene_path))
@@ -282,7 +284,7 @@ def _asset_files_and_namers(scene_path: str, params=None):
             includes.add(names[-1])
         elif tag == "path" and "value" in attrib:
             d = substitute(attrib["value"])
-            found = _first(d, [reading["here"]] + reading["resolver"], os.path.isdir)
+            found = first_found(d, [reading["here"]] + reading["resolver"], os.path.isdir)
             if found is not None:       # else Mitsuba refuses the scene
                 reading["resolver"].insert(0, os.path.abspath(found))
 
@@ -296,7 +298,7 @@ def _asset_files_and_namers(scene_path: str, params=None):
         name, at = names[i]
         i += 1
         real = substitute(name)
-        full = _first(real, scene_resolver if at is None else at, os.path.exists) \
+        full = first_found(real, scene_resolver if at is None else at, os.path.exists) \
             or os.path.join(folder, real)
         # an include found elsewhere than beside the scene keyed by its path from there:
         # the same name included beside the scene too is another file (a read-only
@@ -329,14 +331,6 @@ def _named_by(scene_path: str, asset: str) -> str:
     shown = os.path.join(folder, os.path.relpath(namer, os.path.dirname(
         os.path.abspath(scene_path))))
     return f"{shown}, through the includes of {scene_path}"
-
-
-def _first(name: str, folders, there) -> str | None:
-    """``name`` where absolute, else the first of ``folders``/``name`` for which
-    ``there(path)`` holds (Mitsuba's file resolver), None where none does."""
-    if os.path.isabs(name):
-        return name
-    return next((p for p in (os.path.join(d, name) for d in folders) if there(p)), None)
 
 
 def scene_stamp(scene_path: str, params=None) -> tuple:
