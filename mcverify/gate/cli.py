@@ -1238,7 +1238,7 @@ def _print_visibility(d: dict) -> None:
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0], epilog=EPILOG)
     from .._version import __version__
-    from .render_check import MIN_SPP_PER_PASS
+    from .render_check import GATE_PASSES, GATE_SPP, MIN_SPP_PER_PASS
 
     p.add_argument("--version", action="version", version=f"mcverify {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
@@ -1440,11 +1440,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "is built first).",
                         epilog=_command_epilog("the images agree", "the images differ"))
     rc.add_argument("scene", metavar="SCENE", help="scene.xml path or reference name")
-    rc.add_argument("--spp", type=decimal_int, default=1024,
+    rc.add_argument("--spp", type=decimal_int, default=GATE_SPP,
                     help="samples per pixel IN ALL, split over --passes (at least "
                          f"{MIN_SPP_PER_PASS} per pass); unlike `reference build --spp`, "
                          "which is per pass")
-    rc.add_argument("--passes", type=decimal_int, default=16, help="independent passes (>= 2)")
+    rc.add_argument("--passes", type=decimal_int, default=GATE_PASSES,
+                    help="independent passes (>= 2)")
     rc.add_argument("--seed", type=decimal_int, default=0, help=f"seed of our renders, 0 to {MAX_SEED}")
     rc.add_argument("--alpha", type=float, default=0.01,
                     help="significance level of the image comparison")
@@ -1618,6 +1619,11 @@ def _options(parser) -> dict:
     return found
 
 
+def _spoken(items: list, conjunction: str) -> str:
+    """``a``, ``a and b``, ``a, b and c`` (or ``or``)."""
+    return ", ".join(items[:-1]) + f" {conjunction} " * (len(items) > 1) + items[-1]
+
+
 def _unknown_option_hint(parser, command, extra) -> str:
     """Where the first unknown option of ``extra`` is: another command's (``check --spp``:
     render-check's), or one of this command's misspelt (``--sed``: ``--seed``). argparse
@@ -1631,14 +1637,12 @@ def _unknown_option_hint(parser, command, extra) -> str:
         return f"; {option} goes before the command: mcverify {option}"
     elsewhere = [c for c in _options(parser).get(option, []) if c != own]
     if elsewhere:
-        named = ", ".join(elsewhere[:-1]) + " and " * (len(elsewhere) > 1) + elsewhere[-1]
-        return f"; {option} is an option of {named}, not of {own}"
+        return f"; {option} is an option of {_spoken(elsewhere, 'and')}, not of {own}"
     # an option it begins first (`--pa`: --passes, where difflib's nearest was --spp;
     # a read-only review), else the nearest by spelling
     begun = sorted(o for o in command._option_string_actions if o.startswith(option))
     if begun:
-        return "; did you mean " + ", ".join(begun[:-1]) + " or " * (len(begun) > 1) \
-            + begun[-1] + "?"
+        return f"; did you mean {_spoken(begun, 'or')}?"
     close = difflib.get_close_matches(option, list(command._option_string_actions), n=1)
     return f"; did you mean {close[0]}?" if close else ""
 

@@ -232,34 +232,29 @@ def _render_check(scene_path: str) -> Check:
                  source=(_render_check, (scene_path,)), sequential=True)
 
 
-#: the render check's passes (``render_check``'s default; ``check`` has no option for it)
-_GATE_PASSES = 16
-
-
 def _gate_spp(scene_path: str) -> int:
-    """The samples in all of a scene's render check in ``check --scene``:
-    ``render_check``'s default, 1024 in 16 passes, except where the film's filter splats
-    and the scene's reference has another count per pass (``reference build``'s default
-    is 256, a reference built by ``render-check --spp 128 --passes 4`` has 32): such
-    passes compare only at the reference's count, so that count times 16. Until 7
+    """The samples in all of a scene's render check in ``check --scene``: the gate's
+    ``GATE_SPP`` in ``GATE_PASSES`` passes (1024 in 16), except where the film's filter
+    splats and the scene's reference has another count per pass (``reference build``'s
+    default is 256, a reference built by ``render-check --spp 128 --passes 4`` has 32):
+    such passes compare only at the reference's count, so that count times 16. Until 7
     December the check failed, exit 1, "raised InvalidArgument: ... our passes need the
     reference's 256 samples per pass: spp=4096 with passes=16", an option ``check`` does
     not have (an outside review). A reference of fewer than ``MIN_SPP_PER_PASS`` a pass
     cannot be gated so: ``EnvironmentProblem`` (exit 2) saying how to rebuild it."""
     from ..errors import MissingReference
     from . import reference
-    from .render_check import MIN_SPP_PER_PASS
+    from .render_check import GATE_PASSES, GATE_SPP, MIN_SPP_PER_PASS
 
-    default = 1024
     name, path = reference.resolve_scene(scene_path)
     try:
         ref = reference.load_reference(path)
-    except MissingReference:        # render_check builds it at default // 16 a pass
-        return default
+    except MissingReference:        # render_check builds it at GATE_SPP // GATE_PASSES
+        return GATE_SPP
     per_pass = ref.manifest.get("spp")     # absent from references of before spp
     if not ref.pixels_correlated or not isinstance(per_pass, int) \
-            or per_pass * _GATE_PASSES == default:
-        return default
+            or per_pass * GATE_PASSES == GATE_SPP:
+        return GATE_SPP
     if per_pass < MIN_SPP_PER_PASS:
         advice = reference.rebuild_advice(name, path, {
             **ref.manifest, "spp": 64, "passes": 64, "spp_requested": 64})
@@ -267,4 +262,4 @@ def _gate_spp(scene_path: str) -> int:
                                  "the film's filter splats, so the render check's passes "
                                  "must have as many, and a pass needs at least "
                                  f"{MIN_SPP_PER_PASS}; {advice}")
-    return per_pass * _GATE_PASSES
+    return per_pass * GATE_PASSES

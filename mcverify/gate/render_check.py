@@ -39,6 +39,9 @@ from .executors import Pool, Unit, same_source, source_fingerprint
 # the 14 box-filter reference scenes, 20 seeds each (the splatting-filter scenes need
 # their reference's 64 a pass anyway).
 MIN_SPP_PER_PASS = 32
+#: the render gate's samples in all and passes (``render_check``, ``render-check`` and
+#: ``check --scene``, whose plan scales the samples to a splatting reference's per pass)
+GATE_SPP, GATE_PASSES = 1024, 16
 
 
 #: Batches of our passes in the sequential render gate: it looks after 1, 2 and 4 of
@@ -613,8 +616,8 @@ def _variant_notice(notice) -> None:
             notice(fallback)
 
 
-def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 1024,
-                 passes: int = 16, seed: int = 0, alpha: float = 0.01,
+def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = GATE_SPP,
+                 passes: int = GATE_PASSES, seed: int = 0, alpha: float = 0.01,
                  params: dict | None = None, pdf_scale: float = 1.0,
                  plant: dict | None = None, build_missing: bool = True, notice=None,
                  progress=None, stop_alpha: float | None = None,
@@ -839,7 +842,8 @@ def render_check(scene: str, *, renderer: Renderer | None = None, spp: int = 102
 
 
 def global_sensitivity(scene: str, *, epsilons=(0.0025, 0.005, 0.01, 0.02, 0.05),
-                       seeds=(0, 1), spp: int = 1024, passes: int = 16) -> dict:
+                       seeds=(0, 1), spp: int = GATE_SPP,
+                       passes: int = GATE_PASSES) -> dict:
     """The smallest global bias the render gate catches on a scene at a budget: every
     emitter scaled by 1 ± ε, for growing ε, until both signs are rejected on every seed.
     Returns {"scene", "caught_at" (ε or None), "trials": [(ε, sign, seed, p, found_by)]}."""
