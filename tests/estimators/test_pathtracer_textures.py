@@ -612,6 +612,18 @@ def test_a_mirrored_sphere_turns_its_normals_as_in_mitsuba(mi, tmp_path, to_worl
     assert ours_inward == (float(np.dot(np.array(si.sh_frame.n), np.array(ray.d))) > 0)
 
 
+def _python(code: str, timeout: float):
+    """``code`` run by this Python in a fresh process, which must exit 0 (its stderr's
+    tail otherwise); the finished process."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=timeout)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return r
+
+
 @pytest.mark.skipif(not hasattr(__import__("os"), "sched_setaffinity"),
                     reason="needs os.sched_setaffinity (Linux) to confine a process to one CPU")
 def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images):
@@ -619,9 +631,6 @@ def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images):
     forever for a second one (found running under ``taskset -c 0``): ``import_mitsuba``
     gives it two. In a fresh process (the pool is sized at Dr.Jit's first use), with a
     timeout, so a hang fails instead of stalling the run."""
-    import subprocess
-    import sys
-
     code = ("import os; os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})\n"
             "from estimators.pathtracer import textures, prepare_scene\n"
             f"print(textures.read_image({str(images / 't.exr')!r}).shape)\n"
@@ -632,9 +641,7 @@ def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images):
         '<scene version="3.0.0"><shape type="rectangle"><bsdf type="diffuse">'
         '<texture type="bitmap" name="reflectance"><string name="filename" value="t.exr"/>'
         '</texture></bsdf></shape></scene>')
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       timeout=90)
-    assert r.returncode == 0, r.stderr[-2000:]
+    r = _python(code, timeout=90)
     lines = r.stdout.splitlines()       # Mitsuba's log (a warning) goes to stdout too
     assert lines[0] == "(6, 10, 3)" and lines[-1].endswith("loaded"), r.stdout
 
@@ -646,9 +653,6 @@ def test_images_are_read_from_several_threads_of_a_new_process(images):
     'variant')" (an outside review: scenes with an envmap rendered from a thread pool).
     Six threads leave a barrier together in a fresh process (Mitsuba not yet imported),
     each reading the EXR, then choosing the adapters' variant and its version."""
-    import subprocess
-    import sys
-
     code = ("import threading\n"
             "from estimators.pathtracer import textures\n"
             "from mcverify.gate import mitsuba\n"
@@ -667,9 +671,7 @@ def test_images_are_read_from_several_threads_of_a_new_process(images):
             "[t.start() for t in threads]\n"
             "[t.join() for t in threads]\n"
             "print(errors)\n")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       timeout=120)
-    assert r.returncode == 0, r.stderr[-2000:]
+    r = _python(code, timeout=120)
     assert r.stdout.splitlines()[-1] == "[]", r.stdout[-2000:]
 
 
