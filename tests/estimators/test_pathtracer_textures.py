@@ -612,21 +612,9 @@ def test_a_mirrored_sphere_turns_its_normals_as_in_mitsuba(mi, tmp_path, to_worl
     assert ours_inward == (float(np.dot(np.array(si.sh_frame.n), np.array(ray.d))) > 0)
 
 
-def _python(code: str, timeout: float):
-    """``code`` run by this Python in a fresh process, which must exit 0 (its stderr's
-    tail otherwise); the finished process."""
-    import subprocess
-    import sys
-
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       timeout=timeout)
-    assert r.returncode == 0, r.stderr[-2000:]
-    return r
-
-
 @pytest.mark.skipif(not hasattr(__import__("os"), "sched_setaffinity"),
                     reason="needs os.sched_setaffinity (Linux) to confine a process to one CPU")
-def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images):
+def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images, run_python):
     """Confined to one CPU, Mitsuba's pool has one worker, and its OpenEXR reader waits
     forever for a second one (found running under ``taskset -c 0``): ``import_mitsuba``
     gives it two. In a fresh process (the pool is sized at Dr.Jit's first use), with a
@@ -641,12 +629,12 @@ def test_an_exr_is_read_and_its_scene_prepared_on_one_cpu(images):
         '<scene version="3.0.0"><shape type="rectangle"><bsdf type="diffuse">'
         '<texture type="bitmap" name="reflectance"><string name="filename" value="t.exr"/>'
         '</texture></bsdf></shape></scene>')
-    r = _python(code, timeout=90)
-    lines = r.stdout.splitlines()       # Mitsuba's log (a warning) goes to stdout too
-    assert lines[0] == "(6, 10, 3)" and lines[-1].endswith("loaded"), r.stdout
+    out = run_python(code, timeout=90)
+    lines = out.splitlines()       # Mitsuba's log (a warning) goes to stdout too
+    assert lines[0] == "(6, 10, 3)" and lines[-1].endswith("loaded"), out
 
 
-def test_images_are_read_from_several_threads_of_a_new_process(images):
+def test_images_are_read_from_several_threads_of_a_new_process(images, run_python):
     """Mitsuba's import puts another module in ``sys.modules`` part-way: threads reading
     an image at once in a process that had not imported it got the first module, and
     all but one failed, "cannot read image (module 'mitsuba' has no attribute
@@ -671,8 +659,8 @@ def test_images_are_read_from_several_threads_of_a_new_process(images):
             "[t.start() for t in threads]\n"
             "[t.join() for t in threads]\n"
             "print(errors)\n")
-    r = _python(code, timeout=120)
-    assert r.stdout.splitlines()[-1] == "[]", r.stdout[-2000:]
+    out = run_python(code, timeout=120)
+    assert out.splitlines()[-1] == "[]", out[-2000:]
 
 
 @pytest.mark.parametrize("props", [

@@ -9,6 +9,13 @@ import mcverify as mv
 from estimators import warps as W
 
 
+def _pytest_on(path, *options, env=None):
+    """pytest run quietly on one generated test file, in its folder, with ``options``."""
+    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                           *options, str(path)], cwd=path.parent, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
 def test_seed_fixture_defaults_to_zero(mcverify_seed):
     assert mcverify_seed == 0
 
@@ -37,9 +44,7 @@ def test_assert_check_passes_through_and_fails_with_the_reason(assert_check):
 def test_a_negative_seed_is_refused_before_any_test_runs(tmp_path):
     """--mcverify-seed -1 used to reach every check, each failing on its own."""
     (tmp_path / "test_x.py").write_text("def test_x(mcverify_seed):\n    pass\n")
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                        "--mcverify-seed", "-1", str(tmp_path / "test_x.py")],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    r = _pytest_on(tmp_path / "test_x.py", "--mcverify-seed", "-1")
     assert r.returncode == pytest.ExitCode.USAGE_ERROR, (r.stdout, r.stderr)
     assert "--mcverify-seed=-1: must be in [0, 2**63 - 1]" in r.stderr, r.stderr
 
@@ -48,9 +53,7 @@ def test_a_seed_that_is_not_decimal_digits_is_refused(tmp_path):
     """``--mcverify-seed=1_0`` was read as 10 (Python's int() takes underscores and other
     scripts' digits; an outside review)."""
     (tmp_path / "test_x.py").write_text("def test_x(mcverify_seed):\n    pass\n")
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                        "--mcverify-seed=1_0", str(tmp_path / "test_x.py")],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    r = _pytest_on(tmp_path / "test_x.py", "--mcverify-seed=1_0")
     assert r.returncode == pytest.ExitCode.USAGE_ERROR, (r.stdout, r.stderr)
     assert "invalid int value: '1_0'" in r.stderr, r.stderr
 
@@ -127,9 +130,7 @@ def test_the_fixtures_serve_a_session_scoped_fixture(tmp_path):
         "    return mcverify_seed, assert_check(mv.check_unbiased([1.0, 1.0], 1.0))\n"
         "def test_x(ref, mcverify_seed):\n"
         "    assert ref[0] == mcverify_seed == 5 and ref[1].passed\n")
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                        "--mcverify-seed", "5", str(tmp_path / "test_x.py")],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    r = _pytest_on(tmp_path / "test_x.py", "--mcverify-seed", "5")
     assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
 
 
@@ -145,17 +146,8 @@ def test_a_thread_count_the_user_set_is_kept_for_the_runs_tests_start(tmp_path):
         "    assert os.environ['PYTEST_XDIST_WORKER'] and "
         "os.environ['MCVERIFY_NUM_THREADS'] == '1'\n")
     env = {**os.environ, "MCVERIFY_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "4"}
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                        "-n", "2", str(tmp_path / "test_x.py")],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    r = _pytest_on(tmp_path / "test_x.py", "-n", "2", env=env)
     assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
-
-
-def _pytest_on(path):
-    """pytest run on one generated test file, in its folder."""
-    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                           str(path)], cwd=path.parent, capture_output=True, text=True,
-                          timeout=300)
 
 
 def test_a_failure_says_which_call_failed(tmp_path):
@@ -248,7 +240,5 @@ def test_an_xdist_worker_shares_the_cores_with_numba_imported_by_a_test(tmp_path
         "    assert numba.get_num_threads() == 2, numba.get_num_threads()\n")
     env = {**os.environ, "NUMBA_NUM_THREADS": "4"}
     env.pop("MCVERIFY_NUM_THREADS", None)
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                        "-n", "2", "--dist", "loadfile", str(tmp_path / "test_x.py")],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    r = _pytest_on(tmp_path / "test_x.py", "-n", "2", "--dist", "loadfile", env=env)
     assert r.returncode == pytest.ExitCode.OK, (r.stdout, r.stderr)
