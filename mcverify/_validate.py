@@ -341,6 +341,23 @@ def host(v):
     return v
 
 
+def numpy_dtype(a) -> np.dtype | None:
+    """The numpy type of ``a`` (a numpy dtype, or an array of any library), None where it
+    has none numpy reads: a torch tensor's ``dtype``, ``torch.float32``, is none of
+    numpy's, and every image given as a torch tensor raised numpy's bare "Cannot
+    interpret 'torch.float32' as a data type" (until 7 December; found in a review of
+    an outside review's tensor fixes); its values' type, as numpy reads them, is. The
+    images' and the estimates' rounding read it so."""
+    if a is None or isinstance(a, np.dtype):
+        return a
+    if isinstance(a, np.ndarray):
+        return a.dtype
+    try:
+        return np.asarray(host(a)).dtype
+    except (TypeError, ValueError, RuntimeError):   # refused where it is read
+        return None
+
+
 def as_array(what, v) -> np.ndarray:
     """``np.asarray(v)``, or InvalidArgument saying ``what`` is wrong (a string, or a
     function of no arguments that makes it: a repr of a million points costs about a

@@ -32,7 +32,7 @@ def _rounding(samples) -> float:
     float32's precision where they are float32. A float32 renderer's perfect estimator
     (p ∝ f) is constant only to float32's ulps (0.1f ± 7e-9), which float64's allowance
     took for a bias and a variance. (Float16, 64 of whose ulps are 6 %, keeps float64's.)"""
-    if np.asarray(validate.host(samples)).dtype == np.float32:
+    if validate.numpy_dtype(samples) == np.float32:
         return 64 * float(np.finfo(np.float32).eps)
     return _ROUNDING
 
@@ -330,7 +330,7 @@ def _rmse_rounding(v) -> float:
     perfect estimator's mean, summed pairwise in float32, errs by up to 1.2 eps; 64 of
     them, ``_rounding``'s allowance for one value, would take a float32 estimator of
     real noise, RMSE 4e-6 at large N, for an exact one)."""
-    if np.asarray(validate.host(v)).dtype == np.float32:
+    if validate.numpy_dtype(v) == np.float32:
         return 4 * float(np.finfo(np.float32).eps)
     return _ROUNDING
 

@@ -100,27 +100,11 @@ def _rounding(*arrays) -> tuple[float, float]:
     both sides) failed against a float reference with p = 0 (an outside review)."""
     rel, tiny = ROUNDING, 0.0
     for a in arrays:        # arrays, or a numpy dtype (``compare_images``' ``precision``)
-        dtype = _numpy_dtype(a)
+        dtype = validate.numpy_dtype(a)
         if dtype is not None and np.issubdtype(dtype, np.floating):
             info = np.finfo(dtype)
             rel, tiny = max(rel, float(info.eps)), max(tiny, float(info.smallest_subnormal))
     return rel, tiny
-
-
-def _numpy_dtype(a) -> np.dtype | None:
-    """The numpy type of ``a`` (a numpy dtype, or an array of any library), None where it
-    has none numpy reads: a torch tensor's ``dtype``, ``torch.float32``, is none of
-    numpy's, and every image given as a torch tensor raised numpy's bare "Cannot
-    interpret 'torch.float32' as a data type" (until 7 December; found in a review of
-    an outside review's tensor fixes); its values' type, as numpy reads them, is."""
-    if a is None or isinstance(a, np.dtype):
-        return a
-    if isinstance(a, np.ndarray):
-        return a.dtype
-    try:
-        return np.asarray(validate.host(a)).dtype
-    except (TypeError, ValueError, RuntimeError):   # refused where it is read
-        return None
 
 
 def _floating_type(name: str, v) -> np.dtype:
