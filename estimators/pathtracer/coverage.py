@@ -17,6 +17,7 @@ import sys
 
 from .layout import FILTERS, WRAPS
 from .scene import SUPPORTED, TRANSMISSIVE, Plugin, SceneDescription, load_scene
+from .spectra import FEATURES as SPECTRUM_FEATURES
 
 #: (kind, type, property) -> why it cannot change the expected image
 NO_IMAGE_EFFECT = {
@@ -76,6 +77,7 @@ def accepted_features() -> set[str]:
     out |= {f"bsdf:twosided({inner})" for inner in SUPPORTED["bsdf"]
             if inner not in ("twosided", *TRANSMISSIVE)}
     out |= {f"emitter:area:{shape}" for shape in SUPPORTED["shape"]}
+    out |= {f"spectrum:{f}" for f in SPECTRUM_FEATURES}
     return out
 
 
@@ -93,6 +95,7 @@ def _plugin_features(p: Plugin) -> set[str]:
             out.add(f"{p.kind}:{p.type}.{prop}=-1")
         else:
             out.add(f"{p.kind}:{p.type}.{prop}")
+    out |= {f"spectrum:{f}" for f in p.spectra.values()}
     for child in p.children:
         out |= _plugin_features(child)
         if p.type == "twosided" and child.kind == "bsdf":

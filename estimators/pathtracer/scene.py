@@ -12,7 +12,8 @@ film ``hdrfilm``, ``rfilter`` ``box``, ``gaussian`` (the default) and ``tent``, 
 ``cube``, ``disk``, ``sphere``, ``obj``, ``ply``, ``serialized``; BSDFs ``diffuse``, ``conductor``,
 ``roughconductor``, ``dielectric``, ``roughdielectric``, ``thindielectric``, ``plastic``,
 ``roughplastic``, ``twosided``, ``blendbsdf``, ``mask``; emitters ``area``, ``point``,
-``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values, ``bitmap`` and
+``spot``, ``directional``, ``constant``, ``envmap``; ``rgb`` values, ``spectrum`` values
+(turned into RGB as Mitsuba's RGB variants turn them: ``spectra.py``), ``bitmap`` and
 ``checkerboard`` textures.
 """
 
@@ -28,6 +29,8 @@ import numpy as np
 
 from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, ascii_lower,
                            finite_in_float32, parse_float, parse_int, split_numbers)
+from .spectra import (INDEX_PROPERTIES, number_pair, read_spd, spectrum_feature,
+                      spectrum_list_rgb, uniform_emission_rgb)
 from .transform import look_at, matrix, rotate, scale, translate
 
 __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scene"]
@@ -126,6 +129,8 @@ class Plugin:
     id: str | None = None
     children: list = field(default_factory=list)
     origin: str | None = None     # the <include>d file it is declared in (None: the scene)
+    #: property -> how a <spectrum> gave it (``spectrum_feature``), for the coverage matrix
+    spectra: dict = field(default_factory=dict)
 
     def get(self, name, default=None):
         return self.props.get(name, default)
@@ -275,17 +280,19 @@ _TRANSFORM_ATTRIBUTES = {"translate": ("value", "x", "y", "z"),
                          "lookat": ("origin", "target", "up"), "matrix": ("value",)}
 #: BSDF properties whose <rgb> is no reflectance (complex index of refraction): Mitsuba
 #: lets them leave [0, 1]
-_UNBOUNDED_RGB = ("eta", "k")
+_UNBOUNDED_RGB = INDEX_PROPERTIES
 #: properties Mitsuba reads as a <float> or a named <string> only: its index look-up
 #: refuses an <integer> ("has the wrong type (expected string, got integer)")
 _NO_INTEGER = ("int_ior", "ext_ior")
-_VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
+_VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector",
+               "transform")
 #: the attributes Mitsuba's parser allows on each element (it refuses any other: a typo
 #: such as ``vaule=`` would otherwise leave a default in place without a word)
 _ATTRIBUTES = {"scene": ("version",), "default": ("name", "value"), "ref": ("id", "name"),
                "include": ("filename",), "path": ("value",),
                "transform": ("name",), "point": ("name", "value", "x", "y", "z"),
                "vector": ("name", "value", "x", "y", "z"),
+               "spectrum": ("name", "value", "filename"),
                **{t: ("name", "value") for t in ("float", "integer", "boolean", "string", "rgb")}}
 _PLUGIN_ATTRIBUTES = ("type", "id", "name")
 #: children a plugin may hold one of at most (Mitsuba refuses a second: "A film can only
@@ -428,6 +435,8 @@ class _Loader:
             return "string", self.attr(node, "value")
         if tag == "rgb":
             return "rgb", self.numbers(node, self.attr(node, "value"), 3)
+        if tag == "spectrum":
+            return "spectrum", self.spectrum(node)
         if tag in ("point", "vector"):
             # value, or all three coordinates, as Mitsuba requires (translate/scale/rotate
             # default the ones left out; a point or vector does not)
@@ -435,6 +444,61 @@ class _Loader:
         if tag == "transform":
             return "transform", self.transform(node)
         self.fail(node, "unsupported value type")
+
+    def spectrum(self, node):
+        """A ``<spectrum>``'s uniform value (a float), or its wavelengths and values (two
+        arrays), from ``value`` or from the file ``filename`` names, as Mitsuba's parser
+        takes them: one of the two; a single number, or ``wavelength:value`` pairs
+        separated by commas or spaces, at least two, the wavelengths increasing."""
+        text, name = self.attr(node, "value", ""), self.attr(node, "filename", "")
+        if (text == "") == (name == ""):
+            self.fail(node, "a <spectrum> takes value=\"...\" or filename=\"...\", one of "
+                            "the two (Mitsuba refuses both, or neither, too)")
+        if name:
+            path = first_found(name, self.search + [os.path.dirname(self.path)]) or \
+                os.path.join(os.path.dirname(self.path), name)
+            problem = file_problem(path, MAX_SCENE_BYTES)
+            read = problem or read_spd(path)
+            if isinstance(read, str):
+                self.fail(node, read if problem else f"spectrum file {path}: {read}")
+            wavelengths, values = read
+        else:
+            tokens = split_numbers(text)
+            if len(tokens) == 1 and ":" not in tokens[0]:
+                return float(self.numbers(node, text, 1)[0])
+            wavelengths, values = [], []
+            for token in tokens:
+                pair = number_pair([t for t in token.split(":") if t])
+                if pair is None:
+                    self.fail(node, f"expected wavelength:value pairs (e.g. \"400:0.1, "
+                                    f"700:0.9\") or one number, got {token!r}")
+                wavelengths.append(pair[0])
+                values.append(pair[1])
+        where = f"spectrum file {name!r}" if name else "spectrum"
+        if len(wavelengths) < 2:
+            self.fail(node, f"{where}: {len(wavelengths)} wavelength:value pair(s); a "
+                            "spectrum needs at least two (Mitsuba refuses it too)")
+        if not (np.all(np.isfinite(wavelengths)) and np.all(np.isfinite(values))):
+            self.fail(node, f"{where}: expected finite numbers")
+        if not np.all(np.diff(wavelengths) > 0):
+            self.fail(node, f"{where}: the wavelengths must increase (Mitsuba refuses it "
+                            "too)")
+        return np.array(wavelengths), np.array(values)
+
+    def spectrum_value(self, node, kind, name, allowed, spectrum):
+        """A ``<spectrum>`` as the ``<rgb>`` or ``<float>`` Mitsuba's RGB variants make of
+        it for property ``name`` of a ``kind`` (``spectra.py``): an emitter's radiance,
+        irradiance or intensity is an emission, ``eta`` and ``k`` unbounded indices, the
+        rest reflectances."""
+        emitter = kind == "emitter"
+        if "rgb" not in allowed:
+            self.fail(node, f"property {name!r} takes {' or '.join(allowed)}, not a spectrum")
+        if isinstance(spectrum, float):
+            if emitter:
+                return "rgb", uniform_emission_rgb(spectrum)
+            return ("float", spectrum) if "float" in allowed else ("rgb", np.full(3, spectrum))
+        return "rgb", spectrum_list_rgb(*spectrum, emitter=emitter,
+                                        unbounded=name in _UNBOUNDED_RGB)
 
     def transform(self, node):
         m = np.eye(4)
@@ -536,6 +600,10 @@ class _Loader:
             p.props[name] = val
 
         for child in node.children:
+            if child.tag == "spectrum" and "type" in child.attrib:
+                self.fail(child, "spectrum plugins (<spectrum type=...>: blackbody, d65, "
+                                 "...) are not supported; give wavelength:value pairs, a "
+                                 "file of them, or an <rgb>")
             if child.tag in _VALUE_TAGS or child.tag == "ref":
                 self.check_attributes(child)
             if child.tag in _VALUE_TAGS:
@@ -547,6 +615,10 @@ class _Loader:
                     known = ", ".join(k for k in sorted(spec) if k != "children")
                     self.fail(child, f"{kind} {ptype!r}: unsupported property {name!r}; "
                                      f"supported: {known or 'none'}")
+                if vkind == "spectrum":
+                    p.spectra[name] = spectrum_feature(kind, name, val,
+                                                       "filename" in child.attrib)
+                    vkind, val = self.spectrum_value(child, kind, name, spec[name], val)
                 if vkind == "integer" and "integer" not in spec[name] and \
                         "float" in spec[name] and name not in _NO_INTEGER:
                     vkind, val = "float", float(val)    # Mitsuba reads an integer as a float
@@ -603,11 +675,9 @@ class _Loader:
                     self.fail(child, f"a <{child.tag}> cannot go inside {kind} {ptype!r}")
                 p.children.append(self.plugin(child))
             else:
-                hint = ("; give the colour as <rgb> (the tracer renders RGB; Mitsuba's RGB "
-                        "variants turn a spectrum into RGB)" if child.tag == "spectrum" else "")
                 self.fail(child, f"unsupported element inside {kind} {ptype!r}; supported: "
                                  f"{', '.join(_VALUE_TAGS)}, ref, texture and nested "
-                                 f"plugins{hint}")
+                                 "plugins")
         for what in _ONE_EACH.get(kind, ()):
             if sum(c.kind == what for c in p.children) > 1:
                 self.fail(node, f"more than one {what} in one {kind} (Mitsuba refuses it "

@@ -17,8 +17,8 @@ SCENES = os.path.join(ROOT, "reference", "scenes")
 # tests/estimators/test_pathtracer_render.py, and bunny in tests/estimators/test_real_mesh.py
 GATE_SCENES = ["delta-lights", "veach-mis", "textures", "vocabulary-materials",
                "vocabulary-lights", "vocabulary-geometry", "vocabulary-glass",
-               "vocabulary-frame", "vocabulary-serialized", "filters", "filters-tent",
-               "filters-gaussian"]
+               "vocabulary-frame", "vocabulary-serialized", "vocabulary-spectra", "filters",
+               "filters-tent", "filters-gaussian"]
 GATED = set(GATE_SCENES) | {"cornell-box", "rough-conductors", "glass-sphere", "bunny"}
 
 

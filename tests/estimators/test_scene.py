@@ -299,9 +299,9 @@ SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/></sensor>')
      'upp="0,1,0"/></transform></shape>', ["s.xml:3", "unexpected attribute 'upp'"]),
     ('<shape type="sphere"><transform name="to_world"><scale value="2" x="3"/></transform>'
      '</shape>', ["s.xml:3", "either value or x/y/z"]),
-    ('<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" value="0.5"/>'
-     '</bsdf></shape>', ["s.xml:3", '<spectrum name="reflectance">', "supported: float, integer",
-      "<rgb>"]),
+    ('<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" '
+     'type="blackbody"/></bsdf></shape>', ["s.xml:3", 'name="reflectance">',
+                                          "spectrum plugins", "<rgb>"]),
     # what Mitsuba refuses too, instead of a silent choice of one meaning
     ('<bsdf type="diffuse" id="a"/>\n<bsdf type="conductor" id="a"/>',
      ["s.xml:4", "id 'a' is already used by the <bsdf> on line 3"]),

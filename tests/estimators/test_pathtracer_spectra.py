@@ -1,0 +1,227 @@
+"""``<spectrum>`` values (refused by line until 7 December, though Mitsuba's own Cornell
+box and documentation scenes give their colours so): read into RGB as Mitsuba's RGB
+variants read them, compared with the values Mitsuba 3.9.1 loads (random spectra in
+every role, every emitter type, a spectrum file); what Mitsuba refuses is refused by
+line; and the vocabulary-spectra reference scene's render gate sees a wrong reading."""
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimators.pathtracer import SceneError, load_scene, parse_scene
+from estimators.pathtracer import scene as scene_module
+from estimators.pathtracer.spectra import spectrum_list_rgb, uniform_emission_rgb
+
+ROOT = os.path.join(os.path.dirname(__file__), "..", "..")
+SPECTRA_SCENE = os.path.join(ROOT, "reference", "scenes", "vocabulary-spectra")
+SENSOR = '<sensor type="perspective"><float name="fov" value="45"/></sensor>'
+
+
+def _mitsuba_values(mi, text):
+    """Mitsuba's loaded colour and number parameters of a scene: the last key component
+    before ``.value`` (``radiance``, ``eta``, ``color0``, ...) -> its value(s)."""
+    params = mi.traverse(mi.load_string(text))
+    return {k.split(".")[-2]: np.ravel(np.array(params[k], dtype=float))
+            for k in params.keys() if k.endswith(".value")}
+
+
+@st.composite
+def _spectra(draw):
+    """Wavelength:value pairs as users write them: 2 to 12 wavelengths, increasing, from
+    300 to 900 nm (some outside the 360–830 nm the CIE tables cover), values to 6
+    digits."""
+    n = draw(st.integers(2, 12))
+    wavelengths = sorted(draw(st.sets(st.integers(300, 900), min_size=n, max_size=n)))
+    values = [float(f"{draw(st.floats(0.0, 5.0)):.6g}") for _ in wavelengths]
+    return np.array(wavelengths, float), np.array(values)
+
+
+def _text(spectrum):
+    return ", ".join(f"{w:g}:{v:.6g}" for w, v in zip(*spectrum))
+
+
+@pytest.mark.mitsuba
+@settings(max_examples=40, deadline=None, derandomize=True, database=None)
+@given(spectrum=_spectra())
+def test_pairs_read_as_mitsubas_rgb_variants_read_them_in_every_role(mi, spectrum):
+    """An emitter's radiance (not weighted by D65, clipped at 0), a conductor's eta and
+    k (weighted, clipped at 0) and a diffuse reflectance (weighted, clipped to [0, 1]):
+    within 1e-5 of Mitsuba's largest channel (its tables are float32, and its D65 the
+    tabulated one)."""
+    pairs = _text(spectrum)
+    ours = {"radiance": spectrum_list_rgb(*spectrum, emitter=True, unbounded=False),
+            "eta": spectrum_list_rgb(*spectrum, emitter=False, unbounded=True),
+            "reflectance": spectrum_list_rgb(*spectrum, emitter=False, unbounded=False)}
+    theirs = _mitsuba_values(mi, (
+        f'<scene version="3.0.0"><shape type="sphere"><bsdf type="roughconductor">'
+        f'<spectrum name="eta" value="{pairs}"/></bsdf><emitter type="area">'
+        f'<spectrum name="radiance" value="{pairs}"/></emitter></shape>'
+        f'<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" '
+        f'value="{pairs}"/></bsdf></shape></scene>'))
+    for name, rgb in ours.items():
+        # to 1e-5 of the colour's largest channel: a small channel is a difference of
+        # large XYZ terms, as exact as the largest
+        scale = 1e-5 * np.abs(theirs[name]).max() + 1e-6
+        assert np.all(np.abs(rgb - theirs[name]) <= scale), (name, rgb, theirs[name])
+    assert np.all(ours["reflectance"] <= 1.0)
+
+
+_EVERY_ROLE = f"""<scene version="3.0.0">{SENSOR}
+<shape type="sphere"><bsdf type="roughconductor"><spectrum name="eta" value="{{L}}"/>
+  <spectrum name="k" value="3"/><spectrum name="specular_reflectance" value="{{L}}"/></bsdf>
+  <emitter type="area"><spectrum name="radiance" value="{{L}}"/></emitter></shape>
+<shape type="rectangle"><bsdf type="plastic"><texture type="checkerboard"
+  name="diffuse_reflectance"><spectrum name="color0" filename="paint.spd"/>
+  <spectrum name="color1" value="0.25"/></texture>
+  <spectrum name="specular_reflectance" value="0.5"/></bsdf></shape>
+<emitter type="point"><spectrum name="intensity" value="2"/></emitter>
+<emitter type="spot"><spectrum name="intensity" value="{{L}}"/></emitter>
+<emitter type="directional"><spectrum name="irradiance" value="0.75"/></emitter>
+<emitter type="constant"><spectrum name="radiance" value="{{L}}"/></emitter>
+</scene>"""
+
+
+def _our_values(desc):
+    """Our loaded colour and number properties, by name, as ``_mitsuba_values``."""
+    out = {}
+
+    def walk(p):
+        for name, value in p.props.items():
+            if hasattr(value, "props"):
+                walk(value)
+            elif name not in ("to_world", "to_uv"):
+                out.setdefault(name, []).append(np.ravel(np.array(value, dtype=float)))
+        for child in p.children:
+            walk(child)
+    for p in (*desc.shapes, *desc.emitters):
+        walk(p)
+    return out
+
+
+@pytest.mark.mitsuba
+def test_a_scene_of_spectra_in_every_role_loads_mitsubas_values(mi, tmp_path):
+    """Each emitter type (pairs and uniform: an equal-energy spectrum, pinkish in sRGB),
+    indices, reflectances (pairs, a uniform number) and a spectrum file, in one scene:
+    our loader's values are Mitsuba's."""
+    (tmp_path / "paint.spd").write_text("# wavelength value\n400 0.1\n\n550 0.8\n700 0.3\n")
+    text = _EVERY_ROLE.replace("{L}", "400:0.1, 450:0.7, 500:2.5, 620:0.3, 700:1.1")
+    (tmp_path / "s.xml").write_text(text)
+    ours = _our_values(load_scene(str(tmp_path / "s.xml")))
+    params = mi.traverse(mi.load_file(str(tmp_path / "s.xml")))
+    theirs = {}
+    for k in params.keys():
+        if k.endswith(".value"):
+            theirs.setdefault(k.split(".")[-2], []).append(
+                np.ravel(np.array(params[k], dtype=float)))
+    for name in ("eta", "k", "specular_reflectance", "radiance", "color0", "color1",
+                 "intensity", "irradiance"):
+        mine = sorted(ours[name], key=lambda v: tuple(np.broadcast_to(v, 3)))
+        other = sorted(theirs[name], key=lambda v: tuple(np.broadcast_to(v, 3)))
+        assert len(mine) == len(other), name
+        for a, b in zip(mine, other):
+            assert np.allclose(np.broadcast_to(a, 3), np.broadcast_to(b, 3), rtol=1e-5,
+                               atol=1e-6), (name, a, b)
+    # the uniform emissions are not grey: an equal-energy spectrum in sRGB
+    assert np.allclose(uniform_emission_rgb(1.0), [1.204794, 0.948292, 0.908916], atol=1e-6)
+
+
+@pytest.mark.parametrize("element,needle,mitsuba_refuses", [
+    ('<spectrum name="reflectance" value="0.5" filename="a.spd"/>',
+     "takes value=\"...\" or filename=\"...\", one of the two", True),
+    ('<spectrum name="reflectance"/>',
+     "takes value=\"...\" or filename=\"...\", one of the two", True),
+    ('<spectrum name="reflectance" value="500:0.5"/>',
+     "1 wavelength:value pair(s); a spectrum needs at least two", True),
+    ('<spectrum name="reflectance" value="500:0.5, 400:0.2"/>',
+     "the wavelengths must increase", True),
+    ('<spectrum name="reflectance" value="400:0.5, 400:0.2"/>',
+     "the wavelengths must increase", True),
+    ('<spectrum name="reflectance" value="400-0.5, 500:0.2"/>',
+     "expected wavelength:value pairs", True),
+    ('<spectrum name="reflectance" value="0.5 0.2"/>',
+     "expected wavelength:value pairs", True),
+    ('<spectrum name="reflectance" value="400:nan, 500:0.2"/>',
+     "expected finite numbers", False),
+    ('<spectrum name="reflectance" filename="missing.spd"/>', "missing.spd", True),
+    ('<spectrum name="reflectance" type="blackbody"/>', "spectrum plugins", False),
+    ('<spectrum name="reflectance" value="0.5" wavelengths="400"/>',
+     "unexpected attribute 'wavelengths'", True),
+], ids=["both", "neither", "one-pair", "decreasing", "repeated", "not-a-pair",
+        "two-numbers", "nan", "missing-file", "plugin", "attribute"])
+def test_a_spectrum_mitsuba_cannot_read_is_refused_by_line(mi, tmp_path, element, needle,
+                                                          mitsuba_refuses):
+    text = (f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf '
+            f'type="diffuse">{element}</bsdf></shape>\n</scene>')
+    (tmp_path / "s.xml").write_text(text)
+    with pytest.raises(SceneError) as e:
+        load_scene(str(tmp_path / "s.xml"))
+    assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
+    if mitsuba_refuses:     # the refusal is Mitsuba's too, not a gap of ours
+        with pytest.raises(RuntimeError):
+            mi.load_file(str(tmp_path / "s.xml"))
+
+
+def test_a_bad_spectrum_file_is_refused_naming_it_and_its_line(tmp_path):
+    (tmp_path / "bad.spd").write_text("# a comment\n400 0.1\n500 0.2 0.3\n")
+    (tmp_path / "s.xml").write_text(
+        f'<scene version="3.0.0">\n{SENSOR}\n<emitter type="constant"><spectrum '
+        'name="radiance" filename="bad.spd"/></emitter>\n</scene>')
+    with pytest.raises(SceneError, match=r"s\.xml:3.*bad\.spd: line 3: expected a "
+                                         r"wavelength and a value, got '500 0.2 0.3'"):
+        load_scene(str(tmp_path / "s.xml"))
+
+
+@pytest.mark.parametrize("element,needle", [
+    # Mitsuba's roughconductor takes a texture there; ours a number only, as for <rgb>
+    ('<bsdf type="roughconductor"><spectrum name="alpha" value="0.2"/></bsdf>',
+     "property 'alpha' takes float, not a spectrum"),
+    ('<bsdf type="dielectric"><spectrum name="int_ior" value="1.5"/></bsdf>',
+     "property 'int_ior' takes float or string, not a spectrum"),
+])
+def test_a_spectrum_where_a_number_is_read_is_refused(element, needle):
+    with pytest.raises(SceneError, match=needle):
+        parse_scene(f'<scene version="3.0.0">{SENSOR}<shape type="sphere">{element}'
+                    '</shape></scene>', path="s.xml")
+
+
+def test_a_uniform_reflectance_is_a_number_and_a_negative_one_is_refused():
+    desc = parse_scene(f'<scene version="3.0.0">{SENSOR}<shape type="sphere"><bsdf '
+                       'type="diffuse"><spectrum name="reflectance" value="0.4"/></bsdf>'
+                       '</shape></scene>', path="s.xml")
+    assert desc.shapes[0].children[0].props["reflectance"] == 0.4
+    with pytest.raises(SceneError, match="reflectance = -0.4: a reflectance"):
+        parse_scene(f'<scene version="3.0.0">{SENSOR}<shape type="sphere"><bsdf '
+                    'type="diffuse"><spectrum name="reflectance" value="-0.4"/></bsdf>'
+                    '</shape></scene>', path="s.xml")
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("mutant", ["grey-uniform-emission", "emission-weighted-by-d65",
+                                    "reflectance-not-weighted"])
+def test_the_render_gate_sees_a_spectrum_read_wrongly(tmp_path, monkeypatch, mutant):
+    """vocabulary-spectra passes its render gate (``test_pathtracer_coverage``); with a
+    spectrum read otherwise than Mitsuba reads it, it fails: a uniform emission taken as
+    grey, pairs of an emission weighted by D65 as a reflectance's are, or a
+    reflectance's not weighted. A copy of the scene (its committed reference with it):
+    a compiled scene is kept per path."""
+    from mcverify.gate.render_check import render_check
+
+    shutil.copytree(SPECTRA_SCENE, tmp_path / "vs")
+    if mutant == "grey-uniform-emission":
+        monkeypatch.setattr(scene_module, "uniform_emission_rgb", lambda v: np.full(3, v))
+    else:
+        def wrong(wavelengths, values, emitter, unbounded):
+            if mutant == "emission-weighted-by-d65" and emitter:
+                return spectrum_list_rgb(wavelengths, values, emitter=False, unbounded=True)
+            if mutant == "reflectance-not-weighted" and not emitter:
+                return np.clip(spectrum_list_rgb(wavelengths, values, emitter=True,
+                                                 unbounded=False), 0.0, 1.0)
+            return spectrum_list_rgb(wavelengths, values, emitter=emitter,
+                                     unbounded=unbounded)
+        monkeypatch.setattr(scene_module, "spectrum_list_rgb", wrong)
+    r = render_check(str(tmp_path / "vs" / "scene.xml"), spp=512, passes=8, seed=3)
+    assert not r.passed, r.summary()
