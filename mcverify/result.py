@@ -8,6 +8,7 @@ replaced (``atomic_write``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -23,7 +24,7 @@ from . import stats
 from .errors import InvalidArgument
 
 __all__ = ["CheckResult", "SuiteResult", "write_json", "write_junit", "atomic_write",
-           "output_target", "json_text", "escape_controls"]
+           "staged_writes", "output_target", "json_text", "escape_controls"]
 
 
 def _jsonable(v, _inside=frozenset()):
@@ -301,15 +302,66 @@ def atomic_write(path, data: str | bytes) -> None:
     and a rename: readers see the old or the new content, never half of it, and on any
     failure the temporary file is removed and the old file is untouched. An existing
     file keeps its permission bits. A symlink is followed and its target written; a FIFO
-    or character device is written into directly (see ``output_target``)."""
+    or character device is written into directly (see ``output_target``). Inside
+    ``staged_writes`` the rename waits for the block's end."""
     target, how = output_target(path)
     # a lone surrogate (a non-UTF-8 file name in a check's message) has no UTF-8 bytes:
     # it is written as its escape, \udcff, rather than fail the write after the others
     payload = data.encode("utf-8", "backslashreplace") if isinstance(data, str) else data
     try:
-        _write(target, how, payload)
+        _write(target, how, payload, path)
     except OSError as e:    # named by the path asked for, not a temporary file's name
         raise OSError(e.errno, f"cannot write it ({e.strerror or e})", path) from None
+
+
+#: The renames (temporary file, target, path as given) that the open ``staged_writes``
+#: block makes at its end, and the files it removes then; None outside a block.
+_STAGED: dict | None = None
+
+
+@contextlib.contextmanager
+def staged_writes():
+    """Several outputs written as one: inside the block, ``atomic_write`` writes each
+    regular file's temporary file and ``discard`` notes the files to remove, and the
+    renames and removals are made together at its end, once every file is written; an
+    error (a full disk on the last output) or Ctrl-C before then removes the temporary
+    files, and every output is left as it was. ``check --json A --junit B`` whose JUnit
+    write failed (ENOSPC) exited 2 with A replaced by this run's results beside B's
+    last ones. A FIFO or device (``/dev/stdout``) is written into at once, as outside.
+    Nested blocks join the outermost."""
+    global _STAGED
+    if _STAGED is not None:
+        yield
+        return
+    _STAGED = {"renames": [], "removals": []}
+    try:
+        yield
+        staged = _STAGED
+        _STAGED = None
+        for tmp, target, path in staged["renames"]:
+            try:
+                os.replace(tmp, target)
+            except OSError as e:
+                raise OSError(e.errno, f"cannot write it ({e.strerror or e})", path) from None
+        for path in staged["removals"]:
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(path)
+    finally:
+        if _STAGED is not None:
+            staged, _STAGED = _STAGED, None
+        for tmp, _, _ in staged["renames"]:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+
+
+def discard(path) -> None:
+    """Remove the file ``path`` if it exists; inside ``staged_writes``, at the block's end
+    with its renames (a report's images that the new report no longer names)."""
+    if _STAGED is not None:
+        _STAGED["removals"].append(os.fspath(path))
+        return
+    with contextlib.suppress(FileNotFoundError):
+        os.remove(path)
 
 
 #: Most bytes of a target's name that its temporary file's name repeats: with ".tmp-" and
@@ -317,7 +369,7 @@ def atomic_write(path, data: str | bytes) -> None:
 _TMP_NAME_BYTES = 200
 
 
-def _write(target: str, how: str, payload: bytes) -> None:
+def _write(target: str, how: str, payload: bytes, path) -> None:
     if how == "stream":
         with open(target, "wb") as f:
             f.write(payload)
@@ -338,7 +390,10 @@ def _write(target: str, how: str, payload: bytes) -> None:
         with os.fdopen(fd, "wb") as f:
             f.write(payload)
         os.chmod(tmp, mode)
-        os.replace(tmp, target)
+        if _STAGED is not None:     # renamed at the end of the block, with the others
+            _STAGED["renames"].append((tmp, target, os.fspath(path)))
+        else:
+            os.replace(tmp, target)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

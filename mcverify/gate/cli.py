@@ -23,7 +23,7 @@ import time
 
 from .._validate import decimal_int
 from ..errors import EnvironmentProblem, InvalidArgument, MissingReference, interrupted
-from ..result import escape_controls
+from ..result import escape_controls, staged_writes
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_BROKEN_PIPE = 141         # 128 + SIGPIPE, as a shell reports a command whose reader left
@@ -556,7 +556,8 @@ def _outputs_together():
     (KeyboardInterrupt, exit 130): one there left this run's JSON beside the last run's
     JUnit file and report. A SIGTERM that ``_sigterm_unwinds`` raises is held too. Where
     SIGINT is not Python's (ignored, or the caller's own handler) or off the main thread,
-    it is left alone."""
+    it is left alone. The files are renamed into place together once all are written
+    (``staged_writes``): a write that fails leaves every output as it was."""
     ours = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: _on_sigterm}
     if threading.current_thread() is not threading.main_thread():
         ours = {}
@@ -565,7 +566,10 @@ def _outputs_together():
     for sig in ours:
         signal.signal(sig, lambda signum, frame: held.append(signum))
     try:
-        yield
+        # renamed in together once all are written: a write that fails (a full disk on
+        # --junit) left this run's --json beside the last run's JUnit file, exit 2
+        with staged_writes():
+            yield
     finally:
         for sig, handler in ours.items():
             signal.signal(sig, handler)

@@ -339,3 +339,32 @@ def test_each_commands_help_says_what_it_does_and_what_it_exits_with(argv, says,
         assert text in out, (text, out)
     if argv[0] in ("list", "plan", "bench", "reference"):   # they judge nothing
         assert "\n  1    " not in out, out
+
+
+def test_a_failed_output_write_leaves_the_other_outputs_as_they_were(tmp_path):
+    """`check --json A --junit B` writes A, then B, at the run's end: where B could not be
+    written (a full disk: /dev/full), the run exited 2, "no output is written or
+    replaced", with A replaced by this run's results beside B's last ones, which CI then
+    read together. The outputs are now renamed into place together once all are
+    written; a failed write leaves every one as it was, and no temporary file."""
+    import os
+
+    (tmp_path / "tiny_suite.py").write_text(
+        "import numpy as np, mcverify\n"
+        "from mcverify.gate.suites import Check\n"
+        "def ok(seed, stop_alpha=None):\n"
+        "    x = np.random.default_rng(seed).normal(size=1000)\n"
+        "    return mcverify.check_unbiased(x, 0.0)\n"
+        "suite = [Check('my.ok', ok)]\n", encoding="utf-8")
+    env = dict(os.environ,
+               PYTHONPATH=os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "run.json").write_text("last run\n")
+    r = subprocess.run(CMD + ["check", "--suite", "tiny_suite:suite", "-q", "--json",
+                              str(out / "run.json"), "--junit", "/dev/full"],
+                       capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "/dev/full" in r.stderr and "No space left" in r.stderr, r.stderr
+    assert (out / "run.json").read_text() == "last run\n"
+    assert os.listdir(out) == ["run.json"]

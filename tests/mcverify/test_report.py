@@ -64,6 +64,27 @@ def test_a_report_over_an_old_one_removes_the_old_ones_images_only(tmp_path):
     assert (tmp_path / "report.html").exists()
 
 
+def test_a_report_whose_page_cannot_be_written_leaves_the_old_report_whole(tmp_path):
+    """The report writes its images, report.json and report.html one after another: where
+    the page could not be written (a full disk: report.html a link to /dev/full), the
+    new report.json replaced the old one beside the old page, and the old report's
+    images it no longer names were deleted. Now nothing is replaced or removed until
+    every file is written."""
+    build_report(str(tmp_path), suite=None, study=None, extra_provenance={})
+    (tmp_path / "render_a.png").write_bytes(b"old")      # as if the old report drew it
+    doc = json.loads((tmp_path / "report.json").read_text())
+    doc["images"]["render_a.png"] = "render_a.png"
+    old = json.dumps(doc)
+    (tmp_path / "report.json").write_text(old)
+    (tmp_path / "report.html").unlink()
+    (tmp_path / "report.html").symlink_to("/dev/full")
+    with pytest.raises(OSError, match="No space left"):
+        build_report(str(tmp_path), suite=None, study=None, extra_provenance={})
+    assert (tmp_path / "report.json").read_text() == old
+    assert (tmp_path / "render_a.png").read_bytes() == b"old"
+    assert sorted(os.listdir(tmp_path)) == ["render_a.png", "report.html", "report.json"]
+
+
 def test_report_json_has_no_bare_nan_token(tmp_path):
     """report.json is written as every other output file (``result.json_text``): a
     non-finite number is the string "nan"/"inf", where a plain json.dumps wrote the bare

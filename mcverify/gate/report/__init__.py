@@ -15,8 +15,8 @@ import json
 import os
 
 from ...provenance import provenance
-from ...result import (SuiteResult, atomic_write, escape_controls, json_text,
-                      output_target)
+from ...result import (SuiteResult, atomic_write, discard, escape_controls, json_text,
+                      output_target, staged_writes)
 from . import plots
 
 __all__ = ["build_report", "prepare_report", "render_html", "files_touched"]
@@ -75,17 +75,17 @@ def prepare_report(out_dir: str, *, suite: SuiteResult | None, study: list[dict]
     page = render_html(doc, images, captions)
 
     def write() -> None:
-        os.makedirs(out_dir, exist_ok=True)
-        stale = set(_previous_images(out_dir)) - set(images)
-        for name, data in images.items():
-            atomic_write(os.path.join(out_dir, name), data)
-        atomic_write(os.path.join(out_dir, "report.json"), text)
-        atomic_write(os.path.join(out_dir, "report.html"), page)
-        for name in stale:      # the last report's images this one does not have
-            try:
-                os.remove(os.path.join(out_dir, name))
-            except FileNotFoundError:
-                pass
+        # all or nothing: a full disk on report.html left the new report.json and
+        # images beside the last report's page
+        with staged_writes():
+            os.makedirs(out_dir, exist_ok=True)
+            stale = set(_previous_images(out_dir)) - set(images)
+            for name, data in images.items():
+                atomic_write(os.path.join(out_dir, name), data)
+            atomic_write(os.path.join(out_dir, "report.json"), text)
+            atomic_write(os.path.join(out_dir, "report.html"), page)
+            for name in stale:      # the last report's images this one does not have
+                discard(os.path.join(out_dir, name))
 
     return doc, write
 
