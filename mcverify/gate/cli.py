@@ -1703,6 +1703,21 @@ def _stopped() -> int:
     return EXIT_INTERRUPTED
 
 
+def _cwd_gone(e: OSError) -> str:
+    """Where an error naming no file came from a current directory deleted under the
+    process (``os.getcwd()`` fails): the words that say so. Every command but a
+    ``compare`` of absolute paths ended in "mcverify: error: No such file or directory",
+    naming nothing (an outside review)."""
+    if e.filename or not isinstance(e, FileNotFoundError):
+        return ""
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        return (" (the current directory no longer exists: it was deleted or moved under "
+                "this run; cd into a folder that exists and run again)")
+    return ""
+
+
 def _failure(e: Exception) -> int:
     """The one stderr line and exit code of an error that ended a run (called while it
     is handled: ``MCVERIFY_TRACEBACK`` re-raises it)."""
@@ -1718,7 +1733,7 @@ def _failure(e: Exception) -> int:
         return EXIT_BROKEN_PIPE
     if isinstance(e, OSError):
         where = f"{e.filename}: " if e.filename else ""
-        print(f"mcverify: error: {where}{e.strerror or e}", file=sys.stderr)
+        print(f"mcverify: error: {where}{e.strerror or e}{_cwd_gone(e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     if os.environ.get("MCVERIFY_TRACEBACK"):
         raise e
