@@ -455,7 +455,8 @@ def test_inverted_cdf_of_a_narrow_peak_alone_converges():
 def test_2d_tables_are_each_rows_1d_table(shape, zero_below):
     """The conditional tables are built for all rows at once; each row's CDF and guide
     must be what the 1-D construction gives it (zero rows uniform, a row whose sum
-    overflows scaled), bit for bit."""
+    overflows scaled by its own largest entry), bit for bit. Two such rows of different
+    maxima: both scaled by the larger one passed the test with one (mutation test)."""
     import estimators.distributions as D
 
     v = np.random.default_rng(shape[0]).random(shape) ** 4
@@ -463,6 +464,8 @@ def test_2d_tables_are_each_rows_1d_table(shape, zero_below):
     v[0] = 0.0                                     # an all-zero row
     if shape[1] > 1:
         v[-1, :2] = 1e308                          # a row whose sum overflows
+    if shape[1] > 2 and shape[0] > 2:
+        v[-2, :3] = 0.7e308                        # another, of a smaller maximum
     q = PiecewiseConstant2D(v)
     for row, cdf, table in zip(v, q.conditional_cdf, q.conditional_table):
         one = D._cdf_of(row, "values")[0]
