@@ -557,3 +557,21 @@ def test_the_standard_error_is_the_bessel_corrected_deviation_over_root_n(name):
     assert t.size == 4 and np.ptp(t) > 0
     assert e.std_error == pytest.approx(np.sqrt(np.sum((t - t.mean()) ** 2) / 3) / 2,
                                         rel=1e-12)
+
+
+@pytest.mark.parametrize("name", ["importance", "russian_roulette"])
+def test_a_point_where_f_and_p_are_both_0_counts_as_0(name):
+    """importance's promise: f = 0 contributes 0 even where p = 0 (0/0 would make the
+    estimate NaN); russian_roulette's terms are importance's. x = √u has p = 2x, 0 at
+    x = 0; the first draw is put there (mutation test: the guard dropped survived every
+    other test)."""
+    def sample(u):
+        u = u.copy()
+        u[0] = 0.0
+        return np.sqrt(u[:, 0])
+
+    f, pdf = (lambda x: x ** 2), (lambda x: 2.0 * x)
+    e = (mc.importance(f, sample, pdf, 1000, seed=2) if name == "importance"
+         else mc.russian_roulette(f, sample, pdf, 1000, 1.0, seed=2))
+    assert e.samples[0] == 0.0
+    assert np.isfinite(e.value) and np.isfinite(e.std_error)
