@@ -746,3 +746,21 @@ def test_a_small_object_flipped_on_a_flat_background_is_named():
     r = mv.compare_images(a.mean(-1)[::-1], b.mean(-1), test_var=a.var(-1, ddof=1)[::-1],
                           ref_var=b.var(-1, ddof=1), test_n=16, ref_n=16, perceptual=False)
     assert not r.passed and "flipped vertically" in r.details["convention"]["guess"]
+
+
+def test_what_is_reported_found_is_what_failed_the_image():
+    """The verdict is the smallest of the three tests' p-values times 3 (Bonferroni) against
+    α, so each test's findings are those at α / 3: a pixel reported rejected (found_by,
+    rejected_fraction, the clearest pixel) at α while the image passed told the user of
+    a difference the verdict did not count. A single pixel off by more and more, from
+    nothing to clear: found iff failed, at every step."""
+    for shift in np.linspace(0.0, 1.2, 49):
+        tm = np.ones((8, 8, 1))
+        tm[3, 4, 0] += shift
+        v = np.ones((8, 8, 1))
+        r = mv.compare_images(tm, np.ones((8, 8, 1)), test_var=v, ref_var=v, test_n=100,
+                              ref_n=100, perceptual=False)
+        found = bool(r.details["found_by"])
+        assert r.passed != found, (shift, r.p_value, r.details["found_by"])
+        assert (r.details["rejected_fraction"] > 0) <= found
+        assert (r.details["blocks"]["n_rejected"] > 0) <= found
