@@ -25,6 +25,29 @@ def test_holm_judging_across_checks():
     assert not SuiteResult.judge("s", [_r("a", 0.9, ["NaN"])], alpha=0.01, seconds=1).passed
 
 
+def test_a_p_value_at_alpha_is_a_rejection():
+    """p <= α rejects (the level is the largest p-value that fails), for one check and for
+    a suite's Holm-adjusted p-values: 0.005 of two checks adjusts to 0.01 exactly."""
+    assert not CheckResult.decide(0.01, 0.01, ()) and CheckResult.decide(0.0100001, 0.01, ())
+    suite = SuiteResult.judge("s", [_r("a", 0.005), _r("b", 0.5)], alpha=0.01, seconds=1.0)
+    assert suite.results[0].details["p_adjusted"] == 0.01 and not suite.passed
+
+
+def test_holm_counts_every_check_with_a_p_value_even_of_1():
+    """A check with p = 1 is one of the m hypotheses all the same: 0.006 beside it adjusts
+    to 0.012 and passes at 0.01 (left out of the count, 0.006 would fail)."""
+    suite = SuiteResult.judge("s", [_r("a", 0.006), _r("b", 1.0)], alpha=0.01, seconds=1.0)
+    assert suite.results[0].details["p_adjusted"] == 0.012 and suite.passed
+
+
+def test_one_canary_not_bitten_fails_the_suite_among_bitten_ones():
+    bitten, missed = _r("planted1", 1e-9), _r("planted2", 0.5)
+    suite = SuiteResult.judge("s", [_r("a", 0.5)], alpha=0.01, seconds=1.0,
+                              canary=(bitten, missed))
+    assert not suite.canary_bitten and not suite.passed
+    assert len(suite.toothless()) == 1 and "planted2" in suite.toothless()[0]
+
+
 def test_json_and_junit_writers(tmp_path):
     suite = SuiteResult.judge("s", [_r("a", 0.5), _r("b", 1e-9)], alpha=0.01, seconds=1.0,
                               provenance={"seed": 0})
