@@ -764,3 +764,16 @@ def test_what_is_reported_found_is_what_failed_the_image():
         assert r.passed != found, (shift, r.p_value, r.details["found_by"])
         assert (r.details["rejected_fraction"] > 0) <= found
         assert (r.details["blocks"]["n_rejected"] > 0) <= found
+
+
+def test_the_image_test_counts_n_minus_1_degrees_of_freedom_a_pixel():
+    """Without pass images the image's variance is a sum of per-pixel variances, each of
+    n - 1 degrees of freedom: 64 equal pixels of 2 values a side carry 64, not 128 (n a
+    pixel, a mutant of an outside review that no test saw: with 2 passes it doubles the
+    degrees of freedom where they are fewest). The global p-value is Welch's t on them."""
+    v = np.ones((8, 8, 1))
+    r = mv.compare_images(np.full((8, 8, 1), 1.5), np.ones((8, 8, 1)), test_var=v,
+                          ref_var=v, test_n=2, ref_n=2, perceptual=False)
+    se2 = 0.5 / 64                      # (variance 1 / 2 values) / 64 pixels, a side
+    p = stats.welch_t_pooled_beyond(0.5, se2, 64.0, se2, 64.0, 0.0)
+    assert r.details["global"]["p_channels"][0] == pytest.approx(float(p), rel=1e-2)
