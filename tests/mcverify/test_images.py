@@ -777,3 +777,18 @@ def test_the_image_test_counts_n_minus_1_degrees_of_freedom_a_pixel():
     se2 = 0.5 / 64                      # (variance 1 / 2 values) / 64 pixels, a side
     p = stats.welch_t_pooled_beyond(0.5, se2, 64.0, se2, 64.0, 0.0)
     assert r.details["global"]["p_channels"][0] == pytest.approx(float(p), rel=1e-2)
+
+
+def test_with_pass_images_the_image_test_is_welchs_t_on_the_pass_means():
+    """Given pass images, the global test is Welch's t of the passes' image means, their
+    sample variances (ddof = 1) over 4 and 16 passes: ddof = 0, or the test's count for
+    the reference's, passed every other test (mutants of an outside review)."""
+    rng = np.random.default_rng(8)
+    a = 1.05 + 0.2 * rng.standard_normal((4, 8, 8, 1))
+    b = 1.0 + 0.2 * rng.standard_normal((16, 8, 8, 1))
+    r = mv.compare_images(**_passes_pair(a, b, True), perceptual=False)
+    ga, gb = a.mean(axis=(1, 2, 3)), b.mean(axis=(1, 2, 3))
+    p = stats.welch_t_beyond(ga.mean() - gb.mean(), ga.var(ddof=1), 4, gb.var(ddof=1), 16,
+                             0.0)
+    assert r.details["pixels_correlated"] and 1e-4 < float(p) < 0.5
+    assert r.details["global"]["p_channels"][0] == pytest.approx(float(p), rel=1e-2)
