@@ -22,6 +22,7 @@ D-series definition (within 1e-5 of the tabulated values Mitsuba carries).
 from __future__ import annotations
 
 import functools
+import re
 
 import numpy as np
 
@@ -34,6 +35,8 @@ _CIE_MIN, _CIE_MAX, _CIE_SAMPLES = 360.0, 830.0, 95
 _Y_NORMALIZATION = 1.0 / 106.7502593994140625
 _D65_NORMALIZATION = 1.0 / 98.99741751876255
 _STEPS = 1000
+#: what separates a spectrum file's wavelength from its value (Mitsuba: not a \r)
+_SPD_SPACES = re.compile(r"[ \t]+")
 
 
 #: the properties that are indices of refraction (a conductor's), unbounded above
@@ -114,18 +117,29 @@ def number_pair(words) -> tuple[float, float] | None:
 
 def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     """The wavelengths and values of a spectrum file (a ``wavelength value`` pair a
-    line; lines starting with ``#`` and empty lines skipped), or why it cannot be read."""
-    from .text_numbers import split_words
-
+    line), read as Mitsuba 3.9.1 reads it, or why it cannot be read: lines end at ``\n``
+    only (a lone ``\r`` ends none); an empty line, or one starting with ``#`` or ``\r``
+    (a CRLF file's empty line), is skipped; any other is two numbers separated by spaces
+    or tabs, a CRLF's ``\r`` dropped. A line of spaces or tabs Mitsuba refuses ("Could
+    not extract wavelength"): it is refused by line, as is a file whose lines end at a
+    lone ``\r`` (until 7 December both were read, Python's reading of lines skipping
+    the one and splitting the other, and ``render-check`` failed in Mitsuba's reference
+    build)."""
     wavelengths, values = [], []
-    with open(path, encoding="utf-8", errors="replace") as f:
+    with open(path, encoding="utf-8", errors="replace", newline="\n") as f:
         for number, line in enumerate(f, 1):
-            if line.startswith("#") or not line.strip():
+            line = line.removesuffix("\n")
+            if not line or line[0] in "#\r":
                 continue
-            pair = number_pair(split_words(line))
+            words = [w for w in _SPD_SPACES.split(line.rstrip("\r")) if w]
+            if not words:
+                return (f"line {number}: a line of spaces or tabs, {line!r}: Mitsuba "
+                        "skips only an empty line or one starting with '#', and refuses "
+                        "this one; make it empty")
+            pair = number_pair(words)
             if pair is None:
-                return (f"line {number}: expected a wavelength and a value, got "
-                        f"{line.strip()!r}")
+                shown = line.rstrip("\r").strip(" \t")
+                return f"line {number}: expected a wavelength and a value, got {shown!r}"
             wavelengths.append(pair[0])
             values.append(pair[1])
     return wavelengths, values

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from estimators.pathtracer import SceneError, load_scene, parse_scene
 from estimators.pathtracer import scene as scene_module
+from estimators.pathtracer import spectra
 from estimators.pathtracer.spectra import spectrum_list_rgb, uniform_emission_rgb
 
 ROOT = os.path.join(os.path.dirname(__file__), "..", "..")
@@ -173,6 +174,40 @@ def test_a_bad_spectrum_file_is_refused_naming_it_and_its_line(tmp_path):
     with pytest.raises(SceneError, match=r"s\.xml:3.*bad\.spd: line 3: expected a "
                                          r"wavelength and a value, got '500 0.2 0.3'"):
         load_scene(str(tmp_path / "s.xml"))
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("content,needle", [
+    ("400 0.1\n   \n500 0.7\n", "line 2: a line of spaces or tabs"),
+    ("400 0.1\n500 0.7\n\t\n", "line 3: a line of spaces or tabs"),
+    ("400 0.1\n \r\n500 0.7\n", "line 2: a line of spaces or tabs"),
+    ("400 0.1\r500 0.7\r", "line 1: expected a wavelength and a value"),
+], ids=["spaces", "trailing-tab", "space-crlf", "lone-cr"])
+def test_a_spectrum_file_line_mitsuba_refuses_is_refused_by_line(mi, tmp_path, content,
+                                                                needle):
+    """Mitsuba 3.9.1 skips an empty line, or one starting with '#' or a carriage return,
+    and ends lines at \\n only: a line of spaces or tabs it refuses ("Could not extract
+    wavelength"), and a file of lone \\r line ends is one line to it. Until 7 December
+    Python's reading of lines skipped the first and split the second, and the scene was
+    read; ``render-check`` then failed in Mitsuba's reference build."""
+    (tmp_path / "a.spd").write_bytes(content.encode())
+    (tmp_path / "s.xml").write_text(
+        f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf type="diffuse">'
+        '<spectrum name="reflectance" filename="a.spd"/></bsdf></shape>\n</scene>')
+    with pytest.raises(SceneError) as e:
+        load_scene(str(tmp_path / "s.xml"))
+    assert "s.xml:3" in str(e.value) and needle in str(e.value), str(e.value)
+    with pytest.raises(RuntimeError):
+        mi.load_file(str(tmp_path / "s.xml"))
+
+
+def test_a_spectrum_file_of_crlf_lines_is_read_as_mitsuba_reads_it(tmp_path):
+    """CRLF line ends, an empty CRLF line and one starting with \\r (skipped by Mitsuba
+    too) read as the same file with \\n ends."""
+    (tmp_path / "crlf.spd").write_bytes(b"# c\r\n400 0.1\r\n\r\n\r# d\r\n500\t0.7\r\n")
+    (tmp_path / "lf.spd").write_bytes(b"400 0.1\n500 0.7\n")
+    assert spectra.read_spd(str(tmp_path / "crlf.spd")) == \
+        spectra.read_spd(str(tmp_path / "lf.spd")) == ([400.0, 500.0], [0.1, 0.7])
 
 
 @pytest.mark.parametrize("element,needle", [
