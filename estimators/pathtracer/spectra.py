@@ -119,8 +119,10 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     """The wavelengths and values of a spectrum file (a ``wavelength value`` pair a
     line), read as Mitsuba 3.9.1 reads it, or why it cannot be read: lines end at ``\n``
     only (a lone ``\r`` ends none); an empty line, or one starting with ``#`` or ``\r``
-    (a CRLF file's empty line), is skipped; any other is two numbers separated by spaces
-    or tabs, a CRLF's ``\r`` dropped. A line of spaces or tabs Mitsuba refuses ("Could
+    (a CRLF file's empty line), is skipped; any other starts with two numbers separated by
+    spaces or tabs, a CRLF's ``\r`` dropped, and what follows them is ignored
+    (``400 0.1 # peak``, a third column: until 7 December refused, though Mitsuba
+    renders it). A line of spaces or tabs Mitsuba refuses ("Could
     not extract wavelength"): it is refused by line, as is a file whose lines end at a
     lone ``\r`` (until 7 December both were read, Python's reading of lines skipping
     the one and splitting the other, and ``render-check`` failed in Mitsuba's reference
@@ -136,7 +138,9 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
                 return (f"line {number}: a line of spaces or tabs, {line!r}: Mitsuba "
                         "skips only an empty line or one starting with '#', and refuses "
                         "this one; make it empty")
-            pair = number_pair(words)
+            # Mitsuba reads the first two numbers and ignores the rest of the line (a
+            # comment, a third column): refused here until 7 December
+            pair = number_pair(words[:2])
             if pair is None:
                 shown = line.rstrip("\r").strip(" \t")
                 return f"line {number}: expected a wavelength and a value, got {shown!r}"

@@ -167,12 +167,14 @@ def test_a_spectrum_mitsuba_cannot_read_is_refused_by_line(mi, tmp_path, element
 
 
 def test_a_bad_spectrum_file_is_refused_naming_it_and_its_line(tmp_path):
-    (tmp_path / "bad.spd").write_text("# a comment\n400 0.1\n500 0.2 0.3\n")
+    # the XML's wavelength:value form in a file (Mitsuba: "Could not extract value"); a
+    # third number after the pair Mitsuba ignores (refused here until 7 December)
+    (tmp_path / "bad.spd").write_text("# a comment\n400 0.1\n500:0.2\n")
     (tmp_path / "s.xml").write_text(
         f'<scene version="3.0.0">\n{SENSOR}\n<emitter type="constant"><spectrum '
         'name="radiance" filename="bad.spd"/></emitter>\n</scene>')
     with pytest.raises(SceneError, match=r"s\.xml:3.*bad\.spd: line 3: expected a "
-                                         r"wavelength and a value, got '500 0.2 0.3'"):
+                                         r"wavelength and a value, got '500:0.2'"):
         load_scene(str(tmp_path / "s.xml"))
 
 
@@ -208,6 +210,26 @@ def test_a_spectrum_file_of_crlf_lines_is_read_as_mitsuba_reads_it(tmp_path):
     (tmp_path / "lf.spd").write_bytes(b"400 0.1\n500 0.7\n")
     assert spectra.read_spd(str(tmp_path / "crlf.spd")) == \
         spectra.read_spd(str(tmp_path / "lf.spd")) == ([400.0, 500.0], [0.1, 0.7])
+
+
+@pytest.mark.mitsuba
+def test_what_follows_a_spectrum_file_lines_two_numbers_is_ignored_as_mitsuba_does(mi,
+                                                                                  tmp_path):
+    """A trailing comment and a third column (a measured file's n and k, or its error):
+    Mitsuba 3.9.1 reads the first two numbers of a line and ignores the rest; until 7
+    December we refused the line, though Mitsuba renders the scene."""
+    (tmp_path / "a.spd").write_text("# wavelength eta k\n400 0.9 # blue\n500 2.5 3.1\n"
+                                    "600 0.4\t7 8\n")
+    (tmp_path / "s.xml").write_text(
+        f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf type="diffuse">'
+        '<spectrum name="reflectance" filename="a.spd"/></bsdf></shape>\n</scene>')
+    ours = load_scene(str(tmp_path / "s.xml")).shapes[0].children[0].props["reflectance"]
+    theirs = _mitsuba_values(mi, (tmp_path / "s.xml").read_text().replace(
+        'filename="a.spd"', 'value="400:0.9, 500:2.5, 600:0.4"'))["reflectance"]
+    assert np.allclose(ours, theirs, rtol=1e-5, atol=1e-6), (ours, theirs)
+    assert np.allclose(_mitsuba_values(mi, (tmp_path / "s.xml").read_text().replace(
+        'filename="a.spd"', f'filename="{tmp_path / "a.spd"}"'))["reflectance"], theirs,
+        rtol=1e-6)
 
 
 @pytest.mark.parametrize("element,needle", [
