@@ -261,3 +261,17 @@ def test_binned_ks_on_a_fine_grid_is_the_ks_test_of_its_samples():
     r, ref = stats.ks_binned(counts, edges), sps.kstest(x, "uniform")
     assert r.n == 300 and r.statistic == pytest.approx(ref.statistic, abs=2e-6)
     assert r.p_value == pytest.approx(ref.pvalue, rel=1e-3)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["measured-above", "measured-below"])
+def test_variance_test_p_value_is_two_sided(sign):
+    """variance_test's p-value halved (norm.sf(|z|), one-sided) passed every test (a
+    mutant of an outside review): a claim 2 standard errors on either side of a uniform
+    sample's variance must give the two-sided normal p = 2·Φ(−2) = 0.0455 both ways."""
+    x = np.random.default_rng(5).random(10_000)
+    n, s2 = x.size, np.var(x, ddof=1)
+    m4 = np.mean((x - x.mean()) ** 4)
+    se = np.sqrt((m4 - s2 ** 2) / n + 2 * s2 ** 2 / (n * (n - 1)))
+    r = stats.variance_test(x, s2 - sign * 2.0 * se)
+    assert r.statistic == pytest.approx(sign * 2.0, rel=1e-6)
+    assert r.p_value == pytest.approx(2 * sps.norm.sf(2.0), rel=1e-6)
