@@ -387,3 +387,19 @@ def test_k_changes_no_sequential_checks_result(tmp_path):
     assert got["all"]["n_samples"] == 16000, got["all"]
     for key in ("p_value", "n_samples", "messages"):
         assert got["one"][key] == got["all"][key], key
+
+
+def test_a_look_whose_sequential_p_value_equals_the_stop_level_stops():
+    """Stopping at ``p_seq < stop`` instead of ``<=`` (a mutant of an outside review)
+    passed every test, though it draws a batch more than the check needs and the check
+    rejects at p = α: under linear spending (weights ½, ½) a first look of p = 0.005
+    has the sequential p-value 0.005 / 0.5 = 0.01 = α exactly, and must stop there."""
+    calls = []
+
+    def look(b):
+        calls.append(b)
+        return CheckResult("x", False, 0.005, None, 0.01, b, 0.0)
+
+    r = run_sequential(look, batches=2, alpha=0.01, spending="power:1")
+    assert calls == [1] and r.p_value == 0.01 and not r.passed
+    assert r.details["sequential"]["stopped_early"]
