@@ -189,3 +189,23 @@ def test_a_correct_step_times_ramp_sampler_is_not_failed_as_unnormalised():
                                       seed=seed, alpha=0.01).passed]
     bound = stats.binomial_upper_bound(runs, 0.01, 0.999)
     assert len(failed) <= bound, failed
+
+
+def test_evaluations_and_the_leaf_budget_are_reported_as_spent():
+    """Two mutants of an outside review passed test_quadrature.py: n_evals leaving out
+    the 2^m corner values read per leaf (check_sampler's ``pdf_evaluations`` then
+    undercounts), and the run that exhausts ``max_leaves`` not counting its accepted
+    leaves as unconverged (a truncated integral then looked converged). The count must be
+    the rows the density was called with, and a disk's rim on 2 × 2 cells with room for
+    64 leaves must report unconverged leaves."""
+    rows = []
+
+    def rim(s):
+        rows.append(s.shape[0])
+        return (s[:, 0] ** 2 + s[:, 1] ** 2 < 0.7).astype(float)
+
+    edges = [np.linspace(0, 1, 3)] * 2
+    r = integrate_cells(rim, edges, n_samples=1e6)
+    assert r.n_evals == sum(rows)
+    cut = integrate_cells(rim, edges, n_samples=1e6, max_leaves=64)
+    assert cut.unconverged >= 64, cut.unconverged
