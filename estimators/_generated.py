@@ -16,6 +16,8 @@ import sys
 import time
 import uuid
 
+from mcnumba.disk_cache import NotPrivate, private_folder, temporary_cache
+
 from ._copy_propagate import fast_copy_propagation
 from ._inline_copy import shared_scope_copies
 from ._live_bits import fast_liveness
@@ -34,34 +36,26 @@ def user_cache() -> str:
     went into a folder named ``~`` in the current directory, the user's project."""
     home = os.path.expanduser("~")
     if not os.path.isabs(home):
-        import tempfile
-
-        uid = os.getuid() if hasattr(os, "getuid") else "user"
-        return _private_folder(os.path.join(tempfile.gettempdir(), f"mcverify-{uid}-cache"))
+        return _private_folder(temporary_cache())
     return os.path.join(home, ".cache")
 
 
 def _private_folder(path: str) -> str:
-    """``path``, a folder of this user's alone in a shared temporary folder: made 0700,
-    and refused (PermissionError naming it) where it is a link, another user's, or
-    writable by others. Its modules are imported and numba's cache files beside them
-    unpickled, so a folder another user made first under the predictable name would run
-    their code in this user's checks (the final review)."""
-    import stat
-
+    """``path``, a folder of this user's alone (``mcnumba.disk_cache.private_folder``),
+    refused with a PermissionError naming it and ``MCVERIFY_CACHE``: its modules are
+    imported and numba's cache files beside them unpickled, so a folder another user made
+    first under the predictable name would run their code in this user's checks (the
+    final review)."""
     try:
-        os.makedirs(path, mode=0o700, exist_ok=True)
-        st = os.lstat(path)
-    except OSError as e:
-        raise PermissionError(f"{path}: cannot make the kernel cache there ({e.strerror}); "
-                              "set MCVERIFY_CACHE to a folder of your own") from None
-    own = not hasattr(os, "getuid") or st.st_uid == os.getuid()
-    if not stat.S_ISDIR(st.st_mode) or not own or st.st_mode & 0o022:
+        return private_folder(path)
+    except NotPrivate:
         raise PermissionError(f"{path}: the kernel cache's folder in the temporary folder "
                               "(no home folder is known) is not this user's private "
                               "folder (a link, another user's, or writable by others); "
-                              "set MCVERIFY_CACHE to a folder of your own")
-    return path
+                              "set MCVERIFY_CACHE to a folder of your own") from None
+    except OSError as e:
+        raise PermissionError(f"{path}: cannot make the kernel cache there ({e.strerror}); "
+                              "set MCVERIFY_CACHE to a folder of your own") from None
 
 
 def cache_path() -> str:

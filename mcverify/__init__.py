@@ -67,11 +67,12 @@ try:
 except ValueError as _e:
     _numba_refused(_e)
 
-from mcnumba.disk_cache import tolerate_damaged_cache
+from mcnumba.disk_cache import cache_in_temporary_folder, tolerate_damaged_cache
 from mcnumba.vector_width import prefer_wide_vectors
 
 prefer_wide_vectors()       # before any numba function is defined: see mcnumba.vector_width
 tolerate_damaged_cache()    # a cache file cut short is a miss: see mcnumba.disk_cache
+cache_in_temporary_folder()  # where numba has nowhere else to cache: see mcnumba.disk_cache
 
 from ._version import __version__
 from .checks import (check_convergence, check_inverse, check_pdf_consistency,

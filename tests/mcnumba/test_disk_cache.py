@@ -78,3 +78,54 @@ def test_a_cache_that_cannot_be_written_compiles_and_warns(tmp_path):
     assert r.returncode == 0 and r.stdout == "41 6\n", r.stderr
     assert r.stderr.count("numba's cache cannot be written") == 1, r.stderr
     assert "No space left on device" in r.stderr and "NUMBA_CACHE_DIR" in r.stderr
+
+
+#: numba's own places to cache all refused, as for a read-only install run by a user
+#: whose home is read-only, missing or unset (``nobody``): root, as CI runs, writes anywhere
+_NOWHERE = textwrap.dedent("""
+    import os, sys, tempfile
+    sys.path.insert(0, sys.argv[1])
+    tempfile.tempdir = sys.argv[2]
+    os.environ.pop("NUMBA_CACHE_DIR", None)
+    from numba.core import caching
+    for cls in (caching.InTreeCacheLocator, caching.UserWideCacheLocator):
+        cls.from_function = classmethod(lambda cls, py_func, py_file: None)
+    import mcverify
+    import cached_f
+    print(cached_f.f(20))
+""")
+
+
+def test_numba_with_nowhere_to_cache_caches_in_the_temporary_folder(tmp_path):
+    """A read-only install run by a user whose home is read-only or unset (``nobody``,
+    ``NUMBA_CACHE_DIR`` unset): numba raised "cannot cache function '_atan01': no
+    locator available" as mcverify was imported, a traceback and exit 1 from every
+    command (an outside review). numba now caches in the user's private folder in the
+    temporary folder, ``mcverify-UID-cache/numba``, made 0700."""
+    src, tmp = tmp_path / "src", tmp_path / "tmp"
+    src.mkdir()
+    tmp.mkdir()
+    (src / "cached_f.py").write_text(_MODULE)
+    r = subprocess.run([sys.executable, "-c", _NOWHERE, str(src), str(tmp)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout == "41\n", r.stderr
+    folder = tmp / f"mcverify-{os.getuid()}-cache"
+    assert folder.stat().st_mode & 0o777 == 0o700
+    cached = [n for _, _, names in os.walk(folder / "numba") for n in names
+              if n.startswith("cached_f.f-")]
+    assert sorted(n.rsplit(".", 1)[1] for n in cached) == ["nbc", "nbi"], cached
+
+
+def test_numba_does_not_cache_in_a_temporary_folder_of_another_user(tmp_path):
+    """The temporary folder's name is predictable: one writable by others (or another
+    user's, or a link) is not cached in, since numba unpickles what it finds there."""
+    src, tmp = tmp_path / "src", tmp_path / "tmp"
+    src.mkdir()
+    folder = tmp / f"mcverify-{os.getuid()}-cache"
+    folder.mkdir(parents=True)
+    folder.chmod(0o777)
+    (src / "cached_f.py").write_text(_MODULE)
+    r = subprocess.run([sys.executable, "-c", _NOWHERE, str(src), str(tmp)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "no locator available" in r.stderr, r.stderr
+    assert os.listdir(folder) == []
