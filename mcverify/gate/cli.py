@@ -16,6 +16,7 @@ import glob
 import json
 import os
 import signal
+import stat
 import sys
 import threading
 import textwrap
@@ -171,6 +172,26 @@ def _writable(option: str, path: str | None, inputs=()) -> None:
     except OSError as e:
         raise InvalidArgument(f"{option} {path}: cannot create a file in folder {existing} "
                               f"({e.strerror})") from None
+    if _others_in_sticky_folder(target):
+        raise InvalidArgument(f"{option} {path}: cannot replace it: it is another user's "
+                              f"file in folder {os.path.dirname(target)}, whose sticky bit "
+                              "(as /tmp's) lets only its owner replace it; give another path")
+
+
+def _others_in_sticky_folder(target: str) -> bool:
+    """Whether ``target`` is a file that this user cannot replace by renaming onto it: in
+    a sticky folder (``/tmp``, a shared drop folder), another user's file in a folder not
+    this user's either. It was found at the run's end: ``--json /tmp/results.json`` left
+    by a colleague exited 2, "cannot write it (Operation not permitted)", after all the
+    run's work (an outside review)."""
+    if not hasattr(os, "geteuid"):
+        return False
+    try:
+        st, folder = os.stat(target), os.stat(os.path.dirname(target))
+    except OSError:     # a new file: the probe above tried its folder
+        return False
+    return bool(folder.st_mode & stat.S_ISVTX) and os.geteuid() not in (0, st.st_uid,
+                                                                         folder.st_uid)
 
 
 def _distinct_outputs(*pairs) -> None:

@@ -1743,3 +1743,26 @@ def test_check_stability_says_what_a_numba_sampler_was_given():
     of_two_numbers = _numba_subjects()[0]
     r = mv.check_stability(of_two_numbers, "square", max_examples=5)
     assert not r.passed and "a numba function must take that batch" in r.details["problem"]
+
+
+@pytest.mark.parametrize("option", ["--json", "--junit"])
+def test_another_users_file_in_a_sticky_folder_is_refused_before_any_work(
+        tmp_path, capsys, monkeypatch, option):
+    """`--json /tmp/results.json`, a colleague's file left in /tmp (sticky: only its
+    owner may replace it), passed the check of the paths and failed at the run's end,
+    "cannot write it (Operation not permitted)", exit 2 after all the work (an outside
+    review, as the user nobody). It is refused before any check runs, naming the option
+    and the sticky bit. Root replaces anything: another user is played by geteuid."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)
+    results = shared / "results.out"
+    results.write_text("a colleague's\n")
+    monkeypatch.setattr(os, "geteuid", lambda: os.stat(results).st_uid + 4321)
+    rc, out, err = _run_cli(["check", "-k", "inverse:cosine_hemisphere", option,
+                             str(results)], capsys, str(tmp_path))
+    assert rc == 2, (out, err)
+    assert f"{option} {results}: cannot replace it" in err and "sticky" in err, err
+    assert results.read_text() == "a colleague's\n"
+    monkeypatch.undo()                                  # its owner may replace it
+    assert cli._others_in_sticky_folder(str(results)) is False
