@@ -575,3 +575,12 @@ def test_a_point_where_f_and_p_are_both_0_counts_as_0(name):
          else mc.russian_roulette(f, sample, pdf, 1000, 1.0, seed=2))
     assert e.samples[0] == 0.0
     assert np.isfinite(e.value) and np.isfinite(e.std_error)
+
+
+def test_stratified_first_axis_is_the_rounded_count_made_even():
+    """The docstring's example: n = 106 in 2-D, m = 10, 10.6 rounds to 11, odd, so
+    m₀ = 12 and 120 samples (the docstring said "the even m₀ nearest", 10; an outside
+    review); n = 100 keeps 10 × 10."""
+    f = lambda x: np.ones(len(x))
+    assert mc.stratified(f, [0, 0], [1, 1], 106, seed=1).n == 120
+    assert mc.stratified(f, [0, 0], [1, 1], 100, seed=1).n == 100
