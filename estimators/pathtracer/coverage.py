@@ -95,7 +95,7 @@ def _plugin_features(p: Plugin) -> set[str]:
             out.add(f"{p.kind}:{p.type}.{prop}=-1")
         else:
             out.add(f"{p.kind}:{p.type}.{prop}")
-    out |= {f"spectrum:{f}" for f in p.spectra.values()}
+    out |= {f"spectrum:{f}" for features in p.spectra.values() for f in features}
     for child in p.children:
         out |= _plugin_features(child)
         if p.type == "twosided" and child.kind == "bsdf":

@@ -29,7 +29,7 @@ import numpy as np
 
 from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, ascii_lower,
                            finite_in_float32, parse_float, parse_int, split_numbers)
-from .spectra import (INDEX_PROPERTIES, number_pair, read_spd, spectrum_feature,
+from .spectra import (INDEX_PROPERTIES, number_pair, read_spd, spectrum_features,
                       spectrum_list_rgb, uniform_emission_rgb)
 from .transform import look_at, matrix, rotate, scale, translate
 
@@ -84,6 +84,8 @@ class _Node:
     line: int
     children: list = field(default_factory=list)
     origin: str | None = None     # the <include>d file it came from (None: the scene's)
+    #: a <spectrum>'s: the folders its ``filename`` is looked for in (``_spliced``)
+    folders: list | None = None
 
 
 def _parse_xml(text: str | bytes, origin: str) -> _Node:
@@ -129,7 +131,7 @@ class Plugin:
     id: str | None = None
     children: list = field(default_factory=list)
     origin: str | None = None     # the <include>d file it is declared in (None: the scene)
-    #: property -> how a <spectrum> gave it (``spectrum_feature``), for the coverage matrix
+    #: property -> how a <spectrum> gave it (``spectrum_features``), for the coverage matrix
     spectra: dict = field(default_factory=dict)
 
     def get(self, name, default=None):
@@ -455,8 +457,8 @@ class _Loader:
             self.fail(node, "a <spectrum> takes value=\"...\" or filename=\"...\", one of "
                             "the two (Mitsuba refuses both, or neither, too)")
         if name:
-            path = first_found(name, self.search + [os.path.dirname(self.path)]) or \
-                os.path.join(os.path.dirname(self.path), name)
+            folders = node.folders or [os.path.dirname(self.path)]
+            path = first_found(name, folders) or os.path.join(folders[-1], name)
             problem = file_problem(path, MAX_SCENE_BYTES)
             read = problem or read_spd(path)
             if isinstance(read, str):
@@ -493,12 +495,16 @@ class _Loader:
         emitter = kind == "emitter"
         if "rgb" not in allowed:
             self.fail(node, f"property {name!r} takes {' or '.join(allowed)}, not a spectrum")
-        if isinstance(spectrum, float):
-            if emitter:
-                return "rgb", uniform_emission_rgb(spectrum)
-            return ("float", spectrum) if "float" in allowed else ("rgb", np.full(3, spectrum))
-        return "rgb", spectrum_list_rgb(*spectrum, emitter=emitter,
-                                        unbounded=name in _UNBOUNDED_RGB)
+        if isinstance(spectrum, float) and not emitter:
+            return "float", spectrum        # every property that takes an rgb takes one
+        rgb = uniform_emission_rgb(spectrum) if isinstance(spectrum, float) else \
+            spectrum_list_rgb(*spectrum, emitter=emitter, unbounded=name in _UNBOUNDED_RGB)
+        if not finite_in_float32(rgb):
+            # as an <rgb> beyond it: Mitsuba holds the colour in float32, as inf
+            self.fail(node, f"the spectrum's RGB, {', '.join(f'{v:g}' for v in rgb)}, is "
+                            "beyond float32's range (|x| < 3.4e38), in which Mitsuba holds "
+                            "scene values: it would be infinite there")
+        return "rgb", rgb
 
     def transform(self, node):
         m = np.eye(4)
@@ -616,8 +622,8 @@ class _Loader:
                     self.fail(child, f"{kind} {ptype!r}: unsupported property {name!r}; "
                                      f"supported: {known or 'none'}")
                 if vkind == "spectrum":
-                    p.spectra[name] = spectrum_feature(kind, name, val,
-                                                       "filename" in child.attrib)
+                    p.spectra[name] = spectrum_features(kind, name, val,
+                                                        "filename" in child.attrib)
                     vkind, val = self.spectrum_value(child, kind, name, spec[name], val)
                 if vkind == "integer" and "integer" not in spec[name] and \
                         "float" in spec[name] and name not in _NO_INTEGER:
@@ -804,15 +810,24 @@ class _Loader:
         root.children = self._spliced(root.children, resolver, [scene], [])
         self.search = resolver[:-1]
 
-    def _spliced(self, children, resolver, chain, defaults):
+    def _spliced(self, children, resolver, chain, defaults, own=None):
+        """``children`` with their includes read in place. ``resolver``: the folders
+        names are looked for in; ``own``: where in it the folder of an included file
+        stands (None: the scene's), which serves that file's includes only."""
         out = []
         for node in children:
             if node.tag == "default":
                 defaults.append(node)
             if node.tag == "path":
                 resolver.insert(0, self.search_folder(node, resolver, defaults))
+                own = None if own is None else own + 1
                 continue
             if node.tag != "include":
+                # a <spectrum filename> is read as Mitsuba parses it, with the resolver as
+                # it stands there: the <path>s before it in its file, then the folders
+                # its file was included with (where the file is found, not beside it)
+                _mark_spectra(node, resolver if own is None else
+                              resolver[:own] + resolver[own + 1:])
                 out.append(node)
                 continue
             self.check_attributes(node)
@@ -830,7 +845,7 @@ class _Loader:
                 stack += n.children
             self.check_root(sub)
             out += self._spliced(sub.children, [os.path.dirname(full)] + resolver,
-                                 chain + [real], defaults)
+                                 chain + [real], defaults, own=0)
         return out
 
     def search_folder(self, node, resolver, defaults):
@@ -1004,6 +1019,16 @@ def scene_path(value, name: str, also: str = "") -> str:
         return os.fsdecode(value)
     raise TypeError(f"{name}: expected a scene file's path (str or os.PathLike{also}), "
                     f"got {type(value).__name__}")
+
+
+def _mark_spectra(node: _Node, folders: list) -> None:
+    """Give each ``<spectrum>`` in ``node``'s tree the folders its file is looked for in."""
+    stack = [node]
+    while stack:
+        n = stack.pop()
+        if n.tag == "spectrum":
+            n.folders = list(folders)
+        stack += n.children
 
 
 def _read_scene(path: str) -> _Node:

@@ -37,6 +37,8 @@ _D65_NORMALIZATION = 1.0 / 98.99741751876255
 _STEPS = 1000
 #: what separates a spectrum file's wavelength from its value (Mitsuba: not a \r)
 _SPD_SPACES = re.compile(r"[ \t]+")
+#: the longest line Mitsuba reads whole (``fgets`` into 1024 bytes)
+_SPD_LINE_BYTES = 1023
 
 
 #: the properties that are indices of refraction (a conductor's), unbounded above
@@ -47,15 +49,15 @@ INDEX_PROPERTIES = ("eta", "k")
 FEATURES = ("emission", "index", "reflectance", "emission(uniform)", "uniform", "file")
 
 
-def spectrum_feature(kind: str, name: str, spectrum, from_file: bool) -> str:
+def spectrum_features(kind: str, name: str, spectrum, from_file: bool) -> tuple[str, ...]:
     """Which of ``FEATURES`` a ``<spectrum>`` given to property ``name`` of a ``kind``
-    plugin is (``spectrum``: a float where uniform, else its pairs)."""
-    if from_file:
-        return "file"
+    plugin is (``spectrum``: a float where uniform, else its pairs): its rule, and
+    ``file`` where its pairs were read from a file."""
     emitter = kind == "emitter"
     if isinstance(spectrum, float):
-        return "emission(uniform)" if emitter else "uniform"
-    return "emission" if emitter else "index" if name in INDEX_PROPERTIES else "reflectance"
+        return ("emission(uniform)" if emitter else "uniform",)
+    role = "emission" if emitter else "index" if name in INDEX_PROPERTIES else "reflectance"
+    return (role, "file") if from_file else (role,)
 
 
 def uniform_emission_rgb(value: float) -> np.ndarray:
@@ -67,8 +69,9 @@ def uniform_emission_rgb(value: float) -> np.ndarray:
 def _cie_tables() -> tuple[np.ndarray, np.ndarray]:
     """The CIE 1931 2° colour-matching functions (3, 95) and D65 (95,), 360–830 nm at
     5 nm, from colour-science (imported here: it takes a second or two)."""
-    import colour
-    from colour.temperature import CCT_to_xy_CIE_D
+    with np.printoptions():     # colour-science sets numpy's legacy printing on import
+        import colour
+        from colour.temperature import CCT_to_xy_CIE_D
 
     grid = np.linspace(_CIE_MIN, _CIE_MAX, _CIE_SAMPLES)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
@@ -130,6 +133,11 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     wavelengths, values = [], []
     with open(path, encoding="utf-8", errors="replace", newline="\n") as f:
         for number, line in enumerate(f, 1):
+            if len(line.removesuffix("\n").encode("utf-8")) > _SPD_LINE_BYTES:
+                # Mitsuba reads a line in pieces of 1023 bytes and refuses the second
+                # (a long comment too): it was read here, and failed in Mitsuba's build
+                return (f"line {number}: longer than {_SPD_LINE_BYTES} bytes, which "
+                        "Mitsuba reads as two lines and refuses; shorten it")
             line = line.removesuffix("\n")
             if not line or line[0] in "#\r":
                 continue

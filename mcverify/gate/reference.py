@@ -235,7 +235,10 @@ def scene_asset_files(scene_path: str, params=None) -> dict[str, str]:
     than beside the scene is keyed by its path from the scene's folder. ``params`` (a
     dict, or its sorted items): the ``$name`` values the scene is loaded with, over its
     ``<default>``s, as Mitsuba takes them (the file a ``--param mesh=b.obj`` names was
-    not the one stamped or hashed)."""
+    not the one stamped or hashed). A ``<spectrum filename=...>`` is looked for as Mitsuba
+    reads it, while parsing: in the resolver's folders as they stand at the element (the
+    ``<path>``s before it in its file, then the folders its file was included with), keyed
+    as an include is."""
     return _asset_files_and_namers(scene_path, params)[0]
 
 
@@ -258,7 +261,9 @@ def _asset_files_and_namers(scene_path: str, params=None):
     # resolver; (name, folders) for an <include>, looked for in the resolver's folders as
     # they stood at it in the file being read
     names, includes, namers = [], set(), []
-    reading = {"here": folder, "resolver": [folder],        # the file being read
+    # the file being read; "own": where its folder stands in the resolver, which serves
+    # its includes only (None: the scene's, which is Mitsuba's resolver's too)
+    reading = {"here": folder, "resolver": [folder], "own": None,
                "file": os.path.abspath(scene_path)}
 
     def substitute(text):
@@ -275,8 +280,13 @@ def _asset_files_and_namers(scene_path: str, params=None):
             namers.append(reading["file"])
         elif tag == "spectrum" and "filename" in attrib:
             # <spectrum name="reflectance" filename="x.spd"/>: Mitsuba reads the file
-            # (into RGB in RGB variants), so a changed one changes the image
-            names.append((attrib["filename"], None))
+            # (into RGB in RGB variants), so a changed one changes the image; it reads
+            # it as it parses, in the resolver's folders as they stand there (the
+            # loader's _mark_spectra): a <path> after it does not count, and an included
+            # file's own folder serves its includes only
+            own, resolver = reading["own"], reading["resolver"]
+            names.append((attrib["filename"], tuple(
+                resolver if own is None else resolver[:own] + resolver[own + 1:])))
             namers.append(reading["file"])
         elif tag == "include" and "filename" in attrib:
             names.append((attrib["filename"], tuple(reading["resolver"])))
@@ -287,6 +297,8 @@ def _asset_files_and_namers(scene_path: str, params=None):
             found = first_found(d, [reading["here"]] + reading["resolver"], os.path.isdir)
             if found is not None:       # else Mitsuba refuses the scene
                 reading["resolver"].insert(0, os.path.abspath(found))
+                if reading["own"] is not None:
+                    reading["own"] += 1
 
     _parse_scene(scene_path, start)
     scene_resolver = list(reading["resolver"])      # the files elements name are found in
@@ -314,6 +326,7 @@ def _asset_files_and_namers(scene_path: str, params=None):
             read.add(os.path.realpath(full))
             reading["here"] = os.path.dirname(full)
             reading["resolver"] = [reading["here"]] + list(at)
+            reading["own"] = 0
             reading["file"] = full
             _parse_scene(full, start)
     return out, named_by

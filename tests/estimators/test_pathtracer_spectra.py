@@ -282,3 +282,117 @@ def test_the_render_gate_sees_a_spectrum_read_wrongly(tmp_path, monkeypatch, mut
         monkeypatch.setattr(scene_module, "spectrum_list_rgb", wrong)
     r = render_check(str(tmp_path / "vs" / "scene.xml"), spp=512, passes=8, seed=3)
     assert not r.passed, r.summary()
+
+
+def _colour_of(desc):
+    return np.ravel(desc.shapes[0].children[0].props["reflectance"])
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("layout", ["path-after", "path-in-include", "nested-include",
+                                    "include-beside"])
+def test_a_spectrum_file_is_the_one_mitsuba_reads_and_the_reference_hashes(mi, tmp_path,
+                                                                          layout):
+    """Mitsuba reads a ``<spectrum filename>`` as it parses: in the folders of its
+    resolver as they stand there. A ``<path>`` after the element does not count; one in an
+    included file does, for that file; a nested include's element looks beside the file
+    that included its file; an included file's own folder does not count (a read-only
+    review: the loader and the reference's hashing read the scene's folders, wherever its
+    ``<path>``s stood, and the first three read and hashed another file than Mitsuba's).
+    Red where Mitsuba reads, blue elsewhere."""
+    from mcverify.gate.reference import scene_asset_files
+
+    red, blue = "400 0.9\n700 0.9\n", "400 0.05\n700 0.05\n"
+    element = ('<shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" '
+               'filename="c.spd"/></bsdf></shape>')
+    for d in ("sub", "sub/lib", "dir"):
+        (tmp_path / d).mkdir(exist_ok=True)
+
+    def scene(body):
+        return f'<scene version="3.0.0">{SENSOR}{body}</scene>'
+
+    if layout == "path-after":
+        (tmp_path / "s.xml").write_text(scene(element + '<path value="dir"/>'))
+        where, other = "c.spd", "dir/c.spd"
+    elif layout == "path-in-include":
+        (tmp_path / "s.xml").write_text(scene('<include filename="sub/parts.xml"/>'))
+        (tmp_path / "sub/parts.xml").write_text(
+            '<scene version="3.0.0"><path value="lib"/>' + element + '</scene>')
+        where, other = "sub/lib/c.spd", "c.spd"
+    elif layout == "nested-include":
+        (tmp_path / "s.xml").write_text(scene('<include filename="sub/a.xml"/>'))
+        (tmp_path / "sub/a.xml").write_text(
+            '<scene version="3.0.0"><include filename="b.xml"/></scene>')
+        (tmp_path / "sub/b.xml").write_text(f'<scene version="3.0.0">{element}</scene>')
+        where, other = "sub/c.spd", "c.spd"
+    else:
+        (tmp_path / "s.xml").write_text(scene('<include filename="sub/parts.xml"/>'))
+        (tmp_path / "sub/parts.xml").write_text(f'<scene version="3.0.0">{element}</scene>')
+        where, other = "c.spd", "sub/c.spd"
+    (tmp_path / where).write_text(red)
+    (tmp_path / other).write_text(blue)
+    params = mi.traverse(mi.load_file(str(tmp_path / "s.xml")))
+    theirs = next(np.ravel(np.array(params[k], dtype=float)) for k in params.keys()
+                  if k.endswith("reflectance.value"))
+    ours = _colour_of(load_scene(str(tmp_path / "s.xml")))
+    assert np.allclose(ours, theirs, rtol=1e-5, atol=1e-6) and theirs.min() > 0.5, \
+        (ours, theirs)
+    hashed = scene_asset_files(str(tmp_path / "s.xml"))
+    assert os.path.realpath(tmp_path / where) in {os.path.realpath(f) for f in
+                                                  hashed.values()}, hashed
+
+
+def test_loading_pairs_leaves_numpys_print_options_as_they_were():
+    """colour-science's import sets numpy's legacy printing for the whole process; a
+    scene of wavelength:value pairs imported it bare (a read-only review)."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from estimators.pathtracer import parse_scene\n"
+            "parse_scene('<scene version=\"3.0.0\"><sensor type=\"perspective\"/><shape "
+            "type=\"sphere\"><bsdf type=\"diffuse\"><spectrum name=\"reflectance\" "
+            "value=\"400:0.2, 700:0.6\"/></bsdf></shape></scene>', path='s.xml')\n"
+            "import sys; sys.modules['colour']\n"
+            "print(repr(np.get_printoptions()['legacy']), np.array([0.5, 1.0]))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, check=True).stdout
+    assert out.strip() == "False [0.5 1. ]", out
+
+
+@pytest.mark.parametrize("element", [
+    '<emitter type="constant"><spectrum name="radiance" value="3e38"/></emitter>',
+    '<emitter type="constant"><spectrum name="radiance" value="400:3e38, 700:3e38"/>'
+    '</emitter>'])
+def test_a_spectrum_whose_rgb_is_beyond_float32_is_refused(element):
+    """As an ``<rgb>`` beyond float32's range: Mitsuba holds the colour as inf (a uniform
+    emission of 3e38 is 3.6e38 red; a read-only review)."""
+    with pytest.raises(SceneError, match=r"s\.xml:1.*beyond float32's range"):
+        parse_scene(f'<scene version="3.0.0">{SENSOR}{element}</scene>', path="s.xml")
+
+
+@pytest.mark.mitsuba
+def test_a_spectrum_file_line_over_1023_bytes_is_refused_as_mitsuba_refuses_it(mi, tmp_path):
+    """Mitsuba reads a spectrum file's line in pieces of 1023 bytes and refuses the second
+    piece, a long comment's too; 1023 bytes are read whole by both (a read-only review)."""
+    for name, comment in (("ok", "#" + "x" * 1022), ("long", "#" + "x" * 1023)):
+        (tmp_path / f"{name}.spd").write_text(f"{comment}\n400 0.1\n700 0.5\n")
+        (tmp_path / f"{name}.xml").write_text(
+            f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf type="diffuse">'
+            f'<spectrum name="reflectance" filename="{name}.spd"/></bsdf></shape>\n</scene>')
+    load_scene(str(tmp_path / "ok.xml"))
+    mi.load_file(str(tmp_path / "ok.xml"))
+    with pytest.raises(SceneError, match=r"long\.spd: line 1: longer than 1023 bytes"):
+        load_scene(str(tmp_path / "long.xml"))
+    with pytest.raises(RuntimeError):
+        mi.load_file(str(tmp_path / "long.xml"))
+
+
+def test_a_spectrum_files_features_are_its_rule_and_the_file():
+    from estimators.pathtracer.spectra import spectrum_features
+
+    pairs = (np.array([400.0, 700.0]), np.array([1.0, 2.0]))
+    assert spectrum_features("emitter", "radiance", pairs, True) == ("emission", "file")
+    assert spectrum_features("bsdf", "k", pairs, False) == ("index",)
+    assert spectrum_features("bsdf", "reflectance", 0.5, False) == ("uniform",)
+    assert spectrum_features("emitter", "radiance", 0.5, False) == ("emission(uniform)",)
