@@ -327,8 +327,12 @@ def staged_writes():
     error (a full disk on the last output) or Ctrl-C before then removes the temporary
     files, and every output is left as it was. ``check --json A --junit B`` whose JUnit
     write failed (ENOSPC) exited 2 with A replaced by this run's results beside B's
-    last ones. A FIFO or device (``/dev/stdout``) is written into at once, as outside.
-    Nested blocks join the outermost."""
+    last ones. A rename that fails (an immutable file, ``chattr +i``) undoes the ones
+    before it: each replaced file is kept aside under a temporary name until all are
+    renamed (a read-only review found A replaced beside an immutable B). A removal that
+    fails leaves that old file behind (a report's image that is now a folder). A FIFO or
+    device (``/dev/stdout``) is written into at once, as outside. Nested blocks join the
+    outermost."""
     global _STAGED
     if _STAGED is not None:
         yield
@@ -338,13 +342,9 @@ def staged_writes():
         yield
         staged = _STAGED
         _STAGED = None
-        for tmp, target, path in staged["renames"]:
-            try:
-                os.replace(tmp, target)
-            except OSError as e:
-                raise OSError(e.errno, f"cannot write it ({e.strerror or e})", path) from None
+        _rename_all(staged["renames"])
         for path in staged["removals"]:
-            with contextlib.suppress(FileNotFoundError):
+            with contextlib.suppress(OSError):
                 os.remove(path)
     finally:
         if _STAGED is not None:
@@ -352,6 +352,52 @@ def staged_writes():
         for tmp, _, _ in staged["renames"]:
             if os.path.exists(tmp):
                 os.unlink(tmp)
+
+
+def _rename_all(renames) -> None:
+    """Each (temporary file, target, path as given) renamed onto its target, all or none:
+    a target that exists is kept aside (a hard link beside it) until every rename is
+    made, and put back, with the new targets removed, where one fails."""
+    done = []           # (target, its old content's link, or None where it was new)
+    try:
+        for tmp, target, path in renames:
+            again = any(t == target for t, _ in done)     # one file named twice
+            kept = None if again else _kept_aside(target)
+            try:
+                os.replace(tmp, target)
+            except OSError as e:
+                if kept:
+                    os.unlink(kept)
+                raise OSError(e.errno, f"cannot write it ({e.strerror or e})", path) from None
+            if not again:
+                done.append((target, kept))
+    except BaseException:
+        for target, kept in reversed(done):
+            with contextlib.suppress(OSError):
+                if kept:
+                    os.replace(kept, target)
+                else:
+                    os.unlink(target)
+        raise
+    for _, kept in done:
+        if kept:
+            with contextlib.suppress(OSError):
+                os.unlink(kept)
+
+
+def _kept_aside(target: str) -> str | None:
+    """A hard link to ``target`` beside it under a temporary name (None where there is
+    no such file, or the file system takes no link: that one is then not put back)."""
+    if not os.path.isfile(target):
+        return None
+    kept = os.path.join(os.path.dirname(target), f".old-{os.getpid()}-{_name_part(target)}")
+    try:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(kept)
+        os.link(target, kept)
+    except OSError:
+        return None
+    return kept
 
 
 def discard(path) -> None:
@@ -369,6 +415,14 @@ def discard(path) -> None:
 _TMP_NAME_BYTES = 200
 
 
+def _name_part(target: str) -> str:
+    """``target``'s file name, for a temporary file's name beside it, where that fits the
+    folder's limit on a name (".tmp-XXXXXXXX" + a 250-byte name failed with "File name
+    too long", after the run, though the target itself could be written); else ''."""
+    base = os.path.basename(target)
+    return base if len(os.fsencode(base)) <= _TMP_NAME_BYTES else ""
+
+
 def _write(target: str, how: str, payload: bytes, path) -> None:
     if how == "stream":
         with open(target, "wb") as f:
@@ -380,12 +434,7 @@ def _write(target: str, how: str, payload: bytes, path) -> None:
         mode = shared_mode()    # mkstemp makes 0600; results are for reading
     folder = os.path.dirname(target)
     os.makedirs(folder, exist_ok=True)
-    # the temporary file is named after the target where that fits the folder's limit
-    # on a name (".tmp-XXXXXXXX" + a 250-byte name failed with "File name too long",
-    # after the run, though the target itself could be written)
-    base = os.path.basename(target)
-    suffix = base if len(os.fsencode(base)) <= _TMP_NAME_BYTES else ""
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=suffix)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=_name_part(target))
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(payload)

@@ -566,7 +566,8 @@ def _cmd_check(args) -> int:
             write_junit(result, args.junit)
         if report is not None:
             report()
-            print(f"mcverify check: wrote {report_files[1]} and report.json")
+    if report is not None:      # once renamed into place, at the block's end
+        print(f"mcverify check: wrote {report_files[1]} and report.json")
     return EXIT_OK if result.passed else EXIT_FAILED
 
 
@@ -1724,13 +1725,12 @@ def _stopped() -> int:
     return EXIT_INTERRUPTED
 
 
-def _cwd_gone(e: OSError) -> str:
-    """Where an error naming no file came from a current directory deleted under the
-    process (``os.getcwd()`` fails): the words that say so. Every command but a
-    ``compare`` of absolute paths ended in "mcverify: error: No such file or directory",
-    naming nothing (an outside review)."""
-    if e.filename or not isinstance(e, FileNotFoundError):
-        return ""
+def _cwd_gone() -> str:
+    """Where the current directory was deleted under the process (``os.getcwd()``
+    fails), the words that say so, added to any error that ends the run: every command
+    but a ``compare`` of absolute paths ended in "mcverify: error: No such file or
+    directory", naming nothing (an outside review), and a relative scene or image path
+    in "no such file" (a read-only review)."""
     try:
         os.getcwd()
     except FileNotFoundError:
@@ -1744,7 +1744,7 @@ def _failure(e: Exception) -> int:
     is handled: ``MCVERIFY_TRACEBACK`` re-raises it)."""
     _end_progress_line()
     if isinstance(e, (InvalidArgument, EnvironmentProblem)):
-        print(f"mcverify: error: {escape_controls(' '.join(str(e).split()))}",
+        print(f"mcverify: error: {escape_controls(' '.join(str(e).split()))}{_cwd_gone()}",
               file=sys.stderr)
         return EXIT_BAD_INPUT
     if isinstance(e, BrokenPipeError):
@@ -1754,7 +1754,7 @@ def _failure(e: Exception) -> int:
         return EXIT_BROKEN_PIPE
     if isinstance(e, OSError):
         where = f"{e.filename}: " if e.filename else ""
-        print(f"mcverify: error: {where}{e.strerror or e}{_cwd_gone(e)}", file=sys.stderr)
+        print(f"mcverify: error: {where}{e.strerror or e}{_cwd_gone()}", file=sys.stderr)
         return EXIT_BAD_INPUT
     if os.environ.get("MCVERIFY_TRACEBACK"):
         raise e

@@ -1251,6 +1251,34 @@ def test_sigint_while_the_outputs_are_written_leaves_none_half_done(tmp_path, mo
     assert json.loads((rep / "report.json").read_text())["verification"] is not None
 
 
+def test_check_says_it_wrote_the_report_only_once_it_has(tmp_path, monkeypatch, capsys):
+    """``check --report D`` printed "wrote D/report.html and report.json" before its
+    files were renamed into place, and then failed renaming them (an immutable
+    report.html: exit 2 after the claim; a read-only review). The line now follows the
+    renames."""
+    from mcverify import result as result_module
+
+    (tmp_path / "one_check_suite.py").write_text(
+        "import numpy as np\nimport mcverify as mv\nfrom mcverify.gate.suites import Check\n"
+        "def _run(seed):\n"
+        "    return mv.check_unbiased(np.random.default_rng(seed).normal(size=1000), 0.0)\n"
+        "def suite():\n    return [Check('unbiased', _run)]\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+
+    def fail(renames):
+        raise OSError(1, "cannot write it (Operation not permitted)",
+                      str(tmp_path / "rep" / "report.html"))
+
+    monkeypatch.setattr(result_module, "_rename_all", fail)
+    rc = cli.main(["check", "--suite", "one_check_suite:suite", "-q", "--report",
+                   str(tmp_path / "rep")])
+    out = capsys.readouterr()
+    assert rc == 2 and "Operation not permitted" in out.err, out
+    assert "wrote" not in out.out, out.out
+
+
 def test_sigint_while_the_report_is_written_leaves_no_mix(tmp_path, monkeypatch):
     """``mcverify report`` writes the PNGs, report.json, then report.html: a Ctrl-C after
     report.json left it beside the last run's page (exit 130; an outside review). As with

@@ -370,16 +370,18 @@ def test_a_failed_output_write_leaves_the_other_outputs_as_they_were(tmp_path):
     assert os.listdir(out) == ["run.json"]
 
 
-def test_a_deleted_working_directory_is_named_as_the_cause(tmp_path):
+@pytest.mark.parametrize("args", [["list"], ["plan", "scene.xml"]])
+def test_a_deleted_working_directory_is_named_as_the_cause(tmp_path, args):
     """A CI step run in a folder another step deleted (`mcverify list` there) ended in
     "mcverify: error: No such file or directory", naming nothing: the current directory
     is read to find [tool.mcverify]. It now says that the current directory no longer
-    exists, exit 2."""
+    exists, exit 2; so does an error about a relative path there (`plan scene.xml`: "no
+    such file", a read-only review)."""
     gone = tmp_path / "gone"
     gone.mkdir()
     code = ("import os, sys; os.chdir(sys.argv[1]); os.rmdir(sys.argv[1]); "
-            "from mcverify.gate.cli import main; sys.exit(main(['list']))")
-    r = subprocess.run([sys.executable, "-c", code, str(gone)], capture_output=True,
+            "from mcverify.gate.cli import main; sys.exit(main(sys.argv[2:]))")
+    r = subprocess.run([sys.executable, "-c", code, str(gone), *args], capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 2, r.stdout + r.stderr
     assert "current directory no longer exists" in r.stderr, r.stderr

@@ -226,3 +226,52 @@ def test_a_notebook_shows_a_result_as_print_does():
     for r in (fail, suite):
         r._repr_pretty_(Printer(), False)
         assert shown.pop() == str(r)
+
+
+def test_outputs_written_together_are_all_put_back_where_a_rename_fails(tmp_path,
+                                                                        monkeypatch):
+    """``staged_writes`` renames its files at the block's end: where one rename fails (an
+    immutable file, ``chattr +i``), the ones made before it are undone, and no temporary
+    or kept-aside file is left (a read-only review found ``--json A`` replaced beside an
+    immutable ``--junit B``, exit 2). A new file made before the failure is removed."""
+    import os
+
+    import pytest
+
+    from mcverify import result
+
+    (tmp_path / "a.json").write_text("old a\n")
+    (tmp_path / "b.xml").write_text("old b\n")
+    real = os.replace
+
+    def replace(src, dst):
+        if str(dst).endswith("b.xml") and ".tmp-" in str(src):
+            raise PermissionError(1, "Operation not permitted")
+        return real(src, dst)
+
+    monkeypatch.setattr(result.os, "replace", replace)
+    with pytest.raises(OSError, match=r"cannot write it \(Operation not permitted\)"):
+        with result.staged_writes():
+            result.atomic_write(tmp_path / "a.json", "new a\n")
+            result.atomic_write(tmp_path / "new.txt", "new\n")
+            result.atomic_write(tmp_path / "b.xml", "new b\n")
+    assert (tmp_path / "a.json").read_text() == "old a\n"
+    assert (tmp_path / "b.xml").read_text() == "old b\n"
+    assert sorted(os.listdir(tmp_path)) == ["a.json", "b.xml"]
+
+
+def test_outputs_written_together_keep_no_aside_copy_and_skip_a_removal_that_fails(tmp_path):
+    """On success the kept-aside links are removed; a file to discard that cannot be
+    removed (an old report's image that is now a folder) is left, not an error after
+    the renames."""
+    import os
+
+    from mcverify import result
+
+    (tmp_path / "a.json").write_text("old a\n")
+    (tmp_path / "x.png").mkdir()
+    with result.staged_writes():
+        result.atomic_write(tmp_path / "a.json", "new a\n")
+        result.discard(tmp_path / "x.png")
+    assert (tmp_path / "a.json").read_text() == "new a\n"
+    assert sorted(os.listdir(tmp_path)) == ["a.json", "x.png"]
