@@ -33,11 +33,22 @@ def user_cache() -> str:
     """``~/.cache``; where no home folder is known (``HOME`` unset and the user not in the
     password database: a container run as ``-u 1234``), ``mcverify-UID-cache`` in the
     temporary folder: ``~`` was left as it was, and the kernel cache (and hypothesis's)
-    went into a folder named ``~`` in the current directory, the user's project."""
+    went into a folder named ``~`` in the current directory, the user's project. The
+    same where the home folder is missing (``nobody``'s ``/nonexistent``) or its
+    ``.cache`` cannot be made or written (a read-only home): numba caches there then too
+    (``mcnumba.disk_cache``), and ``check`` exited 2 on the kernel cache alone (a
+    read-only review)."""
     home = os.path.expanduser("~")
-    if not os.path.isabs(home):
-        return _private_folder(temporary_cache())
-    return os.path.join(home, ".cache")
+    if os.path.isabs(home) and os.path.isdir(home):
+        cache = os.path.join(home, ".cache")
+        try:
+            os.makedirs(cache, exist_ok=True)
+        except OSError:
+            pass
+        else:
+            if os.access(cache, os.W_OK | os.X_OK):
+                return cache
+    return _private_folder(temporary_cache())
 
 
 def _private_folder(path: str) -> str:
@@ -50,8 +61,9 @@ def _private_folder(path: str) -> str:
         return private_folder(path)
     except NotPrivate:
         raise PermissionError(f"{path}: the kernel cache's folder in the temporary folder "
-                              "(no home folder is known) is not this user's private "
-                              "folder (a link, another user's, or writable by others); "
+                              "(no home folder is known or writable) is not this user's "
+                              "private folder (a link, another user's, or writable by "
+                              "others); "
                               "set MCVERIFY_CACHE to a folder of your own") from None
     except OSError as e:
         raise PermissionError(f"{path}: cannot make the kernel cache there ({e.strerror}); "

@@ -277,3 +277,27 @@ def test_the_temporary_cache_folder_must_be_this_users_private_one(monkeypatch, 
     folder.symlink_to(tmp_path / "elsewhere")           # a link planted under the name
     with pytest.raises(PermissionError, match="not this user's private folder"):
         _generated.user_cache()
+
+
+@pytest.mark.parametrize("home", ["missing", "cache-is-a-file"])
+def test_a_home_without_a_usable_cache_folder_falls_back_to_the_private_temporary_one(
+        tmp_path, monkeypatch, home):
+    """``nobody``'s home is ``/nonexistent``, and a read-only home has no ``.cache`` to
+    make: numba then caches in the temporary folder (``mcnumba.disk_cache``), and the
+    kernel cache did not, so ``check`` exited 2 there on it alone (a read-only review).
+    Both now use ``mcverify-UID-cache`` in the temporary folder (a ``.cache`` that is a
+    file stands in for one that cannot be made: the tests run as root, where a
+    read-only folder is written anyway)."""
+    import tempfile
+
+    if home == "missing":
+        monkeypatch.setenv("HOME", str(tmp_path / "nonexistent"))
+    else:
+        (tmp_path / "home").mkdir()
+        (tmp_path / "home" / ".cache").write_text("not a folder\n")
+        monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("MCVERIFY_CACHE", raising=False)
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    assert _generated.user_cache() == str(tmp_path / "tmp" / f"mcverify-{os.getuid()}-cache")
+    assert not (tmp_path / "nonexistent").exists()

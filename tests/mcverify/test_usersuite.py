@@ -511,6 +511,7 @@ def test_a_stability_check_leaves_no_hypothesis_folder_in_the_project(project, t
     from estimators._generated import cache_dir
 
     env.setdefault("MCVERIFY_CACHE", cache_dir())       # the kernels, not in the new HOME
+    (tmp_path / "home").mkdir()
     env.update(PYTHONPATH=ROOT, HOME=str(tmp_path / "home"))
     r = subprocess.run([sys.executable, "-m", "mcverify", "check", "-q", "--suite",
                         "mine.stab:suite"], cwd=project, env=env, capture_output=True,
