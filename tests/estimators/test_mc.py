@@ -503,19 +503,38 @@ def test_stratified_works_in_more_than_32_dimensions():
         assert mv.check_unbiased(e.samples, d / 2.0, alpha=0.01).passed
 
 
-def test_an_infinite_term_gives_an_infinite_std_error_without_a_warning():
+@pytest.mark.parametrize("name", ["importance", "russian_roulette"])
+def test_an_infinite_term_gives_an_infinite_std_error_without_a_warning(name):
     """A sample with p = 0 where f is not gave value inf and std_error NaN, with numpy's
     'invalid value encountered in subtract' warning: the error of an infinite estimate
-    is now inf, and no warning is raised."""
+    is now inf, and no warning is raised. russian_roulette's terms are importance's (a
+    guard on p = 0 instead of f = 0 there made the term a silent 0, a biased estimate,
+    and passed every test; a read-only review)."""
     def half_pdf(x):
         return np.where(x[:, 0] < 0.5, 0.0, 2.0)
 
+    def estimate(sample):
+        if name == "importance":
+            return mc.importance(lambda x: np.ones(len(x)), sample, half_pdf, 100)
+        return mc.russian_roulette(lambda x: np.ones(len(x)), sample, half_pdf, 100, 1.0)
+
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        e = mc.importance(lambda x: np.ones(len(x)), lambda u: u, half_pdf, 100)
+        e = estimate(lambda u: u)
     assert e.value == np.inf and e.std_error == np.inf
-    assert mc.importance(lambda x: np.ones(len(x)), lambda u: u * 0.5 + 0.5, half_pdf,
-                         100).std_error < np.inf
+    assert estimate(lambda u: u * 0.5 + 0.5).std_error < np.inf
+
+
+def test_one_term_has_an_infinite_standard_error_and_antithetic_counts_its_evaluations():
+    """One term has no spread to measure: its standard error is inf, as documented, not
+    numpy's NaN and 'Degrees of freedom <= 0' warning; an odd n gives antithetic n - 1
+    evaluations, and it says so (mutants of a read-only review)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        e = mc.uniform(lambda x: np.ravel(x) ** 2, 0.0, 1.0, 1, seed=2)
+    assert e.n == 1 and e.std_error == np.inf
+    f = lambda x: np.ravel(x) ** 2
+    assert mc.antithetic(f, 0.0, 1.0, 1001, seed=2).n == 1000
 
 
 def test_mis_beta_defaults_to_2_for_power_and_1_is_balance():
@@ -584,3 +603,6 @@ def test_stratified_first_axis_is_the_rounded_count_made_even():
     f = lambda x: np.ones(len(x))
     assert mc.stratified(f, [0, 0], [1, 1], 106, seed=1).n == 120
     assert mc.stratified(f, [0, 0], [1, 1], 100, seed=1).n == 100
+    # 10.4 rounds down (ceil gave 12 strata), 10.5 to the even 10 (Python's round)
+    assert mc.stratified(f, [0, 0], [1, 1], 104, seed=1).n == 100
+    assert mc.stratified(f, [0, 0], [1, 1], 105, seed=1).n == 100

@@ -250,12 +250,14 @@ def test_chi2_homogeneity_pools_by_the_smaller_samples_expected_counts():
     assert stats.chi2_homogeneity([20, 200, 200], [2, 20, 20]) == r
 
 
-def test_binned_ks_on_a_fine_grid_is_the_ks_test_of_its_samples():
+@pytest.mark.parametrize("a,b", [(1.3, 1.0), (1.0, 1.3)], ids=["below", "above"])
+def test_binned_ks_on_a_fine_grid_is_the_ks_test_of_its_samples(a, b):
     """On cells far finer than the gaps between 300 samples the edges' largest gap is the
     samples' own, and the p-value is the one-sample test's for n = 300 (the exact
     distribution of D for n samples: for 2n it was far smaller, unseen by any test; a
-    mutant of an outside review)."""
-    x = np.random.default_rng(4).beta(1.3, 1.0, 300)     # off uniform: D is large
+    mutant of an outside review). The samples' CDF below the uniform one, then above it:
+    D taken on one side only passed with the first alone (a read-only review)."""
+    x = np.random.default_rng(4).beta(a, b, 300)     # off uniform: D is large
     edges = np.linspace(0.0, 1.0, 2**20 + 1)
     counts = np.histogram(x, edges)[0]
     r, ref = stats.ks_binned(counts, edges), sps.kstest(x, "uniform")
