@@ -266,17 +266,17 @@ def importance(f, sample, pdf, n: int, *, seed: int = 0, sample_dim: int = 1) ->
 @_checked
 def stratified(f, a, b, n: int, *, seed: int = 0) -> Estimate:
     """Jittered sampling, one uniform sample in each stratum of a grid of about n: m =
-    ⌊n^(1/d)⌋ strata on each axis but the first, and on the first m₀: n / m^(d-1)
-    rounded (a half to even, as Python's ``round``), then made even by adding 1 where
-    it is odd, at least 2 (only that axis is paired below; n = 106 in 2-D: m = 10,
-    10.6 rounds to 11, m₀ = 12, 120 samples; n = 105: 10.5 rounds to 10, 100). The
-    standard error comes from collapsing neighbouring strata in pairs along the first
-    axis (the 'collapsed strata' estimator, conservative: it counts the change of f between paired strata as noise,
-    so for a smooth f it overstates the error: 2.6× for ∫eˣ at n = 64, measured over
-    400 seeds), so ``samples`` holds the stratum-pair means. Conservative in expectation
-    (E[SE²] >= the variance), not estimate by estimate: where f jumps, the jump sits in
-    one pair of strata and the SE is often 0 (a step at 0.37, n = 64, 1000 seeds: E[SE²]
-    1.5× the variance, but SE = 0 in 669 and value ± 1.96·SE covered the integral in
+    ⌊n^(1/d)⌋ strata on each axis but the first, and on the first m₀: n / m^(d-1) rounded (a
+    half to even, as Python's ``round``), then made even by adding 1 where it is odd, at
+    least 2 (only that axis is paired below; n = 106 in 2-D: m = 10, 10.6 rounds to 11, m₀ =
+    12, 120 samples; n = 105: 10.5 rounds to 10, 100). The standard error comes from
+    collapsing neighbouring strata in pairs along the first axis (the 'collapsed strata'
+    estimator, conservative: it counts the change of f between paired strata as noise, so
+    for a smooth f it overstates the error: 2.6× for ∫eˣ at n = 64, measured over 400
+    seeds), so ``samples`` holds the stratum-pair means. Conservative in expectation (E[SE²]
+    >= the variance), not estimate by estimate: where f jumps, the jump sits in one pair of
+    strata and the SE is often 0 (a step at 0.37, n = 64, 1000 seeds: E[SE²] 1.5× the
+    variance, but SE = 0 in 669 and value ± 1.96·SE covered the integral in
     331); use ``uniform`` or ``rqmc`` for an interval there.
     ``Estimate.n`` is the grid's m₀ · m^(d-1) samples: within a few per cent of n where m
     is large; at most 2n in any dimension (until 4 December every axis took the even
