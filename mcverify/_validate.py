@@ -3,6 +3,7 @@ naming the parameter, the value received and what is valid, before any work is d
 
 from __future__ import annotations
 
+import inspect
 import numbers
 import os
 import re
@@ -38,6 +39,7 @@ def draw(name: str, sample, u: np.ndarray):
     except Exception as e:
         compiled_note(e, name, sample, u, "uniform numbers u", "draw")
         tensor_note(e, name, u, "uniform numbers u")
+        arguments_note(e, name, sample, u, "uniform numbers u", "draw")
         raise
 
 
@@ -49,6 +51,7 @@ def call(name: str, f, x, what: str = "points x"):
     except Exception as e:
         compiled_note(e, name, f, x, what, "point")
         tensor_note(e, name, x, what)
+        arguments_note(e, name, f, x, what, "point")
         raise
 
 
@@ -66,6 +69,28 @@ def tensor_note(e: BaseException, name: str, arg, what: str) -> None:
                f"shape {arg.shape}); a function of torch tensors takes it wrapped: pass "
                f"lambda a: {name}(torch.from_numpy(a)) (what it returns is read through "
                "np.asarray, a tensor as t.detach().cpu())")
+
+
+def arguments_note(e: BaseException, name: str, f, arg, what: str, row: str) -> None:
+    """A note on a Python callable that cannot be called with one argument: a port of
+    pbrt's ``SampleUniformDiskPolar(Point2f u)`` written ``sample(u0, u1)``, or a pdf
+    ``pdf(x, y)``, raised Python's bare "missing 1 required positional argument: 'u1'"
+    from inside the check, nothing saying what mcverify passes (an outside review).
+    Only where the callable's own signature refuses a single argument."""
+    if not hasattr(e, "add_note") or not isinstance(e, TypeError) or _compiled(f):
+        return
+    try:
+        inspect.signature(f).bind(arg)
+    except TypeError:
+        pass
+    except ValueError:      # no signature to read (a builtin)
+        return
+    else:
+        return
+    a = np.asarray(arg)
+    e.add_note(f"mcverify called {name} with one {a.dtype} array of {what}, shape "
+               f"{a.shape}, a row per {row}; it takes other arguments: pass "
+               f"lambda a: {name}(*a.T) where it takes one array a coordinate")
 
 
 def _compiled(f) -> bool:

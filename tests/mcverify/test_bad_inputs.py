@@ -1765,6 +1765,44 @@ def test_a_numba_function_that_cannot_take_the_batch_is_told_what_it_was_given(w
                in n and "loop over the rows in an @njit function" in n for n in notes), notes
 
 
+def _sample_of_two_arrays(u0, u1):
+    return W.sample_cosine_hemisphere(np.stack([u0, u1], -1))
+
+
+def _pdf_of_three_arrays(x, y, z):
+    return z / np.pi
+
+
+@pytest.mark.parametrize("check, name", [
+    (lambda: mv.check_sampler(_sample_of_two_arrays, W.cosine_hemisphere_pdf, "hemisphere",
+                              n_samples=10_000), "sample"),
+    (lambda: mv.check_sampler(W.sample_cosine_hemisphere, _pdf_of_three_arrays,
+                              "hemisphere", n_samples=10_000), "pdf"),
+    (lambda: mv.check_inverse(W.sample_cosine_hemisphere, lambda x, y, z: x, 2,
+                              n_samples=1000), "inverse"),
+], ids=["sample-of-u0-u1", "pdf-of-x-y-z", "inverse-of-x-y-z"])
+def test_a_python_function_of_several_arrays_is_told_what_it_was_given(check, name):
+    """A port of pbrt's SampleUniformDiskPolar(Point2f u) written sample(u0, u1), or a
+    pdf(x, y, z), raised Python's bare "missing 1 required positional argument: 'u1'"
+    from inside the check, nothing saying what mcverify passes or how to wrap it (an
+    outside review). The TypeError is raised as it was, with a note; one raised inside
+    a function that takes the batch gets none."""
+    with pytest.raises(TypeError, match="missing .* required positional argument") as e:
+        check()
+    notes = getattr(e.value, "__notes__", [])
+    assert sys.version_info < (3, 11) or any(
+        f"mcverify called {name} with one float64 array of" in n
+        and f"pass lambda a: {name}(*a.T)" in n for n in notes), notes
+
+    def inner_error(x):
+        return len(x, 2)
+
+    with pytest.raises(TypeError) as e:
+        mv.check_sampler(W.sample_cosine_hemisphere, inner_error, "hemisphere",
+                         n_samples=10_000)
+    assert not getattr(e.value, "__notes__", []), e.value.__notes__
+
+
 def test_check_stability_says_what_a_numba_sampler_was_given():
     """The same refusal in check_stability read as a finding at u = [0, 0], as if that u
     were the cause (an outside review)."""
