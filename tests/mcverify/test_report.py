@@ -369,6 +369,42 @@ def test_cli_report_exits_1_when_a_check_in_it_failed(tmp_path, capsys, monkeypa
     assert doc["verification"]["n_failed"] == 1 and (tmp_path / "report.html").is_file()
 
 
+@pytest.mark.parametrize("failing,line", [
+    (None, None), ("canary", "FAIL canary toothless (not bitten)"),
+    ("study", "FAIL convergence:mc:planted"), ("render", "FAIL render:cornell-box")])
+def test_cli_report_exits_1_for_each_part_that_failed(tmp_path, capsys, monkeypatch,
+                                                      failing, line):
+    """Each part of the report that can fail decides the exit code as a failed check
+    does: a canary the judge did not reject, a convergence row whose slope is off, a
+    render whose check failed (each alone, with every other part passing), and 0 where
+    all pass. Until an outside mutation review, only a failed check was tested: the
+    lines adding the other three to the failures could go and every test passed."""
+    from mcverify.gate import cli
+    from mcverify.gate import report as report_pkg
+    from mcverify.gate.report import renders as renders_mod
+    from mcverify.gate.report import study as study_mod
+    from mcverify.result import CheckResult
+
+    def check(name, passed, tags=()):
+        result = CheckResult(name, passed, 0.5 if passed else 1e-9, 0.0, 0.01, 10, 0.0)
+        return suites.Check(name, lambda seed, stop_alpha=None: result, tags,
+                            sequential=True)
+
+    monkeypatch.setattr(suites, "build_suite", lambda name, *a, **kw: [check("ok", True)])
+    monkeypatch.setattr(suites, "canaries", lambda *a, **kw: [
+        check("toothless", failing == "canary", ("canary",))])
+    monkeypatch.setattr(study_mod, "run_study", lambda **kw: [
+        {"estimator": "mc", "integrand": "planted", "passed": failing != "study"}])
+    monkeypatch.setattr(renders_mod, "run_renders", lambda scenes, **kw: (
+        [{"scene": s, "passed": failing != "render"} for s in scenes], {}))
+    monkeypatch.setattr(report_pkg, "prepare_report", lambda out, **kw: (None, lambda: None))
+    monkeypatch.setattr(cli, "_variant_provenance", lambda: {})
+    rc = cli.main(["report", "--renders", "cornell-box", "-q", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    fails = [l for l in out.splitlines() if l.startswith("FAIL")]
+    assert (rc, fails) == ((0, []) if failing is None else (1, [line])), out
+
+
 @pytest.mark.parametrize("panel", ["convergence", "efficiency"])
 def test_an_estimator_has_one_colour_in_every_panel(monkeypatch, panel):
     """Each panel coloured its own rows in turn: where an integrand lacked an estimator,
