@@ -209,8 +209,8 @@ def _unbounded_message(a: float, b: float) -> str:
     of how to check a density on a half line or the real line (an outside review)."""
     return (f"Interval(a={a}, b={b}): an end is infinite, and domains are bounded; check "
             "a density on a half line or the real line on a finite interval that holds "
-            "every draw and all but 1e-4 of its mass: Interval(0, 40 / λ) for an "
-            "exponential of rate λ (-log(1 - u) / λ < 37 / λ for u < 1), "
+            "every draw and all its mass but a negligible tail: Interval(0, 40 / λ) for "
+            "an exponential of rate λ (-log(1 - u) / λ < 37 / λ for u < 1), "
             "Interval(μ - 9σ, μ + 9σ) for a normal (|erfinv(2u - 1)|·√2 < 8.3)")
 
 
