@@ -22,7 +22,6 @@ D-series definition (within 1e-5 of the tabulated values Mitsuba carries).
 from __future__ import annotations
 
 import functools
-import re
 
 import numpy as np
 
@@ -35,8 +34,6 @@ _CIE_MIN, _CIE_MAX, _CIE_SAMPLES = 360.0, 830.0, 95
 _Y_NORMALIZATION = 1.0 / 106.7502593994140625
 _D65_NORMALIZATION = 1.0 / 98.99741751876255
 _STEPS = 1000
-#: what separates a spectrum file's wavelength from its value (Mitsuba: not a \r)
-_SPD_SPACES = re.compile(r"[ \t]+")
 #: the longest line Mitsuba reads whole (``fgets`` into 1024 bytes)
 _SPD_LINE_BYTES = 1023
 
@@ -118,18 +115,30 @@ def number_pair(words) -> tuple[float, float] | None:
         return None
 
 
+def _leading_number(line: str, start: int) -> tuple[float, int] | None:
+    """The number at the start of ``line[start:]`` after spaces and tabs, and where it
+    ends, as Mitsuba's reader takes it: the longest decimal number there (``0.1`` of
+    ``0.1#peak`` or ``0.1,``, ``0`` of ``0x10``); None where none starts there."""
+    from .text_numbers import FLOAT_PREFIX
+
+    pos = start + len(line[start:]) - len(line[start:].lstrip(" \t"))
+    match = FLOAT_PREFIX.match(line, pos)
+    return (float(match.group()), match.end()) if match else None
+
+
 def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     """The wavelengths and values of a spectrum file (a ``wavelength value`` pair a
     line), read as Mitsuba 3.9.1 reads it, or why it cannot be read: lines end at ``\n``
     only (a lone ``\r`` ends none); an empty line, or one starting with ``#`` or ``\r``
-    (a CRLF file's empty line), is skipped; any other starts with two numbers separated by
-    spaces or tabs, a CRLF's ``\r`` dropped, and what follows them is ignored
+    (a CRLF file's empty line), is skipped; any other starts with two numbers, each the
+    longest decimal number after spaces or tabs, and what follows them is ignored
     (``400 0.1 # peak``, a third column: until 7 December refused, though Mitsuba
-    renders it). A line of spaces or tabs Mitsuba refuses ("Could
-    not extract wavelength"): it is refused by line, as is a file whose lines end at a
-    lone ``\r`` (until 7 December both were read, Python's reading of lines skipping
-    the one and splitting the other, and ``render-check`` failed in Mitsuba's reference
-    build)."""
+    renders it; and ``400 0.1# peak``, ``400 0.1,``: refused as 'expected a wavelength
+    and a value' until 8 December, though Mitsuba reads 0.1 there). A line of spaces or
+    tabs Mitsuba refuses ("Could not extract wavelength"): it is refused by line, as is
+    a file whose lines end at a lone ``\r``, one line to Mitsuba, of one pair (until 7
+    December both were read, Python's reading of lines skipping the one and splitting
+    the other, and ``render-check`` failed in Mitsuba's reference build)."""
     wavelengths, values = [], []
     with open(path, encoding="utf-8", errors="replace", newline="\n") as f:
         for number, line in enumerate(f, 1):
@@ -141,17 +150,17 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
             line = line.removesuffix("\n")
             if not line or line[0] in "#\r":
                 continue
-            words = [w for w in _SPD_SPACES.split(line.rstrip("\r")) if w]
-            if not words:
+            if not line.rstrip("\r").strip(" \t"):
                 return (f"line {number}: a line of spaces or tabs, {line!r}: Mitsuba "
                         "skips only an empty line or one starting with '#', and refuses "
                         "this one; make it empty")
             # Mitsuba reads the first two numbers and ignores the rest of the line (a
-            # comment, a third column): refused here until 7 December
-            pair = number_pair(words[:2])
-            if pair is None:
+            # comment, a third column, a comma): refused here until 7 and 8 December
+            wavelength = _leading_number(line, 0)
+            value = wavelength and _leading_number(line, wavelength[1])
+            if not value:
                 shown = line.rstrip("\r").strip(" \t")
                 return f"line {number}: expected a wavelength and a value, got {shown!r}"
-            wavelengths.append(pair[0])
-            values.append(pair[1])
+            wavelengths.append(wavelength[0])
+            values.append(value[0])
     return wavelengths, values

@@ -17,6 +17,8 @@ _SEPARATORS = re.compile(r"[, \t\n\r]+")
 _SPACES = re.compile(r"[ \t\n\r]+")
 _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
                     r"|[+-]?(?:inf|infinity|nan)", re.ASCII | re.IGNORECASE)
+#: a number at the start of a text, as ``strtod`` takes it (ASCII decimal only)
+FLOAT_PREFIX = _FLOAT
 _INT = re.compile(r"[+-]?[0-9]+", re.ASCII)
 INT64 = (-2 ** 63, 2 ** 63 - 1)
 #: The least magnitude that float32 rounds to inf (FLT_MAX + half its ulp): Mitsuba's RGB

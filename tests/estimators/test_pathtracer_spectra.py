@@ -183,7 +183,8 @@ def test_a_bad_spectrum_file_is_refused_naming_it_and_its_line(tmp_path):
     ("400 0.1\n   \n500 0.7\n", "line 2: a line of spaces or tabs"),
     ("400 0.1\n500 0.7\n\t\n", "line 3: a line of spaces or tabs"),
     ("400 0.1\n \r\n500 0.7\n", "line 2: a line of spaces or tabs"),
-    ("400 0.1\r500 0.7\r", "line 1: expected a wavelength and a value"),
+    # one line to Mitsuba, whose first two numbers it reads: one pair
+    ("400 0.1\r500 0.7\r", "1 wavelength:value pair(s)"),
 ], ids=["spaces", "trailing-tab", "space-crlf", "lone-cr"])
 def test_a_spectrum_file_line_mitsuba_refuses_is_refused_by_line(mi, tmp_path, content,
                                                                 needle):
@@ -230,6 +231,45 @@ def test_what_follows_a_spectrum_file_lines_two_numbers_is_ignored_as_mitsuba_do
     assert np.allclose(_mitsuba_values(mi, (tmp_path / "s.xml").read_text().replace(
         'filename="a.spd"', f'filename="{tmp_path / "a.spd"}"'))["reflectance"], theirs,
         rtol=1e-6)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("line,pair", [
+    ("400 0.9# blue", (400, 0.9)), ("400 0.9,", (400, 0.9)), ("400\t0.9;", (400, 0.9)),
+    ("400 0.9e", (400, 0.9)), ("400 0.2e1x", (400, 2.0)), ("400 0x10", (400, 0.0)),
+    ("400.5.3 0.1", (400.5, 0.3)), ("400 0.9\v", (400, 0.9)),
+], ids=["hash", "comma", "semicolon", "bare-e", "exponent-then-text", "hex", "two-points",
+        "vtab"])
+def test_a_spectrum_file_lines_numbers_end_where_mitsubas_reader_ends_them(mi, tmp_path,
+                                                                          line, pair):
+    """Mitsuba 3.9.1 reads a line's wavelength and value each as the longest decimal
+    number after spaces or tabs, and ignores what follows: ``400 0.9# blue`` and
+    ``400 0.9,`` are 0.9 to it. Until 8 December such a line was refused here as
+    'expected a wavelength and a value', though Mitsuba renders the scene."""
+    (tmp_path / "a.spd").write_bytes(f"{line}\n700 0.4\n".encode())
+    (tmp_path / "s.xml").write_text(
+        f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf type="diffuse">'
+        '<spectrum name="reflectance" filename="a.spd"/></bsdf></shape>\n</scene>')
+    assert spectra.read_spd(str(tmp_path / "a.spd")) == ([pair[0], 700.0], [pair[1], 0.4])
+    ours = load_scene(str(tmp_path / "s.xml")).shapes[0].children[0].props["reflectance"]
+    theirs = _mitsuba_values(mi, (tmp_path / "s.xml").read_text().replace(
+        'filename="a.spd"', f'filename="{tmp_path / "a.spd"}"'))["reflectance"]
+    assert np.allclose(ours, theirs, rtol=1e-5, atol=1e-6), (ours, theirs)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("line", ["400x 0.1", "400\v0.1", "400\r0.1", "400, 0.1", "x 0.1"])
+def test_a_spectrum_file_line_without_two_leading_numbers_is_refused(mi, tmp_path, line):
+    """Where no number follows the wavelength (after spaces or tabs only), Mitsuba
+    refuses the line ("Could not extract value"), and so do we, by file and line."""
+    (tmp_path / "a.spd").write_bytes(f"{line}\n700 0.4\n".encode())
+    assert spectra.read_spd(str(tmp_path / "a.spd")).startswith(
+        "line 1: expected a wavelength and a value")
+    (tmp_path / "s.xml").write_text(
+        f'<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere"><bsdf type="diffuse">'
+        '<spectrum name="reflectance" filename="a.spd"/></bsdf></shape>\n</scene>')
+    with pytest.raises(RuntimeError):
+        mi.load_file(str(tmp_path / "s.xml"))
 
 
 @pytest.mark.parametrize("element,needle", [
