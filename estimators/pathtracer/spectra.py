@@ -134,7 +134,7 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     longest decimal number after spaces or tabs, and what follows them is ignored
     (``400 0.1 # peak``, a third column: until 7 December refused, though Mitsuba
     renders it; and ``400 0.1# peak``, ``400 0.1,``: refused as 'expected a wavelength
-    and a value' until 8 December, though Mitsuba reads 0.1 there). A line of spaces or
+    and a value' until 7 December, though Mitsuba reads 0.1 there). A line of spaces or
     tabs Mitsuba refuses ("Could not extract wavelength"): it is refused by line, as is
     a file whose lines end at a lone ``\r``, one line to Mitsuba, of one pair (until 7
     December both were read, Python's reading of lines skipping the one and splitting
@@ -155,7 +155,7 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
                         "skips only an empty line or one starting with '#', and refuses "
                         "this one; make it empty")
             # Mitsuba reads the first two numbers and ignores the rest of the line (a
-            # comment, a third column, a comma): refused here until 7 and 8 December
+            # comment, a third column, a comma): refused here until 7 December
             wavelength = _leading_number(line, 0)
             value = wavelength and _leading_number(line, wavelength[1])
             if not value:

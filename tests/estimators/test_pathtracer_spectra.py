@@ -244,7 +244,7 @@ def test_a_spectrum_file_lines_numbers_end_where_mitsubas_reader_ends_them(mi, t
                                                                           line, pair):
     """Mitsuba 3.9.1 reads a line's wavelength and value each as the longest decimal
     number after spaces or tabs, and ignores what follows: ``400 0.9# blue`` and
-    ``400 0.9,`` are 0.9 to it. Until 8 December such a line was refused here as
+    ``400 0.9,`` are 0.9 to it. Until 7 December such a line was refused here as
     'expected a wavelength and a value', though Mitsuba renders the scene."""
     (tmp_path / "a.spd").write_bytes(f"{line}\n700 0.4\n".encode())
     (tmp_path / "s.xml").write_text(
