@@ -930,6 +930,10 @@ def _compare_side(label: str, image: str | None, var: str | None, n: int | None,
                 raise InvalidArgument(f"{o}: not with a reference ({image}), which gives "
                                       "its own variance and passes; give REF.exr with it")
         return None, reference.reference_files(image)
+    if not os.path.isfile(image):
+        # said "an image needs --test-var and --test-n" of a file that is not there (an
+        # outside review): the missing file is the first thing to mend
+        raise InvalidArgument(f"{image}: cannot read it (no such file; the {label} image)")
     if var is None or n is None:
         raise InvalidArgument(f"{image}: an image needs {opt}-var and {opt}-n (or give "
                               f"{opt}-passes)")

@@ -767,6 +767,10 @@ CLI = [
                            "{d}/var.exr", "--test-n", "4"], "data_cut.exr"),
     ("compare-missing", ["compare", "{d}/nosuch.exr", "ref-ok", "--test-var", "{d}/var.exr",
                          "--test-n", "4"], "nosuch.exr: cannot read"),
+    # a missing image without its variance was told it "needs --test-var and --test-n"
+    # (an outside review): the missing file comes first
+    ("compare-missing-no-var", ["compare", "{d}/nosuch.exr", "{d}/nosuch2.exr"],
+     "nosuch.exr: cannot read it (no such file; the test image)"),
     ("compare-json-is-test", ["compare", "{d}/good.exr", "{d}/good2.exr", "--test-var",
                               "{d}/var.exr", "--test-n", "4", "--ref-var", "{d}/var.exr",
                               "--ref-n", "4", "--json", "{d}/good.exr"], "is also an input"),

@@ -158,6 +158,7 @@ def test_compare_with_few_passes_and_no_spp_says_so(tmp_path):
         "n-with-passes", "no-var", "empty-glob", "spp-0",
         "ref-spp-alone"])
 def test_compare_bad_input_exit_2(tmp_path, args, needle):
+    (tmp_path / "a.exr").write_bytes(b"")    # there: a missing image is said so first
     r = subprocess.run(CMD + args, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
 
