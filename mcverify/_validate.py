@@ -76,11 +76,19 @@ def arguments_note(e: BaseException, name: str, f, arg, what: str, row: str) -> 
     pbrt's ``SampleUniformDiskPolar(Point2f u)`` written ``sample(u0, u1)``, or a pdf
     ``pdf(x, y)``, raised Python's bare "missing 1 required positional argument: 'u1'"
     from inside the check, nothing saying what mcverify passes (an outside review).
-    Only where the callable's own signature refuses a single argument."""
+    Only where the call itself failed (not a TypeError from inside the function, behind
+    a decorator that takes the batch) and the callable's own signature refuses a single
+    argument; ``lambda a: f(*a.T)`` is advised only where ``f`` takes one argument a
+    coordinate, else its signature is shown (a method unbound, an extra argument to
+    bind, a keyword-only one: the advice was false there; a read-only review)."""
     if not hasattr(e, "add_note") or not isinstance(e, TypeError) or _compiled(f):
         return
+    tb = e.__traceback__
+    if tb is None or tb.tb_next is not None:     # raised inside f, not by calling it
+        return
     try:
-        inspect.signature(f).bind(arg)
+        signature = inspect.signature(f)
+        signature.bind(arg)
     except TypeError:
         pass
     except ValueError:      # no signature to read (a builtin)
@@ -88,9 +96,18 @@ def arguments_note(e: BaseException, name: str, f, arg, what: str, row: str) -> 
     else:
         return
     a = np.asarray(arg)
+    params = signature.parameters.values()
+    positional = [p for p in params if p.default is p.empty and p.kind in
+                  (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    keyword = [p for p in params if p.default is p.empty and p.kind == p.KEYWORD_ONLY]
+    columns = a.shape[-1] if a.ndim == 2 else 1
+    advice = (f"pass lambda a: {name}(*a.T) where it takes one array a coordinate"
+              if len(positional) == columns and not keyword else
+              f"its signature is {name}{signature}: give a function of that one array, "
+              "with any other argument bound (a method of an instance, lambda a: "
+              f"{name}(a, ...))")
     e.add_note(f"mcverify called {name} with one {a.dtype} array of {what}, shape "
-               f"{a.shape}, a row per {row}; it takes other arguments: pass "
-               f"lambda a: {name}(*a.T) where it takes one array a coordinate")
+               f"{a.shape}, a row per {row}; it takes other arguments: {advice}")
 
 
 def _compiled(f) -> bool:

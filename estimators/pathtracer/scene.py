@@ -479,7 +479,8 @@ class _Loader:
         where = f"spectrum file {name!r}" if name else "spectrum"
         if len(wavelengths) < 2:
             self.fail(node, f"{where}: {len(wavelengths)} wavelength:value pair(s); a "
-                            "spectrum needs at least two (Mitsuba refuses it too)")
+                            "spectrum needs at least two (Mitsuba refuses it too)"
+                            + (_LONE_CR if name and _lone_cr(path) else ""))
         if not (np.all(np.isfinite(wavelengths)) and np.all(np.isfinite(values))):
             self.fail(node, f"{where}: expected finite numbers")
         if not np.all(np.diff(wavelengths) > 0):
@@ -1019,6 +1020,17 @@ def scene_path(value, name: str, also: str = "") -> str:
         return os.fsdecode(value)
     raise TypeError(f"{name}: expected a scene file's path (str or os.PathLike{also}), "
                     f"got {type(value).__name__}")
+
+
+#: why a file of lone \r line ends (a classic Mac file) reads as one pair
+_LONE_CR = ("; its lines end at a lone \\r, which Mitsuba takes for no line end, so the "
+            "file is one line to it, read as one pair: save it with \\n line ends")
+
+
+def _lone_cr(path: str) -> bool:
+    """Whether the file has a carriage return that does not end a CRLF."""
+    with open(path, "rb") as f:
+        return re.search(rb"\r(?!\n)", f.read()) is not None
 
 
 def _mark_spectra(node: _Node, folders: list) -> None:

@@ -135,8 +135,9 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     (``400 0.1 # peak``, a third column: until 7 December refused, though Mitsuba
     renders it; and ``400 0.1# peak``, ``400 0.1,``: refused as 'expected a wavelength
     and a value' until 7 December, though Mitsuba reads 0.1 there). A line of spaces or
-    tabs Mitsuba refuses ("Could not extract wavelength"): it is refused by line, as is
-    a file whose lines end at a lone ``\r``, one line to Mitsuba, of one pair (until 7
+    tabs Mitsuba refuses ("Could not extract wavelength"): it is refused by line; a
+    file whose lines end at a lone ``\r`` is one line to Mitsuba, of one pair, refused
+    by the loader as too few pairs, saying why (until 7
     December both were read, Python's reading of lines skipping the one and splitting
     the other, and ``render-check`` failed in Mitsuba's reference build)."""
     wavelengths, values = [], []

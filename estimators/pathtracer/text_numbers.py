@@ -16,8 +16,9 @@ SPACE = " \t\n\r"
 _SEPARATORS = re.compile(r"[, \t\n\r]+")
 _SPACES = re.compile(r"[ \t\n\r]+")
 _FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
-                    r"|[+-]?(?:inf|infinity|nan)", re.ASCII | re.IGNORECASE)
-#: a number at the start of a text, as ``strtod`` takes it (ASCII decimal only)
+                    r"|[+-]?(?:infinity|inf|nan)", re.ASCII | re.IGNORECASE)
+#: the longest number at the start of a text, as Mitsuba's reader takes it (ASCII
+#: decimal only: no hexadecimal, no leading white space)
 FLOAT_PREFIX = _FLOAT
 _INT = re.compile(r"[+-]?[0-9]+", re.ASCII)
 INT64 = (-2 ** 63, 2 ** 63 - 1)

@@ -102,6 +102,9 @@ def _call(what, fn, arg, raw=None):
                                                    ("points x", "point")))
         validate.tensor_note(e, what, arg, "uniform numbers u" if what == "sample"
                              else "points x")
+        validate.arguments_note(e, what, fn, arg, *(("uniform numbers u", "draw")
+                                                    if what == "sample" else
+                                                    ("points x", "point")))
         notes = getattr(e, "__notes__", ())
         return None, f"{what} raised {type(e).__name__}: {e}" + "".join(
             f" ({n})" for n in notes[-1:])

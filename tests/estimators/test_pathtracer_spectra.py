@@ -183,8 +183,10 @@ def test_a_bad_spectrum_file_is_refused_naming_it_and_its_line(tmp_path):
     ("400 0.1\n   \n500 0.7\n", "line 2: a line of spaces or tabs"),
     ("400 0.1\n500 0.7\n\t\n", "line 3: a line of spaces or tabs"),
     ("400 0.1\n \r\n500 0.7\n", "line 2: a line of spaces or tabs"),
-    # one line to Mitsuba, whose first two numbers it reads: one pair
-    ("400 0.1\r500 0.7\r", "1 wavelength:value pair(s)"),
+    # one line to Mitsuba, whose first two numbers it reads: one pair, said why (the
+    # count alone told a 50-line classic Mac file it had one pair; a read-only review)
+    ("400 0.1\r500 0.7\r", "1 wavelength:value pair(s); a spectrum needs at least two "
+                             "(Mitsuba refuses it too); its lines end at a lone \\r"),
 ], ids=["spaces", "trailing-tab", "space-crlf", "lone-cr"])
 def test_a_spectrum_file_line_mitsuba_refuses_is_refused_by_line(mi, tmp_path, content,
                                                                 needle):

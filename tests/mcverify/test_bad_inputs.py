@@ -6,6 +6,7 @@ afterwards. CLI cases run ``main()`` in-process (each subprocess would pay secon
 imports); the interrupt tests run the real command and send SIGINT.
 """
 
+import functools
 import hashlib
 import json
 import os
@@ -1836,3 +1837,51 @@ def test_another_users_file_in_a_sticky_folder_is_refused_before_any_work(
     assert results.read_text() == "a colleague's\n"
     monkeypatch.undo()                                  # its owner may replace it
     assert cli._others_in_sticky_folder(str(results)) is False
+
+
+class _Lobe:
+    def pdf(self, x):
+        return x[:, 2] / np.pi
+
+
+def _pdf_given_wi(x, wi):
+    return x[:, 2] / np.pi
+
+
+def _batch(f):
+    """A decorator that turns f(x, y, z) into a function of the batch, with a bug of its
+    own (a TypeError raised inside it)."""
+    @functools.wraps(f)
+    def wrapped(a):
+        return f(*a.T) + len(3)
+    return wrapped
+
+
+@pytest.mark.parametrize("pdf, needle", [
+    (_Lobe.pdf, "its signature is pdf(self, x): give a function of that one array"),
+    (_pdf_given_wi, "its signature is pdf(x, wi): give a function of that one array"),
+    (_batch(_pdf_of_three_arrays), None),
+], ids=["unbound-method", "an-argument-to-bind", "decorated-inner-error"])
+def test_the_several_arrays_note_advises_only_what_would_work(pdf, needle):
+    """The note said "pass lambda a: pdf(*a.T)" of an unbound method (the fix is the
+    instance's method), of pdf(x, wi) on the hemisphere (three columns for two
+    parameters), and of a TypeError raised inside a decorator that takes the batch,
+    whose signature inspect reads through __wrapped__ (a read-only review): the
+    signature is shown where *a.T would not fit, and an error from inside gets no note."""
+    with pytest.raises(TypeError) as e:
+        mv.check_sampler(W.sample_cosine_hemisphere, pdf, "hemisphere", n_samples=10_000)
+    notes = getattr(e.value, "__notes__", [])
+    if needle is None:
+        assert not notes, notes
+    else:
+        assert sys.version_info < (3, 11) or any(needle in n for n in notes), notes
+        assert not any("*a.T" in n for n in notes), notes
+
+
+def test_check_stability_says_what_a_sampler_of_several_arrays_was_given():
+    """check_stability's finding blamed u = [0, 0] for sample(u0, u1)'s TypeError, with
+    no word of what it was passed, where the other checks say it (a read-only review)."""
+    r = mv.check_stability(_sample_of_two_arrays, "hemisphere", sample_dim=2)
+    assert not r.passed
+    assert sys.version_info < (3, 11) or \
+        "pass lambda a: sample(*a.T)" in r.details["problem"], r.details["problem"]
