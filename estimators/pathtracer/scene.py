@@ -283,6 +283,12 @@ _TRANSFORM_ATTRIBUTES = {"translate": ("value", "x", "y", "z"),
 #: BSDF properties whose <rgb> is no reflectance (complex index of refraction): Mitsuba
 #: lets them leave [0, 1]
 _UNBOUNDED_RGB = INDEX_PROPERTIES
+#: (plugin type, property) of the numbers Mitsuba reads as textures, which take a uniform
+#: <spectrum> as that number (refused by line until 7 December, an outside review);
+#: others (roughplastic's alpha, an int_ior) it refuses, "has the wrong type"
+_TEXTURE_NUMBERS = {(t, a) for t in ("roughconductor", "roughdielectric")
+                    for a in ("alpha", "alpha_u", "alpha_v")} | {("blendbsdf", "weight"),
+                                                                ("mask", "opacity")}
 #: properties Mitsuba reads as a <float> or a named <string> only: its index look-up
 #: refuses an <integer> ("has the wrong type (expected string, got integer)")
 _NO_INTEGER = ("int_ior", "ext_ior")
@@ -488,14 +494,19 @@ class _Loader:
                             "too)")
         return np.array(wavelengths), np.array(values)
 
-    def spectrum_value(self, node, kind, name, allowed, spectrum):
+    def spectrum_value(self, node, plugin, name, allowed, spectrum):
         """A ``<spectrum>`` as the ``<rgb>`` or ``<float>`` Mitsuba's RGB variants make of
-        it for property ``name`` of a ``kind`` (``spectra.py``): an emitter's radiance,
-        irradiance or intensity is an emission, ``eta`` and ``k`` unbounded indices, the
-        rest reflectances."""
-        emitter = kind == "emitter"
+        it for property ``name`` of a ``plugin`` (kind, type; ``spectra.py``): an
+        emitter's radiance, irradiance or intensity is an emission, ``eta`` and ``k``
+        unbounded indices, the rest reflectances; a uniform one is a number where
+        Mitsuba reads a number as a texture (``_TEXTURE_NUMBERS``)."""
+        emitter = plugin[0] == "emitter"
         if "rgb" not in allowed:
-            self.fail(node, f"property {name!r} takes {' or '.join(allowed)}, not a spectrum")
+            if isinstance(spectrum, float) and (plugin[1], name) in _TEXTURE_NUMBERS:
+                return "float", spectrum
+            self.fail(node, f"property {name!r} takes {' or '.join(allowed)}, not a spectrum"
+                            + (" of wavelength:value pairs" if (plugin[1], name) in
+                               _TEXTURE_NUMBERS else ""))
         if isinstance(spectrum, float) and not emitter:
             return "float", spectrum        # every property that takes an rgb takes one
         rgb = uniform_emission_rgb(spectrum) if isinstance(spectrum, float) else \
@@ -625,7 +636,8 @@ class _Loader:
                 if vkind == "spectrum":
                     p.spectra[name] = spectrum_features(kind, name, val,
                                                         "filename" in child.attrib)
-                    vkind, val = self.spectrum_value(child, kind, name, spec[name], val)
+                    vkind, val = self.spectrum_value(child, (kind, ptype), name, spec[name],
+                                                     val)
                 if vkind == "integer" and "integer" not in spec[name] and \
                         "float" in spec[name] and name not in _NO_INTEGER:
                     vkind, val = "float", float(val)    # Mitsuba reads an integer as a float

@@ -275,8 +275,8 @@ def test_a_spectrum_file_line_without_two_leading_numbers_is_refused(mi, tmp_pat
 
 
 @pytest.mark.parametrize("element,needle", [
-    # Mitsuba's roughconductor takes a texture there; ours a number only, as for <rgb>
-    ('<bsdf type="roughconductor"><spectrum name="alpha" value="0.2"/></bsdf>',
+    # a plain number to Mitsuba too ("has the wrong type")
+    ('<bsdf type="roughplastic"><spectrum name="alpha" value="0.2"/></bsdf>',
      "property 'alpha' takes float, not a spectrum"),
     ('<bsdf type="dielectric"><spectrum name="int_ior" value="1.5"/></bsdf>',
      "property 'int_ior' takes float or string, not a spectrum"),
@@ -438,3 +438,45 @@ def test_a_spectrum_files_features_are_its_rule_and_the_file():
     assert spectrum_features("bsdf", "k", pairs, False) == ("index",)
     assert spectrum_features("bsdf", "reflectance", 0.5, False) == ("uniform",)
     assert spectrum_features("emitter", "radiance", 0.5, False) == ("emission(uniform)",)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("bsdf, name", [
+    ('<bsdf type="roughconductor">{s}</bsdf>', "alpha"),
+    ('<bsdf type="roughconductor">{s}<float name="alpha_v" value="0.2"/></bsdf>', "alpha_u"),
+    ('<bsdf type="roughdielectric">{s}</bsdf>', "alpha"),
+    ('<bsdf type="roughdielectric">{s}<float name="alpha_u" value="0.2"/></bsdf>', "alpha_v"),
+    ('<bsdf type="blendbsdf">{s}<bsdf type="diffuse"/><bsdf type="conductor"/></bsdf>',
+     "weight"),
+    ('<bsdf type="mask">{s}<bsdf type="diffuse"/></bsdf>', "opacity"),
+])
+def test_a_uniform_spectrum_is_the_number_mitsuba_reads_as_a_texture(mi, bsdf, name):
+    """Mitsuba reads a rough BSDF's roughness, a blend's weight and a mask's opacity as
+    textures, which take a uniform spectrum as its number; ours refused it by line (an
+    outside review): it is that number now, as a <float> of it would be."""
+    def scene(value):
+        return (f'<scene version="3.0.0">{SENSOR}<shape type="sphere">'
+                + bsdf.format(s=value) + '</shape></scene>')
+    spectral = scene(f'<spectrum name="{name}" value="0.3"/>')
+    plain = scene(f'<float name="{name}" value="0.3"/>')
+    mi.load_string(spectral)                                  # Mitsuba takes it
+    assert parse_scene(spectral, path="s.xml").shapes[0].children[0].props == \
+        parse_scene(plain, path="s.xml").shapes[0].children[0].props
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("bsdf, name, mitsuba_refuses", [
+    ('<bsdf type="roughplastic"><spectrum name="alpha" value="0.3"/></bsdf>', "alpha", True),
+    ('<bsdf type="roughconductor"><spectrum name="alpha" value="400:0.1, 700:0.3"/></bsdf>',
+     "alpha", False),
+])
+def test_a_spectrum_mitsuba_or_the_tracer_cannot_take_as_a_number_is_refused(
+        mi, bsdf, name, mitsuba_refuses):
+    """roughplastic's alpha is no texture in Mitsuba ("has the wrong type"); pairs on a
+    roughness are an RGB texture there, which the tracer's roughness is not."""
+    text = f'<scene version="3.0.0">{SENSOR}<shape type="sphere">{bsdf}</shape></scene>'
+    with pytest.raises(SceneError, match=f"property '{name}' takes float, not a spectrum"):
+        parse_scene(text, path="s.xml")
+    if mitsuba_refuses:
+        with pytest.raises(RuntimeError):
+            mi.load_string(text)
