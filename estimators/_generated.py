@@ -63,8 +63,7 @@ def _private_folder(path: str) -> str:
         raise PermissionError(f"{path}: the kernel cache's folder in the temporary folder "
                               "(no home folder is known or writable) is not this user's "
                               "private folder (a link, another user's, or writable by "
-                              "others); "
-                              "set MCVERIFY_CACHE to a folder of your own") from None
+                              "others); set MCVERIFY_CACHE to a folder of your own") from None
     except OSError as e:
         raise PermissionError(f"{path}: cannot make the kernel cache there ({e.strerror}); "
                               "set MCVERIFY_CACHE to a folder of your own") from None

@@ -29,8 +29,8 @@ import numpy as np
 
 from .text_numbers import (INT32, INT32_PROPERTIES, INT64, SPACE, ascii_lower,
                            finite_in_float32, parse_float, parse_int, split_numbers)
-from .spectra import (INDEX_PROPERTIES, number_pair, read_spd, spectrum_features,
-                      spectrum_list_rgb, uniform_emission_rgb)
+from .spectra import (INDEX_PROPERTIES, lone_cr_note, number_pair, read_spd,
+                      spectrum_features, spectrum_list_rgb, uniform_emission_rgb)
 from .transform import look_at, matrix, rotate, scale, translate
 
 __all__ = ["SceneError", "SceneDescription", "Plugin", "load_scene", "parse_scene"]
@@ -486,7 +486,7 @@ class _Loader:
         if len(wavelengths) < 2:
             self.fail(node, f"{where}: {len(wavelengths)} wavelength:value pair(s); a "
                             "spectrum needs at least two (Mitsuba refuses it too)"
-                            + (_LONE_CR if name and _lone_cr(path) else ""))
+                            + (lone_cr_note(path) if name else ""))
         if not (np.all(np.isfinite(wavelengths)) and np.all(np.isfinite(values))):
             self.fail(node, f"{where}: expected finite numbers")
         if not np.all(np.diff(wavelengths) > 0):
@@ -839,8 +839,7 @@ class _Loader:
                 # a <spectrum filename> is read as Mitsuba parses it, with the resolver as
                 # it stands there: the <path>s before it in its file, then the folders
                 # its file was included with (where the file is found, not beside it)
-                _mark_spectra(node, resolver if own is None else
-                              resolver[:own] + resolver[own + 1:])
+                _mark_spectra(node, parse_time_folders(resolver, own))
                 out.append(node)
                 continue
             self.check_attributes(node)
@@ -1034,15 +1033,15 @@ def scene_path(value, name: str, also: str = "") -> str:
                     f"got {type(value).__name__}")
 
 
-#: why a file of lone \r line ends (a classic Mac file) reads as one pair
-_LONE_CR = ("; its lines end at a lone \\r, which Mitsuba takes for no line end, so the "
-            "file is one line to it, read as one pair: save it with \\n line ends")
-
-
-def _lone_cr(path: str) -> bool:
-    """Whether the file has a carriage return that does not end a CRLF."""
-    with open(path, "rb") as f:
-        return re.search(rb"\r(?!\n)", f.read()) is not None
+def parse_time_folders(resolver: list, own: int | None) -> list:
+    """The folders Mitsuba's resolver holds while it parses an element (a ``<spectrum
+    filename>`` is read then): ``resolver``, the folders an ``<include>`` there is looked
+    for in, without the folder of the included file being read, at ``own``, which serves
+    that file's includes only (None: the scene, whose folder is in Mitsuba's resolver
+    too). The
+    loader (``_spliced``) and the reference's hashing (``mcverify.gate.reference``)
+    both read spectrum files so."""
+    return list(resolver) if own is None else resolver[:own] + resolver[own + 1:]
 
 
 def _mark_spectra(node: _Node, folders: list) -> None:

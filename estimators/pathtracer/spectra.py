@@ -22,6 +22,7 @@ D-series definition (within 1e-5 of the tabulated values Mitsuba carries).
 from __future__ import annotations
 
 import functools
+import re
 
 import numpy as np
 
@@ -126,6 +127,16 @@ def _leading_number(line: str, start: int) -> tuple[float, int] | None:
     return (float(match.group()), match.end()) if match else None
 
 
+def lone_cr_note(path: str) -> str:
+    """Why a spectrum file whose lines end at a lone ``\\r`` (a classic Mac file) reads
+    as one pair, for the refusal of too few pairs; '' where it has none."""
+    with open(path, "rb") as f:
+        if re.search(rb"\r(?!\n)", f.read()) is None:
+            return ""
+    return ("; its lines end at a lone \\r, which Mitsuba takes for no line end, so the "
+            "file is one line to it, read as one pair: save it with \\n line ends")
+
+
 def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     """The wavelengths and values of a spectrum file (a ``wavelength value`` pair a
     line), read as Mitsuba 3.9.1 reads it, or why it cannot be read: lines end at ``\n``
@@ -143,12 +154,12 @@ def read_spd(path: str) -> tuple[list[float], list[float]] | str:
     wavelengths, values = [], []
     with open(path, encoding="utf-8", errors="replace", newline="\n") as f:
         for number, line in enumerate(f, 1):
-            if len(line.removesuffix("\n").encode("utf-8")) > _SPD_LINE_BYTES:
+            line = line.removesuffix("\n")
+            if len(line.encode("utf-8")) > _SPD_LINE_BYTES:
                 # Mitsuba reads a line in pieces of 1023 bytes and refuses the second
                 # (a long comment too): it was read here, and failed in Mitsuba's build
                 return (f"line {number}: longer than {_SPD_LINE_BYTES} bytes, which "
                         "Mitsuba reads as two lines and refuses; shorten it")
-            line = line.removesuffix("\n")
             if not line or line[0] in "#\r":
                 continue
             if not line.rstrip("\r").strip(" \t"):

@@ -97,14 +97,11 @@ def _call(what, fn, arg, raw=None):
             raw.append(v)
     except Exception as e:  # noqa: BLE001 - a callable that raises at some u is the finding
         # numba refusing the batch is no fault of the u it was found at: say what it got
-        validate.compiled_note(e, what, fn, arg, *(("uniform numbers u", "draw")
-                                                   if what == "sample" else
-                                                   ("points x", "point")))
-        validate.tensor_note(e, what, arg, "uniform numbers u" if what == "sample"
-                             else "points x")
-        validate.arguments_note(e, what, fn, arg, *(("uniform numbers u", "draw")
-                                                    if what == "sample" else
-                                                    ("points x", "point")))
+        given, row = ("uniform numbers u", "draw") if what == "sample" else \
+            ("points x", "point")
+        validate.compiled_note(e, what, fn, arg, given, row)
+        validate.tensor_note(e, what, arg, given)
+        validate.arguments_note(e, what, fn, arg, given, row)
         notes = getattr(e, "__notes__", ())
         return None, f"{what} raised {type(e).__name__}: {e}" + "".join(
             f" ({n})" for n in notes[-1:])

@@ -252,14 +252,14 @@ def scene_asset_namers(scene_path: str, params=None) -> dict[str, str]:
 
 
 def _asset_files_and_namers(scene_path: str, params=None):
-    from estimators.pathtracer.scene import first_found
+    from estimators.pathtracer.scene import first_found, parse_time_folders
 
     defaults = {k: str(v).lower() if isinstance(v, bool) else str(v)
                 for k, v in dict(params or {}).items()}
     folder = os.path.dirname(os.path.abspath(scene_path))
     # (name, None) for a file an element names, found at the end through the scene's own
-    # resolver; (name, folders) for an <include>, looked for in the resolver's folders as
-    # they stood at it in the file being read
+    # resolver; (name, folders) for an <include> or a <spectrum filename>, looked for in
+    # the resolver's folders as they stood at it in the file being read
     names, includes, namers = [], set(), []
     # the file being read; "own": where its folder stands in the resolver, which serves
     # its includes only (None: the scene's, which is Mitsuba's resolver's too)
@@ -284,9 +284,8 @@ def _asset_files_and_namers(scene_path: str, params=None):
             # it as it parses, in the resolver's folders as they stand there (the
             # loader's _mark_spectra): a <path> after it does not count, and an included
             # file's own folder serves its includes only
-            own, resolver = reading["own"], reading["resolver"]
             names.append((attrib["filename"], tuple(
-                resolver if own is None else resolver[:own] + resolver[own + 1:])))
+                parse_time_folders(reading["resolver"], reading["own"]))))
             namers.append(reading["file"])
         elif tag == "include" and "filename" in attrib:
             names.append((attrib["filename"], tuple(reading["resolver"])))
