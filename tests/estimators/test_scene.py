@@ -104,12 +104,30 @@ def test_mitsuba_loads_the_same_text(mi):
 
 @pytest.mark.parametrize("fov_axis,width,height", [
     ("x", 64, 48), ("y", 64, 48), ("diagonal", 48, 64), ("smaller", 48, 64),
-    ("larger", 64, 48), ("Y", 64, 48), ("Smaller", 48, 64)])     # any case, as Mitsuba
+    ("larger", 64, 48), ("Y", 64, 48), ("Smaller", 48, 64),   # any case, as Mitsuba
+    ("smaller", 64, 48), ("larger", 48, 64)])
 def test_rays_match_mitsuba_pixel_for_pixel(mi, fov_axis, width, height):
-    text = (CORNELL.replace('value="x"', f'value="{fov_axis}"')
-            .replace('value="$res"', f'value="{width}"').replace('value="48"', f'value="{height}"')
-            .replace('origin="0, 0, 3.9"', 'origin="0.7, 0.4, 3.9"'))
+    """Each fov_axis on the film it names. The width and the height are set each in its
+    own line: replacing "$res" by 48 and then "48" by the height made every 48-wide
+    film square, so "diagonal" and "smaller" were checked on a square film only, and
+    "smaller" or "larger" read as x whatever the film passed (an outside mutation
+    review)."""
+    text = _film(CORNELL.replace('value="x"', f'value="{fov_axis}"')
+                 .replace('origin="0, 0, 3.9"', 'origin="0.7, 0.4, 3.9"'), width, height)
     _assert_rays_match_mitsuba(mi, text)
+
+
+def _film(text, width, height):
+    """``text`` (CORNELL's film) with a film of width × height, each set in its own line
+    (replacing "$res" by the width and then every "48" by the height left a 48-wide film
+    square)."""
+    text = (text.replace('<integer name="width" value="$res"/>',
+                         f'<integer name="width" value="{width}"/>')
+            .replace('<integer name="height" value="48"/>',
+                     f'<integer name="height" value="{height}"/>'))
+    cam = camera_from_scene(parse_scene(text))
+    assert (cam.width, cam.height) == (width, height)
+    return text
 
 
 @pytest.mark.parametrize("dx,dy", [(0.1, 0.0), (0.0, -0.25), (-0.3, 0.15)])
@@ -217,11 +235,11 @@ _ORTHO_SENSOR = """<sensor type="perspective">
 def test_orthographic_rays_match_mitsuba_pixel_for_pixel(mi, width, height, to_world, clip):
     """Mitsuba's orthographic sensor: the film spans [-1, 1] × [-1/aspect, 1/aspect] on
     the near plane, scaled by ``to_world`` (a scale in z moves the near plane too);
-    rays are parallel and end at far_clip - near_clip."""
+    rays are parallel and end at far_clip - near_clip. The portrait film was square until
+    its width and height were set each in its own line (an outside mutation review)."""
     sensor = (f'<sensor type="orthographic">{clip}<transform name="to_world">{to_world}'
               f'</transform>')
-    text = (CORNELL.replace(_ORTHO_SENSOR, sensor)
-            .replace('value="$res"', f'value="{width}"').replace('value="48"', f'value="{height}"'))
+    text = _film(CORNELL.replace(_ORTHO_SENSOR, sensor), width, height)
     assert 'type="orthographic"' in text
     _assert_rays_match_mitsuba(mi, text)
 
