@@ -33,8 +33,11 @@ BSDFS = {
                             '<string name="distribution" value="ggx"/></bsdf>',
     # one Fresnel term for all channels: grey (η, k), and Mitsuba's default material
     # "none", (0, 1), a perfect mirror
+    # with a specular_reflectance: no case had one, and a rough conductor's value, or a
+    # conductor's sampled weight, without it passed (mutants of an outside review)
     "roughconductor-grey": '<bsdf type="roughconductor"><float name="eta" value="0.4"/>'
                            '<float name="k" value="2.5"/><float name="alpha" value="0.3"/>'
+                           '<rgb name="specular_reflectance" value="0.6, 0.8, 0.95"/>'
                            '</bsdf>',
     "roughconductor-none": '<bsdf type="roughconductor"><float name="alpha" value="0.08"/>'
                            '<string name="distribution" value="ggx"/></bsdf>',
@@ -153,7 +156,8 @@ def test_a_roughness_below_mitsubas_floor_is_raised_to_it(mi, xml):
     # from below, a twosided BSDF's mirror direction is below too: the z of a conductor's
     # reflection left unflipped (a mutant) passed every test (an outside mutation review)
     ("twosided-conductor", '<bsdf type="twosided"><bsdf type="conductor"><string '
-                           'name="material" value="Au"/></bsdf></bsdf>'),
+                           'name="material" value="Au"/><rgb name="specular_reflectance" '
+                           'value="0.9, 0.8, 0.7"/></bsdf></bsdf>'),
     ("twosided-plastic", f'<bsdf type="twosided">{BSDFS["plastic"]}</bsdf>'),
 ])
 def test_delta_sampling_matches_mitsuba(mi, name, xml):
