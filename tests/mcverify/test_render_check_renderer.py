@@ -347,3 +347,30 @@ def test_a_black_reference_is_refused_as_testing_nothing(tmp_path):
     def lit(path, spp, seed):       # light where Mitsuba has none: compared, and fails
         return np.full((8, 8, 3), 0.5), np.full((8, 8, 3), 0.01), 16
     assert not render_check(str(scene), renderer=lit, spp=64, seed=1).passed
+
+
+def test_the_gate_hands_compare_images_each_sides_own_variance_n_and_the_alpha(monkeypatch):
+    """The wiring, not the statistics: each side's mean, variance and n (the renderer's 8
+    values, the reference's 16 passes), the samples behind each value (512 / 8 and the
+    reference's per pass) and the α asked for reach ``compare_images``. A mutation review
+    found ``ref_n=n`` (the renderer's n for the reference's) passing every test, where the
+    renderers returned 16 values as the reference holds 16 passes."""
+    from mcverify.gate import reference, render_check as rc
+
+    ref = reference.load_reference("white-furnace")
+    mean, var = ref.mean * 1.0, np.full_like(ref.var, 0.25)
+    seen = []
+    real = rc.compare_images
+
+    def spy(test_mean, ref_mean, **kw):
+        seen.append(dict(kw, test_mean=test_mean, ref_mean=ref_mean))
+        return real(test_mean, ref_mean, **kw)
+
+    monkeypatch.setattr(rc, "compare_images", spy)
+    render_check("white-furnace", renderer=lambda path, spp, seed: (mean, var, 8), spp=512,
+                 seed=2, alpha=0.2)
+    (kw,) = seen
+    assert kw["test_mean"] is mean and kw["test_var"] is var and kw["test_n"] == 8
+    assert np.array_equal(kw["ref_mean"], ref.mean)
+    assert np.array_equal(kw["ref_var"], ref.var) and kw["ref_n"] == ref.n == 16
+    assert (kw["alpha"], kw["test_spp"], kw["ref_spp"]) == (0.2, 64, ref.manifest["spp"])
