@@ -58,6 +58,19 @@ def test_build_load_stale_and_corrupt(scene_copy):
         reference.load_reference(str(scene_copy))
 
 
+def test_the_stored_variance_and_pass_count_read_back_as_the_passes_give_them(scene_copy):
+    """What ``compare_images`` takes of a reference: its mean, the variance (ddof = 1, a
+    variance, not a standard deviation) of its n passes, and n. A mutation review found a
+    var.exr written as the passes' standard deviation, or with ddof = 0, passing every
+    test: they checked the mean against the passes, not the variance."""
+    reference.build_reference(str(scene_copy), spp=16, passes=4, seed=3)
+    ref = reference.load_reference(str(scene_copy))
+    assert ref.n == ref.manifest["passes"] == len(ref.passes) == 4
+    assert len(set(ref.manifest["seeds"])) == 4
+    np.testing.assert_allclose(ref.var, ref.passes.var(axis=0, ddof=1), rtol=1e-4, atol=1e-7)
+    assert ref.var.max() > 1e-3      # a noisy scene: a std instead would differ
+
+
 def test_a_scene_edited_while_its_reference_renders_leaves_it_stale(scene_copy,
                                                                     monkeypatch):
     """The scene's SHA-256 is taken before any pass renders, as its files' are: it was
