@@ -374,3 +374,31 @@ def test_the_gate_hands_compare_images_each_sides_own_variance_n_and_the_alpha(m
     assert np.array_equal(kw["ref_mean"], ref.mean)
     assert np.array_equal(kw["ref_var"], ref.var) and kw["ref_n"] == ref.n == 16
     assert (kw["alpha"], kw["test_spp"], kw["ref_spp"]) == (0.2, 64, ref.manifest["spp"])
+
+
+@pytest.mark.mitsuba
+def test_our_passes_reach_compare_images_as_a_one_shot_render_of_them(monkeypatch):
+    """``_OurPasses`` promises the final look sees the image ``render(passes=...)`` makes:
+    the mean and variance (ddof = 1) of ``passes`` passes of spp / passes samples, each
+    with its own seed (``pass_seed``). A mutation review found two passes sharing a seed
+    (``pass_seed(seed, k // 2)``) passing every test: a render gate whose test variance
+    came from 8 distinct passes of 16 and n = 16."""
+    from mcverify.gate import render_check as rc
+
+    seen = []
+    real = rc.compare_images
+
+    def spy(test_mean, ref_mean, **kw):
+        seen.append((test_mean, kw["test_var"], kw["test_n"], kw["test_spp"]))
+        return real(test_mean, ref_mean, **kw)
+
+    monkeypatch.setattr(rc, "compare_images", spy)
+    from mcverify.gate.reference import resolve_scene
+
+    r = render_check("cornell-box", spp=512, passes=8, seed=7, params={"res": 8})
+    want = render(resolve_scene("cornell-box")[1], spp=512, seed=7, passes=8,
+                  params={"res": 8})
+    mean, var, n, per = seen[-1]
+    assert r.details["ours_passes"] == n == want.n == 8 and per == 64
+    assert np.array_equal(mean, want.mean) and np.array_equal(var, want.variance)
+    assert var.max() > 0        # a noisy image: passes sharing a seed would show
