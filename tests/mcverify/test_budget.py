@@ -331,3 +331,24 @@ def test_build_suite_takes_a_budget_runs_n_and_names_an_unknown_suite():
     with pytest.raises(mv.InvalidArgument,
                        match=r"build_suite\(.mitsuba.\): expected one of default, full"):
         build_suite("mitsuba")
+
+
+def test_the_plan_records_the_calibration_it_allocated_from(monkeypatch):
+    """The JSON's ``budget`` block: each timed check's cost per sample in ns and fixed
+    seconds as calibration measured them, and the n ``allocate`` chose from them (a
+    mutation review found a field of to_dict taken from another passing every test).
+    The timing is replaced by a fixed cost, so the n is exact."""
+    monkeypatch.setattr(B, "measure_cost", lambda run_at, timer=None: (0.5, 1e-7))
+    name = "sampler:cosine_hemisphere"
+    plan = B.plan_budget("default", name, 60.0, canary=False)
+    share = 60.0 - plan.calibration_seconds - plan.other_seconds
+    assert plan.per_sample_ns == {name: pytest.approx(100.0)} and plan.fixed_seconds == {name: 0.5}
+    assert plan.n_samples == {name: int((share - 0.5) / 1e-7)}
+    assert plan.n_overrides == ((name, plan.n_samples[name]),)
+    d = plan.to_dict()
+    assert (d["budget_seconds"], d["n_samples"], d["per_sample_ns"], d["fixed_seconds"]) == (
+        60.0, plan.n_samples, plan.per_sample_ns, plan.fixed_seconds)
+    assert (d["other_seconds"], d["startup_seconds"], d["calibration_seconds"],
+            d["predicted_seconds"], d["notes"]) == (
+        plan.other_seconds, 0.0, plan.calibration_seconds, plan.predicted_seconds, [])
+    assert plan.predicted_seconds == pytest.approx(60.0)
