@@ -5,6 +5,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from mcverify.gate.plan import plan
 from mcverify.gate.reference import REFERENCE_ROOT
 
@@ -70,6 +72,20 @@ def test_diffuse_scene_with_a_point_light(tmp_path):
         f"render:{tmp_path.name}"}
     assert "delta emitter" in dict(skipped)["emitter:point"]
     assert "delta emitter" in dict(skipped)[f"emitter {tmp_path.name}/light0:point"]
+
+
+@pytest.mark.parametrize("bsdf", ["plastic", "roughplastic"])
+def test_a_plastic_alone_plans_the_cosine_warp_of_its_diffuse_lobe(tmp_path, bsdf):
+    """A scene whose only BSDF is a plastic samples its diffuse lobe by the cosine warp:
+    a mutation review found plastic's entry of NEEDS emptied passing every test (the
+    plans tested had a diffuse BSDF beside it), and then the warp was skipped as "not
+    needed by this scene"."""
+    path = tmp_path / "scene.xml"
+    path.write_text(DIFFUSE_POINT.replace('"diffuse"', f'"{bsdf}"'))
+    checks, skipped, features = plan(str(path))
+    assert f"bsdf:{bsdf}" in features and "bsdf:diffuse" not in features
+    assert "sampler:cosine_hemisphere" in _names(checks)
+    assert "sampler:cosine_hemisphere" not in dict(skipped)
 
 
 def test_a_shape_without_a_bsdf_plans_mitsubas_default_diffuse(tmp_path):
