@@ -323,11 +323,14 @@ def scene_instances(scene_path: str):
             angles += [180.0 - t for t in ANGLES]
         phi = ANISOTROPIC_PHI if scene.arrays.bsdf_i[b, layout.BSDF_FRAME] else 0.0
         where = "" if phi == 0.0 else f",phi={phi:g}°"
+        # phi bound with b and t: read when the check ran, it was the last row's, and an
+        # anisotropic BSDF before an isotropic one was checked at φ = 0 (an outside review)
         for t in angles:
             entries.append(("bsdf", label, f"wi={t:g}°{where}",
-                            lambda b=b, t=t: bsdf_sampler(scene, b, _direction(t, phi)),
-                            lambda b=b, t=t: bsdf_sampler_with_weight(scene, b,
-                                                                      _direction(t, phi)),
+                            lambda b=b, t=t, phi=phi: bsdf_sampler(scene, b,
+                                                                   _direction(t, phi)),
+                            lambda b=b, t=t, phi=phi: bsdf_sampler_with_weight(
+                                scene, b, _direction(t, phi)),
                             _declared(scene, "bsdf", b)))
     for k in range(len(scene.arrays.light_i)):
         label = _emitter_label(scene, tag, k)

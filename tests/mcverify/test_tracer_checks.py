@@ -645,3 +645,32 @@ def test_an_eta_near_1_is_labelled_with_the_digits_that_tell_it_from_1(tmp_path)
         path.write_text(_scene_head("0, 0, 4", "0, 0, 0") + glass.format(eta=eta))
         names = [c.name for c in tracer_checks(str(path))[0]]
         assert names and all(want in n for n in names), (eta, names[0])
+
+
+def test_an_anisotropic_bsdf_before_an_isotropic_one_is_checked_at_its_own_azimuth(tmp_path):
+    """An outside review: the instance checks' samplers read φ when they ran, not when
+    they were made, so every BSDF took the azimuth of the scene's last BSDF row: an
+    anisotropic rough conductor followed by a diffuse was checked (χ² and pdf
+    consistency) with wi at φ = 0°, along its alpha_u axis, under the name
+    ``@wi=45°,phi=30°``. A near-mirror's draws leave opposite wi, so their mean azimuth
+    is the check's φ + 180°."""
+    from mcverify.gate.tracer_checks import scene_instances
+
+    scene = tmp_path / "aniso.xml"
+    scene.write_text(_scene_head("0, 0, 4", "0, 0, 0") + """\
+  <shape type="sphere"><bsdf type="roughconductor"><float name="alpha_u" value="0.01"/>
+    <float name="alpha_v" value="0.02"/></bsdf></shape>
+  <shape type="rectangle"><transform name="to_world"><translate z="-2"/></transform>
+    <bsdf type="diffuse"/></shape>
+</scene>
+""")
+    u = np.random.default_rng(4).random((2000, 3))
+    found = 0
+    for kind, label, where, make, make_weighted, _ in scene_instances(str(scene))[0]:
+        if "roughconductor" not in label or where != "wi=45°,phi=30°":
+            continue
+        for wo in (make()[0](u), make_weighted()[0](u)[0]):
+            wo = wo[~np.isnan(wo).any(axis=1)].mean(axis=0)
+            assert np.degrees(np.arctan2(-wo[1], -wo[0])) == pytest.approx(30.0, abs=1.0)
+        found += 1
+    assert found == 1
