@@ -674,3 +674,19 @@ def test_an_anisotropic_bsdf_before_an_isotropic_one_is_checked_at_its_own_azimu
             assert np.degrees(np.arctan2(-wo[1], -wo[0])) == pytest.approx(30.0, abs=1.0)
         found += 1
     assert found == 1
+
+
+def test_an_instance_check_draws_from_the_seed_and_the_count_it_is_given():
+    """A mutation review: the instance checks' ``run(seed)`` with the seed not passed on
+    to the judge (or ``n_samples`` not) passed every test, the gate's ``--seed`` then
+    changing none of them. The same seed gives the same finding, another seed other
+    draws, and each check draws the samples asked for."""
+    from mcverify.gate.tracer_checks import consistency_checks
+
+    sampler = tracer_checks(ROUGH, 4096)[0][1]
+    consistent = consistency_checks(ROUGH, 1024)[1]
+    for check, n in ((sampler, 4096), (consistent, 1024)):
+        a, b, c = check.run(1), check.run(1), check.run(2)
+        assert a.n_samples == n, (check.name, a.n_samples)
+        assert a.p_value == b.p_value and a.details == b.details
+        assert (a.p_value, a.statistic, a.details) != (c.p_value, c.statistic, c.details)
