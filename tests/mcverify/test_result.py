@@ -275,3 +275,16 @@ def test_outputs_written_together_keep_no_aside_copy_and_skip_a_removal_that_fai
         result.discard(tmp_path / "x.png")
     assert (tmp_path / "a.json").read_text() == "new a\n"
     assert sorted(os.listdir(tmp_path)) == ["a.json", "x.png"]
+
+
+def test_each_json_result_says_the_level_it_was_judged_at_and_its_own(tmp_path):
+    """A mutation review: a result's ``details.alpha_check`` (the α the check ran at)
+    written as the suite's family-wise α, or the result's ``alpha`` left at the check's
+    own, passed every test. A check run at α = 0.05 in a suite judged at 0.01 (Holm over
+    two): its JSON says alpha 0.01, alpha_check 0.05, its raw p and its adjusted p."""
+    own = replace(_r("a", 0.03), alpha=0.05, passed=True)
+    suite = SuiteResult.judge("s", [own, _r("b", 0.5)], alpha=0.01, seconds=1.0)
+    mv.write_json(suite, str(tmp_path / "r.json"))
+    a = json.loads((tmp_path / "r.json").read_text())["results"][0]
+    assert (a["name"], a["alpha"], a["p_value"], a["passed"]) == ("a", 0.01, 0.03, True)
+    assert a["details"]["alpha_check"] == 0.05 and a["details"]["p_adjusted"] == 0.06
