@@ -1474,16 +1474,21 @@ def test_a_tilted_narrow_cones_rim_is_integrated_to_its_budget(theta, tilt):
                                 **kw).passed
 
 
+def _sun_frame(theta, tilt, theta_drawn=None):
+    """A sun's axis ``tilt`` radians from the pole at φ = 0, two unit vectors across it,
+    and 1 - cos of its half-angle ``theta`` and of the half-angle it is drawn with."""
+    axis = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
+    t = np.array([np.cos(tilt), 0.0, -np.sin(tilt)])
+    return (axis, t, np.cross(axis, t), 2 * np.sin(theta / 2) ** 2,
+            2 * np.sin((theta_drawn or theta) / 2) ** 2)
+
+
 def _sun_on_sky(theta, tilt, ratio, theta_drawn=None):
     """A uniform sky on the sphere and a sun of half-angle ``theta`` whose density is
     ``ratio`` times the sky's, ``tilt`` radians from the pole at φ = 0 (on the seam),
     sampled exactly: the sun with its probability (drawn ``theta_drawn`` wide), else the
     sky."""
-    axis = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
-    t = np.array([np.cos(tilt), 0.0, -np.sin(tilt)])
-    b = np.cross(axis, t)
-    omc = 2 * np.sin(theta / 2) ** 2
-    omc_drawn = 2 * np.sin((theta_drawn or theta) / 2) ** 2
+    axis, t, b, omc, omc_drawn = _sun_frame(theta, tilt, theta_drawn)
     total = 4 * np.pi + (ratio - 1) * 2 * np.pi * omc
     p_sun = (ratio - 1) * 2 * np.pi * omc / total
 
@@ -1527,11 +1532,7 @@ def test_a_suns_rim_bulging_into_a_leaf_of_sky_is_integrated():
 def _sun_on_hemisphere_sky(theta, tilt, ratio, theta_drawn=None):
     """``_sun_on_sky`` on the hemisphere, its sky uniform there, the sun or the sky
     chosen by the first uniform (rescaled), as a sky model's sampler does."""
-    axis = np.array([np.sin(tilt), 0.0, np.cos(tilt)])
-    t = np.array([np.cos(tilt), 0.0, -np.sin(tilt)])
-    b = np.cross(axis, t)
-    omc = 2 * np.sin(theta / 2) ** 2
-    omc_drawn = 2 * np.sin((theta_drawn or theta) / 2) ** 2
+    axis, t, b, omc, omc_drawn = _sun_frame(theta, tilt, theta_drawn)
     total = 2 * np.pi + (ratio - 1) * 2 * np.pi * omc
     p_sun = (ratio - 1) * 2 * np.pi * omc / total
 
