@@ -45,7 +45,11 @@ class CellIntegral:
     ``|fine - coarse|`` over its accepted leaves, a conservative bound); ``n_evals``:
     density evaluations used; ``unconverged``: leaves stopped by ``max_level``.
     ``leaves`` (1-D grids only, when asked): ``(lo, width, mass, owner)`` of every
-    accepted leaf, sorted by ``lo``, for CDF evaluation inside cells.
+    accepted leaf, sorted by ``lo``, for CDF evaluation inside cells. ``seen``: the least
+    and the largest density value read in each cell (at its accepted leaves' nodes and
+    corners), shape ``(2,) + grid``; ``(0, inf)`` where a leaf's mass came from nested
+    line integrals or the leaf budget ran out, which read more than that. A density value
+    in a cell far outside its range (a pilot point's) is a feature the rules never met.
     """
 
     mass: np.ndarray
@@ -53,6 +57,7 @@ class CellIntegral:
     n_evals: int
     unconverged: int
     leaves: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    seen: np.ndarray | None = None
 
 
 def merge_leaves(lo, width, mass, owner):
@@ -308,6 +313,7 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
     n_cells = int(np.prod(shape))
     mass = np.zeros(n_cells)
     error = np.zeros(n_cells)
+    seen_lo, seen_hi = np.full(n_cells, np.inf), np.zeros(n_cells)
     n_evals = 0
     unconverged = 0
     kept = [] if keep_leaves else None
@@ -424,6 +430,10 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         sliver = np.where(step, outside * area * band, 0.0)
         np.add.at(mass, owner[done], fine[done])
         np.add.at(error, owner[done], err[done] + sliver[done])
+        read_lo = np.where(thin, 0.0, np.minimum(node_min, trough))
+        read_hi = np.where(thin, np.inf, np.maximum(node_max, peak))
+        np.minimum.at(seen_lo, owner[done], read_lo[done])
+        np.maximum.at(seen_hi, owner[done], read_hi[done])
         if kept is not None and done.any():
             c_mass = fine_parts.reshape(-1, 2 ** m)[done].ravel()
             kept.append((c_lo.reshape(-1, 2 ** m, m)[done].reshape(-1, m)[:, 0],
@@ -441,6 +451,7 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         if lo.shape[0] > max_leaves:
             # Out of budget: accept the current children as they are.
             np.add.at(mass, owner, coarse)
+            seen_lo[owner], seen_hi[owner] = 0.0, np.inf
             unconverged += lo.shape[0]
             if kept is not None:
                 kept.append((lo[:, 0], width[:, 0], coarse, owner))
@@ -451,4 +462,6 @@ def integrate_cells(density, edges, *, n_samples: float, tau: float = 0.05,
         cols = [np.concatenate([k[i] for k in kept]) if kept else np.zeros(0)
                 for i in range(4)]
         leaves = merge_leaves(*cols)
-    return CellIntegral(mass.reshape(shape), error.reshape(shape), n_evals, unconverged, leaves)
+    seen = np.stack([seen_lo, seen_hi]).reshape((2,) + shape)
+    return CellIntegral(mass.reshape(shape), error.reshape(shape), n_evals, unconverged, leaves,
+                        seen)
