@@ -1613,6 +1613,25 @@ def test_a_sun_between_every_node_of_its_cells_is_integrated():
     assert not mv.check_sampler(sample, lambda x: 1.03 * pdf(x), "sphere", seed=0, **kw).passed
 
 
+def test_a_sun_the_sampler_never_draws_is_named_as_a_possible_cause():
+    """A sampler that leaves out the pdf's sun (1e3 times the sky, half-angle 0.1°),
+    whose pilot has no point in it and whose cells' nodes all miss it, fails the
+    normalisation test: the cubature cannot see mass nobody reaches. The failure said
+    only 'pdf integrates to 0.99924, not 1', blaming a pdf that integrates to 1 (an
+    outside review's found-not-fixed); it now names the other cause. A pdf off by more
+    (1 %) or with a telling factor does not get the hint."""
+    sample, pdf = _sun_on_sky(np.radians(0.1), np.radians(5), 1e3)
+    sky_only = lambda u: sample(np.column_stack([u[:, :2], np.ones(len(u))]))  # noqa: E731
+    r = mv.check_sampler(sky_only, pdf, "sphere", seed=0, n_samples=100_000)
+    assert not r.passed
+    (f,) = [f for f in r.failures if "integrates to" in f]
+    assert "0.99924" in f and "a narrow feature (a small light, a sun) the sampler never" in f
+    for scale in (0.98, 0.5):
+        r = mv.check_sampler(sky_only, lambda x, k=scale: k * pdf(x), "sphere", seed=0,
+                             n_samples=100_000)
+        assert not r.passed and not any("narrow feature" in f for f in r.failures)
+
+
 def test_the_unseen_screen_keeps_every_point_outside_its_cells_range():
     """``_unseen_kernel`` compares each point with the ranges of every cell its bin of a
     uniform table meets, and those outside with their own cell's: it must keep exactly
