@@ -654,3 +654,18 @@ def test_mitsubas_own_constant_warp_pdf_is_one_number_for_every_point():
             mitsuba.Vector3f(x[:, 0], x[:, 1], x[:, 2]))
         r = mv.check_sampler(sample, half, "sphere", n_samples=20_000)
         assert not r.passed and "integrates to 2" in " ".join(r.failures), r.failures
+
+
+def test_mitsubas_own_warps_pass_the_judge_and_invert():
+    """``mitsuba_warps`` (the default suite's Mitsuba checks) against the judge: each
+    sampler with its clamped pdf (Mitsuba's cone pdf is its constant outside the cone,
+    its cosine pdf negative below the horizon) and its inverse. Nothing in the adapters'
+    tests ran them: the cone's clamp dropped, or the cone's pdf given another cut-off
+    than its sampler, passed them all (a mutation review). Seeded, α = 0.01."""
+    for w in mvm.mitsuba_warps():
+        r = mv.check_sampler(w.sample, w.pdf, w.domain, n_samples=N, seed=1,
+                             sample_dim=w.sample_dim, name=w.name)
+        assert r.passed, (w.name, r.p_value, r.failures)
+        inv = mv.check_inverse(w.sample, w.invert, w.sample_dim, n_samples=10_000, seed=1,
+                               atol=1e-3)
+        assert inv.passed, (w.name, inv.failures)
