@@ -669,3 +669,56 @@ def test_mitsubas_own_warps_pass_the_judge_and_invert():
         inv = mv.check_inverse(w.sample, w.invert, w.sample_dim, n_samples=10_000, seed=1,
                                atol=1e-3)
         assert inv.passed, (w.name, inv.failures)
+
+
+def test_a_bump_map_tilts_the_normal_along_the_tangent_of_its_gradient():
+    """The adapters' tangents are the shading frame's s and t: ``dp_du`` = x, ``dp_dv``
+    = y. A height ramp along u tilts bumpmap's normal in the x-z plane. With the two
+    swapped, the check still passed (sample and pdf agree) while the normal tilted along
+    y (a mutation review). Diffuse's draw at the warp's centre, u = (·, 0.5, 0.5), is the
+    perturbed normal itself."""
+    ramp = np.tile(np.linspace(0.0, 1.0, 16, dtype=np.float32), (16, 1))[:, :, None]
+    plugin = {"type": "bumpmap", "scale": 0.2, "bsdf": {"type": "diffuse"},
+              "texture": {"type": "bitmap", "bitmap": mvm.mi().Bitmap(ramp), "raw": True}}
+    n = mvm.bsdf(plugin, wi=(0.0, 0.0, 1.0)).sample(np.array([[0.5, 0.5, 0.5]]))[0]
+    assert abs(n[1]) < 1e-6 and n[0] < -0.1, n
+
+
+def test_the_uv_reaches_the_plugins_textures():
+    """A rough conductor whose roughness is a two-texel texture (α = 0.05 left, 0.5
+    right, given inline as a numpy image) draws at ``uv`` as the conductor of that
+    texel's α. Left at Mitsuba's default uv, every texel's check was the left one's (a
+    mutation review)."""
+    texels = np.array([[[0.05], [0.5]]])        # an inline (H, W, C) image
+    alpha = {"type": "bitmap", "bitmap": texels, "raw": True,
+             "filter_type": "nearest"}
+    u = np.random.default_rng(0).random((2000, 3))
+    wi = direction(40.0)
+    for uv, a in (((0.25, 0.5), 0.05), ((0.75, 0.5), 0.5)):
+        textured = mvm.bsdf({"type": "roughconductor", "alpha": alpha}, wi, uv=uv).sample(u)
+        plain = mvm.bsdf({"type": "roughconductor", "alpha": a}, wi).sample(u)
+        np.testing.assert_allclose(textured, plain, atol=1e-6, err_msg=str(uv))
+
+
+def test_the_weights_are_radiance_transports():
+    """The adapters' ``BSDFContext`` is Mitsuba's default, ``TransportMode.Radiance``, as
+    its path tracer uses: a dielectric's refracted weight carries the 1/η² of radiance
+    (η = 1.5 entering: 0.444 at normal incidence for a near-smooth surface; importance
+    transport has none, about 1). Either mode passed the consistency checks, which
+    compare a mode with itself (a mutation review)."""
+    s, p, f, kw = mvm.bsdf_weighted({"type": "roughdielectric", "alpha": 0.01},
+                                    wi=(0.0, 0.0, 1.0))
+    wo, pdf, weight = s(np.random.default_rng(0).random((2000, 3)))
+    refracted = wo[:, 2] < 0
+    assert refracted.sum() > 1000
+    np.testing.assert_allclose(weight[refracted], 1 / 1.5 ** 2, rtol=0.02)
+
+
+def test_bsdf_weighteds_eval_keeps_to_the_component():
+    """``bsdf_weighted(component=1)``: rough plastic's diffuse lobe alone, in ``sample``,
+    ``pdf`` and ``f`` alike; an ``f`` of every component disagreed with the weight
+    (nothing ran bsdf_weighted with a component; a mutation review)."""
+    s, p, f, kw = mvm.bsdf_weighted({"type": "roughplastic", "alpha": 0.3},
+                                    wi=direction(37.0), component=1)
+    r = mv.check_pdf_consistency(s, p, f=f, n_samples=20_000, seed=0, **kw)
+    assert r.passed and r.details["n_compared"] == 20_000, r.failures
