@@ -83,3 +83,39 @@ def test_the_whole_suite_fails_exactly_on_the_documented_findings(tmp_path):
     doc = json.loads((tmp_path / "r.json").read_text())
     failed = {x["name"] for x in doc["results"] if not x["passed"]}
     assert r.returncode == 1 and failed == FINDINGS, (failed ^ FINDINGS, r.stdout)
+
+
+def test_a_rejecting_configuration_is_judged_with_rejection():
+    """Smooth plastic's delta lobe comes back as rejected rows: its check passes only as
+    ``check_sampler(rejection=True)``. Only the slow whole-suite test ran such a check; a
+    suite that dropped the flag failed it on NaN rows (a mutation review). Seeded,
+    α = 0.01."""
+    check = next(c for c in mitsuba_suite(20_000)
+                 if c.name == "sampler:mitsuba.bsdf:plastic(delta lobe rejected)@wi=30°")
+    r = check.run(1)
+    assert r.passed, r.failures
+    assert 0 < r.details["rejection"]["rejected"] < 20_000
+
+
+def test_a_scalar_variant_runs_a_tenth_of_the_samples(monkeypatch):
+    """On scalar_rgb (one Python call a sample) each check takes n // 10, as the
+    module's docstring says; nothing ran the suite there (a mutation review)."""
+    from mcverify.gate import mitsuba as mvm
+    from mcverify.gate import mitsuba_suite as ms
+
+    with monkeypatch.context() as m:
+        m.setattr(mvm, "choose_variant", lambda: mvm.VariantChoice("scalar_rgb", None))
+        checks = ms.mitsuba_suite(10_000)
+    seen = []
+
+    class Seen(Exception):
+        pass
+
+    def check_sampler(*a, n_samples, **kw):
+        seen.append(n_samples)
+        raise Seen
+
+    monkeypatch.setattr(ms.checks, "check_sampler", check_sampler)
+    with pytest.raises(Seen):
+        checks[0].run(1)
+    assert seen == [1000]
