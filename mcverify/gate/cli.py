@@ -324,14 +324,22 @@ def _mitsuba_provenance(selected) -> dict:
     return _variant_provenance()
 
 
-def _variant_provenance() -> dict:
-    """Mitsuba's version and variant, printing the variant choice's fallback notice."""
+def _variant_notice():
+    """Mitsuba's variant choice, its fallback notice printed to stderr."""
     from . import mitsuba as mv_mitsuba
 
     choice = mv_mitsuba.choose_variant()
     if choice.notice:
         print(f"notice: {choice.notice}", file=sys.stderr)
-    return {"mitsuba_version": mv_mitsuba.mitsuba_version(), "mitsuba_variant": choice.variant}
+    return choice
+
+
+def _variant_provenance() -> dict:
+    """Mitsuba's version and variant, printing the variant choice's fallback notice."""
+    from . import mitsuba as mv_mitsuba
+
+    return {"mitsuba_version": mv_mitsuba.mitsuba_version(),
+            "mitsuba_variant": _variant_notice().variant}
 
 
 def _suite_checks(args):
@@ -807,9 +815,7 @@ def _cmd_bench(args) -> int:
     memory("--n", args.n, BYTES_PER_POINT, "the warps' points and results, both sides")
     from . import mitsuba as mv_mitsuba
 
-    choice = mv_mitsuba.choose_variant()
-    if choice.notice:
-        print(f"notice: {choice.notice}", file=sys.stderr)
+    choice = _variant_notice()
 
     def show(i, total, row):
         if not args.quiet:
@@ -883,11 +889,7 @@ def _cmd_reference_build(args) -> int:
                 "reference this install's check and render-check compare against; copy "
                 "its folder into a folder of your own and build there (--refs DIR)")
         reference.precheck_scene(path)
-    from . import mitsuba as mv_mitsuba
-
-    choice = mv_mitsuba.choose_variant()
-    if choice.notice:
-        print(f"notice: {choice.notice}", file=sys.stderr)
+    choice = _variant_notice()
     def show(done, total, label):
         if not args.quiet:
             print(f"[{done}/{total}] {label}", file=sys.stderr)

@@ -385,3 +385,26 @@ def test_a_deleted_working_directory_is_named_as_the_cause(tmp_path, args):
                        text=True, timeout=600)
     assert r.returncode == 2, r.stdout + r.stderr
     assert "current directory no longer exists" in r.stderr, r.stderr
+
+
+def test_a_fallback_to_scalar_rgb_is_noticed_where_mitsuba_runs(monkeypatch, capsys):
+    """Where Mitsuba's fast variant is unavailable, every command that runs Mitsuba
+    (`check` of its plugins, `bench`, `reference build`) prints the fallback's notice to
+    stderr and records the variant it ran; no test read the notice (a mutation review's
+    found-not-fixed: it could be dropped unseen). No notice where llvm_ad_rgb runs, and
+    none where no selected check uses Mitsuba."""
+    from types import SimpleNamespace
+
+    from mcverify.gate import cli
+    from mcverify.gate import mitsuba as mvm
+
+    why = "mitsuba: llvm_ad_rgb needs LLVM >= 16 (found 15); using scalar_rgb"
+    monkeypatch.setattr(mvm, "choose_variant", lambda: mvm.VariantChoice("scalar_rgb", why))
+    uses = [SimpleNamespace(tags=("sampler", "mitsuba"))]
+    assert cli._mitsuba_provenance(uses)["mitsuba_variant"] == "scalar_rgb"
+    assert capsys.readouterr().err == f"notice: {why}\n"
+    assert cli._mitsuba_provenance([SimpleNamespace(tags=("sampler",))]) == {}
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(mvm, "choose_variant", lambda: mvm.VariantChoice("llvm_ad_rgb", None))
+    assert cli._variant_notice().variant == "llvm_ad_rgb"
+    assert capsys.readouterr().err == ""
