@@ -629,3 +629,144 @@ def test_an_infinite_pdf_fails_as_not_finite_not_as_a_difference():
     assert r.failures[0].startswith(f"{r.details['nonfinite_pdf']} of 1000 draws have a "
                                     "pdf that is not finite")
     assert 50 < r.details["nonfinite_pdf"] < 150 and "worst_pdf" not in r.details
+
+
+@pytest.mark.parametrize("factor, ok", [(1.8, True), (1 / 1.8, True), (2.2, False),
+                                        (1 / 2.2, False)])
+def test_the_tolerance_is_relative_to_the_larger_value_either_way(factor, ok):
+    """|a - b| <= rtol · max(|a|, |b|), as documented: a returned pdf 1.8 times pdf(x), or
+    1/1.8 of it, is within rtol = 0.5 (0.8 / 1.8 = 0.44) either way; 2.2 times is not
+    (1.2 / 2.2 = 0.55). Measured against either side alone, one of the first two read
+    as 0.8 (a mutation review: no test held the tolerance's denominator)."""
+    def sample(u):
+        x = _cosine(u)
+        return x, factor * _cos_pdf(x)
+
+    r = mv.check_pdf_consistency(sample, _cos_pdf, sample_dim=2, n_samples=200, rtol=0.5)
+    assert r.passed == ok, r.failures
+
+
+def test_rtol_zero_asks_for_equal_values():
+    """rtol=0 is allowed and means bit-equal: the same computation on both sides passes,
+    one ulp off fails (a comparison of rel >= rtol failed every row at rtol=0)."""
+    assert mv.check_pdf_consistency(_good, _cos_pdf, sample_dim=2, n_samples=500,
+                                    rtol=0.0).passed
+    r = mv.check_pdf_consistency(lambda u: (_good(u)[0], np.nextafter(_good(u)[1], 1.0)),
+                                 _cos_pdf, sample_dim=2, n_samples=500, rtol=0.0)
+    assert not r.passed and r.failures[0].startswith("500 of 500"), r.failures
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("extra, ok", [(16, True), (17, False)])
+def test_a_difference_of_sixteen_subnormals_of_the_type_is_rounding(dtype, extra, ok):
+    """"Within 16 of the type's smallest subnormals" is rounding, 16 included, and the
+    type is float32's where a pdf is float32 (its smallest subnormal 1.4e-45, not
+    float64's 4.9e-324: float32 pdfs 16 of theirs apart, 1.6 % relative, failed under
+    float64's floor). Seventeen apart is a difference (a mutation review)."""
+    s = np.finfo(dtype).smallest_subnormal
+
+    def sample(u):
+        return u, np.full(len(u), dtype(1000) * s, dtype=dtype)
+
+    r = mv.check_pdf_consistency(sample, lambda x: np.full(len(x), dtype(1000 + extra) * s,
+                                                           dtype=dtype),
+                                 sample_dim=2, n_samples=100)
+    assert r.passed == ok, r.failures
+
+
+def test_a_float32_f_takes_float32_s_tolerance():
+    """f(x) computed in float32 (z from 1 - x² - y², which cancels near the horizon) is
+    float32's rounding, as a float32 pdf(x) is: rtol 1e-3 (a mutation review: the
+    weight's and f's dtypes were not held to it by any test)."""
+    def f32(x):
+        x = x.astype(np.float32)
+        z = np.sqrt(np.maximum(np.float32(0.0), 1 - x[:, 0] ** 2 - x[:, 1] ** 2))
+        return ALBEDO.astype(np.float32)[None, :] / np.float32(np.pi) * z[:, None]
+
+    def near_pole(u):                   # cos θ >= 0.1: float32 rounding below 1e-4
+        return _weighted(np.stack([0.99 * u[:, 0], u[:, 1]], axis=1))
+
+    r = mv.check_pdf_consistency(near_pole, _cos_pdf, f=f32, sample_dim=2,
+                                 n_samples=20_000, seed=5)
+    assert r.passed and r.details["rtol"] == 1e-3, r.failures
+    assert r.details["max_weight_rel_error"] > 1e-6     # would have failed float64's rtol
+
+
+def test_the_worst_row_is_reported_with_its_own_u_and_x():
+    """The reported row is the worst, not the first out of tolerance, and its u is the
+    one that drew its x, rejected draws before it notwithstanding (a mutation review:
+    the worst's index into the compared rows, taken as an index into all draws, or the
+    first row out of tolerance, passed every test)."""
+    def sample(u):
+        x = _cosine(u)
+        x[u[:, 1] < 0.5] = np.nan                       # rejected draws
+        return x, _cos_pdf(x) * (1.0 + u[:, 0])         # worse as u[0] grows
+
+    r = mv.check_pdf_consistency(sample, _cos_pdf, sample_dim=2, n_samples=1000,
+                                 rejection=True, seed=9)
+    worst = r.details["worst_pdf"]
+    x, p = sample(np.array([worst["u"]]))
+    assert x[0].tolist() == pytest.approx(worst["x"], rel=1e-12)
+    assert p[0] == pytest.approx(worst["returned"][0], rel=1e-12)
+    got, want = worst["returned"][0], worst["expected"][0]
+    assert abs(got - want) / max(got, want) == r.details["max_pdf_rel_error"]
+
+
+def test_a_negative_pdf_is_reported_at_the_u_that_drew_it():
+    """The first draw with a negative pdf is named with its own u, rejected draws before
+    it notwithstanding, and as a negative pdf where pdf(x) is positive (a mutation
+    review: both were held by no test)."""
+    def sample(u):
+        x = _cosine(u)
+        x[u[:, 1] < 0.5] = np.nan                       # rejected draws
+        return x, np.where(u[:, 0] < 0.05, -1.0, 1.0) * _cos_pdf(x)
+
+    r = mv.check_pdf_consistency(sample, _cos_pdf, sample_dim=2, n_samples=2000,
+                                 rejection=True, seed=10)
+    n_bad = r.details["negative_pdf"]
+    assert 20 < n_bad < 80, r.details
+    msg = r.failures[0]
+    assert msg.startswith(f"{n_bad} of {r.details['n_compared']} draws have a negative pdf")
+    u = [float(v) for v in msg.split("first at u=[")[1].split("]")[0].split(", ")]
+    assert u[0] < 0.05 and u[1] >= 0.5, msg
+
+
+def test_a_weight_off_in_one_channel_only_fails():
+    """A weight wrong in its blue channel alone (a colour's channel dropped or swapped)
+    fails, with each channel's ratio (a mutation review: only the first channel's error
+    was held by any test)."""
+    def sample(u):
+        x, p, w = _weighted(u)
+        w = w.copy()
+        w[:, 2] *= 1.5
+        return x, p, w
+
+    r = mv.check_pdf_consistency(sample, _cos_pdf, f=_f, sample_dim=2, n_samples=1000)
+    assert not r.passed and "(ratios [1, 1, 1.5])" in r.failures[0], r.failures
+
+
+def test_a_weight_matching_a_wrong_returned_pdf_fails_as_a_weight_too():
+    """A weight f / p built on a returned p that is not pdf(x) is no f(x) / pdf(x): both
+    the pdf and the weight are reported (a mutation review: a weight held to f over the
+    returned pdf passed every test)."""
+    def sample(u):
+        x = _cosine(u)
+        p = 2.0 * _cos_pdf(x)
+        return x, p, _f(x) / p[:, None]
+
+    r = mv.check_pdf_consistency(sample, _cos_pdf, f=_f, sample_dim=2, n_samples=500)
+    assert not r.passed and len(r.failures) == 2, r.failures
+    assert "worst_pdf" in r.details and "worst_weight" in r.details
+
+
+def test_a_pdf_of_x_of_zero_beside_a_returned_pdf_is_no_weight_without_density():
+    """pdf(x) = 0 where the draw returned a positive pdf is a pdf failure, not "a weight
+    with no density on either side" (that is for a returned pdf of 0 too; a mutation
+    review: no test told the two apart)."""
+    def pdf(x):
+        return np.where(x[:, 2] < 0.3, 0.0, _cos_pdf(x))
+
+    r = mv.check_pdf_consistency(_weighted, pdf, f=_f, sample_dim=2, n_samples=1000,
+                                 seed=2)
+    assert not r.passed and "weight_without_density" not in r.details, r.failures
+    assert len(r.failures) == 1 and "returned pdfs differ" in r.failures[0], r.failures
