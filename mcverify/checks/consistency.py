@@ -191,12 +191,14 @@ def check_pdf_consistency(sample, pdf, *, sample_dim: int, f=None, n_samples: in
         rtol = validate.real("rtol", rtol, minimum=0.0)
     rejection = validate.boolean("rejection", rejection)
     seed = validate.seed("seed", seed)
-    validate.memory("n_samples", n, 8 * (2 * k + 8), "uniform numbers, points and pdfs",
+    validate.memory("n_samples", n, 8 * (3 * k + 8), "uniform numbers, points and pdfs",
                     width=("sample_dim", k), least=min(n, 1000))
     name = validate.label(name, f"pdf_consistency:{_name_of(sample, 'sample')}")
 
     u = np.random.default_rng(seed).random((n, k))
-    x, p, p_dtype, w_raw = _parts(validate.draw("sample", sample, u), n)
+    # a copy: a sampler remapping u in place (np.sqrt(u, out=u), u *= 2) was reported at
+    # the u as it had changed it, which draws another point (a mutation review)
+    x, p, p_dtype, w_raw = _parts(validate.draw("sample", sample, u.copy()), n)
     dtypes = [x.dtype, p_dtype]
     if f is not None and w_raw is None:
         raise InvalidArgument("f given, but sample returns no weight to check against it: "

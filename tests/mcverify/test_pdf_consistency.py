@@ -770,3 +770,19 @@ def test_a_pdf_of_x_of_zero_beside_a_returned_pdf_is_no_weight_without_density()
                                  seed=2)
     assert not r.passed and "weight_without_density" not in r.details, r.failures
     assert len(r.failures) == 1 and "returned pdfs differ" in r.failures[0], r.failures
+
+
+def test_a_sampler_changing_u_in_place_is_reported_at_the_u_it_was_given():
+    """A sampler writing its warp into u (``np.sqrt(u, out=u)``, numba code reusing the
+    buffer) was reported at the u as it had changed it: the worst row's u, given to the
+    sampler again, drew another point (a mutation review)."""
+    def sample(u):                      # density 2x on [0, 1), its pdf wrong above 0.9
+        np.sqrt(u, out=u)
+        return u, np.where(u[:, 0] > 0.9, 4.0, 2.0) * u[:, 0]
+
+    r = mv.check_pdf_consistency(sample, lambda x: 2.0 * x[:, 0], sample_dim=1,
+                                 n_samples=1000, seed=3)
+    worst = r.details["worst_pdf"]
+    assert not r.passed
+    x, _ = sample(np.array([worst["u"]]))
+    assert x[0].tolist() == pytest.approx(worst["x"], rel=1e-12), worst
