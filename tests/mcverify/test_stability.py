@@ -444,3 +444,142 @@ def test_a_hypothesis_without_the_private_names_still_searches(monkeypatch):
     monkeypatch.setattr(providers, "CONSTANTS_CACHE", object(), raising=False)
     r = mv.check_stability(lambda u: -np.log(u), "interval", sample_dim=1, max_examples=50)
     assert not r.passed and r.details["u"] == [0.0]
+
+
+@pytest.mark.parametrize("sample, dom, k, dtype, u", [
+    # the corners alone (max_examples=0): float32's largest below 1 is among them
+    (lambda u: u / (1.0 - u), mv.Interval(0, 1e7), 1, np.float32, [1.0 - 2.0 ** -24]),
+    # float64's largest below 1, rounded to float32 (1.0) inside a sampler of 4 numbers
+    (lambda u: -np.log1p(-u[:, 3:].astype(np.float32)), mv.Interval(0, 200), 4,
+     np.float64, [0.0, 0.0, 0.0, 1.0 - 2.0 ** -53]),
+    # the smallest subnormal in the third of three coordinates (1 / u overflows)
+    (lambda u: np.where(u[:, 2:] > 0, 1.0 / np.where(u[:, 2:] > 0, u[:, 2:], 1.0), 0.0),
+     mv.Interval(0, 1e300), 3, np.float64, [0.0, 0.0, 5e-324]),
+])
+def test_the_corners_alone_reach_each_edge_value(sample, dom, k, dtype, u):
+    """With no search (max_examples=0) the corners find what only an edge value shows:
+    float32's 1 - 2^-24, float64's 1 - 2^-53 among the 3^d corners of d = 4, the
+    smallest subnormal in each of three coordinates (a mutation review: each could be
+    left out, or float32 given float64's edges, with every test passing)."""
+    with np.errstate(all="ignore"):
+        r = mv.check_stability(sample, dom, sample_dim=k, dtype=dtype, max_examples=0)
+    assert not r.passed and r.details["u"] == u, r.details
+
+
+def test_float32_corners_are_float32_s_own_values():
+    """float32's corners are its own: float64's 1 - 2^-53 cast to float32 is 1.0, outside
+    [0, 1), where -log(1 - u) is rightly infinite (a mutation review)."""
+    r = mv.check_stability(lambda u: -np.log1p(-u), mv.Interval(0, 200), sample_dim=1,
+                           dtype=np.float32, max_examples=0)
+    assert r.passed, r.failures
+
+
+def test_float32_u_is_handed_as_float32():
+    """dtype=np.float32 gives the corners and the searched u as float32 arrays (a
+    mutation review: float64 corners or searched u passed every test)."""
+    seen = set()
+
+    def sample(u):
+        seen.add(u.dtype)
+        return u
+
+    r = mv.check_stability(sample, "square", sample_dim=2, dtype=np.float32,
+                           max_examples=20)
+    assert r.passed and seen == {np.dtype(np.float32)}, seen
+
+
+@pytest.mark.parametrize("pdf, inverse, needle", [
+    (lambda x: x[:, 0] - 0.1, None, "pdf -0.1 at x=[0.0] (must be finite and >= 0)"),
+    (None, lambda x: x ** 2 - 2.0 ** -60, "inverse [-8.673617379884035e-19] of x=[0.0] "
+                                          "is not in [0, 1]"),
+    (None, lambda x: np.sqrt(x - 1e-300), "inverse [nan] of x=[0.0] is not in [0, 1]"),
+])
+def test_a_negative_pdf_a_negative_or_nan_inverse_are_findings(pdf, inverse, needle):
+    """Each at u = 0 (a mutation review: none of the three was held by a test)."""
+    r = mv.check_stability(np.sqrt, mv.Interval(0, 1), sample_dim=1, pdf=pdf,
+                           inverse=inverse, max_examples=0)
+    assert not r.passed and r.details["u"] == [0.0], r.details
+    assert r.details["problem"] == needle, r.details
+
+
+def test_an_inverse_of_exactly_one_is_inside():
+    """A float32 inverse of x = 1 - 2^-53 returns 1.0: inside [0, 1], the contract's
+    closed interval (a mutation review: [0, 1) passed every test)."""
+    r = mv.check_stability(lambda u: u, mv.Interval(0, 1), sample_dim=1,
+                           inverse=lambda x: x.astype(np.float32), max_examples=0)
+    assert r.passed, r.failures
+
+
+def test_a_row_nan_in_some_coordinates_is_no_rejected_draw():
+    """With rejection=True a rejected draw is NaN in every coordinate; x NaN alone is a
+    finding (a mutation review: a row with any NaN read as rejected passed)."""
+    def sample(u):
+        x = u.copy()
+        x[u[:, 0] < 0.5, 0] = np.nan
+        return x
+
+    r = mv.check_stability(sample, "square", sample_dim=2, rejection=True, max_examples=0)
+    assert not r.passed and "is not finite" in r.details["problem"], r.details
+
+
+@pytest.mark.parametrize("generator", ["numpy", "python"])
+def test_the_global_generators_are_seeded_by_seed(generator):
+    """Different seeds give a sampler drawing from np.random or random different streams:
+    the first corner failing differs (a mutation review: a fixed seed passed every test,
+    the same seed giving the same finding). Not statistical: each seed's stream is fixed;
+    NaN on 5 % of 81 corner draws."""
+    import random
+
+    def sample(u):
+        x = u.copy()
+        for i in range(len(x)):
+            if (np.random.rand() if generator == "numpy" else random.random()) < 0.05:
+                x[i] = np.nan
+        return x
+
+    found = [tuple(mv.check_stability(sample, "square", sample_dim=2, max_examples=0,
+                                      seed=s).details["u"]) for s in range(4)]
+    assert len(set(found)) > 1, found
+
+
+def test_the_search_is_seeded_by_seed():
+    """The searched u follow the seed: the same seed the same u, another seed others (a
+    mutation review: hypothesis's random seeded by a constant passed every test)."""
+    def searched(seed):
+        seen = []
+
+        def sample(u):
+            if len(u) == 1:
+                seen.append(float(u[0, 0]))
+            return u
+        mv.check_stability(sample, "interval", sample_dim=1, max_examples=30, seed=seed)
+        return seen
+
+    a, b, c = searched(0), searched(0), searched(1)
+    assert a == b != c
+
+
+def test_a_failure_found_by_the_search_is_shrunk_to_a_simple_u():
+    """NaN for u in (0.6, 0.9), a band no corner reaches: the search finds it and shrinks
+    it to [0.0, 0.75] whatever the seed (a mutation review: the search's u reported
+    unshrunk passed every test)."""
+    def band(u):
+        return np.where((u > 0.6) & (u < 0.9), np.nan, u)
+
+    for seed in range(2):
+        r = mv.check_stability(band, "square", sample_dim=2, max_examples=300, seed=seed)
+        assert not r.passed and r.details["u"] == [0.0, 0.75], r.details
+
+
+@pytest.mark.parametrize("lo, hi", [(1e-7, 1e-6), (1.0 - 1e-6, 1.0 - 1e-7)])
+def test_the_search_reaches_a_band_a_millionth_from_either_end(lo, hi):
+    """NaN for u in a band within 1e-6 of 0 or of 1 that no corner reaches: the search,
+    weighted towards both ends, finds it at each seed within 200 examples (a mutation
+    review: the weighting's width could be 0.1, not 1e-6, with every test passing). Not
+    statistical: each seed's search is fixed."""
+    def band(u):
+        return np.where((u > lo) & (u < hi), np.nan, u)
+
+    for seed in range(3):
+        r = mv.check_stability(band, "interval", sample_dim=1, max_examples=200, seed=seed)
+        assert not r.passed and lo < r.details["u"][0] < hi, r.details
