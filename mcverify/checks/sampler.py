@@ -1617,11 +1617,13 @@ def check_inverse(sample, inverse, sample_dim: int, *, n_samples: int = 100_000,
     seed = validate.seed("seed", seed)
     if atol is not None:
         atol = validate.real("atol", atol, minimum=0.0)
-    validate.memory("n_samples", n, 8 * 4 * k, "uniform numbers, points and round trips",
+    validate.memory("n_samples", n, 8 * 5 * k, "uniform numbers, points and round trips",
                     width=("sample_dim", k), least=min(n, 1000))
     name = validate.label(name, f"inverse:{_name_of(inverse, 'inverse')}")
     u = np.random.default_rng(seed).random((n, k))
-    raw = validate.draw("sample", sample, u)
+    # a copy: a sampler remapping u in place (u *= 2; u -= 1) left u changed, and a
+    # correct pair failed every round trip against it (a mutation review)
+    raw = validate.draw("sample", sample, u.copy())
     validate.not_a_tuple("sample", raw, n)
     x = validate.as_array(lambda: f"sample returned {validate._show(raw)}", raw)
     # the points' dimension is the sampler's own; their rows and dtype are checked here,

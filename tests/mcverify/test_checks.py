@@ -267,6 +267,18 @@ def test_inverse_round_trip_and_wrong_inverse():
     assert ok.messages[0].startswith("worst round trip: u=")
 
 
+def test_a_sampler_remapping_u_in_place_is_held_to_the_u_it_was_given():
+    """A sampler warping u in place (u *= 2; u -= 1, to [-1, 1)) and its correct inverse
+    failed every round trip, held to the u as changed (a mutation review)."""
+    def sample(u):
+        u *= 2.0
+        u -= 1.0
+        return u[:, 0]
+
+    r = mv.check_inverse(sample, lambda x: (np.asarray(x).reshape(-1, 1) + 1.0) / 2.0, 1,
+                         n_samples=1000)
+    assert r.passed, r.failures
+
 def _disk32(u):
     """The polar disk warp computed in float32 throughout, as a renderer would."""
     u = np.asarray(u).astype(np.float32)
