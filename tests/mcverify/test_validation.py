@@ -123,6 +123,18 @@ CASES = [
         np.ones((4, 4)), np.ones((4, 4)), test_var=np.ones((4, 4)),
         ref_var=np.ones((4, 4)), test_n=4, ref_n=4, perceptual="no"),
      "perceptual='no': must be True or False"),
+    # mutants of _validate that every test let live (a mutation review): each of these
+    # was accepted once its check was dropped
+    ("unbiased-bool-expected", lambda: mv.check_unbiased(np.ones(3), True),
+     "expected=True: must be a real number"),
+    ("variance-bool-expected", lambda: mv.check_variance(np.ones(3), False),
+     "expected_variance=False: must be a real number"),
+    ("resolution-bool-entry", lambda: mv.check_sampler(S, P, "square", resolution=(True, 3)),
+     "resolution=(True, 3.: every entry must be an integer >= 1"),
+    # a numpy array of one pdf value is refused (a Dr.Jit one of width 1 is its number)
+    ("pdf-returns-numpy-one-value", lambda: mv.check_sampler(S, lambda x: np.ones(1),
+                                                             "square", n_samples=100),
+     "pdf returned shape .1,.: expected"),
 ]
 
 
@@ -225,3 +237,65 @@ def test_a_cgroups_page_cache_counts_as_memory_left(tmp_path):
     assert left == 1000 - 900 + 500
     (folder / "memory.max").write_text("max\n")
     assert _validate._cgroup_left(str(tmp_path / "cgroup"), str(tmp_path / "fs")) is None
+
+
+def test_the_memory_guards_read_the_least_that_is_left(monkeypatch):
+    """MemAvailable, what `ulimit -v` leaves and what the cgroup's (a container's) limit
+    leaves each bound the memory available: the guards read the least of them. Reading
+    MemAvailable alone where a cgroup's limit is lower passed every test (a mutation
+    review); a CI container's memory.max is that limit."""
+    from mcverify import _validate
+
+    monkeypatch.setattr(_validate, "_address_space_left", lambda: None)
+    monkeypatch.setattr(_validate, "_cgroup_left", lambda: 2 ** 20)
+    assert _validate._available_memory() == 2 ** 20
+    with pytest.raises(mv.InvalidArgument, match=r"resolution=\(300, 300\): 90,000 "
+                       r"histogram cells need about .* more than half of the 1 MiB"):
+        mv.check_sampler(S, P, "square", n_samples=100, resolution=300)
+    monkeypatch.setattr(_validate, "_address_space_left", lambda: 2 ** 19)
+    assert _validate._available_memory() == 2 ** 19
+
+
+def test_an_intervals_cells_are_counted_with_their_ks_split(monkeypatch):
+    """An interval's histogram keeps 64 cells a bin for its KS statistic, and the memory
+    guard counts them: counting the bins alone (64 times too few) failed no test (a
+    mutation review). 20,000 bins need 20,000 x 64 x 512 bytes, 625 MiB, more than half
+    of 1 GiB; 10 MiB without the split."""
+    from mcverify import _validate
+
+    monkeypatch.setattr(_validate, "_available_memory", lambda: 2 ** 30)    # 1 GiB
+    with pytest.raises(mv.InvalidArgument, match=r"resolution=\(20000,\): 1,280,000 "
+                                                 r"histogram cells need about 625 MiB"):
+        mv.check_sampler(S, P, "interval", n_samples=100, resolution=20_000)
+
+
+def test_a_numpy_bool_is_a_flag():
+    """A flag computed with numpy (``rejection=np.any(mask)``, a config read into an
+    array) is numpy's bool, accepted as Python's is: refusing it failed no test (a
+    mutation review). Seeded, α = 0.01: the identity on the square with its pdf passes."""
+    r = mv.check_sampler(S, P, "square", n_samples=1000, rejection=np.False_,
+                         pilot=np.bool_(True))
+    assert r.passed, r.failures
+
+
+_LEFT_UNDER_ULIMIT = r"""
+import resource
+from mcverify import _validate
+with open("/proc/self/status") as f:
+    size = next(int(l.split()[1]) * 1024 for l in f if l.startswith("VmSize:"))
+resource.setrlimit(resource.RLIMIT_AS, (size + 2 ** 30, resource.RLIM_INFINITY))
+print(size, _validate._address_space_left(), _validate._available_memory())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/status")
+def test_what_ulimit_leaves_is_the_limit_less_what_is_mapped():
+    """Under `ulimit -v` what is left to map is the limit less the process's VmSize, not
+    the limit: a Python process with numpy and numba has mapped a GiB or more before any
+    check, and a guard reading the limit alone passed every test (a mutation review)."""
+    p = subprocess.run([sys.executable, "-c", _LEFT_UNDER_ULIMIT], capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    size, left, avail = map(int, p.stdout.split())
+    # 1 GiB beyond what it mapped, less the little it has mapped since
+    assert 2 ** 29 < left <= 2 ** 30 and avail <= left, (size, left, avail)
