@@ -250,26 +250,52 @@ def _address_space_left() -> int | None:
 
 
 def _cgroup_left(proc: str = "/proc/self/cgroup", root: str = "/sys/fs/cgroup") -> int | None:
-    """Bytes left under this process's cgroup v2 memory limit (its reclaimable page cache
-    counted as left), or None when unlimited."""
+    """Bytes left under this process's cgroup memory limit (its reclaimable page cache
+    counted as left), or None when unlimited: cgroup v2's ``memory.max``, else v1's
+    ``memory.limit_in_bytes``, a container's on a host of cgroup v1 or of both (the
+    guards read v2's alone until 8 December, and a v1 container's limit never: a
+    mutation review)."""
     try:
         with open(proc, encoding="ascii") as f:
-            rel = next(line.split(":", 2)[2].strip() for line in f if line.startswith("0::"))
-        folder = os.path.join(root, rel.lstrip("/"))
-        with open(os.path.join(folder, "memory.max"), encoding="ascii") as f:
-            limit = f.read().strip()
-        if limit == "max":
-            return None
-        with open(os.path.join(folder, "memory.current"), encoding="ascii") as f:
-            used = int(f.read())
-        # the page cache the cgroup holds counts in memory.current but is given back
-        # under pressure: a CI container that had read many files looked full
-        with open(os.path.join(folder, "memory.stat"), encoding="ascii") as f:
-            cache = next((int(line.split()[1]) for line in f
-                          if line.startswith("inactive_file ")), 0)
-        return max(int(limit) - used + cache, 0)
-    except (OSError, ValueError, IndexError, StopIteration):
+            groups = [line.rstrip("\n").split(":", 2) for line in f]
+    except OSError:
         return None
+    groups = [(controllers.split(","), rel.lstrip("/")) for _, controllers, rel in
+              (g for g in groups if len(g) == 3)]
+    folders = [(os.path.join(root, rel), _V2) for c, rel in groups if c == [""]]
+    for c, rel in groups:
+        if "memory" in c:
+            # a container sees its own group at the hierarchy's root, named by the host's path
+            folder = os.path.join(root, "memory", rel)
+            folders.append((folder if os.path.isdir(folder) else
+                            os.path.join(root, "memory"), _V1))
+    for folder, files in folders:
+        try:
+            return _memory_left(folder, *files)
+        except (OSError, ValueError, IndexError):
+            continue        # not this hierarchy's controller (v2's on a hybrid host)
+    return None
+
+
+#: The files of a cgroup's memory limit, its use and the memory.stat line of its
+#: inactive page cache: v2's, and v1's (whose limit is a huge number where unlimited).
+_V2 = ("memory.max", "memory.current", "inactive_file ")
+_V1 = ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file ")
+
+
+def _memory_left(folder: str, limit_file: str, used_file: str, cache_key: str) -> int | None:
+    """The limit in ``folder`` less what is used, plus the inactive page cache (counted in
+    the use but given back under pressure: a CI container that had read many files
+    looked full); None where unlimited. Raises OSError where the files are not there."""
+    with open(os.path.join(folder, limit_file), encoding="ascii") as f:
+        limit = f.read().strip()
+    if limit == "max" or int(limit) >= 2 ** 62:     # v1's unlimited: 2**63 less a page
+        return None
+    with open(os.path.join(folder, used_file), encoding="ascii") as f:
+        used = int(f.read())
+    with open(os.path.join(folder, "memory.stat"), encoding="ascii") as f:
+        cache = next((int(line.split()[1]) for line in f if line.startswith(cache_key)), 0)
+    return max(int(limit) - used + cache, 0)
 
 
 def _bytes(n: float) -> str:

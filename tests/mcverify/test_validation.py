@@ -299,3 +299,32 @@ def test_what_ulimit_leaves_is_the_limit_less_what_is_mapped():
     size, left, avail = map(int, p.stdout.split())
     # 1 GiB beyond what it mapped, less the little it has mapped since
     assert 2 ** 29 < left <= 2 ** 30 and avail <= left, (size, left, avail)
+
+
+def _v1_memory_group(folder, limit, used, inactive):
+    folder.mkdir(parents=True)
+    (folder / "memory.limit_in_bytes").write_text(f"{limit}\n")
+    (folder / "memory.usage_in_bytes").write_text(f"{used}\n")
+    (folder / "memory.stat").write_text(f"inactive_file 7\ntotal_inactive_file {inactive}\n")
+
+
+def test_a_cgroup_v1_memory_limit_counts_as_memory_left(tmp_path):
+    """A container on a host of cgroup v1, or of both (v2's hierarchy without its memory
+    controller, as on Ubuntu 20.04 and on the machine this was found on): only v2's
+    memory.max was read, so a v1 container's limit was none, and a resolution it could
+    not hold passed the guard (a mutation review)."""
+    from mcverify import _validate
+
+    proc = tmp_path / "cgroup"
+    proc.write_text("9:name=systemd:/\n4:cpu,memory:/ci/job\n0::/\n")
+    fs = tmp_path / "fs"
+    _v1_memory_group(fs / "memory" / "ci" / "job", 1000, 900, 500)
+    assert _validate._cgroup_left(str(proc), str(fs)) == 1000 - 900 + 500
+    # a container sees its own group at the root, named by the host's path
+    fs = tmp_path / "container"
+    _v1_memory_group(fs / "memory", 3000, 1000, 0)
+    assert _validate._cgroup_left(str(proc), str(fs)) == 2000
+    # unlimited: v1 writes 2**63 less a page
+    fs = tmp_path / "unlimited"
+    _v1_memory_group(fs / "memory", 9223372036854771712, 1000, 0)
+    assert _validate._cgroup_left(str(proc), str(fs)) is None
