@@ -135,6 +135,10 @@ CASES = [
     ("pdf-returns-numpy-one-value", lambda: mv.check_sampler(S, lambda x: np.ones(1),
                                                              "square", n_samples=100),
      "pdf returned shape .1,.: expected"),
+    ("seed-bool", lambda: mv.check_sampler(S, P, "square", seed=True, n_samples=100),
+     "seed=True: must be an integer"),
+    ("inverse-dim-bool", lambda: mv.check_inverse(S, S, True, n_samples=100),
+     "sample_dim=True: must be an integer"),
 ]
 
 
