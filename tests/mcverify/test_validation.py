@@ -332,3 +332,11 @@ def test_a_cgroup_v1_memory_limit_counts_as_memory_left(tmp_path):
     fs = tmp_path / "unlimited"
     _v1_memory_group(fs / "memory", 9223372036854771712, 1000, 0)
     assert _validate._cgroup_left(str(proc), str(fs)) is None
+
+
+def test_a_pdf_of_one_column_is_its_values():
+    """A pdf returning shape (n, 1), a column (``x[:, :1] * 0 + 1``, a matrix product's
+    result), is read as its n values: reading it so was dropped and no test failed (a
+    mutation review). Seeded, α = 0.01."""
+    r = mv.check_sampler(S, lambda x: np.ones((len(x), 1)), "square", n_samples=1000)
+    assert r.passed, r.failures
