@@ -32,6 +32,20 @@ def _triangles(prepared) -> np.ndarray:
                                                 layout.TRI_P2)], axis=1)
 
 
+def _winding(tri) -> np.ndarray:
+    """The unit normal of a triangle's winding."""
+    n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    return n / np.linalg.norm(n)
+
+
+def _shading_normal(mi, scene, tri) -> np.ndarray:
+    """Mitsuba's shading normal at the triangle's centroid, hit along its winding."""
+    g, c = _winding(tri), tri.mean(axis=0)
+    si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*(c + 0.01 * g)), mi.Vector3f(*-g)))
+    assert si.is_valid()
+    return np.array(si.sh_frame.n)
+
+
 #: unit rotation axes only: Mitsuba inverts a rotation by transposing it (see
 #: test_pathtracer_textures' _NON_UNIT_AXIS), so a non-unit axis leans its normals
 _TRANSFORMS = {
@@ -59,12 +73,7 @@ def test_a_rectangles_and_a_cubes_triangles_face_as_mitsubas_normals(mi, shape, 
     np.testing.assert_allclose(flat.min(axis=0), np.array(box.min), atol=1e-5)
     np.testing.assert_allclose(flat.max(axis=0), np.array(box.max), atol=1e-5)
     for tri in tris:
-        n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
-        n /= np.linalg.norm(n)
-        c = tri.mean(axis=0)
-        si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*(c + 0.01 * n)), mi.Vector3f(*-n)))
-        assert si.is_valid()
-        np.testing.assert_allclose(np.array(si.sh_frame.n), n, atol=1e-5)
+        np.testing.assert_allclose(_shading_normal(mi, scene, tri), _winding(tri), atol=1e-5)
 
 
 @pytest.mark.parametrize("ops", [
@@ -151,10 +160,5 @@ def test_a_meshs_own_normals_go_to_world_space_as_mitsubas(mi, tmp_path, ops):
     scene = mi.load_file(str(path))
     for tri, row in zip(_triangles(prepared), rows):
         n = sum(row[c:c + 3] for c in (layout.TRI_N0, layout.TRI_N1, layout.TRI_N2))
-        n /= np.linalg.norm(n)
-        g = np.cross(tri[1] - tri[0], tri[2] - tri[0])
-        g /= np.linalg.norm(g)
-        c = tri.mean(axis=0)
-        si = scene.ray_intersect(mi.Ray3f(mi.Point3f(*(c + 0.01 * g)), mi.Vector3f(*-g)))
-        assert si.is_valid()
-        np.testing.assert_allclose(np.array(si.sh_frame.n), n, atol=1e-5)
+        np.testing.assert_allclose(_shading_normal(mi, scene, tri), n / np.linalg.norm(n),
+                                   atol=1e-5)
