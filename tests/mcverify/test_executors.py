@@ -155,6 +155,86 @@ def test_unit_errors_are_raised_as_they_are():
             pool.map([Unit("div", divmod, (1, 0))])
 
 
+def _meet(mine: str, other: str) -> bool:
+    """Mark this unit as running, then wait (at most 60 s) for the other one to run."""
+    import time
+
+    open(mine, "w").close()
+    for _ in range(600):
+        if os.path.exists(other):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_local_workers_run_units_at_the_same_time(tmp_path):
+    """``-j 2`` keeps both workers busy: each of two units waits for the other to start
+    (a pool that submitted one unit at a time gave the same results, on one worker)."""
+    a, b = str(tmp_path / "a"), str(tmp_path / "b")
+    with Pool(jobs=2) as pool:
+        assert pool.map([Unit("a", _meet, (a, b)), Unit("b", _meet, (b, a))]) == [True, True]
+
+
+def _mark(folder: str, i: int) -> int:
+    import time
+
+    time.sleep(0.3)
+    open(os.path.join(folder, str(i)), "w").close()
+    return i
+
+
+def test_closing_the_iterator_cancels_the_units_not_yet_started(tmp_path):
+    """A consumer that stops early (a sequential test that has decided) leaves the units
+    submitted ahead of it unrun, while the pool stays open."""
+    import time
+
+    with Pool(jobs=2) as pool:
+        it = pool.imap([Unit(str(i), _mark, (str(tmp_path), i)) for i in range(20)],
+                       lookahead=20)
+        assert next(it) == 0
+        it.close()
+        time.sleep(8.0)         # the 20 units take 3 s on 2 workers
+        ran = len(os.listdir(tmp_path))
+    assert ran < 20, ran
+
+
+def test_a_unit_cancelled_by_the_cluster_is_named_not_waited_on(monkeypatch):
+    """A future the executor cancelled itself (a Dask scheduler gone) is no result: the
+    run stops naming the unit, where it could wait on it for ever."""
+    import concurrent.futures as cf
+    import threading
+
+    def cancelled(unit):
+        f = cf.Future()
+        f.cancel()
+        f.set_running_or_notify_cancel()    # as Dask's executor does, waking cf.wait
+        return f
+
+    outcome = []
+
+    def consume(pool):
+        try:
+            pool.map([Unit("dropped", _square, (2,))])
+        except WorkerLost as e:
+            outcome.append(str(e))
+
+    with Pool() as pool:
+        monkeypatch.setattr(pool, "_submit", cancelled)
+        thread = threading.Thread(target=consume, args=(pool,), daemon=True)
+        thread.start()
+        thread.join(30)
+    assert outcome and outcome[0].startswith("unit dropped: cancelled by in-process"), outcome
+
+
+def test_a_dask_pools_width_counts_its_workers_threads():
+    """``width`` (how many units ``render-check`` keeps submitted) is the cluster's threads,
+    not its workers."""
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True,
+                                  dashboard_address=None) as cluster:
+        with Pool(dask=cluster.scheduler_address) as pool:
+            assert pool.width == 2
+
+
 def test_in_process_imap_runs_units_only_as_they_are_consumed():
     ran = []
     units = [Unit(str(i), ran.append, (i,)) for i in range(5)]
@@ -225,8 +305,9 @@ def test_a_check_missing_from_its_rebuilt_suite_is_named():
     # given but empty (an unset variable): ran in this process without a word
     (dict(dask=""), "--dask '': empty"),
     (dict(dask_scheduler_file=" "), "--dask-scheduler-file ' ': empty"),
+    (dict(retries=-1), "retries=-1: must be >= 0"),
 ], ids=["jobs", "jobs-huge", "jobs-and-dask", "both-dask", "scheduler-file",
-        "scheduler-file-folder", "dask-empty", "scheduler-file-empty"])
+        "scheduler-file-folder", "dask-empty", "scheduler-file-empty", "retries-negative"])
 def test_bad_pool_arguments(kwargs, needle):
     with pytest.raises(InvalidArgument, match=needle):
         Pool(**kwargs)
@@ -288,8 +369,9 @@ def test_a_scheduler_without_workers_is_refused_not_waited_on(monkeypatch, tmp_p
     assert not str(info.value).endswith(": )"), str(info.value)
 
 
-@pytest.mark.parametrize("text", ['{"address": 5}', "[]", '"tcp://127.0.0.1:1"'],
-                         ids=["address-not-a-string", "a-list", "a-string"])
+@pytest.mark.parametrize("text", ['{"address": 5}', '{"address": ""}', "[]",
+                                  '"tcp://127.0.0.1:1"'],
+                         ids=["address-not-a-string", "address-empty", "a-list", "a-string"])
 def test_a_scheduler_file_without_an_address_string_is_named(tmp_path, text):
     """A scheduler file whose JSON is no object with a string address ended the run with
     "unexpected TypeError: expected str, got 'int'", naming no option or file."""
