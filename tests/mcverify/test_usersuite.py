@@ -38,7 +38,13 @@ CHECKS = textwrap.dedent('''
     not_runnable = [Check("x", None)]
     canary_tagged = [Check("mine-planted", lambda seed: None, ("canary",))]
     duplicates = [good[0], good[0]]
+    empty_named = [Check("", good[0].run)]
+    as_set = {good[0]}                       # no order: results would change places
+    by_name = {"sqrt": good[0]}
     number = 3
+
+    class grouped:                           # MODULE:OBJ.ATTR
+        suite = good
 
     def raising_builder():
         return 1 / 0
@@ -88,6 +94,22 @@ def test_a_list_and_a_factory_load(project):
     assert [c.name for c in load_user_suite("mine.checks:factory", roots=[str(project)])] \
         == ["sqrt"]
     assert checks[0].run(0).passed
+    assert [c.name for c in load_user_suite("mine.checks:grouped.suite",
+                                            roots=[str(project)])] == ["sqrt", "sqrt-again"]
+
+
+def test_the_first_import_root_wins(project, monkeypatch):
+    """Roots go on the import path in their order, as pytest's do: a module in two of
+    them is imported from the first."""
+    for root, name in (("one", "first"), ("two", "second")):
+        (project / root).mkdir()
+        (project / root / "rootorder_mod.py").write_text(
+            f"from mcverify.gate.suites import Check\nsuite = [Check({name!r}, print)]\n")
+    monkeypatch.delitem(sys.modules, "rootorder_mod", raising=False)
+    checks = load_user_suite("rootorder_mod:suite",
+                             roots=[str(project / "one"), str(project / "two")])
+    assert [c.name for c in checks] == ["first"]
+    monkeypatch.delitem(sys.modules, "rootorder_mod")
 
 
 @pytest.mark.parametrize("spec, match", [
@@ -96,6 +118,9 @@ def test_a_list_and_a_factory_load(project):
     ("mine.checks:missing", "has no attribute 'missing'"),
     ("mine.checks:number", "expected a list of mcverify.gate.suites.Check, got int"),
     ("mine.checks:not_checks", "item 0 is a int"),
+    ("mine.checks:as_set", "expected a list of mcverify.gate.suites.Check, got set"),
+    ("mine.checks:by_name", "expected a list of mcverify.gate.suites.Check, got dict"),
+    ("mine.checks:empty_named", "item 0 is named '': a check's name must be a non-empty "),
     ("mine.checks:duplicates", "two checks are named 'sqrt'"),
     ("mine.checks:number_named", "item 0 is named 3: a check's name must be a non-empty "
                                  "string"),
@@ -123,6 +148,9 @@ def test_the_config_is_found_from_a_subfolder(project):
     assert config.file == str(project / "pyproject.toml")
     assert config.suites == ("mine.checks:good", "default")
     assert (config.alpha, config.seed, config.path) == (0.05, 7, (".",))
+    # import roots are relative to the pyproject.toml, not to the current directory
+    _pyproject(project, '[tool.mcverify]\npath = ["mine"]\n')
+    assert find_config().path == ("mine",)
 
 
 def test_the_first_pyproject_decides_even_without_a_table(project):
@@ -135,9 +163,12 @@ def test_the_first_pyproject_decides_even_without_a_table(project):
     ('[tool.mcverify]\nsuites = "a:b"\n', "'suites': unknown key"),
     ('[tool.mcverify]\nalpha = 2.0\n', "alpha = 2.0: must be strictly between 0 and 1"),
     ('[tool.mcverify]\nalpha = "x"\n', "alpha = 'x': expected float or int"),
+    ('[tool.mcverify]\nalpha = 1\n', "alpha = 1: must be strictly between 0 and 1"),
+    ('[tool.mcverify]\nalpha = 0.0\n', "alpha = 0.0: must be strictly between 0 and 1"),
     ('[tool.mcverify]\nseed = -1\n', r"seed = -1: must be in \[0, 2\*\*63 - 1\]"),
     # as --seed refuses it (was accepted)
     ('[tool.mcverify]\nseed = 99999999999999999999\n', "seed = 99999999999999999999: must be"),
+    ('[tool.mcverify]\nseed = 9223372036854775808\n', "seed = 9223372036854775808: must be"),
     # an empty list fell back to the default suite; a repeated entry ran every check twice
     ('[tool.mcverify]\nsuite = []\n', "suite: an empty list"),
     ('[tool.mcverify]\nsuite = ["default", "default"]\n', "'default' is listed twice"),
@@ -147,6 +178,7 @@ def test_the_first_pyproject_decides_even_without_a_table(project):
     ('[tool.mcverify\n', "not valid TOML"),
     # these raised AttributeError and UnicodeDecodeError, naming no file
     ('tool = 3\n', "tool = 3: must be a table"),
+    ('[tool]\nmcverify = 3\n', r"\[tool.mcverify\] must be a table"),
     (b'[tool.mcverify]\nseed = 1 # \xff\n', "not valid TOML"),
     # a misspelt import root was accepted without a word (the module may still import
     # from the current directory, another copy of it)
@@ -154,9 +186,9 @@ def test_the_first_pyproject_decides_even_without_a_table(project):
     ('[tool.mcverify]\npath = "pyproject.toml"\n', "path 'pyproject.toml': no such folder"),
     # a Windows editor's byte-order mark was "Invalid statement (at line 1, column 1)"
     (b'\xef\xbb\xbf[tool.mcverify]\nseed = 1\n', "starts with a UTF-8 byte-order mark"),
-], ids=["unknown-key", "alpha-range", "alpha-type", "seed-negative", "seed-beyond-2^63",
-        "empty-suite-list", "suite-twice", "seed-bool", "suite-name", "suite-type", "toml",
-        "tool-not-a-table", "not-utf8", "path-missing", "path-a-file", "bom"])
+], ids=["unknown-key", "alpha-range", "alpha-type", "alpha-1", "alpha-0", "seed-negative",
+        "seed-beyond-2^63", "seed-2^63", "empty-suite-list", "suite-twice", "seed-bool",
+        "suite-name", "suite-type", "toml", "tool-not-a-table", "mcverify-not-a-table", "not-utf8", "path-missing", "path-a-file", "bom"])
 def test_a_malformed_table_names_the_file_and_key(project, body, match):
     if isinstance(body, bytes):
         (project / "pyproject.toml").write_bytes(body)
