@@ -278,6 +278,25 @@ def test_a_user_suite_runs_in_worker_processes_with_the_same_results(project):
     assert [r.p_value for r in here.results] == [r.p_value for r in there.results]
 
 
+def _seed_seen(seed):
+    from mcverify.result import CheckResult
+
+    return CheckResult(name="seed", passed=True, p_value=0.5, statistic=None, alpha=0.01,
+                       n_samples=1, seconds=0.0, details={"seed": seed})
+
+
+def test_a_checks_seed_derives_from_its_name_not_its_place():
+    """Selecting or reordering checks (``-k``, a suite grown by one) changes no check's
+    seed, hence no check's result."""
+    from mcverify.gate.suites import check_seed, run_suite
+
+    a, b = Check("a", _seed_seen), Check("b", _seed_seen)
+    both = run_suite([a, b], seed=4, canary=False).results
+    alone = run_suite([b], seed=4, canary=False).results
+    assert both[1].details["seed"] == alone[0].details["seed"] == check_seed(4, "b")
+    assert both[0].details["seed"] == check_seed(4, "a") != check_seed(4, "b")
+
+
 def test_what_a_check_does_wrong_is_its_own_failure_not_the_gates(project, tmp_path):
     """A check that calls sys.exit(0) (the gate used to exit 0 after a failure, writing
     nothing), one that returns None (the run stopped with an AttributeError naming no
