@@ -465,7 +465,7 @@ def test_render_curves_plot_both_renderers_at_the_samples_mitsuba_renders(monkey
 
     def ours(scene, spp, seed, **kw):
         asked.append(spp)
-        return SimpleNamespace(mean=np.zeros((scene.height, scene.width, 3)), seconds=0.1)
+        return SimpleNamespace(mean=np.full((scene.height, scene.width, 3), 7.0), seconds=0.1)
 
     told = []
 
@@ -478,8 +478,18 @@ def test_render_curves_plot_both_renderers_at_the_samples_mitsuba_renders(monkey
 
     monkeypatch.setattr(pt, "render", ours)
     monkeypatch.setattr(rc_mod, "render_check", check)
+    # each curve's "RMSE" the mean of the image it was given: ours is 7 everywhere
+    from mcverify.gate import reference as reference_mod
+
+    monkeypatch.setattr(reference_mod, "load_reference",
+                        lambda path: SimpleNamespace(rmse=lambda img: float(np.mean(img))))
     rows, _ = run_renders(["vocabulary-geometry"], spps=(4, 16), notice=print)
     assert rows[0]["curve"]["spp"] == [4, 25]
+    # Mitsuba's curve is of Mitsuba's renders (a mutation review: our RMSE recorded as
+    # Mitsuba's lived through every test)
+    curve = rows[0]["curve"]
+    assert curve["ours_rmse"] == [7.0, 7.0]
+    assert 0 < min(curve["mitsuba_rmse"]) and 7.0 not in curve["mitsuba_rmse"]
     assert asked == [2, 4, 25]        # the warm-up, then the curve's two renders
     # the render check's notices (a reference built, Mitsuba's fallback) reach the
     # caller: `report --renders` built a missing reference silently until 7 December
@@ -704,3 +714,172 @@ def test_control_characters_in_a_message_are_escaped_in_the_page(tmp_path):
     assert not any(c in page for c in "\x1b\x07\x00")
     assert json.loads((tmp_path / "report.json").read_text())["verification"]["results"][0][
         "failures"] == ["raised RuntimeError: \x1b[31mno\x1b[0m GPU\x00"]
+
+
+def test_the_study_s_numbers_are_its_checks_judged_together(monkeypatch):
+    """Each study row as its docstring and the page state it (a mutation review: every
+    one of these could be wrong with no test failing): the interval of the row's own
+    check_convergence at its level (99 %), stated as ci_confidence whatever the table's
+    alpha (0.2 here); p adjusted by Holm across the whole table, the verdict p adjusted >
+    alpha; seconds the median time per estimate; efficiency 1 / (MSE * seconds)."""
+    from types import SimpleNamespace
+
+    import mcverify as mv
+    from mcverify.gate.report import study as study_mod
+    from mcverify.stats import holm
+
+    clock = SimpleNamespace(t=0.0, calls=0)
+
+    def perf_counter():     # each N's 4 estimates take 1, 1, 1 and 100 s: median 1
+        clock.calls += 1
+        if clock.calls % 2 == 0:
+            clock.t += 100.0 if clock.calls % 8 == 0 else 1.0
+        return clock.t
+
+    monkeypatch.setattr(study_mod, "time", SimpleNamespace(perf_counter=perf_counter))
+    ns = (64, 256, 1024)
+    rows = study_mod.run_study(ns=ns, n_seeds=4, seed=3, alpha=0.2)
+    uniform = study_mod._estimators()["uniform"][0]
+    (g,) = [g for g in study_mod.integrands() if g.name == "sin on [0, pi]"]
+    own = mv.check_convergence(lambda n, s: uniform(g, n, s), g.truth, ns=ns, n_seeds=4,
+                               seed=3)
+    (row,) = [r for r in rows if r["integrand"] == g.name and r["estimator"] == "uniform"]
+    assert row["ci"] == pytest.approx(own.details["ci"], rel=1e-12)
+    assert row["slope"] == pytest.approx(own.details["slope"], rel=1e-12)
+    assert [r["ci_confidence"] for r in rows] == pytest.approx([0.99] * len(rows))
+    adjusted = holm([r["p_value"] for r in rows])
+    assert [r["p_adjusted"] for r in rows] == pytest.approx(list(adjusted), rel=1e-12)
+    assert [r["passed"] for r in rows] == [bool(p > 0.2) for p in adjusted]
+    for r in rows:
+        assert r["seconds"] == [1.0] * len(ns)
+        rmse = np.asarray(r["rmse"])
+        assert r["efficiency"] == pytest.approx(list(1.0 / rmse ** 2), rel=1e-12)
+
+
+def _page_rows(page: str, head: str) -> list[str]:
+    """The rows (``<tr …>…</tr>``) of the table whose header row starts with ``head``."""
+    table = page[page.index(f"<table><tr><th>{head}</th>"):].split("</table>")[0]
+    return table.split("<tr")[2:]
+
+
+def test_the_page_shows_each_row_s_own_numbers_and_verdict():
+    """Each table row of the page is its own result's: slope, verdict and efficiency at
+    the largest N of that study row; each check's verdict and the suite's counts; the
+    canaries' state; a render's passes and spp; a scene's name escaped in its row and in
+    its image's alt text (a mutation review: another row's slope or verdict, the
+    efficiency at the smallest N, a failed check counted as passed, canaries read the
+    other way and raw scene names all lived through every test)."""
+    from mcverify.gate.report import render_html
+    from mcverify.result import CheckResult, SuiteResult
+
+    checks = [CheckResult("good", True, 0.5, 1.0, 0.01, 100, 0.0),
+              CheckResult("bad", False, 1e-9, 1.0, 0.01, 100, 0.0)]
+    conv = dict(ns=[64, 256, 1024], ci_confidence=0.99, expected_slope=-0.5,
+                alternative="two-sided", integrand="sin")
+    study = [dict(conv, estimator="uniform", slope=-0.512, ci=[-0.6, -0.4], passed=True,
+                  p_adjusted=0.8, efficiency=[1.0, 2.0, 3.5]),
+             dict(conv, estimator="broken", slope=-0.25, ci=[-0.3, -0.2], passed=False,
+                  p_adjusted=1e-6, efficiency=[4.0, 5.0, 6.5])]
+    scene = "<b>box</b>"
+    render = dict(scene=scene, passed=True, p_value=0.4, found_by=[], relmse=0.01,
+                  delta_e2000_mean=None, delta_e_itp_mean=None, flip_mean=None,
+                  ours_passes=3, ours_spp=64, ours_seconds=1.0, kernel="general",
+                  image="render_x.png", reference=dict(mitsuba_version="3", spp=1024,
+                                                       passes=8, mitsuba_variant="v"))
+    images = dict.fromkeys(["convergence.png", "efficiency.png", "render_error.png",
+                            "render_x.png"], b"png")
+    for bitten in (True, False):
+        suite = SuiteResult.judge("mine", checks, alpha=0.01, seconds=0.0, canary=(
+            CheckResult("canary", not bitten, 0.5, 1.0, 0.01, 100, 0.0),))
+        doc = dict(provenance={}, verification=suite.to_dict(), convergence=study,
+                   renders=[render])
+        page = render_html(doc, images)
+        assert ("canaries bitten;" in page) == bitten
+        assert ("canaries <b>NOT bitten</b>;" in page) == (not bitten)
+    assert "<b>mine</b>: 1 passed, 1 failed," in page
+    bad, good = _page_rows(page, "check")
+    assert "<td>bad</td><td>FAIL</td>" in bad and "<td>good</td><td>pass</td>" in good
+    uniform, broken = _page_rows(page, "integrand")
+    assert "<td>-0.512</td>" in uniform and "<td>as expected</td><td>3.5</td>" in uniform
+    assert "<td>-0.250</td>" in broken and "<td>NOT</td><td>6.5</td>" in broken
+    (row,) = _page_rows(page, "scene")
+    assert "<td>&lt;b&gt;box&lt;/b&gt;</td>" in row and "<td>3 passes, 64 spp" in row
+    assert "8 × 1024 spp" in row
+    assert scene not in page and 'alt="&lt;b&gt;box&lt;/b&gt;"' in page
+
+
+def _drawn(monkeypatch):
+    """The figures the report's plots draw, in order (their PNGs still made)."""
+    from mcverify.gate.report import plots
+
+    figs, png = [], plots._png
+    monkeypatch.setattr(plots, "_png", lambda fig: figs.append(fig) or png(fig))
+    return figs
+
+
+def test_a_histogram_draws_its_own_check_s_counts(monkeypatch):
+    """Observed, expected and (O - E)/sqrt(E) panels of a histogram, 1-D and 2-D, hold the
+    check's own counts (a mutation review: observed and expected swapped, (O - E)/E,
+    lived through every test)."""
+    from mcverify.gate.report import plots
+
+    figs = _drawn(monkeypatch)
+    obs, exp = np.array([10.0, 30.0, 20.0, 41.0]), np.full(4, 25.0)
+    plots.histogram({"name": "one", "artifacts": {"histogram": {
+        "observed": obs, "expected": exp, "edges": [np.linspace(0, 1, 5)]}}})
+    ax = figs[0].axes
+    assert np.array_equal(ax[0].lines[0].get_ydata(), obs)
+    assert np.array_equal(ax[1].lines[0].get_ydata(), exp)
+    assert np.allclose(ax[2].lines[0].get_ydata(), (obs - exp) / 5.0)
+    obs2, exp2 = np.array([[1.0, 9.0, 4.0], [16.0, 0.0, 4.0]]), np.full((2, 3), 4.0)
+    plots.histogram({"name": "two", "artifacts": {"histogram": {
+        "observed": obs2, "expected": exp2, "edges": [[0, 1, 2], [0, 1, 2, 3]]}}})
+    ax = figs[1].axes
+    assert np.array_equal(ax[0].images[0].get_array(), obs2)
+    assert np.array_equal(ax[1].images[0].get_array(), exp2)
+    assert np.allclose(ax[2].images[0].get_array(), np.clip((obs2 - exp2) / 2.0, -6, 6))
+
+
+def test_each_failed_check_s_histogram_is_drawn_from_that_check(tmp_path, monkeypatch):
+    """Two failed checks, two histograms, each of its own check (a mutation review: every
+    histogram drawn from the suite's first check lived through every test)."""
+    import mcverify as mv
+    from mcverify.result import SuiteResult
+
+    def bad(name, power):
+        return mv.check_sampler(lambda u: u[:, :1] ** power, lambda x: np.ones(len(x)),
+                                "interval", n_samples=20_000, seed=0, name=name)
+
+    checks = [bad("sqrt", 0.5), bad("square", 2.0)]
+    figs = _drawn(monkeypatch)
+    build_report(str(tmp_path), study=None, extra_provenance={},
+                 suite=SuiteResult.judge("mine:suite", checks, alpha=0.01, seconds=0.0))
+    assert [f._suptitle.get_text() for f in figs] == ["sqrt", "square"]
+    for fig, check in zip(figs, checks):
+        observed = np.asarray(check.artifacts["histogram"]["observed"], float)
+        assert np.array_equal(fig.axes[0].lines[0].get_ydata(), observed)
+
+
+def test_the_study_and_render_plots_draw_each_row_s_numbers(monkeypatch):
+    """The convergence panel's legend gives the slope and both ends of its interval, its
+    N^-1/2 guide falls from uniform's first RMSE; the render panel plots each renderer's
+    RMSE against its own seconds (a mutation review: the interval's upper end drawn as its
+    lower, a guide of N^-1, Mitsuba's RMSE at our seconds lived through every test)."""
+    from mcverify.gate.report import plots
+
+    figs = _drawn(monkeypatch)
+    plots.convergence([dict(integrand="sin", estimator="uniform", ns=[64, 256, 1024],
+                            rmse=[0.2, 0.1, 0.05], slope=-0.5, ci=[-0.61, -0.42])])
+    ax = figs[0].axes[0]
+    assert [line.get_label() for line in ax.lines] == ["uniform: -0.50 [-0.61, -0.42]",
+                                                       "N^-1/2"]
+    assert np.allclose(ax.lines[1].get_ydata(), [0.2, 0.1, 0.05])
+    curve = dict(spp=[4, 16], ours_rmse=[0.2, 0.1], mitsuba_rmse=[0.3, 0.15],
+                 ours_seconds=[1.0, 2.0], mitsuba_seconds=[5.0, 7.0])
+    plots.render_error([dict(scene="box", curve=curve)])
+    for ax, x in zip(figs[1].axes, ("spp", "seconds")):
+        for line, who in zip(ax.lines, ("ours", "mitsuba")):
+            xs = curve["spp"] if x == "spp" else curve[f"{who}_seconds"]
+            assert line.get_label() == who
+            assert np.array_equal(line.get_xdata(), xs)
+            assert np.array_equal(line.get_ydata(), curve[f"{who}_rmse"])
