@@ -208,8 +208,8 @@ class SuiteResult:
         """``N passed, M failed (family-wise alpha=A by holm; canaries bitten; Ts)``."""
         failed = sum(not r.passed for r in self.results)
         return (f"{len(self.results) - failed} passed, {failed} failed (family-wise "
-                f"alpha={self.alpha:g} by {self.correction}; canaries "
-                f"{'bitten' if self.canary_bitten else 'NOT bitten'}; {self.seconds:.1f}s)")
+                f"alpha={self.alpha:g} by {self.correction}; {_canaries(self.canary)}; "
+                f"{self.seconds:.1f}s)")
 
     def __str__(self) -> str:
         """What ``mcverify check`` prints of it (which also escapes control characters):
@@ -254,6 +254,14 @@ class SuiteResult:
             "canary": [c.to_dict() for c in self.canary],
             "skipped": [{"check": c, "reason": why} for c, why in self.skipped],
         })
+
+
+def _canaries(canary) -> str:
+    """What a suite's line says of its canaries: "no canaries" where none ran (a suite
+    run with ``canary=False`` said "canaries bitten" of none: a mutation review)."""
+    if not canary:
+        return "no canaries"
+    return "canaries bitten" if all(not c.passed for c in canary) else "canaries NOT bitten"
 
 
 def shared_mode(base: int = 0o666) -> int:

@@ -212,6 +212,23 @@ def test_print_of_a_suite_names_its_failures_and_counts():
                          "canaries NOT bitten; 1.0s)"]
 
 
+def test_a_suite_run_without_canaries_says_none_ran():
+    """``run_suite(..., canary=False)`` (the API; the CLI always plants them) said
+    "canaries bitten" of none, in its counts and on the report's page (``all([])`` is
+    true; a mutation review's found-not-fixed). It says "no canaries" now."""
+    from mcverify.gate.report import render_html
+
+    bare = SuiteResult.judge("s", [_r("a", 0.5)], alpha=0.01, seconds=1.0)
+    assert bare.counts() == ("1 passed, 0 failed (family-wise alpha=0.01 by holm; "
+                             "no canaries; 1.0s)")
+    page = render_html(dict(provenance={}, verification=bare.to_dict(), convergence=[],
+                            renders=[]), {})
+    assert "no canaries;" in page and "bitten" not in page
+    bitten = SuiteResult.judge("s", [_r("a", 0.5)], alpha=0.01, seconds=1.0,
+                               canary=(_r("planted", 1e-9),))
+    assert "; canaries bitten; " in bitten.counts()
+
+
 def test_a_notebook_shows_a_result_as_print_does():
     """Jupyter and IPython display a bare result through ``_repr_pretty_`` where it has
     one, else ``repr``: some 7,000 characters of details for a failed image."""

@@ -180,8 +180,8 @@ def render_html(doc: dict, images: dict[str, bytes], captions: dict | None = Non
     else:
         parts.append(f"<p>Suite <b>{_e(ver['suite'])}</b>: {ver['n_checks'] - ver['n_failed']}"
                      f" passed, {ver['n_failed']} failed, family-wise α = {ver['alpha']} "
-                     f"({_e(ver['correction'])}); canaries "
-                     f"{'bitten' if ver['canary_bitten'] else '<b>NOT bitten</b>'}; "
+                     f"({_e(ver['correction'])}); "
+                     f"{_canaries_html(ver)}; "
                      f"{ver['seconds']:.1f} s.</p>")
         rows = sorted(ver["results"], key=lambda r: (r["passed"], r["name"]))
         parts.append("<table><tr><th>check</th><th>verdict</th><th>p</th><th>p adjusted</th>"
@@ -291,3 +291,10 @@ window.addEventListener("load", function () {
 });
 </script></body></html>
 """
+
+
+def _canaries_html(ver: dict) -> str:
+    """The page's word on the suite's canaries: none run, bitten, or NOT bitten."""
+    if not ver.get("canary"):
+        return "no canaries"
+    return "canaries bitten" if ver["canary_bitten"] else "canaries <b>NOT bitten</b>"
