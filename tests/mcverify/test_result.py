@@ -229,6 +229,23 @@ def test_a_suite_run_without_canaries_says_none_ran():
     assert "; canaries bitten; " in bitten.counts()
 
 
+def test_the_report_page_lists_the_checks_a_run_skipped():
+    """The checks a run skips (``--scene``: what the scene does not need) were in the
+    JSON, the JUnit file and the text output, not on the report's page (a mutation
+    review's found-not-fixed): it lists each with its reason, escaped."""
+    from mcverify.gate.report import render_html
+
+    suite = SuiteResult.judge("s", [_r("a", 0.5)], alpha=0.01, seconds=1.0,
+                              skipped=(("sampler:<cone>", "not needed by this scene"),))
+    page = render_html(dict(provenance={}, verification=suite.to_dict(), convergence=[],
+                            renders=[]), {})
+    assert "<p>1 skipped:</p><ul><li>sampler:&lt;cone&gt;: not needed by this scene</li>" \
+        in page
+    bare = SuiteResult.judge("s", [_r("a", 0.5)], alpha=0.01, seconds=1.0)
+    assert "skipped" not in render_html(dict(provenance={}, verification=bare.to_dict(),
+                                             convergence=[], renders=[]), {})
+
+
 def test_a_notebook_shows_a_result_as_print_does():
     """Jupyter and IPython display a bare result through ``_repr_pretty_`` where it has
     one, else ``repr``: some 7,000 characters of details for a failed image."""
