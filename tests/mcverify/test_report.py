@@ -716,6 +716,18 @@ def test_control_characters_in_a_message_are_escaped_in_the_page(tmp_path):
         "failures"] == ["raised RuntimeError: \x1b[31mno\x1b[0m GPU\x00"]
 
 
+def test_the_study_takes_its_ns_in_increasing_order():
+    """``run_study(ns=(1024, 64, 256))`` kept that order: the page's "efficiency at the
+    largest N" read N = 256's, and the plots zigzagged (a mutation review's
+    found-not-fixed). Each row's ``ns`` is increasing, its numbers in that order."""
+    from mcverify.gate.report import study as study_mod
+
+    rows = study_mod.run_study(ns=(1024, 64, 256), n_seeds=4, seed=3)
+    assert all(r["ns"] == [64, 256, 1024] for r in rows)
+    again = study_mod.run_study(ns=(64, 256, 1024), n_seeds=4, seed=3)
+    assert [r["rmse"] for r in rows] == [r["rmse"] for r in again]
+
+
 def test_the_study_s_numbers_are_its_checks_judged_together(monkeypatch):
     """Each study row as its docstring and the page state it (a mutation review: every
     one of these could be wrong with no test failing): the interval of the row's own
