@@ -207,9 +207,9 @@ class SuiteResult:
     def counts(self) -> str:
         """``N passed, M failed (family-wise alpha=A by holm; canaries bitten; Ts)``."""
         failed = sum(not r.passed for r in self.results)
+        canaries = canary_words(len(self.canary), self.canary_bitten)
         return (f"{len(self.results) - failed} passed, {failed} failed (family-wise "
-                f"alpha={self.alpha:g} by {self.correction}; {_canaries(self.canary)}; "
-                f"{self.seconds:.1f}s)")
+                f"alpha={self.alpha:g} by {self.correction}; {canaries}; {self.seconds:.1f}s)")
 
     def __str__(self) -> str:
         """What ``mcverify check`` prints of it (which also escapes control characters):
@@ -256,12 +256,13 @@ class SuiteResult:
         })
 
 
-def _canaries(canary) -> str:
-    """What a suite's line says of its canaries: "no canaries" where none ran (a suite
-    run with ``canary=False`` said "canaries bitten" of none: a mutation review)."""
-    if not canary:
+def canary_words(count: int, bitten: bool, strong=str) -> str:
+    """What a suite's line (and the report's page) says of its ``count`` canaries:
+    "no canaries" where none ran (a suite run with ``canary=False`` said "canaries
+    bitten" of none: a mutation review), else bitten or ``strong("NOT bitten")``."""
+    if not count:
         return "no canaries"
-    return "canaries bitten" if all(not c.passed for c in canary) else "canaries NOT bitten"
+    return "canaries " + ("bitten" if bitten else strong("NOT bitten"))
 
 
 def shared_mode(base: int = 0o666) -> int:

@@ -15,8 +15,8 @@ import json
 import os
 
 from ...provenance import provenance
-from ...result import (SuiteResult, atomic_write, discard, escape_controls, json_text,
-                      output_target, staged_writes)
+from ...result import (SuiteResult, atomic_write, canary_words, discard, escape_controls,
+                      json_text, output_target, staged_writes)
 from . import plots
 
 __all__ = ["build_report", "prepare_report", "render_html", "files_touched"]
@@ -178,11 +178,11 @@ def render_html(doc: dict, images: dict[str, bytes], captions: dict | None = Non
     if ver is None:
         parts.append("<p>No verification suite was run.</p>")
     else:
+        canaries = canary_words(len(ver.get("canary") or ()), ver["canary_bitten"],
+                                lambda words: f"<b>{words}</b>")
         parts.append(f"<p>Suite <b>{_e(ver['suite'])}</b>: {ver['n_checks'] - ver['n_failed']}"
                      f" passed, {ver['n_failed']} failed, family-wise α = {ver['alpha']} "
-                     f"({_e(ver['correction'])}); "
-                     f"{_canaries_html(ver)}; "
-                     f"{ver['seconds']:.1f} s.</p>")
+                     f"({_e(ver['correction'])}); {canaries}; {ver['seconds']:.1f} s.</p>")
         rows = sorted(ver["results"], key=lambda r: (r["passed"], r["name"]))
         parts.append("<table><tr><th>check</th><th>verdict</th><th>p</th><th>p adjusted</th>"
                      "<th>α</th><th>n</th><th>seconds</th><th>why</th></tr>")
@@ -298,10 +298,3 @@ window.addEventListener("load", function () {
 });
 </script></body></html>
 """
-
-
-def _canaries_html(ver: dict) -> str:
-    """The page's word on the suite's canaries: none run, bitten, or NOT bitten."""
-    if not ver.get("canary"):
-        return "no canaries"
-    return "canaries bitten" if ver["canary_bitten"] else "canaries <b>NOT bitten</b>"
