@@ -550,6 +550,12 @@ def _refine_suspicious(density, edges, counts, integral, n, m):
     return mass, error, n_evals, unconverged, leaves, seen
 
 
+#: How far outside the range a cell's cubature read a pilot point's density must lie to
+#: be a feature its rules never met: one factor for ``_unseen_kernel``'s table and cells
+#: and for ``_beside``'s neighbours (the table's test must be no stricter than a cell's).
+_UNSEEN_FOLD = 4.0
+
+
 def _pilot_unseen(density, edges, seen, pilot_s, screen, jacobian, mass, error, n, leaves,
                   azimuth=False):
     """Cells where the pdf at a pilot point lies more than 4-fold outside every value
@@ -684,9 +690,9 @@ def _unseen_kernel(s0, s1, screen, jacobian, e0, e1, lo, hi, out):
         bx, by = int(x), int(y)
         t = bx * k1 + by
         v = screen[i] * jacobian
-        if v > 4.0 * table[t, 1] or v < 0.25 * table[t, 0]:
+        if v > _UNSEEN_FOLD * table[t, 1] or v < table[t, 0] / _UNSEEN_FOLD:
             a, b = _cell_of(e0, fine0, s0[i]), _cell_of(e1, fine1, s1[i])
-            if v > 4.0 * hi[a, b] or v < 0.25 * lo[a, b]:
+            if v > _UNSEEN_FOLD * hi[a, b] or v < lo[a, b] / _UNSEEN_FOLD:
                 out[c] = i
                 c += 1
     return c
@@ -716,7 +722,7 @@ def _beside(edges, pts, pos, values, seen, azimuth):
         ok = np.all((at >= 0) & (at < np.array(shape)), axis=1)
         q, at, v = q[ok], at[ok], values[ok]
         c = np.ravel_multi_index(tuple(at.T), shape)
-        ok = (v > 4.0 * hi_v[c]) | (v < 0.25 * lo_v[c])
+        ok = (v > _UNSEEN_FOLD * hi_v[c]) | (v < lo_v[c] / _UNSEEN_FOLD)
         q, at = q[ok], at[ok]
         for j, ed in enumerate(edges):
             q[:, j] = np.clip(q[:, j], ed[at[:, j]], ed[at[:, j] + 1])
